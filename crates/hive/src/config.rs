@@ -1,0 +1,328 @@
+//! Training configuration in two phases: serde structs with defaults that
+//! refuse unknown keys, `--set key=value` overrides applied to the TOML tree,
+//! then validation into a config every role can trust. The resolved config is
+//! written into the run directory and read back by the roles.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use serde::{Deserialize, Serialize};
+
+use rotorhive_sim::{Arena, CameraSpec, SimConfig};
+
+/// The whole configuration of a run.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Config {
+    /// Seed of everything random in the run.
+    pub seed: u64,
+    /// Wall-clock budget of `hive train` (s).
+    pub max_seconds: f64,
+    /// Rolling mean episode reward that counts as converged.
+    pub threshold: f64,
+    /// Episodes in the rolling mean.
+    pub rolling_window: usize,
+    /// Simulator settings.
+    pub sim: SimSection,
+    /// Actor settings.
+    pub actor: ActorSection,
+    /// Replay settings.
+    pub replay: ReplaySection,
+    /// Learner settings.
+    pub learner: LearnerSection,
+}
+
+/// `[sim]`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SimSection {
+    /// Simulator processes.
+    pub envs: usize,
+    /// Agents per simulator.
+    pub agents: usize,
+    /// Arena file.
+    pub arena: PathBuf,
+    /// `cpu` (ray casting) or `wgpu`.
+    pub renderer: String,
+    /// `batched` or `non-batched`.
+    pub observation_mode: String,
+    /// Drones collide with and see each other.
+    pub interactive: bool,
+    /// Physics step (s).
+    pub physics_dt: f32,
+    /// Simulated seconds per action.
+    pub action_period: f32,
+    /// Steps before a timeout.
+    pub max_steps: u32,
+    /// Depth clip range (m).
+    pub depth_range: f32,
+    /// Threads for CPU rendering.
+    pub render_threads: usize,
+}
+
+/// `[actor]`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ActorSection {
+    /// Initial exploration rate.
+    pub eps_start: f64,
+    /// Final exploration rate.
+    pub eps_end: f64,
+    /// Transitions (across all actors) over which epsilon decays linearly,
+    /// counted from the moment the replay memory is full.
+    pub eps_decay: u64,
+    /// Threads for inference.
+    pub threads: usize,
+}
+
+/// `[replay]`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ReplaySection {
+    /// Capacity of the FIFO memory (transitions).
+    pub capacity: usize,
+    /// Transitions stored before training starts.
+    pub min_fill: usize,
+    /// Minibatch size.
+    pub batch: usize,
+    /// Minibatches queued ahead for the learner.
+    pub prefetch: usize,
+}
+
+/// `[learner]`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LearnerSection {
+    /// Adam learning rate.
+    pub lr: f64,
+    /// Discount.
+    pub gamma: f64,
+    /// Updates between target-network copies.
+    pub target_update: u64,
+    /// Largest update rate (Hz); 0 is unlimited.
+    pub max_rate_hz: f64,
+    /// Updates between weight publications.
+    pub publish_every: u64,
+    /// Seconds between checkpoints.
+    pub checkpoint_every_s: f64,
+    /// Threads for training.
+    pub threads: usize,
+    /// Huber loss threshold.
+    pub huber_delta: f64,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Self {
+            seed: 1,
+            max_seconds: 600.0,
+            threshold: 300.0,
+            rolling_window: 50,
+            sim: SimSection::default(),
+            actor: ActorSection::default(),
+            replay: ReplaySection::default(),
+            learner: LearnerSection::default(),
+        }
+    }
+}
+
+impl Default for SimSection {
+    fn default() -> Self {
+        Self {
+            envs: 1,
+            agents: 50,
+            arena: PathBuf::from("configs/arenas/train.toml"),
+            renderer: "cpu".into(),
+            observation_mode: "batched".into(),
+            interactive: false,
+            physics_dt: 0.02,
+            action_period: 1.0,
+            max_steps: 400,
+            depth_range: 20.0,
+            render_threads: 1,
+        }
+    }
+}
+
+impl Default for ActorSection {
+    fn default() -> Self {
+        Self { eps_start: 1.0, eps_end: 0.02, eps_decay: 30_000, threads: 1 }
+    }
+}
+
+impl Default for ReplaySection {
+    fn default() -> Self {
+        Self { capacity: 15_000, min_fill: 15_000, batch: 32, prefetch: 4 }
+    }
+}
+
+impl Default for LearnerSection {
+    fn default() -> Self {
+        Self { lr: 5e-4, gamma: 0.99, target_update: 150, max_rate_hz: 0.0, publish_every: 10, checkpoint_every_s: 20.0, threads: 1, huber_delta: 1.0 }
+    }
+}
+
+impl Config {
+    /// Reads a config file (or the defaults when `path` is `None`), applies
+    /// `key=value` overrides and validates the result.
+    pub fn load(path: Option<&Path>, overrides: &[String]) -> Result<Self> {
+        let (text, source) = match path {
+            Some(p) => (std::fs::read_to_string(p).with_context(|| format!("config {}: cannot read", p.display()))?, p.display().to_string()),
+            None => (String::new(), "defaults".to_string()),
+        };
+        let mut table: toml::Table = toml::from_str(&text).map_err(|e| anyhow::anyhow!("config {source}: {}", e.to_string().trim_end()))?;
+        for o in overrides {
+            apply_override(&mut table, o)?;
+        }
+        let cfg: Config = Config::deserialize(toml::Value::Table(table)).map_err(|e| anyhow::anyhow!("config {source}: {}", e.to_string().trim_end()))?;
+        cfg.validate().with_context(|| format!("config {source}"))?;
+        Ok(cfg)
+    }
+
+    /// Checks every value a role relies on.
+    pub fn validate(&self) -> Result<()> {
+        fn positive(key: &str, v: f64) -> Result<()> {
+            if !(v.is_finite() && v > 0.0) {
+                bail!("key `{key}` must be positive, got {v}");
+            }
+            Ok(())
+        }
+        positive("max_seconds", self.max_seconds)?;
+        positive("rolling_window", self.rolling_window as f64)?;
+        let s = &self.sim;
+        positive("sim.envs", s.envs as f64)?;
+        positive("sim.agents", s.agents as f64)?;
+        positive("sim.physics_dt", s.physics_dt as f64)?;
+        positive("sim.action_period", s.action_period as f64)?;
+        positive("sim.max_steps", s.max_steps as f64)?;
+        positive("sim.depth_range", s.depth_range as f64)?;
+        positive("sim.render_threads", s.render_threads as f64)?;
+        if s.physics_dt > s.action_period {
+            bail!("key `sim.physics_dt` ({}) must not exceed `sim.action_period` ({})", s.physics_dt, s.action_period);
+        }
+        if s.envs > 64 || s.agents > 4096 {
+            bail!("keys `sim.envs` ({}) and `sim.agents` ({}) must be at most 64 and 4096", s.envs, s.agents);
+        }
+        if !["cpu", "wgpu"].contains(&s.renderer.as_str()) {
+            bail!("key `sim.renderer` must be \"cpu\" or \"wgpu\", got {:?}", s.renderer);
+        }
+        if s.renderer == "wgpu" {
+            bail!("key `sim.renderer`: the wgpu renderer is not built yet (issue 5); use \"cpu\"");
+        }
+        if !["batched", "non-batched"].contains(&s.observation_mode.as_str()) {
+            bail!("key `sim.observation_mode` must be \"batched\" or \"non-batched\", got {:?}", s.observation_mode);
+        }
+        let a = &self.actor;
+        for (k, v) in [("actor.eps_start", a.eps_start), ("actor.eps_end", a.eps_end)] {
+            if !(0.0..=1.0).contains(&v) {
+                bail!("key `{k}` must lie in [0, 1], got {v}");
+            }
+        }
+        positive("actor.threads", a.threads as f64)?;
+        let r = &self.replay;
+        positive("replay.capacity", r.capacity as f64)?;
+        positive("replay.batch", r.batch as f64)?;
+        positive("replay.prefetch", r.prefetch as f64)?;
+        if r.batch > r.capacity {
+            bail!("key `replay.batch` ({}) is larger than `replay.capacity` ({})", r.batch, r.capacity);
+        }
+        if r.min_fill > r.capacity {
+            bail!("key `replay.min_fill` ({}) is larger than `replay.capacity` ({})", r.min_fill, r.capacity);
+        }
+        let l = &self.learner;
+        positive("learner.lr", l.lr)?;
+        if !(0.0..1.0).contains(&l.gamma) {
+            bail!("key `learner.gamma` must lie in [0, 1), got {}", l.gamma);
+        }
+        positive("learner.target_update", l.target_update as f64)?;
+        positive("learner.publish_every", l.publish_every as f64)?;
+        positive("learner.checkpoint_every_s", l.checkpoint_every_s)?;
+        positive("learner.threads", l.threads as f64)?;
+        positive("learner.huber_delta", l.huber_delta)?;
+        if !(l.max_rate_hz.is_finite() && l.max_rate_hz >= 0.0) {
+            bail!("key `learner.max_rate_hz` must be 0 (unlimited) or positive, got {}", l.max_rate_hz);
+        }
+        Ok(())
+    }
+
+    /// Loads the arena this config names.
+    pub fn arena(&self) -> Result<Arena> {
+        Ok(Arena::load(&self.sim.arena)?)
+    }
+
+    /// The simulator settings for one environment.
+    pub fn sim_config(&self) -> SimConfig {
+        let s = &self.sim;
+        SimConfig {
+            agents: s.agents,
+            physics_dt: s.physics_dt,
+            action_period: s.action_period,
+            max_steps: s.max_steps,
+            interactive: s.interactive,
+            camera: CameraSpec { range: s.depth_range, ..CameraSpec::default() },
+            render_threads: s.render_threads,
+            ..SimConfig::default()
+        }
+    }
+
+    /// The resolved config as TOML.
+    pub fn to_toml(&self) -> String {
+        toml::to_string(self).expect("a config always serialises")
+    }
+}
+
+/// Applies one `a.b=value` override; the value is parsed as TOML, or taken as
+/// a string when it does not parse.
+fn apply_override(table: &mut toml::Table, o: &str) -> Result<()> {
+    let Some((key, raw)) = o.split_once('=') else {
+        bail!("override {o:?} is not of the form key=value");
+    };
+    let key = key.trim();
+    let value: toml::Value = match toml::from_str::<toml::Table>(&format!("v = {raw}")) {
+        Ok(mut t) => t.remove("v").expect("parsed"),
+        Err(_) => toml::Value::String(raw.to_string()),
+    };
+    let parts: Vec<&str> = key.split('.').collect();
+    if parts.iter().any(|p| p.is_empty()) {
+        bail!("override {o:?}: empty key part");
+    }
+    let mut t = table;
+    for p in &parts[..parts.len() - 1] {
+        t = t
+            .entry(p.to_string())
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()))
+            .as_table_mut()
+            .with_context(|| format!("override {o:?}: `{p}` is not a section"))?;
+    }
+    t.insert(parts[parts.len() - 1].to_string(), value);
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_validate_and_round_trip() {
+        let c = Config::default();
+        c.validate().unwrap();
+        let back: Config = toml::from_str(&c.to_toml()).unwrap();
+        assert_eq!(back.to_toml(), c.to_toml());
+    }
+
+    #[test]
+    fn overrides_apply_and_bad_values_are_named() {
+        let c = Config::load(None, &["sim.agents=7".into(), "learner.lr=0.01".into(), "sim.observation_mode=non-batched".into()]).unwrap();
+        assert_eq!(c.sim.agents, 7);
+        assert_eq!(c.learner.lr, 0.01);
+        assert_eq!(c.sim.observation_mode, "non-batched");
+        let e = format!("{:#}", Config::load(None, &["sim.agents=0".into()]).unwrap_err());
+        assert!(e.contains("sim.agents"), "{e}");
+        let e = format!("{:#}", Config::load(None, &["sim.agnets=3".into()]).unwrap_err());
+        assert!(e.contains("agnets"), "{e}");
+        let e = format!("{:#}", Config::load(None, &["replay.batch=20000".into()]).unwrap_err());
+        assert!(e.contains("replay.batch"), "{e}");
+        let e = format!("{:#}", Config::load(None, &["sim.agents=\"many\"".into()]).unwrap_err());
+        assert!(e.contains("agents") || e.contains("invalid type"), "{e}");
+    }
+}

@@ -1,0 +1,124 @@
+//! `hive`: the rotorhive command line. One binary with a subcommand per role
+//! (`sim`, `actor`, `replay`, `learner`), the main job (`train`), evaluation,
+//! pictures and system benchmarks.
+
+mod bench;
+mod config;
+mod draw;
+mod eval;
+mod roles;
+mod train;
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Args, Parser, Subcommand};
+
+/// Trains simulated quadrotors to fly through obstacle fields from depth
+/// images, with every process talking through zero-copy shared memory.
+#[derive(Parser, Debug)]
+#[command(name = "hive", version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+/// A config file and overrides, shared by `train` and the roles.
+#[derive(Args, Debug, Clone)]
+pub struct ConfigArgs {
+    /// Config file (TOML); the built-in defaults when absent.
+    pub config: Option<PathBuf>,
+    /// Override a config key, e.g. `--set sim.agents=10` (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+}
+
+/// What every role needs to find its run.
+#[derive(Args, Debug, Clone)]
+pub struct RoleArgs {
+    #[command(flatten)]
+    pub cfg: ConfigArgs,
+    /// Service-name prefix of the run (every service of a run starts with it).
+    #[arg(long)]
+    pub prefix: String,
+    /// Run directory (checkpoints are written here).
+    #[arg(long)]
+    pub run_dir: Option<PathBuf>,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Train: start every role as a child process and supervise them.
+    Train(train::TrainArgs),
+    /// Run one simulator (environment E) as its own process.
+    Sim {
+        #[command(flatten)]
+        role: RoleArgs,
+        /// Environment index.
+        #[arg(long, default_value_t = 0)]
+        env: usize,
+    },
+    /// Run the actor paired with simulator E.
+    Actor {
+        #[command(flatten)]
+        role: RoleArgs,
+        /// Environment index.
+        #[arg(long, default_value_t = 0)]
+        env: usize,
+    },
+    /// Run the replay memory.
+    Replay {
+        #[command(flatten)]
+        role: RoleArgs,
+    },
+    /// Run the learner.
+    Learner {
+        #[command(flatten)]
+        role: RoleArgs,
+    },
+    /// Evaluate a checkpoint with the greedy policy.
+    Eval(eval::EvalArgs),
+    /// System benchmarks; each prints one JSON line with --json.
+    #[command(subcommand)]
+    Bench(bench::BenchCmd),
+    /// Draw an arena from above, optionally with random-policy trajectories.
+    RenderArena(draw::RenderArenaArgs),
+    /// Write one agent's two depth frames as a PNG.
+    ShowDepth(draw::ShowDepthArgs),
+    /// Generate a random arena file.
+    GenArena(draw::GenArenaArgs),
+}
+
+fn main() -> ExitCode {
+    let cli = match Cli::try_parse() {
+        Ok(c) => c,
+        Err(e) => {
+            // Help and version go to stdout with success; usage errors exit 2.
+            let _ = e.print();
+            return if e.use_stderr() { ExitCode::from(2) } else { ExitCode::SUCCESS };
+        }
+    };
+    tracing_subscriber::fmt()
+        .with_env_filter(tracing_subscriber::EnvFilter::try_from_env("HIVE_LOG").unwrap_or_else(|_| "warn".into()))
+        .with_writer(std::io::stderr)
+        .init();
+    let result = match cli.command {
+        Command::Train(a) => train::run(a),
+        Command::Sim { role, env } => roles::sim::run(role, env),
+        Command::Actor { role, env } => roles::actor::run(role, env),
+        Command::Replay { role } => roles::replay::run(role),
+        Command::Learner { role } => roles::learner::run(role),
+        Command::Eval(a) => eval::run(a),
+        Command::Bench(b) => bench::run(b),
+        Command::RenderArena(a) => draw::render_arena(a),
+        Command::ShowDepth(a) => draw::show_depth(a),
+        Command::GenArena(a) => draw::gen_arena(a),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

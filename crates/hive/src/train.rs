@@ -1,0 +1,5 @@
+//! hive train.
+use anyhow::{Result, bail};
+#[derive(clap::Args, Debug)]
+pub struct TrainArgs {}
+pub fn run(_a: TrainArgs) -> Result<()> { bail!("not built yet") }

@@ -1,0 +1,160 @@
+//! Quadrotor model and its cascaded flight controller.
+//!
+//! The controller follows the structure of AirSim's SimpleFlight and
+//! gym-pybullet-drones' DSL PID: a velocity setpoint becomes an acceleration
+//! command, the acceleration a desired thrust vector and attitude (yaw held at
+//! zero), the attitude error desired body rates, the rate error body torques,
+//! and a mixer turns thrust and torques into four rotor thrusts, clamped to what
+//! the rotors can give. The physics engine then applies those thrusts at the
+//! rotor positions. Rotor spin-up is taken as instantaneous.
+
+use rapier3d::math::{Rotation, Vector};
+
+/// Physical constants of the quadrotor (an X-frame of about 1 kg).
+#[derive(Debug, Clone, Copy)]
+pub struct QuadParams {
+    /// Mass (kg).
+    pub mass: f32,
+    /// Principal inertia about body x, y, z (kg m²).
+    pub inertia: [f32; 3],
+    /// Distance from the centre to each rotor (m).
+    pub arm: f32,
+    /// Maximum thrust of one rotor (N).
+    pub max_rotor_thrust: f32,
+    /// Rotor drag torque per newton of thrust (m).
+    pub torque_coeff: f32,
+}
+
+impl Default for QuadParams {
+    fn default() -> Self {
+        Self { mass: 1.0, inertia: [0.01, 0.01, 0.018], arm: 0.15, max_rotor_thrust: 7.0, torque_coeff: 0.016 }
+    }
+}
+
+/// Controller gains.
+#[derive(Debug, Clone, Copy)]
+pub struct Gains {
+    /// Velocity error to acceleration (1/s), horizontal.
+    pub vel_xy: f32,
+    /// Velocity error to acceleration (1/s), vertical.
+    pub vel_z: f32,
+    /// Altitude error to vertical velocity (1/s).
+    pub alt: f32,
+    /// Largest horizontal acceleration commanded (m/s²); bounds the tilt.
+    pub max_acc_xy: f32,
+    /// Attitude error to body rate (1/s).
+    pub att: f32,
+    /// Yaw error to yaw rate (1/s).
+    pub att_yaw: f32,
+    /// Body-rate error to angular acceleration (1/s).
+    pub rate: f32,
+}
+
+impl Default for Gains {
+    fn default() -> Self {
+        Self { vel_xy: 2.5, vel_z: 4.0, alt: 1.5, max_acc_xy: 6.0, att: 9.0, att_yaw: 3.0, rate: 22.0 }
+    }
+}
+
+/// State of one drone as the controller sees it (world frame).
+#[derive(Debug, Clone, Copy)]
+pub struct DroneState {
+    /// Position (m).
+    pub position: Vector,
+    /// Linear velocity (m/s).
+    pub velocity: Vector,
+    /// Body-to-world rotation.
+    pub rotation: Rotation,
+    /// Angular velocity in the world frame (rad/s).
+    pub angvel: Vector,
+}
+
+/// What the controller asks of the rotors, in the world frame, for one physics step.
+#[derive(Debug, Clone, Copy)]
+pub struct RotorCommand {
+    /// Thrust of each rotor (N), clamped to `[0, max_rotor_thrust]`.
+    pub thrusts: [f32; 4],
+    /// Rotor positions relative to the centre, world frame (m).
+    pub arms_world: [Vector; 4],
+    /// Thrust direction, world frame (the body z axis).
+    pub thrust_dir: Vector,
+    /// Drag torque of the rotors about the body z axis, world frame (N m).
+    pub yaw_torque: Vector,
+}
+
+/// Rotor positions in the body frame (X configuration) and their spin sense.
+fn rotors(arm: f32) -> ([Vector; 4], [f32; 4]) {
+    let l = arm / std::f32::consts::SQRT_2;
+    ([Vector::new(l, l, 0.0), Vector::new(-l, l, 0.0), Vector::new(-l, -l, 0.0), Vector::new(l, -l, 0.0)], [1.0, -1.0, 1.0, -1.0])
+}
+
+/// Runs the cascade once: velocity setpoint (world frame, z ignored) and
+/// altitude setpoint in, rotor thrusts out.
+pub fn control(p: &QuadParams, g: &Gains, s: &DroneState, vel_sp: Vector, alt_sp: f32) -> RotorCommand {
+    const GRAVITY: f32 = 9.81;
+    // Velocity loop (altitude held by an outer position loop on z).
+    let vz_sp = (g.alt * (alt_sp - s.position.z)).clamp(-2.0, 2.0);
+    let mut acc = Vector::new(g.vel_xy * (vel_sp.x - s.velocity.x), g.vel_xy * (vel_sp.y - s.velocity.y), g.vel_z * (vz_sp - s.velocity.z));
+    let h = (acc.x * acc.x + acc.y * acc.y).sqrt();
+    if h > g.max_acc_xy {
+        acc.x *= g.max_acc_xy / h;
+        acc.y *= g.max_acc_xy / h;
+    }
+    let force = (acc + Vector::Z * GRAVITY) * p.mass;
+
+    // Desired attitude: body z along the force, yaw zero.
+    let bz_d = force.normalize_or(Vector::Z);
+    let by_d = bz_d.cross(Vector::X).normalize_or(Vector::Y);
+    let bx_d = by_d.cross(bz_d);
+    let r = s.rotation;
+    let (bx, by, bz) = (r * Vector::X, r * Vector::Y, r * Vector::Z);
+    let collective = force.dot(bz).max(0.0);
+
+    // Attitude error e = ½ vee(R_dᵀR − RᵀR_d) in the body frame (Lee et al.);
+    // with M = R_dᵀR, M_ij = bd_i · b_j.
+    let e = Vector::new(
+        0.5 * (bz_d.dot(by) - by_d.dot(bz)),
+        0.5 * (bx_d.dot(bz) - bz_d.dot(bx)),
+        0.5 * (by_d.dot(bx) - bx_d.dot(by)),
+    );
+    let rate_sp = Vector::new(-g.att * e.x, -g.att * e.y, -g.att_yaw * e.z);
+    let w_body = r.inverse() * s.angvel;
+    let j = Vector::from(p.inertia);
+    let tau = j * ((rate_sp - w_body) * g.rate) + w_body.cross(j * w_body);
+
+    // Mixer for the X frame (see `rotors`), then the rotors' limits.
+    let l = p.arm / std::f32::consts::SQRT_2;
+    let (t4, x4, y4, z4) = (collective / 4.0, tau.x / (4.0 * l), tau.y / (4.0 * l), tau.z / (4.0 * p.torque_coeff));
+    let mut f = [t4 + x4 - y4 + z4, t4 + x4 + y4 - z4, t4 - x4 + y4 + z4, t4 - x4 - y4 - z4];
+    for fi in &mut f {
+        *fi = fi.clamp(0.0, p.max_rotor_thrust);
+    }
+    let (arms, spin) = rotors(p.arm);
+    let yaw = p.torque_coeff * (spin[0] * f[0] + spin[1] * f[1] + spin[2] * f[2] + spin[3] * f[3]);
+    RotorCommand { thrusts: f, arms_world: arms.map(|a| r * a), thrust_dir: bz, yaw_torque: bz * yaw }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn hover_thrust_balances_gravity() {
+        let p = QuadParams::default();
+        let s = DroneState { position: Vector::new(0.0, 0.0, 2.0), velocity: Vector::ZERO, rotation: Rotation::IDENTITY, angvel: Vector::ZERO };
+        let c = control(&p, &Gains::default(), &s, Vector::ZERO, 2.0);
+        let total: f32 = c.thrusts.iter().sum();
+        assert!((total - 9.81).abs() < 1e-3, "{total}");
+        assert!(c.thrusts.iter().all(|f| (f - total / 4.0).abs() < 1e-4));
+    }
+
+    #[test]
+    fn a_forward_setpoint_tilts_the_thrust_forward() {
+        let p = QuadParams::default();
+        let s = DroneState { position: Vector::new(0.0, 0.0, 2.0), velocity: Vector::ZERO, rotation: Rotation::IDENTITY, angvel: Vector::ZERO };
+        let c = control(&p, &Gains::default(), &s, Vector::new(1.0, 0.0, 0.0), 2.0);
+        // Pitching forward (nose down) is a positive rotation about body y:
+        // the rear rotors (1, 2) must push harder than the front ones.
+        assert!(c.thrusts[1] + c.thrusts[2] > c.thrusts[0] + c.thrusts[3], "{:?}", c.thrusts);
+    }
+}

@@ -1,0 +1,13 @@
+//! The rotorhive simulator: N quadrotors in an obstacle arena, physics on
+//! rapier, cascaded flight control, and batched CPU depth rendering.
+//!
+//! Pure domain code: it takes explicit state and never touches the transport.
+
+pub mod arena;
+pub mod dynamics;
+pub mod env;
+pub mod render;
+
+pub use arena::{Arena, ArenaError, GenParams, Obstacle, Spawn};
+pub use env::{Done, Episode, SimConfig, StepTiming, VecEnv};
+pub use render::{CameraPose, CameraSpec, DepthRenderer, Scene};

@@ -1,0 +1,209 @@
+//! Behaviour of the vectorised environment: flight control, collisions,
+//! non-interaction, per-agent reset, determinism and the shipped arenas.
+
+use std::path::PathBuf;
+
+use rotorhive_sim::{Arena, Done, Obstacle, SimConfig, Spawn, VecEnv};
+
+fn open_arena(length: f32, obstacles: Vec<Obstacle>) -> Arena {
+    Arena { name: "open".into(), length, width: 20.0, height: 8.0, spawn: Spawn { x: 2.0, y: [0.0, 0.0], z: 3.0 }, obstacles }
+}
+
+fn cfg(agents: usize) -> SimConfig {
+    SimConfig { agents, ..SimConfig::default() }
+}
+
+fn arena_file(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../configs/arenas").join(name)
+}
+
+#[test]
+fn hover_holds_altitude() {
+    let mut env = VecEnv::new(SimConfig { forward_speed: 0.0, ..cfg(1) }, open_arena(100.0, vec![]), 1);
+    env.place(0, [10.0, 0.0, 3.0], [0.0, 0.0, 0.0]);
+    for _ in 0..10 {
+        env.fly(&[0.0], 1.0);
+        let s = env.state(0);
+        assert!((s.position.z - 3.0).abs() < 0.05, "altitude drifted to {}", s.position.z);
+        assert!(s.velocity.length() < 0.05, "hover drifts at {:?}", s.velocity);
+    }
+}
+
+#[test]
+fn velocity_setpoint_is_tracked_within_ten_percent_after_two_seconds() {
+    for (forward, lateral) in [(1.0f32, 0.0f32), (1.0, 1.0), (1.0, -0.75), (0.0, 2.0)] {
+        let mut env = VecEnv::new(SimConfig { forward_speed: forward, ..cfg(1) }, open_arena(200.0, vec![]), 1);
+        env.place(0, [10.0, 0.0, 3.0], [0.0, 0.0, 0.0]);
+        env.fly(&[lateral], 2.0);
+        let v = env.state(0).velocity;
+        let want = (forward * forward + lateral * lateral).sqrt();
+        let err = ((v.x - forward).powi(2) + (v.y - lateral).powi(2)).sqrt();
+        assert!(err <= 0.1 * want, "setpoint ({forward}, {lateral}) reached {v:?}");
+        assert!((env.state(0).position.z - 3.0).abs() < 0.15);
+    }
+}
+
+#[test]
+fn flying_into_an_obstacle_is_a_collision_and_resets_only_that_agent() {
+    // Agent 0 spawns right in front of a wall; agent 1 flies in open air beside it.
+    let wall = Obstacle::Box { center: [5.0, -5.0, 4.0], half_extents: [0.5, 4.0, 4.0] };
+    let mut env = VecEnv::new(cfg(2), open_arena(100.0, vec![wall]), 3);
+    env.place(0, [2.0, -5.0, 3.0], [1.0, 0.0, 0.0]);
+    env.place(1, [2.0, 5.0, 3.0], [1.0, 0.0, 0.0]);
+    let mut hit_at = None;
+    for step in 0..6 {
+        // Alternate actions keep the lateral setpoint near zero: straight flight.
+        env.step(&[(step % 2) as u8, (step % 2) as u8]);
+        if env.dones()[0] == Done::Collision {
+            hit_at = Some(step);
+            break;
+        }
+        assert_eq!(env.dones()[1], Done::Running);
+    }
+    let hit_at = hit_at.expect("agent 0 never hit the wall");
+    assert!(hit_at >= 1, "hit too early at step {hit_at}");
+    assert_eq!(env.rewards()[0], -100.0);
+    assert_eq!(env.rewards()[1], 3.0);
+    assert_eq!(env.finished().len(), 1);
+    assert_eq!(env.finished()[0].agent, 0);
+    // Agent 0 is back at the spawn, agent 1 went on undisturbed.
+    let p = env.positions();
+    assert!((p[0][0] - 2.0).abs() < 1e-4, "{p:?}");
+    assert!(p[1][0] > 4.0, "{p:?}");
+    // A reset agent's two frames are the same first view.
+    let obs = env.observations();
+    let len = env.obs_len();
+    assert_eq!(&obs[..1024], &obs[1024..2048]);
+    assert_ne!(&obs[len..len + 1024], &obs[len + 1024..len + 2048]);
+}
+
+#[test]
+fn agents_pass_through_and_do_not_see_each_other_unless_interactive() {
+    // Two drones on crossing paths at the same spot.
+    let run = |interactive: bool| {
+        let mut env = VecEnv::new(SimConfig { interactive, ..cfg(2) }, open_arena(100.0, vec![]), 5);
+        env.place(0, [10.0, -1.5, 3.0], [1.0, 0.0, 0.0]);
+        env.place(1, [10.0, 1.5, 3.0], [1.0, 0.0, 0.0]);
+        let front_depth_of_1 = |env: &VecEnv| env.observations()[env.obs_len() + 1024..env.obs_len() + 2048].to_vec();
+        let mut saw_other = false;
+        let mut collided = false;
+        let mut clear_view = front_depth_of_1(&env);
+        // Agent 0 steers right (+y), agent 1 left (−y), so they meet.
+        for _ in 0..6 {
+            env.step(&[1, 0]);
+            collided |= env.dones().iter().any(|d| *d == Done::Collision);
+            let view = front_depth_of_1(&env);
+            saw_other |= view.iter().zip(&clear_view).any(|(a, b)| (a - b).abs() > 0.05);
+            clear_view = view;
+        }
+        (collided, saw_other)
+    };
+    let (collided, _) = run(false);
+    assert!(!collided, "non-interactive drones collided");
+    let (collided, _) = run(true);
+    assert!(collided, "interactive drones flew through each other");
+}
+
+#[test]
+fn non_interactive_depth_ignores_other_drones() {
+    let mut env = VecEnv::new(cfg(2), open_arena(100.0, vec![]), 5);
+    env.place(0, [10.0, 0.0, 3.0], [1.0, 0.0, 0.0]);
+    env.place(1, [13.0, 0.0, 3.0], [1.0, 0.0, 0.0]);
+    env.step(&[0, 1]);
+    let mut alone = VecEnv::new(cfg(1), open_arena(100.0, vec![]), 5);
+    alone.place(0, [10.0, 0.0, 3.0], [1.0, 0.0, 0.0]);
+    alone.step(&[0]);
+    assert_eq!(&env.observations()[1024..2048], &alone.observations()[1024..2048]);
+
+    let mut inter = VecEnv::new(SimConfig { interactive: true, ..cfg(2) }, open_arena(100.0, vec![]), 5);
+    inter.place(0, [10.0, 0.0, 3.0], [1.0, 0.0, 0.0]);
+    inter.place(1, [13.0, 0.0, 3.0], [1.0, 0.0, 0.0]);
+    inter.step(&[0, 1]);
+    let centre = inter.observations()[1024 + 15 * 32 + 15] * 20.0;
+    assert!(centre < 4.0, "interactive drone 0 should see drone 1 about 3 m ahead, read {centre}");
+}
+
+#[test]
+fn same_seed_same_trajectory() {
+    let arena = Arena::load(&arena_file("train.toml")).unwrap();
+    let run = |seed: u64| {
+        let mut env = VecEnv::new(cfg(4), arena.clone(), seed);
+        let mut trace = Vec::new();
+        for t in 0..30u32 {
+            let actions: Vec<u8> = (0..4).map(|i| ((t * 7 + i * 3) % 5 < 2) as u8).collect();
+            env.step(&actions);
+            trace.extend_from_slice(env.observations());
+            trace.extend_from_slice(env.rewards());
+        }
+        trace
+    };
+    let a = run(11);
+    assert_eq!(a, run(11));
+    assert_ne!(a, run(12));
+}
+
+#[test]
+fn timeout_ends_an_episode_with_its_penalty() {
+    let mut env = VecEnv::new(SimConfig { max_steps: 5, forward_speed: 0.0, ..cfg(1) }, open_arena(100.0, vec![]), 1);
+    for _ in 0..4 {
+        env.step(&[(env.total_steps() % 2) as u8]);
+        assert_eq!(env.dones()[0], Done::Running);
+    }
+    env.step(&[0]);
+    assert_eq!(env.dones()[0], Done::Timeout);
+    assert_eq!(env.finished()[0].reward, 4.0 * 3.0 - 10.0);
+}
+
+#[test]
+fn reaching_the_end_is_a_goal() {
+    let mut env = VecEnv::new(cfg(1), open_arena(8.0, vec![]), 1);
+    let mut done = Done::Running;
+    for t in 0..10 {
+        env.step(&[(t % 2) as u8]);
+        done = env.dones()[0];
+        if done != Done::Running {
+            break;
+        }
+    }
+    assert_eq!(done, Done::Goal);
+}
+
+/// Straight flight, or always the same action, collides before earning 300
+/// from every spawn point of the shipped arenas.
+#[test]
+fn shipped_arenas_punish_trivial_policies() {
+    for name in ["train.toml", "test.toml"] {
+        let arena = Arena::load(&arena_file(name)).unwrap();
+        let spawns: Vec<f32> = (0..9).map(|k| arena.spawn.y[0] + (arena.spawn.y[1] - arena.spawn.y[0]) * k as f32 / 8.0).collect();
+        let n = spawns.len();
+        for policy in ["straight", "always-left", "always-right"] {
+            let mut env = VecEnv::new(cfg(n), arena.clone(), 9);
+            for (i, y) in spawns.iter().enumerate() {
+                env.place(i, [arena.spawn.x, *y, arena.spawn.z], [1.0, 0.0, 0.0]);
+            }
+            let mut ended: Vec<Option<f32>> = vec![None; n];
+            for t in 0..120u32 {
+                let a: Vec<u8> = match policy {
+                    "straight" => vec![(t % 2) as u8; n],
+                    "always-left" => vec![1; n],
+                    _ => vec![0; n],
+                };
+                env.step(&a);
+                for ep in env.finished() {
+                    ended[ep.agent].get_or_insert(ep.reward);
+                }
+                if ended.iter().all(Option::is_some) {
+                    break;
+                }
+            }
+            for (i, e) in ended.iter().enumerate() {
+                let r = e.unwrap_or_else(|| panic!("{name}: {policy} from y = {} never crashed", spawns[i]));
+                assert!(r < 300.0, "{name}: {policy} from y = {} earned {r}", spawns[i]);
+            }
+        }
+        assert_ne!(name, "", "{}", arena.name);
+    }
+    let train = Arena::load(&arena_file("train.toml")).unwrap();
+    let test = Arena::load(&arena_file("test.toml")).unwrap();
+    assert_ne!(train.obstacles, test.obstacles, "train and test arenas must differ");
+}
