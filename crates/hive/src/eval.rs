@@ -1,5 +1,61 @@
-//! hive eval.
+//! `hive eval`: flies a checkpoint's greedy policy for N episodes (one per
+//! agent, all in one environment) and reports the success rate.
+
+use std::path::PathBuf;
+
 use anyhow::{Result, bail};
-#[derive(clap::Args, Debug)]
-pub struct EvalArgs {}
-pub fn run(_a: EvalArgs) -> Result<()> { bail!("not built yet") }
+use clap::Args;
+use rotorhive_model::{Device, QNet};
+use rotorhive_sim::{Arena, Done, SimConfig, VecEnv};
+
+#[derive(Args, Debug)]
+pub struct EvalArgs {
+    /// Weights (safetensors) written by `hive train`.
+    #[arg(long)]
+    pub checkpoint: PathBuf,
+    /// Arena to fly in.
+    #[arg(long, default_value = "configs/arenas/test.toml")]
+    pub arena: PathBuf,
+    /// Episodes.
+    #[arg(long, default_value_t = 100)]
+    pub episodes: usize,
+    /// Seed of the spawn positions.
+    #[arg(long, default_value_t = 12345)]
+    pub seed: u64,
+    /// Print one JSON object as the last line.
+    #[arg(long)]
+    pub json: bool,
+}
+
+pub fn run(a: EvalArgs) -> Result<()> {
+    if a.episodes == 0 {
+        bail!("--episodes must be positive");
+    }
+    let net = QNet::new(0, &Device::Cpu)?;
+    net.load(&a.checkpoint)?;
+    let arena = Arena::load(&a.arena)?;
+    let n = a.episodes;
+    let mut env = VecEnv::new(SimConfig { agents: n, ..SimConfig::default() }, arena, a.seed);
+    let mut result: Vec<Option<(f32, Done)>> = vec![None; n];
+    let max_steps = env.config().max_steps;
+    for _ in 0..max_steps + 1 {
+        let actions = net.greedy(env.observations())?;
+        env.step(&actions);
+        for ep in env.finished() {
+            result[ep.agent].get_or_insert((ep.reward, ep.done));
+        }
+        if result.iter().all(Option::is_some) {
+            break;
+        }
+    }
+    let done: Vec<(f32, Done)> = result.into_iter().flatten().collect();
+    let successes = done.iter().filter(|(_, d)| *d == Done::Goal).count();
+    let collisions = done.iter().filter(|(_, d)| *d == Done::Collision).count();
+    let mean_reward = done.iter().map(|(r, _)| *r as f64).sum::<f64>() / done.len().max(1) as f64;
+    let success_rate = successes as f64 / n as f64;
+    println!("{n} episodes on {}: success {:.1} %, collisions {collisions}, mean reward {mean_reward:.1}", a.arena.display(), success_rate * 100.0);
+    if a.json {
+        println!("{}", serde_json::json!({ "success_rate": success_rate, "mean_reward": mean_reward, "episodes": n, "collisions": collisions, "arena": a.arena.display().to_string() }));
+    }
+    Ok(())
+}

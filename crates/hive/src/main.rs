@@ -102,6 +102,8 @@ fn main() -> ExitCode {
         .with_env_filter(tracing_subscriber::EnvFilter::try_from_env("HIVE_LOG").unwrap_or_else(|_| "warn".into()))
         .with_writer(std::io::stderr)
         .init();
+    // iceoryx2 warns about running without a config file; only errors matter here.
+    iceoryx2::prelude::set_log_level(iceoryx2::prelude::LogLevel::Error);
     let result = match cli.command {
         Command::Train(a) => train::run(a),
         Command::Sim { role, env } => roles::sim::run(role, env),

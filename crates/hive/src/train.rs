@@ -1,5 +1,348 @@
-//! hive train.
-use anyhow::{Result, bail};
-#[derive(clap::Args, Debug)]
-pub struct TrainArgs {}
-pub fn run(_a: TrainArgs) -> Result<()> { bail!("not built yet") }
+//! `hive train`: the main job. Validates the config, creates the run
+//! directory, spawns every role as a child process of this binary, watches
+//! episodes and telemetry over shared memory, samples CPU and memory, shows
+//! progress, stops at the reward threshold or the time budget (or Ctrl-C),
+//! stops the children and writes `summary.json`, `metrics.csv`,
+//! `telemetry.csv` and `reward.png`.
+
+use std::collections::{BTreeMap, VecDeque};
+use std::fs::File;
+use std::io::Write;
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
+use rotorhive_msg::{RoleKind, Telemetry};
+use rotorhive_transport::{Channel, Hub, Ipc, cleanup_dead_nodes, services_of_run};
+use serde_json::json;
+use sysinfo::{Pid, ProcessesToUpdate, System};
+
+use crate::ConfigArgs;
+use crate::config::Config;
+use crate::roles::{EpisodeHeader, episodes_channel};
+
+#[derive(Args, Debug)]
+pub struct TrainArgs {
+    #[command(flatten)]
+    pub cfg: ConfigArgs,
+    /// Run directory (default `runs/<timestamp>`).
+    #[arg(long)]
+    pub run_dir: Option<PathBuf>,
+    /// Wall-clock budget in seconds (overrides `max_seconds`).
+    #[arg(long)]
+    pub max_seconds: Option<f64>,
+    /// No progress bar (for logs and tests).
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+struct Role {
+    name: String,
+    child: Child,
+}
+
+/// The children of a run; stopping them is also done on drop, so an early
+/// error never leaves processes (or their shared memory) behind.
+struct Children {
+    roles: Vec<Role>,
+}
+
+impl Children {
+    fn stop(&mut self) {
+        for r in &self.roles {
+            // SAFETY: plain kill(2) on our own child's pid.
+            unsafe { libc::kill(r.child.id() as i32, libc::SIGTERM) };
+        }
+        let deadline = Instant::now() + Duration::from_secs(10);
+        for r in &mut self.roles {
+            loop {
+                match r.child.try_wait() {
+                    Ok(Some(_)) => break,
+                    Ok(None) if Instant::now() < deadline => std::thread::sleep(Duration::from_millis(20)),
+                    _ => {
+                        let _ = r.child.kill();
+                        let _ = r.child.wait();
+                        break;
+                    }
+                }
+            }
+        }
+        self.roles.clear();
+        cleanup_dead_nodes();
+    }
+}
+
+impl Drop for Children {
+    fn drop(&mut self) {
+        self.stop();
+    }
+}
+
+fn timestamp() -> String {
+    let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
+    // UTC date and time without pulling in a calendar crate.
+    let (d, s) = (secs / 86_400, secs % 86_400);
+    let (y, m, dd) = civil_from_days(d as i64);
+    format!("{y:04}{m:02}{dd:02}-{:02}{:02}{:02}", s / 3600, (s / 60) % 60, s % 60)
+}
+
+/// Days since 1970-01-01 to a civil date (Howard Hinnant's algorithm).
+fn civil_from_days(z: i64) -> (i64, u32, u32) {
+    let z = z + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z.rem_euclid(146_097);
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = (doy - (153 * mp + 2) / 5 + 1) as u32;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 } as u32;
+    (yoe + era * 400 + (m <= 2) as i64, m, d)
+}
+
+pub fn run(a: TrainArgs) -> Result<()> {
+    let mut cfg = Config::load(a.cfg.config.as_deref(), &a.cfg.set)?;
+    if let Some(s) = a.max_seconds {
+        if !(s.is_finite() && s > 0.0) {
+            bail!("--max-seconds must be positive, got {s}");
+        }
+        cfg.max_seconds = s;
+    }
+    // Fail on a bad arena before anything starts.
+    cfg.arena()?;
+    let run_dir = a.run_dir.clone().unwrap_or_else(|| PathBuf::from("runs").join(timestamp()));
+    std::fs::create_dir_all(&run_dir).with_context(|| format!("cannot create run directory {}", run_dir.display()))?;
+    let run_dir = run_dir.canonicalize()?;
+    // Roles read the arena relative to their working directory: resolve it now.
+    cfg.sim.arena = cfg.sim.arena.canonicalize().with_context(|| format!("arena {}", cfg.sim.arena.display()))?;
+    let cfg_path = run_dir.join("config.toml");
+    std::fs::write(&cfg_path, cfg.to_toml()).with_context(|| format!("cannot write {}", cfg_path.display()))?;
+
+    // Resources of crashed earlier runs would otherwise linger in /dev/shm.
+    let stale = cleanup_dead_nodes();
+    if stale > 0 {
+        tracing::info!("cleaned {stale} dead iceoryx2 nodes of earlier runs");
+    }
+    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.subsec_nanos()).unwrap_or(0);
+    let prefix = format!("run-{}-{nanos:x}", std::process::id());
+    let hub = Hub::<Ipc>::new(&prefix, "train")?;
+    let envs = cfg.sim.envs;
+    let mut ep_rx = hub.receiver::<f32, EpisodeHeader>(&episodes_channel(envs))?;
+    let mut tel_rx = hub.receiver::<u8, Telemetry>(&Channel::telemetry(crate::roles::sim::roles_of(&cfg)))?;
+
+    let exe = std::env::current_exe().context("cannot find the hive executable")?;
+    let logs = run_dir.join("logs");
+    std::fs::create_dir_all(&logs)?;
+    let mut specs: Vec<(String, Vec<String>, usize)> = vec![
+        ("learner".into(), vec!["learner".into()], cfg.learner.threads),
+        ("replay".into(), vec!["replay".into()], 1),
+    ];
+    for e in 0..envs {
+        specs.push((format!("actor-{e}"), vec!["actor".into(), "--env".into(), e.to_string()], cfg.actor.threads));
+        specs.push((format!("sim-{e}"), vec!["sim".into(), "--env".into(), e.to_string()], cfg.sim.render_threads));
+    }
+    let mut children = Children { roles: Vec::new() };
+    for (name, args, threads) in specs {
+        let log = File::create(logs.join(format!("{name}.log")))?;
+        let child = Command::new(&exe)
+            .args(&args)
+            .arg(&cfg_path)
+            .args(["--prefix", &prefix, "--run-dir"])
+            .arg(&run_dir)
+            .env("RAYON_NUM_THREADS", threads.to_string())
+            .stdin(Stdio::null())
+            .stdout(log.try_clone()?)
+            .stderr(log)
+            .spawn()
+            .with_context(|| format!("cannot start role {name}"))?;
+        children.roles.push(Role { name, child });
+    }
+
+    let mut metrics = File::create(run_dir.join("metrics.csv"))?;
+    writeln!(metrics, "kind,wall_s,env_steps,episodes,episode_reward,rolling_reward,epsilon,updates,replay_size")?;
+    let mut telemetry = File::create(run_dir.join("telemetry.csv"))?;
+    writeln!(telemetry, "wall_s,role,index,pid,cpu_pct,rss_mb,machine_cpu_pct,heartbeat,work,work2,weight_version,lost,stage0_ms,stage1_ms,stage2_ms,stage3_ms")?;
+
+    let bar = if a.quiet { ProgressBar::hidden() } else { ProgressBar::new_spinner() };
+    bar.set_style(ProgressStyle::with_template("{spinner} [{elapsed_precise}] {msg}").expect("valid template"));
+    bar.enable_steady_tick(Duration::from_millis(200));
+
+    let start = Instant::now();
+    let window = cfg.rolling_window;
+    let mut recent: VecDeque<f32> = VecDeque::with_capacity(window);
+    let mut episodes = 0u64;
+    let mut successes_recent: VecDeque<bool> = VecDeque::with_capacity(window);
+    let mut curve: Vec<(f64, f64)> = Vec::new();
+    let mut epsilon = cfg.actor.eps_start;
+    let mut latest: BTreeMap<(u32, u32), Telemetry> = BTreeMap::new();
+    let mut sys = System::new().map_err(|e| anyhow::anyhow!("cannot read system statistics: {e}"))?;
+    let mut cpu_samples: Vec<f64> = Vec::new();
+    let mut peak_rss_mb = 0.0f64;
+    let mut time_to_threshold: Option<f64> = None;
+    let mut last_tick = Instant::now();
+    let mut failure: Option<String> = None;
+    let mut interrupted = false;
+    let rolling = |r: &VecDeque<f32>| if r.is_empty() { f64::NAN } else { r.iter().map(|v| *v as f64).sum::<f64>() / r.len() as f64 };
+    let sum_work = |latest: &BTreeMap<(u32, u32), Telemetry>, role: RoleKind| latest.values().filter(|t| t.role == role as u32).map(|t| t.work).sum::<u64>();
+    let threshold = cfg.threshold;
+
+    loop {
+        if hub.shutdown_requested() {
+            interrupted = true;
+            break;
+        }
+        // Episodes from every actor.
+        while let Some(m) = ep_rx.try_recv()? {
+            let h = *m.user_header();
+            epsilon = h.epsilon_micro as f64 / 1e6;
+            for e in m.payload().chunks_exact(3) {
+                episodes += 1;
+                if recent.len() == window {
+                    recent.pop_front();
+                    successes_recent.pop_front();
+                }
+                recent.push_back(e[0]);
+                successes_recent.push_back(e[2] == rotorhive_msg::DoneKind::Goal as u8 as f32);
+                let wall = start.elapsed().as_secs_f64();
+                let roll = rolling(&recent);
+                writeln!(
+                    metrics,
+                    "episode,{wall:.3},{},{episodes},{},{roll:.3},{epsilon:.4},{},{}",
+                    sum_work(&latest, RoleKind::Sim),
+                    e[0],
+                    sum_work(&latest, RoleKind::Learner),
+                    latest.get(&(RoleKind::Replay as u32, 0)).map(|t| t.value_milli).unwrap_or(0)
+                )?;
+                if recent.len() == window && roll >= threshold && time_to_threshold.is_none() {
+                    time_to_threshold = Some(wall);
+                }
+            }
+        }
+        while let Some(m) = tel_rx.try_recv()? {
+            let t = *m.user_header();
+            latest.insert((t.role, t.index), t);
+        }
+        if time_to_threshold.is_some() {
+            break;
+        }
+        // A role that exits on its own is a failure (restarts: issue 7).
+        for r in &mut children.roles {
+            if let Some(status) = r.child.try_wait()? {
+                failure = Some(format!("role {} exited with {status}; see {}", r.name, logs.join(format!("{}.log", r.name)).display()));
+            }
+        }
+        if failure.is_some() {
+            break;
+        }
+        let wall = start.elapsed().as_secs_f64();
+        if wall >= cfg.max_seconds {
+            break;
+        }
+        if last_tick.elapsed() >= Duration::from_secs(1) {
+            last_tick = Instant::now();
+            let pids: Vec<Pid> = children.roles.iter().map(|r| Pid::from_u32(r.child.id())).collect();
+            sys.refresh_cpu_usage();
+            sys.refresh_processes(ProcessesToUpdate::Some(&pids), true);
+            let machine = sys.global_cpu_usage() as f64;
+            cpu_samples.push(machine);
+            let mut rss_total = 0.0;
+            for t in latest.values() {
+                let p = sys.process(Pid::from_u32(t.pid));
+                let (cpu, rss) = p.map(|p| (p.cpu_usage() as f64, p.memory() as f64 / 1e6)).unwrap_or((f64::NAN, f64::NAN));
+                if rss.is_finite() {
+                    rss_total += rss;
+                }
+                let role = RoleKind::from_code(t.role).map(|r| r.name()).unwrap_or("?");
+                let ms = |i: usize| t.stage_ns[i] as f64 / 1e6;
+                writeln!(
+                    telemetry,
+                    "{wall:.3},{role},{},{},{cpu:.1},{rss:.1},{machine:.1},{},{},{},{},{},{:.1},{:.1},{:.1},{:.1}",
+                    t.index, t.pid, t.heartbeat, t.work, t.work2, t.weight_version, t.lost, ms(0), ms(1), ms(2), ms(3)
+                )?;
+            }
+            peak_rss_mb = peak_rss_mb.max(rss_total);
+            let roll = rolling(&recent);
+            curve.push((wall, roll));
+            writeln!(
+                metrics,
+                "tick,{wall:.3},{},{episodes},,{roll:.3},{epsilon:.4},{},{}",
+                sum_work(&latest, RoleKind::Sim),
+                sum_work(&latest, RoleKind::Learner),
+                latest.get(&(RoleKind::Replay as u32, 0)).map(|t| t.value_milli).unwrap_or(0)
+            )?;
+            let steps = sum_work(&latest, RoleKind::Sim);
+            let updates = sum_work(&latest, RoleKind::Learner);
+            bar.set_message(format!(
+                "steps {steps} ({:.0}/s) | episodes {episodes} | rolling reward {roll:.1} | eps {epsilon:.3} | updates {updates} ({:.1}/s) | cpu {machine:.0}%",
+                steps as f64 / wall.max(1e-9),
+                updates as f64 / wall.max(1e-9)
+            ));
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let wall = start.elapsed().as_secs_f64();
+    bar.finish_and_clear();
+    // Last counters before the children go.
+    while let Some(m) = tel_rx.try_recv()? {
+        let t = *m.user_header();
+        latest.insert((t.role, t.index), t);
+    }
+    children.stop();
+    drop(ep_rx);
+    drop(tel_rx);
+    drop(hub);
+    let leftover = services_of_run(&prefix);
+
+    let env_steps = sum_work(&latest, RoleKind::Sim);
+    let updates = sum_work(&latest, RoleKind::Learner);
+    let final_ckpt = run_dir.join("final.safetensors");
+    let checkpoint = if final_ckpt.exists() { Some(final_ckpt) } else { Some(run_dir.join("checkpoints/latest.safetensors")).filter(|p| p.exists()) };
+    let roll = rolling(&recent);
+    let summary = json!({
+        "converged": time_to_threshold.is_some(),
+        "threshold": threshold,
+        "time_to_threshold_s": time_to_threshold,
+        "wall_s": wall,
+        "env_steps": env_steps,
+        "episodes": episodes,
+        "rolling_reward": if roll.is_finite() { Some(roll) } else { None },
+        "rolling_success_rate": if successes_recent.is_empty() { None } else { Some(successes_recent.iter().filter(|s| **s).count() as f64 / successes_recent.len() as f64) },
+        "learner_updates": updates,
+        "envs": envs,
+        "agents_per_env": cfg.sim.agents,
+        "agents_total": envs * cfg.sim.agents,
+        "observation_mode": cfg.sim.observation_mode,
+        "renderer": cfg.sim.renderer,
+        "env_steps_per_s": env_steps as f64 / wall,
+        "updates_per_s": updates as f64 / wall,
+        "cpu_util_mean_pct": if cpu_samples.is_empty() { None } else { Some(cpu_samples.iter().sum::<f64>() / cpu_samples.len() as f64) },
+        "gpu_util_mean_pct": serde_json::Value::Null,
+        "gpu_power_mean_w": serde_json::Value::Null,
+        "peak_rss_mb": peak_rss_mb,
+        "restarts": 0,
+        "lost_messages": latest.values().map(|t| t.lost).sum::<u64>(),
+        "checkpoint": checkpoint.as_ref().map(|p| p.display().to_string()),
+        "interrupted": interrupted,
+        "failure": failure,
+        "leftover_services": leftover,
+    });
+    std::fs::write(run_dir.join("summary.json"), serde_json::to_string_pretty(&summary)? + "\n")?;
+    crate::draw::reward_plot(&curve.iter().copied().filter(|p| p.1.is_finite()).collect::<Vec<_>>(), threshold, &run_dir.join("reward.png"))?;
+    println!(
+        "run {}: {} in {wall:.1} s, {episodes} episodes, rolling reward {roll:.1}, {env_steps} agent-steps, {updates} updates",
+        run_dir.display(),
+        match time_to_threshold {
+            Some(t) => format!("converged at {t:.1} s"),
+            None => "did not converge".to_string(),
+        }
+    );
+    if let Some(f) = failure {
+        bail!("{f}");
+    }
+    if !leftover.is_empty() {
+        bail!("shared memory left behind after the run: {leftover:?}");
+    }
+    Ok(())
+}

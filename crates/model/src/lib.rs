@@ -18,7 +18,8 @@ use std::collections::HashMap;
 use std::path::Path;
 use std::time::Instant;
 
-use candle_core::{D, DType, Device, Tensor, Var};
+pub use candle_core::Device;
+use candle_core::{D, DType, Tensor, Var};
 use candle_nn::optim::{AdamW, Optimizer, ParamsAdamW};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;

@@ -1,5 +1,148 @@
-//! The learner role.
-use anyhow::{Result, bail};
+//! `hive learner`: DQN updates on the minibatches the replay process queues,
+//! weights published by version, checkpoints as safetensors. Also the learner
+//! benchmark, which measures the same update path.
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use rotorhive_model::Device;
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64Mcg;
+use rotorhive_model::{Dqn, DqnConfig, QNet, num_params};
+use rotorhive_msg::{MinibatchHeader, OBS_LEN, RoleKind, TRANSITION_LEN, WeightsHeader};
+use rotorhive_transport::Channel;
+
+use super::{Counters, POLL, STALL_TIMEOUT, open};
 use crate::RoleArgs;
-pub fn run(_role: RoleArgs) -> Result<()> { bail!("not built yet") }
-pub fn bench(_t: usize, _b: usize, _u: usize, _j: bool) -> Result<()> { bail!("not built yet") }
+use crate::config::Config;
+
+pub fn dqn_config(cfg: &Config) -> DqnConfig {
+    let l = &cfg.learner;
+    DqnConfig { lr: l.lr, gamma: l.gamma as f32, target_update: l.target_update, huber_delta: l.huber_delta as f32 }
+}
+
+/// Writes a checkpoint atomically (temporary file, then rename).
+fn save_atomic(net: &QNet, path: &Path) -> Result<()> {
+    let tmp = path.with_extension("tmp");
+    net.save(&tmp)?;
+    std::fs::rename(&tmp, path).with_context(|| format!("cannot write checkpoint {}", path.display()))?;
+    Ok(())
+}
+
+pub fn run(role: RoleArgs) -> Result<()> {
+    let (cfg, hub) = open(&role, "learner")?;
+    let run_dir = role.run_dir.clone().unwrap_or_else(|| PathBuf::from("."));
+    let ckpt_dir = run_dir.join("checkpoints");
+    std::fs::create_dir_all(&ckpt_dir).with_context(|| format!("cannot create {}", ckpt_dir.display()))?;
+    let mut dqn = Dqn::new(dqn_config(&cfg), cfg.seed, &Device::Cpu)?;
+    let mut rx = hub.receiver::<f32, MinibatchHeader>(&Channel::minibatches(cfg.replay.prefetch))?;
+    let mut w_tx = hub.sender::<f32, WeightsHeader>(&Channel::weights(cfg.sim.envs), num_params(), STALL_TIMEOUT)?;
+    let mut tel = Counters::new(&hub, RoleKind::Learner, 0, super::sim::roles_of(&cfg))?;
+    let mut version = 0u64;
+    let mut publish = |dqn: &Dqn, version: &mut u64| -> Result<()> {
+        *version += 1;
+        let v = *version;
+        let updates = dqn.updates();
+        let net = &dqn.online;
+        let mut res = Ok(());
+        w_tx.send_with(num_params(), |h, p| {
+            *h = WeightsHeader { version: v, updates, len: num_params() as u64 };
+            res = net.write_flat(p);
+        })?;
+        Ok(res?)
+    };
+    publish(&dqn, &mut version)?;
+    let min_period = if cfg.learner.max_rate_hz > 0.0 { Duration::from_secs_f64(1.0 / cfg.learner.max_rate_hz) } else { Duration::ZERO };
+    let mut last_ckpt = Instant::now();
+    let mut last_update = Instant::now();
+    loop {
+        if hub.shutdown_requested() {
+            break;
+        }
+        let t = Instant::now();
+        let msg = rx.recv_timeout(POLL).context("waiting for minibatches")?;
+        tel.stage(3, t);
+        tel.tick(false);
+        let Some(msg) = msg else { continue };
+        if min_period > Duration::ZERO {
+            let since = last_update.elapsed();
+            if since < min_period {
+                std::thread::sleep(min_period - since);
+            }
+        }
+        last_update = Instant::now();
+        let loss = dqn.update(msg.payload()).context("learner update")?;
+        drop(msg);
+        let tm = dqn.timing();
+        tel.sample.stage_ns[0] += tm.forward_ns;
+        tel.sample.stage_ns[1] += tm.backward_ns;
+        tel.sample.stage_ns[2] += tm.optimiser_ns;
+        tel.sample.work = dqn.updates();
+        tel.sample.value_milli = (loss as f64 * 1e6) as i64;
+        if dqn.updates() % cfg.learner.publish_every == 0 {
+            publish(&dqn, &mut version)?;
+            tel.sample.weight_version = version;
+            tel.sample.work2 = version;
+        }
+        if last_ckpt.elapsed().as_secs_f64() >= cfg.learner.checkpoint_every_s {
+            save_atomic(&dqn.online, &ckpt_dir.join("latest.safetensors"))?;
+            last_ckpt = Instant::now();
+        }
+    }
+    save_atomic(&dqn.online, &run_dir.join("final.safetensors"))?;
+    tel.tick(true);
+    Ok(())
+}
+
+/// `hive bench learner`: updates per second on random minibatches through the
+/// same update path, and actor inference latency at batch 1 and 50.
+pub fn bench(threads: usize, batch: usize, updates: usize, json: bool) -> Result<()> {
+    if threads == 0 || batch == 0 || updates == 0 {
+        bail!("--threads, --batch and --updates must be positive");
+    }
+    // candle's CPU kernels size their pools from RAYON_NUM_THREADS on first use.
+    // SAFETY: no other thread exists yet in this process.
+    unsafe { std::env::set_var("RAYON_NUM_THREADS", threads.to_string()) };
+    let cfg = Config::default();
+    let mut dqn = Dqn::new(dqn_config(&cfg), 1, &Device::Cpu)?;
+    let mut rng = Pcg64Mcg::seed_from_u64(3);
+    let mut data: Vec<f32> = (0..batch * TRANSITION_LEN).map(|_| rng.random::<f32>()).collect();
+    for i in 0..batch {
+        data[i * TRANSITION_LEN + 2 * OBS_LEN] = (i % 2) as f32;
+    }
+    for _ in 0..5 {
+        dqn.update(&data)?;
+    }
+    let (mut f, mut b, mut o) = (0u64, 0u64, 0u64);
+    let start = Instant::now();
+    for _ in 0..updates {
+        dqn.update(&data)?;
+        let t = dqn.timing();
+        f += t.forward_ns;
+        b += t.backward_ns;
+        o += t.optimiser_ns;
+    }
+    let wall = start.elapsed().as_secs_f64();
+    let ups = updates as f64 / wall;
+    let ms = |ns: u64| ns as f64 / 1e6 / updates as f64;
+    let infer = |n: usize| -> Result<f64> {
+        let obs: Vec<f32> = (0..n * OBS_LEN).map(|i| (i % 97) as f32 / 97.0).collect();
+        dqn.online.greedy(&obs)?;
+        let reps = 50;
+        let t = Instant::now();
+        for _ in 0..reps {
+            dqn.online.greedy(&obs)?;
+        }
+        Ok(t.elapsed().as_secs_f64() * 1e3 / reps as f64)
+    };
+    let (i1, i50) = (infer(1)?, infer(50)?);
+    println!("threads {threads}, batch {batch}: {ups:.1} updates/s (forward {:.2} ms, backward {:.2} ms, optimiser {:.2} ms); inference batch 1: {i1:.3} ms, batch 50: {i50:.3} ms", ms(f), ms(b), ms(o));
+    if json {
+        println!(
+            "{}",
+            serde_json::json!({ "threads": threads, "batch": batch, "updates_per_s": ups, "forward_ms": ms(f), "backward_ms": ms(b), "optimiser_ms": ms(o), "infer_b1_ms": i1, "infer_b50_ms": i50 })
+        );
+    }
+    Ok(())
+}

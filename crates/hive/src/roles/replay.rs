@@ -1,4 +1,89 @@
-//! The replay role.
-use anyhow::{Result, bail};
+//! `hive replay`: the FIFO replay memory. Inserts every transition batch the
+//! actors publish (checking each actor's sequence numbers for loss) and keeps
+//! the learner's minibatch queue full once the memory holds `min_fill`.
+
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result};
+use rotorhive_msg::{MinibatchHeader, RoleKind, TRANSITION_LEN, TransitionHeader};
+use rotorhive_replay::Replay;
+use rotorhive_transport::{Channel, TransportError};
+
+use super::{Counters, open};
 use crate::RoleArgs;
-pub fn run(_role: RoleArgs) -> Result<()> { bail!("not built yet") }
+
+pub fn run(role: RoleArgs) -> Result<()> {
+    let (cfg, hub) = open(&role, "replay")?;
+    let r = &cfg.replay;
+    let mut mem = Replay::new(r.capacity, TRANSITION_LEN, cfg.seed ^ 0x5e1a);
+    let mut rx = hub.receiver::<f32, TransitionHeader>(&Channel::transitions(cfg.sim.envs))?;
+    // A full learner queue is normal (the learner is busy): the send gives up
+    // after a millisecond and the replay goes back to inserting.
+    let mut tx = hub.sender::<f32, MinibatchHeader>(&Channel::minibatches(r.prefetch), r.batch * TRANSITION_LEN, Duration::from_millis(1))?;
+    let mut tel = Counters::new(&hub, RoleKind::Replay, 0, super::sim::roles_of(&cfg))?;
+    let mut next_seq = vec![None::<u64>; cfg.sim.envs];
+    let mut mb_seq = 0u64;
+    let mut backoff_until = Instant::now();
+    loop {
+        if hub.shutdown_requested() {
+            break;
+        }
+        let mut got = false;
+        let t = Instant::now();
+        while let Some(m) = rx.try_recv().context("receiving transitions")? {
+            let h = *m.user_header();
+            let actor = h.actor as usize;
+            if actor < next_seq.len() {
+                if let Some(want) = next_seq[actor]
+                    && h.seq != want
+                {
+                    // A restarted actor starts again at 0; anything else is loss.
+                    if h.seq > want {
+                        tel.sample.lost += h.seq - want;
+                    }
+                }
+                next_seq[actor] = Some(h.seq + 1);
+            }
+            mem.insert(m.payload());
+            got = true;
+        }
+        tel.stage(0, t);
+        let ready = mem.len() >= r.min_fill.max(r.batch);
+        let mut sent = false;
+        if ready && Instant::now() >= backoff_until {
+            let t = Instant::now();
+            let res = tx.send_with(r.batch * TRANSITION_LEN, |h, out| {
+                mem.sample_into(out);
+                *h = MinibatchHeader { batch: r.batch as u32, _pad: 0, seq: mb_seq, replay_len: mem.len() as u64, inserted: mem.inserted() };
+            });
+            tel.stage(1, t);
+            match res {
+                Ok(()) => {
+                    mb_seq += 1;
+                    sent = true;
+                }
+                Err(TransportError::Stalled { .. }) => backoff_until = Instant::now() + Duration::from_millis(2),
+                Err(e) => return Err(e).context("sending a minibatch"),
+            }
+        }
+        tel.sample.work = mem.inserted();
+        tel.sample.work2 = mb_seq;
+        tel.sample.value_milli = mem.len() as i64;
+        tel.tick(false);
+        if !got && !sent {
+            let t = Instant::now();
+            // Nothing to do: sleep on the transitions channel.
+            let wait = if ready { Duration::from_millis(2) } else { super::POLL };
+            if let Some(m) = rx.recv_timeout(wait).context("waiting for transitions")? {
+                let h = *m.user_header();
+                if (h.actor as usize) < next_seq.len() {
+                    next_seq[h.actor as usize] = Some(h.seq + 1);
+                }
+                mem.insert(m.payload());
+            }
+            tel.stage(2, t);
+        }
+    }
+    tel.tick(true);
+    Ok(())
+}
