@@ -44,6 +44,7 @@ pub fn run(role: RoleArgs) -> Result<()> {
                 }
                 next_seq[actor] = Some(h.seq + 1);
             }
+            tel.sample.lost += corrupt(m.payload());
             mem.insert(m.payload());
             got = true;
         }
@@ -86,4 +87,19 @@ pub fn run(role: RoleArgs) -> Result<()> {
     }
     tel.tick(true);
     Ok(())
+}
+
+/// Counts transitions whose action or done flag is not 0 or 1, or whose depth
+/// leaves [0, 1]: a torn or foreign write would show here.
+fn corrupt(batch: &[f32]) -> u64 {
+    use rotorhive_msg::OBS_LEN;
+    let depth = OBS_LEN - rotorhive_msg::VEL_DIM;
+    batch
+        .chunks_exact(TRANSITION_LEN)
+        .filter(|t| {
+            let a = t[2 * OBS_LEN];
+            let d = t[2 * OBS_LEN + 2];
+            !(a == 0.0 || a == 1.0) || !(d == 0.0 || d == 1.0) || t[..depth].iter().chain(&t[OBS_LEN..OBS_LEN + depth]).any(|v| !(0.0..=1.0).contains(v))
+        })
+        .count() as u64
 }
