@@ -3,12 +3,12 @@
 //! The network is the design's: conv 2→16 (6×6, stride 2) → conv 16→32 (3×3)
 //! → max-pool 2 → 1152 features; velocity 3→16; concat → 64 → 2 Q-values.
 //!
-//! The convolutions are written as im2col + matrix multiply on candle's own
-//! tensor ops: a precomputed `index_select` gathers the patches and one GEMM
+//! The convolutions are written as im2col + matrix multiply: a custom candle
+//! op gathers the patches with precomputed indices and one GEMM
 //! applies the kernel, with activations kept channels-last so no transpose is
-//! ever needed. Candle's autograd then differentiates the gather (a scatter-add)
-//! and the GEMM (two GEMMs), which avoids its slow direct `conv_transpose2d`
-//! loop. Max-pooling is a reshape and two `max` reductions, whose gradient is
+//! ever needed. The gather's gradient is a scatter-add (col2im) op, the GEMM's
+//! two GEMMs, which avoids candle's slow direct `conv_transpose2d` loop; the
+//! first convolution's input (the image) gets no gradient at all. Max-pooling is a reshape and two `max` reductions, whose gradient is
 //! exact (candle-nn 0.11.1's `max_pool2d` backward is 4× too small).
 //!
 //! Weights travel as one flat `f32` vector in a canonical order ([`PARAMS`]) and
@@ -97,15 +97,78 @@ pub enum ModelError {
 /// Result of this crate.
 pub type Result<T> = std::result::Result<T, ModelError>;
 
+/// A row-wise gather `out[b, j] = in[b, idx[j]]` as a candle custom op: the
+/// im2col of a convolution. Its gradient is the matching scatter-add (col2im).
+/// Candle's own `index_select` does the same but copies element by element
+/// through a generic path, ten times slower at these sizes.
+#[derive(Debug, Clone)]
+struct Gather {
+    idx: std::sync::Arc<Vec<u32>>,
+    in_width: usize,
+}
+
+impl candle_core::CustomOp1 for Gather {
+    fn name(&self) -> &'static str {
+        "rotorhive-im2col"
+    }
+
+    fn cpu_fwd(&self, storage: &candle_core::CpuStorage, layout: &candle_core::Layout) -> candle_core::Result<(candle_core::CpuStorage, candle_core::Shape)> {
+        let Some((start, end)) = layout.contiguous_offsets() else { candle_core::bail!("im2col needs a contiguous input") };
+        let src = &storage.as_slice::<f32>()?[start..end];
+        let (rows, width) = layout.shape().dims2()?;
+        if width != self.in_width {
+            candle_core::bail!("im2col: input rows have {width} values, expected {}", self.in_width);
+        }
+        let n = self.idx.len();
+        let mut out = vec![0f32; rows * n];
+        for (o, row) in out.chunks_exact_mut(n).zip(src.chunks_exact(width)) {
+            for (v, &i) in o.iter_mut().zip(self.idx.iter()) {
+                *v = row[i as usize];
+            }
+        }
+        Ok((candle_core::CpuStorage::F32(out), candle_core::Shape::from((rows, n))))
+    }
+
+    fn bwd(&self, _arg: &Tensor, _res: &Tensor, grad: &Tensor) -> candle_core::Result<Option<Tensor>> {
+        Ok(Some(grad.contiguous()?.apply_op1_no_bwd(&Scatter { idx: self.idx.clone(), in_width: self.in_width })?))
+    }
+}
+
+/// The gradient of [`Gather`]: `out[b, idx[j]] += g[b, j]` (col2im).
+#[derive(Debug, Clone)]
+struct Scatter {
+    idx: std::sync::Arc<Vec<u32>>,
+    in_width: usize,
+}
+
+impl candle_core::CustomOp1 for Scatter {
+    fn name(&self) -> &'static str {
+        "rotorhive-col2im"
+    }
+
+    fn cpu_fwd(&self, storage: &candle_core::CpuStorage, layout: &candle_core::Layout) -> candle_core::Result<(candle_core::CpuStorage, candle_core::Shape)> {
+        let Some((start, end)) = layout.contiguous_offsets() else { candle_core::bail!("col2im needs a contiguous input") };
+        let g = &storage.as_slice::<f32>()?[start..end];
+        let (rows, n) = layout.shape().dims2()?;
+        let mut out = vec![0f32; rows * self.in_width];
+        for (o, row) in out.chunks_exact_mut(self.in_width).zip(g.chunks_exact(n)) {
+            for (v, &i) in row.iter().zip(self.idx.iter()) {
+                o[i as usize] += v;
+            }
+        }
+        Ok((candle_core::CpuStorage::F32(out), candle_core::Shape::from((rows, self.in_width))))
+    }
+}
+
 /// Gather indices for the two convolutions (im2col), shared by every network.
 #[derive(Debug, Clone)]
 struct Im2Col {
-    conv1: Tensor,
-    conv2: Tensor,
+    conv1: Gather,
+    conv2: Gather,
 }
 
 impl Im2Col {
-    fn new(dev: &Device) -> Result<Self> {
+    fn new() -> Self {
         // conv1 reads the observation row (channels-first frames); rows of the
         // patch matrix are output pixels (oy, ox), columns (ky, kx, c).
         let mut i1 = Vec::with_capacity(H1 * H1 * K1 * K1 * FRAMES);
@@ -133,7 +196,10 @@ impl Im2Col {
                 }
             }
         }
-        Ok(Self { conv1: Tensor::from_vec(i1.clone(), i1.len(), dev)?, conv2: Tensor::from_vec(i2.clone(), i2.len(), dev)? })
+        Self {
+            conv1: Gather { idx: std::sync::Arc::new(i1), in_width: OBS_LEN },
+            conv2: Gather { idx: std::sync::Arc::new(i2), in_width: H1 * H1 * C1 },
+        }
     }
 }
 
@@ -159,7 +225,7 @@ impl QNet {
             let data: Vec<f32> = (0..n).map(|_| rng.random_range(-bound..bound)).collect();
             params.push(Var::from_tensor(&Tensor::from_vec(data, *shape, device)?)?);
         }
-        Ok(Self { params, im2col: Im2Col::new(device)?, device: device.clone() })
+        Ok(Self { params, im2col: Im2Col::new(), device: device.clone() })
     }
 
     /// The device the network lives on.
@@ -180,10 +246,10 @@ impl QNet {
     pub fn forward(&self, obs: &Tensor) -> Result<Tensor> {
         let b = obs.dim(0)?;
         // conv1: gather patches, one GEMM, bias, ReLU → [B·196, 16] channels-last.
-        let x = obs.index_select(&self.im2col.conv1, 1)?.reshape((b * H1 * H1, K1 * K1 * FRAMES))?;
+        let x = obs.contiguous()?.apply_op1(self.im2col.conv1.clone())?.reshape((b * H1 * H1, K1 * K1 * FRAMES))?;
         let x = x.matmul(&self.p(0).t()?)?.broadcast_add(self.p(1))?.relu()?;
         // conv2 on the channels-last map.
-        let x = x.reshape((b, H1 * H1 * C1))?.index_select(&self.im2col.conv2, 1)?.reshape((b * H2 * H2, K2 * K2 * C1))?;
+        let x = x.reshape((b, H1 * H1 * C1))?.apply_op1(self.im2col.conv2.clone())?.reshape((b * H2 * H2, K2 * K2 * C1))?;
         let x = x.matmul(&self.p(2).t()?)?.broadcast_add(self.p(3))?.relu()?;
         // 2×2 max-pool as two reductions over a split view.
         let x = x.reshape((b, HP, 2, HP, 2, C2))?.max(4)?.max(2)?.reshape((b, FEAT))?;
