@@ -212,6 +212,9 @@ impl Config {
         if !["batched", "non-batched"].contains(&s.observation_mode.as_str()) {
             bail!("key `sim.observation_mode` must be \"batched\" or \"non-batched\", got {:?}", s.observation_mode);
         }
+        if s.observation_mode == "non-batched" {
+            bail!("key `sim.observation_mode`: the non-batched mode is not built yet (issue 5); use \"batched\"");
+        }
         let a = &self.actor;
         for (k, v) in [("actor.eps_start", a.eps_start), ("actor.eps_end", a.eps_end)] {
             if !(0.0..=1.0).contains(&v) {
@@ -312,10 +315,12 @@ mod tests {
 
     #[test]
     fn overrides_apply_and_bad_values_are_named() {
-        let c = Config::load(None, &["sim.agents=7".into(), "learner.lr=0.01".into(), "sim.observation_mode=non-batched".into()]).unwrap();
+        let c = Config::load(None, &["sim.agents=7".into(), "learner.lr=0.01".into(), "sim.observation_mode=batched".into()]).unwrap();
         assert_eq!(c.sim.agents, 7);
         assert_eq!(c.learner.lr, 0.01);
-        assert_eq!(c.sim.observation_mode, "non-batched");
+        assert_eq!(c.sim.observation_mode, "batched");
+        let e = format!("{:#}", Config::load(None, &["sim.observation_mode=sideways".into()]).unwrap_err());
+        assert!(e.contains("sim.observation_mode"), "{e}");
         let e = format!("{:#}", Config::load(None, &["sim.agents=0".into()]).unwrap_err());
         assert!(e.contains("sim.agents"), "{e}");
         let e = format!("{:#}", Config::load(None, &["sim.agnets=3".into()]).unwrap_err());
