@@ -308,9 +308,13 @@ impl<S: Service, T: Debug + ZeroCopySend + Default + Copy + 'static, H: Debug + 
             // Wake on a notification or, at the latest, every 20 ms to re-check
             // (a notification can race with the receive above).
             let wait = (deadline - now).min(Duration::from_millis(20));
-            self.listener
-                .timed_wait(|_| {}, wait)
-                .map_err(|e| TransportError::Io { channel: self.channel.clone(), op: "wait", message: format!("{e:?}") })?;
+            match self.listener.timed_wait(|_| {}, wait) {
+                Ok(_) => {}
+                // A signal (SIGTERM from the supervisor, Ctrl-C) ends the wait
+                // early; the caller checks for shutdown next.
+                Err(iceoryx2::port::listener::ListenerWaitError::InterruptSignal) => return self.try_recv(),
+                Err(e) => return Err(TransportError::Io { channel: self.channel.clone(), op: "wait", message: format!("{e:?}") }),
+            }
         }
     }
 

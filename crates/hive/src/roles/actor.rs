@@ -81,6 +81,19 @@ pub fn run(role: RoleArgs, e: usize) -> Result<()> {
         if h.agents as usize != n || p.len() != rotorhive_msg::obs_batch_len(n) {
             bail!("observation batch from sim {e} has {} agents, the config says {n}", h.agents);
         }
+        if have_prev && h.step + 1 == expected_step {
+            // The sim published this step again: our actions were not seen.
+            // Answer with the same actions and record nothing twice.
+            drop(msg);
+            let step = h.step;
+            if let Err(err) = act_tx.send_with(n, |ah, out| {
+                *ah = ActionHeader { env: e as u32, agents: n as u32, step };
+                out.copy_from_slice(&prev_actions);
+            }) {
+                tracing::warn!("actor {e}: {err}");
+            }
+            continue;
+        }
         if h.step != expected_step {
             // The sim restarted (step 0) or a batch was lost: start afresh.
             tel.sample.lost += 1;

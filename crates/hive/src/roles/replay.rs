@@ -31,21 +31,7 @@ pub fn run(role: RoleArgs) -> Result<()> {
         let mut got = false;
         let t = Instant::now();
         while let Some(m) = rx.try_recv().context("receiving transitions")? {
-            let h = *m.user_header();
-            let actor = h.actor as usize;
-            if actor < next_seq.len() {
-                if let Some(want) = next_seq[actor]
-                    && h.seq != want
-                {
-                    // A restarted actor starts again at 0; anything else is loss.
-                    if h.seq > want {
-                        tel.sample.lost += h.seq - want;
-                    }
-                }
-                next_seq[actor] = Some(h.seq + 1);
-            }
-            tel.sample.lost += corrupt(m.payload());
-            mem.insert(m.payload());
+            ingest(&m, &mut mem, &mut next_seq, &mut tel.sample.lost);
             got = true;
         }
         tel.stage(0, t);
@@ -76,17 +62,29 @@ pub fn run(role: RoleArgs) -> Result<()> {
             // Nothing to do: sleep on the transitions channel.
             let wait = if ready { Duration::from_millis(2) } else { super::POLL };
             if let Some(m) = rx.recv_timeout(wait).context("waiting for transitions")? {
-                let h = *m.user_header();
-                if (h.actor as usize) < next_seq.len() {
-                    next_seq[h.actor as usize] = Some(h.seq + 1);
-                }
-                mem.insert(m.payload());
+                ingest(&m, &mut mem, &mut next_seq, &mut tel.sample.lost);
             }
             tel.stage(2, t);
         }
     }
     tel.tick(true);
     Ok(())
+}
+
+/// Inserts one transition batch, counting sequence gaps of its actor (a
+/// restarted actor starts again at 0, which is not loss) and corrupt values.
+fn ingest(m: &rotorhive_transport::Msg<rotorhive_transport::Ipc, f32, TransitionHeader>, mem: &mut Replay, next_seq: &mut [Option<u64>], lost: &mut u64) {
+    let h = *m.user_header();
+    if let Some(slot) = next_seq.get_mut(h.actor as usize) {
+        if let Some(want) = *slot
+            && h.seq > want
+        {
+            *lost += h.seq - want;
+        }
+        *slot = Some(h.seq + 1);
+    }
+    *lost += corrupt(m.payload());
+    mem.insert(m.payload());
 }
 
 /// Counts transitions whose action or done flag is not 0 or 1, or whose depth

@@ -11,6 +11,9 @@ use rotorhive_transport::Channel;
 use super::{Counters, POLL, STALL_TIMEOUT, open};
 use crate::RoleArgs;
 
+/// How long a sim waits for actions before publishing the same step again.
+const RESEND: std::time::Duration = std::time::Duration::from_millis(1000);
+
 pub fn run(role: RoleArgs, env_index: usize) -> Result<()> {
     let (cfg, hub) = open(&role, &format!("sim-{env_index}"))?;
     if env_index >= cfg.sim.envs {
@@ -26,13 +29,17 @@ pub fn run(role: RoleArgs, env_index: usize) -> Result<()> {
     let mut step = 0u64;
     let mut timing = (0u64, 0u64);
     let mut need_send = true;
+    let mut last_send = Instant::now();
     loop {
         if hub.shutdown_requested() {
             break;
         }
         if need_send {
             match send_obs(&mut obs_tx, &env, env_index, step, timing) {
-                Ok(()) => need_send = false,
+                Ok(()) => {
+                    need_send = false;
+                    last_send = Instant::now();
+                }
                 Err(e) => {
                     // The actor is gone or restarting: report, and try again.
                     tracing::warn!("sim {env_index}: {e}");
@@ -46,7 +53,14 @@ pub fn run(role: RoleArgs, env_index: usize) -> Result<()> {
         let msg = act_rx.recv_timeout(POLL).context("waiting for actions")?;
         tel.stage(3, t);
         tel.tick(false);
-        let Some(msg) = msg else { continue };
+        let Some(msg) = msg else {
+            // An actor that subscribed after our send (or restarted) never saw
+            // this step: publish it again; the actor answers duplicates.
+            if last_send.elapsed() > RESEND {
+                need_send = true;
+            }
+            continue;
+        };
         let h = *msg.user_header();
         if h.step != step || msg.payload().len() != n {
             // A stale or foreign batch: count it and keep waiting for the right one.
