@@ -85,13 +85,7 @@ pub fn run(role: RoleArgs, e: usize) -> Result<()> {
             // The sim published this step again: our actions were not seen.
             // Answer with the same actions and record nothing twice.
             drop(msg);
-            let step = h.step;
-            if let Err(err) = act_tx.send_with(n, |ah, out| {
-                *ah = ActionHeader { env: e as u32, agents: n as u32, step };
-                out.copy_from_slice(&prev_actions);
-            }) {
-                tracing::warn!("actor {e}: {err}");
-            }
+            send_actions(&mut act_tx, e, h.step, &prev_actions, &mut tel.sample.lost);
             continue;
         }
         if h.step != expected_step {
@@ -162,17 +156,23 @@ pub fn run(role: RoleArgs, e: usize) -> Result<()> {
         drop(msg);
         prev_actions.copy_from_slice(&actions);
         have_prev = true;
-        let step = h.step;
-        if let Err(err) = act_tx.send_with(n, |ah, out| {
-            *ah = ActionHeader { env: e as u32, agents: n as u32, step };
-            out.copy_from_slice(&actions);
-        }) {
-            tracing::warn!("actor {e}: {err}");
-            tel.sample.lost += 1;
-        }
+        send_actions(&mut act_tx, e, h.step, &actions, &mut tel.sample.lost);
         tel.sample.work = transitions;
         tel.sample.work2 = episodes;
     }
     tel.tick(true);
     Ok(())
+}
+
+/// Publishes one action batch answering observation step `step`; a failed
+/// send is reported and counted, and the sim will publish the step again.
+fn send_actions(tx: &mut rotorhive_transport::Sender<rotorhive_transport::Ipc, u8, ActionHeader>, e: usize, step: u64, actions: &[u8], lost: &mut u64) {
+    let n = actions.len();
+    if let Err(err) = tx.send_with(n, |ah, out| {
+        *ah = ActionHeader { env: e as u32, agents: n as u32, step };
+        out.copy_from_slice(actions);
+    }) {
+        tracing::warn!("actor {e}: {err}");
+        *lost += 1;
+    }
 }
