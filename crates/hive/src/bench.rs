@@ -41,6 +41,9 @@ pub enum BenchCmd {
         /// Measured updates.
         #[arg(long, default_value_t = 100)]
         updates: usize,
+        /// Also measure the generic path of stock candle ops, side by side.
+        #[arg(long)]
+        compare: bool,
         /// Print one JSON object as the last line.
         #[arg(long)]
         json: bool,
@@ -50,7 +53,7 @@ pub enum BenchCmd {
 pub fn run(cmd: BenchCmd) -> Result<()> {
     match cmd {
         BenchCmd::Sim { agents, steps, threads, arena, json } => bench_sim(&agents, steps, threads, &arena, json),
-        BenchCmd::Learner { threads, batch, updates, json } => crate::roles::learner::bench(threads, batch, updates, json),
+        BenchCmd::Learner { threads, batch, updates, compare, json } => crate::roles::learner::bench(threads, batch, updates, compare, json),
     }
 }
 

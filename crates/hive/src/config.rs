@@ -73,6 +73,12 @@ pub struct ActorSection {
     pub eps_decay: u64,
     /// Threads for inference.
     pub threads: usize,
+    /// Device for inference: "cpu", or "cuda" in a build with `--features cuda`.
+    pub device: String,
+    /// Rate limit: the actors pause while the transitions they sent past
+    /// `replay.min_fill` exceed the learner's sampled transitions divided by
+    /// this ratio (sampled per inserted). 0 turns the limit off.
+    pub samples_per_insert: f64,
 }
 
 /// `[replay]`.
@@ -109,6 +115,10 @@ pub struct LearnerSection {
     pub threads: usize,
     /// Huber loss threshold.
     pub huber_delta: f64,
+    /// Double DQN targets (the online network picks the next action).
+    pub double_dqn: bool,
+    /// Device for training: "cpu", or "cuda" in a build with `--features cuda`.
+    pub device: String,
 }
 
 impl Default for Config {
@@ -146,7 +156,7 @@ impl Default for SimSection {
 
 impl Default for ActorSection {
     fn default() -> Self {
-        Self { eps_start: 1.0, eps_end: 0.02, eps_decay: 30_000, threads: 1 }
+        Self { eps_start: 1.0, eps_end: 0.02, eps_decay: 30_000, threads: 1, device: "cpu".into(), samples_per_insert: 0.0 }
     }
 }
 
@@ -158,7 +168,7 @@ impl Default for ReplaySection {
 
 impl Default for LearnerSection {
     fn default() -> Self {
-        Self { lr: 5e-4, gamma: 0.99, target_update: 150, max_rate_hz: 0.0, publish_every: 10, checkpoint_every_s: 20.0, threads: 1, huber_delta: 1.0 }
+        Self { lr: 5e-4, gamma: 0.99, target_update: 150, max_rate_hz: 0.0, publish_every: 10, checkpoint_every_s: 20.0, threads: 1, huber_delta: 1.0, double_dqn: true, device: "cpu".into() }
     }
 }
 
@@ -222,6 +232,12 @@ impl Config {
             }
         }
         positive("actor.threads", a.threads as f64)?;
+        if !(a.samples_per_insert.is_finite() && a.samples_per_insert >= 0.0) {
+            bail!("key `actor.samples_per_insert` must be 0 (off) or positive, got {}", a.samples_per_insert);
+        }
+        for (k, v) in [("actor.device", &a.device), ("learner.device", &self.learner.device)] {
+            rotorhive_model::device(v).with_context(|| format!("key `{k}`"))?;
+        }
         let r = &self.replay;
         positive("replay.capacity", r.capacity as f64)?;
         positive("replay.batch", r.batch as f64)?;

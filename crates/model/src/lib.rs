@@ -3,26 +3,52 @@
 //! The network is the design's: conv 2→16 (6×6, stride 2) → conv 16→32 (3×3)
 //! → max-pool 2 → 1152 features; velocity 3→16; concat → 64 → 2 Q-values.
 //!
-//! The convolutions are written as im2col + matrix multiply: a custom candle
-//! op gathers the patches with precomputed indices and one GEMM
-//! applies the kernel, with activations kept channels-last so no transpose is
-//! ever needed. The gather's gradient is a scatter-add (col2im) op, the GEMM's
-//! two GEMMs, which avoids candle's slow direct `conv_transpose2d` loop; the
-//! first convolution's input (the image) gets no gradient at all. Max-pooling is a reshape and two `max` reductions, whose gradient is
-//! exact (candle-nn 0.11.1's `max_pool2d` backward is 4× too small).
+//! Two forward paths compute the same function:
+//! - the fused CPU path ([`ops`]): convolutions as an im2col gather plus one
+//!   GEMM with bias and ReLU fused, activations channels-last, a pooling op
+//!   with an exact gradient, a TD-Huber loss op and an in-place Adam; the image
+//!   gets no gradient;
+//! - the generic path: stock candle ops (`conv2d`, `matmul`, reductions) that
+//!   run on any device (CUDA with the `cuda` feature). Pooling there is a
+//!   reshape and two `max` reductions, whose gradient is exact (candle-nn
+//!   0.11.1's `max_pool2d` backward is 4× too small).
 //!
 //! Weights travel as one flat `f32` vector in a canonical order ([`PARAMS`]) and
 //! are saved as safetensors.
 
+mod dqn;
+mod ops;
+
 use std::collections::HashMap;
 use std::path::Path;
-use std::time::Instant;
+use std::sync::Arc;
 
 pub use candle_core::Device;
-use candle_core::{D, DType, Tensor, Var};
-use candle_nn::optim::{AdamW, Optimizer, ParamsAdamW};
+use candle_core::{DType, Tensor, Var};
+pub use dqn::{Dqn, DqnConfig, UpdateTiming};
+use ops::{Gather, Linear, MaxPool2};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
+
+/// The device the `cuda` feature asks for (GPU 0), or the CPU.
+pub fn default_device() -> Result<Device> {
+    #[cfg(feature = "cuda")]
+    {
+        return Ok(Device::new_cuda(0)?);
+    }
+    #[cfg(not(feature = "cuda"))]
+    Ok(Device::Cpu)
+}
+
+/// A device by name: `cpu`, or `cuda` (only in a build with the `cuda` feature).
+pub fn device(name: &str) -> Result<Device> {
+    match name {
+        "cpu" => Ok(Device::Cpu),
+        "cuda" if cfg!(feature = "cuda") => Ok(Device::new_cuda(0)?),
+        "cuda" => Err(ModelError::Device("device \"cuda\" needs a build with `--features cuda`".into())),
+        other => Err(ModelError::Device(format!("unknown device {other:?} (expected \"cpu\" or \"cuda\")"))),
+    }
+}
 
 /// Side of the depth images.
 pub const SIDE: usize = 32;
@@ -82,6 +108,9 @@ pub enum ModelError {
         /// What is wrong.
         message: String,
     },
+    /// A device that cannot be used.
+    #[error("{0}")]
+    Device(String),
     /// A batch has the wrong size.
     #[error("{what}: expected {expected} floats, got {got}")]
     Shape {
@@ -96,69 +125,6 @@ pub enum ModelError {
 
 /// Result of this crate.
 pub type Result<T> = std::result::Result<T, ModelError>;
-
-/// A row-wise gather `out[b, j] = in[b, idx[j]]` as a candle custom op: the
-/// im2col of a convolution. Its gradient is the matching scatter-add (col2im).
-/// Candle's own `index_select` does the same but copies element by element
-/// through a generic path, ten times slower at these sizes.
-#[derive(Debug, Clone)]
-struct Gather {
-    idx: std::sync::Arc<Vec<u32>>,
-    in_width: usize,
-}
-
-impl candle_core::CustomOp1 for Gather {
-    fn name(&self) -> &'static str {
-        "rotorhive-im2col"
-    }
-
-    fn cpu_fwd(&self, storage: &candle_core::CpuStorage, layout: &candle_core::Layout) -> candle_core::Result<(candle_core::CpuStorage, candle_core::Shape)> {
-        let Some((start, end)) = layout.contiguous_offsets() else { candle_core::bail!("im2col needs a contiguous input") };
-        let src = &storage.as_slice::<f32>()?[start..end];
-        let (rows, width) = layout.shape().dims2()?;
-        if width != self.in_width {
-            candle_core::bail!("im2col: input rows have {width} values, expected {}", self.in_width);
-        }
-        let n = self.idx.len();
-        let mut out = vec![0f32; rows * n];
-        for (o, row) in out.chunks_exact_mut(n).zip(src.chunks_exact(width)) {
-            for (v, &i) in o.iter_mut().zip(self.idx.iter()) {
-                *v = row[i as usize];
-            }
-        }
-        Ok((candle_core::CpuStorage::F32(out), candle_core::Shape::from((rows, n))))
-    }
-
-    fn bwd(&self, _arg: &Tensor, _res: &Tensor, grad: &Tensor) -> candle_core::Result<Option<Tensor>> {
-        Ok(Some(grad.contiguous()?.apply_op1_no_bwd(&Scatter { idx: self.idx.clone(), in_width: self.in_width })?))
-    }
-}
-
-/// The gradient of [`Gather`]: `out[b, idx[j]] += g[b, j]` (col2im).
-#[derive(Debug, Clone)]
-struct Scatter {
-    idx: std::sync::Arc<Vec<u32>>,
-    in_width: usize,
-}
-
-impl candle_core::CustomOp1 for Scatter {
-    fn name(&self) -> &'static str {
-        "rotorhive-col2im"
-    }
-
-    fn cpu_fwd(&self, storage: &candle_core::CpuStorage, layout: &candle_core::Layout) -> candle_core::Result<(candle_core::CpuStorage, candle_core::Shape)> {
-        let Some((start, end)) = layout.contiguous_offsets() else { candle_core::bail!("col2im needs a contiguous input") };
-        let g = &storage.as_slice::<f32>()?[start..end];
-        let (rows, n) = layout.shape().dims2()?;
-        let mut out = vec![0f32; rows * self.in_width];
-        for (o, row) in out.chunks_exact_mut(self.in_width).zip(g.chunks_exact(n)) {
-            for (v, &i) in row.iter().zip(self.idx.iter()) {
-                o[i as usize] += v;
-            }
-        }
-        Ok((candle_core::CpuStorage::F32(out), candle_core::Shape::from((rows, self.in_width))))
-    }
-}
 
 /// Gather indices for the two convolutions (im2col), shared by every network.
 #[derive(Debug, Clone)]
@@ -197,8 +163,8 @@ impl Im2Col {
             }
         }
         Self {
-            conv1: Gather { idx: std::sync::Arc::new(i1), in_width: OBS_LEN },
-            conv2: Gather { idx: std::sync::Arc::new(i2), in_width: H1 * H1 * C1 },
+            conv1: Gather { idx: Arc::new(i1), in_width: OBS_LEN },
+            conv2: Gather { idx: Arc::new(i2), in_width: H1 * H1 * C1 },
         }
     }
 }
@@ -209,6 +175,7 @@ pub struct QNet {
     params: Vec<Var>,
     im2col: Im2Col,
     device: Device,
+    fused: bool,
 }
 
 impl QNet {
@@ -225,7 +192,7 @@ impl QNet {
             let data: Vec<f32> = (0..n).map(|_| rng.random_range(-bound..bound)).collect();
             params.push(Var::from_tensor(&Tensor::from_vec(data, *shape, device)?)?);
         }
-        Ok(Self { params, im2col: Im2Col::new(), device: device.clone() })
+        Ok(Self { params, im2col: Im2Col::new(), device: device.clone(), fused: device.is_cpu() })
     }
 
     /// The device the network lives on.
@@ -242,17 +209,54 @@ impl QNet {
         self.params[i].as_tensor()
     }
 
+    /// Whether the fused CPU path is in use (the default on the CPU).
+    pub fn fused(&self) -> bool {
+        self.fused
+    }
+
+    /// Chooses the fused CPU path or the generic one (tests and benches
+    /// compare the two; only the generic path runs off the CPU).
+    pub fn set_fused(&mut self, fused: bool) -> Result<()> {
+        if fused && !self.device.is_cpu() {
+            return Err(ModelError::Device("the fused path runs on the CPU only".into()));
+        }
+        self.fused = fused;
+        Ok(())
+    }
+
     /// Q-values `[B, 2]` of observations `[B, OBS_LEN]`.
     pub fn forward(&self, obs: &Tensor) -> Result<Tensor> {
+        if self.fused { self.forward_fused(obs) } else { self.forward_generic(obs) }
+    }
+
+    fn forward_fused(&self, obs: &Tensor) -> Result<Tensor> {
         let b = obs.dim(0)?;
-        // conv1: gather patches, one GEMM, bias, ReLU → [B·196, 16] channels-last.
-        let x = obs.contiguous()?.apply_op1(self.im2col.conv1.clone())?.reshape((b * H1 * H1, K1 * K1 * FRAMES))?;
-        let x = x.matmul(&self.p(0).t()?)?.broadcast_add(self.p(1))?.relu()?;
+        let relu = Linear { relu: true };
+        let obs = obs.contiguous()?;
+        // conv1: gather patches, one GEMM with bias and ReLU → [B·196, 16] channels-last.
+        let x = obs.apply_op1(self.im2col.conv1.clone())?.reshape((b * H1 * H1, K1 * K1 * FRAMES))?;
+        let x = x.apply_op3(self.p(0), self.p(1), relu)?;
         // conv2 on the channels-last map.
         let x = x.reshape((b, H1 * H1 * C1))?.apply_op1(self.im2col.conv2.clone())?.reshape((b * H2 * H2, K2 * K2 * C1))?;
-        let x = x.matmul(&self.p(2).t()?)?.broadcast_add(self.p(3))?.relu()?;
-        // 2×2 max-pool as two reductions over a split view.
-        let x = x.reshape((b, HP, 2, HP, 2, C2))?.max(4)?.max(2)?.reshape((b, FEAT))?;
+        let x = x.apply_op3(self.p(2), self.p(3), relu)?;
+        let x = x.apply_op1(MaxPool2 { h: H2, w: H2 })?;
+        let v = obs.narrow(1, FRAMES * SIDE * SIDE, VEL)?.contiguous()?;
+        let v = v.apply_op3(self.p(4), self.p(5), relu)?;
+        let h = Tensor::cat(&[&x, &v], 1)?;
+        let h = h.apply_op3(self.p(6), self.p(7), relu)?;
+        Ok(h.apply_op3(self.p(8), self.p(9), Linear { relu: false })?)
+    }
+
+    /// The same network with stock candle ops (channels-first `conv2d`).
+    fn forward_generic(&self, obs: &Tensor) -> Result<Tensor> {
+        let b = obs.dim(0)?;
+        let img = obs.narrow(1, 0, FRAMES * SIDE * SIDE)?.reshape((b, FRAMES, SIDE, SIDE))?;
+        let w1 = self.p(0).reshape((C1, K1, K1, FRAMES))?.permute((0, 3, 1, 2))?.contiguous()?;
+        let x = img.conv2d(&w1, 0, S1, 1, 1)?.broadcast_add(&self.p(1).reshape((1, C1, 1, 1))?)?.relu()?;
+        let w2 = self.p(2).reshape((C2, K2, K2, C1))?.permute((0, 3, 1, 2))?.contiguous()?;
+        let x = x.conv2d(&w2, 0, 1, 1, 1)?.broadcast_add(&self.p(3).reshape((1, C2, 1, 1))?)?.relu()?;
+        // 2×2 max-pool as two reductions over a split view, then channels-last.
+        let x = x.reshape((b, C2, HP, 2, HP, 2))?.max(5)?.max(3)?.permute((0, 2, 3, 1))?.reshape((b, FEAT))?;
         let v = obs.narrow(1, FRAMES * SIDE * SIDE, VEL)?;
         let v = v.matmul(&self.p(4).t()?)?.broadcast_add(self.p(5))?.relu()?;
         let h = Tensor::cat(&[&x, &v], 1)?;
@@ -350,7 +354,7 @@ impl QNet {
     }
 }
 
-fn argmax(v: &[f32]) -> usize {
+pub(crate) fn argmax(v: &[f32]) -> usize {
     let mut best = 0;
     for (i, x) in v.iter().enumerate() {
         if *x > v[best] {
@@ -358,114 +362,6 @@ fn argmax(v: &[f32]) -> usize {
         }
     }
     best
-}
-
-/// Hyper-parameters of the DQN update.
-#[derive(Debug, Clone, Copy)]
-pub struct DqnConfig {
-    /// Adam learning rate.
-    pub lr: f64,
-    /// Discount.
-    pub gamma: f32,
-    /// Updates between target-network copies.
-    pub target_update: u64,
-    /// Huber loss threshold.
-    pub huber_delta: f32,
-}
-
-/// Time spent in each part of the last update (ns).
-#[derive(Debug, Clone, Copy, Default)]
-pub struct UpdateTiming {
-    /// Target and online forward passes and the loss.
-    pub forward_ns: u64,
-    /// Backward pass.
-    pub backward_ns: u64,
-    /// Adam step (and target copy).
-    pub optimiser_ns: u64,
-}
-
-/// A DQN learner: online network, target network and Adam.
-pub struct Dqn {
-    /// The online network.
-    pub online: QNet,
-    target: QNet,
-    opt: AdamW,
-    cfg: DqnConfig,
-    updates: u64,
-    timing: UpdateTiming,
-}
-
-impl Dqn {
-    /// A learner with freshly initialised networks.
-    pub fn new(cfg: DqnConfig, seed: u64, device: &Device) -> Result<Self> {
-        let online = QNet::new(seed, device)?;
-        let target = QNet::new(seed, device)?;
-        let opt = AdamW::new(online.vars().to_vec(), ParamsAdamW { lr: cfg.lr, beta1: 0.9, beta2: 0.999, eps: 1e-8, weight_decay: 0.0 })?;
-        Ok(Self { online, target, opt, cfg, updates: 0, timing: UpdateTiming::default() })
-    }
-
-    /// Updates done so far.
-    pub fn updates(&self) -> u64 {
-        self.updates
-    }
-
-    /// Sets the update counter (when resuming).
-    pub fn set_updates(&mut self, n: u64) {
-        self.updates = n;
-    }
-
-    /// Timing of the last update.
-    pub fn timing(&self) -> UpdateTiming {
-        self.timing
-    }
-
-    /// Copies the online weights into the target network.
-    pub fn sync_target(&self) -> Result<()> {
-        self.target.copy_from(&self.online)
-    }
-
-    /// The Huber TD loss of a minibatch (flat transitions), differentiable
-    /// with respect to the online network.
-    pub fn loss(&self, batch: &Tensor) -> Result<Tensor> {
-        let b = batch.dim(0)?;
-        let s = batch.narrow(1, 0, OBS_LEN)?;
-        let s2 = batch.narrow(1, OBS_LEN, OBS_LEN)?;
-        let a = batch.narrow(1, 2 * OBS_LEN, 1)?.to_dtype(DType::U32)?;
-        let r = batch.narrow(1, 2 * OBS_LEN + 1, 1)?;
-        let done = batch.narrow(1, 2 * OBS_LEN + 2, 1)?;
-        let next = self.target.forward(&s2.contiguous()?)?.detach().max_keepdim(D::Minus1)?;
-        let y = (r + ((1.0 - done)? * next)?.affine(self.cfg.gamma as f64, 0.0)?)?;
-        let q = self.online.forward(&s.contiguous()?)?.gather(&a, 1)?;
-        let diff = (q - y.detach())?;
-        let abs = diff.abs()?;
-        let d = self.cfg.huber_delta as f64;
-        let c = abs.clamp(0.0, d)?;
-        let loss = ((c.sqr()? * 0.5)? + ((abs - &c)? * d)?)?;
-        Ok(loss.sum_all()?.affine(1.0 / b as f64, 0.0)?)
-    }
-
-    /// One update on a minibatch of `n × TRANSITION_LEN` floats; returns the loss.
-    pub fn update(&mut self, batch: &[f32]) -> Result<f32> {
-        if batch.is_empty() || batch.len() % TRANSITION_LEN != 0 {
-            return Err(ModelError::Shape { what: "minibatch", expected: TRANSITION_LEN, got: batch.len() });
-        }
-        let n = batch.len() / TRANSITION_LEN;
-        let t0 = Instant::now();
-        let batch = Tensor::from_slice(batch, (n, TRANSITION_LEN), self.online.device())?;
-        let loss = self.loss(&batch)?;
-        let loss_v = loss.to_scalar::<f32>()?;
-        let t1 = Instant::now();
-        let grads = loss.backward()?;
-        let t2 = Instant::now();
-        self.opt.step(&grads)?;
-        self.updates += 1;
-        if self.updates % self.cfg.target_update == 0 {
-            self.sync_target()?;
-        }
-        let t3 = Instant::now();
-        self.timing = UpdateTiming { forward_ns: (t1 - t0).as_nanos() as u64, backward_ns: (t2 - t1).as_nanos() as u64, optimiser_ns: (t3 - t2).as_nanos() as u64 };
-        Ok(loss_v)
-    }
 }
 
 #[cfg(test)]

@@ -7,21 +7,38 @@ fn random(n: usize, seed: u64, lo: f32, hi: f32) -> Vec<f32> {
     (0..n).map(|_| rng.random_range(lo..hi)).collect()
 }
 
-/// The same network written with candle's stock `conv2d` and `max_pool2d`
-/// (channels-first), for comparing forward passes.
-fn reference_forward(net: &QNet, obs: &Tensor) -> Tensor {
-    let b = obs.dim(0).unwrap();
-    let img = obs.narrow(1, 0, FRAMES * SIDE * SIDE).unwrap().reshape((b, FRAMES, SIDE, SIDE)).unwrap();
-    let w1 = net.p(0).reshape((C1, K1, K1, FRAMES)).unwrap().permute((0, 3, 1, 2)).unwrap().contiguous().unwrap();
-    let x = img.conv2d(&w1, 0, S1, 1, 1).unwrap().broadcast_add(&net.p(1).reshape((1, C1, 1, 1)).unwrap()).unwrap().relu().unwrap();
-    let w2 = net.p(2).reshape((C2, K2, K2, C1)).unwrap().permute((0, 3, 1, 2)).unwrap().contiguous().unwrap();
-    let x = x.conv2d(&w2, 0, 1, 1, 1).unwrap().broadcast_add(&net.p(3).reshape((1, C2, 1, 1)).unwrap()).unwrap().relu().unwrap();
-    let x = x.max_pool2d(2).unwrap().permute((0, 2, 3, 1)).unwrap().reshape((b, FEAT)).unwrap();
-    let v = obs.narrow(1, FRAMES * SIDE * SIDE, VEL).unwrap();
-    let v = v.matmul(&net.p(4).t().unwrap()).unwrap().broadcast_add(net.p(5)).unwrap().relu().unwrap();
-    let h = Tensor::cat(&[&x, &v], 1).unwrap();
-    let h = h.matmul(&net.p(6).t().unwrap()).unwrap().broadcast_add(net.p(7)).unwrap().relu().unwrap();
-    h.matmul(&net.p(8).t().unwrap()).unwrap().broadcast_add(net.p(9)).unwrap()
+fn generic(net: &QNet) -> QNet {
+    let mut g = net.clone();
+    g.set_fused(false).unwrap();
+    g
+}
+
+/// A batch of transitions with valid actions, rewards and dones.
+fn transitions(n: usize, seed: u64) -> Vec<f32> {
+    let mut data = random(n * TRANSITION_LEN, seed, 0.0, 1.0);
+    for i in 0..n {
+        data[i * TRANSITION_LEN + 2 * OBS_LEN] = (i % 2) as f32;
+        data[i * TRANSITION_LEN + 2 * OBS_LEN + 1] = if i % 3 == 0 { -100.0 } else { 3.0 };
+        data[i * TRANSITION_LEN + 2 * OBS_LEN + 2] = if i % 3 == 0 { 1.0 } else { 0.0 };
+    }
+    data
+}
+
+fn cfg(double: bool) -> DqnConfig {
+    DqnConfig { lr: 1e-3, gamma: 0.9, target_update: 1000, huber_delta: 10.0, double }
+}
+
+fn grads_of(dqn: &Dqn, batch: &[f32]) -> Vec<Vec<f32>> {
+    let grads = dqn.loss(batch).unwrap().backward().unwrap();
+    dqn.online.vars().iter().map(|v| grads.get(v.as_tensor()).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap()).collect()
+}
+
+fn close(a: &[f32], b: &[f32], tol: f32, what: &str) {
+    assert_eq!(a.len(), b.len(), "{what}");
+    let scale = b.iter().fold(0f32, |m, x| m.max(x.abs())).max(1e-3);
+    for (i, (x, y)) in a.iter().zip(b).enumerate() {
+        assert!((x - y).abs() <= tol * scale, "{what}[{i}]: {x} vs {y} (scale {scale})");
+    }
 }
 
 #[test]
@@ -30,12 +47,98 @@ fn forward_matches_stock_candle_convolutions() {
     for seed in [1, 2, 3] {
         let net = QNet::new(seed, &dev).unwrap();
         let obs = Tensor::from_vec(random(5 * OBS_LEN, seed + 10, 0.0, 1.0), (5, OBS_LEN), &dev).unwrap();
+        assert!(net.fused());
         let a = net.forward(&obs).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
-        let b = reference_forward(&net, &obs).flatten_all().unwrap().to_vec1::<f32>().unwrap();
-        for (x, y) in a.iter().zip(&b) {
-            assert!((x - y).abs() < 1e-4, "{a:?} vs {b:?}");
+        let b = generic(&net).forward(&obs).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        close(&a, &b, 1e-4, "q-values");
+    }
+}
+
+/// Gradients of the whole loss (every custom op in the chain) on the fused
+/// path against the generic path of stock candle ops, plain and double DQN.
+#[test]
+fn fused_gradients_match_stock_candle() {
+    for (seed, double) in [(1, false), (2, true), (3, true)] {
+        let mut dqn = Dqn::new(cfg(double), seed, &Device::Cpu).unwrap();
+        dqn.target.load_flat(&random(num_params(), seed + 50, -0.1, 0.1)).unwrap();
+        let batch = transitions(7, seed + 20);
+        let fused = grads_of(&dqn, &batch);
+        let l1 = dqn.loss(&batch).unwrap().to_scalar::<f32>().unwrap();
+        dqn.set_fused(false).unwrap();
+        let plain = grads_of(&dqn, &batch);
+        let l2 = dqn.loss(&batch).unwrap().to_scalar::<f32>().unwrap();
+        assert!((l1 - l2).abs() <= 1e-4 * l2.abs().max(1.0), "loss {l1} vs {l2}");
+        for ((name, _), (f, p)) in PARAMS.iter().zip(fused.iter().zip(&plain)) {
+            close(f, p, 1e-3, name);
         }
     }
+}
+
+/// Max-pooling routes the gradient to the window's maximum, all of it (the
+/// stock candle-nn 0.11.1 backward gives a quarter).
+#[test]
+fn pooling_gradient_is_exact() {
+    let dev = Device::Cpu;
+    let (b, h, c) = (2, 4, 3);
+    let x = Var::from_vec(random(b * h * h * c, 8, -1.0, 1.0), (b * h * h, c), &dev).unwrap();
+    let y = x.as_tensor().apply_op1(MaxPool2 { h, w: h }).unwrap();
+    let w = Tensor::from_vec(random(y.elem_count(), 9, -1.0, 1.0), y.shape(), &dev).unwrap();
+    let g = (y * &w).unwrap().sum_all().unwrap().backward().unwrap();
+    let g = g.get(x.as_tensor()).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
+    // Reference: the stock reshape + max formulation (channels-last).
+    let x2 = Var::from_tensor(x.as_tensor()).unwrap();
+    let y2 = x2.as_tensor().reshape((b, h / 2, 2, h / 2, 2, c)).unwrap().max(4).unwrap().max(2).unwrap().reshape((b, h / 2 * (h / 2) * c)).unwrap();
+    let g2 = (y2 * &w).unwrap().sum_all().unwrap().backward().unwrap();
+    let g2 = g2.get(x2.as_tensor()).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
+    close(&g, &g2, 1e-6, "pool grad");
+    // Every output's weight lands on exactly one input.
+    let total: f32 = g.iter().sum();
+    let expected: f32 = w.flatten_all().unwrap().to_vec1::<f32>().unwrap().iter().sum();
+    assert!((total - expected).abs() < 1e-4, "{total} vs {expected}");
+}
+
+/// The in-place Adam follows candle-nn's AdamW (weight decay 0) step for step.
+#[test]
+fn adam_matches_candle_nn() {
+    use candle_nn::optim::{AdamW, Optimizer, ParamsAdamW};
+    let mut dqn = Dqn::new(cfg(false), 5, &Device::Cpu).unwrap();
+    let reference = Dqn::new(cfg(false), 5, &Device::Cpu).unwrap();
+    let mut opt = AdamW::new(reference.online.vars().to_vec(), ParamsAdamW { lr: 1e-3, beta1: 0.9, beta2: 0.999, eps: 1e-8, weight_decay: 0.0 }).unwrap();
+    for step in 0..5 {
+        let batch = transitions(4, 30 + step);
+        opt.step(&reference.loss(&batch).unwrap().backward().unwrap()).unwrap();
+        let grads = dqn.loss(&batch).unwrap().backward().unwrap();
+        dqn.opt_step(&grads).unwrap();
+        close(&dqn.online.to_flat().unwrap(), &reference.online.to_flat().unwrap(), 1e-4, "weights after adam");
+    }
+}
+
+#[test]
+fn learner_state_round_trips() {
+    let dev = Device::Cpu;
+    let mut a = Dqn::new(cfg(true), 1, &dev).unwrap();
+    for i in 0..3 {
+        a.update(&transitions(8, 40 + i)).unwrap();
+    }
+    let dir = std::env::temp_dir().join(format!("rotorhive-state-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("learner.safetensors");
+    a.save_state(&path).unwrap();
+    let mut b = Dqn::new(cfg(true), 2, &dev).unwrap();
+    b.load_state(&path).unwrap();
+    assert_eq!(b.updates(), 3);
+    // The same next update from the same state: weights, moments and step match.
+    let batch = transitions(8, 99);
+    let la = a.update(&batch).unwrap();
+    let lb = b.update(&batch).unwrap();
+    assert_eq!(la, lb);
+    assert_eq!(a.online.to_flat().unwrap(), b.online.to_flat().unwrap());
+    // A truncated state is refused with the file's name.
+    let bytes = std::fs::read(&path).unwrap();
+    std::fs::write(&path, &bytes[..bytes.len() / 3]).unwrap();
+    let e = b.load_state(&path).err().unwrap().to_string();
+    assert!(e.contains("learner.safetensors"), "{e}");
+    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// Autograd gradients of the DQN loss against central finite differences, in
@@ -43,8 +146,7 @@ fn forward_matches_stock_candle_convolutions() {
 #[test]
 fn gradients_match_finite_differences() {
     let dev = Device::Cpu;
-    let cfg = DqnConfig { lr: 1e-3, gamma: 0.9, target_update: 1000, huber_delta: 10.0 };
-    let dqn = Dqn::new(cfg, 4, &dev).unwrap();
+    let dqn = Dqn::new(cfg(false), 4, &dev).unwrap();
     // Push the target net away from the online one so the TD error is not zero.
     dqn.target.load_flat(&random(num_params(), 99, -0.1, 0.1)).unwrap();
     let n = 6;
@@ -54,7 +156,7 @@ fn gradients_match_finite_differences() {
         data[i * TRANSITION_LEN + 2 * OBS_LEN + 1] = 3.0;
         data[i * TRANSITION_LEN + 2 * OBS_LEN + 2] = if i == 3 { 1.0 } else { 0.0 };
     }
-    let batch = Tensor::from_vec(data, (n, TRANSITION_LEN), &dev).unwrap();
+    let batch = data;
     let loss = dqn.loss(&batch).unwrap();
     let grads = loss.backward().unwrap();
     let flat = dqn.online.to_flat().unwrap();
@@ -121,7 +223,7 @@ fn flat_weights_and_checkpoints_round_trip() {
 #[test]
 fn updates_reduce_the_loss_on_a_fixed_batch() {
     let dev = Device::Cpu;
-    let mut dqn = Dqn::new(DqnConfig { lr: 1e-3, gamma: 0.0, target_update: 10_000, huber_delta: 1.0 }, 1, &dev).unwrap();
+    let mut dqn = Dqn::new(DqnConfig { lr: 1e-3, gamma: 0.0, target_update: 10_000, huber_delta: 1.0, double: false }, 1, &dev).unwrap();
     let n = 32;
     let mut data = random(n * TRANSITION_LEN, 11, 0.0, 1.0);
     for i in 0..n {

@@ -19,7 +19,7 @@ use crate::config::Config;
 
 pub fn dqn_config(cfg: &Config) -> DqnConfig {
     let l = &cfg.learner;
-    DqnConfig { lr: l.lr, gamma: l.gamma as f32, target_update: l.target_update, huber_delta: l.huber_delta as f32 }
+    DqnConfig { lr: l.lr, gamma: l.gamma as f32, target_update: l.target_update, huber_delta: l.huber_delta as f32, double: l.double_dqn }
 }
 
 /// Writes a checkpoint atomically (temporary file, then rename).
@@ -35,7 +35,7 @@ pub fn run(role: RoleArgs) -> Result<()> {
     let run_dir = role.run_dir.clone().unwrap_or_else(|| PathBuf::from("."));
     let ckpt_dir = run_dir.join("checkpoints");
     std::fs::create_dir_all(&ckpt_dir).with_context(|| format!("cannot create {}", ckpt_dir.display()))?;
-    let mut dqn = Dqn::new(dqn_config(&cfg), cfg.seed, &Device::Cpu)?;
+    let mut dqn = Dqn::new(dqn_config(&cfg), cfg.seed, &rotorhive_model::device(&cfg.learner.device)?)?;
     let mut rx = hub.receiver::<f32, MinibatchHeader>(&Channel::minibatches(cfg.replay.prefetch))?;
     let mut w_tx = hub.sender::<f32, WeightsHeader>(&Channel::weights(cfg.sim.envs), num_params(), STALL_TIMEOUT)?;
     let mut tel = Counters::new(&hub, RoleKind::Learner, 0, super::sim::roles_of(&cfg))?;
@@ -95,17 +95,27 @@ pub fn run(role: RoleArgs) -> Result<()> {
     Ok(())
 }
 
-/// `hive bench learner`: updates per second on random minibatches through the
-/// same update path, and actor inference latency at batch 1 and 50.
-pub fn bench(threads: usize, batch: usize, updates: usize, json: bool) -> Result<()> {
-    if threads == 0 || batch == 0 || updates == 0 {
-        bail!("--threads, --batch and --updates must be positive");
+/// One path's figures in `hive bench learner`.
+struct PathFigures {
+    updates_per_s: f64,
+    forward_ms: f64,
+    backward_ms: f64,
+    optimiser_ms: f64,
+    infer_b1_ms: f64,
+    infer_b50_ms: f64,
+}
+
+impl PathFigures {
+    fn json(&self) -> serde_json::Value {
+        serde_json::json!({ "updates_per_s": self.updates_per_s, "forward_ms": self.forward_ms, "backward_ms": self.backward_ms, "optimiser_ms": self.optimiser_ms, "infer_b1_ms": self.infer_b1_ms, "infer_b50_ms": self.infer_b50_ms })
     }
-    // candle's CPU kernels size their pools from RAYON_NUM_THREADS on first use.
-    // SAFETY: no other thread exists yet in this process.
-    unsafe { std::env::set_var("RAYON_NUM_THREADS", threads.to_string()) };
+}
+
+/// Measures updates and inference on one path (fused or generic).
+fn measure(fused: bool, batch: usize, updates: usize) -> Result<PathFigures> {
     let cfg = Config::default();
     let mut dqn = Dqn::new(dqn_config(&cfg), 1, &Device::Cpu)?;
+    dqn.set_fused(fused)?;
     let mut rng = Pcg64Mcg::seed_from_u64(3);
     let mut data: Vec<f32> = (0..batch * TRANSITION_LEN).map(|_| rng.random::<f32>()).collect();
     for i in 0..batch {
@@ -124,7 +134,6 @@ pub fn bench(threads: usize, batch: usize, updates: usize, json: bool) -> Result
         o += t.optimiser_ns;
     }
     let wall = start.elapsed().as_secs_f64();
-    let ups = updates as f64 / wall;
     let ms = |ns: u64| ns as f64 / 1e6 / updates as f64;
     let infer = |n: usize| -> Result<f64> {
         let obs: Vec<f32> = (0..n * OBS_LEN).map(|i| (i % 97) as f32 / 97.0).collect();
@@ -136,13 +145,39 @@ pub fn bench(threads: usize, batch: usize, updates: usize, json: bool) -> Result
         }
         Ok(t.elapsed().as_secs_f64() * 1e3 / reps as f64)
     };
-    let (i1, i50) = (infer(1)?, infer(50)?);
-    println!("threads {threads}, batch {batch}: {ups:.1} updates/s (forward {:.2} ms, backward {:.2} ms, optimiser {:.2} ms); inference batch 1: {i1:.3} ms, batch 50: {i50:.3} ms", ms(f), ms(b), ms(o));
-    if json {
+    Ok(PathFigures { updates_per_s: updates as f64 / wall, forward_ms: ms(f), backward_ms: ms(b), optimiser_ms: ms(o), infer_b1_ms: infer(1)?, infer_b50_ms: infer(50)? })
+}
+
+/// `hive bench learner`: updates per second on random minibatches through the
+/// same update path, and actor inference latency at batch 1 and 50; with
+/// `compare`, the generic path of stock candle ops measured in the same run.
+pub fn bench(threads: usize, batch: usize, updates: usize, compare: bool, json: bool) -> Result<()> {
+    if threads == 0 || batch == 0 || updates == 0 {
+        bail!("--threads, --batch and --updates must be positive");
+    }
+    // candle's CPU kernels size their pools from RAYON_NUM_THREADS on first use.
+    // SAFETY: no other thread exists yet in this process.
+    unsafe { std::env::set_var("RAYON_NUM_THREADS", threads.to_string()) };
+    let fused = measure(true, batch, updates)?;
+    let generic = if compare { Some(measure(false, batch, updates)?) } else { None };
+    for (name, p) in std::iter::once(("fused", &fused)).chain(generic.as_ref().map(|g| ("generic", g))) {
         println!(
-            "{}",
-            serde_json::json!({ "threads": threads, "batch": batch, "updates_per_s": ups, "forward_ms": ms(f), "backward_ms": ms(b), "optimiser_ms": ms(o), "infer_b1_ms": i1, "infer_b50_ms": i50 })
+            "{name:>8}: threads {threads}, batch {batch}: {:.1} updates/s (forward {:.2} ms, backward {:.2} ms, optimiser {:.2} ms); inference batch 1: {:.3} ms, batch 50: {:.3} ms",
+            p.updates_per_s, p.forward_ms, p.backward_ms, p.optimiser_ms, p.infer_b1_ms, p.infer_b50_ms
         );
+    }
+    if let Some(g) = &generic {
+        println!("speed-up of the fused path: {:.1}× updates/s, {:.1}× batch-50 inference", fused.updates_per_s / g.updates_per_s, g.infer_b50_ms / fused.infer_b50_ms);
+    }
+    if json {
+        let mut v = fused.json();
+        v["threads"] = threads.into();
+        v["batch"] = batch.into();
+        if let Some(g) = &generic {
+            v["generic"] = g.json();
+            v["speedup"] = (fused.updates_per_s / g.updates_per_s).into();
+        }
+        println!("{v}");
     }
     Ok(())
 }
