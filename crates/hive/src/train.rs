@@ -151,7 +151,12 @@ pub fn run(a: TrainArgs) -> Result<()> {
             .arg(&cfg_path)
             .args(["--prefix", &prefix, "--run-dir"])
             .arg(&run_dir)
-            .env("RAYON_NUM_THREADS", threads.to_string())
+            // Roles size their own parallelism from the config; candle's
+            // pools stay single-threaded (idle spinning workers would steal
+            // the cores the other roles need).
+            .env("RAYON_NUM_THREADS", "1")
+            .env("CANDLE_NUM_THREADS", "1")
+            .env("HIVE_THREADS", threads.to_string())
             .stdin(Stdio::null())
             .stdout(log.try_clone()?)
             .stderr(log)

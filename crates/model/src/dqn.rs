@@ -54,11 +54,11 @@ impl Adam {
         Self { lr: lr as f32, t: 0, m: sizes.clone().map(|n| vec![0.0; n]).collect(), v: sizes.map(|n| vec![0.0; n]).collect() }
     }
 
-    fn step(&mut self, net: &QNet, grads: &candle_core::backprop::GradStore) -> Result<()> {
+    /// One step with the gradients of every parameter, in canonical order.
+    fn step(&mut self, net: &QNet, grads: &[Tensor]) -> Result<()> {
         self.t += 1;
         let hyper = AdamHyper { lr: self.lr, beta1: 0.9, beta2: 0.999, eps: 1e-8, t: self.t };
-        for ((var, m), v) in net.vars().iter().zip(&mut self.m).zip(&mut self.v) {
-            let Some(g) = grads.get(var.as_tensor()) else { continue };
+        for (((var, m), v), g) in net.vars().iter().zip(&mut self.m).zip(&mut self.v).zip(grads) {
             if var.device().is_cpu() {
                 let op = AdamStep { moments: Mutex::new((m.as_mut_slice(), v.as_mut_slice())), hyper };
                 var.as_tensor().inplace_op2(&g.contiguous()?, &op)?;
@@ -105,6 +105,14 @@ impl Batch {
     }
 }
 
+/// One shard's share of an update.
+struct Shard {
+    loss: f32,
+    grads: Vec<Tensor>,
+    forward_ns: u64,
+    backward_ns: u64,
+}
+
 /// A DQN learner: online network, target network and Adam.
 pub struct Dqn {
     /// The online network.
@@ -114,6 +122,7 @@ pub struct Dqn {
     cfg: DqnConfig,
     updates: u64,
     timing: UpdateTiming,
+    shards: usize,
 }
 
 impl Dqn {
@@ -121,13 +130,21 @@ impl Dqn {
     pub fn new(cfg: DqnConfig, seed: u64, device: &candle_core::Device) -> Result<Self> {
         let online = QNet::new(seed, device)?;
         let target = QNet::new(seed, device)?;
-        Ok(Self { online, target, opt: Adam::new(cfg.lr), cfg, updates: 0, timing: UpdateTiming::default() })
+        Ok(Self { online, target, opt: Adam::new(cfg.lr), cfg, updates: 0, timing: UpdateTiming::default(), shards: 1 })
     }
 
     /// Uses the fused CPU path (default on the CPU) or the generic one.
     pub fn set_fused(&mut self, fused: bool) -> Result<()> {
         self.online.set_fused(fused)?;
         self.target.set_fused(fused)
+    }
+
+    /// Threads for updates (and the online network's inference): on the
+    /// fused path each minibatch is split into this many data-parallel shards.
+    pub fn set_threads(&mut self, threads: usize) {
+        self.shards = threads.max(1);
+        self.online.set_threads(threads);
+        self.target.set_threads(threads);
     }
 
     /// Updates done so far.
@@ -159,12 +176,13 @@ impl Dqn {
         Ok((0..b.n).map(|i| b.rewards[i] + self.cfg.gamma * (1.0 - b.dones[i]) * next[i]).collect())
     }
 
-    fn loss_of(&self, b: &Batch) -> Result<Tensor> {
+    /// The Huber TD loss of `b` summed and divided by `denom`.
+    fn loss_of(&self, b: &Batch, denom: usize) -> Result<Tensor> {
         let y = self.targets(b)?;
         let dev = self.online.device();
         let q = self.online.forward(&Tensor::from_slice(&b.s, (b.n, OBS_LEN), dev)?)?;
         if self.online.fused() {
-            let op = TdHuber { actions: Arc::new(b.actions.clone()), targets: Arc::new(y), delta: self.cfg.huber_delta };
+            let op = TdHuber { actions: Arc::new(b.actions.clone()), targets: Arc::new(y), delta: self.cfg.huber_delta, denom };
             return Ok(q.apply_op1(op)?);
         }
         let a = Tensor::from_slice(&b.actions, (b.n, 1), dev)?;
@@ -173,31 +191,56 @@ impl Dqn {
         let d = self.cfg.huber_delta as f64;
         let c = abs.clamp(0.0, d)?;
         let loss = ((c.sqr()? * 0.5)? + ((abs - &c)? * d)?)?;
-        Ok(loss.sum_all()?.affine(1.0 / b.n as f64, 0.0)?)
+        Ok(loss.sum_all()?.affine(1.0 / denom as f64, 0.0)?)
     }
 
     /// The mean Huber TD loss of a minibatch (`n × TRANSITION_LEN` floats),
     /// differentiable with respect to the online network.
     pub fn loss(&self, batch: &[f32]) -> Result<Tensor> {
-        self.loss_of(&Batch::split(batch)?)
+        let b = Batch::split(batch)?;
+        self.loss_of(&b, b.n)
     }
 
-    /// One update on a minibatch of `n × TRANSITION_LEN` floats; returns the loss.
-    pub fn update(&mut self, batch: &[f32]) -> Result<f32> {
+    /// Loss and gradients of the rows `part` of a minibatch of `denom` rows.
+    fn shard(&self, part: &[f32], denom: usize) -> Result<Shard> {
         let t0 = Instant::now();
-        let loss = self.loss(batch)?;
-        let loss_v = loss.to_scalar::<f32>()?;
+        let loss = self.loss_of(&Batch::split(part)?, denom)?;
+        let value = loss.to_scalar::<f32>()?;
         let t1 = Instant::now();
-        let grads = loss.backward()?;
+        let store = loss.backward()?;
+        let grads = self.online.vars().iter().map(|v| store.get(v.as_tensor()).cloned().ok_or_else(|| ModelError::Device("a parameter got no gradient".into()))).collect::<Result<Vec<_>>>()?;
         let t2 = Instant::now();
-        self.opt.step(&self.online, &grads)?;
+        Ok(Shard { loss: value, grads, forward_ns: (t1 - t0).as_nanos() as u64, backward_ns: (t2 - t1).as_nanos() as u64 })
+    }
+
+    /// One update on a minibatch of `n × TRANSITION_LEN` floats; returns the
+    /// loss. On the fused path with several threads, the minibatch is split
+    /// into one shard per thread whose forward and backward passes run in
+    /// parallel (each single-threaded); their gradients are summed.
+    pub fn update(&mut self, batch: &[f32]) -> Result<f32> {
+        if batch.is_empty() || batch.len() % TRANSITION_LEN != 0 {
+            return Err(ModelError::Shape { what: "minibatch", expected: TRANSITION_LEN, got: batch.len() });
+        }
+        let n = batch.len() / TRANSITION_LEN;
+        let shards = if self.online.fused() { self.shards.min(n / 8).max(1) } else { 1 };
+        let parts: Vec<&[f32]> = batch.chunks(n.div_ceil(shards) * TRANSITION_LEN).collect();
+        let results = crate::ops::sharded(parts.len(), |i| self.shard(parts[i], n));
+        let mut shards = results.into_iter().collect::<Result<Vec<_>>>()?.into_iter();
+        let Some(mut total) = shards.next() else { unreachable!("a non-empty batch has a shard") };
+        for s in shards {
+            total.loss += s.loss;
+            for (a, b) in total.grads.iter_mut().zip(&s.grads) {
+                *a = (&*a + b)?;
+            }
+        }
+        let t2 = Instant::now();
+        self.opt.step(&self.online, &total.grads)?;
         self.updates += 1;
         if self.updates % self.cfg.target_update == 0 {
             self.sync_target()?;
         }
-        let t3 = Instant::now();
-        self.timing = UpdateTiming { forward_ns: (t1 - t0).as_nanos() as u64, backward_ns: (t2 - t1).as_nanos() as u64, optimiser_ns: (t3 - t2).as_nanos() as u64 };
-        Ok(loss_v)
+        self.timing = UpdateTiming { forward_ns: total.forward_ns, backward_ns: total.backward_ns, optimiser_ns: t2.elapsed().as_nanos() as u64 };
+        Ok(total.loss)
     }
 
     /// Saves the whole learner state (both networks, Adam's moments and step,
@@ -264,6 +307,7 @@ impl Dqn {
 impl Dqn {
     /// One Adam step with given gradients (tests compare it with candle-nn).
     pub(crate) fn opt_step(&mut self, grads: &candle_core::backprop::GradStore) -> Result<()> {
-        self.opt.step(&self.online, grads)
+        let grads: Vec<Tensor> = self.online.vars().iter().map(|v| grads.get(v.as_tensor()).unwrap().clone()).collect();
+        self.opt.step(&self.online, &grads)
     }
 }

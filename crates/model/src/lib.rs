@@ -21,7 +21,6 @@ mod ops;
 
 use std::collections::HashMap;
 use std::path::Path;
-use std::sync::Arc;
 
 pub use candle_core::Device;
 use candle_core::{DType, Tensor, Var};
@@ -77,7 +76,7 @@ const HID: usize = 64;
 
 /// Parameter names and shapes, in the canonical (flat) order.
 pub const PARAMS: [(&str, &[usize]); 10] = [
-    ("conv1.weight", &[C1, K1 * K1 * FRAMES]),
+    ("conv1.weight", &[C1, FRAMES * K1 * K1]),
     ("conv1.bias", &[C1]),
     ("conv2.weight", &[C2, K2 * K2 * C1]),
     ("conv2.bias", &[C2]),
@@ -126,7 +125,7 @@ pub enum ModelError {
 /// Result of this crate.
 pub type Result<T> = std::result::Result<T, ModelError>;
 
-/// Gather indices for the two convolutions (im2col), shared by every network.
+/// Patch copies for the two convolutions (im2col), shared by every network.
 #[derive(Debug, Clone)]
 struct Im2Col {
     conv1: Gather,
@@ -136,36 +135,29 @@ struct Im2Col {
 impl Im2Col {
     fn new() -> Self {
         // conv1 reads the observation row (channels-first frames); rows of the
-        // patch matrix are output pixels (oy, ox), columns (ky, kx, c).
-        let mut i1 = Vec::with_capacity(H1 * H1 * K1 * K1 * FRAMES);
+        // patch matrix are output pixels (oy, ox), columns (c, ky, kx): runs of
+        // K1 contiguous pixels.
+        let mut r1 = Vec::with_capacity(H1 * H1 * FRAMES * K1);
         for oy in 0..H1 {
             for ox in 0..H1 {
-                for ky in 0..K1 {
-                    for kx in 0..K1 {
-                        for c in 0..FRAMES {
-                            i1.push((c * SIDE * SIDE + (oy * S1 + ky) * SIDE + ox * S1 + kx) as u32);
-                        }
+                for c in 0..FRAMES {
+                    for ky in 0..K1 {
+                        r1.push((c * SIDE * SIDE + (oy * S1 + ky) * SIDE + ox * S1) as u32);
                     }
                 }
             }
         }
-        // conv2 reads conv1's channels-last output.
-        let mut i2 = Vec::with_capacity(H2 * H2 * K2 * K2 * C1);
+        // conv2 reads conv1's channels-last output; columns (ky, kx, c): runs
+        // of K2·C1 contiguous values.
+        let mut r2 = Vec::with_capacity(H2 * H2 * K2);
         for oy in 0..H2 {
             for ox in 0..H2 {
                 for ky in 0..K2 {
-                    for kx in 0..K2 {
-                        for c in 0..C1 {
-                            i2.push((((oy + ky) * H1 + ox + kx) * C1 + c) as u32);
-                        }
-                    }
+                    r2.push((((oy + ky) * H1 + ox) * C1) as u32);
                 }
             }
         }
-        Self {
-            conv1: Gather { idx: Arc::new(i1), in_width: OBS_LEN },
-            conv2: Gather { idx: Arc::new(i2), in_width: H1 * H1 * C1 },
-        }
+        Self { conv1: Gather::new(r1, K1, OBS_LEN), conv2: Gather::new(r2, K2 * C1, H1 * H1 * C1) }
     }
 }
 
@@ -176,6 +168,7 @@ pub struct QNet {
     im2col: Im2Col,
     device: Device,
     fused: bool,
+    threads: usize,
 }
 
 impl QNet {
@@ -192,7 +185,7 @@ impl QNet {
             let data: Vec<f32> = (0..n).map(|_| rng.random_range(-bound..bound)).collect();
             params.push(Var::from_tensor(&Tensor::from_vec(data, *shape, device)?)?);
         }
-        Ok(Self { params, im2col: Im2Col::new(), device: device.clone(), fused: device.is_cpu() })
+        Ok(Self { params, im2col: Im2Col::new(), device: device.clone(), fused: device.is_cpu(), threads: 1 })
     }
 
     /// The device the network lives on.
@@ -224,6 +217,12 @@ impl QNet {
         Ok(())
     }
 
+    /// Threads for batched inference on the fused path: batches of 16 or
+    /// more are split into this many data-parallel shards.
+    pub fn set_threads(&mut self, threads: usize) {
+        self.threads = threads.max(1);
+    }
+
     /// Q-values `[B, 2]` of observations `[B, OBS_LEN]`.
     pub fn forward(&self, obs: &Tensor) -> Result<Tensor> {
         if self.fused { self.forward_fused(obs) } else { self.forward_generic(obs) }
@@ -234,7 +233,7 @@ impl QNet {
         let relu = Linear { relu: true };
         let obs = obs.contiguous()?;
         // conv1: gather patches, one GEMM with bias and ReLU → [B·196, 16] channels-last.
-        let x = obs.apply_op1(self.im2col.conv1.clone())?.reshape((b * H1 * H1, K1 * K1 * FRAMES))?;
+        let x = obs.apply_op1(self.im2col.conv1.clone())?.reshape((b * H1 * H1, FRAMES * K1 * K1))?;
         let x = x.apply_op3(self.p(0), self.p(1), relu)?;
         // conv2 on the channels-last map.
         let x = x.reshape((b, H1 * H1 * C1))?.apply_op1(self.im2col.conv2.clone())?.reshape((b * H2 * H2, K2 * K2 * C1))?;
@@ -251,7 +250,7 @@ impl QNet {
     fn forward_generic(&self, obs: &Tensor) -> Result<Tensor> {
         let b = obs.dim(0)?;
         let img = obs.narrow(1, 0, FRAMES * SIDE * SIDE)?.reshape((b, FRAMES, SIDE, SIDE))?;
-        let w1 = self.p(0).reshape((C1, K1, K1, FRAMES))?.permute((0, 3, 1, 2))?.contiguous()?;
+        let w1 = self.p(0).reshape((C1, FRAMES, K1, K1))?;
         let x = img.conv2d(&w1, 0, S1, 1, 1)?.broadcast_add(&self.p(1).reshape((1, C1, 1, 1))?)?.relu()?;
         let w2 = self.p(2).reshape((C2, K2, K2, C1))?.permute((0, 3, 1, 2))?.contiguous()?;
         let x = x.conv2d(&w2, 0, 1, 1, 1)?.broadcast_add(&self.p(3).reshape((1, C2, 1, 1))?)?.relu()?;
@@ -264,13 +263,33 @@ impl QNet {
         Ok(h.matmul(&self.p(8).t()?)?.broadcast_add(self.p(9))?)
     }
 
-    /// Q-values of a flat batch of observations (`n × OBS_LEN` floats).
+    /// Q-values of a flat batch of observations (`n × OBS_LEN` floats); on
+    /// the fused path, batches of 16 or more are split over the threads.
     pub fn q_values(&self, obs: &[f32]) -> Result<Vec<f32>> {
+        let n = obs.len() / OBS_LEN;
+        let shards = if self.fused { self.threads.min(n / 8).max(1) } else { 1 };
+        self.q_values_sharded(obs, shards)
+    }
+
+    /// [`QNet::q_values`] in `shards` data-parallel parts.
+    pub fn q_values_sharded(&self, obs: &[f32], shards: usize) -> Result<Vec<f32>> {
         if obs.len() % OBS_LEN != 0 || obs.is_empty() {
             return Err(ModelError::Shape { what: "observation batch", expected: OBS_LEN, got: obs.len() });
         }
-        let t = Tensor::from_slice(obs, (obs.len() / OBS_LEN, OBS_LEN), &self.device)?;
-        Ok(self.forward(&t)?.flatten_all()?.to_vec1::<f32>()?)
+        let n = obs.len() / OBS_LEN;
+        let one = |part: &[f32]| -> Result<Vec<f32>> {
+            let t = Tensor::from_slice(part, (part.len() / OBS_LEN, OBS_LEN), &self.device)?;
+            Ok(self.forward(&t)?.flatten_all()?.to_vec1::<f32>()?)
+        };
+        if shards <= 1 || !self.fused {
+            return one(obs);
+        }
+        let parts: Vec<&[f32]> = obs.chunks(n.div_ceil(shards) * OBS_LEN).collect();
+        let mut q = Vec::with_capacity(n * ACTIONS);
+        for r in ops::sharded(parts.len(), |i| one(parts[i])) {
+            q.extend(r?);
+        }
+        Ok(q)
     }
 
     /// Greedy actions of a flat batch of observations.

@@ -43,9 +43,47 @@ impl<'a> View<'a> {
     }
 }
 
+thread_local! {
+    /// Set while a data-parallel shard runs: its GEMMs stay on its thread.
+    static SERIAL: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// Threads the CPU kernels may use (`RAYON_NUM_THREADS`, as candle reads it).
+pub(crate) fn threads() -> usize {
+    candle_core::utils::get_num_threads().max(1)
+}
+
+/// Runs `f` with every GEMM of this thread single-threaded.
+pub(crate) fn serial<R>(f: impl FnOnce() -> R) -> R {
+    let before = SERIAL.with(|s| s.replace(true));
+    let r = f();
+    SERIAL.with(|s| s.set(before));
+    r
+}
+
+/// Runs `f(i)` for every shard `i < shards` in parallel (shard 0 on this
+/// thread, the others on scoped threads), each with single-threaded GEMMs,
+/// and returns the results in order. Candle's own elementwise pool must stay
+/// single-threaded (`CANDLE_NUM_THREADS=1`): it serialises concurrent callers.
+pub(crate) fn sharded<R: Send>(shards: usize, f: impl Fn(usize) -> R + Sync) -> Vec<R> {
+    if shards <= 1 {
+        return vec![serial(|| f(0))];
+    }
+    std::thread::scope(|sc| {
+        let f = &f;
+        let others: Vec<_> = (1..shards).map(|i| sc.spawn(move || serial(|| f(i)))).collect();
+        let mut out = vec![serial(|| f(0))];
+        out.extend(others.into_iter().map(|h| h.join().unwrap_or_else(|p| std::panic::resume_unwind(p))));
+        out
+    })
+}
+
 fn parallelism() -> gemm::Parallelism {
-    match candle_core::utils::get_num_threads() {
-        0 | 1 => gemm::Parallelism::None,
+    if SERIAL.with(|s| s.get()) {
+        return gemm::Parallelism::None;
+    }
+    match threads() {
+        1 => gemm::Parallelism::None,
         n => gemm::Parallelism::Rayon(n),
     }
 }
@@ -106,13 +144,27 @@ fn tensor(data: Vec<f32>, shape: impl Into<Shape>, like: &Tensor) -> candle_core
     Tensor::from_vec(data, shape, like.device())
 }
 
-/// A row-wise gather `out[b, j] = in[b, idx[j]]`: the im2col of a convolution.
-/// Its gradient is the matching scatter-add (col2im). Candle's own
-/// `index_select` does the same through a generic path, ten times slower here.
+/// A row-wise gather of runs: output row `b` is the concatenation of
+/// `in[b, start .. start + run]` for every `start` in `starts`: the im2col of a
+/// convolution, as contiguous copies. Its gradient is the matching
+/// scatter-add (col2im). Candle's own `index_select` copies element by element
+/// through a generic path, many times slower here.
 #[derive(Debug, Clone)]
 pub(crate) struct Gather {
-    pub(crate) idx: Arc<Vec<u32>>,
-    pub(crate) in_width: usize,
+    starts: Arc<Vec<u32>>,
+    run: usize,
+    in_width: usize,
+}
+
+impl Gather {
+    pub(crate) fn new(starts: Vec<u32>, run: usize, in_width: usize) -> Self {
+        assert!(starts.iter().all(|&s| s as usize + run <= in_width), "im2col runs must lie inside the input row");
+        Self { starts: Arc::new(starts), run, in_width }
+    }
+
+    fn out_width(&self) -> usize {
+        self.starts.len() * self.run
+    }
 }
 
 impl CustomOp1 for Gather {
@@ -126,25 +178,25 @@ impl CustomOp1 for Gather {
         if width != self.in_width {
             bail!("im2col: input rows have {width} values, expected {}", self.in_width);
         }
-        let n = self.idx.len();
+        let n = self.out_width();
         let mut out = Vec::with_capacity(rows * n);
         for row in src.chunks_exact(width) {
-            out.extend(self.idx.iter().map(|&i| row[i as usize]));
+            for &s in self.starts.iter() {
+                out.extend_from_slice(&row[s as usize..s as usize + self.run]);
+            }
         }
         Ok((CpuStorage::F32(out), Shape::from((rows, n))))
     }
 
     fn bwd(&self, _arg: &Tensor, _res: &Tensor, grad: &Tensor) -> candle_core::Result<Option<Tensor>> {
-        Ok(Some(grad.contiguous()?.apply_op1_no_bwd(&Scatter { idx: self.idx.clone(), in_width: self.in_width })?))
+        Ok(Some(grad.contiguous()?.apply_op1_no_bwd(&Scatter(self.clone()))?))
     }
 }
 
-/// The gradient of [`Gather`]: `out[b, idx[j]] += g[b, j]` (col2im).
+/// The gradient of [`Gather`]: every run of the gradient row is added back
+/// where it was read from (col2im).
 #[derive(Debug, Clone)]
-pub(crate) struct Scatter {
-    idx: Arc<Vec<u32>>,
-    in_width: usize,
-}
+pub(crate) struct Scatter(Gather);
 
 impl CustomOp1 for Scatter {
     fn name(&self) -> &'static str {
@@ -152,18 +204,19 @@ impl CustomOp1 for Scatter {
     }
 
     fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
+        let Gather { starts, run, in_width } = &self.0;
         let g = slice(storage, layout, self.name())?;
         let (rows, n) = layout.shape().dims2()?;
-        if n != self.idx.len() {
-            bail!("col2im: gradient rows have {n} values, expected {}", self.idx.len());
+        if n != self.0.out_width() {
+            bail!("col2im: gradient rows have {n} values, expected {}", self.0.out_width());
         }
-        let mut out = vec![0f32; rows * self.in_width];
-        for (o, row) in out.chunks_exact_mut(self.in_width).zip(g.chunks_exact(n)) {
-            for (v, &i) in row.iter().zip(self.idx.iter()) {
-                o[i as usize] += v;
+        let mut out = vec![0f32; rows * in_width];
+        for (o, row) in out.chunks_exact_mut(*in_width).zip(g.chunks_exact(n)) {
+            for (&s, part) in starts.iter().zip(row.chunks_exact(*run)) {
+                o[s as usize..s as usize + run].iter_mut().zip(part).for_each(|(o, v)| *o += v);
             }
         }
-        Ok((CpuStorage::F32(out), Shape::from((rows, self.in_width))))
+        Ok((CpuStorage::F32(out), Shape::from((rows, *in_width))))
     }
 }
 
@@ -291,12 +344,15 @@ impl CustomOp1 for MaxPool2 {
     }
 }
 
-/// The mean Huber loss of `Q(s, a) − y` over a batch: `q: [B, A]` in, scalar out.
+/// The Huber loss of `Q(s, a) − y` summed over a batch and divided by
+/// `denom` (the whole minibatch, of which this may be a shard): `q: [B, A]`
+/// in, scalar out.
 #[derive(Debug, Clone)]
 pub(crate) struct TdHuber {
     pub(crate) actions: Arc<Vec<u32>>,
     pub(crate) targets: Arc<Vec<f32>>,
     pub(crate) delta: f32,
+    pub(crate) denom: usize,
 }
 
 impl TdHuber {
@@ -321,12 +377,12 @@ impl CustomOp1 for TdHuber {
         }
         let d = self.delta;
         let sum: f32 = self.errors(q, a).map(|(_, e)| if e.abs() <= d { 0.5 * e * e } else { d * (e.abs() - 0.5 * d) }).sum();
-        Ok((CpuStorage::F32(vec![sum / b as f32]), Shape::from(())))
+        Ok((CpuStorage::F32(vec![sum / self.denom as f32]), Shape::from(())))
     }
 
     fn bwd(&self, arg: &Tensor, _res: &Tensor, grad: &Tensor) -> candle_core::Result<Option<Tensor>> {
         let (b, a) = arg.dims2()?;
-        let g = grad.to_scalar::<f32>()? / b as f32;
+        let g = grad.to_scalar::<f32>()? / self.denom as f32;
         let mut dq = vec![0f32; b * a];
         with_slice(arg, "td loss q", |q| {
             for (i, e) in self.errors(q, a) {

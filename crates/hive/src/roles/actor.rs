@@ -35,7 +35,8 @@ pub fn run(role: RoleArgs, e: usize) -> Result<()> {
     }
     let n = cfg.sim.agents;
     let envs = cfg.sim.envs;
-    let net = QNet::new(cfg.seed, &rotorhive_model::device(&cfg.actor.device)?)?;
+    let mut net = QNet::new(cfg.seed, &rotorhive_model::device(&cfg.actor.device)?)?;
+    net.set_threads(cfg.actor.threads);
     let mut obs_rx = hub.receiver::<f32, ObsHeader>(&Channel::obs(e))?;
     let mut act_tx = hub.sender::<u8, ActionHeader>(&Channel::actions(e), n, STALL_TIMEOUT)?;
     let mut trans_tx = hub.sender::<f32, TransitionHeader>(&Channel::transitions(envs), n * TRANSITION_LEN, STALL_TIMEOUT)?;

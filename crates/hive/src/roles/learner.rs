@@ -36,6 +36,7 @@ pub fn run(role: RoleArgs) -> Result<()> {
     let ckpt_dir = run_dir.join("checkpoints");
     std::fs::create_dir_all(&ckpt_dir).with_context(|| format!("cannot create {}", ckpt_dir.display()))?;
     let mut dqn = Dqn::new(dqn_config(&cfg), cfg.seed, &rotorhive_model::device(&cfg.learner.device)?)?;
+    dqn.set_threads(cfg.learner.threads);
     let mut rx = hub.receiver::<f32, MinibatchHeader>(&Channel::minibatches(cfg.replay.prefetch))?;
     let mut w_tx = hub.sender::<f32, WeightsHeader>(&Channel::weights(cfg.sim.envs), num_params(), STALL_TIMEOUT)?;
     let mut tel = Counters::new(&hub, RoleKind::Learner, 0, super::sim::roles_of(&cfg))?;
@@ -112,10 +113,11 @@ impl PathFigures {
 }
 
 /// Measures updates and inference on one path (fused or generic).
-fn measure(fused: bool, batch: usize, updates: usize) -> Result<PathFigures> {
+fn measure(fused: bool, threads: usize, batch: usize, updates: usize) -> Result<PathFigures> {
     let cfg = Config::default();
-    let mut dqn = Dqn::new(dqn_config(&cfg), 1, &Device::Cpu)?;
+    let mut dqn = Dqn::new(DqnConfig { double: false, ..dqn_config(&cfg) }, 1, &Device::Cpu)?;
     dqn.set_fused(fused)?;
+    dqn.set_threads(threads);
     let mut rng = Pcg64Mcg::seed_from_u64(3);
     let mut data: Vec<f32> = (0..batch * TRANSITION_LEN).map(|_| rng.random::<f32>()).collect();
     for i in 0..batch {
@@ -155,11 +157,16 @@ pub fn bench(threads: usize, batch: usize, updates: usize, compare: bool, json: 
     if threads == 0 || batch == 0 || updates == 0 {
         bail!("--threads, --batch and --updates must be positive");
     }
-    // candle's CPU kernels size their pools from RAYON_NUM_THREADS on first use.
+    // The fused path shards over `threads` threads itself; candle's
+    // elementwise pool must stay single-threaded (it serialises concurrent
+    // callers), its GEMMs (generic path) use `RAYON_NUM_THREADS`.
     // SAFETY: no other thread exists yet in this process.
-    unsafe { std::env::set_var("RAYON_NUM_THREADS", threads.to_string()) };
-    let fused = measure(true, batch, updates)?;
-    let generic = if compare { Some(measure(false, batch, updates)?) } else { None };
+    unsafe {
+        std::env::set_var("RAYON_NUM_THREADS", threads.to_string());
+        std::env::set_var("CANDLE_NUM_THREADS", "1");
+    }
+    let fused = measure(true, threads, batch, updates)?;
+    let generic = if compare { Some(measure(false, threads, batch, updates)?) } else { None };
     for (name, p) in std::iter::once(("fused", &fused)).chain(generic.as_ref().map(|g| ("generic", g))) {
         println!(
             "{name:>8}: threads {threads}, batch {batch}: {:.1} updates/s (forward {:.2} ms, backward {:.2} ms, optimiser {:.2} ms); inference batch 1: {:.3} ms, batch 50: {:.3} ms",
