@@ -75,10 +75,6 @@ pub struct ActorSection {
     pub threads: usize,
     /// Device for inference: "cpu", or "cuda" in a build with `--features cuda`.
     pub device: String,
-    /// Rate limit: the actors pause while the transitions they sent past
-    /// `replay.min_fill` exceed the learner's sampled transitions divided by
-    /// this ratio (sampled per inserted). 0 turns the limit off.
-    pub samples_per_insert: f64,
 }
 
 /// `[replay]`.
@@ -93,6 +89,10 @@ pub struct ReplaySection {
     pub batch: usize,
     /// Minibatches queued ahead for the learner.
     pub prefetch: usize,
+    /// Rate limit (as in Reverb): the sims pause while the transitions
+    /// produced past `min_fill` exceed the transitions the learner has
+    /// sampled divided by this ratio (sampled per inserted). 0 turns it off.
+    pub samples_per_insert: f64,
 }
 
 /// `[learner]`.
@@ -156,13 +156,13 @@ impl Default for SimSection {
 
 impl Default for ActorSection {
     fn default() -> Self {
-        Self { eps_start: 1.0, eps_end: 0.02, eps_decay: 30_000, threads: 1, device: "cpu".into(), samples_per_insert: 0.0 }
+        Self { eps_start: 1.0, eps_end: 0.02, eps_decay: 30_000, threads: 1, device: "cpu".into() }
     }
 }
 
 impl Default for ReplaySection {
     fn default() -> Self {
-        Self { capacity: 15_000, min_fill: 15_000, batch: 32, prefetch: 4 }
+        Self { capacity: 15_000, min_fill: 15_000, batch: 32, prefetch: 4, samples_per_insert: 0.0 }
     }
 }
 
@@ -232,8 +232,8 @@ impl Config {
             }
         }
         positive("actor.threads", a.threads as f64)?;
-        if !(a.samples_per_insert.is_finite() && a.samples_per_insert >= 0.0) {
-            bail!("key `actor.samples_per_insert` must be 0 (off) or positive, got {}", a.samples_per_insert);
+        if !(self.replay.samples_per_insert.is_finite() && self.replay.samples_per_insert >= 0.0) {
+            bail!("key `replay.samples_per_insert` must be 0 (off) or positive, got {}", self.replay.samples_per_insert);
         }
         for (k, v) in [("actor.device", &a.device), ("learner.device", &self.learner.device)] {
             rotorhive_model::device(v).with_context(|| format!("key `{k}`"))?;

@@ -135,28 +135,25 @@ pub fn run(a: TrainArgs) -> Result<()> {
     let exe = std::env::current_exe().context("cannot find the hive executable")?;
     let logs = run_dir.join("logs");
     std::fs::create_dir_all(&logs)?;
-    let mut specs: Vec<(String, Vec<String>, usize)> = vec![
-        ("learner".into(), vec!["learner".into()], cfg.learner.threads),
-        ("replay".into(), vec!["replay".into()], 1),
-    ];
+    let mut specs: Vec<(String, Vec<String>)> = vec![("learner".into(), vec!["learner".into()]), ("replay".into(), vec!["replay".into()])];
     for e in 0..envs {
-        specs.push((format!("actor-{e}"), vec!["actor".into(), "--env".into(), e.to_string()], cfg.actor.threads));
-        specs.push((format!("sim-{e}"), vec!["sim".into(), "--env".into(), e.to_string()], cfg.sim.render_threads));
+        specs.push((format!("actor-{e}"), vec!["actor".into(), "--env".into(), e.to_string()]));
+        specs.push((format!("sim-{e}"), vec!["sim".into(), "--env".into(), e.to_string()]));
     }
     let mut children = Children { roles: Vec::new() };
-    for (name, args, threads) in specs {
+    for (name, args) in specs {
         let log = File::create(logs.join(format!("{name}.log")))?;
         let child = Command::new(&exe)
             .args(&args)
             .arg(&cfg_path)
             .args(["--prefix", &prefix, "--run-dir"])
             .arg(&run_dir)
-            // Roles size their own parallelism from the config; candle's
-            // pools stay single-threaded (idle spinning workers would steal
-            // the cores the other roles need).
+            // Roles size their own parallelism from the config (learner and
+            // actor threads, render threads); candle's pools stay
+            // single-threaded (idle spinning workers would steal the cores
+            // the other roles need).
             .env("RAYON_NUM_THREADS", "1")
             .env("CANDLE_NUM_THREADS", "1")
-            .env("HIVE_THREADS", threads.to_string())
             .stdin(Stdio::null())
             .stdout(log.try_clone()?)
             .stderr(log)

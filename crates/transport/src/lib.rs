@@ -109,10 +109,11 @@ impl Channel {
     pub fn minibatches(prefetch: usize) -> Self {
         Self { name: "minibatches".into(), publishers: 1, subscribers: 1, buffer: prefetch, overflow: false, history: 0 }
     }
-    /// Weights from the learner to every actor: only the newest matters, and
-    /// an actor that starts late gets the last published version.
+    /// Weights from the learner to every actor (and to every sim, which reads
+    /// the update count for rate limiting): only the newest matters, and a
+    /// late subscriber gets the last published version.
     pub fn weights(envs: usize) -> Self {
-        Self { name: "weights".into(), publishers: 1, subscribers: envs + 2, buffer: 1, overflow: true, history: 1 }
+        Self { name: "weights".into(), publishers: 1, subscribers: 2 * envs + 2, buffer: 1, overflow: true, history: 1 }
     }
     /// Telemetry from every role to the supervisor; old samples may be overwritten.
     pub fn telemetry(roles: usize) -> Self {

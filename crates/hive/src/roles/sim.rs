@@ -4,7 +4,7 @@
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
-use rotorhive_msg::{ActionHeader, OBS_LEN, ObsHeader, RoleKind, obs_batch_len};
+use rotorhive_msg::{ActionHeader, OBS_LEN, ObsHeader, RoleKind, WeightsHeader, obs_batch_len};
 use rotorhive_sim::VecEnv;
 use rotorhive_transport::Channel;
 
@@ -26,6 +26,7 @@ pub fn run(role: RoleArgs, env_index: usize) -> Result<()> {
     let mut obs_tx = hub.sender::<f32, ObsHeader>(&Channel::obs(env_index), obs_batch_len(n), STALL_TIMEOUT)?;
     let mut act_rx = hub.receiver::<u8, ActionHeader>(&Channel::actions(env_index))?;
     let mut tel = Counters::new(&hub, RoleKind::Sim, env_index, roles_of(&cfg))?;
+    let mut limiter = RateLimiter::new(&hub, &cfg)?;
     let mut step = 0u64;
     let mut timing = (0u64, 0u64);
     let mut need_send = true;
@@ -78,9 +79,57 @@ pub fn run(role: RoleArgs, env_index: usize) -> Result<()> {
         tel.sample.work += n as u64;
         tel.sample.work2 += env.finished().len() as u64;
         need_send = true;
+        let t = Instant::now();
+        limiter.wait(&hub, step)?;
+        // Waiting on the rate limit is waiting on another process.
+        tel.stage(3, t);
     }
     tel.tick(true);
     Ok(())
+}
+
+/// Holds a sim back while its share of the transitions inserted past
+/// `replay.min_fill` outruns what the learner has sampled divided by
+/// `replay.samples_per_insert`. The learner's update count arrives in the
+/// header of every weights publication.
+struct RateLimiter {
+    weights: Option<rotorhive_transport::Receiver<rotorhive_transport::Ipc, f32, WeightsHeader>>,
+    per_step: f64,
+    min_fill: f64,
+    per_update: f64,
+    updates: u64,
+}
+
+impl RateLimiter {
+    fn new(hub: &rotorhive_transport::Hub<rotorhive_transport::Ipc>, cfg: &crate::config::Config) -> Result<Self> {
+        let r = &cfg.replay;
+        let on = r.samples_per_insert > 0.0;
+        let weights = if on { Some(hub.receiver::<f32, WeightsHeader>(&Channel::weights(cfg.sim.envs))?) } else { None };
+        Ok(Self {
+            weights,
+            // Transitions per step across all sims (they run at the same pace).
+            per_step: (cfg.sim.agents * cfg.sim.envs) as f64,
+            min_fill: r.min_fill as f64,
+            per_update: r.batch as f64 / r.samples_per_insert.max(f64::MIN_POSITIVE),
+            updates: 0,
+        })
+    }
+
+    fn wait(&mut self, hub: &rotorhive_transport::Hub<rotorhive_transport::Ipc>, steps: u64) -> Result<()> {
+        let Some(rx) = &mut self.weights else { return Ok(()) };
+        loop {
+            if let Some(m) = rx.latest().context("reading the learner's update count")? {
+                self.updates = self.updates.max(m.user_header().updates);
+            }
+            let inserted = steps as f64 * self.per_step;
+            if inserted <= self.min_fill + self.updates as f64 * self.per_update + self.per_step || hub.shutdown_requested() {
+                return Ok(());
+            }
+            if let Some(m) = rx.recv_timeout(POLL).context("waiting for the learner")? {
+                self.updates = self.updates.max(m.user_header().updates);
+            }
+        }
+    }
 }
 
 fn send_obs(tx: &mut rotorhive_transport::Sender<rotorhive_transport::Ipc, f32, ObsHeader>, env: &VecEnv, e: usize, step: u64, timing: (u64, u64)) -> rotorhive_transport::Result<()> {
