@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use serde::{Deserialize, Serialize};
 
-use rotorhive_sim::{Arena, CameraSpec, SimConfig};
+use rotorhive_sim::{Arena, CameraSpec, RendererKind, SimConfig};
 
 /// The whole configuration of a run.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -30,6 +30,33 @@ pub struct Config {
     pub replay: ReplaySection,
     /// Learner settings.
     pub learner: LearnerSection,
+    /// Greedy evaluation during training.
+    pub eval: EvalSection,
+}
+
+/// `[eval]`: `hive train` flies the newest published weights greedily every
+/// `every_s` seconds (and at the threshold crossing) and keeps the best as
+/// `checkpoints/best.safetensors`, the run's result.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EvalSection {
+    /// Seconds between evaluations; 0 turns evaluation off.
+    pub every_s: f64,
+    /// Episodes per evaluation (flown at once, one per agent).
+    pub episodes: usize,
+    /// Arena of the evaluations; empty means the training arena.
+    pub arena: String,
+    /// After the threshold, training goes on until an evaluation reaches
+    /// this success rate ...
+    pub target_success: f64,
+    /// ... or for at most this many seconds.
+    pub after_threshold_s: f64,
+}
+
+impl Default for EvalSection {
+    fn default() -> Self {
+        Self { every_s: 15.0, episodes: 50, arena: String::new(), target_success: 0.8, after_threshold_s: 120.0 }
+    }
 }
 
 /// `[sim]`.
@@ -132,6 +159,7 @@ impl Default for Config {
             actor: ActorSection::default(),
             replay: ReplaySection::default(),
             learner: LearnerSection::default(),
+            eval: EvalSection::default(),
         }
     }
 }
@@ -199,6 +227,16 @@ impl Config {
         }
         positive("max_seconds", self.max_seconds)?;
         positive("rolling_window", self.rolling_window as f64)?;
+        let e = &self.eval;
+        for (k, v) in [("eval.every_s", e.every_s), ("eval.after_threshold_s", e.after_threshold_s)] {
+            if !(v.is_finite() && v >= 0.0) {
+                bail!("key `{k}` must be 0 or positive, got {v}");
+            }
+        }
+        positive("eval.episodes", e.episodes as f64)?;
+        if !(0.0..=1.0).contains(&e.target_success) {
+            bail!("key `eval.target_success` must be a rate between 0 and 1, got {}", e.target_success);
+        }
         let s = &self.sim;
         positive("sim.envs", s.envs as f64)?;
         positive("sim.agents", s.agents as f64)?;
@@ -216,14 +254,8 @@ impl Config {
         if !["cpu", "wgpu"].contains(&s.renderer.as_str()) {
             bail!("key `sim.renderer` must be \"cpu\" or \"wgpu\", got {:?}", s.renderer);
         }
-        if s.renderer == "wgpu" {
-            bail!("key `sim.renderer`: the wgpu renderer is not built yet (issue 5); use \"cpu\"");
-        }
         if !["batched", "non-batched"].contains(&s.observation_mode.as_str()) {
             bail!("key `sim.observation_mode` must be \"batched\" or \"non-batched\", got {:?}", s.observation_mode);
-        }
-        if s.observation_mode == "non-batched" {
-            bail!("key `sim.observation_mode`: the non-batched mode is not built yet (issue 5); use \"batched\"");
         }
         let a = &self.actor;
         for (k, v) in [("actor.eps_start", a.eps_start), ("actor.eps_end", a.eps_end)] {
@@ -269,6 +301,11 @@ impl Config {
         Ok(Arena::load(&self.sim.arena)?)
     }
 
+    /// The arena of greedy evaluations during training.
+    pub fn eval_arena(&self) -> Result<Arena> {
+        if self.eval.arena.is_empty() { self.arena() } else { Ok(Arena::load(Path::new(&self.eval.arena))?) }
+    }
+
     /// The simulator settings for one environment.
     pub fn sim_config(&self) -> SimConfig {
         let s = &self.sim;
@@ -280,6 +317,8 @@ impl Config {
             interactive: s.interactive,
             camera: CameraSpec { range: s.depth_range, ..CameraSpec::default() },
             render_threads: s.render_threads,
+            renderer: if s.renderer == "wgpu" { RendererKind::Wgpu } else { RendererKind::Cpu },
+            batched: s.observation_mode == "batched",
             ..SimConfig::default()
         }
     }

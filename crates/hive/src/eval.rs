@@ -27,15 +27,26 @@ pub struct EvalArgs {
     pub json: bool,
 }
 
-pub fn run(a: EvalArgs) -> Result<()> {
-    if a.episodes == 0 {
-        bail!("--episodes must be positive");
+/// What a greedy evaluation found.
+#[derive(Debug, Clone, Copy)]
+pub struct EvalStats {
+    pub episodes: usize,
+    pub successes: usize,
+    pub collisions: usize,
+    pub mean_reward: f64,
+}
+
+impl EvalStats {
+    pub fn success_rate(&self) -> f64 {
+        self.successes as f64 / self.episodes.max(1) as f64
     }
-    let net = QNet::new(0, &Device::Cpu)?;
-    net.load(&a.checkpoint)?;
-    let arena = Arena::load(&a.arena)?;
-    let n = a.episodes;
-    let mut env = VecEnv::new(SimConfig { agents: n, ..SimConfig::default() }, arena, a.seed);
+}
+
+/// Flies `episodes` greedy episodes at once, one per agent, each agent's
+/// first episode counted.
+pub fn fly_greedy(net: &QNet, sim: SimConfig, arena: Arena, episodes: usize, seed: u64) -> Result<EvalStats> {
+    let n = episodes;
+    let mut env = VecEnv::new(SimConfig { agents: n, ..sim }, arena, seed);
     let mut result: Vec<Option<(f32, Done)>> = vec![None; n];
     let max_steps = env.config().max_steps;
     for _ in 0..max_steps + 1 {
@@ -49,10 +60,24 @@ pub fn run(a: EvalArgs) -> Result<()> {
         }
     }
     let done: Vec<(f32, Done)> = result.into_iter().flatten().collect();
-    let successes = done.iter().filter(|(_, d)| *d == Done::Goal).count();
-    let collisions = done.iter().filter(|(_, d)| *d == Done::Collision).count();
-    let mean_reward = done.iter().map(|(r, _)| *r as f64).sum::<f64>() / done.len().max(1) as f64;
-    let success_rate = successes as f64 / n as f64;
+    Ok(EvalStats {
+        episodes: n,
+        successes: done.iter().filter(|(_, d)| *d == Done::Goal).count(),
+        collisions: done.iter().filter(|(_, d)| *d == Done::Collision).count(),
+        mean_reward: done.iter().map(|(r, _)| *r as f64).sum::<f64>() / done.len().max(1) as f64,
+    })
+}
+
+pub fn run(a: EvalArgs) -> Result<()> {
+    if a.episodes == 0 {
+        bail!("--episodes must be positive");
+    }
+    let net = QNet::new(0, &Device::Cpu)?;
+    net.load(&a.checkpoint)?;
+    let arena = Arena::load(&a.arena)?;
+    let n = a.episodes;
+    let st = fly_greedy(&net, SimConfig::default(), arena, n, a.seed)?;
+    let (success_rate, mean_reward, collisions) = (st.success_rate(), st.mean_reward, st.collisions);
     println!("{n} episodes on {}: success {:.1} %, collisions {collisions}, mean reward {mean_reward:.1}", a.arena.display(), success_rate * 100.0);
     if a.json {
         println!("{}", serde_json::json!({ "success_rate": success_rate, "mean_reward": mean_reward, "episodes": n, "collisions": collisions, "arena": a.arena.display().to_string() }));

@@ -10,12 +10,16 @@ use std::fs::File;
 use std::io::Write;
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
-use rotorhive_msg::{RoleKind, Telemetry};
+use rotorhive_model::{Device, QNet};
+use rotorhive_msg::{RoleKind, Telemetry, WeightsHeader};
 use rotorhive_transport::{Channel, Hub, Ipc, cleanup_dead_nodes, services_of_run};
 use serde_json::json;
 use sysinfo::{Pid, ProcessesToUpdate, System};
@@ -102,6 +106,64 @@ fn civil_from_days(z: i64) -> (i64, u32, u32) {
     (yoe + era * 400 + (m <= 2) as i64, m, d)
 }
 
+/// One greedy evaluation during training.
+#[derive(Debug, Clone, Copy)]
+struct EvalPoint {
+    wall: f64,
+    updates: u64,
+    success: f64,
+    mean_reward: f64,
+}
+
+/// Flies the newest published weights greedily every `eval.every_s` seconds
+/// (or when asked through `now`), on its own iceoryx2 node, and keeps the
+/// best weights as `checkpoints/best.safetensors`. Every evaluation uses the
+/// same spawn positions, so they compare.
+fn evaluator(prefix: String, cfg: Config, run_dir: PathBuf, start: Instant, stop: Arc<AtomicBool>, now: mpsc::Receiver<()>, out: mpsc::Sender<EvalPoint>) -> Result<()> {
+    let hub = Hub::<Ipc>::new(&prefix, "eval")?;
+    let mut rx = hub.receiver::<f32, WeightsHeader>(&Channel::weights(cfg.sim.envs))?;
+    let mut net = QNet::new(0, &Device::Cpu)?;
+    net.set_threads(1);
+    let arena = cfg.eval_arena()?;
+    let every = Duration::from_secs_f64(cfg.eval.every_s);
+    let mut next = Instant::now() + every;
+    let mut best: Option<(f64, f64)> = None;
+    let mut csv = File::create(run_dir.join("evals.csv"))?;
+    writeln!(csv, "wall_s,updates,version,episodes,success_rate,mean_reward,best")?;
+    let ckpt_dir = run_dir.join("checkpoints");
+    std::fs::create_dir_all(&ckpt_dir)?;
+    while !stop.load(Ordering::Relaxed) {
+        let asked = now.try_recv().is_ok();
+        if !asked && Instant::now() < next {
+            std::thread::sleep(Duration::from_millis(50));
+            continue;
+        }
+        let Some(m) = rx.latest().context("reading weights to evaluate")? else {
+            // Nothing new since the last evaluation.
+            next = Instant::now() + Duration::from_millis(500);
+            continue;
+        };
+        let h = *m.user_header();
+        net.load_flat(m.payload()).context("loading weights to evaluate")?;
+        drop(m);
+        let st = crate::eval::fly_greedy(&net, cfg.sim_config(), arena.clone(), cfg.eval.episodes, cfg.seed.wrapping_add(7777))?;
+        let (success, mean_reward) = (st.success_rate(), st.mean_reward);
+        let better = best.is_none_or(|b| (success, mean_reward) > b);
+        if better {
+            best = Some((success, mean_reward));
+            let path = ckpt_dir.join("best.safetensors");
+            let tmp = ckpt_dir.join("best.safetensors.tmp");
+            net.save(&tmp)?;
+            std::fs::rename(&tmp, &path).with_context(|| format!("cannot write {}", path.display()))?;
+        }
+        let wall = start.elapsed().as_secs_f64();
+        writeln!(csv, "{wall:.3},{},{},{},{success:.4},{mean_reward:.2},{}", h.updates, h.version, st.episodes, better as u8)?;
+        let _ = out.send(EvalPoint { wall, updates: h.updates, success, mean_reward });
+        next = Instant::now() + every;
+    }
+    Ok(())
+}
+
 pub fn run(a: TrainArgs) -> Result<()> {
     let mut cfg = Config::load(a.cfg.config.as_deref(), &a.cfg.set)?;
     if let Some(s) = a.max_seconds {
@@ -117,6 +179,10 @@ pub fn run(a: TrainArgs) -> Result<()> {
     let run_dir = run_dir.canonicalize()?;
     // Roles read the arena relative to their working directory: resolve it now.
     cfg.sim.arena = cfg.sim.arena.canonicalize().with_context(|| format!("arena {}", cfg.sim.arena.display()))?;
+    if !cfg.eval.arena.is_empty() {
+        cfg.eval.arena = std::path::Path::new(&cfg.eval.arena).canonicalize().with_context(|| format!("key `eval.arena`: {}", cfg.eval.arena))?.display().to_string();
+        cfg.eval_arena()?;
+    }
     let cfg_path = run_dir.join("config.toml");
     std::fs::write(&cfg_path, cfg.to_toml()).with_context(|| format!("cannot write {}", cfg_path.display()))?;
 
@@ -190,6 +256,19 @@ pub fn run(a: TrainArgs) -> Result<()> {
     let sum_work = |latest: &BTreeMap<(u32, u32), Telemetry>, role: RoleKind| latest.values().filter(|t| t.role == role as u32).map(|t| t.work).sum::<u64>();
     let threshold = cfg.threshold;
 
+    // Greedy evaluation beside training.
+    let eval_on = cfg.eval.every_s > 0.0;
+    let eval_stop = Arc::new(AtomicBool::new(false));
+    let (eval_now, eval_now_rx) = mpsc::channel();
+    let (eval_tx, eval_rx) = mpsc::channel();
+    let mut evaluator_thread = None;
+    if eval_on {
+        let (p, c, d, st) = (prefix.clone(), cfg.clone(), run_dir.clone(), eval_stop.clone());
+        evaluator_thread = Some(std::thread::Builder::new().name("eval".into()).spawn(move || evaluator(p, c, d, start, st, eval_now_rx, eval_tx))?);
+    }
+    let mut evals: Vec<EvalPoint> = Vec::new();
+    let mut best_eval: Option<EvalPoint> = None;
+
     loop {
         if hub.shutdown_requested() {
             interrupted = true;
@@ -219,14 +298,32 @@ pub fn run(a: TrainArgs) -> Result<()> {
                 )?;
                 if recent.len() == window && roll >= threshold && time_to_threshold.is_none() {
                     time_to_threshold = Some(wall);
+                    let _ = eval_now.send(());
                 }
             }
+        }
+        while let Ok(p) = eval_rx.try_recv() {
+            if best_eval.is_none_or(|b| (p.success, p.mean_reward) > (b.success, b.mean_reward)) {
+                best_eval = Some(p);
+            }
+            evals.push(p);
         }
         while let Some(m) = tel_rx.try_recv()? {
             let t = *m.user_header();
             latest.insert((t.role, t.index), t);
         }
-        if time_to_threshold.is_some() {
+        if let Some(t) = time_to_threshold {
+            // Without evaluation the run ends at the threshold; with it,
+            // training goes on until a greedy evaluation is good enough.
+            let good = best_eval.is_some_and(|b| b.success >= cfg.eval.target_success && b.wall >= t);
+            if !eval_on || good || start.elapsed().as_secs_f64() - t >= cfg.eval.after_threshold_s {
+                break;
+            }
+        }
+        if let Some(h) = &evaluator_thread
+            && h.is_finished()
+        {
+            failure = Some("the evaluator stopped; see the error below".into());
             break;
         }
         // A role that exits on its own is a failure (restarts: issue 7).
@@ -277,9 +374,10 @@ pub fn run(a: TrainArgs) -> Result<()> {
             let steps = sum_work(&latest, RoleKind::Sim);
             let updates = sum_work(&latest, RoleKind::Learner);
             bar.set_message(format!(
-                "steps {steps} ({:.0}/s) | episodes {episodes} | rolling reward {roll:.1} | eps {epsilon:.3} | updates {updates} ({:.1}/s) | cpu {machine:.0}%",
+                "steps {steps} ({:.0}/s) | episodes {episodes} | rolling reward {roll:.1} | eps {epsilon:.3} | updates {updates} ({:.1}/s) | best eval {} | cpu {machine:.0}%",
                 steps as f64 / wall.max(1e-9),
-                updates as f64 / wall.max(1e-9)
+                updates as f64 / wall.max(1e-9),
+                best_eval.map_or("-".to_string(), |b| format!("{:.0}%", b.success * 100.0)),
             ));
         }
         std::thread::sleep(Duration::from_millis(20));
@@ -291,6 +389,24 @@ pub fn run(a: TrainArgs) -> Result<()> {
         let t = *m.user_header();
         latest.insert((t.role, t.index), t);
     }
+    eval_stop.store(true, Ordering::Relaxed);
+    let mut eval_error = None;
+    if let Some(h) = evaluator_thread {
+        match h.join() {
+            Ok(Ok(())) => {}
+            Ok(Err(e)) => eval_error = Some(format!("{e:#}")),
+            Err(_) => eval_error = Some("the evaluator panicked".into()),
+        }
+    }
+    if let Some(e) = eval_error {
+        failure = Some(format!("evaluation failed: {e}"));
+    }
+    while let Ok(p) = eval_rx.try_recv() {
+        if best_eval.is_none_or(|b| (p.success, p.mean_reward) > (b.success, b.mean_reward)) {
+            best_eval = Some(p);
+        }
+        evals.push(p);
+    }
     children.stop();
     drop(ep_rx);
     drop(tel_rx);
@@ -300,7 +416,10 @@ pub fn run(a: TrainArgs) -> Result<()> {
     let env_steps = sum_work(&latest, RoleKind::Sim);
     let updates = sum_work(&latest, RoleKind::Learner);
     let final_ckpt = run_dir.join("final.safetensors");
-    let checkpoint = if final_ckpt.exists() { Some(final_ckpt) } else { Some(run_dir.join("checkpoints/latest.safetensors")).filter(|p| p.exists()) };
+    let last_checkpoint = if final_ckpt.exists() { Some(final_ckpt) } else { Some(run_dir.join("checkpoints/latest.safetensors")).filter(|p| p.exists()) };
+    // The run's result is the best greedy policy seen, else the last weights.
+    let best_ckpt = run_dir.join("checkpoints/best.safetensors");
+    let checkpoint = if best_ckpt.exists() { Some(best_ckpt) } else { last_checkpoint.clone() };
     let roll = rolling(&recent);
     let summary = json!({
         "converged": time_to_threshold.is_some(),
@@ -326,6 +445,12 @@ pub fn run(a: TrainArgs) -> Result<()> {
         "restarts": 0,
         "lost_messages": latest.values().map(|t| t.lost).sum::<u64>(),
         "checkpoint": checkpoint.as_ref().map(|p| p.display().to_string()),
+        "last_checkpoint": last_checkpoint.as_ref().map(|p| p.display().to_string()),
+        "evaluations": evals.len(),
+        "best_eval_success_rate": best_eval.map(|b| b.success),
+        "best_eval_mean_reward": best_eval.map(|b| b.mean_reward),
+        "best_eval_at_s": best_eval.map(|b| b.wall),
+        "best_eval_updates": best_eval.map(|b| b.updates),
         "interrupted": interrupted,
         "failure": failure,
         "leftover_services": leftover,

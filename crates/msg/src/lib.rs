@@ -68,8 +68,14 @@ impl DoneKind {
 pub struct ObsHeader {
     /// Environment (sim process) index.
     pub env: u32,
-    /// Agents in the batch.
+    /// Agents in this message: all of them in batched mode, one in
+    /// non-batched mode.
     pub agents: u32,
+    /// Index of the first agent in this message.
+    pub first: u32,
+    /// Agents of the environment (the step is complete once `total` agents'
+    /// observations have arrived).
+    pub total: u32,
     /// Environment step this observation follows (0 after the initial reset).
     pub step: u64,
     /// Nanoseconds the sim spent on physics for this step.

@@ -16,7 +16,7 @@ fn bench(c: &mut Criterion) {
             .collect();
         let mut r = DepthRenderer::new(CameraSpec::default(), 1);
         let mut out = vec![0.0; n * 1024];
-        c.bench_function(&format!("render {n} agents"), |b| b.iter(|| r.render(&scene, &cams, None, &mut out)));
+        c.bench_function(&format!("render {n} agents"), |b| b.iter(|| r.render(&scene, &cams, 0, None, &mut out)));
         let mut env = VecEnv::new(SimConfig { agents: n, ..SimConfig::default() }, arena.clone(), 1);
         let mut t = 0u32;
         c.bench_function(&format!("env step {n} agents"), |b| {

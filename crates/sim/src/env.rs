@@ -13,6 +13,7 @@ use rapier3d::prelude::*;
 
 use crate::arena::{Arena, Obstacle};
 use crate::dynamics::{DroneState, Gains, QuadParams, control};
+use crate::gpu::{GpuDepthRenderer, GpuError};
 use crate::render::{CameraPose, CameraSpec, DepthRenderer, Drones, Scene};
 
 /// Why an episode ended (mirrors `rotorhive_msg::DoneKind` codes).
@@ -27,6 +28,16 @@ pub enum Done {
     Goal = 2,
     /// Ran out of steps.
     Timeout = 3,
+}
+
+/// Which renderer draws the depth images.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum RendererKind {
+    /// Ray casting on the CPU.
+    #[default]
+    Cpu,
+    /// Rasterising with wgpu (a GPU, or lavapipe on the CPU).
+    Wgpu,
 }
 
 /// Settings of the simulator.
@@ -56,8 +67,14 @@ pub struct SimConfig {
     pub interactive: bool,
     /// Depth camera.
     pub camera: CameraSpec,
-    /// Threads for rendering.
+    /// Threads for rendering (CPU renderer).
     pub render_threads: usize,
+    /// The renderer.
+    pub renderer: RendererKind,
+    /// All agents' images in one render call per step (true), or one call,
+    /// one submission and one synchronisation per agent (false: the
+    /// non-batched path of the paper, on purpose).
+    pub batched: bool,
     /// Radius of the drone's collision sphere (m).
     pub drone_radius: f32,
     /// Quadrotor constants.
@@ -82,6 +99,8 @@ impl Default for SimConfig {
             interactive: false,
             camera: CameraSpec::default(),
             render_threads: 1,
+            renderer: RendererKind::Cpu,
+            batched: true,
             drone_radius: 0.3,
             quad: QuadParams::default(),
             gains: Gains::default(),
@@ -125,6 +144,9 @@ pub struct VecEnv {
     colliders: Vec<ColliderHandle>,
     scene: Scene,
     renderer: DepthRenderer,
+    gpu: Option<GpuDepthRenderer>,
+    /// Agent index of every camera, for the GPU renderer.
+    agent_ids: Vec<u32>,
     rng: Pcg64Mcg,
     lateral_sp: Vec<f32>,
     steps: Vec<u32>,
@@ -143,9 +165,16 @@ pub struct VecEnv {
 }
 
 impl VecEnv {
-    /// Builds the world: obstacles, walls, floor and ceiling as fixed
-    /// colliders, and one drone per agent at a random spawn pose.
+    /// Builds the world with the CPU renderer; panics if `cfg.renderer` is
+    /// wgpu and no adapter can be opened (use [`VecEnv::try_new`] there).
     pub fn new(cfg: SimConfig, arena: Arena, seed: u64) -> Self {
+        Self::try_new(cfg, arena, seed).expect("the renderer could not start")
+    }
+
+    /// Builds the world: obstacles, walls, floor and ceiling as fixed
+    /// colliders, one drone per agent at a random spawn pose, and the
+    /// renderer (the wgpu one can fail to find an adapter).
+    pub fn try_new(cfg: SimConfig, arena: Arena, seed: u64) -> Result<Self, GpuError> {
         assert!(cfg.agents > 0, "a VecEnv needs at least one agent");
         let mut world = PhysicsWorld::new();
         world.gravity = Vector::new(0.0, 0.0, -9.81);
@@ -197,9 +226,16 @@ impl VecEnv {
         let n = cfg.agents;
         let px = cfg.camera.side * cfg.camera.side;
         let obs_len = 2 * px + 3;
+        let scene = Scene::new(&arena);
+        let gpu = match cfg.renderer {
+            RendererKind::Cpu => None,
+            RendererKind::Wgpu => Some(GpuDepthRenderer::new(cfg.camera, &scene)?),
+        };
         let mut env = Self {
             renderer: DepthRenderer::new(cfg.camera, cfg.render_threads),
-            scene: Scene::new(&arena),
+            gpu,
+            agent_ids: (0..n as u32).collect(),
+            scene,
             arena,
             world,
             bodies,
@@ -222,10 +258,15 @@ impl VecEnv {
         for i in 0..n {
             env.reset_agent(i);
         }
-        env.render();
+        env.render()?;
         env.prev.copy_from_slice(&env.cur);
         env.assemble_obs();
-        env
+        Ok(env)
+    }
+
+    /// The GPU renderer, when the config chose it.
+    pub fn gpu(&self) -> Option<&GpuDepthRenderer> {
+        self.gpu.as_ref()
     }
 
     /// Number of agents.
@@ -333,8 +374,15 @@ impl VecEnv {
 
     /// Advances every agent by one action period.
     ///
-    /// `actions[i]` is 0 (lateral setpoint −`lateral_step`) or 1 (+`lateral_step`).
+    /// `actions[i]` is 0 (lateral setpoint −`lateral_step`) or 1
+    /// (+`lateral_step`). Panics if the wgpu renderer fails; see
+    /// [`VecEnv::try_step`].
     pub fn step(&mut self, actions: &[u8]) {
+        self.try_step(actions).expect("rendering failed");
+    }
+
+    /// [`VecEnv::step`], with the wgpu renderer's failures returned.
+    pub fn try_step(&mut self, actions: &[u8]) -> Result<(), GpuError> {
         assert_eq!(actions.len(), self.cfg.agents, "one action per agent");
         let t0 = Instant::now();
         let cfg = &self.cfg;
@@ -373,7 +421,7 @@ impl VecEnv {
         }
         let t2 = Instant::now();
         std::mem::swap(&mut self.prev, &mut self.cur);
-        self.render();
+        self.render()?;
         let t3 = Instant::now();
         // A reset agent starts with both frames equal to its first view.
         let px = self.cfg.camera.side * self.cfg.camera.side;
@@ -390,6 +438,7 @@ impl VecEnv {
             render_ns: (t3 - t2).as_nanos() as u64,
             reset_ns: ((t2 - t1) + (t4 - t3)).as_nanos() as u64,
         };
+        Ok(())
     }
 
     fn detect_collisions(&mut self) {
@@ -430,7 +479,7 @@ impl VecEnv {
         self.returns[i] = 0.0;
     }
 
-    fn render(&mut self) {
+    fn render(&mut self) -> Result<(), GpuError> {
         let cams: Vec<CameraPose> = self
             .bodies
             .iter()
@@ -441,7 +490,24 @@ impl VecEnv {
             .collect();
         let positions: Vec<Vector> = cams.iter().map(|c| c.position).collect();
         let drones = self.cfg.interactive.then_some(Drones { positions: &positions, radius: self.cfg.drone_radius });
-        self.renderer.render(&self.scene, &cams, drones, &mut self.cur);
+        let px = self.cfg.camera.side * self.cfg.camera.side;
+        match (&mut self.gpu, self.cfg.batched) {
+            (Some(g), true) => g.render(&cams, &self.agent_ids, drones, &mut self.cur)?,
+            (None, true) => self.renderer.render(&self.scene, &cams, 0, drones, &mut self.cur),
+            // Non-batched: one request, one submission and one
+            // synchronisation per agent.
+            (Some(g), false) => {
+                for (i, img) in self.cur.chunks_mut(px).enumerate() {
+                    g.render(&cams[i..i + 1], &self.agent_ids[i..i + 1], drones, img)?;
+                }
+            }
+            (None, false) => {
+                for (i, img) in self.cur.chunks_mut(px).enumerate() {
+                    self.renderer.render(&self.scene, &cams[i..i + 1], i, drones, img);
+                }
+            }
+        }
+        Ok(())
     }
 
     fn assemble_obs(&mut self) {

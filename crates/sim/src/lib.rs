@@ -6,8 +6,10 @@
 pub mod arena;
 pub mod dynamics;
 pub mod env;
+pub mod gpu;
 pub mod render;
 
 pub use arena::{Arena, ArenaError, GenParams, Obstacle, Spawn};
-pub use env::{Done, Episode, SimConfig, StepTiming, VecEnv};
+pub use env::{Done, Episode, RendererKind, SimConfig, StepTiming, VecEnv};
+pub use gpu::{GpuDepthRenderer, GpuError};
 pub use render::{CameraPose, CameraSpec, DepthRenderer, Scene};

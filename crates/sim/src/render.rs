@@ -39,7 +39,7 @@ pub struct CameraPose {
 }
 
 #[derive(Debug, Clone, Copy)]
-enum Shape {
+pub(crate) enum Shape {
     Box { min: Vector, max: Vector },
     Cylinder { cx: f32, cy: f32, r2: f32, zmin: f32, zmax: f32 },
 }
@@ -47,15 +47,17 @@ enum Shape {
 /// The static scene: obstacles in a grid, and the corridor's bounding planes.
 #[derive(Debug, Clone)]
 pub struct Scene {
-    shapes: Vec<Shape>,
+    pub(crate) shapes: Vec<Shape>,
     cell: f32,
     nx: usize,
     ny: usize,
     x0: f32,
     y0: f32,
     cells: Vec<Vec<u32>>,
-    half_width: f32,
-    height: f32,
+    pub(crate) half_width: f32,
+    pub(crate) height: f32,
+    /// Where the arena starts and ends along x.
+    pub(crate) x_extent: (f32, f32),
 }
 
 const CELL: f32 = 2.0;
@@ -97,7 +99,7 @@ impl Scene {
                 }
             }
         }
-        Self { shapes, cell: CELL, nx, ny, x0, y0, cells, half_width: hw, height: arena.height }
+        Self { shapes, cell: CELL, nx, ny, x0, y0, cells, half_width: hw, height: arena.height, x_extent: (0.0, arena.length) }
     }
 
     /// Gathers, without duplicates, the obstacles in cells overlapping the
@@ -178,8 +180,10 @@ impl DepthRenderer {
 
     /// Renders every camera into `out` (`cameras.len() × side²`), normalised
     /// depth in [0, 1] (planar depth divided by the range, clipped at 1).
-    /// With `drones`, camera `i` sees every drone but drone `i`.
-    pub fn render(&mut self, scene: &Scene, cameras: &[CameraPose], drones: Option<Drones<'_>>, out: &mut [f32]) {
+    /// With `drones`, camera `i` (drone `first_agent + i`) sees every drone
+    /// but its own.
+    #[allow(clippy::too_many_arguments)]
+    pub fn render(&mut self, scene: &Scene, cameras: &[CameraPose], first_agent: usize, drones: Option<Drones<'_>>, out: &mut [f32]) {
         let px = self.spec.side * self.spec.side;
         assert_eq!(out.len(), cameras.len() * px, "depth buffer has the wrong size");
         let spec = self.spec;
@@ -194,7 +198,7 @@ impl DepthRenderer {
         if threads == 1 {
             let s = &mut self.scratch[0];
             for (i, (cam, img)) in cameras.iter().zip(out.chunks_mut(px)).enumerate() {
-                render_one(scene, &spec, cam, drones.map(|d| (d, i)), s, img);
+                render_one(scene, &spec, cam, drones.map(|d| (d, first_agent + i)), s, img);
             }
             return;
         }
@@ -204,7 +208,7 @@ impl DepthRenderer {
                 let spec = &spec;
                 sc.spawn(move || {
                     for (j, (cam, img)) in cams.iter().zip(imgs.chunks_mut(px)).enumerate() {
-                        render_one(scene, spec, cam, drones.map(|d| (d, t * per + j)), s, img);
+                        render_one(scene, spec, cam, drones.map(|d| (d, first_agent + t * per + j)), s, img);
                     }
                 });
             }
@@ -368,7 +372,7 @@ mod tests {
         let scene = Scene::new(a);
         let mut r = DepthRenderer::new(spec, 1);
         let mut out = vec![0.0; spec.side * spec.side];
-        r.render(&scene, &[cam], None, &mut out);
+        r.render(&scene, &[cam], 0, None, &mut out);
         out.iter().map(|v| v * spec.range).collect()
     }
 
@@ -427,8 +431,8 @@ mod tests {
             .collect();
         let mut one = vec![0.0; 37 * 1024];
         let mut two = vec![0.0; 37 * 1024];
-        DepthRenderer::new(spec, 1).render(&scene, &cams, None, &mut one);
-        DepthRenderer::new(spec, 3).render(&scene, &cams, None, &mut two);
+        DepthRenderer::new(spec, 1).render(&scene, &cams, 0, None, &mut one);
+        DepthRenderer::new(spec, 3).render(&scene, &cams, 0, None, &mut two);
         assert_eq!(one, two);
         assert!(one.iter().all(|v| (0.0..=1.0).contains(v)));
         assert!(one.iter().any(|v| *v < 1.0));
@@ -442,13 +446,13 @@ mod tests {
         let positions = [Vector::new(10.0, 0.0, 5.0), Vector::new(14.0, 0.0, 5.0)];
         let cams: Vec<CameraPose> = positions.iter().map(|p| CameraPose { position: *p, rotation: Rotation::IDENTITY }).collect();
         let mut out = vec![0.0; 2 * 1024];
-        DepthRenderer::new(spec, 1).render(&scene, &cams, Some(Drones { positions: &positions, radius: 0.5 }), &mut out);
+        DepthRenderer::new(spec, 1).render(&scene, &cams, 0, Some(Drones { positions: &positions, radius: 0.5 }), &mut out);
         let centre = out[15 * 32 + 15] * spec.range;
         assert!((centre - 3.5).abs() < 0.05, "{centre}");
         // Drone 1 looks away from drone 0 and must not see its own sphere.
         assert!(out[1024 + 15 * 32 + 15] * spec.range > 30.0 - 1e-3);
         let mut hidden = vec![0.0; 2 * 1024];
-        DepthRenderer::new(spec, 1).render(&scene, &cams, None, &mut hidden);
+        DepthRenderer::new(spec, 1).render(&scene, &cams, 0, None, &mut hidden);
         assert!(hidden[15 * 32 + 15] * spec.range > 30.0 - 1e-3);
     }
 }

@@ -57,6 +57,9 @@ pub fn run(role: RoleArgs, e: usize) -> Result<()> {
     let mut transitions = 0u64;
     let mut finished: Vec<f32> = Vec::with_capacity(3 * n);
     let mut actions = vec![0u8; n];
+    let mut gather = vec![0.0f32; rotorhive_msg::obs_batch_len(n)];
+    let mut gather_step = u64::MAX;
+    let mut gathered = 0usize;
     loop {
         if hub.shutdown_requested() {
             break;
@@ -77,17 +80,44 @@ pub fn run(role: RoleArgs, e: usize) -> Result<()> {
         tel.tick(false);
         let Some(msg) = msg else { continue };
         let h = *msg.user_header();
-        let p = msg.payload();
-        if h.agents as usize != n || p.len() != rotorhive_msg::obs_batch_len(n) {
-            bail!("observation batch from sim {e} has {} agents, the config says {n}", h.agents);
+        if h.total as usize != n || h.first as usize + h.agents as usize > n || msg.payload().len() != rotorhive_msg::obs_batch_len(h.agents as usize) {
+            bail!("observation batch from sim {e} has agents {}..{} of {}, the config says {n}", h.first, h.first + h.agents, h.total);
         }
         if have_prev && h.step + 1 == expected_step {
             // The sim published this step again: our actions were not seen.
-            // Answer with the same actions and record nothing twice.
+            // Answer with the same actions (once) and record nothing twice.
             drop(msg);
-            send_actions(&mut act_tx, e, h.step, &prev_actions, &mut tel.sample.lost);
+            if h.first == 0 {
+                send_actions(&mut act_tx, e, h.step, &prev_actions, &mut tel.sample.lost);
+            }
             continue;
         }
+        // Non-batched mode: one message per agent, gathered into the layout
+        // of a whole batch before anything else happens.
+        let mut whole = None;
+        if h.agents as usize == n {
+            whole = Some(msg);
+        } else {
+            if h.step != gather_step || gathered == 0 {
+                gather_step = h.step;
+                gathered = 0;
+            }
+            let (a, k) = (h.first as usize, h.agents as usize);
+            let src = msg.payload();
+            gather[a * OBS_LEN..(a + k) * OBS_LEN].copy_from_slice(&src[..k * OBS_LEN]);
+            gather[n * OBS_LEN + a..n * OBS_LEN + a + k].copy_from_slice(&src[k * OBS_LEN..k * OBS_LEN + k]);
+            gather[n * OBS_LEN + n + a..n * OBS_LEN + n + a + k].copy_from_slice(&src[k * OBS_LEN + k..]);
+            drop(msg);
+            gathered += k;
+            if gathered < n {
+                continue;
+            }
+            gathered = 0;
+        }
+        let p: &[f32] = match &whole {
+            Some(m) => m.payload(),
+            None => &gather,
+        };
         if h.step != expected_step {
             // The sim restarted (step 0) or a batch was lost: start afresh.
             tel.sample.lost += 1;
@@ -153,7 +183,7 @@ pub fn run(role: RoleArgs, e: usize) -> Result<()> {
         }
         tel.stage(0, t);
         prev_obs.copy_from_slice(obs);
-        drop(msg);
+        drop(whole);
         prev_actions.copy_from_slice(&actions);
         have_prev = true;
         send_actions(&mut act_tx, e, h.step, &actions, &mut tel.sample.lost);

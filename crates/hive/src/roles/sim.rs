@@ -21,7 +21,8 @@ pub fn run(role: RoleArgs, env_index: usize) -> Result<()> {
     }
     let arena = cfg.arena()?;
     let n = cfg.sim.agents;
-    let mut env = VecEnv::new(cfg.sim_config(), arena, cfg.seed.wrapping_mul(1000).wrapping_add(env_index as u64));
+    let mut env = VecEnv::try_new(cfg.sim_config(), arena, cfg.seed.wrapping_mul(1000).wrapping_add(env_index as u64)).context("starting the simulator")?;
+    let batched = cfg.sim.observation_mode == "batched";
     assert_eq!(env.obs_len(), OBS_LEN, "simulator and message layouts disagree");
     let mut obs_tx = hub.sender::<f32, ObsHeader>(&Channel::obs(env_index), obs_batch_len(n), STALL_TIMEOUT)?;
     let mut act_rx = hub.receiver::<u8, ActionHeader>(&Channel::actions(env_index))?;
@@ -36,7 +37,7 @@ pub fn run(role: RoleArgs, env_index: usize) -> Result<()> {
             break;
         }
         if need_send {
-            match send_obs(&mut obs_tx, &env, env_index, step, timing) {
+            match send_obs(&mut obs_tx, &env, env_index, step, timing, batched) {
                 Ok(()) => {
                     need_send = false;
                     last_send = Instant::now();
@@ -68,7 +69,7 @@ pub fn run(role: RoleArgs, env_index: usize) -> Result<()> {
             tel.sample.lost += 1;
             continue;
         }
-        env.step(msg.payload());
+        env.try_step(msg.payload()).context("stepping the simulator")?;
         drop(msg);
         step += 1;
         let tm = env.timing();
@@ -132,18 +133,25 @@ impl RateLimiter {
     }
 }
 
-fn send_obs(tx: &mut rotorhive_transport::Sender<rotorhive_transport::Ipc, f32, ObsHeader>, env: &VecEnv, e: usize, step: u64, timing: (u64, u64)) -> rotorhive_transport::Result<()> {
-    let n = env.agents();
-    tx.send_with(obs_batch_len(n), |h, p| {
-        *h = ObsHeader { env: e as u32, agents: n as u32, step, physics_ns: timing.0, render_ns: timing.1 };
-        let (obs, rest) = p.split_at_mut(n * OBS_LEN);
-        obs.copy_from_slice(env.observations());
-        let (rew, done) = rest.split_at_mut(n);
-        rew.copy_from_slice(env.rewards());
-        for (d, k) in done.iter_mut().zip(env.dones()) {
-            *d = *k as u8 as f32;
-        }
-    })
+/// Publishes the observations of a step: one message for all agents
+/// (batched), or one message per agent (non-batched, the old path on purpose).
+fn send_obs(tx: &mut rotorhive_transport::Sender<rotorhive_transport::Ipc, f32, ObsHeader>, env: &VecEnv, e: usize, step: u64, timing: (u64, u64), batched: bool) -> rotorhive_transport::Result<()> {
+    let total = env.agents();
+    let per = if batched { total } else { 1 };
+    for first in (0..total).step_by(per) {
+        let n = per.min(total - first);
+        tx.send_with(obs_batch_len(n), |h, p| {
+            *h = ObsHeader { env: e as u32, agents: n as u32, first: first as u32, total: total as u32, step, physics_ns: timing.0, render_ns: timing.1 };
+            let (obs, rest) = p.split_at_mut(n * OBS_LEN);
+            obs.copy_from_slice(&env.observations()[first * OBS_LEN..(first + n) * OBS_LEN]);
+            let (rew, done) = rest.split_at_mut(n);
+            rew.copy_from_slice(&env.rewards()[first..first + n]);
+            for (d, k) in done.iter_mut().zip(&env.dones()[first..first + n]) {
+                *d = *k as u8 as f32;
+            }
+        })?;
+    }
+    Ok(())
 }
 
 /// Processes that publish telemetry in a run.

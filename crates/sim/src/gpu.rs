@@ -1,0 +1,460 @@
+//! Batched depth rendering on a GPU with wgpu (headless).
+//!
+//! The static scene (walls, floor, ceiling and every obstacle, already placed
+//! in the world) is one vertex buffer uploaded once. A step draws all
+//! cameras' 32×32 views as tiles of one atlas texture in one render pass: one
+//! instanced draw per camera with that camera's viewport (the instance index
+//! picks the camera), plus, in interactive mode, the other drones as
+//! instanced spheres. One submission and one read-back per call.
+//!
+//! The fragment shader writes the planar depth (distance along the camera's
+//! forward axis), which is exactly what the CPU ray caster computes, so both
+//! renderers give the same images up to tessellation (cylinders have 64
+//! facets) and edge pixels. Without a GPU, Mesa's lavapipe runs it on the CPU.
+
+use std::sync::mpsc;
+
+use rapier3d::math::Vector;
+use wgpu::util::DeviceExt;
+
+use crate::render::{CameraPose, CameraSpec, Drones, Scene, Shape};
+
+/// Why the GPU renderer could not start or render.
+#[derive(Debug, thiserror::Error)]
+pub enum GpuError {
+    /// No Vulkan adapter (install `mesa-vulkan-drivers` for the CPU one).
+    #[error("no GPU adapter found for the wgpu renderer ({0}); on a machine without a GPU install Mesa's lavapipe (Debian: mesa-vulkan-drivers)")]
+    NoAdapter(String),
+    /// The adapter refused the device.
+    #[error("the wgpu device could not be created: {0}")]
+    Device(String),
+    /// Reading the rendered depth back failed.
+    #[error("reading depth back from the GPU failed: {0}")]
+    Readback(String),
+}
+
+/// Tiles per atlas row: 8 × 32 px × 4 bytes = 1,024 bytes, a multiple of the
+/// 256-byte row alignment copies need.
+const COLS: u32 = 8;
+/// Facets of a cylinder's side.
+const CYLINDER_FACETS: usize = 64;
+const NEAR: f32 = 0.02;
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct GpuCamera {
+    origin: [f32; 3],
+    agent: u32,
+    fwd: [f32; 4],
+    right: [f32; 4],
+    up: [f32; 4],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct Params {
+    inv_tan: f32,
+    near: f32,
+    far: f32,
+    drones: u32,
+    radius: f32,
+    _pad: [f32; 3],
+}
+
+const SHADER: &str = r"
+struct Camera { origin: vec3<f32>, agent: u32, fwd: vec4<f32>, right: vec4<f32>, up: vec4<f32> };
+struct Params { inv_tan: f32, near: f32, far: f32, drones: u32, radius: f32, p0: f32, p1: f32, p2: f32 };
+@group(0) @binding(0) var<storage, read> cams: array<Camera>;
+@group(0) @binding(1) var<uniform> params: Params;
+@group(0) @binding(2) var<storage, read> drones: array<vec4<f32>>;
+
+struct VOut { @builtin(position) pos: vec4<f32>, @location(0) depth: f32 };
+
+fn project(cam: Camera, p: vec3<f32>) -> VOut {
+    let d = p - cam.origin;
+    let x = dot(d, cam.right.xyz);
+    let y = dot(d, cam.up.xyz);
+    let z = dot(d, cam.fwd.xyz);
+    var o: VOut;
+    o.pos = vec4<f32>(x * params.inv_tan, y * params.inv_tan, params.far * (z - params.near) / (params.far - params.near), z);
+    o.depth = z;
+    return o;
+}
+
+@vertex fn vs_scene(@location(0) p: vec3<f32>, @builtin(instance_index) i: u32) -> VOut {
+    return project(cams[i], p);
+}
+
+@vertex fn vs_drone(@location(0) p: vec3<f32>, @builtin(instance_index) i: u32) -> VOut {
+    let cam = cams[i / params.drones];
+    let k = i % params.drones;
+    var o = project(cam, drones[k].xyz + p * params.radius);
+    if (k == cam.agent) {
+        // A camera does not see its own drone: behind the near plane.
+        o.pos = vec4<f32>(0.0, 0.0, -1.0, 1.0);
+    }
+    return o;
+}
+
+@fragment fn fs(v: VOut) -> @location(0) vec4<f32> {
+    return vec4<f32>(clamp(v.depth / params.far, 0.0, 1.0), 0.0, 0.0, 1.0);
+}
+";
+
+/// Sizes that grow with the number of cameras of a call.
+struct Frame {
+    cameras: u32,
+    color: wgpu::Texture,
+    depth: wgpu::Texture,
+    readback: wgpu::Buffer,
+    cams: wgpu::Buffer,
+    drones: wgpu::Buffer,
+    drone_capacity: u32,
+    bind: wgpu::BindGroup,
+}
+
+/// The wgpu depth renderer for one scene.
+pub struct GpuDepthRenderer {
+    spec: CameraSpec,
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    adapter: String,
+    scene_pipeline: wgpu::RenderPipeline,
+    drone_pipeline: wgpu::RenderPipeline,
+    layout: wgpu::BindGroupLayout,
+    params: wgpu::Buffer,
+    scene_vertices: wgpu::Buffer,
+    scene_count: u32,
+    sphere_vertices: wgpu::Buffer,
+    sphere_count: u32,
+    frame: Option<Frame>,
+    staging: Vec<GpuCamera>,
+    submissions: u64,
+}
+
+impl std::fmt::Debug for GpuDepthRenderer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("GpuDepthRenderer").field("adapter", &self.adapter).field("submissions", &self.submissions).finish()
+    }
+}
+
+impl GpuDepthRenderer {
+    /// Opens the first adapter wgpu finds (a GPU, or lavapipe on the CPU)
+    /// and uploads the scene.
+    pub fn new(spec: CameraSpec, scene: &Scene) -> Result<Self, GpuError> {
+        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+            power_preference: wgpu::PowerPreference::HighPerformance,
+            force_fallback_adapter: false,
+            compatible_surface: None,
+            ..Default::default()
+        }))
+        .map_err(|e| GpuError::NoAdapter(e.to_string()))?;
+        let info = adapter.get_info();
+        let adapter_name = format!("{} ({:?}, {})", info.name, info.backend, info.driver);
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("rotorhive depth"),
+            required_features: wgpu::Features::empty(),
+            required_limits: adapter.limits(),
+            ..Default::default()
+        }))
+        .map_err(|e| GpuError::Device(e.to_string()))?;
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor { label: Some("depth"), source: wgpu::ShaderSource::Wgsl(SHADER.into()) });
+        let storage = |binding| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::VERTEX,
+            ty: wgpu::BindingType::Buffer { ty: wgpu::BufferBindingType::Storage { read_only: true }, has_dynamic_offset: false, min_binding_size: None },
+            count: None,
+        };
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("depth"),
+            entries: &[
+                storage(0),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 1,
+                    visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
+                    ty: wgpu::BindingType::Buffer { ty: wgpu::BufferBindingType::Uniform, has_dynamic_offset: false, min_binding_size: None },
+                    count: None,
+                },
+                storage(2),
+            ],
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor { label: Some("depth"), bind_group_layouts: &[Some(&layout)], immediate_size: 0 });
+        let pipeline = |entry: &str| {
+            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some(entry),
+                layout: Some(&pipeline_layout),
+                vertex: wgpu::VertexState {
+                    module: &module,
+                    entry_point: Some(entry),
+                    compilation_options: Default::default(),
+                    buffers: &[Some(wgpu::VertexBufferLayout {
+                        array_stride: 12,
+                        step_mode: wgpu::VertexStepMode::Vertex,
+                        attributes: &wgpu::vertex_attr_array![0 => Float32x3],
+                    })],
+                },
+                primitive: wgpu::PrimitiveState { cull_mode: None, ..Default::default() },
+                depth_stencil: Some(wgpu::DepthStencilState {
+                    format: wgpu::TextureFormat::Depth32Float,
+                    depth_write_enabled: Some(true),
+                    depth_compare: Some(wgpu::CompareFunction::Less),
+                    stencil: Default::default(),
+                    bias: Default::default(),
+                }),
+                multisample: Default::default(),
+                fragment: Some(wgpu::FragmentState {
+                    module: &module,
+                    entry_point: Some("fs"),
+                    compilation_options: Default::default(),
+                    targets: &[Some(wgpu::ColorTargetState { format: wgpu::TextureFormat::R32Float, blend: None, write_mask: wgpu::ColorWrites::ALL })],
+                }),
+                multiview_mask: None,
+                cache: None,
+            })
+        };
+        let scene_pipeline = pipeline("vs_scene");
+        let drone_pipeline = pipeline("vs_drone");
+        let tris = scene_triangles(scene, spec.range);
+        let sphere = sphere_triangles();
+        let vbuf = |label, v: &[[f32; 3]]| device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents: bytemuck::cast_slice(v), usage: wgpu::BufferUsages::VERTEX });
+        let scene_vertices = vbuf("scene", &tris);
+        let sphere_vertices = vbuf("sphere", &sphere);
+        let params = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("params"),
+            size: std::mem::size_of::<Params>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        Ok(Self {
+            spec,
+            device,
+            queue,
+            adapter: adapter_name,
+            scene_pipeline,
+            drone_pipeline,
+            layout,
+            params,
+            scene_vertices,
+            scene_count: tris.len() as u32,
+            sphere_vertices,
+            sphere_count: sphere.len() as u32,
+            frame: None,
+            staging: Vec::new(),
+            submissions: 0,
+        })
+    }
+
+    /// The adapter in use, e.g. "llvmpipe (LLVM 15.0.6, 256 bits) (Vulkan, llvmpipe)".
+    pub fn adapter(&self) -> &str {
+        &self.adapter
+    }
+
+    /// Queue submissions so far (one per `render` call).
+    pub fn submissions(&self) -> u64 {
+        self.submissions
+    }
+
+    fn frame(&mut self, cameras: u32, drones: u32) -> &Frame {
+        let fits = self.frame.as_ref().is_some_and(|f| f.cameras >= cameras && f.drone_capacity >= drones);
+        if !fits {
+            let cameras = cameras.max(self.frame.as_ref().map_or(0, |f| f.cameras));
+            let drone_capacity = drones.max(1).max(self.frame.as_ref().map_or(0, |f| f.drone_capacity));
+            let side = self.spec.side as u32;
+            let rows = cameras.div_ceil(COLS);
+            let size = wgpu::Extent3d { width: COLS * side, height: rows * side, depth_or_array_layers: 1 };
+            let texture = |format, usage, label| {
+                self.device.create_texture(&wgpu::TextureDescriptor { label: Some(label), size, mip_level_count: 1, sample_count: 1, dimension: wgpu::TextureDimension::D2, format, usage, view_formats: &[] })
+            };
+            let color = texture(wgpu::TextureFormat::R32Float, wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC, "depth atlas");
+            let depth = texture(wgpu::TextureFormat::Depth32Float, wgpu::TextureUsages::RENDER_ATTACHMENT, "z buffer");
+            let buffer = |label, size: u64, usage| self.device.create_buffer(&wgpu::BufferDescriptor { label: Some(label), size, usage, mapped_at_creation: false });
+            let readback = buffer("readback", u64::from(COLS * side * 4 * rows * side), wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST);
+            let cams = buffer("cameras", u64::from(cameras) * std::mem::size_of::<GpuCamera>() as u64, wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST);
+            let drone_buf = buffer("drones", u64::from(drone_capacity) * 16, wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST);
+            let bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("depth"),
+                layout: &self.layout,
+                entries: &[
+                    wgpu::BindGroupEntry { binding: 0, resource: cams.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 1, resource: self.params.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 2, resource: drone_buf.as_entire_binding() },
+                ],
+            });
+            self.frame = Some(Frame { cameras, color, depth, readback, cams, drones: drone_buf, drone_capacity, bind });
+        }
+        self.frame.as_ref().expect("frame just made")
+    }
+
+    /// Renders every camera's depth image into `out` (`cameras × side²`,
+    /// row-major, top row first, normalised to [0, 1] by the range): one
+    /// render pass, one submission, one read-back. `agents[i]` names the
+    /// drone camera `i` sits on, so it does not see itself.
+    pub fn render(&mut self, cameras: &[CameraPose], agents: &[u32], drones: Option<Drones<'_>>, out: &mut [f32]) -> Result<(), GpuError> {
+        let side = self.spec.side;
+        let px = side * side;
+        assert_eq!(out.len(), cameras.len() * px, "depth buffer has the wrong size");
+        assert_eq!(agents.len(), cameras.len(), "one agent index per camera");
+        if cameras.is_empty() {
+            return Ok(());
+        }
+        let n = cameras.len() as u32;
+        let nd = drones.map_or(0, |d| d.positions.len() as u32);
+        self.staging.clear();
+        self.staging.extend(cameras.iter().zip(agents).map(|(c, &agent)| {
+            let v = |a: Vector| [a.x, a.y, a.z, 0.0];
+            GpuCamera {
+                origin: c.position.to_array(),
+                agent,
+                fwd: v(c.rotation * Vector::X),
+                right: v(-(c.rotation * Vector::Y)),
+                up: v(c.rotation * Vector::Z),
+            }
+        }));
+        let tan = (self.spec.fov_deg.to_radians() / 2.0).tan();
+        let params = Params { inv_tan: 1.0 / tan, near: NEAR, far: self.spec.range, drones: nd.max(1), radius: drones.map_or(0.0, |d| d.radius), _pad: [0.0; 3] };
+        self.frame(n, nd);
+        let f = self.frame.as_ref().expect("frame");
+        self.queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
+        self.queue.write_buffer(&f.cams, 0, bytemuck::cast_slice(&self.staging));
+        if let Some(d) = drones {
+            let pos: Vec<[f32; 4]> = d.positions.iter().map(|p| [p.x, p.y, p.z, 0.0]).collect();
+            self.queue.write_buffer(&f.drones, 0, bytemuck::cast_slice(&pos));
+        }
+        let rows = n.div_ceil(COLS);
+        let s = side as u32;
+        let mut enc = self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("depth") });
+        {
+            let color_view = f.color.create_view(&Default::default());
+            let depth_view = f.depth.create_view(&Default::default());
+            let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("depth"),
+                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                    view: &color_view,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations { load: wgpu::LoadOp::Clear(wgpu::Color { r: 1.0, g: 0.0, b: 0.0, a: 1.0 }), store: wgpu::StoreOp::Store },
+                })],
+                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                    view: &depth_view,
+                    depth_ops: Some(wgpu::Operations { load: wgpu::LoadOp::Clear(1.0), store: wgpu::StoreOp::Discard }),
+                    stencil_ops: None,
+                }),
+                timestamp_writes: None,
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            pass.set_bind_group(0, &f.bind, &[]);
+            for i in 0..n {
+                let (x, y) = ((i % COLS) * s, (i / COLS) * s);
+                pass.set_viewport(x as f32, y as f32, s as f32, s as f32, 0.0, 1.0);
+                pass.set_scissor_rect(x, y, s, s);
+                pass.set_pipeline(&self.scene_pipeline);
+                pass.set_vertex_buffer(0, self.scene_vertices.slice(..));
+                pass.draw(0..self.scene_count, i..i + 1);
+                if nd > 0 {
+                    pass.set_pipeline(&self.drone_pipeline);
+                    pass.set_vertex_buffer(0, self.sphere_vertices.slice(..));
+                    pass.draw(0..self.sphere_count, i * nd..(i + 1) * nd);
+                }
+            }
+        }
+        let row_bytes = COLS * s * 4;
+        enc.copy_texture_to_buffer(
+            wgpu::TexelCopyTextureInfo { texture: &f.color, mip_level: 0, origin: wgpu::Origin3d::ZERO, aspect: wgpu::TextureAspect::All },
+            wgpu::TexelCopyBufferInfo { buffer: &f.readback, layout: wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(row_bytes), rows_per_image: None } },
+            wgpu::Extent3d { width: COLS * s, height: rows * s, depth_or_array_layers: 1 },
+        );
+        self.queue.submit([enc.finish()]);
+        self.submissions += 1;
+        let used = u64::from(row_bytes * rows * s);
+        let slice = f.readback.slice(..used);
+        let (tx, rx) = mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Readback(e.to_string()))?;
+        rx.recv().map_err(|e| GpuError::Readback(e.to_string()))?.map_err(|e| GpuError::Readback(e.to_string()))?;
+        {
+            let data = slice.get_mapped_range().map_err(|e| GpuError::Readback(e.to_string()))?;
+            let texels: &[f32] = bytemuck::cast_slice(&data);
+            let stride = (COLS * s) as usize;
+            for (i, img) in out.chunks_mut(px).enumerate() {
+                let (x0, y0) = ((i % COLS as usize) * side, (i / COLS as usize) * side);
+                for r in 0..side {
+                    let at = (y0 + r) * stride + x0;
+                    img[r * side..(r + 1) * side].copy_from_slice(&texels[at..at + side]);
+                }
+            }
+        }
+        f.readback.unmap();
+        Ok(())
+    }
+}
+
+/// The static scene as a triangle list in world coordinates: the corridor's
+/// walls, floor and ceiling (extended one camera range past both ends) and
+/// every obstacle.
+fn scene_triangles(scene: &Scene, range: f32) -> Vec<[f32; 3]> {
+    let mut t = Vec::new();
+    let (x0, x1) = (scene.x_extent.0 - range - 1.0, scene.x_extent.1 + range + 1.0);
+    let (hw, h) = (scene.half_width, scene.height);
+    let quad = |t: &mut Vec<[f32; 3]>, a: [f32; 3], b: [f32; 3], c: [f32; 3], d: [f32; 3]| t.extend([a, b, c, a, c, d]);
+    quad(&mut t, [x0, hw, 0.0], [x1, hw, 0.0], [x1, hw, h], [x0, hw, h]);
+    quad(&mut t, [x0, -hw, 0.0], [x1, -hw, 0.0], [x1, -hw, h], [x0, -hw, h]);
+    quad(&mut t, [x0, -hw, 0.0], [x1, -hw, 0.0], [x1, hw, 0.0], [x0, hw, 0.0]);
+    quad(&mut t, [x0, -hw, h], [x1, -hw, h], [x1, hw, h], [x0, hw, h]);
+    for s in &scene.shapes {
+        match *s {
+            Shape::Box { min, max } => {
+                let c = |i: usize| [if i & 1 == 0 { min.x } else { max.x }, if i & 2 == 0 { min.y } else { max.y }, if i & 4 == 0 { min.z } else { max.z }];
+                for [a, b, cc, d] in [[0, 1, 3, 2], [4, 5, 7, 6], [0, 1, 5, 4], [2, 3, 7, 6], [0, 2, 6, 4], [1, 3, 7, 5]] {
+                    quad(&mut t, c(a), c(b), c(cc), c(d));
+                }
+            }
+            Shape::Cylinder { cx, cy, r2, zmin, zmax } => {
+                // Vertices on the circle: the facets lie inside the exact
+                // surface by at most r·(1 − cos(π/64)) ≈ 0.1 % of r.
+                let r = r2.sqrt();
+                let at = |k: usize| {
+                    let a = k as f32 / CYLINDER_FACETS as f32 * std::f32::consts::TAU;
+                    (cx + r * a.cos(), cy + r * a.sin())
+                };
+                for k in 0..CYLINDER_FACETS {
+                    let (ax, ay) = at(k);
+                    let (bx, by) = at(k + 1);
+                    quad(&mut t, [ax, ay, zmin], [bx, by, zmin], [bx, by, zmax], [ax, ay, zmax]);
+                    t.extend([[cx, cy, zmin], [ax, ay, zmin], [bx, by, zmin]]);
+                    t.extend([[cx, cy, zmax], [ax, ay, zmax], [bx, by, zmax]]);
+                }
+            }
+        }
+    }
+    t
+}
+
+/// A unit sphere (icosahedron subdivided twice, 320 triangles).
+fn sphere_triangles() -> Vec<[f32; 3]> {
+    let p = (1.0 + 5f32.sqrt()) / 2.0;
+    let v = [[-1.0, p, 0.0], [1.0, p, 0.0], [-1.0, -p, 0.0], [1.0, -p, 0.0], [0.0, -1.0, p], [0.0, 1.0, p], [0.0, -1.0, -p], [0.0, 1.0, -p], [p, 0.0, -1.0], [p, 0.0, 1.0], [-p, 0.0, -1.0], [-p, 0.0, 1.0]];
+    let f: [[usize; 3]; 20] = [
+        [0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4], [11, 10, 2], [10, 7, 6], [7, 1, 8],
+        [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8], [3, 8, 9], [4, 9, 5], [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1],
+    ];
+    let norm = |a: [f32; 3]| {
+        let l = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
+        [a[0] / l, a[1] / l, a[2] / l]
+    };
+    let mut tris: Vec<[[f32; 3]; 3]> = f.iter().map(|t| [norm(v[t[0]]), norm(v[t[1]]), norm(v[t[2]])]).collect();
+    for _ in 0..2 {
+        let mid = |a: [f32; 3], b: [f32; 3]| norm([(a[0] + b[0]) / 2.0, (a[1] + b[1]) / 2.0, (a[2] + b[2]) / 2.0]);
+        tris = tris
+            .iter()
+            .flat_map(|&[a, b, c]| {
+                let (ab, bc, ca) = (mid(a, b), mid(b, c), mid(c, a));
+                [[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]
+            })
+            .collect();
+    }
+    tris.into_iter().flatten().collect()
+}
