@@ -8,7 +8,7 @@ use anyhow::{Result, bail};
 use clap::Subcommand;
 use serde_json::json;
 
-use rotorhive_sim::{Arena, SimConfig, VecEnv};
+use rotorhive_sim::{Arena, RendererKind, SimConfig, VecEnv};
 
 #[derive(Subcommand, Debug)]
 pub enum BenchCmd {
@@ -29,6 +29,44 @@ pub enum BenchCmd {
         /// Print one JSON object as the last line.
         #[arg(long)]
         json: bool,
+    },
+    /// Milliseconds per step to gather all agents' depth observations,
+    /// batched against non-batched, side by side (the paper's figure 5a).
+    Render {
+        /// Agent counts to measure.
+        #[arg(long, default_value = "1,10,25,50,100,200", value_delimiter = ',')]
+        agents: Vec<usize>,
+        /// Renderer: cpu or wgpu.
+        #[arg(long, default_value = "cpu")]
+        renderer: String,
+        /// Measured steps per cell (after 2 warm-up steps).
+        #[arg(long, default_value_t = 20)]
+        steps: usize,
+        /// Arena file.
+        #[arg(long, default_value = "configs/arenas/train.toml")]
+        arena: PathBuf,
+        /// Plot of both curves against the agent count.
+        #[arg(long, default_value = "render-bench.png")]
+        plot: PathBuf,
+        /// Print one JSON object as the last line.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Observation batch, transition batch and weights between two processes:
+    /// shared memory against msgpack over loopback TCP (the paper's RPC).
+    Ipc {
+        /// Messages per kind and path.
+        #[arg(long, default_value_t = 300)]
+        iters: usize,
+        /// Print one JSON object as the last line.
+        #[arg(long)]
+        json: bool,
+    },
+    /// The far side of `bench ipc` (started by it).
+    #[command(hide = true)]
+    IpcPeer {
+        #[arg(long)]
+        prefix: String,
     },
     /// Learner updates per second and actor inference latency.
     Learner {
@@ -53,6 +91,9 @@ pub enum BenchCmd {
 pub fn run(cmd: BenchCmd) -> Result<()> {
     match cmd {
         BenchCmd::Sim { agents, steps, threads, arena, json } => bench_sim(&agents, steps, threads, &arena, json),
+        BenchCmd::Render { agents, renderer, steps, arena, plot, json } => bench_render(&agents, &renderer, steps, &arena, &plot, json),
+        BenchCmd::Ipc { iters, json } => crate::ipc_bench::run(iters, json),
+        BenchCmd::IpcPeer { prefix } => crate::ipc_bench::peer(&prefix),
         BenchCmd::Learner { threads, batch, updates, compare, json } => crate::roles::learner::bench(threads, batch, updates, compare, json),
     }
 }
@@ -104,6 +145,64 @@ fn bench_sim(agents: &[usize], steps: usize, threads: usize, arena: &std::path::
     if json {
         let out = if rows.len() == 1 { rows.remove(0) } else { json!({ "threads": threads, "rows": rows }) };
         println!("{out}");
+    }
+    Ok(())
+}
+
+/// Times the rendering stage of `VecEnv::step` (all agents' depth images
+/// drawn and read back into the observation buffer) with the same agents
+/// and actions in both modes: batched (one call, one submission, one
+/// synchronisation per step) and non-batched (one of each per agent).
+fn bench_render(agents: &[usize], renderer: &str, steps: usize, arena: &std::path::Path, plot: &std::path::Path, json: bool) -> Result<()> {
+    if agents.iter().any(|n| *n == 0) || steps == 0 {
+        bail!("--agents and --steps must be positive");
+    }
+    let kind = match renderer {
+        "cpu" => RendererKind::Cpu,
+        "wgpu" => RendererKind::Wgpu,
+        other => bail!("--renderer must be cpu or wgpu, got {other:?}"),
+    };
+    let arena = Arena::load(arena)?;
+    let mut adapter = String::from("cpu ray casting, 1 thread");
+    let mut measure = |n: usize, batched: bool| -> Result<f64> {
+        let cfg = SimConfig { agents: n, renderer: kind, batched, ..SimConfig::default() };
+        let mut env = VecEnv::try_new(cfg, arena.clone(), 1)?;
+        if let Some(g) = env.gpu() {
+            adapter = g.adapter().to_string();
+        }
+        let actions = |t: usize| -> Vec<u8> { (0..n).map(|i| (((t * 31 + i * 17) >> 2) % 2) as u8).collect() };
+        for t in 0..2 {
+            env.try_step(&actions(t))?;
+        }
+        let mut ns = 0u64;
+        for t in 0..steps {
+            env.try_step(&actions(t + 2))?;
+            ns += env.timing().render_ns;
+        }
+        Ok(ns as f64 / 1e6 / steps as f64)
+    };
+    println!("{:>7} {:>12} {:>15} {:>8}", "agents", "batched ms", "non-batched ms", "ratio");
+    let mut rows = Vec::new();
+    let (mut b_pts, mut nb_pts) = (Vec::new(), Vec::new());
+    for &n in agents {
+        let b = measure(n, true)?;
+        let nb = measure(n, false)?;
+        println!("{n:>7} {b:>12.3} {nb:>15.3} {:>7.1}x", nb / b);
+        b_pts.push((n as f64, b));
+        nb_pts.push((n as f64, nb));
+        rows.push(json!({ "agents": n, "batched_ms": b, "non_batched_ms": nb, "ratio": nb / b }));
+    }
+    println!("renderer {renderer} ({adapter}); paper (AirSim, RTX 2070): 10 agents 61 ms batched, 197 ms non-batched");
+    crate::draw::lines_plot(
+        &format!("observation gathering per step ({renderer})"),
+        "agents",
+        "ms per step",
+        &[("batched".to_string(), b_pts), ("non-batched".to_string(), nb_pts)],
+        plot,
+    )?;
+    println!("plot: {}", plot.display());
+    if json {
+        println!("{}", json!({ "renderer": renderer, "adapter": adapter, "steps": steps, "rows": rows, "plot": plot.display().to_string() }));
     }
     Ok(())
 }

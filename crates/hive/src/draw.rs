@@ -199,3 +199,33 @@ pub fn reward_plot(points: &[(f64, f64)], threshold: f64, out: &Path) -> Result<
     root.present().map_err(plot_err)?;
     Ok(())
 }
+
+/// A line chart of several named series (e.g. milliseconds against agents).
+pub fn lines_plot(title: &str, x_desc: &str, y_desc: &str, series: &[(String, Vec<(f64, f64)>)], out: &Path) -> Result<()> {
+    let root = BitMapBackend::new(out, (800, 480)).into_drawing_area();
+    root.fill(&WHITE).map_err(plot_err)?;
+    let pts = || series.iter().flat_map(|s| s.1.iter().copied());
+    let xmax = pts().map(|p| p.0).fold(1.0f64, f64::max);
+    let ymax = pts().map(|p| p.1).fold(1e-3f64, f64::max) * 1.1;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 20))
+        .margin(12)
+        .x_label_area_size(35)
+        .y_label_area_size(55)
+        .build_cartesian_2d(0f64..xmax, 0f64..ymax)
+        .map_err(plot_err)?;
+    chart.configure_mesh().x_desc(x_desc).y_desc(y_desc).draw().map_err(plot_err)?;
+    let colors = [BLUE, RED, GREEN, MAGENTA, CYAN, BLACK];
+    for (i, (name, s)) in series.iter().enumerate() {
+        let c = colors[i % colors.len()];
+        chart
+            .draw_series(LineSeries::new(s.iter().copied(), c.stroke_width(2)))
+            .map_err(plot_err)?
+            .label(name.as_str())
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
+        chart.draw_series(s.iter().map(|p| Circle::new(*p, 3, c.filled()))).map_err(plot_err)?;
+    }
+    chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).draw().map_err(plot_err)?;
+    root.present().map_err(plot_err)?;
+    Ok(())
+}

@@ -3,6 +3,7 @@
 //! pictures and system benchmarks.
 
 mod bench;
+mod ipc_bench;
 mod config;
 mod draw;
 mod eval;

@@ -1,0 +1,228 @@
+//! `hive bench ipc`: moves a 50-agent observation batch, a 50-transition
+//! batch and the network's weights between two processes, through
+//! rotorhive's transport (iceoryx2 shared memory: the sender fills a loaned
+//! sample, the receiver reads it in place) and through the paper's path
+//! (msgpack over a loopback TCP connection, as PRL4AirSim's RPC did), side by
+//! side in one run. Each message is answered by a small acknowledgement;
+//! latency is half the round trip.
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::{TcpListener, TcpStream};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use rotorhive_msg::{ActionHeader, OBS_LEN, ObsHeader, TRANSITION_LEN, obs_batch_len};
+use rotorhive_transport::{Channel, Hub, Ipc, services_of_run};
+use serde::{Deserialize, Serialize};
+use serde_json::json;
+
+/// The three payloads, in floats.
+fn kinds() -> [(&'static str, usize); 4] {
+    [("obs_batch", obs_batch_len(50)), ("transition_batch", 50 * TRANSITION_LEN), ("weights", rotorhive_model::num_params()), ("empty", 1)]
+}
+
+fn request_channel() -> Channel {
+    Channel { name: "bench.req".into(), publishers: 1, subscribers: 1, buffer: 2, overflow: false, history: 0 }
+}
+
+fn ack_channel() -> Channel {
+    Channel { name: "bench.ack".into(), publishers: 1, subscribers: 1, buffer: 2, overflow: false, history: 0 }
+}
+
+/// What PRL4AirSim's msgpack-RPC carried: a typed record with a float array.
+#[derive(Serialize, Deserialize)]
+struct RpcMsg {
+    kind: u32,
+    seq: u64,
+    data: Vec<f32>,
+}
+
+#[derive(Serialize, Deserialize)]
+struct RpcAck {
+    seq: u64,
+    checksum: f32,
+}
+
+const TIMEOUT: Duration = Duration::from_secs(5);
+
+/// The far side: answers every message (shared memory and TCP) with an
+/// acknowledgement carrying a checksum of what it read.
+pub fn peer(prefix: &str) -> Result<()> {
+    let hub = Hub::<Ipc>::new(prefix, "bench-peer")?;
+    let max = kinds().iter().map(|k| k.1).max().unwrap_or(1);
+    let mut rx = hub.receiver::<f32, ObsHeader>(&request_channel())?;
+    let mut tx = hub.sender::<u8, ActionHeader>(&ack_channel(), 1, TIMEOUT)?;
+    let listener = TcpListener::bind("127.0.0.1:0").context("binding a loopback port")?;
+    println!("{}", listener.local_addr()?.port());
+    std::io::stdout().flush()?;
+    // Shared memory first, until the parent sends the end marker.
+    loop {
+        let Some(m) = rx.recv_timeout(TIMEOUT)? else { bail!("no message from the benchmark for {TIMEOUT:?}") };
+        let h = *m.user_header();
+        if h.agents == u32::MAX {
+            break;
+        }
+        let p = m.payload();
+        let sum = p[0] + p[p.len() - 1];
+        drop(m);
+        tx.send_with(1, |a, out| {
+            *a = ActionHeader { env: 0, agents: 1, step: h.step };
+            out[0] = (sum != 0.0) as u8;
+        })?;
+    }
+    let _ = max;
+    // Then TCP with msgpack.
+    let (mut s, _) = listener.accept()?;
+    s.set_nodelay(true)?;
+    let mut buf = Vec::new();
+    loop {
+        let mut len = [0u8; 4];
+        if s.read_exact(&mut len).is_err() {
+            break;
+        }
+        buf.resize(u32::from_le_bytes(len) as usize, 0);
+        s.read_exact(&mut buf)?;
+        let m: RpcMsg = rmp_serde::from_slice(&buf).context("decoding msgpack")?;
+        let ack = rmp_serde::to_vec(&RpcAck { seq: m.seq, checksum: m.data[0] + m.data[m.data.len() - 1] })?;
+        s.write_all(&(ack.len() as u32).to_le_bytes())?;
+        s.write_all(&ack)?;
+    }
+    Ok(())
+}
+
+fn percentile(v: &mut [f64], q: f64) -> f64 {
+    v.sort_by(|a, b| a.total_cmp(b));
+    v[((v.len() - 1) as f64 * q).round() as usize]
+}
+
+struct Stats {
+    p50: f64,
+    p90: f64,
+    p99: f64,
+    per_s: f64,
+}
+
+fn stats(mut half_rtt_us: Vec<f64>, wall: f64) -> Stats {
+    let n = half_rtt_us.len();
+    Stats { p50: percentile(&mut half_rtt_us, 0.5), p90: percentile(&mut half_rtt_us, 0.9), p99: percentile(&mut half_rtt_us, 0.99), per_s: n as f64 / wall }
+}
+
+pub fn run(iters: usize, json_out: bool) -> Result<()> {
+    if iters == 0 {
+        bail!("--iters must be positive");
+    }
+    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.subsec_nanos()).unwrap_or(0);
+    let prefix = format!("bench-ipc-{}-{nanos:x}", std::process::id());
+    let hub = Hub::<Ipc>::new(&prefix, "bench")?;
+    let max = kinds().iter().map(|k| k.1).max().unwrap_or(1);
+    let mut tx = hub.sender::<f32, ObsHeader>(&request_channel(), max, TIMEOUT)?;
+    let mut rx = hub.receiver::<u8, ActionHeader>(&ack_channel())?;
+    let exe = std::env::current_exe()?;
+    let mut child = Command::new(exe).args(["bench", "ipc-peer", "--prefix", &prefix]).stdout(Stdio::piped()).stderr(Stdio::inherit()).spawn().context("starting the peer process")?;
+    let result = (|| -> Result<Vec<serde_json::Value>> {
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().context("peer stdout")?).read_line(&mut line)?;
+        let port: u16 = line.trim().parse().with_context(|| format!("peer printed {line:?} instead of a port"))?;
+        let sources: Vec<Vec<f32>> = kinds().iter().map(|(_, n)| (0..*n).map(|i| (i % 97) as f32 * 0.01 + 0.5).collect()).collect();
+        let mut shm = Vec::new();
+        for (k, (_, n)) in kinds().iter().enumerate() {
+            let src = &sources[k];
+            let mut lat = Vec::with_capacity(iters);
+            let warm = 20;
+            let mut t_all = Instant::now();
+            for i in 0..iters + warm {
+                if i == warm {
+                    t_all = Instant::now();
+                }
+                let t = Instant::now();
+                tx.send_with(*n, |h, p| {
+                    *h = ObsHeader { env: 0, agents: k as u32, first: 0, total: 0, step: i as u64, physics_ns: 0, render_ns: 0 };
+                    p.copy_from_slice(src);
+                })?;
+                let m = rx.recv_timeout(TIMEOUT)?.context("no acknowledgement from the peer")?;
+                if m.user_header().step != i as u64 || m.payload()[0] != 1 {
+                    bail!("wrong acknowledgement");
+                }
+                if i >= warm {
+                    lat.push(t.elapsed().as_secs_f64() * 1e6 / 2.0);
+                }
+            }
+            shm.push(stats(lat, t_all.elapsed().as_secs_f64()));
+        }
+        tx.send_with(1, |h, _| *h = ObsHeader { agents: u32::MAX, ..ObsHeader::default() })?;
+        let mut s = TcpStream::connect(("127.0.0.1", port)).context("connecting to the peer")?;
+        s.set_nodelay(true)?;
+        let mut tcp = Vec::new();
+        let mut buf = Vec::new();
+        for (k, _) in kinds().iter().enumerate() {
+            let mut lat = Vec::with_capacity(iters);
+            let warm = 5;
+            let mut t_all = Instant::now();
+            for i in 0..iters + warm {
+                if i == warm {
+                    t_all = Instant::now();
+                }
+                let t = Instant::now();
+                // The sender's data lives in its own buffers, as in the sim.
+                let msg = rmp_serde::to_vec(&RpcMsg { kind: k as u32, seq: i as u64, data: sources[k].clone() })?;
+                s.write_all(&(msg.len() as u32).to_le_bytes())?;
+                s.write_all(&msg)?;
+                let mut len = [0u8; 4];
+                s.read_exact(&mut len)?;
+                buf.resize(u32::from_le_bytes(len) as usize, 0);
+                s.read_exact(&mut buf)?;
+                let ack: RpcAck = rmp_serde::from_slice(&buf)?;
+                if ack.seq != i as u64 {
+                    bail!("wrong TCP acknowledgement");
+                }
+                if i >= warm {
+                    lat.push(t.elapsed().as_secs_f64() * 1e6 / 2.0);
+                }
+            }
+            tcp.push(stats(lat, t_all.elapsed().as_secs_f64()));
+        }
+        drop(s);
+        println!("{:>17} {:>10} {:>12} {:>12} {:>12} {:>14} {:>14} {:>12} {:>8}", "message", "KiB", "shm p50 µs", "shm p99 µs", "shm msg/s", "msgpack p50 µs", "msgpack p99 µs", "msgpack/s", "ratio");
+        let mut rows = Vec::new();
+        for (k, (name, n)) in kinds().iter().enumerate() {
+            let (a, b) = (&shm[k], &tcp[k]);
+            let ratio = b.p50 / a.p50;
+            println!("{name:>17} {:>10.1} {:>12.1} {:>12.1} {:>12.0} {:>14.1} {:>14.1} {:>12.0} {:>7.1}x", *n as f64 * 4.0 / 1024.0, a.p50, a.p99, a.per_s, b.p50, b.p99, b.per_s, ratio);
+            rows.push(json!({
+                "name": name, "bytes": n * 4,
+                "shm_p50_us": a.p50, "shm_p90_us": a.p90, "shm_p99_us": a.p99, "shm_msgs_per_s": a.per_s,
+                "baseline_p50_us": b.p50, "baseline_p90_us": b.p90, "baseline_p99_us": b.p99, "baseline_msgs_per_s": b.per_s,
+                "ratio": ratio,
+            }));
+        }
+        Ok(rows)
+    })();
+    let status = child.wait();
+    drop(tx);
+    drop(rx);
+    drop(hub);
+    let rows = result?;
+    status?;
+    let left = services_of_run(&prefix);
+    if !left.is_empty() {
+        bail!("shared memory left behind: {left:?}");
+    }
+    println!("latency = half the round trip (message + 1-byte acknowledgement); the \"empty\" row is the transport's own share (a 4-byte payload); {iters} messages per row");
+    if json_out {
+        let get = |name: &str| rows.iter().find(|r| r["name"] == name).cloned().unwrap_or_default();
+        println!(
+            "{}",
+            json!({
+                "iters": iters,
+                "obs_batch": get("obs_batch"),
+                "transition_batch": get("transition_batch"),
+                "weights": get("weights"),
+                "transport_only": get("empty"),
+                "transport_only_p50_us": get("empty")["shm_p50_us"],
+                "obs_len": OBS_LEN,
+            })
+        );
+    }
+    Ok(())
+}
