@@ -68,6 +68,31 @@ pub enum BenchCmd {
         #[arg(long)]
         prefix: String,
     },
+    /// Transitions inserted and minibatches sampled per second by the replay
+    /// process, fed by producer processes over shared memory.
+    Replay {
+        /// Producer processes (actors).
+        #[arg(long, default_value_t = 2)]
+        producers: usize,
+        /// Seconds of the sampling phases.
+        #[arg(long, default_value_t = 3.0)]
+        seconds: f64,
+        /// Print one JSON object as the last line.
+        #[arg(long)]
+        json: bool,
+    },
+    /// A producer of `bench replay` (started by it).
+    #[command(hide = true)]
+    ReplayProducer {
+        #[arg(long)]
+        prefix: String,
+        #[arg(long)]
+        index: usize,
+        #[arg(long)]
+        producers: usize,
+        #[arg(long)]
+        batches: usize,
+    },
     /// Learner updates per second and actor inference latency.
     Learner {
         /// Threads for candle's CPU kernels.
@@ -94,6 +119,8 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
         BenchCmd::Render { agents, renderer, steps, arena, plot, json } => bench_render(&agents, &renderer, steps, &arena, &plot, json),
         BenchCmd::Ipc { iters, json } => crate::ipc_bench::run(iters, json),
         BenchCmd::IpcPeer { prefix } => crate::ipc_bench::peer(&prefix),
+        BenchCmd::Replay { producers, seconds, json } => crate::replay_bench::run(producers, seconds, json),
+        BenchCmd::ReplayProducer { prefix, index, producers, batches } => crate::replay_bench::producer(&prefix, index, producers, batches),
         BenchCmd::Learner { threads, batch, updates, compare, json } => crate::roles::learner::bench(threads, batch, updates, compare, json),
     }
 }

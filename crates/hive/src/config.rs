@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use serde::{Deserialize, Serialize};
 
-use rotorhive_sim::{Arena, CameraSpec, RendererKind, SimConfig};
+use rotorhive_sim::{Arena, CameraSpec, GenParams, RendererKind, SimConfig};
 
 /// The whole configuration of a run.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -44,8 +44,11 @@ pub struct EvalSection {
     pub every_s: f64,
     /// Episodes per evaluation (flown at once, one per agent).
     pub episodes: usize,
-    /// Arena of the evaluations; empty means the training arena.
+    /// Arena of the evaluations; empty means `validation_arenas` generated
+    /// arenas, side by side.
     pub arena: String,
+    /// Generated validation arenas (neither trained on nor the test arena).
+    pub validation_arenas: usize,
     /// After the threshold, training goes on until an evaluation reaches
     /// this success rate ...
     pub target_success: f64,
@@ -55,7 +58,7 @@ pub struct EvalSection {
 
 impl Default for EvalSection {
     fn default() -> Self {
-        Self { every_s: 15.0, episodes: 50, arena: String::new(), target_success: 0.8, after_threshold_s: 120.0 }
+        Self { every_s: 15.0, episodes: 100, arena: String::new(), validation_arenas: 5, target_success: 0.8, after_threshold_s: 120.0 }
     }
 }
 
@@ -69,6 +72,10 @@ pub struct SimSection {
     pub agents: usize,
     /// Arena file.
     pub arena: PathBuf,
+    /// Generated arenas flown beside `arena` (each a lane of its own, with
+    /// different seeds in every environment); agents start each episode in
+    /// a lane drawn at random. 0 trains on `arena` alone.
+    pub generated_lanes: usize,
     /// `cpu` (ray casting) or `wgpu`.
     pub renderer: String,
     /// `batched` or `non-batched`.
@@ -120,6 +127,10 @@ pub struct ReplaySection {
     /// produced past `min_fill` exceed the transitions the learner has
     /// sampled divided by this ratio (sampled per inserted). 0 turns it off.
     pub samples_per_insert: f64,
+    /// Seconds between snapshots of the memory to `RUN_DIR/replay.bin`
+    /// (written a chunk per loop, so inserts and samples go on; a restarted
+    /// or resumed replay starts from it). 0 turns snapshots off.
+    pub snapshot_every_s: f64,
 }
 
 /// `[learner]`.
@@ -170,6 +181,7 @@ impl Default for SimSection {
             envs: 1,
             agents: 50,
             arena: PathBuf::from("configs/arenas/train.toml"),
+            generated_lanes: 0,
             renderer: "cpu".into(),
             observation_mode: "batched".into(),
             interactive: false,
@@ -190,7 +202,7 @@ impl Default for ActorSection {
 
 impl Default for ReplaySection {
     fn default() -> Self {
-        Self { capacity: 15_000, min_fill: 15_000, batch: 32, prefetch: 4, samples_per_insert: 0.0 }
+        Self { capacity: 15_000, min_fill: 15_000, batch: 32, prefetch: 4, samples_per_insert: 0.0, snapshot_every_s: 60.0 }
     }
 }
 
@@ -234,6 +246,7 @@ impl Config {
             }
         }
         positive("eval.episodes", e.episodes as f64)?;
+        positive("eval.validation_arenas", e.validation_arenas as f64)?;
         if !(0.0..=1.0).contains(&e.target_success) {
             bail!("key `eval.target_success` must be a rate between 0 and 1, got {}", e.target_success);
         }
@@ -247,6 +260,9 @@ impl Config {
         positive("sim.render_threads", s.render_threads as f64)?;
         if s.physics_dt > s.action_period {
             bail!("key `sim.physics_dt` ({}) must not exceed `sim.action_period` ({})", s.physics_dt, s.action_period);
+        }
+        if s.generated_lanes > 256 {
+            bail!("key `sim.generated_lanes` must be at most 256, got {}", s.generated_lanes);
         }
         if s.envs > 64 || s.agents > 4096 {
             bail!("keys `sim.envs` ({}) and `sim.agents` ({}) must be at most 64 and 4096", s.envs, s.agents);
@@ -264,6 +280,9 @@ impl Config {
             }
         }
         positive("actor.threads", a.threads as f64)?;
+        if !(self.replay.snapshot_every_s.is_finite() && self.replay.snapshot_every_s >= 0.0) {
+            bail!("key `replay.snapshot_every_s` must be 0 (off) or positive, got {}", self.replay.snapshot_every_s);
+        }
         if !(self.replay.samples_per_insert.is_finite() && self.replay.samples_per_insert >= 0.0) {
             bail!("key `replay.samples_per_insert` must be 0 (off) or positive, got {}", self.replay.samples_per_insert);
         }
@@ -301,9 +320,33 @@ impl Config {
         Ok(Arena::load(&self.sim.arena)?)
     }
 
-    /// The arena of greedy evaluations during training.
-    pub fn eval_arena(&self) -> Result<Arena> {
-        if self.eval.arena.is_empty() { self.arena() } else { Ok(Arena::load(Path::new(&self.eval.arena))?) }
+    /// Parameters of generated arenas: the training arena's size.
+    fn gen_params(&self) -> Result<GenParams> {
+        let a = self.arena()?;
+        Ok(GenParams { length: a.length, width: a.width, height: a.height, ..GenParams::default() })
+    }
+
+    /// The arenas environment `env` trains in: `sim.arena` and
+    /// `sim.generated_lanes` generated ones (seeds that no shipped arena uses).
+    pub fn lane_arenas(&self, env: usize) -> Result<Vec<Arena>> {
+        let mut v = vec![self.arena()?];
+        let p = self.gen_params()?;
+        for k in 0..self.sim.generated_lanes {
+            let seed = 1_000_000 + self.seed.wrapping_mul(100_000) + (env as u64) * 1000 + k as u64;
+            v.push(Arena::generate(&format!("lane-{k}"), seed, &p));
+        }
+        Ok(v)
+    }
+
+    /// The arenas of greedy evaluations during training: `eval.arena`, or by
+    /// default `eval.validation_arenas` generated arenas that are neither
+    /// trained on nor the test arena.
+    pub fn eval_arenas(&self) -> Result<Vec<Arena>> {
+        if !self.eval.arena.is_empty() {
+            return Ok(vec![Arena::load(Path::new(&self.eval.arena))?]);
+        }
+        let p = self.gen_params()?;
+        Ok((0..self.eval.validation_arenas).map(|k| Arena::generate(&format!("validation-{k}"), 4242 + k as u64, &p)).collect())
     }
 
     /// The simulator settings for one environment.

@@ -43,10 +43,11 @@ impl EvalStats {
 }
 
 /// Flies `episodes` greedy episodes at once, one per agent, each agent's
-/// first episode counted.
-pub fn fly_greedy(net: &QNet, sim: SimConfig, arena: Arena, episodes: usize, seed: u64) -> Result<EvalStats> {
+/// first episode counted; with several arenas, side by side, each agent in
+/// one drawn at random (the same ones for the same seed).
+pub fn fly_greedy(net: &QNet, sim: SimConfig, arenas: &[Arena], episodes: usize, seed: u64) -> Result<EvalStats> {
     let n = episodes;
-    let mut env = VecEnv::new(SimConfig { agents: n, ..sim }, arena, seed);
+    let mut env = VecEnv::try_new_lanes(SimConfig { agents: n, ..sim }, arenas, seed)?;
     let mut result: Vec<Option<(f32, Done)>> = vec![None; n];
     let max_steps = env.config().max_steps;
     for _ in 0..max_steps + 1 {
@@ -76,7 +77,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
     net.load(&a.checkpoint)?;
     let arena = Arena::load(&a.arena)?;
     let n = a.episodes;
-    let st = fly_greedy(&net, SimConfig::default(), arena, n, a.seed)?;
+    let st = fly_greedy(&net, SimConfig::default(), std::slice::from_ref(&arena), n, a.seed)?;
     let (success_rate, mean_reward, collisions) = (st.success_rate(), st.mean_reward, st.collisions);
     println!("{n} episodes on {}: success {:.1} %, collisions {collisions}, mean reward {mean_reward:.1}", a.arena.display(), success_rate * 100.0);
     if a.json {

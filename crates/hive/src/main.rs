@@ -4,6 +4,8 @@
 
 mod bench;
 mod ipc_bench;
+mod profile;
+mod replay_bench;
 mod config;
 mod draw;
 mod eval;
@@ -79,6 +81,12 @@ enum Command {
     },
     /// Evaluate a checkpoint with the greedy policy.
     Eval(eval::EvalArgs),
+    /// Where a run's time went: CPU and wall-time shares per role and stage,
+    /// and the bottleneck (also written to RUN_DIR/profile.md).
+    Profile {
+        /// A run directory written by `hive train`.
+        run_dir: PathBuf,
+    },
     /// System benchmarks; each prints one JSON line with --json.
     #[command(subcommand)]
     Bench(bench::BenchCmd),
@@ -124,6 +132,7 @@ fn main() -> ExitCode {
         Command::RenderArena(a) => draw::render_arena(a),
         Command::ShowDepth(a) => draw::show_depth(a),
         Command::GenArena(a) => draw::gen_arena(a),
+        Command::Profile { run_dir } => profile::run(&run_dir),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

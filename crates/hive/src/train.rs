@@ -41,12 +41,55 @@ pub struct TrainArgs {
     /// No progress bar (for logs and tests).
     #[arg(long)]
     pub quiet: bool,
+    /// Continue a stopped run in RUN_DIR: its config (plus any --set), the
+    /// learner's saved state and the replay memory's snapshot.
+    #[arg(long, value_name = "RUN_DIR", conflicts_with = "run_dir")]
+    pub resume: Option<PathBuf>,
 }
 
 struct Role {
     name: String,
+    args: Vec<String>,
     child: Child,
+    /// When this role was restarted, for the give-up rule.
+    restarts: VecDeque<Instant>,
 }
+
+/// How a role process is started (again).
+struct Launcher {
+    exe: PathBuf,
+    cfg_path: PathBuf,
+    prefix: String,
+    run_dir: PathBuf,
+    logs: PathBuf,
+}
+
+impl Launcher {
+    fn spawn(&self, name: &str, args: &[String], append: bool) -> Result<Child> {
+        let path = self.logs.join(format!("{name}.log"));
+        let log = std::fs::OpenOptions::new().create(true).append(append).write(true).truncate(!append).open(&path).with_context(|| format!("cannot open {}", path.display()))?;
+        Command::new(&self.exe)
+            .args(args)
+            .arg(&self.cfg_path)
+            .args(["--prefix", &self.prefix, "--run-dir"])
+            .arg(&self.run_dir)
+            // Roles size their own parallelism from the config (learner and
+            // actor threads, render threads); candle's pools stay
+            // single-threaded (idle spinning workers would steal the cores
+            // the other roles need).
+            .env("RAYON_NUM_THREADS", "1")
+            .env("CANDLE_NUM_THREADS", "1")
+            .stdin(Stdio::null())
+            .stdout(log.try_clone()?)
+            .stderr(log)
+            .spawn()
+            .with_context(|| format!("cannot start role {name}"))
+    }
+}
+
+/// A role that dies more often than this within `RESTART_WINDOW` stops the run.
+const MAX_RESTARTS: usize = 3;
+const RESTART_WINDOW: Duration = Duration::from_secs(60);
 
 /// The children of a run; stopping them is also done on drop, so an early
 /// error never leaves processes (or their shared memory) behind.
@@ -124,7 +167,7 @@ fn evaluator(prefix: String, cfg: Config, run_dir: PathBuf, start: Instant, stop
     let mut rx = hub.receiver::<f32, WeightsHeader>(&Channel::weights(cfg.sim.envs))?;
     let mut net = QNet::new(0, &Device::Cpu)?;
     net.set_threads(1);
-    let arena = cfg.eval_arena()?;
+    let arenas = cfg.eval_arenas()?;
     let every = Duration::from_secs_f64(cfg.eval.every_s);
     let mut next = Instant::now() + every;
     let mut best: Option<(f64, f64)> = None;
@@ -146,7 +189,7 @@ fn evaluator(prefix: String, cfg: Config, run_dir: PathBuf, start: Instant, stop
         let h = *m.user_header();
         net.load_flat(m.payload()).context("loading weights to evaluate")?;
         drop(m);
-        let st = crate::eval::fly_greedy(&net, cfg.sim_config(), arena.clone(), cfg.eval.episodes, cfg.seed.wrapping_add(7777))?;
+        let st = crate::eval::fly_greedy(&net, cfg.sim_config(), &arenas, cfg.eval.episodes, cfg.seed.wrapping_add(7777))?;
         let (success, mean_reward) = (st.success_rate(), st.mean_reward);
         let better = best.is_none_or(|b| (success, mean_reward) > b);
         if better {
@@ -165,7 +208,19 @@ fn evaluator(prefix: String, cfg: Config, run_dir: PathBuf, start: Instant, stop
 }
 
 pub fn run(a: TrainArgs) -> Result<()> {
-    let mut cfg = Config::load(a.cfg.config.as_deref(), &a.cfg.set)?;
+    let mut cfg = match &a.resume {
+        Some(dir) => {
+            if a.cfg.config.is_some() {
+                bail!("--resume takes the config of the run it continues; drop the CONFIG argument (use --set to change keys)");
+            }
+            let state = dir.join("checkpoints/learner-state.safetensors");
+            if !state.exists() {
+                bail!("--resume {}: no learner state ({}) to continue from", dir.display(), state.display());
+            }
+            Config::load(Some(&dir.join("config.toml")), &a.cfg.set).with_context(|| format!("--resume {}", dir.display()))?
+        }
+        None => Config::load(a.cfg.config.as_deref(), &a.cfg.set)?,
+    };
     if let Some(s) = a.max_seconds {
         if !(s.is_finite() && s > 0.0) {
             bail!("--max-seconds must be positive, got {s}");
@@ -174,14 +229,14 @@ pub fn run(a: TrainArgs) -> Result<()> {
     }
     // Fail on a bad arena before anything starts.
     cfg.arena()?;
-    let run_dir = a.run_dir.clone().unwrap_or_else(|| PathBuf::from("runs").join(timestamp()));
+    let run_dir = a.resume.clone().or_else(|| a.run_dir.clone()).unwrap_or_else(|| PathBuf::from("runs").join(timestamp()));
     std::fs::create_dir_all(&run_dir).with_context(|| format!("cannot create run directory {}", run_dir.display()))?;
     let run_dir = run_dir.canonicalize()?;
     // Roles read the arena relative to their working directory: resolve it now.
     cfg.sim.arena = cfg.sim.arena.canonicalize().with_context(|| format!("arena {}", cfg.sim.arena.display()))?;
     if !cfg.eval.arena.is_empty() {
         cfg.eval.arena = std::path::Path::new(&cfg.eval.arena).canonicalize().with_context(|| format!("key `eval.arena`: {}", cfg.eval.arena))?.display().to_string();
-        cfg.eval_arena()?;
+        cfg.eval_arenas()?;
     }
     let cfg_path = run_dir.join("config.toml");
     std::fs::write(&cfg_path, cfg.to_toml()).with_context(|| format!("cannot write {}", cfg_path.display()))?;
@@ -206,32 +261,29 @@ pub fn run(a: TrainArgs) -> Result<()> {
         specs.push((format!("actor-{e}"), vec!["actor".into(), "--env".into(), e.to_string()]));
         specs.push((format!("sim-{e}"), vec!["sim".into(), "--env".into(), e.to_string()]));
     }
+    let launcher = Launcher { exe: exe.clone(), cfg_path: cfg_path.clone(), prefix: prefix.clone(), run_dir: run_dir.clone(), logs: logs.clone() };
     let mut children = Children { roles: Vec::new() };
     for (name, args) in specs {
-        let log = File::create(logs.join(format!("{name}.log")))?;
-        let child = Command::new(&exe)
-            .args(&args)
-            .arg(&cfg_path)
-            .args(["--prefix", &prefix, "--run-dir"])
-            .arg(&run_dir)
-            // Roles size their own parallelism from the config (learner and
-            // actor threads, render threads); candle's pools stay
-            // single-threaded (idle spinning workers would steal the cores
-            // the other roles need).
-            .env("RAYON_NUM_THREADS", "1")
-            .env("CANDLE_NUM_THREADS", "1")
-            .stdin(Stdio::null())
-            .stdout(log.try_clone()?)
-            .stderr(log)
-            .spawn()
-            .with_context(|| format!("cannot start role {name}"))?;
-        children.roles.push(Role { name, child });
+        let child = launcher.spawn(&name, &args, false)?;
+        children.roles.push(Role { name, args, child, restarts: VecDeque::new() });
     }
+    let mut restarts = 0u64;
 
-    let mut metrics = File::create(run_dir.join("metrics.csv"))?;
-    writeln!(metrics, "kind,wall_s,env_steps,episodes,episode_reward,rolling_reward,epsilon,updates,replay_size")?;
-    let mut telemetry = File::create(run_dir.join("telemetry.csv"))?;
-    writeln!(telemetry, "wall_s,role,index,pid,cpu_pct,rss_mb,machine_cpu_pct,heartbeat,work,work2,weight_version,lost,stage0_ms,stage1_ms,stage2_ms,stage3_ms")?;
+    // A resumed run appends to its tables (wall time starts again at 0).
+    let table = |name: &str, header: &str| -> Result<File> {
+        let path = run_dir.join(name);
+        let append = a.resume.is_some() && path.exists();
+        let mut f = std::fs::OpenOptions::new().create(true).append(append).write(true).truncate(!append).open(&path).with_context(|| format!("cannot write {}", path.display()))?;
+        if !append {
+            writeln!(f, "{header}")?;
+        }
+        Ok(f)
+    };
+    let mut metrics = table("metrics.csv", "kind,wall_s,env_steps,episodes,episode_reward,rolling_reward,epsilon,updates,replay_size")?;
+    if a.resume.is_some() {
+        writeln!(metrics, "resume,0,,,,,,,")?;
+    }
+    let mut telemetry = table("telemetry.csv", "wall_s,role,index,pid,cpu_pct,rss_mb,machine_cpu_pct,heartbeat,work,work2,weight_version,lost,stage0_ms,stage1_ms,stage2_ms,stage3_ms")?;
 
     let bar = if a.quiet { ProgressBar::hidden() } else { ProgressBar::new_spinner() };
     bar.set_style(ProgressStyle::with_template("{spinner} [{elapsed_precise}] {msg}").expect("valid template"));
@@ -326,11 +378,31 @@ pub fn run(a: TrainArgs) -> Result<()> {
             failure = Some("the evaluator stopped; see the error below".into());
             break;
         }
-        // A role that exits on its own is a failure (restarts: issue 7).
+        // Supervision: a role that dies is cleaned up after and restarted
+        // (the learner from its last saved state); one that keeps dying
+        // stops the run.
         for r in &mut children.roles {
-            if let Some(status) = r.child.try_wait()? {
-                failure = Some(format!("role {} exited with {status}; see {}", r.name, logs.join(format!("{}.log", r.name)).display()));
+            let Some(status) = r.child.try_wait()? else { continue };
+            if hub.shutdown_requested() {
+                break;
             }
+            let log = logs.join(format!("{}.log", r.name));
+            let now = Instant::now();
+            while r.restarts.front().is_some_and(|t| now.duration_since(*t) > RESTART_WINDOW) {
+                r.restarts.pop_front();
+            }
+            if r.restarts.len() >= MAX_RESTARTS {
+                failure = Some(format!("role {} died {} times within {} s (last: {status}); giving up; see {}", r.name, r.restarts.len() + 1, RESTART_WINDOW.as_secs(), log.display()));
+                break;
+            }
+            let cleaned = cleanup_dead_nodes();
+            let wall = start.elapsed().as_secs_f64();
+            bar.println(format!("[{wall:.1} s] role {} exited ({status}); cleaned {cleaned} dead node(s), restarting", r.name));
+            tracing::warn!("role {} exited ({status}); restarting", r.name);
+            r.child = launcher.spawn(&r.name, &r.args, true)?;
+            r.restarts.push_back(now);
+            restarts += 1;
+            writeln!(metrics, "restart,{wall:.3},,,,,,,")?;
         }
         if failure.is_some() {
             break;
@@ -442,7 +514,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
         "gpu_util_mean_pct": serde_json::Value::Null,
         "gpu_power_mean_w": serde_json::Value::Null,
         "peak_rss_mb": peak_rss_mb,
-        "restarts": 0,
+        "restarts": restarts,
         "lost_messages": latest.values().map(|t| t.lost).sum::<u64>(),
         "checkpoint": checkpoint.as_ref().map(|p| p.display().to_string()),
         "last_checkpoint": last_checkpoint.as_ref().map(|p| p.display().to_string()),
@@ -452,6 +524,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
         "best_eval_at_s": best_eval.map(|b| b.wall),
         "best_eval_updates": best_eval.map(|b| b.updates),
         "interrupted": interrupted,
+        "resumed": a.resume.is_some(),
         "failure": failure,
         "leftover_services": leftover,
     });
@@ -465,6 +538,15 @@ pub fn run(a: TrainArgs) -> Result<()> {
             None => "did not converge".to_string(),
         }
     );
+    match crate::profile::report(&run_dir) {
+        Ok(r) => {
+            std::fs::write(run_dir.join("profile.md"), &r)?;
+            if let Some(line) = r.lines().find(|l| l.starts_with("**Bottleneck")) {
+                println!("{}", line.replace("**", ""));
+            }
+        }
+        Err(e) => tracing::warn!("no profile: {e:#}"),
+    }
     if let Some(f) = failure {
         bail!("{f}");
     }

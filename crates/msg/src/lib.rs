@@ -248,7 +248,7 @@ mod tests {
     #[test]
     fn layouts_are_stable() {
         // Headers cross process boundaries, so their sizes are part of the contract.
-        assert_eq!(std::mem::size_of::<ObsHeader>(), 32);
+        assert_eq!(std::mem::size_of::<ObsHeader>(), 40);
         assert_eq!(std::mem::size_of::<ActionHeader>(), 16);
         assert_eq!(std::mem::size_of::<TransitionHeader>(), 32);
         assert_eq!(std::mem::size_of::<MinibatchHeader>(), 32);

@@ -2,8 +2,46 @@
 //! minibatches. Pure data structure: the `hive replay` role feeds it from the
 //! transport and serves minibatches from it.
 
+use std::io::{BufReader, BufWriter, Read, Write};
+use std::path::{Path, PathBuf};
+
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
+
+const MAGIC: &[u8; 8] = b"RHREPLAY";
+
+/// Why a replay snapshot could not be written or read.
+#[derive(Debug, thiserror::Error)]
+pub enum SnapshotError {
+    /// Reading or writing the file failed.
+    #[error("replay snapshot {file}: {source}")]
+    Io {
+        /// The file.
+        file: String,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// The file is not a snapshot of transitions of this width.
+    #[error("replay snapshot {file}: {message}")]
+    Format {
+        /// The file.
+        file: String,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+/// A snapshot being written a chunk at a time, so that inserts and samples
+/// go on between chunks (rows written later may be newer than the header's
+/// count says: every row is still a whole transition).
+#[derive(Debug)]
+pub struct Snapshot {
+    out: BufWriter<std::fs::File>,
+    tmp: PathBuf,
+    path: PathBuf,
+    next: usize,
+    rows: usize,
+}
 
 /// A fixed-capacity FIFO of equally long transitions stored back to back.
 #[derive(Debug, Clone)]
@@ -61,6 +99,86 @@ impl Replay {
         }
     }
 
+    /// Physical row of the `i`-th oldest transition.
+    fn row(&self, i: usize) -> usize {
+        let start = if self.len < self.capacity { 0 } else { self.head };
+        (start + i) % self.capacity
+    }
+
+    /// Starts writing the memory to `path` (through a temporary file that
+    /// replaces it when done).
+    pub fn begin_snapshot(&self, path: &Path) -> Result<Snapshot, SnapshotError> {
+        let tmp = path.with_extension("tmp");
+        let io = |source| SnapshotError::Io { file: path.display().to_string(), source };
+        let mut out = BufWriter::with_capacity(1 << 20, std::fs::File::create(&tmp).map_err(io)?);
+        out.write_all(MAGIC).map_err(io)?;
+        for v in [self.width as u64, self.len as u64, self.inserted] {
+            out.write_all(&v.to_le_bytes()).map_err(io)?;
+        }
+        Ok(Snapshot { out, tmp, path: path.to_path_buf(), next: 0, rows: self.len })
+    }
+
+    /// Writes up to `max_rows` more rows, oldest first; true when the
+    /// snapshot is complete and in place.
+    pub fn snapshot_step(&self, s: &mut Snapshot, max_rows: usize) -> Result<bool, SnapshotError> {
+        let io = |source| SnapshotError::Io { file: s.path.display().to_string(), source };
+        let end = (s.next + max_rows).min(s.rows);
+        for i in s.next..end {
+            let r = self.row(i);
+            let bytes: Vec<u8> = self.data[r * self.width..(r + 1) * self.width].iter().flat_map(|v| v.to_le_bytes()).collect();
+            s.out.write_all(&bytes).map_err(io)?;
+        }
+        s.next = end;
+        if s.next < s.rows {
+            return Ok(false);
+        }
+        s.out.flush().map_err(io)?;
+        std::fs::rename(&s.tmp, &s.path).map_err(io)?;
+        Ok(true)
+    }
+
+    /// Writes the whole memory at once.
+    pub fn save(&self, path: &Path) -> Result<(), SnapshotError> {
+        let mut s = self.begin_snapshot(path)?;
+        while !self.snapshot_step(&mut s, usize::MAX)? {}
+        Ok(())
+    }
+
+    /// Reads a snapshot into a memory of `capacity` transitions (the newest
+    /// ones kept when the snapshot holds more).
+    pub fn load(path: &Path, capacity: usize, width: usize, seed: u64) -> Result<Self, SnapshotError> {
+        let file = path.display().to_string();
+        let io = |source| SnapshotError::Io { file: file.clone(), source };
+        let bad = |message: String| SnapshotError::Format { file: file.clone(), message };
+        let mut r = BufReader::with_capacity(1 << 20, std::fs::File::open(path).map_err(io)?);
+        let mut magic = [0u8; 8];
+        r.read_exact(&mut magic).map_err(|_| bad("too short for a header".into()))?;
+        if &magic != MAGIC {
+            return Err(bad("not a rotorhive replay snapshot".into()));
+        }
+        let mut word = || -> Result<u64, SnapshotError> {
+            let mut b = [0u8; 8];
+            r.read_exact(&mut b).map_err(|_| bad("truncated header".into()))?;
+            Ok(u64::from_le_bytes(b))
+        };
+        let (w, len, inserted) = (word()?, word()?, word()?);
+        if w as usize != width {
+            return Err(bad(format!("transitions of {w} floats, expected {width}")));
+        }
+        let mut mem = Self::new(capacity, width, seed);
+        let mut buf = vec![0u8; width * 4];
+        let mut row = vec![0f32; width];
+        for i in 0..len {
+            r.read_exact(&mut buf).map_err(|_| bad(format!("truncated: {i} of {len} transitions")))?;
+            for (v, b) in row.iter_mut().zip(buf.chunks_exact(4)) {
+                *v = f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+            }
+            mem.insert(&row);
+        }
+        mem.inserted = inserted.max(mem.inserted);
+        Ok(mem)
+    }
+
     /// Fills `out` (a multiple of `width` floats) with transitions drawn
     /// uniformly with replacement. Panics when empty.
     pub fn sample_into(&mut self, out: &mut [f32]) {
@@ -91,6 +209,37 @@ mod tests {
             seen.insert(t[0] as i32);
         }
         assert_eq!(seen.into_iter().collect::<Vec<_>>(), vec![2, 3, 4]);
+    }
+
+    #[test]
+    fn snapshots_round_trip_in_chunks_and_refuse_bad_files() {
+        let dir = std::env::temp_dir().join(format!("rotorhive-replay-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("r.bin");
+        let mut r = Replay::new(4, 3, 1);
+        r.insert(&(0..18).map(|i| i as f32).collect::<Vec<_>>());
+        let mut s = r.begin_snapshot(&path).unwrap();
+        let mut steps = 0;
+        while !r.snapshot_step(&mut s, 1).unwrap() {
+            steps += 1;
+        }
+        assert_eq!(steps, 3);
+        let back = Replay::load(&path, 4, 3, 2).unwrap();
+        assert_eq!((back.len(), back.inserted()), (4, 6));
+        // Oldest first: rows 2..6 of what went in.
+        let rows: Vec<f32> = (0..4).map(|i| back.data[back.row(i) * 3]).collect();
+        assert_eq!(rows, vec![6.0, 9.0, 12.0, 15.0]);
+        // A smaller memory keeps the newest.
+        let small = Replay::load(&path, 2, 3, 2).unwrap();
+        assert_eq!((0..2).map(|i| small.data[small.row(i) * 3]).collect::<Vec<_>>(), vec![12.0, 15.0]);
+        assert!(matches!(Replay::load(&path, 4, 5, 2), Err(SnapshotError::Format { .. })));
+        let bytes = std::fs::read(&path).unwrap();
+        std::fs::write(&path, &bytes[..bytes.len() - 5]).unwrap();
+        let e = Replay::load(&path, 4, 3, 2).unwrap_err().to_string();
+        assert!(e.contains("truncated"), "{e}");
+        std::fs::write(&path, b"hello").unwrap();
+        assert!(Replay::load(&path, 4, 3, 2).is_err());
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

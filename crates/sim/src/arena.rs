@@ -147,6 +147,67 @@ impl Default for GenParams {
     }
 }
 
+/// Several arenas side by side along y, as one world.
+#[derive(Debug, Clone)]
+pub struct Lanes {
+    /// The combined arena: every lane's obstacles moved to its place, plus
+    /// each lane's two walls as boxes; outer walls, floor and ceiling as usual.
+    pub world: Arena,
+    /// The y offset of each lane's centre line.
+    pub offsets: Vec<f32>,
+    /// Each lane's spawn region, in its own coordinates.
+    pub spawns: Vec<Spawn>,
+}
+
+/// Thickness of the walls between lanes (metres).
+const LANE_WALL: f32 = 0.5;
+
+impl Lanes {
+    /// Puts arenas of equal length and height side by side: lane k's centre
+    /// line at y = offsets[k], walls of its own width, so an agent neither
+    /// sees nor touches another lane. One arena is itself, unchanged.
+    pub fn new(arenas: &[Arena]) -> Result<Self, ArenaError> {
+        let first = arenas.first().ok_or_else(|| ArenaError::Invalid { file: "lanes".into(), what: "lanes".into(), field: "arenas".into(), message: "no arena given".into() })?;
+        if arenas.len() == 1 {
+            return Ok(Self { world: first.clone(), offsets: vec![0.0], spawns: vec![first.spawn.clone()] });
+        }
+        for a in arenas {
+            if a.length != first.length || a.height != first.height {
+                return Err(ArenaError::Invalid {
+                    file: a.name.clone(),
+                    what: format!("arena {:?}", a.name),
+                    field: "length/height".into(),
+                    message: format!("lanes must share length and height ({} × {} against {} × {})", a.length, a.height, first.length, first.height),
+                });
+            }
+        }
+        let pitch = arenas.iter().map(|a| a.width).fold(0.0f32, f32::max) + 2.0 * LANE_WALL;
+        let total = pitch * arenas.len() as f32;
+        let mut obstacles = Vec::new();
+        let mut offsets = Vec::new();
+        for (k, a) in arenas.iter().enumerate() {
+            let off = -total / 2.0 + pitch * (k as f32 + 0.5);
+            offsets.push(off);
+            for o in &a.obstacles {
+                obstacles.push(match *o {
+                    Obstacle::Box { center, half_extents } => Obstacle::Box { center: [center[0], center[1] + off, center[2]], half_extents },
+                    Obstacle::Cylinder { center, radius, half_height } => Obstacle::Cylinder { center: [center[0], center[1] + off, center[2]], radius, half_height },
+                });
+            }
+            // The lane's own walls, longer than the camera sees past either end.
+            let hl = a.length / 2.0 + 40.0;
+            for side in [-1.0f32, 1.0] {
+                obstacles.push(Obstacle::Box {
+                    center: [a.length / 2.0, off + side * (a.width / 2.0 + LANE_WALL / 2.0), a.height / 2.0],
+                    half_extents: [hl, LANE_WALL / 2.0, a.height / 2.0],
+                });
+            }
+        }
+        let world = Arena { name: format!("{} lanes", arenas.len()), length: first.length, width: total, height: first.height, spawn: first.spawn.clone(), obstacles };
+        Ok(Self { world, offsets, spawns: arenas.iter().map(|a| a.spawn.clone()).collect() })
+    }
+}
+
 impl Arena {
     /// Reads and validates an arena file.
     pub fn load(path: &Path) -> Result<Self, ArenaError> {

@@ -11,7 +11,7 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use rapier3d::prelude::*;
 
-use crate::arena::{Arena, Obstacle};
+use crate::arena::{Arena, ArenaError, Lanes, Obstacle, Spawn};
 use crate::dynamics::{DroneState, Gains, QuadParams, control};
 use crate::gpu::{GpuDepthRenderer, GpuError};
 use crate::render::{CameraPose, CameraSpec, DepthRenderer, Drones, Scene};
@@ -38,6 +38,17 @@ pub enum RendererKind {
     Cpu,
     /// Rasterising with wgpu (a GPU, or lavapipe on the CPU).
     Wgpu,
+}
+
+/// Why a multi-lane environment could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum LanesError {
+    /// The arenas do not fit side by side.
+    #[error(transparent)]
+    Arena(#[from] ArenaError),
+    /// The renderer could not start.
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
 }
 
 /// Settings of the simulator.
@@ -145,6 +156,9 @@ pub struct VecEnv {
     scene: Scene,
     renderer: DepthRenderer,
     gpu: Option<GpuDepthRenderer>,
+    /// Lane centre lines and spawns (one lane: the arena itself).
+    lane_offsets: Vec<f32>,
+    lane_spawns: Vec<Spawn>,
     /// Agent index of every camera, for the GPU renderer.
     agent_ids: Vec<u32>,
     rng: Pcg64Mcg,
@@ -175,6 +189,20 @@ impl VecEnv {
     /// colliders, one drone per agent at a random spawn pose, and the
     /// renderer (the wgpu one can fail to find an adapter).
     pub fn try_new(cfg: SimConfig, arena: Arena, seed: u64) -> Result<Self, GpuError> {
+        let lanes = Lanes::new(std::slice::from_ref(&arena)).expect("one arena is always a lane");
+        Self::with_lanes(cfg, lanes, seed)
+    }
+
+    /// Several arenas side by side (see [`Lanes`]): every agent starts each
+    /// episode in a lane drawn at random, so one environment trains on many
+    /// obstacle layouts at once.
+    pub fn try_new_lanes(cfg: SimConfig, arenas: &[Arena], seed: u64) -> Result<Self, LanesError> {
+        let lanes = Lanes::new(arenas)?;
+        Ok(Self::with_lanes(cfg, lanes, seed)?)
+    }
+
+    fn with_lanes(cfg: SimConfig, lanes: Lanes, seed: u64) -> Result<Self, GpuError> {
+        let Lanes { world: arena, offsets: lane_offsets, spawns: lane_spawns } = lanes;
         assert!(cfg.agents > 0, "a VecEnv needs at least one agent");
         let mut world = PhysicsWorld::new();
         world.gravity = Vector::new(0.0, 0.0, -9.81);
@@ -234,6 +262,8 @@ impl VecEnv {
         let mut env = Self {
             renderer: DepthRenderer::new(cfg.camera, cfg.render_threads),
             gpu,
+            lane_offsets,
+            lane_spawns,
             agent_ids: (0..n as u32).collect(),
             scene,
             arena,
@@ -466,8 +496,9 @@ impl VecEnv {
     }
 
     fn reset_agent(&mut self, i: usize) {
-        let s = &self.arena.spawn;
-        let y = if s.y[1] > s.y[0] { self.rng.random_range(s.y[0]..s.y[1]) } else { s.y[0] };
+        let lane = if self.lane_offsets.len() > 1 { self.rng.random_range(0..self.lane_offsets.len()) } else { 0 };
+        let s = &self.lane_spawns[lane];
+        let y = self.lane_offsets[lane] + if s.y[1] > s.y[0] { self.rng.random_range(s.y[0]..s.y[1]) } else { s.y[0] };
         let b = &mut self.world.bodies[self.bodies[i]];
         b.set_position(Pose::from_parts(Vector::new(s.x, y, s.z), Rotation::IDENTITY), true);
         b.set_linvel(Vector::new(self.cfg.forward_speed, 0.0, 0.0), true);

@@ -9,7 +9,7 @@ pub mod env;
 pub mod gpu;
 pub mod render;
 
-pub use arena::{Arena, ArenaError, GenParams, Obstacle, Spawn};
-pub use env::{Done, Episode, RendererKind, SimConfig, StepTiming, VecEnv};
+pub use arena::{Arena, ArenaError, GenParams, Lanes, Obstacle, Spawn};
+pub use env::{Done, Episode, LanesError, RendererKind, SimConfig, StepTiming, VecEnv};
 pub use gpu::{GpuDepthRenderer, GpuError};
 pub use render::{CameraPose, CameraSpec, DepthRenderer, Scene};

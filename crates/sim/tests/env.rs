@@ -207,3 +207,33 @@ fn shipped_arenas_punish_trivial_policies() {
     let test = Arena::load(&arena_file("test.toml")).unwrap();
     assert_ne!(train.obstacles, test.obstacles, "train and test arenas must differ");
 }
+
+#[test]
+fn lanes_put_arenas_side_by_side_and_keep_them_apart() {
+    use rotorhive_sim::{CameraPose, CameraSpec, DepthRenderer, Lanes, Scene};
+    let a = open_arena(100.0, vec![]);
+    let b = open_arena(100.0, vec![Obstacle::Box { center: [30.0, 0.0, 4.0], half_extents: [1.0, 1.0, 4.0] }]);
+    let lanes = Lanes::new(&[a.clone(), b.clone()]).unwrap();
+    assert_eq!(lanes.offsets.len(), 2);
+    assert!((lanes.offsets[1] - lanes.offsets[0] - 21.0).abs() < 1e-4, "{:?}", lanes.offsets);
+    assert_eq!(lanes.world.obstacles.len(), 1 + 4, "one obstacle and two walls per lane");
+    // Agents spawn in both lanes, each inside its lane.
+    let env = VecEnv::try_new_lanes(cfg(16), &[a.clone(), b], 3).unwrap();
+    let mut used = [false; 2];
+    for p in env.positions() {
+        let k = lanes.offsets.iter().position(|o| (p[1] - o).abs() < 10.0).expect("agent outside every lane");
+        used[k] = true;
+    }
+    assert_eq!(used, [true, true]);
+    // Looking sideways from lane 0's centre line, a camera sees its own wall
+    // (10 m away), not the next lane.
+    let spec = CameraSpec::default();
+    let scene = Scene::new(&lanes.world);
+    let cam = CameraPose { position: rapier3d::math::Vector::new(50.0, lanes.offsets[0], 4.0), rotation: rapier3d::math::Rotation::from_rotation_z(std::f32::consts::FRAC_PI_2) };
+    let mut img = vec![0.0; spec.side * spec.side];
+    DepthRenderer::new(spec, 1).render(&scene, &[cam], 0, None, &mut img);
+    let centre = img[(spec.side / 2) * spec.side + spec.side / 2] * spec.range;
+    assert!((centre - 10.0).abs() < 0.01, "sideways depth {centre}");
+    // Lengths must agree.
+    assert!(Lanes::new(&[a, open_arena(90.0, vec![])]).is_err());
+}

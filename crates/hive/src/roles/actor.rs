@@ -67,7 +67,9 @@ pub fn run(role: RoleArgs, e: usize) -> Result<()> {
         let t = Instant::now();
         if let Some(w) = w_rx.latest().context("reading weights")? {
             let h = *w.user_header();
-            if h.version > version {
+            // Any other version is newer: a restarted learner goes on from
+            // its saved update count, which never lies behind.
+            if h.version != version {
                 net.load_flat(w.payload()).context("loading published weights")?;
                 version = h.version;
                 tel.sample.weight_version = version;

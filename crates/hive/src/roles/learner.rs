@@ -30,6 +30,14 @@ fn save_atomic(net: &QNet, path: &Path) -> Result<()> {
     Ok(())
 }
 
+/// Writes the learner's whole state atomically.
+fn save_state_atomic(dqn: &Dqn, path: &Path) -> Result<()> {
+    let tmp = path.with_extension("tmp");
+    dqn.save_state(&tmp)?;
+    std::fs::rename(&tmp, path).with_context(|| format!("cannot write learner state {}", path.display()))?;
+    Ok(())
+}
+
 pub fn run(role: RoleArgs) -> Result<()> {
     let (cfg, hub) = open(&role, "learner")?;
     let run_dir = role.run_dir.clone().unwrap_or_else(|| PathBuf::from("."));
@@ -37,10 +45,18 @@ pub fn run(role: RoleArgs) -> Result<()> {
     std::fs::create_dir_all(&ckpt_dir).with_context(|| format!("cannot create {}", ckpt_dir.display()))?;
     let mut dqn = Dqn::new(dqn_config(&cfg), cfg.seed, &rotorhive_model::device(&cfg.learner.device)?)?;
     dqn.set_threads(cfg.learner.threads);
+    // A restarted (or resumed) learner goes on from its last saved state:
+    // weights, target, Adam moments and counters.
+    let state_path = ckpt_dir.join("learner-state.safetensors");
+    if state_path.exists() {
+        dqn.load_state(&state_path).with_context(|| format!("restoring the learner from {}", state_path.display()))?;
+        tracing::info!("learner restored from {} at update {}", state_path.display(), dqn.updates());
+    }
     let mut rx = hub.receiver::<f32, MinibatchHeader>(&Channel::minibatches(cfg.replay.prefetch))?;
     let mut w_tx = hub.sender::<f32, WeightsHeader>(&Channel::weights(cfg.sim.envs), num_params(), STALL_TIMEOUT)?;
     let mut tel = Counters::new(&hub, RoleKind::Learner, 0, super::sim::roles_of(&cfg))?;
-    let mut version = 0u64;
+    // Versions go on increasing across restarts.
+    let mut version = dqn.updates();
     let mut publish = |dqn: &Dqn, version: &mut u64| -> Result<()> {
         *version += 1;
         let v = *version;
@@ -88,10 +104,12 @@ pub fn run(role: RoleArgs) -> Result<()> {
         }
         if last_ckpt.elapsed().as_secs_f64() >= cfg.learner.checkpoint_every_s {
             save_atomic(&dqn.online, &ckpt_dir.join("latest.safetensors"))?;
+            save_state_atomic(&dqn, &state_path)?;
             last_ckpt = Instant::now();
         }
     }
     save_atomic(&dqn.online, &run_dir.join("final.safetensors"))?;
+    save_state_atomic(&dqn, &state_path)?;
     tel.tick(true);
     Ok(())
 }

@@ -15,7 +15,20 @@ use crate::RoleArgs;
 pub fn run(role: RoleArgs) -> Result<()> {
     let (cfg, hub) = open(&role, "replay")?;
     let r = &cfg.replay;
-    let mut mem = Replay::new(r.capacity, TRANSITION_LEN, cfg.seed ^ 0x5e1a);
+    // A restarted (or resumed) replay starts from its last snapshot.
+    let run_dir = role.run_dir.clone();
+    let snap_path = run_dir.as_ref().map(|d| d.join("replay.bin"));
+    let mut mem = match &snap_path {
+        Some(p) if p.exists() => {
+            let m = Replay::load(p, r.capacity, TRANSITION_LEN, cfg.seed ^ 0x5e1a).context("restoring the replay memory")?;
+            tracing::info!("replay restored {} transitions from {}", m.len(), p.display());
+            m
+        }
+        _ => Replay::new(r.capacity, TRANSITION_LEN, cfg.seed ^ 0x5e1a),
+    };
+    let snap_every = (r.snapshot_every_s > 0.0).then(|| Duration::from_secs_f64(r.snapshot_every_s));
+    let mut last_snap = Instant::now();
+    let mut snapshot: Option<rotorhive_replay::Snapshot> = None;
     let mut rx = hub.receiver::<f32, TransitionHeader>(&Channel::transitions(cfg.sim.envs))?;
     // A full learner queue is normal (the learner is busy): the send gives up
     // after a millisecond and the replay goes back to inserting.
@@ -53,6 +66,18 @@ pub fn run(role: RoleArgs) -> Result<()> {
                 Err(e) => return Err(e).context("sending a minibatch"),
             }
         }
+        // Snapshots a chunk per loop: inserts and samples go on in between.
+        if let (Some(every), Some(path)) = (snap_every, &snap_path) {
+            if snapshot.is_none() && last_snap.elapsed() >= every && mem.len() > 0 {
+                snapshot = Some(mem.begin_snapshot(path)?);
+            }
+            if let Some(s) = &mut snapshot
+                && mem.snapshot_step(s, SNAPSHOT_CHUNK)?
+            {
+                snapshot = None;
+                last_snap = Instant::now();
+            }
+        }
         tel.sample.work = mem.inserted();
         tel.sample.work2 = mb_seq;
         tel.sample.value_milli = mem.len() as i64;
@@ -67,9 +92,16 @@ pub fn run(role: RoleArgs) -> Result<()> {
             tel.stage(2, t);
         }
     }
+    if let (Some(_), Some(path)) = (snap_every, &snap_path) {
+        drop(snapshot);
+        mem.save(path).context("saving the replay memory")?;
+    }
     tel.tick(true);
     Ok(())
 }
+
+/// Transitions written per loop while snapshotting (about 4 MiB, a few ms).
+const SNAPSHOT_CHUNK: usize = 256;
 
 /// Inserts one transition batch, counting sequence gaps of its actor (a
 /// restarted actor starts again at 0, which is not loss) and corrupt values.

@@ -19,9 +19,9 @@ pub fn run(role: RoleArgs, env_index: usize) -> Result<()> {
     if env_index >= cfg.sim.envs {
         bail!("--env {env_index} is out of range: the config has {} environments", cfg.sim.envs);
     }
-    let arena = cfg.arena()?;
+    let arenas = cfg.lane_arenas(env_index)?;
     let n = cfg.sim.agents;
-    let mut env = VecEnv::try_new(cfg.sim_config(), arena, cfg.seed.wrapping_mul(1000).wrapping_add(env_index as u64)).context("starting the simulator")?;
+    let mut env = VecEnv::try_new_lanes(cfg.sim_config(), &arenas, cfg.seed.wrapping_mul(1000).wrapping_add(env_index as u64)).context("starting the simulator")?;
     let batched = cfg.sim.observation_mode == "batched";
     assert_eq!(env.obs_len(), OBS_LEN, "simulator and message layouts disagree");
     let mut obs_tx = hub.sender::<f32, ObsHeader>(&Channel::obs(env_index), obs_batch_len(n), STALL_TIMEOUT)?;

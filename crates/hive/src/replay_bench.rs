@@ -1,0 +1,178 @@
+//! `hive bench replay`: the replay role as its own process, fed by P
+//! producer processes over shared memory and drained by this process acting
+//! as the learner. Three phases: inserts alone (the memory fills before any
+//! sampling starts), minibatch sampling alone, and both at once.
+
+use std::io::{BufRead, BufReader};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use rotorhive_msg::{MinibatchHeader, OBS_LEN, TRANSITION_LEN, TransitionHeader};
+use rotorhive_transport::{Channel, Hub, Ipc, services_of_run};
+use serde_json::json;
+
+/// Transitions per producer message (one actor's batch for 50 agents).
+const PER_MSG: usize = 50;
+
+/// A producer: sends `batches` transition batches as fast as the replay
+/// takes them, then prints the seconds it took.
+pub fn producer(prefix: &str, index: usize, producers: usize, batches: usize) -> Result<()> {
+    let hub = Hub::<Ipc>::new(prefix, &format!("bench-producer-{index}"))?;
+    let mut tx = hub.sender::<f32, TransitionHeader>(&Channel::transitions(producers), PER_MSG * TRANSITION_LEN, Duration::from_secs(5))?;
+    // Valid transitions (depth in [0, 1], action and done 0 or 1).
+    let mut src = vec![0.5f32; PER_MSG * TRANSITION_LEN];
+    for (i, t) in src.chunks_exact_mut(TRANSITION_LEN).enumerate() {
+        t[2 * OBS_LEN] = (i % 2) as f32;
+        t[2 * OBS_LEN + 1] = 3.0;
+        t[2 * OBS_LEN + 2] = 0.0;
+    }
+    let t = Instant::now();
+    for seq in 0..batches as u64 {
+        tx.send_with(PER_MSG * TRANSITION_LEN, |h, out| {
+            *h = TransitionHeader { actor: index as u32, count: PER_MSG as u32, seq, weight_version: 0, episodes: 0 };
+            out.copy_from_slice(&src);
+        })?;
+    }
+    println!("{}", t.elapsed().as_secs_f64());
+    Ok(())
+}
+
+struct Procs(Vec<Child>);
+
+impl Drop for Procs {
+    fn drop(&mut self) {
+        for c in &mut self.0 {
+            // SAFETY: kill(2) on our own child.
+            unsafe { libc::kill(c.id() as i32, libc::SIGTERM) };
+        }
+        for c in &mut self.0 {
+            let _ = c.wait();
+        }
+    }
+}
+
+fn spawn_producers(prefix: &str, producers: usize, batches: usize) -> Result<Vec<Child>> {
+    let exe = std::env::current_exe()?;
+    (0..producers)
+        .map(|i| {
+            Command::new(&exe)
+                .args(["bench", "replay-producer", "--prefix", prefix, "--index", &i.to_string(), "--producers", &producers.to_string(), "--batches", &batches.to_string()])
+                .stdout(Stdio::piped())
+                .spawn()
+                .context("starting a producer")
+        })
+        .collect()
+}
+
+/// Waits for producers and returns the longest time any of them took.
+fn join_producers(children: Vec<Child>) -> Result<f64> {
+    let mut worst = 0.0f64;
+    for mut c in children {
+        let mut line = String::new();
+        BufReader::new(c.stdout.take().context("producer stdout")?).read_line(&mut line)?;
+        let status = c.wait()?;
+        if !status.success() {
+            bail!("a producer failed ({status})");
+        }
+        worst = worst.max(line.trim().parse::<f64>().with_context(|| format!("producer printed {line:?}"))?);
+    }
+    Ok(worst)
+}
+
+pub fn run(producers: usize, seconds: f64, json_out: bool) -> Result<()> {
+    if producers == 0 || !(seconds > 0.0) {
+        bail!("--producers and --seconds must be positive");
+    }
+    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.subsec_nanos()).unwrap_or(0);
+    let prefix = format!("bench-replay-{}-{nanos:x}", std::process::id());
+    let dir = std::env::temp_dir().join(&prefix);
+    std::fs::create_dir_all(&dir)?;
+    // Phase 1 fills the memory exactly: no sampling can start before it is full.
+    let per_producer = 600usize;
+    let capacity = producers * per_producer * PER_MSG;
+    let cfg = format!("[sim]\nenvs = {producers}\n[replay]\ncapacity = {capacity}\nmin_fill = {capacity}\nbatch = 32\nprefetch = 4\n");
+    let cfg_path = dir.join("config.toml");
+    std::fs::write(&cfg_path, cfg)?;
+    let hub = Hub::<Ipc>::new(&prefix, "bench-learner")?;
+    let mut rx = hub.receiver::<f32, MinibatchHeader>(&Channel::minibatches(4))?;
+    let exe = std::env::current_exe()?;
+    let replay = Command::new(&exe)
+        .arg("replay")
+        .arg(&cfg_path)
+        .args(["--prefix", &prefix, "--run-dir"])
+        .arg(&dir)
+        .stdout(Stdio::null())
+        .spawn()
+        .context("starting the replay role")?;
+    let procs = Procs(vec![replay]);
+    let result = (|| -> Result<serde_json::Value> {
+        // Phase 1: inserts alone.
+        std::thread::sleep(Duration::from_millis(300));
+        let wall = join_producers(spawn_producers(&prefix, producers, per_producer)?)?;
+        let inserts_per_s = capacity as f64 / wall;
+        // Phase 2: sampling alone (the memory is full now).
+        let sample = |rx: &mut rotorhive_transport::Receiver<Ipc, f32, MinibatchHeader>, secs: f64| -> Result<(u64, f64)> {
+            let t = Instant::now();
+            let mut n = 0u64;
+            while t.elapsed().as_secs_f64() < secs {
+                if let Some(m) = rx.recv_timeout(Duration::from_millis(500))? {
+                    if m.payload().len() != 32 * TRANSITION_LEN {
+                        bail!("minibatch of the wrong size");
+                    }
+                    n += 1;
+                }
+            }
+            Ok((n, t.elapsed().as_secs_f64()))
+        };
+        let (n, secs) = sample(&mut rx, seconds)?;
+        let samples_per_s = n as f64 / secs;
+        // Phase 3: both at once (producers keep sending while we sample).
+        let batches = ((inserts_per_s * seconds) / (PER_MSG * producers) as f64).max(10.0) as usize;
+        let kids = spawn_producers(&prefix, producers, batches)?;
+        let t = Instant::now();
+        let mut got = 0u64;
+        let mut done = false;
+        let mut kids = Some(kids);
+        while !done {
+            if let Some(m) = rx.recv_timeout(Duration::from_millis(100))? {
+                drop(m);
+                got += 1;
+            }
+            if let Some(k) = &mut kids
+                && k.iter_mut().all(|c| matches!(c.try_wait(), Ok(Some(_))))
+            {
+                done = true;
+            }
+        }
+        let mixed_secs = t.elapsed().as_secs_f64();
+        let _ = join_producers(kids.take().unwrap_or_default());
+        let mixed_inserts = (batches * PER_MSG * producers) as f64 / mixed_secs;
+        let mixed_samples = got as f64 / mixed_secs;
+        println!("{:>10} {:>16} {:>16} {:>22} {:>22}", "producers", "inserts/s alone", "samples/s alone", "inserts/s (together)", "samples/s (together)");
+        println!("{producers:>10} {inserts_per_s:>16.0} {samples_per_s:>16.0} {mixed_inserts:>22.0} {mixed_samples:>22.0}");
+        println!("transitions of {} floats ({:.1} KiB), {PER_MSG} per message; minibatches of 32; cpprb (in-process, Python) on this machine: 538,000 inserts/s, 15,500 samples/s", TRANSITION_LEN, TRANSITION_LEN as f64 * 4.0 / 1024.0);
+        Ok(json!({
+            "producers": producers,
+            "inserts_per_s": inserts_per_s,
+            "samples_per_s": samples_per_s,
+            "together_inserts_per_s": mixed_inserts,
+            "together_samples_per_s": mixed_samples,
+            "transition_floats": TRANSITION_LEN,
+            "batch": 32,
+        }))
+    })();
+    drop(procs);
+    drop(rx);
+    drop(hub);
+    let _ = std::fs::remove_dir_all(&dir);
+    let out = result?;
+    let left = services_of_run(&prefix);
+    if !left.is_empty() {
+        bail!("shared memory left behind: {left:?}");
+    }
+    if json_out {
+        println!("{out}");
+    }
+    Ok(())
+}

@@ -1,0 +1,79 @@
+//! Reliability: every role of a real run is SIGKILLed in turn; the
+//! supervisor cleans up after it, restarts it (the learner from its saved
+//! state), counts the restarts, training goes on, and nothing is left in
+//! shared memory.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("rotorhive-test-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+/// Newest pid and counter of a role from `telemetry.csv`.
+fn role_state(dir: &Path, role: &str) -> Option<(i32, u64)> {
+    let text = std::fs::read_to_string(dir.join("telemetry.csv")).ok()?;
+    text.lines().skip(1).filter(|l| l.split(',').nth(1) == Some(role)).last().map(|l| {
+        let f: Vec<&str> = l.split(',').collect();
+        (f[3].parse().unwrap(), f[8].parse().unwrap())
+    })
+}
+
+fn wait_for(what: &str, timeout: Duration, mut f: impl FnMut() -> bool) {
+    let t = Instant::now();
+    while !f() {
+        assert!(t.elapsed() < timeout, "timed out waiting for {what}");
+        std::thread::sleep(Duration::from_millis(200));
+    }
+}
+
+#[test]
+fn killed_roles_are_restarted_and_training_goes_on() {
+    let dir = tmp("supervise");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_hive"))
+        .current_dir(root())
+        .args(["train", "configs/default.toml", "--quiet", "--max-seconds", "70", "--run-dir"])
+        .arg(&dir)
+        .args(["--set", "sim.agents=8", "--set", "replay.min_fill=300", "--set", "replay.capacity=2000", "--set", "learner.checkpoint_every_s=2", "--set", "eval.every_s=0", "--set", "threshold=100000"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    wait_for("the learner to update", Duration::from_secs(40), || role_state(&dir, "learner").is_some_and(|(_, u)| u > 20));
+    wait_for("a learner state file", Duration::from_secs(20), || dir.join("checkpoints/learner-state.safetensors").exists());
+    let mut killed = Vec::new();
+    for role in ["actor", "sim", "replay", "learner"] {
+        let (pid, before) = role_state(&dir, role).unwrap();
+        // SAFETY: kill(2) on a process of this test's run.
+        assert_eq!(unsafe { libc_kill(pid, 9) }, 0, "kill {role} {pid}");
+        killed.push((role, pid));
+        // A new process of the role reports, and the learner keeps updating.
+        wait_for(&format!("{role} to come back"), Duration::from_secs(30), || role_state(&dir, role).is_some_and(|(p, _)| p != pid));
+        let (_, learner_before) = role_state(&dir, "learner").unwrap();
+        wait_for(&format!("updates after killing {role} ({before})"), Duration::from_secs(30), || role_state(&dir, "learner").is_some_and(|(_, u)| u > learner_before + 5));
+    }
+    // The restored learner went on from its saved update count.
+    let (_, updates) = role_state(&dir, "learner").unwrap();
+    assert!(updates > 20, "learner at {updates} updates after its restart");
+    // SAFETY: SIGINT to our own child: stop the run as Ctrl-C would.
+    unsafe { libc_kill(child.id() as i32, 2) };
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "train failed: {stderr}");
+    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    assert!(summary["restarts"].as_u64().unwrap() >= 4, "{summary} ({killed:?})");
+    assert_eq!(summary["leftover_services"].as_array().map(Vec::len), Some(0), "{summary}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+unsafe extern "C" {
+    #[link_name = "kill"]
+    fn libc_kill(pid: i32, sig: i32) -> i32;
+}
