@@ -93,6 +93,19 @@ pub enum BenchCmd {
         #[arg(long)]
         batches: usize,
     },
+    /// The paper's Table II: training time, CPU and GPU use for 1, 25, 50 and
+    /// 2×37 agents, batched and non-batched.
+    Table {
+        /// Grid, budget and seeds.
+        #[arg(long, default_value = "configs/bench/agent-table.toml")]
+        config: PathBuf,
+        /// Where the runs and the table go.
+        #[arg(long, default_value = "runs/agent-table")]
+        out: PathBuf,
+        /// Print one JSON object as the last line.
+        #[arg(long)]
+        json: bool,
+    },
     /// Learner updates per second and actor inference latency.
     Learner {
         /// Threads for candle's CPU kernels.
@@ -121,6 +134,7 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
         BenchCmd::IpcPeer { prefix } => crate::ipc_bench::peer(&prefix),
         BenchCmd::Replay { producers, seconds, json } => crate::replay_bench::run(producers, seconds, json),
         BenchCmd::ReplayProducer { prefix, index, producers, batches } => crate::replay_bench::producer(&prefix, index, producers, batches),
+        BenchCmd::Table { config, out, json } => crate::table_bench::run(&config, &out, json),
         BenchCmd::Learner { threads, batch, updates, compare, json } => crate::roles::learner::bench(threads, batch, updates, compare, json),
     }
 }

@@ -3,9 +3,11 @@
 //! pictures and system benchmarks.
 
 mod bench;
+mod gpu_monitor;
 mod ipc_bench;
 mod profile;
 mod replay_bench;
+mod table_bench;
 mod config;
 mod draw;
 mod eval;
@@ -108,7 +110,7 @@ fn main() -> ExitCode {
         }
     };
     tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::try_from_env("HIVE_LOG").unwrap_or_else(|_| "warn".into()))
+        .with_env_filter(tracing_subscriber::EnvFilter::try_from_env("HIVE_LOG").unwrap_or_else(|_| "info,wgpu_core=warn,wgpu_hal=warn,naga=warn,iceoryx2=warn".into()))
         .with_writer(std::io::stderr)
         .init();
     // Keep freed tensor buffers in the heap instead of returning them to the

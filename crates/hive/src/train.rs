@@ -283,7 +283,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
     if a.resume.is_some() {
         writeln!(metrics, "resume,0,,,,,,,")?;
     }
-    let mut telemetry = table("telemetry.csv", "wall_s,role,index,pid,cpu_pct,rss_mb,machine_cpu_pct,heartbeat,work,work2,weight_version,lost,stage0_ms,stage1_ms,stage2_ms,stage3_ms")?;
+    let mut telemetry = table("telemetry.csv", "wall_s,role,index,pid,cpu_pct,rss_mb,machine_cpu_pct,heartbeat,work,work2,weight_version,lost,stage0_ms,stage1_ms,stage2_ms,stage3_ms,gpu_util_pct,gpu_mem_mb,gpu_power_w")?;
 
     let bar = if a.quiet { ProgressBar::hidden() } else { ProgressBar::new_spinner() };
     bar.set_style(ProgressStyle::with_template("{spinner} [{elapsed_precise}] {msg}").expect("valid template"));
@@ -299,6 +299,9 @@ pub fn run(a: TrainArgs) -> Result<()> {
     let mut latest: BTreeMap<(u32, u32), Telemetry> = BTreeMap::new();
     let mut sys = System::new().map_err(|e| anyhow::anyhow!("cannot read system statistics: {e}"))?;
     let mut cpu_samples: Vec<f64> = Vec::new();
+    let gpu = crate::gpu_monitor::GpuMonitor::new();
+    let mut gpu_samples: Vec<crate::gpu_monitor::GpuReading> = Vec::new();
+    let mut util_series: BTreeMap<String, Vec<(f64, f64)>> = BTreeMap::new();
     let mut peak_rss_mb = 0.0f64;
     let mut time_to_threshold: Option<f64> = None;
     let mut last_tick = Instant::now();
@@ -418,6 +421,13 @@ pub fn run(a: TrainArgs) -> Result<()> {
             sys.refresh_processes(ProcessesToUpdate::Some(&pids), true);
             let machine = sys.global_cpu_usage() as f64;
             cpu_samples.push(machine);
+            let g = gpu.read();
+            if let Some(g) = g {
+                gpu_samples.push(g);
+                util_series.entry("GPU".into()).or_default().push((wall, g.util_pct));
+            }
+            let gcols = g.map_or(",,".to_string(), |g| format!("{:.1},{:.1},{:.1}", g.util_pct, g.mem_mb, g.power_w));
+            util_series.entry("machine CPU".into()).or_default().push((wall, machine));
             let mut rss_total = 0.0;
             for t in latest.values() {
                 let p = sys.process(Pid::from_u32(t.pid));
@@ -429,9 +439,14 @@ pub fn run(a: TrainArgs) -> Result<()> {
                 let ms = |i: usize| t.stage_ns[i] as f64 / 1e6;
                 writeln!(
                     telemetry,
-                    "{wall:.3},{role},{},{},{cpu:.1},{rss:.1},{machine:.1},{},{},{},{},{},{:.1},{:.1},{:.1},{:.1}",
+                    "{wall:.3},{role},{},{},{cpu:.1},{rss:.1},{machine:.1},{},{},{},{},{},{:.1},{:.1},{:.1},{:.1},{gcols}",
                     t.index, t.pid, t.heartbeat, t.work, t.work2, t.weight_version, t.lost, ms(0), ms(1), ms(2), ms(3)
                 )?;
+                if cpu.is_finite() {
+                    // Per-process CPU is in % of one core; the plot shows % of the machine.
+                    let cores = sys.cpus().len().max(1) as f64;
+                    util_series.entry(format!("{role}-{}", t.index)).or_default().push((wall, cpu / cores));
+                }
             }
             peak_rss_mb = peak_rss_mb.max(rss_total);
             let roll = rolling(&recent);
@@ -446,10 +461,11 @@ pub fn run(a: TrainArgs) -> Result<()> {
             let steps = sum_work(&latest, RoleKind::Sim);
             let updates = sum_work(&latest, RoleKind::Learner);
             bar.set_message(format!(
-                "steps {steps} ({:.0}/s) | episodes {episodes} | rolling reward {roll:.1} | eps {epsilon:.3} | updates {updates} ({:.1}/s) | best eval {} | cpu {machine:.0}%",
+                "steps {steps} ({:.0}/s) | episodes {episodes} | rolling reward {roll:.1} | eps {epsilon:.3} | updates {updates} ({:.1}/s) | best eval {} | cpu {machine:.0}%{}",
                 steps as f64 / wall.max(1e-9),
                 updates as f64 / wall.max(1e-9),
                 best_eval.map_or("-".to_string(), |b| format!("{:.0}%", b.success * 100.0)),
+                g.map_or(String::new(), |g| format!(" | gpu {:.0}% {:.0} W", g.util_pct, g.power_w)),
             ));
         }
         std::thread::sleep(Duration::from_millis(20));
@@ -511,8 +527,9 @@ pub fn run(a: TrainArgs) -> Result<()> {
         "env_steps_per_s": env_steps as f64 / wall,
         "updates_per_s": updates as f64 / wall,
         "cpu_util_mean_pct": if cpu_samples.is_empty() { None } else { Some(cpu_samples.iter().sum::<f64>() / cpu_samples.len() as f64) },
-        "gpu_util_mean_pct": serde_json::Value::Null,
-        "gpu_power_mean_w": serde_json::Value::Null,
+        "gpu_util_mean_pct": (!gpu_samples.is_empty()).then(|| gpu_samples.iter().map(|g| g.util_pct).sum::<f64>() / gpu_samples.len() as f64),
+        "gpu_power_mean_w": (!gpu_samples.is_empty()).then(|| gpu_samples.iter().map(|g| g.power_w).sum::<f64>() / gpu_samples.len() as f64),
+        "gpu_mem_peak_mb": gpu_samples.iter().map(|g| g.mem_mb).reduce(f64::max),
         "peak_rss_mb": peak_rss_mb,
         "restarts": restarts,
         "lost_messages": latest.values().map(|t| t.lost).sum::<u64>(),
@@ -529,6 +546,8 @@ pub fn run(a: TrainArgs) -> Result<()> {
         "leftover_services": leftover,
     });
     std::fs::write(run_dir.join("summary.json"), serde_json::to_string_pretty(&summary)? + "\n")?;
+    let series: Vec<(String, Vec<(f64, f64)>)> = util_series.into_iter().collect();
+    crate::draw::lines_plot("utilisation (% of the machine)", "wall time (s)", "%", &series, &run_dir.join("utilisation.png"))?;
     crate::draw::reward_plot(&curve.iter().copied().filter(|p| p.1.is_finite()).collect::<Vec<_>>(), threshold, &run_dir.join("reward.png"))?;
     println!(
         "run {}: {} in {wall:.1} s, {episodes} episodes, rolling reward {roll:.1}, {env_steps} agent-steps, {updates} updates",

@@ -88,9 +88,41 @@ fn bad_input_is_refused_clearly() {
     let trunc = dir.join("w.safetensors");
     std::fs::write(&trunc, b"\x10\x00\x00\x00\x00\x00\x00\x00{\"a\":").unwrap();
     fails_with(&["eval", "--checkpoint", trunc.to_str().unwrap()], &["w.safetensors"]);
+    fails_with(&["train", "--resume", dir.to_str().unwrap()], &["--resume", "learner state"]);
+    fails_with(&["train", "--set", "sim.renderer=\"vulkan\""], &["sim.renderer"]);
+    fails_with(&["train", "--set", "eval.target_success=2"], &["eval.target_success"]);
+    fails_with(&["train", "--set", "sim.generated_lanes=-1"], &["generated_lanes"]);
+    fails_with(&["profile", dir.to_str().unwrap()], &["telemetry.csv"]);
     let out = hive().args(["fly-to-the-moon"]).output().unwrap();
     assert_eq!(out.status.code(), Some(2));
     let out = hive().args(["train", "--no-such-flag"]).output().unwrap();
     assert_eq!(out.status.code(), Some(2));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A stopped run goes on with `--resume`: the learner from its saved state,
+/// the replay from its snapshot.
+#[test]
+fn a_stopped_run_resumes() {
+    let dir = tmp("resume");
+    let small = ["--set", "sim.agents=8", "--set", "replay.min_fill=300", "--set", "replay.capacity=2000", "--set", "learner.checkpoint_every_s=3", "--set", "eval.every_s=0"];
+    let out = hive().args(["train", "configs/default.toml", "--quiet", "--max-seconds", "20", "--run-dir"]).arg(&dir).args(small).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let first: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    let updates = first["learner_updates"].as_u64().unwrap();
+    assert!(updates > 20, "{first}");
+    assert!(dir.join("checkpoints/learner-state.safetensors").exists());
+    assert!(dir.join("replay.bin").exists(), "no replay snapshot at the end of the run");
+    let out = hive().args(["train", "--quiet", "--max-seconds", "10", "--resume"]).arg(&dir).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let second: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(second["resumed"], true);
+    // The learner's update counter went on from where it stopped.
+    assert!(second["learner_updates"].as_u64().unwrap() > updates, "{second} after {updates}");
+    let log = std::fs::read_to_string(dir.join("logs/replay.log")).unwrap();
+    assert!(log.contains("restored"), "replay did not restore its memory: {log}");
+    assert_eq!(second["leftover_services"].as_array().map(Vec::len), Some(0));
+    let metrics = std::fs::read_to_string(dir.join("metrics.csv")).unwrap();
+    assert!(metrics.contains("\nresume,"), "metrics.csv was not appended to");
     let _ = std::fs::remove_dir_all(&dir);
 }
