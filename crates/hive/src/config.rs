@@ -155,6 +155,9 @@ pub struct LearnerSection {
     pub huber_delta: f64,
     /// Double DQN targets (the online network picks the next action).
     pub double_dqn: bool,
+    /// Steps per transition return (n-step, as in Ape-X): the actors sum n
+    /// discounted rewards and the learner bootstraps with gamma^n.
+    pub n_step: usize,
     /// Device for training: "cpu", or "cuda" in a build with `--features cuda`.
     pub device: String,
 }
@@ -208,7 +211,7 @@ impl Default for ReplaySection {
 
 impl Default for LearnerSection {
     fn default() -> Self {
-        Self { lr: 5e-4, gamma: 0.99, target_update: 150, max_rate_hz: 0.0, publish_every: 10, checkpoint_every_s: 20.0, threads: 1, huber_delta: 1.0, double_dqn: true, device: "cpu".into() }
+        Self { lr: 5e-4, gamma: 0.99, target_update: 150, max_rate_hz: 0.0, publish_every: 10, checkpoint_every_s: 20.0, threads: 1, huber_delta: 1.0, double_dqn: true, n_step: 1, device: "cpu".into() }
     }
 }
 
@@ -280,6 +283,9 @@ impl Config {
             }
         }
         positive("actor.threads", a.threads as f64)?;
+        if !(1..=16).contains(&self.learner.n_step) {
+            bail!("key `learner.n_step` must be between 1 and 16, got {}", self.learner.n_step);
+        }
         if !(self.replay.snapshot_every_s.is_finite() && self.replay.snapshot_every_s >= 0.0) {
             bail!("key `replay.snapshot_every_s` must be 0 (off) or positive, got {}", self.replay.snapshot_every_s);
         }

@@ -39,14 +39,16 @@ pub fn run(role: RoleArgs, e: usize) -> Result<()> {
     net.set_threads(cfg.actor.threads);
     let mut obs_rx = hub.receiver::<f32, ObsHeader>(&Channel::obs(e))?;
     let mut act_tx = hub.sender::<u8, ActionHeader>(&Channel::actions(e), n, STALL_TIMEOUT)?;
-    let mut trans_tx = hub.sender::<f32, TransitionHeader>(&Channel::transitions(envs), n * TRANSITION_LEN, STALL_TIMEOUT)?;
+    let steps_n = cfg.learner.n_step;
+    // An episode's end can release up to n transitions of one agent.
+    let mut trans_tx = hub.sender::<f32, TransitionHeader>(&Channel::transitions(envs), steps_n * n * TRANSITION_LEN, STALL_TIMEOUT)?;
     let mut w_rx = hub.receiver::<f32, WeightsHeader>(&Channel::weights(envs))?;
     let mut ep_tx = hub.sender::<f32, EpisodeHeader>(&episodes_channel(envs), 3 * n, STALL_TIMEOUT)?;
     let mut tel = Counters::new(&hub, RoleKind::Actor, e, super::sim::roles_of(&cfg))?;
     let mut rng = Pcg64Mcg::seed_from_u64(cfg.seed ^ (0xac70 + e as u64));
 
     let mut version = 0u64;
-    let mut prev_obs = vec![0.0f32; n * OBS_LEN];
+    let mut nstep = NStep::new(steps_n, cfg.learner.gamma as f32, n);
     let mut prev_actions = vec![0u8; n];
     let mut have_prev = false;
     let mut expected_step = 0u64;
@@ -124,6 +126,7 @@ pub fn run(role: RoleArgs, e: usize) -> Result<()> {
             // The sim restarted (step 0) or a batch was lost: start afresh.
             tel.sample.lost += 1;
             have_prev = false;
+            nstep.clear();
         }
         expected_step = h.step + 1;
         let (obs, rest) = p.split_at(n * OBS_LEN);
@@ -133,26 +136,30 @@ pub fn run(role: RoleArgs, e: usize) -> Result<()> {
         if have_prev {
             let global = transitions * envs as u64;
             let eps_now = epsilon(&cfg, global);
-            // Transitions are assembled in place in the loaned sample.
-            let sent = trans_tx.send_with(n * TRANSITION_LEN, |th, out| {
-                *th = TransitionHeader { actor: e as u32, count: n as u32, seq, weight_version: version, episodes };
-                for i in 0..n {
-                    let o = &mut out[i * TRANSITION_LEN..(i + 1) * TRANSITION_LEN];
-                    o[..OBS_LEN].copy_from_slice(&prev_obs[i * OBS_LEN..(i + 1) * OBS_LEN]);
-                    o[OBS_LEN..2 * OBS_LEN].copy_from_slice(&obs[i * OBS_LEN..(i + 1) * OBS_LEN]);
-                    o[2 * OBS_LEN] = prev_actions[i] as f32;
-                    o[2 * OBS_LEN + 1] = rewards[i];
-                    o[2 * OBS_LEN + 2] = if dones[i] != 0.0 { 1.0 } else { 0.0 };
-                }
-            });
-            match sent {
-                Ok(()) => {
-                    seq += 1;
-                    transitions += n as u64;
-                }
-                Err(err) => {
-                    tracing::warn!("actor {e}: {err}");
-                    tel.sample.lost += 1;
+            // n-step transitions leave once n rewards are known or the
+            // episode ended; they are assembled in place in the loaned sample.
+            nstep.push(&prev_actions, rewards, dones);
+            let count = nstep.out.len();
+            if count > 0 {
+                let sent = trans_tx.send_with(count * TRANSITION_LEN, |th, out| {
+                    *th = TransitionHeader { actor: e as u32, count: count as u32, seq, weight_version: version, episodes };
+                    for (o, t) in out.chunks_exact_mut(TRANSITION_LEN).zip(&nstep.out) {
+                        o[..OBS_LEN].copy_from_slice(nstep.obs(t.slot, t.agent));
+                        o[OBS_LEN..2 * OBS_LEN].copy_from_slice(&obs[t.agent * OBS_LEN..(t.agent + 1) * OBS_LEN]);
+                        o[2 * OBS_LEN] = t.action as f32;
+                        o[2 * OBS_LEN + 1] = t.ret;
+                        o[2 * OBS_LEN + 2] = if t.done { 1.0 } else { 0.0 };
+                    }
+                });
+                match sent {
+                    Ok(()) => {
+                        seq += 1;
+                        transitions += count as u64;
+                    }
+                    Err(err) => {
+                        tracing::warn!("actor {e}: {err}");
+                        tel.sample.lost += 1;
+                    }
                 }
             }
             finished.clear();
@@ -184,7 +191,7 @@ pub fn run(role: RoleArgs, e: usize) -> Result<()> {
             actions[i] = if rng.random::<f64>() < eps { rng.random_range(0..2u8) } else { greedy[i] };
         }
         tel.stage(0, t);
-        prev_obs.copy_from_slice(obs);
+        nstep.store(obs);
         drop(whole);
         prev_actions.copy_from_slice(&actions);
         have_prev = true;
@@ -194,6 +201,109 @@ pub fn run(role: RoleArgs, e: usize) -> Result<()> {
     }
     tel.tick(true);
     Ok(())
+}
+
+/// One n-step transition ready to leave: the agent, the ring slot of its
+/// first observation, the action taken there, the discounted return of up
+/// to n rewards, and whether the episode ended within them.
+#[derive(Debug, Clone, Copy)]
+struct Ready {
+    agent: usize,
+    slot: usize,
+    action: u8,
+    ret: f32,
+    done: bool,
+}
+
+/// n-step returns (as in Ape-X): the last n observations of every agent in
+/// a ring of n + 1 batches, and per agent the (slot, action, reward) of the
+/// steps whose transitions have not left yet. The learner bootstraps with
+/// gamma^n.
+struct NStep {
+    n: usize,
+    gamma: f32,
+    agents: usize,
+    ring: Vec<f32>,
+    /// Slot of the newest stored observation batch.
+    slot: usize,
+    queue: Vec<std::collections::VecDeque<(usize, u8, f32)>>,
+    out: Vec<Ready>,
+}
+
+impl NStep {
+    fn new(n: usize, gamma: f32, agents: usize) -> Self {
+        Self { n, gamma, agents, ring: vec![0.0; (n + 1) * agents * OBS_LEN], slot: 0, queue: vec![Default::default(); agents], out: Vec::new() }
+    }
+
+    /// Forgets every pending step (the sim restarted).
+    fn clear(&mut self) {
+        self.queue.iter_mut().for_each(|q| q.clear());
+        self.out.clear();
+    }
+
+    fn obs(&self, slot: usize, agent: usize) -> &[f32] {
+        let at = (slot * self.agents + agent) * OBS_LEN;
+        &self.ring[at..at + OBS_LEN]
+    }
+
+    /// Stores the observations the next actions are taken on.
+    fn store(&mut self, obs: &[f32]) {
+        self.slot = (self.slot + 1) % (self.n + 1);
+        let at = self.slot * self.agents * OBS_LEN;
+        self.ring[at..at + self.agents * OBS_LEN].copy_from_slice(obs);
+    }
+
+    /// Records the outcome of the last actions and fills `out` with the
+    /// transitions that can leave now.
+    fn push(&mut self, actions: &[u8], rewards: &[f32], dones: &[f32]) {
+        self.out.clear();
+        for i in 0..self.agents {
+            let q = &mut self.queue[i];
+            q.push_back((self.slot, actions[i], rewards[i]));
+            let ret = |q: &std::collections::VecDeque<(usize, u8, f32)>, from: usize| q.iter().skip(from).rev().fold(0.0f32, |acc, e| e.2 + self.gamma * acc);
+            if dones[i] != 0.0 {
+                for k in 0..q.len() {
+                    self.out.push(Ready { agent: i, slot: q[k].0, action: q[k].1, ret: ret(q, k), done: true });
+                }
+                q.clear();
+            } else if q.len() == self.n {
+                self.out.push(Ready { agent: i, slot: q[0].0, action: q[0].1, ret: ret(q, 0), done: false });
+                q.pop_front();
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn n_step_returns_and_episode_ends() {
+        let mut s = NStep::new(3, 0.5, 1);
+        let obs = |v: f32| vec![v; OBS_LEN];
+        s.store(&obs(0.0));
+        // Steps with rewards 1, 2, 4: the first transition leaves with
+        // 1 + 0.5·2 + 0.25·4 = 3, from observation 0, not done.
+        let mut left = Vec::new();
+        for (k, r) in [1.0, 2.0, 4.0].into_iter().enumerate() {
+            s.push(&[k as u8 % 2], &[r], &[0.0]);
+            left.extend(s.out.iter().map(|t| (s.obs(t.slot, 0)[0], t.action, t.ret, t.done)));
+            s.store(&obs(k as f32 + 1.0));
+        }
+        assert_eq!(left, vec![(0.0, 0, 3.0, false)]);
+        // The episode ends with reward −8: the two pending steps and this
+        // one leave as done: 2 + 0.5·4 + 0.25·(−8) = 2, 4 − 4 = 0, −8.
+        s.push(&[1], &[-8.0], &[1.0]);
+        let got: Vec<_> = s.out.iter().map(|t| (s.obs(t.slot, 0)[0], t.ret, t.done)).collect();
+        assert_eq!(got, vec![(1.0, 2.0, true), (2.0, 0.0, true), (3.0, -8.0, true)]);
+        // One-step returns are the plain transitions.
+        let mut one = NStep::new(1, 0.99, 2);
+        one.store(&[obs(5.0), obs(6.0)].concat());
+        one.push(&[0, 1], &[3.0, -100.0], &[0.0, 1.0]);
+        let got: Vec<_> = one.out.iter().map(|t| (t.agent, one.obs(t.slot, t.agent)[0], t.ret, t.done)).collect();
+        assert_eq!(got, vec![(0, 5.0, 3.0, false), (1, 6.0, -100.0, true)]);
+    }
 }
 
 /// Publishes one action batch answering observation step `step`; a failed

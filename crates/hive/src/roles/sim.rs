@@ -98,8 +98,12 @@ struct RateLimiter {
     per_step: f64,
     min_fill: f64,
     per_update: f64,
+    slack: f64,
     updates: u64,
 }
+
+/// How long the learner may make no progress before the limit lets a step through.
+const STARVED: std::time::Duration = std::time::Duration::from_secs(1);
 
 impl RateLimiter {
     fn new(hub: &rotorhive_transport::Hub<rotorhive_transport::Ipc>, cfg: &crate::config::Config) -> Result<Self> {
@@ -112,18 +116,32 @@ impl RateLimiter {
             per_step: (cfg.sim.agents * cfg.sim.envs) as f64,
             min_fill: r.min_fill as f64,
             per_update: r.batch as f64 / r.samples_per_insert.max(f64::MIN_POSITIVE),
+            // n-step transitions leave up to n steps after their step.
+            slack: ((cfg.learner.n_step + 1) * cfg.sim.agents * cfg.sim.envs) as f64,
             updates: 0,
         })
     }
 
+    /// Waits until the learner has caught up. A learner that makes no
+    /// progress for `STARVED` is starved rather than busy (the replay is
+    /// refilling after a restart, or n-step transitions are still pending),
+    /// so one more step goes through: the limit never deadlocks the run.
     fn wait(&mut self, hub: &rotorhive_transport::Hub<rotorhive_transport::Ipc>, steps: u64) -> Result<()> {
         let Some(rx) = &mut self.weights else { return Ok(()) };
+        let start = std::time::Instant::now();
+        let mut seen = self.updates;
+        let mut progress = start;
         loop {
             if let Some(m) = rx.latest().context("reading the learner's update count")? {
                 self.updates = self.updates.max(m.user_header().updates);
             }
+            if self.updates > seen {
+                seen = self.updates;
+                progress = std::time::Instant::now();
+            }
             let inserted = steps as f64 * self.per_step;
-            if inserted <= self.min_fill + self.updates as f64 * self.per_update + self.per_step || hub.shutdown_requested() {
+            let allowed = self.min_fill + self.updates as f64 * self.per_update + self.slack;
+            if self.updates == 0 || inserted <= allowed || progress.elapsed() >= STARVED || hub.shutdown_requested() {
                 return Ok(());
             }
             if let Some(m) = rx.recv_timeout(POLL).context("waiting for the learner")? {
