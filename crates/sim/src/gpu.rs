@@ -9,7 +9,7 @@
 //!
 //! The fragment shader writes the planar depth (distance along the camera's
 //! forward axis), which is exactly what the CPU ray caster computes, so both
-//! renderers give the same images up to tessellation (cylinders have 64
+//! renderers give the same images up to tessellation (cylinders have 24
 //! facets) and edge pixels. Without a GPU, Mesa's lavapipe runs it on the CPU.
 
 use std::sync::mpsc;
@@ -37,7 +37,7 @@ pub enum GpuError {
 /// 256-byte row alignment copies need.
 const COLS: u32 = 8;
 /// Facets of a cylinder's side.
-const CYLINDER_FACETS: usize = 64;
+const CYLINDER_FACETS: usize = 24;
 const NEAR: f32 = 0.02;
 
 #[repr(C)]
@@ -124,7 +124,8 @@ pub struct GpuDepthRenderer {
     layout: wgpu::BindGroupLayout,
     params: wgpu::Buffer,
     scene_vertices: wgpu::Buffer,
-    scene_count: u32,
+    layout_cull: SceneLayout,
+    ranges: Vec<std::ops::Range<u32>>,
     sphere_vertices: wgpu::Buffer,
     sphere_count: u32,
     frame: Option<Frame>,
@@ -215,10 +216,11 @@ impl GpuDepthRenderer {
         };
         let scene_pipeline = pipeline("vs_scene");
         let drone_pipeline = pipeline("vs_drone");
-        let tris = scene_triangles(scene, spec.range);
+        let layout_cull = SceneLayout::new(scene, spec.range);
+        let tris = &layout_cull.vertices;
         let sphere = sphere_triangles();
         let vbuf = |label, v: &[[f32; 3]]| device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents: bytemuck::cast_slice(v), usage: wgpu::BufferUsages::VERTEX });
-        let scene_vertices = vbuf("scene", &tris);
+        let scene_vertices = vbuf("scene", tris);
         let sphere_vertices = vbuf("sphere", &sphere);
         let params = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("params"),
@@ -236,7 +238,8 @@ impl GpuDepthRenderer {
             layout,
             params,
             scene_vertices,
-            scene_count: tris.len() as u32,
+            layout_cull,
+            ranges: Vec::new(),
             sphere_vertices,
             sphere_count: sphere.len() as u32,
             frame: None,
@@ -345,13 +348,20 @@ impl GpuDepthRenderer {
                 multiview_mask: None,
             });
             pass.set_bind_group(0, &f.bind, &[]);
-            for i in 0..n {
+            let tan = (self.spec.fov_deg.to_radians() / 2.0).tan();
+            for (i, cam) in (0..n).zip(cameras) {
                 let (x, y) = ((i % COLS) * s, (i / COLS) * s);
                 pass.set_viewport(x as f32, y as f32, s as f32, s as f32, 0.0, 1.0);
                 pass.set_scissor_rect(x, y, s, s);
                 pass.set_pipeline(&self.scene_pipeline);
                 pass.set_vertex_buffer(0, self.scene_vertices.slice(..));
-                pass.draw(0..self.scene_count, i..i + 1);
+                pass.draw(0..self.layout_cull.always, i..i + 1);
+                // Only the obstacles the camera's view (to its range) can reach.
+                let (lo, hi) = frustum_floor_plan(cam, tan, self.spec.range);
+                self.layout_cull.visible(lo, hi, &mut self.ranges);
+                for r in &self.ranges {
+                    pass.draw(r.clone(), i..i + 1);
+                }
                 if nd > 0 {
                     pass.set_pipeline(&self.drone_pipeline);
                     pass.set_vertex_buffer(0, self.sphere_vertices.slice(..));
@@ -392,39 +402,137 @@ impl GpuDepthRenderer {
     }
 }
 
-/// The static scene as a triangle list in world coordinates: the corridor's
-/// walls, floor and ceiling (extended one camera range past both ends) and
-/// every obstacle.
-fn scene_triangles(scene: &Scene, range: f32) -> Vec<[f32; 3]> {
-    let mut t = Vec::new();
-    let (x0, x1) = (scene.x_extent.0 - range - 1.0, scene.x_extent.1 + range + 1.0);
-    let (hw, h) = (scene.half_width, scene.height);
-    let quad = |t: &mut Vec<[f32; 3]>, a: [f32; 3], b: [f32; 3], c: [f32; 3], d: [f32; 3]| t.extend([a, b, c, a, c, d]);
-    quad(&mut t, [x0, hw, 0.0], [x1, hw, 0.0], [x1, hw, h], [x0, hw, h]);
-    quad(&mut t, [x0, -hw, 0.0], [x1, -hw, 0.0], [x1, -hw, h], [x0, -hw, h]);
-    quad(&mut t, [x0, -hw, 0.0], [x1, -hw, 0.0], [x1, hw, 0.0], [x0, hw, 0.0]);
-    quad(&mut t, [x0, -hw, h], [x1, -hw, h], [x1, hw, h], [x0, hw, h]);
-    for s in &scene.shapes {
-        match *s {
-            Shape::Box { min, max } => {
-                let c = |i: usize| [if i & 1 == 0 { min.x } else { max.x }, if i & 2 == 0 { min.y } else { max.y }, if i & 4 == 0 { min.z } else { max.z }];
-                for [a, b, cc, d] in [[0, 1, 3, 2], [4, 5, 7, 6], [0, 1, 5, 4], [2, 3, 7, 6], [0, 2, 6, 4], [1, 3, 7, 5]] {
-                    quad(&mut t, c(a), c(b), c(cc), c(d));
-                }
+/// The floor-plan rectangle a camera's view reaches, to its range.
+fn frustum_floor_plan(cam: &CameraPose, tan: f32, range: f32) -> ([f32; 2], [f32; 2]) {
+    let (fwd, left, up, o) = (cam.rotation * Vector::X, cam.rotation * Vector::Y, cam.rotation * Vector::Z, cam.position);
+    let mut lo = [o.x, o.y];
+    let mut hi = [o.x, o.y];
+    for (a, b) in [(-1.0, -1.0), (-1.0, 1.0), (1.0, -1.0), (1.0, 1.0)] {
+        let p = o + (fwd - left * (a * tan) + up * (b * tan)) * range;
+        lo = [lo[0].min(p.x), lo[1].min(p.y)];
+        hi = [hi[0].max(p.x), hi[1].max(p.y)];
+    }
+    (lo, hi)
+}
+
+/// Side of the y bands obstacles are sorted into (metres).
+const BAND: f32 = 8.0;
+/// Obstacles longer than this along x or y are drawn for every camera.
+const BIG: f32 = 8.0;
+
+/// The static scene in world coordinates, laid out for culling: first what
+/// every camera draws (walls, floor, ceiling, big obstacles), then the other
+/// obstacles sorted by y band and, within a band, by centre x, so that the
+/// obstacles a camera can see are one contiguous vertex range per band.
+struct SceneLayout {
+    vertices: Vec<[f32; 3]>,
+    /// Vertices every camera draws.
+    always: u32,
+    /// Per band: (band index, sorted centre x, first vertex) of its obstacles.
+    bands: Vec<(i32, Vec<(f32, u32)>)>,
+    /// End vertex of each band's last obstacle.
+    band_end: Vec<u32>,
+    /// Largest half extent of a banded obstacle (the culling margin).
+    margin: f32,
+}
+
+impl SceneLayout {
+    fn new(scene: &Scene, range: f32) -> Self {
+        let mut always = Vec::new();
+        let (x0, x1) = (scene.x_extent.0 - range - 1.0, scene.x_extent.1 + range + 1.0);
+        let (hw, h) = (scene.half_width, scene.height);
+        quad(&mut always, [x0, hw, 0.0], [x1, hw, 0.0], [x1, hw, h], [x0, hw, h]);
+        quad(&mut always, [x0, -hw, 0.0], [x1, -hw, 0.0], [x1, -hw, h], [x0, -hw, h]);
+        quad(&mut always, [x0, -hw, 0.0], [x1, -hw, 0.0], [x1, hw, 0.0], [x0, hw, 0.0]);
+        quad(&mut always, [x0, -hw, h], [x1, -hw, h], [x1, hw, h], [x0, hw, h]);
+        let mut banded: Vec<(i32, f32, Vec<[f32; 3]>)> = Vec::new();
+        let mut margin = 0.0f32;
+        for sh in &scene.shapes {
+            let (cx, cy, ex, ey) = match *sh {
+                Shape::Box { min, max } => ((min.x + max.x) / 2.0, (min.y + max.y) / 2.0, (max.x - min.x) / 2.0, (max.y - min.y) / 2.0),
+                Shape::Cylinder { cx, cy, r2, .. } => (cx, cy, r2.sqrt(), r2.sqrt()),
+            };
+            let tris = shape_triangles(sh, h);
+            if 2.0 * ex > BIG || 2.0 * ey > BIG {
+                always.extend(tris);
+            } else {
+                margin = margin.max(ex.max(ey));
+                banded.push(((cy / BAND).floor() as i32, cx, tris));
             }
-            Shape::Cylinder { cx, cy, r2, zmin, zmax } => {
-                // Vertices on the circle: the facets lie inside the exact
-                // surface by at most r·(1 − cos(π/64)) ≈ 0.1 % of r.
-                let r = r2.sqrt();
-                let at = |k: usize| {
-                    let a = k as f32 / CYLINDER_FACETS as f32 * std::f32::consts::TAU;
-                    (cx + r * a.cos(), cy + r * a.sin())
-                };
-                for k in 0..CYLINDER_FACETS {
-                    let (ax, ay) = at(k);
-                    let (bx, by) = at(k + 1);
-                    quad(&mut t, [ax, ay, zmin], [bx, by, zmin], [bx, by, zmax], [ax, ay, zmax]);
+        }
+        banded.sort_by(|a, b| a.0.cmp(&b.0).then(a.1.total_cmp(&b.1)));
+        let mut vertices = always;
+        let always = vertices.len() as u32;
+        let mut bands: Vec<(i32, Vec<(f32, u32)>)> = Vec::new();
+        let mut band_end = Vec::new();
+        for (band, cx, tris) in banded {
+            if bands.last().is_none_or(|b| b.0 != band) {
+                if !bands.is_empty() {
+                    band_end.push(vertices.len() as u32);
+                }
+                bands.push((band, Vec::new()));
+            }
+            bands.last_mut().expect("just pushed").1.push((cx, vertices.len() as u32));
+            vertices.extend(tris);
+        }
+        if !bands.is_empty() {
+            band_end.push(vertices.len() as u32);
+        }
+        Self { vertices, always, bands, band_end, margin }
+    }
+
+    /// The vertex ranges of banded obstacles within `[lo, hi]` (floor plan).
+    fn visible(&self, lo: [f32; 2], hi: [f32; 2], out: &mut Vec<std::ops::Range<u32>>) {
+        out.clear();
+        let m = self.margin;
+        let (b0, b1) = (((lo[1] - m) / BAND).floor() as i32, ((hi[1] + m) / BAND).floor() as i32);
+        for (k, (band, obs)) in self.bands.iter().enumerate() {
+            if *band < b0 || *band > b1 {
+                continue;
+            }
+            let a = obs.partition_point(|o| o.0 < lo[0] - m);
+            let b = obs.partition_point(|o| o.0 <= hi[0] + m);
+            if a < b {
+                let end = if b < obs.len() { obs[b].1 } else { self.band_end[k] };
+                out.push(obs[a].1..end);
+            }
+        }
+    }
+}
+
+fn quad(t: &mut Vec<[f32; 3]>, a: [f32; 3], b: [f32; 3], c: [f32; 3], d: [f32; 3]) {
+    t.extend([a, b, c, a, c, d]);
+}
+
+/// One obstacle as triangles.
+fn shape_triangles(sh: &Shape, h: f32) -> Vec<[f32; 3]> {
+    let mut t = Vec::new();
+    match *sh {
+        Shape::Box { min, max } => {
+            let c = |i: usize| [if i & 1 == 0 { min.x } else { max.x }, if i & 2 == 0 { min.y } else { max.y }, if i & 4 == 0 { min.z } else { max.z }];
+            for [a, b, cc, d] in [[0, 1, 3, 2], [4, 5, 7, 6], [0, 1, 5, 4], [2, 3, 7, 6], [0, 2, 6, 4], [1, 3, 7, 5]] {
+                quad(&mut t, c(a), c(b), c(cc), c(d));
+            }
+        }
+        Shape::Cylinder { cx, cy, r2, zmin, zmax } => {
+            // Vertices just outside the circle, so the facets straddle
+            // the exact surface: within ±r·(1/cos(π/24) − 1)/2 ≈ 0.4 % of r.
+            let half = std::f32::consts::PI / CYLINDER_FACETS as f32;
+            let r = r2.sqrt() * (1.0 + 1.0 / half.cos()) / 2.0;
+            // Caps inside the floor or ceiling are never seen.
+            let (bottom, top) = (zmin > 1e-3, zmax < h - 1e-3);
+            let at = |k: usize| {
+                let a = k as f32 / CYLINDER_FACETS as f32 * std::f32::consts::TAU;
+                (cx + r * a.cos(), cy + r * a.sin())
+            };
+            for k in 0..CYLINDER_FACETS {
+                let (ax, ay) = at(k);
+                let (bx, by) = at(k + 1);
+                quad(&mut t, [ax, ay, zmin], [bx, by, zmin], [bx, by, zmax], [ax, ay, zmax]);
+                if bottom {
                     t.extend([[cx, cy, zmin], [ax, ay, zmin], [bx, by, zmin]]);
+                }
+                if top {
                     t.extend([[cx, cy, zmax], [ax, ay, zmax], [bx, by, zmax]]);
                 }
             }
