@@ -8,7 +8,7 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use rotorhive_msg::{MinibatchHeader, OBS_LEN, TRANSITION_LEN, TransitionHeader};
+use rotorhive_msg::{MinibatchHeader, OBS_LEN, TRANSITION_LEN, Telemetry, TransitionHeader};
 use rotorhive_transport::{Channel, Hub, Ipc, services_of_run};
 use serde_json::json;
 
@@ -96,6 +96,7 @@ pub fn run(producers: usize, seconds: f64, json_out: bool) -> Result<()> {
     std::fs::write(&cfg_path, cfg)?;
     let hub = Hub::<Ipc>::new(&prefix, "bench-learner")?;
     let mut rx = hub.receiver::<f32, MinibatchHeader>(&Channel::minibatches(4))?;
+    let mut tel = hub.receiver::<u8, Telemetry>(&Channel::telemetry(2 * producers + 2))?;
     let exe = std::env::current_exe()?;
     let replay = Command::new(&exe)
         .arg("replay")
@@ -107,10 +108,27 @@ pub fn run(producers: usize, seconds: f64, json_out: bool) -> Result<()> {
         .context("starting the replay role")?;
     let procs = Procs(vec![replay]);
     let result = (|| -> Result<serde_json::Value> {
+        // The replay is ready once it reports (after allocating its memory).
+        let t = Instant::now();
+        while tel.recv_timeout(Duration::from_millis(100))?.is_none() {
+            if t.elapsed() > Duration::from_secs(30) {
+                bail!("the replay process did not start");
+            }
+        }
         // Phase 1: inserts alone.
-        std::thread::sleep(Duration::from_millis(300));
         let wall = join_producers(spawn_producers(&prefix, producers, per_producer)?)?;
         let inserts_per_s = capacity as f64 / wall;
+        // Every transition sent arrived: the replay's own count says so.
+        let t = Instant::now();
+        let mut inserted = 0;
+        while inserted < capacity as u64 && t.elapsed() < Duration::from_secs(5) {
+            if let Some(m) = tel.recv_timeout(Duration::from_millis(100))? {
+                inserted = inserted.max(m.user_header().work);
+            }
+        }
+        if inserted != capacity as u64 {
+            bail!("the replay inserted {inserted} of {capacity} transitions sent");
+        }
         // Phase 2: sampling alone (the memory is full now).
         let sample = |rx: &mut rotorhive_transport::Receiver<Ipc, f32, MinibatchHeader>, secs: f64| -> Result<(u64, f64)> {
             let t = Instant::now();
@@ -164,6 +182,7 @@ pub fn run(producers: usize, seconds: f64, json_out: bool) -> Result<()> {
     })();
     drop(procs);
     drop(rx);
+    drop(tel);
     drop(hub);
     let _ = std::fs::remove_dir_all(&dir);
     let out = result?;

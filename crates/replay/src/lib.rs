@@ -60,7 +60,15 @@ impl Replay {
     /// A memory of `capacity` transitions of `width` floats each.
     pub fn new(capacity: usize, width: usize, seed: u64) -> Self {
         assert!(capacity > 0 && width > 0, "replay capacity and width must be positive");
-        Self { data: vec![0.0; capacity * width], width, capacity, len: 0, head: 0, inserted: 0, sampled: 0, rng: Pcg64Mcg::seed_from_u64(seed) }
+        let mut data = vec![0.0f32; capacity * width];
+        // Touch every page now: the first writes into fresh pages would
+        // otherwise fault one by one while the actors are inserting.
+        for page in data.chunks_mut(1024) {
+            // SAFETY: a plain write to an element of our own buffer; volatile
+            // so the allocator's zeroed pages are really touched.
+            unsafe { std::ptr::write_volatile(page.as_mut_ptr(), 0.0) };
+        }
+        Self { data, width, capacity, len: 0, head: 0, inserted: 0, sampled: 0, rng: Pcg64Mcg::seed_from_u64(seed) }
     }
 
     /// Transitions held.

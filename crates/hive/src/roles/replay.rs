@@ -43,7 +43,10 @@ pub fn run(role: RoleArgs) -> Result<()> {
         }
         let mut got = false;
         let t = Instant::now();
-        while let Some(m) = rx.try_recv().context("receiving transitions")? {
+        // A bounded number of batches per loop, so minibatches keep flowing
+        // to the learner even while producers flood the memory.
+        for _ in 0..INGEST_PER_LOOP {
+            let Some(m) = rx.try_recv().context("receiving transitions")? else { break };
             ingest(&m, &mut mem, &mut next_seq, &mut tel.sample.lost);
             got = true;
         }
@@ -99,6 +102,9 @@ pub fn run(role: RoleArgs) -> Result<()> {
     tel.tick(true);
     Ok(())
 }
+
+/// Transition batches taken per loop before the next minibatch is offered.
+const INGEST_PER_LOOP: usize = 4;
 
 /// Transitions written per loop while snapshotting (about 4 MiB, a few ms).
 const SNAPSHOT_CHUNK: usize = 256;
