@@ -199,7 +199,7 @@ impl Default for SimSection {
 
 impl Default for ActorSection {
     fn default() -> Self {
-        Self { eps_start: 1.0, eps_end: 0.02, eps_decay: 30_000, threads: 1, device: "cpu".into() }
+        Self { eps_start: 1.0, eps_end: 0.1, eps_decay: 300_000, threads: 1, device: "cpu".into() }
     }
 }
 

@@ -48,6 +48,17 @@ fn killed_roles_are_restarted_and_training_goes_on() {
         .unwrap();
     wait_for("the learner to update", Duration::from_secs(40), || role_state(&dir, "learner").is_some_and(|(_, u)| u > 20));
     wait_for("a learner state file", Duration::from_secs(20), || dir.join("checkpoints/learner-state.safetensors").exists());
+    // The run's shared memory is the user's alone (mode 0600).
+    use std::os::unix::fs::PermissionsExt;
+    let mut segments = 0;
+    for e in std::fs::read_dir("/dev/shm").unwrap().flatten() {
+        if e.file_name().to_string_lossy().starts_with("iox2_") {
+            let mode = e.metadata().unwrap().permissions().mode();
+            assert_eq!(mode & 0o077, 0, "{:?} is open to others: {mode:o}", e.path());
+            segments += 1;
+        }
+    }
+    assert!(segments > 0, "no shared-memory segments found");
     let mut killed = Vec::new();
     for role in ["actor", "sim", "replay", "learner"] {
         let (pid, before) = role_state(&dir, role).unwrap();
@@ -76,4 +87,31 @@ fn killed_roles_are_restarted_and_training_goes_on() {
 unsafe extern "C" {
     #[link_name = "kill"]
     fn libc_kill(pid: i32, sig: i32) -> i32;
+}
+
+/// A role that keeps dying (here: the replay cannot read a corrupt snapshot
+/// in the run directory) stops the run with a clear message instead of
+/// restarting forever, and leaves no shared memory behind.
+#[test]
+fn a_role_that_keeps_dying_stops_the_run() {
+    let dir = tmp("dying");
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(dir.join("replay.bin"), b"not a snapshot").unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_hive"))
+        .current_dir(root())
+        .args(["train", "configs/default.toml", "--quiet", "--max-seconds", "60", "--run-dir"])
+        .arg(&dir)
+        .args(["--set", "sim.agents=4", "--set", "eval.every_s=0"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "the run went on with a replay that cannot start");
+    assert!(stderr.contains("role replay died") && stderr.contains("giving up"), "{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    let log = std::fs::read_to_string(dir.join("logs/replay.log")).unwrap();
+    assert!(log.contains("replay.bin") && log.contains("not a rotorhive replay snapshot"), "{log}");
+    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["restarts"].as_u64(), Some(3), "{summary}");
+    assert_eq!(summary["leftover_services"].as_array().map(Vec::len), Some(0), "{summary}");
+    let _ = std::fs::remove_dir_all(&dir);
 }
