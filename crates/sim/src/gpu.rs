@@ -17,7 +17,7 @@ use std::sync::mpsc;
 use rapier3d::math::Vector;
 use wgpu::util::DeviceExt;
 
-use crate::render::{CameraPose, CameraSpec, Drones, Scene, Shape};
+use crate::render::{CameraPose, CameraSpec, Drones, Scene, Shape, frustum_floor_plan};
 
 /// Why the GPU renderer could not start or render.
 #[derive(Debug, thiserror::Error)]
@@ -400,19 +400,6 @@ impl GpuDepthRenderer {
         f.readback.unmap();
         Ok(())
     }
-}
-
-/// The floor-plan rectangle a camera's view reaches, to its range.
-fn frustum_floor_plan(cam: &CameraPose, tan: f32, range: f32) -> ([f32; 2], [f32; 2]) {
-    let (fwd, left, up, o) = (cam.rotation * Vector::X, cam.rotation * Vector::Y, cam.rotation * Vector::Z, cam.position);
-    let mut lo = [o.x, o.y];
-    let mut hi = [o.x, o.y];
-    for (a, b) in [(-1.0, -1.0), (-1.0, 1.0), (1.0, -1.0), (1.0, 1.0)] {
-        let p = o + (fwd - left * (a * tan) + up * (b * tan)) * range;
-        lo = [lo[0].min(p.x), lo[1].min(p.y)];
-        hi = [hi[0].max(p.x), hi[1].max(p.y)];
-    }
-    (lo, hi)
 }
 
 /// Side of the y bands obstacles are sorted into (metres).

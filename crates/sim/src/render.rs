@@ -226,15 +226,7 @@ fn render_one(scene: &Scene, spec: &CameraSpec, cam: &CameraPose, drones: Option
     let n = spec.side;
     let half = n as f32 / 2.0;
 
-    // The view is inside the fan spanned by the four corner rays out to the
-    // range (planar depth ≤ range); its floor-plan bounding box selects candidates.
-    let mut lo = [o.x, o.y];
-    let mut hi = [o.x, o.y];
-    for (a, b) in [(-1.0, -1.0), (-1.0, 1.0), (1.0, -1.0), (1.0, 1.0)] {
-        let p = o + (fwd - left * (a * tan) + up * (b * tan)) * range;
-        lo = [lo[0].min(p.x), lo[1].min(p.y)];
-        hi = [hi[0].max(p.x), hi[1].max(p.y)];
-    }
+    let (lo, hi) = frustum_floor_plan(cam, tan, range);
     s.tick = s.tick.wrapping_add(1);
     if s.tick == 0 {
         s.stamp.fill(0);
@@ -268,6 +260,21 @@ fn render_one(scene: &Scene, spec: &CameraSpec, cam: &CameraPose, drones: Option
 }
 
 /// Nearest hit of the corridor's walls, floor and ceiling (always hit from inside).
+/// The floor-plan rectangle a camera's view reaches: the view is inside the
+/// fan of the four corner rays out to the range (planar depth ≤ range), so
+/// the bounding box of the origin and the four far corners holds it.
+pub(crate) fn frustum_floor_plan(cam: &CameraPose, tan: f32, range: f32) -> ([f32; 2], [f32; 2]) {
+    let (fwd, left, up, o) = (cam.rotation * Vector::X, cam.rotation * Vector::Y, cam.rotation * Vector::Z, cam.position);
+    let mut lo = [o.x, o.y];
+    let mut hi = [o.x, o.y];
+    for (a, b) in [(-1.0, -1.0), (-1.0, 1.0), (1.0, -1.0), (1.0, 1.0)] {
+        let p = o + (fwd - left * (a * tan) + up * (b * tan)) * range;
+        lo = [lo[0].min(p.x), lo[1].min(p.y)];
+        hi = [hi[0].max(p.x), hi[1].max(p.y)];
+    }
+    (lo, hi)
+}
+
 #[inline]
 fn planes(scene: &Scene, o: Vector, d: Vector) -> f32 {
     let mut t = f32::INFINITY;
