@@ -50,7 +50,6 @@ const TIMEOUT: Duration = Duration::from_secs(5);
 /// acknowledgement carrying a checksum of what it read.
 pub fn peer(prefix: &str) -> Result<()> {
     let hub = Hub::<Ipc>::new(prefix, "bench-peer")?;
-    let max = kinds().iter().map(|k| k.1).max().unwrap_or(1);
     let mut rx = hub.receiver::<f32, ObsHeader>(&request_channel())?;
     let mut tx = hub.sender::<u8, ActionHeader>(&ack_channel(), 1, TIMEOUT)?;
     let listener = TcpListener::bind("127.0.0.1:0").context("binding a loopback port")?;
@@ -71,7 +70,6 @@ pub fn peer(prefix: &str) -> Result<()> {
             out[0] = (sum != 0.0) as u8;
         })?;
     }
-    let _ = max;
     // Then TCP with msgpack.
     let (mut s, _) = listener.accept()?;
     s.set_nodelay(true)?;

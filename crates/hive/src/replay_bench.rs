@@ -147,24 +147,16 @@ pub fn run(producers: usize, seconds: f64, json_out: bool) -> Result<()> {
         let samples_per_s = n as f64 / secs;
         // Phase 3: both at once (producers keep sending while we sample).
         let batches = ((inserts_per_s * seconds) / (PER_MSG * producers) as f64).max(10.0) as usize;
-        let kids = spawn_producers(&prefix, producers, batches)?;
+        let mut kids = spawn_producers(&prefix, producers, batches)?;
         let t = Instant::now();
         let mut got = 0u64;
-        let mut done = false;
-        let mut kids = Some(kids);
-        while !done {
-            if let Some(m) = rx.recv_timeout(Duration::from_millis(100))? {
-                drop(m);
+        while !kids.iter_mut().all(|c| matches!(c.try_wait(), Ok(Some(_)))) {
+            if rx.recv_timeout(Duration::from_millis(100))?.is_some() {
                 got += 1;
-            }
-            if let Some(k) = &mut kids
-                && k.iter_mut().all(|c| matches!(c.try_wait(), Ok(Some(_))))
-            {
-                done = true;
             }
         }
         let mixed_secs = t.elapsed().as_secs_f64();
-        let _ = join_producers(kids.take().unwrap_or_default());
+        join_producers(kids)?;
         let mixed_inserts = (batches * PER_MSG * producers) as f64 / mixed_secs;
         let mixed_samples = got as f64 / mixed_secs;
         println!("{:>10} {:>16} {:>16} {:>22} {:>22}", "producers", "inserts/s alone", "samples/s alone", "inserts/s (together)", "samples/s (together)");

@@ -158,6 +158,12 @@ struct EvalPoint {
     mean_reward: f64,
 }
 
+/// The best evaluation: highest success rate, then highest mean reward (the
+/// earliest of equals, as the evaluator keeps it).
+fn best_of(evals: &[EvalPoint]) -> Option<EvalPoint> {
+    evals.iter().copied().reduce(|a, b| if (b.success, b.mean_reward) > (a.success, a.mean_reward) { b } else { a })
+}
+
 /// Flies the newest published weights greedily every `eval.every_s` seconds
 /// (or when asked through `now`), on its own iceoryx2 node, and keeps the
 /// best weights as `checkpoints/best.safetensors`. Every evaluation uses the
@@ -322,7 +328,6 @@ pub fn run(a: TrainArgs) -> Result<()> {
         evaluator_thread = Some(std::thread::Builder::new().name("eval".into()).spawn(move || evaluator(p, c, d, start, st, eval_now_rx, eval_tx))?);
     }
     let mut evals: Vec<EvalPoint> = Vec::new();
-    let mut best_eval: Option<EvalPoint> = None;
 
     loop {
         if hub.shutdown_requested() {
@@ -357,12 +362,8 @@ pub fn run(a: TrainArgs) -> Result<()> {
                 }
             }
         }
-        while let Ok(p) = eval_rx.try_recv() {
-            if best_eval.is_none_or(|b| (p.success, p.mean_reward) > (b.success, b.mean_reward)) {
-                best_eval = Some(p);
-            }
-            evals.push(p);
-        }
+        evals.extend(eval_rx.try_iter());
+        let best_eval = best_of(&evals);
         while let Some(m) = tel_rx.try_recv()? {
             let t = *m.user_header();
             latest.insert((t.role, t.index), t);
@@ -489,12 +490,8 @@ pub fn run(a: TrainArgs) -> Result<()> {
     if let Some(e) = eval_error {
         failure = Some(format!("evaluation failed: {e}"));
     }
-    while let Ok(p) = eval_rx.try_recv() {
-        if best_eval.is_none_or(|b| (p.success, p.mean_reward) > (b.success, b.mean_reward)) {
-            best_eval = Some(p);
-        }
-        evals.push(p);
-    }
+    evals.extend(eval_rx.try_iter());
+    let best_eval = best_of(&evals);
     children.stop();
     drop(ep_rx);
     drop(tel_rx);

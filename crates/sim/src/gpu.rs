@@ -258,7 +258,8 @@ impl GpuDepthRenderer {
         self.submissions
     }
 
-    fn frame(&mut self, cameras: u32, drones: u32) -> &Frame {
+    /// Makes sure the atlas and buffers hold `cameras` cameras and `drones` drones.
+    fn ensure_frame(&mut self, cameras: u32, drones: u32) {
         let fits = self.frame.as_ref().is_some_and(|f| f.cameras >= cameras && f.drone_capacity >= drones);
         if !fits {
             let cameras = cameras.max(self.frame.as_ref().map_or(0, |f| f.cameras));
@@ -286,7 +287,6 @@ impl GpuDepthRenderer {
             });
             self.frame = Some(Frame { cameras, color, depth, readback, cams, drones: drone_buf, drone_capacity, bind });
         }
-        self.frame.as_ref().expect("frame just made")
     }
 
     /// Renders every camera's depth image into `out` (`cameras × side²`,
@@ -316,7 +316,7 @@ impl GpuDepthRenderer {
         }));
         let tan = (self.spec.fov_deg.to_radians() / 2.0).tan();
         let params = Params { inv_tan: 1.0 / tan, near: NEAR, far: self.spec.range, drones: nd.max(1), radius: drones.map_or(0.0, |d| d.radius), _pad: [0.0; 3] };
-        self.frame(n, nd);
+        self.ensure_frame(n, nd);
         let f = self.frame.as_ref().expect("frame");
         self.queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
         self.queue.write_buffer(&f.cams, 0, bytemuck::cast_slice(&self.staging));
