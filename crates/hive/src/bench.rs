@@ -42,6 +42,11 @@ pub enum BenchCmd {
         /// Measured steps per cell (after 2 warm-up steps).
         #[arg(long, default_value_t = 20)]
         steps: usize,
+        /// Threads of the CPU ray caster, the same in both modes (0: one per
+        /// core). A batched call spreads its cameras over them; a
+        /// non-batched call has one camera to give.
+        #[arg(long, default_value_t = 0)]
+        threads: usize,
         /// Arena file.
         #[arg(long, default_value = "configs/arenas/train.toml")]
         arena: PathBuf,
@@ -129,7 +134,7 @@ pub enum BenchCmd {
 pub fn run(cmd: BenchCmd) -> Result<()> {
     match cmd {
         BenchCmd::Sim { agents, steps, threads, arena, json } => bench_sim(&agents, steps, threads, &arena, json),
-        BenchCmd::Render { agents, renderer, steps, arena, plot, json } => bench_render(&agents, &renderer, steps, &arena, &plot, json),
+        BenchCmd::Render { agents, renderer, steps, threads, arena, plot, json } => bench_render(&agents, &renderer, steps, threads, &arena, &plot, json),
         BenchCmd::Ipc { iters, json } => crate::ipc_bench::run(iters, json),
         BenchCmd::IpcPeer { prefix } => crate::ipc_bench::peer(&prefix),
         BenchCmd::Replay { producers, seconds, json } => crate::replay_bench::run(producers, seconds, json),
@@ -194,7 +199,7 @@ fn bench_sim(agents: &[usize], steps: usize, threads: usize, arena: &std::path::
 /// drawn and read back into the observation buffer) with the same agents
 /// and actions in both modes: batched (one call, one submission, one
 /// synchronisation per step) and non-batched (one of each per agent).
-fn bench_render(agents: &[usize], renderer: &str, steps: usize, arena: &std::path::Path, plot: &std::path::Path, json: bool) -> Result<()> {
+fn bench_render(agents: &[usize], renderer: &str, steps: usize, threads: usize, arena: &std::path::Path, plot: &std::path::Path, json: bool) -> Result<()> {
     if agents.iter().any(|n| *n == 0) || steps == 0 {
         bail!("--agents and --steps must be positive");
     }
@@ -204,9 +209,10 @@ fn bench_render(agents: &[usize], renderer: &str, steps: usize, arena: &std::pat
         other => bail!("--renderer must be cpu or wgpu, got {other:?}"),
     };
     let arena = Arena::load(arena)?;
-    let mut adapter = String::from("cpu ray casting, 1 thread");
+    let threads = if threads == 0 { std::thread::available_parallelism().map_or(1, |n| n.get()) } else { threads };
+    let mut adapter = format!("cpu ray casting, {threads} thread{}", if threads == 1 { "" } else { "s" });
     let mut measure = |n: usize, batched: bool| -> Result<f64> {
-        let cfg = SimConfig { agents: n, renderer: kind, batched, ..SimConfig::default() };
+        let cfg = SimConfig { agents: n, renderer: kind, batched, render_threads: threads, ..SimConfig::default() };
         let mut env = VecEnv::try_new(cfg, arena.clone(), 1)?;
         if let Some(g) = env.gpu() {
             adapter = g.adapter().to_string();
@@ -243,7 +249,7 @@ fn bench_render(agents: &[usize], renderer: &str, steps: usize, arena: &std::pat
     )?;
     println!("plot: {}", plot.display());
     if json {
-        println!("{}", json!({ "renderer": renderer, "adapter": adapter, "steps": steps, "rows": rows, "plot": plot.display().to_string() }));
+        println!("{}", json!({ "renderer": renderer, "adapter": adapter, "threads": threads, "steps": steps, "rows": rows, "plot": plot.display().to_string() }));
     }
     Ok(())
 }

@@ -124,6 +124,7 @@ pub struct GpuDepthRenderer {
     layout: wgpu::BindGroupLayout,
     params: wgpu::Buffer,
     scene_vertices: wgpu::Buffer,
+    scene_indices: wgpu::Buffer,
     layout_cull: SceneLayout,
     ranges: Vec<std::ops::Range<u32>>,
     sphere_vertices: wgpu::Buffer,
@@ -181,7 +182,7 @@ impl GpuDepthRenderer {
             ],
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor { label: Some("depth"), bind_group_layouts: &[Some(&layout)], immediate_size: 0 });
-        let pipeline = |entry: &str| {
+        let pipeline = |entry: &str, cull_mode: Option<wgpu::Face>| {
             device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
                 label: Some(entry),
                 layout: Some(&pipeline_layout),
@@ -195,7 +196,7 @@ impl GpuDepthRenderer {
                         attributes: &wgpu::vertex_attr_array![0 => Float32x3],
                     })],
                 },
-                primitive: wgpu::PrimitiveState { cull_mode: None, ..Default::default() },
+                primitive: wgpu::PrimitiveState { cull_mode, ..Default::default() },
                 depth_stencil: Some(wgpu::DepthStencilState {
                     format: wgpu::TextureFormat::Depth32Float,
                     depth_write_enabled: Some(true),
@@ -214,13 +215,15 @@ impl GpuDepthRenderer {
                 cache: None,
             })
         };
-        let scene_pipeline = pipeline("vs_scene");
-        let drone_pipeline = pipeline("vs_drone");
+        // Scene triangles face the cameras (see `orient`): the back faces of
+        // obstacles are dropped before they are rasterised.
+        let scene_pipeline = pipeline("vs_scene", Some(wgpu::Face::Back));
+        let drone_pipeline = pipeline("vs_drone", None);
         let layout_cull = SceneLayout::new(scene, spec.range);
-        let tris = &layout_cull.vertices;
         let sphere = sphere_triangles();
         let vbuf = |label, v: &[[f32; 3]]| device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents: bytemuck::cast_slice(v), usage: wgpu::BufferUsages::VERTEX });
-        let scene_vertices = vbuf("scene", tris);
+        let scene_vertices = vbuf("scene", &layout_cull.vertices);
+        let scene_indices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some("scene indices"), contents: bytemuck::cast_slice(&layout_cull.indices), usage: wgpu::BufferUsages::INDEX });
         let sphere_vertices = vbuf("sphere", &sphere);
         let params = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("params"),
@@ -238,6 +241,7 @@ impl GpuDepthRenderer {
             layout,
             params,
             scene_vertices,
+            scene_indices,
             layout_cull,
             ranges: Vec::new(),
             sphere_vertices,
@@ -355,12 +359,13 @@ impl GpuDepthRenderer {
                 pass.set_scissor_rect(x, y, s, s);
                 pass.set_pipeline(&self.scene_pipeline);
                 pass.set_vertex_buffer(0, self.scene_vertices.slice(..));
-                pass.draw(0..self.layout_cull.always, i..i + 1);
+                pass.set_index_buffer(self.scene_indices.slice(..), wgpu::IndexFormat::Uint32);
+                pass.draw_indexed(0..self.layout_cull.always, 0, i..i + 1);
                 // Only the obstacles the camera's view (to its range) can reach.
                 let (lo, hi) = frustum_floor_plan(cam, tan, self.spec.range);
                 self.layout_cull.visible(lo, hi, &mut self.ranges);
                 for r in &self.ranges {
-                    pass.draw(r.clone(), i..i + 1);
+                    pass.draw_indexed(r.clone(), 0, i..i + 1);
                 }
                 if nd > 0 {
                     pass.set_pipeline(&self.drone_pipeline);
@@ -410,14 +415,17 @@ const BIG: f32 = 8.0;
 /// The static scene in world coordinates, laid out for culling: first what
 /// every camera draws (walls, floor, ceiling, big obstacles), then the other
 /// obstacles sorted by y band and, within a band, by centre x, so that the
-/// obstacles a camera can see are one contiguous vertex range per band.
+/// obstacles a camera can see are one contiguous index range per band.
+/// Triangles are indexed (a vertex shared by facets is shaded once) and wound
+/// counter-clockwise as seen from inside the arena, outside the obstacles.
 struct SceneLayout {
     vertices: Vec<[f32; 3]>,
-    /// Vertices every camera draws.
+    indices: Vec<u32>,
+    /// Indices every camera draws.
     always: u32,
-    /// Per band: (band index, sorted centre x, first vertex) of its obstacles.
+    /// Per band: (band index, sorted centre x, first index) of its obstacles.
     bands: Vec<(i32, Vec<(f32, u32)>)>,
-    /// End vertex of each band's last obstacle.
+    /// End index of each band's last obstacle.
     band_end: Vec<u32>,
     /// Largest half extent of a banded obstacle (the culling margin).
     margin: f32,
@@ -432,6 +440,8 @@ impl SceneLayout {
         quad(&mut always, [x0, -hw, 0.0], [x1, -hw, 0.0], [x1, -hw, h], [x0, -hw, h]);
         quad(&mut always, [x0, -hw, 0.0], [x1, -hw, 0.0], [x1, hw, 0.0], [x0, hw, 0.0]);
         quad(&mut always, [x0, -hw, h], [x1, -hw, h], [x1, hw, h], [x0, hw, h]);
+        // Walls, floor and ceiling face the arena's centre line.
+        orient(&mut always, |c| [0.0, -c[1], h / 2.0 - c[2]]);
         let mut banded: Vec<(i32, f32, Vec<[f32; 3]>)> = Vec::new();
         let mut margin = 0.0f32;
         for sh in &scene.shapes {
@@ -465,7 +475,8 @@ impl SceneLayout {
         if !bands.is_empty() {
             band_end.push(vertices.len() as u32);
         }
-        Self { vertices, always, bands, band_end, margin }
+        let (vertices, indices) = indexed(&vertices);
+        Self { vertices, indices, always, bands, band_end, margin }
     }
 
     /// The vertex ranges of banded obstacles within `[lo, hi]` (floor plan).
@@ -487,6 +498,38 @@ impl SceneLayout {
     }
 }
 
+/// Shares equal vertices of a triangle list: (vertices, indices), the
+/// indices in the list's order.
+fn indexed(list: &[[f32; 3]]) -> (Vec<[f32; 3]>, Vec<u32>) {
+    let mut seen = std::collections::HashMap::new();
+    let mut vertices = Vec::new();
+    let indices = list
+        .iter()
+        .map(|v| {
+            *seen.entry(v.map(f32::to_bits)).or_insert_with(|| {
+                vertices.push(*v);
+                vertices.len() as u32 - 1
+            })
+        })
+        .collect();
+    (vertices, indices)
+}
+
+/// Winds every triangle of a list counter-clockwise as seen from the side
+/// `toward(centroid)` points to (its front face for the cameras).
+fn orient(t: &mut [[f32; 3]], toward: impl Fn([f32; 3]) -> [f32; 3]) {
+    let sub = |a: [f32; 3], b: [f32; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+    for tri in t.chunks_exact_mut(3) {
+        let (u, v) = (sub(tri[1], tri[0]), sub(tri[2], tri[0]));
+        let n = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
+        let c = [0, 1, 2].map(|k| (tri[0][k] + tri[1][k] + tri[2][k]) / 3.0);
+        let w = toward(c);
+        if n[0] * w[0] + n[1] * w[1] + n[2] * w[2] < 0.0 {
+            tri.swap(1, 2);
+        }
+    }
+}
+
 fn quad(t: &mut Vec<[f32; 3]>, a: [f32; 3], b: [f32; 3], c: [f32; 3], d: [f32; 3]) {
     t.extend([a, b, c, a, c, d]);
 }
@@ -500,6 +543,8 @@ fn shape_triangles(sh: &Shape, h: f32) -> Vec<[f32; 3]> {
             for [a, b, cc, d] in [[0, 1, 3, 2], [4, 5, 7, 6], [0, 1, 5, 4], [2, 3, 7, 6], [0, 2, 6, 4], [1, 3, 7, 5]] {
                 quad(&mut t, c(a), c(b), c(cc), c(d));
             }
+            let mid = [(min.x + max.x) / 2.0, (min.y + max.y) / 2.0, (min.z + max.z) / 2.0];
+            orient(&mut t, |p| [p[0] - mid[0], p[1] - mid[1], p[2] - mid[2]]);
         }
         Shape::Cylinder { cx, cy, r2, zmin, zmax } => {
             // Vertices just outside the circle, so the facets straddle
@@ -523,6 +568,8 @@ fn shape_triangles(sh: &Shape, h: f32) -> Vec<[f32; 3]> {
                     t.extend([[cx, cy, zmax], [ax, ay, zmax], [bx, by, zmax]]);
                 }
             }
+            let zmid = (zmin + zmax) / 2.0;
+            orient(&mut t, |p| [p[0] - cx, p[1] - cy, p[2] - zmid]);
         }
     }
     t

@@ -202,16 +202,26 @@ impl DepthRenderer {
             }
             return;
         }
-        let per = cameras.len().div_ceil(threads);
-        std::thread::scope(|sc| {
-            for (t, ((cams, imgs), s)) in cameras.chunks(per).zip(out.chunks_mut(per * px)).zip(self.scratch.iter_mut()).enumerate() {
-                let spec = &spec;
-                sc.spawn(move || {
-                    for (j, (cam, img)) in cams.iter().zip(imgs.chunks_mut(px)).enumerate() {
-                        render_one(scene, spec, cam, drones.map(|d| (d, first_agent + t * per + j)), s, img);
-                    }
-                });
+        // Blocks of cameras handed out as threads come free (cameras differ
+        // in cost), the calling thread working as one of them.
+        const BLOCK: usize = 2;
+        let blocks: Vec<_> = cameras.chunks(BLOCK).zip(out.chunks_mut(BLOCK * px)).enumerate().collect();
+        let queue = std::sync::Mutex::new(blocks.into_iter());
+        let work = |s: &mut Scratch| {
+            loop {
+                let next = queue.lock().unwrap_or_else(std::sync::PoisonError::into_inner).next();
+                let Some((b, (cams, imgs))) = next else { break };
+                for (j, (cam, img)) in cams.iter().zip(imgs.chunks_mut(px)).enumerate() {
+                    render_one(scene, &spec, cam, drones.map(|d| (d, first_agent + b * BLOCK + j)), s, img);
+                }
             }
+        };
+        let (mine, others) = self.scratch.split_first_mut().expect("at least one scratch");
+        std::thread::scope(|sc| {
+            for s in others.iter_mut().take(threads - 1) {
+                sc.spawn(|| work(s));
+            }
+            work(mine);
         });
     }
 }

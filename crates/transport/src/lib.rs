@@ -285,6 +285,15 @@ pub struct Receiver<S: Service, T: Debug + ZeroCopySend + 'static, H: Debug + Ze
 /// How long a receiver polls before it sleeps on the channel's event.
 const SPIN: Duration = Duration::from_micros(30);
 
+/// One sleep on a channel's event for `remaining` time: at most 20 ms (a
+/// notification can race with the receive before it, so the receiver
+/// re-checks), and at least 1 µs: iceoryx2 0.10 hands the timeout to
+/// `SO_RCVTIMEO` in whole microseconds, where zero means "block forever"
+/// (a sim once hung for minutes on a 0.4 µs remainder).
+fn wait_slice(remaining: Duration) -> Duration {
+    remaining.clamp(Duration::from_micros(1), Duration::from_millis(20))
+}
+
 /// A received message, read in place from shared memory.
 pub type Msg<S, T, H> = Sample<S, [T], H>;
 
@@ -322,10 +331,7 @@ impl<S: Service, T: Debug + ZeroCopySend + Default + Copy + 'static, H: Debug + 
             if now >= deadline {
                 return Ok(None);
             }
-            // Wake on a notification or, at the latest, every 20 ms to re-check
-            // (a notification can race with the receive above).
-            let wait = (deadline - now).min(Duration::from_millis(20));
-            match self.listener.timed_wait(|_| {}, wait) {
+            match self.listener.timed_wait(|_| {}, wait_slice(deadline - now)) {
                 Ok(_) => {}
                 // A signal (SIGTERM from the supervisor, Ctrl-C) ends the wait
                 // early; the caller checks for shutdown next.
@@ -388,6 +394,15 @@ mod tests {
     #[repr(C)]
     struct Hdr {
         seq: u64,
+    }
+
+    #[test]
+    fn a_wait_is_never_zero_whole_microseconds() {
+        // iceoryx2 truncates to microseconds and blocks forever on zero.
+        for ns in [0, 1, 400, 999, 1_000, 25_000_000] {
+            let w = wait_slice(Duration::from_nanos(ns));
+            assert!(w.as_micros() >= 1 && w <= Duration::from_millis(20), "{ns} ns -> {w:?}");
+        }
     }
 
     #[test]

@@ -37,6 +37,7 @@ pub fn run(role: RoleArgs) -> Result<()> {
     let mut next_seq = vec![None::<u64>; cfg.sim.envs];
     let mut mb_seq = 0u64;
     let mut backoff_until = Instant::now();
+    let mut limit = SampleLimit::new(&cfg);
     loop {
         if hub.shutdown_requested() {
             break;
@@ -53,7 +54,7 @@ pub fn run(role: RoleArgs) -> Result<()> {
         tel.stage(0, t);
         let ready = mem.len() >= r.min_fill.max(r.batch);
         let mut sent = false;
-        if ready && Instant::now() >= backoff_until {
+        if ready && limit.allows(mb_seq, mem.inserted()) && Instant::now() >= backoff_until {
             let t = Instant::now();
             let res = tx.send_with(r.batch * TRANSITION_LEN, |h, out| {
                 mem.sample_into(out);
@@ -103,6 +104,36 @@ pub fn run(role: RoleArgs) -> Result<()> {
     Ok(())
 }
 
+/// The sample side of `replay.samples_per_insert` (the sims hold the insert
+/// side): minibatches go out while the transitions sampled stay within
+/// `samples_per_insert` times those inserted since sampling began, plus a
+/// buffer. So a learner fed by too few agents waits for data instead of
+/// replaying the same transitions over and over, as Reverb's
+/// `SampleToInsertRatio` does. The buffer covers what the sims cannot see
+/// yet (minibatches queued for the learner, updates not yet published), so
+/// the two sides never wait on each other.
+struct SampleLimit {
+    per_insert: f64,
+    batch: f64,
+    buffer: f64,
+    /// Transitions inserted when the first minibatch went out.
+    base: Option<u64>,
+}
+
+impl SampleLimit {
+    fn new(cfg: &crate::config::Config) -> Self {
+        let r = &cfg.replay;
+        let queued = (r.prefetch as u64 + cfg.learner.publish_every + 2) as f64;
+        Self { per_insert: r.samples_per_insert, batch: r.batch as f64, buffer: 2.0 * queued * r.batch as f64, base: None }
+    }
+
+    /// Whether minibatch number `sent` (from 0) may go out.
+    fn allows(&mut self, sent: u64, inserted: u64) -> bool {
+        let base = *self.base.get_or_insert(inserted);
+        self.per_insert <= 0.0 || (sent + 1) as f64 * self.batch <= self.per_insert * inserted.saturating_sub(base) as f64 + self.buffer
+    }
+}
+
 /// Transition batches taken per loop before the next minibatch is offered.
 const INGEST_PER_LOOP: usize = 4;
 
@@ -138,4 +169,27 @@ fn corrupt(batch: &[f32]) -> u64 {
             !(a == 0.0 || a == 1.0) || !(d == 0.0 || d == 1.0) || t[..depth].iter().chain(&t[OBS_LEN..OBS_LEN + depth]).any(|v| !(0.0..=1.0).contains(v))
         })
         .count() as u64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::SampleLimit;
+
+    #[test]
+    fn sampling_waits_for_inserts_past_the_buffer() {
+        let mut cfg = crate::config::Config::default();
+        cfg.replay.samples_per_insert = 1.0;
+        let mut lim = SampleLimit::new(&cfg);
+        let buffer_batches = (lim.buffer / lim.batch) as u64;
+        // Counted from the first minibatch: 15,000 already inserted.
+        assert!(lim.allows(0, 15_000));
+        assert!(lim.allows(buffer_batches - 1, 15_000));
+        assert!(!lim.allows(buffer_batches, 15_000));
+        // 320 more transitions pay for 10 more minibatches of 32, not 11.
+        assert!(lim.allows(buffer_batches + 9, 15_320));
+        assert!(!lim.allows(buffer_batches + 10, 15_320));
+        cfg.replay.samples_per_insert = 0.0;
+        let mut off = SampleLimit::new(&cfg);
+        assert!(off.allows(1_000_000, 0));
+    }
 }

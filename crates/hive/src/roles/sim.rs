@@ -89,17 +89,21 @@ pub fn run(role: RoleArgs, env_index: usize) -> Result<()> {
     Ok(())
 }
 
-/// Holds a sim back while its share of the transitions inserted past
-/// `replay.min_fill` outruns what the learner has sampled divided by
-/// `replay.samples_per_insert`. The learner's update count arrives in the
-/// header of every weights publication.
+/// Holds a sim back while the transitions inserted since learning began
+/// outrun what the learner has sampled divided by `replay.samples_per_insert`
+/// (the insert side of the rate limit; the replay holds the sample side).
+/// The learner's update count arrives in the header of every weights
+/// publication. Both sides count from when learning began, so transitions
+/// that never reached the replay (sent before it subscribed, say) cannot
+/// make the two sides wait on each other.
 struct RateLimiter {
     weights: Option<rotorhive_transport::Receiver<rotorhive_transport::Ipc, f32, WeightsHeader>>,
     per_step: f64,
-    min_fill: f64,
     per_update: f64,
     slack: f64,
     updates: u64,
+    /// (step, updates) when this sim first saw the learner's updates.
+    base: Option<(u64, u64)>,
 }
 
 /// How long the learner may make no progress before the limit lets a step through.
@@ -110,15 +114,18 @@ impl RateLimiter {
         let r = &cfg.replay;
         let on = r.samples_per_insert > 0.0;
         let weights = if on { Some(hub.receiver::<f32, WeightsHeader>(&Channel::weights(cfg.sim.envs))?) } else { None };
+        let per_update = r.batch as f64 / r.samples_per_insert.max(f64::MIN_POSITIVE);
+        let agents = (cfg.sim.agents * cfg.sim.envs) as f64;
         Ok(Self {
             weights,
             // Transitions per step across all sims (they run at the same pace).
-            per_step: (cfg.sim.agents * cfg.sim.envs) as f64,
-            min_fill: r.min_fill as f64,
-            per_update: r.batch as f64 / r.samples_per_insert.max(f64::MIN_POSITIVE),
-            // n-step transitions leave up to n steps after their step.
-            slack: ((cfg.learner.n_step + 1) * cfg.sim.agents * cfg.sim.envs) as f64,
+            per_step: agents,
+            per_update,
+            // n-step transitions leave up to n steps after their step, and
+            // updates are published every `publish_every`.
+            slack: (cfg.learner.n_step + 1) as f64 * agents + cfg.learner.publish_every as f64 * per_update,
             updates: 0,
+            base: None,
         })
     }
 
@@ -139,9 +146,14 @@ impl RateLimiter {
                 seen = self.updates;
                 progress = std::time::Instant::now();
             }
-            let inserted = steps as f64 * self.per_step;
-            let allowed = self.min_fill + self.updates as f64 * self.per_update + self.slack;
-            if self.updates == 0 || inserted <= allowed || progress.elapsed() >= STARVED || hub.shutdown_requested() {
+            if self.updates == 0 {
+                // Still filling the replay: no limit.
+                return Ok(());
+            }
+            let (s0, u0) = *self.base.get_or_insert((steps, self.updates));
+            let inserted = steps.saturating_sub(s0) as f64 * self.per_step;
+            let allowed = (self.updates - u0) as f64 * self.per_update + self.slack;
+            if inserted <= allowed || progress.elapsed() >= STARVED || hub.shutdown_requested() {
                 return Ok(());
             }
             if let Some(m) = rx.recv_timeout(POLL).context("waiting for the learner")? {
