@@ -211,35 +211,41 @@ fn bench_render(agents: &[usize], renderer: &str, steps: usize, threads: usize, 
     let arena = Arena::load(arena)?;
     let threads = if threads == 0 { std::thread::available_parallelism().map_or(1, |n| n.get()) } else { threads };
     let mut adapter = format!("cpu ray casting, {threads} thread{}", if threads == 1 { "" } else { "s" });
-    let mut measure = |n: usize, batched: bool| -> Result<f64> {
+    // (render, render + transport) ms per step.
+    let mut measure = |n: usize, batched: bool| -> Result<(f64, f64)> {
         let cfg = SimConfig { agents: n, renderer: kind, batched, render_threads: threads, ..SimConfig::default() };
         let mut env = VecEnv::try_new(cfg, arena.clone(), 1)?;
         if let Some(g) = env.gpu() {
             adapter = g.adapter().to_string();
         }
+        let mut hop = ObsHop::new(n, batched)?;
         let actions = |t: usize| -> Vec<u8> { (0..n).map(|i| (((t * 31 + i * 17) >> 2) % 2) as u8).collect() };
-        for t in 0..2 {
+        let (mut render, mut total) = (0u64, 0u64);
+        for t in 0..steps + 2 {
             env.try_step(&actions(t))?;
+            let hop_ns = hop.carry(&env, t as u64, batched)?;
+            if t >= 2 {
+                render += env.timing().render_ns;
+                total += env.timing().render_ns + hop_ns;
+            }
         }
-        let mut ns = 0u64;
-        for t in 0..steps {
-            env.try_step(&actions(t + 2))?;
-            ns += env.timing().render_ns;
-        }
-        Ok(ns as f64 / 1e6 / steps as f64)
+        hop.finish()?;
+        let ms = |ns: u64| ns as f64 / 1e6 / steps as f64;
+        Ok((ms(render), ms(total)))
     };
-    println!("{:>7} {:>12} {:>15} {:>8}", "agents", "batched ms", "non-batched ms", "ratio");
+    println!("{:>7} {:>12} {:>15} {:>8}   {:>17} {:>20}", "agents", "batched ms", "non-batched ms", "ratio", "batched render ms", "non-batched render ms");
     let mut rows = Vec::new();
     let (mut b_pts, mut nb_pts) = (Vec::new(), Vec::new());
     for &n in agents {
-        let b = measure(n, true)?;
-        let nb = measure(n, false)?;
-        println!("{n:>7} {b:>12.3} {nb:>15.3} {:>7.1}x", nb / b);
+        let (br, b) = measure(n, true)?;
+        let (nbr, nb) = measure(n, false)?;
+        println!("{n:>7} {b:>12.3} {nb:>15.3} {:>7.1}x   {br:>17.3} {nbr:>20.3}", nb / b);
         b_pts.push((n as f64, b));
         nb_pts.push((n as f64, nb));
-        rows.push(json!({ "agents": n, "batched_ms": b, "non_batched_ms": nb, "ratio": nb / b }));
+        rows.push(json!({ "agents": n, "batched_ms": b, "non_batched_ms": nb, "ratio": nb / b, "batched_render_ms": br, "non_batched_render_ms": nbr }));
     }
-    println!("renderer {renderer} ({adapter}); paper (AirSim, RTX 2070): 10 agents 61 ms batched, 197 ms non-batched");
+    println!("renderer {renderer} ({adapter}); observations carried through iceoryx2 to a gathering thread as in training");
+    println!("paper (AirSim, RTX 2070): 10 agents 61 ms batched, 197 ms non-batched");
     crate::draw::lines_plot(
         &format!("observation gathering per step ({renderer})"),
         "agents",
@@ -252,4 +258,70 @@ fn bench_render(agents: &[usize], renderer: &str, steps: usize, threads: usize, 
         println!("{}", json!({ "renderer": renderer, "adapter": adapter, "threads": threads, "steps": steps, "rows": rows, "plot": plot.display().to_string() }));
     }
     Ok(())
+}
+
+/// Carries a sim's observations of one step to a receiving thread through
+/// iceoryx2 shared memory, exactly as `hive sim` publishes them to its actor
+/// (one message per step batched, one per agent non-batched, on the
+/// training's observation channel) and as the actor gathers them.
+struct ObsHop {
+    _hub: rotorhive_transport::Hub<rotorhive_transport::Ipc>,
+    tx: rotorhive_transport::Sender<rotorhive_transport::Ipc, f32, rotorhive_msg::ObsHeader>,
+    gathered: std::sync::mpsc::Receiver<u64>,
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    thread: Option<std::thread::JoinHandle<Result<()>>>,
+}
+
+impl ObsHop {
+    fn new(n: usize, batched: bool) -> Result<Self> {
+        use rotorhive_transport::{Channel, Hub, Ipc};
+        let prefix = format!("bench-render-{}-{n}-{batched}", std::process::id());
+        let ch = Channel::obs(0, if batched { 1 } else { n });
+        let hub = Hub::<Ipc>::new(&prefix, "bench-render-sim")?;
+        let tx = hub.sender::<f32, rotorhive_msg::ObsHeader>(&ch, rotorhive_msg::obs_batch_len(n), std::time::Duration::from_secs(5))?;
+        let (done_tx, gathered) = std::sync::mpsc::channel();
+        let (ready_tx, ready) = std::sync::mpsc::channel();
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let halt = stop.clone();
+        let thread = std::thread::spawn(move || -> Result<()> {
+            let hub = Hub::<Ipc>::new(&prefix, "bench-render-actor")?;
+            let mut rx = hub.receiver::<f32, rotorhive_msg::ObsHeader>(&ch)?;
+            let _ = ready_tx.send(());
+            let mut gather = crate::roles::actor::Gather::new(n);
+            while !halt.load(std::sync::atomic::Ordering::Relaxed) {
+                let Some(m) = rx.recv_timeout(std::time::Duration::from_millis(10))? else { continue };
+                let h = *m.user_header();
+                // A whole batch is used in place (the actor's network reads it
+                // from shared memory); per-agent messages are copied together.
+                let complete = if h.agents == h.total { std::hint::black_box(m.payload()[m.payload().len() - 1]) >= 0.0 } else { gather.add(&h, m.payload()) };
+                if complete && done_tx.send(h.step).is_err() {
+                    break;
+                }
+            }
+            Ok(())
+        });
+        ready.recv_timeout(std::time::Duration::from_secs(10)).map_err(|_| anyhow::anyhow!("the gathering thread of bench render did not start"))?;
+        Ok(Self { _hub: hub, tx, gathered, stop, thread: Some(thread) })
+    }
+
+    /// Publishes the step's observations and waits until they are gathered;
+    /// the nanoseconds this took.
+    fn carry(&mut self, env: &VecEnv, step: u64, batched: bool) -> Result<u64> {
+        let t = Instant::now();
+        crate::roles::sim::send_obs(&mut self.tx, env, 0, step, (0, 0), batched)?;
+        let got = self.gathered.recv_timeout(std::time::Duration::from_secs(10)).map_err(|_| anyhow::anyhow!("step {step}'s observations were not gathered within 10 s"))?;
+        if got != step {
+            bail!("gathered step {got}, expected {step}");
+        }
+        Ok(t.elapsed().as_nanos() as u64)
+    }
+
+    fn finish(mut self) -> Result<()> {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        match self.thread.take().map(std::thread::JoinHandle::join) {
+            Some(Ok(r)) => r,
+            Some(Err(_)) => bail!("the gathering thread of bench render panicked"),
+            None => Ok(()),
+        }
+    }
 }

@@ -218,6 +218,16 @@ impl Default for LearnerSection {
 impl Config {
     /// Reads a config file (or the defaults when `path` is `None`), applies
     /// `key=value` overrides and validates the result.
+    /// Whether a sim publishes all its agents' observations in one message.
+    pub fn batched(&self) -> bool {
+        self.sim.observation_mode == "batched"
+    }
+
+    /// Observation messages a sim publishes per step.
+    pub fn obs_messages_per_step(&self) -> usize {
+        if self.batched() { 1 } else { self.sim.agents }
+    }
+
     pub fn load(path: Option<&Path>, overrides: &[String]) -> Result<Self> {
         let (text, source) = match path {
             Some(p) => (std::fs::read_to_string(p).with_context(|| format!("config {}: cannot read", p.display()))?, p.display().to_string()),

@@ -93,9 +93,10 @@ pub struct Channel {
 }
 
 impl Channel {
-    /// Observation batches of sim `env` to its actor.
-    pub fn obs(env: usize) -> Self {
-        Self { name: format!("obs.{env}"), publishers: 1, subscribers: 1, buffer: 2, overflow: false, history: 0 }
+    /// Observations of sim `env` to its actor, `per_step` messages a step
+    /// (1 batched, one per agent non-batched): room for two steps.
+    pub fn obs(env: usize, per_step: usize) -> Self {
+        Self { name: format!("obs.{env}"), publishers: 1, subscribers: 1, buffer: 2 * per_step.max(1), overflow: false, history: 0 }
     }
     /// Action batches of actor `env` to its sim.
     pub fn actions(env: usize) -> Self {
@@ -408,7 +409,7 @@ mod tests {
     #[test]
     fn local_channel_delivers_in_order_with_headers() {
         let hub = Hub::<Local>::new("unit", "unit").unwrap();
-        let ch = Channel::obs(0);
+        let ch = Channel::obs(0, 1);
         let mut tx = hub.sender::<f32, Hdr>(&ch, 16, Duration::from_millis(200)).unwrap();
         let mut rx = hub.receiver::<f32, Hdr>(&ch).unwrap();
         for i in 0..2u64 {

@@ -37,7 +37,7 @@ pub fn run(role: RoleArgs, e: usize) -> Result<()> {
     let envs = cfg.sim.envs;
     let mut net = QNet::new(cfg.seed, &rotorhive_model::device(&cfg.actor.device)?)?;
     net.set_threads(cfg.actor.threads);
-    let mut obs_rx = hub.receiver::<f32, ObsHeader>(&Channel::obs(e))?;
+    let mut obs_rx = hub.receiver::<f32, ObsHeader>(&Channel::obs(e, cfg.obs_messages_per_step()))?;
     let mut act_tx = hub.sender::<u8, ActionHeader>(&Channel::actions(e), n, STALL_TIMEOUT)?;
     let steps_n = cfg.learner.n_step;
     // An episode's end can release up to n transitions of one agent.
@@ -59,9 +59,7 @@ pub fn run(role: RoleArgs, e: usize) -> Result<()> {
     let mut transitions = 0u64;
     let mut finished: Vec<f32> = Vec::with_capacity(3 * n);
     let mut actions = vec![0u8; n];
-    let mut gather = vec![0.0f32; rotorhive_msg::obs_batch_len(n)];
-    let mut gather_step = u64::MAX;
-    let mut gathered = 0usize;
+    let mut gather = Gather::new(n);
     loop {
         if hub.shutdown_requested() {
             break;
@@ -102,25 +100,15 @@ pub fn run(role: RoleArgs, e: usize) -> Result<()> {
         if h.agents as usize == n {
             whole = Some(msg);
         } else {
-            if h.step != gather_step || gathered == 0 {
-                gather_step = h.step;
-                gathered = 0;
-            }
-            let (a, k) = (h.first as usize, h.agents as usize);
-            let src = msg.payload();
-            gather[a * OBS_LEN..(a + k) * OBS_LEN].copy_from_slice(&src[..k * OBS_LEN]);
-            gather[n * OBS_LEN + a..n * OBS_LEN + a + k].copy_from_slice(&src[k * OBS_LEN..k * OBS_LEN + k]);
-            gather[n * OBS_LEN + n + a..n * OBS_LEN + n + a + k].copy_from_slice(&src[k * OBS_LEN + k..]);
+            let complete = gather.add(&h, msg.payload());
             drop(msg);
-            gathered += k;
-            if gathered < n {
+            if !complete {
                 continue;
             }
-            gathered = 0;
         }
         let p: &[f32] = match &whole {
             Some(m) => m.payload(),
-            None => &gather,
+            None => gather.batch(),
         };
         if h.step != expected_step {
             // The sim restarted (step 0) or a batch was lost: start afresh.
@@ -308,6 +296,47 @@ mod tests {
 
 /// Publishes one action batch answering observation step `step`; a failed
 /// send is reported and counted, and the sim will publish the step again.
+/// Assembles one step's observation batch (the layout of a batched message)
+/// from per-agent messages, as the non-batched mode sends them.
+pub(crate) struct Gather {
+    n: usize,
+    buf: Vec<f32>,
+    step: u64,
+    have: usize,
+}
+
+impl Gather {
+    pub(crate) fn new(n: usize) -> Self {
+        Self { n, buf: vec![0.0; rotorhive_msg::obs_batch_len(n)], step: u64::MAX, have: 0 }
+    }
+
+    /// Copies in the agents of one message; true once all agents of its
+    /// step are in (a message of a newer step starts the batch afresh).
+    pub(crate) fn add(&mut self, h: &ObsHeader, src: &[f32]) -> bool {
+        let n = self.n;
+        if h.step != self.step || self.have == 0 {
+            self.step = h.step;
+            self.have = 0;
+        }
+        let (a, k) = (h.first as usize, h.agents as usize);
+        let g = &mut self.buf;
+        g[a * OBS_LEN..(a + k) * OBS_LEN].copy_from_slice(&src[..k * OBS_LEN]);
+        g[n * OBS_LEN + a..n * OBS_LEN + a + k].copy_from_slice(&src[k * OBS_LEN..k * OBS_LEN + k]);
+        g[n * OBS_LEN + n + a..n * OBS_LEN + n + a + k].copy_from_slice(&src[k * OBS_LEN + k..]);
+        self.have += k;
+        if self.have < n {
+            return false;
+        }
+        self.have = 0;
+        true
+    }
+
+    /// The gathered batch: observations, rewards, dones.
+    pub(crate) fn batch(&self) -> &[f32] {
+        &self.buf
+    }
+}
+
 fn send_actions(tx: &mut rotorhive_transport::Sender<rotorhive_transport::Ipc, u8, ActionHeader>, e: usize, step: u64, actions: &[u8], lost: &mut u64) {
     let n = actions.len();
     if let Err(err) = tx.send_with(n, |ah, out| {

@@ -22,9 +22,9 @@ pub fn run(role: RoleArgs, env_index: usize) -> Result<()> {
     let arenas = cfg.lane_arenas(env_index)?;
     let n = cfg.sim.agents;
     let mut env = VecEnv::try_new_lanes(cfg.sim_config(), &arenas, cfg.seed.wrapping_mul(1000).wrapping_add(env_index as u64)).context("starting the simulator")?;
-    let batched = cfg.sim.observation_mode == "batched";
+    let batched = cfg.batched();
     assert_eq!(env.obs_len(), OBS_LEN, "simulator and message layouts disagree");
-    let mut obs_tx = hub.sender::<f32, ObsHeader>(&Channel::obs(env_index), obs_batch_len(n), STALL_TIMEOUT)?;
+    let mut obs_tx = hub.sender::<f32, ObsHeader>(&Channel::obs(env_index, cfg.obs_messages_per_step()), obs_batch_len(n), STALL_TIMEOUT)?;
     let mut act_rx = hub.receiver::<u8, ActionHeader>(&Channel::actions(env_index))?;
     let mut tel = Counters::new(&hub, RoleKind::Sim, env_index, roles_of(&cfg))?;
     let mut limiter = RateLimiter::new(&hub, &cfg)?;
@@ -136,15 +136,18 @@ impl RateLimiter {
     fn wait(&mut self, hub: &rotorhive_transport::Hub<rotorhive_transport::Ipc>, steps: u64) -> Result<()> {
         let Some(rx) = &mut self.weights else { return Ok(()) };
         let start = std::time::Instant::now();
-        let mut seen = self.updates;
         let mut progress = start;
+        let mut latest = rx.latest().context("reading the learner's update count")?.map(|m| m.user_header().updates);
         loop {
-            if let Some(m) = rx.latest().context("reading the learner's update count")? {
-                self.updates = self.updates.max(m.user_header().updates);
-            }
-            if self.updates > seen {
-                seen = self.updates;
-                progress = std::time::Instant::now();
+            if let Some(u) = latest.take() {
+                if u > self.updates {
+                    progress = std::time::Instant::now();
+                } else if u < self.updates {
+                    // A restarted learner goes on from its saved state:
+                    // count afresh from here.
+                    self.base = None;
+                }
+                self.updates = u;
             }
             if self.updates == 0 {
                 // Still filling the replay: no limit.
@@ -152,20 +155,18 @@ impl RateLimiter {
             }
             let (s0, u0) = *self.base.get_or_insert((steps, self.updates));
             let inserted = steps.saturating_sub(s0) as f64 * self.per_step;
-            let allowed = (self.updates - u0) as f64 * self.per_update + self.slack;
+            let allowed = self.updates.saturating_sub(u0) as f64 * self.per_update + self.slack;
             if inserted <= allowed || progress.elapsed() >= STARVED || hub.shutdown_requested() {
                 return Ok(());
             }
-            if let Some(m) = rx.recv_timeout(POLL).context("waiting for the learner")? {
-                self.updates = self.updates.max(m.user_header().updates);
-            }
+            latest = rx.recv_timeout(POLL).context("waiting for the learner")?.map(|m| m.user_header().updates);
         }
     }
 }
 
 /// Publishes the observations of a step: one message for all agents
 /// (batched), or one message per agent (non-batched, the old path on purpose).
-fn send_obs(tx: &mut rotorhive_transport::Sender<rotorhive_transport::Ipc, f32, ObsHeader>, env: &VecEnv, e: usize, step: u64, timing: (u64, u64), batched: bool) -> rotorhive_transport::Result<()> {
+pub(crate) fn send_obs(tx: &mut rotorhive_transport::Sender<rotorhive_transport::Ipc, f32, ObsHeader>, env: &VecEnv, e: usize, step: u64, timing: (u64, u64), batched: bool) -> rotorhive_transport::Result<()> {
     let total = env.agents();
     let per = if batched { total } else { 1 };
     for first in (0..total).step_by(per) {
