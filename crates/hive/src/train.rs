@@ -370,8 +370,9 @@ pub fn run(a: TrainArgs) -> Result<()> {
         }
         if let Some(t) = time_to_threshold {
             // Without evaluation the run ends at the threshold; with it,
-            // training goes on until a greedy evaluation is good enough.
-            let good = best_eval.is_some_and(|b| b.success >= cfg.eval.target_success && b.wall >= t);
+            // training goes on until a greedy evaluation (at any time of the
+            // run: the best is the result) is good enough.
+            let good = best_eval.is_some_and(|b| b.success >= cfg.eval.target_success);
             if !eval_on || good || start.elapsed().as_secs_f64() - t >= cfg.eval.after_threshold_s {
                 break;
             }

@@ -222,7 +222,7 @@ impl<S: Service> Hub<S> {
         let open_err = |op, e: &dyn Debug| TransportError::Open { channel: ch.name.clone(), op, message: format!("{e:?}") };
         let subscriber = ps.subscriber_builder().create().map_err(|e| open_err("create subscriber", &e))?;
         let listener = ev.listener_builder().create().map_err(|e| open_err("create listener", &e))?;
-        Ok(Receiver { subscriber, listener, channel: ch.name.clone(), received: 0 })
+        Ok(Receiver { subscriber, listener, channel: ch.name.clone(), received: 0, spin: spin() })
     }
 }
 
@@ -281,10 +281,27 @@ pub struct Receiver<S: Service, T: Debug + ZeroCopySend + 'static, H: Debug + Ze
     listener: Listener<S>,
     channel: String,
     received: u64,
+    spin: Duration,
 }
 
 /// How long a receiver polls before it sleeps on the channel's event.
-const SPIN: Duration = Duration::from_micros(30);
+/// `ROTORHIVE_SPIN_US` sets it (read once per process; 0 turns polling off).
+pub fn spin() -> Duration {
+    static SPIN: std::sync::OnceLock<Duration> = std::sync::OnceLock::new();
+    *SPIN.get_or_init(|| {
+        let us = match std::env::var("ROTORHIVE_SPIN_US") {
+            Ok(v) => v.trim().parse::<u64>().unwrap_or_else(|_| {
+                tracing::warn!("ROTORHIVE_SPIN_US={v:?} is not a whole number of microseconds; using {DEFAULT_SPIN_US}");
+                DEFAULT_SPIN_US
+            }),
+            Err(_) => DEFAULT_SPIN_US,
+        };
+        Duration::from_micros(us)
+    })
+}
+
+/// The default polling window of a receiver, in microseconds.
+pub const DEFAULT_SPIN_US: u64 = 100;
 
 /// One sleep on a channel's event for `remaining` time: at most 20 ms (a
 /// notification can race with the receive before it, so the receiver
@@ -309,12 +326,12 @@ impl<S: Service, T: Debug + ZeroCopySend + Default + Copy + 'static, H: Debug + 
     }
 
     /// The next message, sleeping on the channel's event for at most
-    /// `timeout`. It polls for `SPIN` first: a message that arrives that soon
+    /// `timeout`. It polls for its spin window (`spin()`) first: a message that arrives that soon
     /// is seen without a wake-up through the kernel (about 10 µs here).
     pub fn recv_timeout(&mut self, timeout: Duration) -> Result<Option<Msg<S, T, H>>> {
         let start = Instant::now();
         let deadline = start + timeout;
-        let spin_until = start + SPIN.min(timeout);
+        let spin_until = start + self.spin.min(timeout);
         loop {
             if let Some(s) = self.try_recv()? {
                 return Ok(Some(s));
@@ -340,6 +357,12 @@ impl<S: Service, T: Debug + ZeroCopySend + Default + Copy + 'static, H: Debug + 
                 Err(e) => return Err(TransportError::Io { channel: self.channel.clone(), op: "wait", message: format!("{e:?}") }),
             }
         }
+    }
+
+    /// Sets how long this receiver polls before sleeping (a channel whose
+    /// latency does not matter need not spend a core on it).
+    pub fn set_spin(&mut self, spin: Duration) {
+        self.spin = spin;
     }
 
     /// The newest waiting message, dropping older ones (for latest-wins channels).

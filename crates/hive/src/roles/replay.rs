@@ -30,6 +30,8 @@ pub fn run(role: RoleArgs) -> Result<()> {
     let mut last_snap = Instant::now();
     let mut snapshot: Option<rotorhive_replay::Snapshot> = None;
     let mut rx = hub.receiver::<f32, TransitionHeader>(&Channel::transitions(cfg.sim.envs))?;
+    // Transitions are throughput, not latency: sleep at once when idle.
+    rx.set_spin(Duration::ZERO);
     // A full learner queue is normal (the learner is busy): the send gives up
     // after a millisecond and the replay goes back to inserting.
     let mut tx = hub.sender::<f32, MinibatchHeader>(&Channel::minibatches(r.prefetch), r.batch * TRANSITION_LEN, Duration::from_millis(1))?;

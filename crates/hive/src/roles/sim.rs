@@ -113,7 +113,14 @@ impl RateLimiter {
     fn new(hub: &rotorhive_transport::Hub<rotorhive_transport::Ipc>, cfg: &crate::config::Config) -> Result<Self> {
         let r = &cfg.replay;
         let on = r.samples_per_insert > 0.0;
-        let weights = if on { Some(hub.receiver::<f32, WeightsHeader>(&Channel::weights(cfg.sim.envs))?) } else { None };
+        let weights = if on {
+            let mut rx = hub.receiver::<f32, WeightsHeader>(&Channel::weights(cfg.sim.envs))?;
+            // Waiting on the learner is a matter of milliseconds: no polling.
+            rx.set_spin(std::time::Duration::ZERO);
+            Some(rx)
+        } else {
+            None
+        };
         let per_update = r.batch as f64 / r.samples_per_insert.max(f64::MIN_POSITIVE);
         let agents = (cfg.sim.agents * cfg.sim.envs) as f64;
         Ok(Self {
