@@ -326,8 +326,10 @@ impl<S: Service, T: Debug + ZeroCopySend + Default + Copy + 'static, H: Debug + 
     }
 
     /// The next message, sleeping on the channel's event for at most
-    /// `timeout`. It polls for its spin window (`spin()`) first: a message that arrives that soon
-    /// is seen without a wake-up through the kernel (about 10 µs here).
+    /// `timeout`. It polls for its spin window (`spin()`) first: a message
+    /// that arrives that soon is seen without a wake-up through the kernel
+    /// (about 10 µs here). Between polls it yields, so a process with work
+    /// to do (the learner, on a machine with few cores) gets the core.
     pub fn recv_timeout(&mut self, timeout: Duration) -> Result<Option<Msg<S, T, H>>> {
         let start = Instant::now();
         let deadline = start + timeout;
@@ -339,7 +341,7 @@ impl<S: Service, T: Debug + ZeroCopySend + Default + Copy + 'static, H: Debug + 
             if Instant::now() >= spin_until {
                 break;
             }
-            std::hint::spin_loop();
+            std::thread::yield_now();
         }
         loop {
             if let Some(s) = self.try_recv()? {
