@@ -104,6 +104,9 @@ struct RateLimiter {
     updates: u64,
     /// (step, updates) when this sim first saw the learner's updates.
     base: Option<(u64, u64)>,
+    /// The update count at which the learner was found starved: no limit
+    /// until it moves on.
+    starved_at: Option<u64>,
 }
 
 /// How long the learner may make no progress before the limit lets a step through.
@@ -133,13 +136,15 @@ impl RateLimiter {
             slack: (cfg.learner.n_step + 1) as f64 * agents + cfg.learner.publish_every as f64 * per_update,
             updates: 0,
             base: None,
+            starved_at: None,
         })
     }
 
     /// Waits until the learner has caught up. A learner that makes no
     /// progress for `STARVED` is starved rather than busy (the replay is
     /// refilling after a restart, or n-step transitions are still pending),
-    /// so one more step goes through: the limit never deadlocks the run.
+    /// so the limit is off until its update count moves again: it never
+    /// deadlocks the run nor slows a refill.
     fn wait(&mut self, hub: &rotorhive_transport::Hub<rotorhive_transport::Ipc>, steps: u64) -> Result<()> {
         let Some(rx) = &mut self.weights else { return Ok(()) };
         let start = std::time::Instant::now();
@@ -160,10 +165,22 @@ impl RateLimiter {
                 // Still filling the replay: no limit.
                 return Ok(());
             }
+            if let Some(u) = self.starved_at {
+                if self.updates <= u {
+                    return Ok(());
+                }
+                // Learning goes on: count afresh from here.
+                self.starved_at = None;
+                self.base = None;
+            }
             let (s0, u0) = *self.base.get_or_insert((steps, self.updates));
             let inserted = steps.saturating_sub(s0) as f64 * self.per_step;
             let allowed = self.updates.saturating_sub(u0) as f64 * self.per_update + self.slack;
-            if inserted <= allowed || progress.elapsed() >= STARVED || hub.shutdown_requested() {
+            if progress.elapsed() >= STARVED {
+                self.starved_at = Some(self.updates);
+                return Ok(());
+            }
+            if inserted <= allowed || hub.shutdown_requested() {
                 return Ok(());
             }
             latest = rx.recv_timeout(POLL).context("waiting for the learner")?.map(|m| m.user_header().updates);
