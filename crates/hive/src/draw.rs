@@ -76,6 +76,21 @@ pub fn gen_arena(a: GenArenaArgs) -> Result<()> {
     Ok(())
 }
 
+/// The face every plot's text is drawn with, built into the binary: plots
+/// need no fonts installed on the machine (a bare GPU server has none).
+static FONT: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
+
+/// Registers [`FONT`] as plotters' "sans-serif", once per process.
+fn font() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        // The bytes are a fixed, valid TrueType file; a failure is a build defect.
+        if plotters::style::register_font("sans-serif", FontStyle::Normal, FONT).is_err() {
+            tracing::warn!("the built-in font could not be read; plots will lack text");
+        }
+    });
+}
+
 fn plot_err<E: std::fmt::Display>(e: E) -> anyhow::Error {
     anyhow::anyhow!("drawing failed: {e}")
 }
@@ -114,6 +129,7 @@ pub fn render_arena(a: RenderArenaArgs) -> Result<()> {
 }
 
 fn draw_arena(arena: &Arena, paths: &[Vec<(f32, f32)>], out: &Path) -> Result<()> {
+    font();
     let hw = arena.width / 2.0;
     let scale = 8.0;
     let w = (arena.length * scale) as u32 + 80;
@@ -181,6 +197,7 @@ pub fn show_depth(a: ShowDepthArgs) -> Result<()> {
 
 /// Draws rolling episode reward against wall time, with the threshold.
 pub fn reward_plot(points: &[(f64, f64)], threshold: f64, out: &Path) -> Result<()> {
+    font();
     let root = BitMapBackend::new(out, (800, 480)).into_drawing_area();
     root.fill(&WHITE).map_err(plot_err)?;
     let tmax = points.last().map(|p| p.0).unwrap_or(1.0).max(1.0);
@@ -202,6 +219,7 @@ pub fn reward_plot(points: &[(f64, f64)], threshold: f64, out: &Path) -> Result<
 
 /// A line chart of several named series (e.g. milliseconds against agents).
 pub fn lines_plot(title: &str, x_desc: &str, y_desc: &str, series: &[(String, Vec<(f64, f64)>)], out: &Path) -> Result<()> {
+    font();
     let root = BitMapBackend::new(out, (800, 480)).into_drawing_area();
     root.fill(&WHITE).map_err(plot_err)?;
     let pts = || series.iter().flat_map(|s| s.1.iter().copied());

@@ -545,8 +545,13 @@ pub fn run(a: TrainArgs) -> Result<()> {
     });
     std::fs::write(run_dir.join("summary.json"), serde_json::to_string_pretty(&summary)? + "\n")?;
     let series: Vec<(String, Vec<(f64, f64)>)> = util_series.into_iter().collect();
-    crate::draw::lines_plot("utilisation (% of the machine)", "wall time (s)", "%", &series, &run_dir.join("utilisation.png"))?;
-    crate::draw::reward_plot(&curve.iter().copied().filter(|p| p.1.is_finite()).collect::<Vec<_>>(), threshold, &run_dir.join("reward.png"))?;
+    // A plot that cannot be drawn costs the picture, not the run's result.
+    if let Err(e) = crate::draw::lines_plot("utilisation (% of the machine)", "wall time (s)", "%", &series, &run_dir.join("utilisation.png")) {
+        tracing::warn!("utilisation.png not written: {e:#}");
+    }
+    if let Err(e) = crate::draw::reward_plot(&curve.iter().copied().filter(|p| p.1.is_finite()).collect::<Vec<_>>(), threshold, &run_dir.join("reward.png")) {
+        tracing::warn!("reward.png not written: {e:#}");
+    }
     println!(
         "run {}: {} in {wall:.1} s, {episodes} episodes, rolling reward {roll:.1}, {env_steps} agent-steps, {updates} updates",
         run_dir.display(),
