@@ -160,6 +160,18 @@ struct EvalPoint {
 
 /// The best evaluation: highest success rate, then highest mean reward (the
 /// earliest of equals, as the evaluator keeps it).
+/// The role's gauge of a telemetry sample in its own unit: the learner's
+/// loss (averaged over recent updates), the actor's epsilon, the replay's
+/// size; empty for sims.
+fn gauge(t: &Telemetry) -> String {
+    match RoleKind::from_code(t.role) {
+        Some(RoleKind::Learner) => format!("{:.6}", t.value_milli as f64 / 1e6),
+        Some(RoleKind::Actor) => format!("{:.3}", t.value_milli as f64 / 1e3),
+        Some(RoleKind::Replay) => t.value_milli.to_string(),
+        _ => String::new(),
+    }
+}
+
 fn best_of(evals: &[EvalPoint]) -> Option<EvalPoint> {
     evals.iter().copied().reduce(|a, b| if (b.success, b.mean_reward) > (a.success, a.mean_reward) { b } else { a })
 }
@@ -289,7 +301,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
     if a.resume.is_some() {
         writeln!(metrics, "resume,0,,,,,,,")?;
     }
-    let mut telemetry = table("telemetry.csv", "wall_s,role,index,pid,cpu_pct,rss_mb,machine_cpu_pct,heartbeat,work,work2,weight_version,lost,stage0_ms,stage1_ms,stage2_ms,stage3_ms,gpu_util_pct,gpu_mem_mb,gpu_power_w")?;
+    let mut telemetry = table("telemetry.csv", "wall_s,role,index,pid,cpu_pct,rss_mb,machine_cpu_pct,heartbeat,work,work2,weight_version,lost,stage0_ms,stage1_ms,stage2_ms,stage3_ms,gpu_util_pct,gpu_mem_mb,gpu_power_w,value")?;
 
     let bar = if a.quiet { ProgressBar::hidden() } else { ProgressBar::new_spinner() };
     bar.set_style(ProgressStyle::with_template("{spinner} [{elapsed_precise}] {msg}").expect("valid template"));
@@ -441,8 +453,8 @@ pub fn run(a: TrainArgs) -> Result<()> {
                 let ms = |i: usize| t.stage_ns[i] as f64 / 1e6;
                 writeln!(
                     telemetry,
-                    "{wall:.3},{role},{},{},{cpu:.1},{rss:.1},{machine:.1},{},{},{},{},{},{:.1},{:.1},{:.1},{:.1},{gcols}",
-                    t.index, t.pid, t.heartbeat, t.work, t.work2, t.weight_version, t.lost, ms(0), ms(1), ms(2), ms(3)
+                    "{wall:.3},{role},{},{},{cpu:.1},{rss:.1},{machine:.1},{},{},{},{},{},{:.1},{:.1},{:.1},{:.1},{gcols},{}",
+                    t.index, t.pid, t.heartbeat, t.work, t.work2, t.weight_version, t.lost, ms(0), ms(1), ms(2), ms(3), gauge(&t)
                 )?;
                 if cpu.is_finite() {
                     // Per-process CPU is in % of one core; the plot shows % of the machine.

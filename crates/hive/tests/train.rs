@@ -49,6 +49,19 @@ fn short_multi_process_training_run() {
     let actor_version = tel.iter().filter(|r| r[1] == "actor").map(|r| r[10].parse::<u64>().unwrap()).max().unwrap();
     let learner_version = tel.iter().filter(|r| r[1] == "learner").map(|r| r[10].parse::<u64>().unwrap()).max().unwrap();
     assert!(actor_version > 1 && learner_version > 1, "actor {actor_version}, learner {learner_version}");
+    // The learner's loss (its telemetry gauge, averaged over recent updates) falls.
+    let losses: Vec<f64> = tel.iter().filter(|r| r[1] == "learner" && r[8] != "0").filter_map(|r| r[19].parse().ok()).collect();
+    assert!(losses.len() >= 4, "too few learner samples: {losses:?}");
+    let (first, last) = (losses[0], losses[losses.len() - 1]);
+    assert!(last.is_finite() && last < first, "the loss did not fall: {losses:?}");
+    // Telemetry: the learner, busy updating, shows a high CPU share; without
+    // an NVIDIA GPU the GPU fields are empty and the summary's GPU keys null.
+    let learner_cpu = tel.iter().filter(|r| r[1] == "learner").filter_map(|r| r[4].parse::<f64>().ok()).fold(0.0, f64::max);
+    assert!(learner_cpu > 25.0, "learner CPU {learner_cpu} % of a core");
+    if !std::path::Path::new("/dev/nvidiactl").exists() {
+        assert!(summary["gpu_util_mean_pct"].is_null() && summary["gpu_power_mean_w"].is_null(), "{summary}");
+        assert!(tel.iter().all(|r| r[16].is_empty() && r[17].is_empty() && r[18].is_empty()), "GPU columns filled without a GPU");
+    }
     // The checkpoint loads and evaluates.
     let ckpt = summary["checkpoint"].as_str().unwrap().to_string();
     let out = hive().args(["eval", "--checkpoint", &ckpt, "--episodes", "5", "--json"]).output().unwrap();
