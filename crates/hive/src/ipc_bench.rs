@@ -31,11 +31,20 @@ fn ack_channel() -> Channel {
 }
 
 /// What PRL4AirSim's msgpack-RPC carried: a typed record with a float array.
-#[derive(Serialize, Deserialize)]
+#[derive(Deserialize)]
 struct RpcMsg {
     kind: u32,
     seq: u64,
     data: Vec<f32>,
+}
+
+/// The sender's side of [`RpcMsg`]: it serializes from its own buffer
+/// without copying it first (same bytes on the wire).
+#[derive(Serialize)]
+struct RpcMsgRef<'a> {
+    kind: u32,
+    seq: u64,
+    data: &'a [f32],
 }
 
 #[derive(Serialize, Deserialize)]
@@ -82,6 +91,9 @@ pub fn peer(prefix: &str) -> Result<()> {
         buf.resize(u32::from_le_bytes(len) as usize, 0);
         s.read_exact(&mut buf)?;
         let m: RpcMsg = rmp_serde::from_slice(&buf).context("decoding msgpack")?;
+        if m.kind as usize >= kinds().len() || m.data.is_empty() {
+            bail!("msgpack message {} of unknown kind {} or empty", m.seq, m.kind);
+        }
         let ack = rmp_serde::to_vec(&RpcAck { seq: m.seq, checksum: m.data[0] + m.data[m.data.len() - 1] })?;
         s.write_all(&(ack.len() as u32).to_le_bytes())?;
         s.write_all(&ack)?;
@@ -162,8 +174,9 @@ pub fn run(iters: usize, json_out: bool) -> Result<()> {
                     t_all = Instant::now();
                 }
                 let t = Instant::now();
-                // The sender's data lives in its own buffers, as in the sim.
-                let msg = rmp_serde::to_vec(&RpcMsg { kind: k as u32, seq: i as u64, data: sources[k].clone() })?;
+                // The sender's data lives in its own buffers, as in the sim;
+                // it is serialized from there, not cloned first.
+                let msg = rmp_serde::to_vec(&RpcMsgRef { kind: k as u32, seq: i as u64, data: &sources[k] })?;
                 s.write_all(&(msg.len() as u32).to_le_bytes())?;
                 s.write_all(&msg)?;
                 let mut len = [0u8; 4];
