@@ -158,8 +158,6 @@ struct EvalPoint {
     mean_reward: f64,
 }
 
-/// The best evaluation: highest success rate, then highest mean reward (the
-/// earliest of equals, as the evaluator keeps it).
 /// The role's gauge of a telemetry sample in its own unit: the learner's
 /// loss (averaged over recent updates), the actor's epsilon, the replay's
 /// size; empty for sims.
@@ -172,6 +170,8 @@ fn gauge(t: &Telemetry) -> String {
     }
 }
 
+/// The best evaluation: highest success rate, then highest mean reward (the
+/// earliest of equals, as the evaluator keeps it).
 fn best_of(evals: &[EvalPoint]) -> Option<EvalPoint> {
     evals.iter().copied().reduce(|a, b| if (b.success, b.mean_reward) > (a.success, a.mean_reward) { b } else { a })
 }
