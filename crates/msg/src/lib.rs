@@ -225,8 +225,8 @@ pub struct Telemetry {
     pub weight_version: u64,
     /// Lost messages detected by sequence gaps.
     pub lost: u64,
-    /// Role's gauge: epsilon ×1000 (actor), replay size (replay), loss averaged over about
-    /// the last 100 updates ×1e6 (learner); 0 for sims.
+    /// Role's gauge: epsilon ×1000 (actor), replay size (replay), mean loss of the updates
+    /// since the previous sample ×1e6 (learner); 0 for sims.
     pub value_milli: i64,
     /// Cumulative nanoseconds per stage.
     pub stage_ns: [u64; STAGES],

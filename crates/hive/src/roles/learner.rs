@@ -38,9 +38,6 @@ fn save_state_atomic(dqn: &Dqn, path: &Path) -> Result<()> {
     Ok(())
 }
 
-/// Updates over which the published loss is averaged (exponentially).
-const LOSS_WINDOW: f64 = 100.0;
-
 pub fn run(role: RoleArgs) -> Result<()> {
     let (cfg, hub) = open(&role, "learner")?;
     let run_dir = role.run_dir.clone().unwrap_or_else(|| PathBuf::from("."));
@@ -76,9 +73,9 @@ pub fn run(role: RoleArgs) -> Result<()> {
     let min_period = if cfg.learner.max_rate_hz > 0.0 { Duration::from_secs_f64(1.0 / cfg.learner.max_rate_hz) } else { Duration::ZERO };
     let mut last_ckpt = Instant::now();
     let mut last_update = Instant::now();
-    // Loss averaged over about the last 100 updates: one minibatch's loss is
-    // too noisy to show a trend in telemetry.
-    let mut loss_avg: Option<f64> = None;
+    // The published loss is the mean over the updates since the last
+    // telemetry sample: one minibatch's loss is too noisy to show a trend.
+    let (mut loss_sum, mut loss_n) = (0.0f64, 0u32);
     loop {
         if hub.shutdown_requested() {
             break;
@@ -86,7 +83,9 @@ pub fn run(role: RoleArgs) -> Result<()> {
         let t = Instant::now();
         let msg = rx.recv_timeout(POLL).context("waiting for minibatches")?;
         tel.stage(3, t);
-        tel.tick(false);
+        if tel.tick(false) {
+            (loss_sum, loss_n) = (0.0, 0);
+        }
         let Some(msg) = msg else { continue };
         if min_period > Duration::ZERO {
             let since = last_update.elapsed();
@@ -102,9 +101,9 @@ pub fn run(role: RoleArgs) -> Result<()> {
         tel.sample.stage_ns[1] += tm.backward_ns;
         tel.sample.stage_ns[2] += tm.optimiser_ns;
         tel.sample.work = dqn.updates();
-        let avg = loss_avg.map_or(loss as f64, |a| a + (loss as f64 - a) / LOSS_WINDOW);
-        loss_avg = Some(avg);
-        tel.sample.value_milli = (avg * 1e6) as i64;
+        loss_sum += loss as f64;
+        loss_n += 1;
+        tel.sample.value_milli = (loss_sum / loss_n as f64 * 1e6) as i64;
         if dqn.updates() % cfg.learner.publish_every == 0 {
             publish(&dqn, &mut version)?;
             tel.sample.weight_version = version;

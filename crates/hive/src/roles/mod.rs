@@ -70,14 +70,15 @@ impl Counters {
     }
 
     /// Publishes when a second has passed since the last sample (or `force`).
-    pub fn tick(&mut self, force: bool) {
+    pub fn tick(&mut self, force: bool) -> bool {
         if !force && self.last.elapsed() < Duration::from_secs(1) {
-            return;
+            return false;
         }
         self.last = Instant::now();
         self.sample.heartbeat += 1;
         let s = self.sample;
         // Telemetry overflows rather than blocks; a failure here is not fatal.
         let _ = self.tx.send_with(1, |h, _| *h = s);
+        true
     }
 }
