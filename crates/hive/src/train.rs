@@ -159,8 +159,8 @@ struct EvalPoint {
 }
 
 /// The role's gauge of a telemetry sample in its own unit: the learner's
-/// loss (averaged over recent updates), the actor's epsilon, the replay's
-/// size; empty for sims.
+/// mean loss over the updates since its previous sample, the actor's
+/// epsilon, the replay's size; empty for sims.
 fn gauge(t: &Telemetry) -> String {
     match RoleKind::from_code(t.role) {
         Some(RoleKind::Learner) => format!("{:.6}", t.value_milli as f64 / 1e6),
