@@ -44,7 +44,8 @@ pub enum BenchCmd {
         steps: usize,
         /// Threads of the CPU ray caster, the same in both modes (0: one per
         /// core). A batched call spreads its cameras over them; a
-        /// non-batched call has one camera to give.
+        /// non-batched call cuts its one camera into bands of rows. Either
+        /// way a call is one submission to them and one synchronisation.
         #[arg(long, default_value_t = 0)]
         threads: usize,
         /// Arena file.

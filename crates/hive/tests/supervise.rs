@@ -37,7 +37,7 @@ fn wait_for(what: &str, timeout: Duration, mut f: impl FnMut() -> bool) {
 #[test]
 fn killed_roles_are_restarted_and_training_goes_on() {
     let dir = tmp("supervise");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_hive"))
+    let child = Command::new(env!("CARGO_BIN_EXE_hive"))
         .current_dir(root())
         .args(["train", "configs/default.toml", "--quiet", "--max-seconds", "70", "--run-dir"])
         .arg(&dir)

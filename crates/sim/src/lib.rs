@@ -7,6 +7,7 @@ pub mod arena;
 pub mod dynamics;
 pub mod env;
 pub mod gpu;
+mod pool;
 pub mod render;
 
 pub use arena::{Arena, ArenaError, GenParams, Lanes, Obstacle, Spawn};

@@ -3,13 +3,17 @@
 //! arena's walls, floor and ceiling, and (interactive mode) the other drones.
 //!
 //! A 2-D uniform grid over the arena floor plan is the spatial index: each
-//! camera gathers the few obstacles its range-limited view can reach, and its
-//! 1,024 rays are tested against those alone. Cameras are spread over threads
-//! when more than one is allowed.
+//! camera gathers the few obstacles its range-limited view can reach, and
+//! each of those is tested only by the rays inside its projected bounding
+//! rectangle. A call's work (whole cameras, or bands of rows when there are
+//! few cameras) is shared by a persistent pool of render threads.
+
+use std::sync::{Mutex, PoisonError};
 
 use rapier3d::math::{Rotation, Vector};
 
 use crate::arena::{Arena, Obstacle};
+use crate::pool::Pool;
 
 /// Intrinsics shared by every camera.
 #[derive(Debug, Clone, Copy)]
@@ -42,6 +46,19 @@ pub struct CameraPose {
 pub(crate) enum Shape {
     Box { min: Vector, max: Vector },
     Cylinder { cx: f32, cy: f32, r2: f32, zmin: f32, zmax: f32 },
+}
+
+impl Shape {
+    /// Axis-aligned bounds.
+    fn aabb(&self) -> (Vector, Vector) {
+        match *self {
+            Shape::Box { min, max } => (min, max),
+            Shape::Cylinder { cx, cy, r2, zmin, zmax } => {
+                let r = r2.sqrt();
+                (Vector::new(cx - r, cy - r, zmin), Vector::new(cx + r, cy + r, zmax))
+            }
+        }
+    }
 }
 
 /// The static scene: obstacles in a grid, and the corridor's bounding planes.
@@ -104,7 +121,7 @@ impl Scene {
 
     /// Gathers, without duplicates, the obstacles in cells overlapping the
     /// floor-plan rectangle `[lo, hi]`.
-    fn gather(&self, lo: [f32; 2], hi: [f32; 2], stamp: &mut Vec<u32>, tick: u32, out: &mut Vec<u32>) {
+    fn gather(&self, lo: [f32; 2], hi: [f32; 2], stamp: &mut [u32], tick: u32, out: &mut Vec<u32>) {
         let (ax, ay) = cell_of(self.x0, self.y0, lo[0], lo[1], self.nx, self.ny);
         let (bx, by) = cell_of(self.x0, self.y0, hi[0], hi[1], self.nx, self.ny);
         for gy in ay..=by {
@@ -151,26 +168,29 @@ pub struct Drones<'a> {
 }
 
 /// Reusable per-thread scratch space.
-#[derive(Debug, Default, Clone)]
+#[derive(Debug, Default)]
 struct Scratch {
     stamp: Vec<u32>,
     tick: u32,
     candidates: Vec<u32>,
 }
 
-/// The batched renderer. Holds scratch space so a step allocates nothing.
-#[derive(Debug, Clone)]
+/// The batched renderer. Holds scratch space so a step allocates nothing
+/// but the work queue, and a persistent pool of render threads.
+#[derive(Debug)]
 pub struct DepthRenderer {
     spec: CameraSpec,
-    threads: usize,
-    scratch: Vec<Scratch>,
+    pool: Pool,
+    scratch: Vec<Mutex<Scratch>>,
 }
 
 impl DepthRenderer {
-    /// A renderer with the given camera and thread count (at least 1).
+    /// A renderer with the given camera and thread count (at least 1; fewer
+    /// when the system refuses to start more threads).
     pub fn new(spec: CameraSpec, threads: usize) -> Self {
-        let threads = threads.max(1);
-        Self { spec, threads, scratch: vec![Scratch::default(); threads] }
+        let pool = Pool::new(threads.max(1)).unwrap_or_else(|_| Pool::new(1).expect("a pool of one starts no thread"));
+        let scratch = (0..pool.threads()).map(|_| Mutex::new(Scratch::default())).collect();
+        Self { spec, pool, scratch }
     }
 
     /// Camera intrinsics.
@@ -178,65 +198,65 @@ impl DepthRenderer {
         self.spec
     }
 
+    /// Threads a call renders on, the caller included.
+    pub fn threads(&self) -> usize {
+        self.pool.threads()
+    }
+
     /// Renders every camera into `out` (`cameras.len() × side²`), normalised
     /// depth in [0, 1] (planar depth divided by the range, clipped at 1).
     /// With `drones`, camera `i` (drone `first_agent + i`) sees every drone
     /// but its own.
-    #[allow(clippy::too_many_arguments)]
+    ///
+    /// One call is one submission to the render threads and one
+    /// synchronisation with them: the work is cut into pieces (whole
+    /// cameras when there are enough of them to share, else bands of rows
+    /// of each), handed out as threads come free, and the call returns when
+    /// all are drawn.
     pub fn render(&mut self, scene: &Scene, cameras: &[CameraPose], first_agent: usize, drones: Option<Drones<'_>>, out: &mut [f32]) {
-        let px = self.spec.side * self.spec.side;
+        let n = self.spec.side;
+        let px = n * n;
         assert_eq!(out.len(), cameras.len() * px, "depth buffer has the wrong size");
         let spec = self.spec;
         for s in &mut self.scratch {
+            let s = s.get_mut().unwrap_or_else(PoisonError::into_inner);
             if s.stamp.len() != scene.len() {
                 s.stamp = vec![0; scene.len()];
                 s.tick = 0;
             }
         }
-        // Threads pay off only with enough cameras to share.
-        let threads = self.threads.min(cameras.len().div_ceil(4)).max(1);
-        if threads == 1 {
-            let s = &mut self.scratch[0];
+        let threads = self.pool.threads();
+        if threads == 1 || cameras.is_empty() {
+            let s = self.scratch[0].get_mut().unwrap_or_else(PoisonError::into_inner);
             for (i, (cam, img)) in cameras.iter().zip(out.chunks_mut(px)).enumerate() {
-                render_one(scene, &spec, cam, drones.map(|d| (d, first_agent + i)), s, img);
+                render_rows(scene, &spec, cam, drones.map(|d| (d, first_agent + i)), s, img, 0);
             }
             return;
         }
-        // Blocks of cameras handed out as threads come free (cameras differ
-        // in cost), the calling thread working as one of them.
-        const BLOCK: usize = 2;
-        let blocks: Vec<_> = cameras.chunks(BLOCK).zip(out.chunks_mut(BLOCK * px)).enumerate().collect();
-        let queue = std::sync::Mutex::new(blocks.into_iter());
-        let work = |s: &mut Scratch| {
+        // Pieces: at least two per thread, so that cameras of unequal cost
+        // even out.
+        let bands = (2 * threads).div_ceil(cameras.len()).min(n);
+        let rows = n.div_ceil(bands);
+        let pieces = out.chunks_mut(px).enumerate().flat_map(|(c, img)| img.chunks_mut(rows * n).enumerate().map(move |(b, part)| (c, b * rows, part)));
+        let queue = Mutex::new(pieces);
+        let scratch = &self.scratch;
+        self.pool.run(&|t| {
+            let mut s = scratch[t].lock().unwrap_or_else(PoisonError::into_inner);
             loop {
-                let next = queue.lock().unwrap_or_else(std::sync::PoisonError::into_inner).next();
-                let Some((b, (cams, imgs))) = next else { break };
-                for (j, (cam, img)) in cams.iter().zip(imgs.chunks_mut(px)).enumerate() {
-                    render_one(scene, &spec, cam, drones.map(|d| (d, first_agent + b * BLOCK + j)), s, img);
-                }
+                let next = queue.lock().unwrap_or_else(PoisonError::into_inner).next();
+                let Some((c, first_row, part)) = next else { break };
+                render_rows(scene, &spec, &cameras[c], drones.map(|d| (d, first_agent + c)), &mut s, part, first_row);
             }
-        };
-        let (mine, others) = self.scratch.split_first_mut().expect("at least one scratch");
-        std::thread::scope(|sc| {
-            for s in others.iter_mut().take(threads - 1) {
-                sc.spawn(|| work(s));
-            }
-            work(mine);
         });
     }
 }
 
-fn render_one(scene: &Scene, spec: &CameraSpec, cam: &CameraPose, drones: Option<(Drones<'_>, usize)>, s: &mut Scratch, img: &mut [f32]) {
-    let fwd = cam.rotation * Vector::X;
-    let left = cam.rotation * Vector::Y;
-    let up = cam.rotation * Vector::Z;
-    let o = cam.position;
-    let tan = (spec.fov_deg.to_radians() / 2.0).tan();
-    let range = spec.range;
-    let n = spec.side;
-    let half = n as f32 / 2.0;
-
-    let (lo, hi) = frustum_floor_plan(cam, tan, range);
+/// Draws rows `first_row..` of one camera's image into `img` (whole rows).
+fn render_rows(scene: &Scene, spec: &CameraSpec, cam: &CameraPose, drones: Option<(Drones<'_>, usize)>, s: &mut Scratch, img: &mut [f32], first_row: usize) {
+    let view = View::new(spec, cam);
+    let n = view.n;
+    let (r0, r1) = (first_row, first_row + img.len() / n);
+    let (lo, hi) = frustum_floor_plan(cam, view.tan, view.range);
     s.tick = s.tick.wrapping_add(1);
     if s.tick == 0 {
         s.stamp.fill(0);
@@ -245,26 +265,130 @@ fn render_one(scene: &Scene, spec: &CameraSpec, cam: &CameraPose, drones: Option
     s.candidates.clear();
     scene.gather(lo, hi, &mut s.stamp, s.tick, &mut s.candidates);
 
-    for v in 0..n {
-        let sv = (half - v as f32 - 0.5) / half * tan;
+    // The corridor's planes bound every ray; `img` holds depth in metres
+    // until the end.
+    for v in r0..r1 {
         for u in 0..n {
-            let su = (u as f32 + 0.5 - half) / half * tan;
-            // Unnormalised direction whose forward component is 1, so the ray
-            // parameter at a hit is the planar depth itself.
-            let d = fwd - left * su + up * sv;
-            let mut t = range;
-            t = t.min(planes(scene, o, d));
-            for &ci in &s.candidates {
-                t = t.min(hit_shape(&scene.shapes[ci as usize], o, d, t));
+            img[(v - r0) * n + u] = view.range.min(planes(scene, view.o, view.dir(u, v)));
+        }
+    }
+    // Each obstacle is tested only by the rays inside its projected bounding
+    // rectangle: a ray outside it cannot reach the obstacle. The result is
+    // the same minimum as testing every ray against every obstacle.
+    let clip = |(u0, u1, v0, v1): Rect| -> Option<Rect> { (v0 < r1 && v1 >= r0).then(|| (u0, u1, v0.max(r0), v1.min(r1 - 1))) };
+    for &ci in &s.candidates {
+        let shape = &scene.shapes[ci as usize];
+        let (min, max) = shape.aabb();
+        let Some(rect) = view.rect(min, max).and_then(clip) else { continue };
+        match *shape {
+            Shape::Box { min, max } => view.fill(rect, img, r0, |o, d, t| hit_box(min, max, o, d, t)),
+            Shape::Cylinder { cx, cy, r2, zmin, zmax } => view.fill(rect, img, r0, |o, d, t| hit_cylinder(cx, cy, r2, zmin, zmax, o, d, t)),
+        }
+    }
+    if let Some((dr, me)) = drones {
+        let r = Vector::splat(dr.radius);
+        for (k, c) in dr.positions.iter().enumerate() {
+            if k == me {
+                continue;
             }
-            if let Some((dr, me)) = drones {
-                for (k, c) in dr.positions.iter().enumerate() {
-                    if k != me {
-                        t = t.min(hit_sphere(*c, dr.radius, o, d, t));
-                    }
-                }
+            let Some(rect) = view.rect(*c - r, *c + r).and_then(clip) else { continue };
+            view.fill(rect, img, r0, |o, d, t| hit_sphere(*c, dr.radius, o, d, t));
+        }
+    }
+    for px in img.iter_mut() {
+        *px = (*px / view.range).clamp(0.0, 1.0);
+    }
+}
+
+/// A camera's basis and the rays of its pixels.
+struct View {
+    o: Vector,
+    fwd: Vector,
+    left: Vector,
+    up: Vector,
+    tan: f32,
+    range: f32,
+    n: usize,
+    half: f32,
+}
+
+/// Inclusive pixel rectangle `(u0, u1, v0, v1)`.
+type Rect = (usize, usize, usize, usize);
+
+impl View {
+    fn new(spec: &CameraSpec, cam: &CameraPose) -> Self {
+        let n = spec.side;
+        Self {
+            o: cam.position,
+            fwd: cam.rotation * Vector::X,
+            left: cam.rotation * Vector::Y,
+            up: cam.rotation * Vector::Z,
+            tan: (spec.fov_deg.to_radians() / 2.0).tan(),
+            range: spec.range,
+            n,
+            half: n as f32 / 2.0,
+        }
+    }
+
+    /// Unnormalised direction of pixel `(u, v)`'s ray, its forward component
+    /// 1, so the ray parameter at a hit is the planar depth itself.
+    #[inline]
+    fn dir(&self, u: usize, v: usize) -> Vector {
+        let su = (u as f32 + 0.5 - self.half) / self.half * self.tan;
+        let sv = (self.half - v as f32 - 0.5) / self.half * self.tan;
+        self.fwd - self.left * su + self.up * sv
+    }
+
+    /// The pixels whose rays can meet the box `[min, max]` at a planar depth
+    /// under the range; `None` when there are none. Conservative: a box
+    /// reaching the camera's plane takes the whole image.
+    fn rect(&self, min: Vector, max: Vector) -> Option<Rect> {
+        let mut near = f32::INFINITY;
+        let mut far = f32::NEG_INFINITY;
+        let (mut a0, mut a1, mut b0, mut b1) = (f32::INFINITY, f32::NEG_INFINITY, f32::INFINITY, f32::NEG_INFINITY);
+        for k in 0..8 {
+            let p = Vector::new(if k & 1 == 0 { min.x } else { max.x }, if k & 2 == 0 { min.y } else { max.y }, if k & 4 == 0 { min.z } else { max.z }) - self.o;
+            let x = p.dot(self.fwd);
+            near = near.min(x);
+            far = far.max(x);
+            // Image-plane coordinates of the corner (valid when x > 0).
+            let su = -p.dot(self.left) / x;
+            let sv = p.dot(self.up) / x;
+            a0 = a0.min(su);
+            a1 = a1.max(su);
+            b0 = b0.min(sv);
+            b1 = b1.max(sv);
+        }
+        // Every point of the box is farther than the range, or behind the camera.
+        if near > self.range || far < 0.0 {
+            return None;
+        }
+        let last = self.n - 1;
+        if near <= 1e-3 {
+            return Some((0, last, 0, last));
+        }
+        // Pixel u's ray has su = (u + 0.5 - half) / half · tan; one pixel of
+        // margin each side absorbs rounding.
+        let to_u = |su: f32| su / self.tan * self.half + self.half - 0.5;
+        let to_v = |sv: f32| self.half - 0.5 - sv / self.tan * self.half;
+        let (u0, u1) = (to_u(a0).floor() - 1.0, to_u(a1).ceil() + 1.0);
+        let (v0, v1) = (to_v(b1).floor() - 1.0, to_v(b0).ceil() + 1.0);
+        let hi = last as f32;
+        if u1 < 0.0 || v1 < 0.0 || u0 > hi || v0 > hi {
+            return None;
+        }
+        Some((u0.max(0.0) as usize, u1.min(hi) as usize, v0.max(0.0) as usize, v1.min(hi) as usize))
+    }
+
+    /// Lowers each pixel of `rect` to `hit(origin, dir, current)`, in `img`
+    /// holding the image's rows from `first_row` on.
+    #[inline]
+    fn fill(&self, (u0, u1, v0, v1): Rect, img: &mut [f32], first_row: usize, hit: impl Fn(Vector, Vector, f32) -> f32) {
+        for v in v0..=v1 {
+            let row = &mut img[(v - first_row) * self.n..(v - first_row + 1) * self.n];
+            for (u, px) in row.iter_mut().enumerate().take(u1 + 1).skip(u0) {
+                *px = hit(self.o, self.dir(u, v), *px);
             }
-            img[v * n + u] = (t / range).clamp(0.0, 1.0);
         }
     }
 }
@@ -302,57 +426,67 @@ fn planes(scene: &Scene, o: Vector, d: Vector) -> f32 {
 }
 
 /// Ray parameter of the first hit of a shape, or `tmax` when none is nearer.
+#[cfg(test)]
 #[inline]
 fn hit_shape(shape: &Shape, o: Vector, d: Vector, tmax: f32) -> f32 {
     match *shape {
-        Shape::Box { min, max } => {
-            let inv = d.recip();
-            let t1 = (min - o) * inv;
-            let t2 = (max - o) * inv;
-            let tn = t1.min(t2).max_element().max(0.0);
-            let tf = t1.max(t2).min_element();
-            if tn <= tf && tn < tmax { tn } else { tmax }
+        Shape::Box { min, max } => hit_box(min, max, o, d, tmax),
+        Shape::Cylinder { cx, cy, r2, zmin, zmax } => hit_cylinder(cx, cy, r2, zmin, zmax, o, d, tmax),
+    }
+}
+
+/// Ray parameter of the first hit of an axis-aligned box, or `tmax`.
+#[inline]
+fn hit_box(min: Vector, max: Vector, o: Vector, d: Vector, tmax: f32) -> f32 {
+    let inv = d.recip();
+    let t1 = (min - o) * inv;
+    let t2 = (max - o) * inv;
+    let tn = t1.min(t2).max_element().max(0.0);
+    let tf = t1.max(t2).min_element();
+    if tn <= tf && tn < tmax { tn } else { tmax }
+}
+
+/// Ray parameter of the first hit of a vertical cylinder, or `tmax`.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn hit_cylinder(cx: f32, cy: f32, r2: f32, zmin: f32, zmax: f32, o: Vector, d: Vector, tmax: f32) -> f32 {
+    let ox = o.x - cx;
+    let oy = o.y - cy;
+    let a = d.x * d.x + d.y * d.y;
+    let b = ox * d.x + oy * d.y;
+    let c = ox * ox + oy * oy - r2;
+    let mut best = tmax;
+    // Side surface.
+    if c <= 0.0 {
+        if o.z >= zmin && o.z <= zmax {
+            return 0.0;
         }
-        Shape::Cylinder { cx, cy, r2, zmin, zmax } => {
-            let ox = o.x - cx;
-            let oy = o.y - cy;
-            let a = d.x * d.x + d.y * d.y;
-            let b = ox * d.x + oy * d.y;
-            let c = ox * ox + oy * oy - r2;
-            let mut best = tmax;
-            // Side surface.
-            if c <= 0.0 {
-                if o.z >= zmin && o.z <= zmax {
-                    return 0.0;
-                }
-            } else if a > 0.0 {
-                let disc = b * b - a * c;
-                if disc >= 0.0 {
-                    let t = (-b - disc.sqrt()) / a;
-                    if t >= 0.0 && t < best {
-                        let z = o.z + t * d.z;
-                        if z >= zmin && z <= zmax {
-                            best = t;
-                        }
-                    }
+    } else if a > 0.0 {
+        let disc = b * b - a * c;
+        if disc >= 0.0 {
+            let t = (-b - disc.sqrt()) / a;
+            if t >= 0.0 && t < best {
+                let z = o.z + t * d.z;
+                if z >= zmin && z <= zmax {
+                    best = t;
                 }
             }
-            // Caps.
-            if d.z != 0.0 {
-                for zc in [zmin, zmax] {
-                    let t = (zc - o.z) / d.z;
-                    if t >= 0.0 && t < best {
-                        let x = ox + t * d.x;
-                        let y = oy + t * d.y;
-                        if x * x + y * y <= r2 {
-                            best = t;
-                        }
-                    }
-                }
-            }
-            best
         }
     }
+    // Caps.
+    if d.z != 0.0 {
+        for zc in [zmin, zmax] {
+            let t = (zc - o.z) / d.z;
+            if t >= 0.0 && t < best {
+                let x = ox + t * d.x;
+                let y = oy + t * d.y;
+                if x * x + y * y <= r2 {
+                    best = t;
+                }
+            }
+        }
+    }
+    best
 }
 
 #[inline]
@@ -453,6 +587,65 @@ mod tests {
         assert_eq!(one, two);
         assert!(one.iter().all(|v| (0.0..=1.0).contains(v)));
         assert!(one.iter().any(|v| *v < 1.0));
+    }
+
+    /// Every ray against every candidate: what the rectangle culling of
+    /// `render_one` must reproduce exactly.
+    fn brute_force(scene: &Scene, spec: &CameraSpec, cam: &CameraPose, drones: Option<(Drones<'_>, usize)>, img: &mut [f32]) {
+        let view = View::new(spec, cam);
+        for v in 0..view.n {
+            for u in 0..view.n {
+                let d = view.dir(u, v);
+                let mut t = view.range.min(planes(scene, view.o, d));
+                for shape in &scene.shapes {
+                    t = t.min(hit_shape(shape, view.o, d, t));
+                }
+                if let Some((dr, me)) = drones {
+                    for (k, c) in dr.positions.iter().enumerate() {
+                        if k != me {
+                            t = t.min(hit_sphere(*c, dr.radius, view.o, d, t));
+                        }
+                    }
+                }
+                img[v * view.n + u] = (t / view.range).clamp(0.0, 1.0);
+            }
+        }
+    }
+
+    #[test]
+    fn culling_by_projected_rectangles_changes_no_pixel() {
+        use rand::{Rng, SeedableRng};
+        let a = Arena::generate("g", 11, &crate::arena::GenParams::default());
+        let scene = Scene::new(&a);
+        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(5);
+        let mut seen = 0;
+        for spec in [CameraSpec::default(), CameraSpec { side: 17, fov_deg: 70.0, range: 35.0 }] {
+            let px = spec.side * spec.side;
+            let positions: Vec<Vector> = (0..60)
+                .map(|_| Vector::new(rng.random_range(0.5..a.length - 0.5), rng.random_range(-a.width / 2.0 + 0.3..a.width / 2.0 - 0.3), rng.random_range(0.3..a.height - 0.3)))
+                .collect();
+            let cams: Vec<CameraPose> = positions
+                .iter()
+                .map(|p| CameraPose { position: *p, rotation: Rotation::from_rotation_z(rng.random_range(-3.2..3.2)) * Rotation::from_rotation_y(rng.random_range(-0.6..0.6)) * Rotation::from_rotation_x(rng.random_range(-0.6..0.6)) })
+                .collect();
+            let drones = Drones { positions: &positions, radius: 0.4 };
+            let mut fast = vec![0.0; cams.len() * px];
+            DepthRenderer::new(spec, 2).render(&scene, &cams, 0, Some(drones), &mut fast);
+            // One camera per call: its rows are cut into bands over the threads.
+            let mut banded = vec![0.0; cams.len() * px];
+            let mut three = DepthRenderer::new(spec, 3);
+            for (i, img) in banded.chunks_mut(px).enumerate() {
+                three.render(&scene, &cams[i..i + 1], i, Some(drones), img);
+            }
+            let mut slow = vec![0.0; px];
+            for (i, cam) in cams.iter().enumerate() {
+                brute_force(&scene, &spec, cam, Some((drones, i)), &mut slow);
+                assert_eq!(&fast[i * px..(i + 1) * px], &slow[..], "camera {i} at {:?}", cam.position);
+                assert_eq!(&banded[i * px..(i + 1) * px], &slow[..], "camera {i} alone, in bands");
+                seen += slow.iter().filter(|v| **v < 1.0).count();
+            }
+        }
+        assert!(seen > 10_000, "the views saw too little to compare: {seen} pixels");
     }
 
     #[test]

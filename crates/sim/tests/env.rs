@@ -91,7 +91,7 @@ fn agents_pass_through_and_do_not_see_each_other_unless_interactive() {
         // Agent 0 steers right (+y), agent 1 left (−y), so they meet.
         for _ in 0..6 {
             env.step(&[1, 0]);
-            collided |= env.dones().iter().any(|d| *d == Done::Collision);
+            collided |= env.dones().contains(&Done::Collision);
             let view = front_depth_of_1(&env);
             saw_other |= view.iter().zip(&clear_view).any(|(a, b)| (a - b).abs() > 0.05);
             clear_view = view;
