@@ -12,14 +12,15 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use rotorhive_msg::{ActionHeader, OBS_LEN, ObsHeader, TRANSITION_LEN, obs_batch_len};
+use rotorhive_msg::{ActionHeader, OBS_LEN, ObsHeader, PACKED_LEN, obs_batch_len};
 use rotorhive_transport::{Channel, Hub, Ipc, services_of_run};
 use serde::{Deserialize, Serialize};
 use serde_json::json;
 
-/// The three payloads, in floats.
+/// The three payloads, in floats (a transition batch: the bytes of 50
+/// packed transitions).
 fn kinds() -> [(&'static str, usize); 4] {
-    [("obs_batch", obs_batch_len(50)), ("transition_batch", 50 * TRANSITION_LEN), ("weights", rotorhive_model::num_params()), ("empty", 1)]
+    [("obs_batch", obs_batch_len(50)), ("transition_batch", 50 * PACKED_LEN / 2), ("weights", rotorhive_model::num_params()), ("empty", 1)]
 }
 
 fn request_channel() -> Channel {

@@ -8,7 +8,7 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use rotorhive_msg::{MinibatchHeader, OBS_LEN, TRANSITION_LEN, Telemetry, TransitionHeader};
+use rotorhive_msg::{MinibatchHeader, OBS_LEN, PACKED_LEN, Telemetry, TransitionHeader, pack_transition};
 use rotorhive_transport::{Channel, Hub, Ipc, services_of_run};
 use serde_json::json;
 
@@ -19,17 +19,16 @@ const PER_MSG: usize = 50;
 /// takes them, then prints the seconds it took.
 pub fn producer(prefix: &str, index: usize, producers: usize, batches: usize) -> Result<()> {
     let hub = Hub::<Ipc>::new(prefix, &format!("bench-producer-{index}"))?;
-    let mut tx = hub.sender::<f32, TransitionHeader>(&Channel::transitions(producers), PER_MSG * TRANSITION_LEN, Duration::from_secs(5))?;
-    // Valid transitions (depth in [0, 1], action and done 0 or 1).
-    let mut src = vec![0.5f32; PER_MSG * TRANSITION_LEN];
-    for (i, t) in src.chunks_exact_mut(TRANSITION_LEN).enumerate() {
-        t[2 * OBS_LEN] = (i % 2) as f32;
-        t[2 * OBS_LEN + 1] = 3.0;
-        t[2 * OBS_LEN + 2] = 0.0;
+    let mut tx = hub.sender::<u16, TransitionHeader>(&Channel::transitions(producers), PER_MSG * PACKED_LEN, Duration::from_secs(5))?;
+    // Valid packed transitions (action and done 0 or 1), as an actor sends.
+    let mut src = vec![0u16; PER_MSG * PACKED_LEN];
+    let obs = vec![0.5f32; OBS_LEN];
+    for (i, t) in src.chunks_exact_mut(PACKED_LEN).enumerate() {
+        pack_transition(&obs, &obs, (i % 2) as f32, 3.0, 0.0, t);
     }
     let t = Instant::now();
     for seq in 0..batches as u64 {
-        tx.send_with(PER_MSG * TRANSITION_LEN, |h, out| {
+        tx.send_with(PER_MSG * PACKED_LEN, |h, out| {
             *h = TransitionHeader { actor: index as u32, count: PER_MSG as u32, seq, weight_version: 0, episodes: 0 };
             out.copy_from_slice(&src);
         })?;
@@ -95,7 +94,7 @@ pub fn run(producers: usize, seconds: f64, json_out: bool) -> Result<()> {
     let cfg_path = dir.join("config.toml");
     std::fs::write(&cfg_path, cfg)?;
     let hub = Hub::<Ipc>::new(&prefix, "bench-learner")?;
-    let mut rx = hub.receiver::<f32, MinibatchHeader>(&Channel::minibatches(4))?;
+    let mut rx = hub.receiver::<u16, MinibatchHeader>(&Channel::minibatches(4))?;
     let mut tel = hub.receiver::<u8, Telemetry>(&Channel::telemetry(2 * producers + 2))?;
     let exe = std::env::current_exe()?;
     let replay = Command::new(&exe)
@@ -130,12 +129,12 @@ pub fn run(producers: usize, seconds: f64, json_out: bool) -> Result<()> {
             bail!("the replay inserted {inserted} of {capacity} transitions sent");
         }
         // Phase 2: sampling alone (the memory is full now).
-        let sample = |rx: &mut rotorhive_transport::Receiver<Ipc, f32, MinibatchHeader>, secs: f64| -> Result<(u64, f64)> {
+        let sample = |rx: &mut rotorhive_transport::Receiver<Ipc, u16, MinibatchHeader>, secs: f64| -> Result<(u64, f64)> {
             let t = Instant::now();
             let mut n = 0u64;
             while t.elapsed().as_secs_f64() < secs {
                 if let Some(m) = rx.recv_timeout(Duration::from_millis(500))? {
-                    if m.payload().len() != 32 * TRANSITION_LEN {
+                    if m.payload().len() != 32 * PACKED_LEN {
                         bail!("minibatch of the wrong size");
                     }
                     n += 1;
@@ -161,14 +160,14 @@ pub fn run(producers: usize, seconds: f64, json_out: bool) -> Result<()> {
         let mixed_samples = got as f64 / mixed_secs;
         println!("{:>10} {:>16} {:>16} {:>22} {:>22}", "producers", "inserts/s alone", "samples/s alone", "inserts/s (together)", "samples/s (together)");
         println!("{producers:>10} {inserts_per_s:>16.0} {samples_per_s:>16.0} {mixed_inserts:>22.0} {mixed_samples:>22.0}");
-        println!("transitions of {} floats ({:.1} KiB), {PER_MSG} per message; minibatches of 32; cpprb (in-process, Python) on this machine: 538,000 inserts/s, 15,500 samples/s", TRANSITION_LEN, TRANSITION_LEN as f64 * 4.0 / 1024.0);
+        println!("packed transitions of {PACKED_LEN} u16 words ({:.1} KiB: 16-bit depth), {PER_MSG} per message; minibatches of 32; cpprb (in-process, Python) on this machine: 538,000 inserts/s, 15,500 samples/s", PACKED_LEN as f64 * 2.0 / 1024.0);
         Ok(json!({
             "producers": producers,
             "inserts_per_s": inserts_per_s,
             "samples_per_s": samples_per_s,
             "together_inserts_per_s": mixed_inserts,
             "together_samples_per_s": mixed_samples,
-            "transition_floats": TRANSITION_LEN,
+            "transition_bytes": PACKED_LEN * 2,
             "batch": 32,
         }))
     })();

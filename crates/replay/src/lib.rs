@@ -1,6 +1,8 @@
 //! FIFO replay memory over flat transition storage, with uniform sampling of
 //! minibatches. Pure data structure: the `hive replay` role feeds it from the
-//! transport and serves minibatches from it.
+//! transport and serves minibatches from it. Rows are `u16` words (packed
+//! transitions: 16-bit depth, see `rotorhive_msg::PACKED_LEN`), so a
+//! transition costs half the bytes to insert, hold and sample.
 
 use std::io::{BufReader, BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
@@ -8,7 +10,10 @@ use std::path::{Path, PathBuf};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
-const MAGIC: &[u8; 8] = b"RHREPLAY";
+/// Snapshot header: rows of `u16` words.
+const MAGIC: &[u8; 8] = b"RHRPLU16";
+/// Header of snapshots of `f32` rows, written before rows were packed.
+const MAGIC_F32: &[u8; 8] = b"RHREPLAY";
 
 /// Why a replay snapshot could not be written or read.
 #[derive(Debug, thiserror::Error)]
@@ -43,10 +48,11 @@ pub struct Snapshot {
     rows: usize,
 }
 
-/// A fixed-capacity FIFO of equally long transitions stored back to back.
+/// A fixed-capacity FIFO of equally long transitions (rows of `u16` words)
+/// stored back to back.
 #[derive(Debug, Clone)]
 pub struct Replay {
-    data: Vec<f32>,
+    data: Vec<u16>,
     width: usize,
     capacity: usize,
     len: usize,
@@ -57,16 +63,16 @@ pub struct Replay {
 }
 
 impl Replay {
-    /// A memory of `capacity` transitions of `width` floats each.
+    /// A memory of `capacity` transitions of `width` words each.
     pub fn new(capacity: usize, width: usize, seed: u64) -> Self {
         assert!(capacity > 0 && width > 0, "replay capacity and width must be positive");
-        let mut data = vec![0.0f32; capacity * width];
+        let mut data = vec![0u16; capacity * width];
         // Touch every page now: the first writes into fresh pages would
         // otherwise fault one by one while the actors are inserting.
-        for page in data.chunks_mut(1024) {
+        for page in data.chunks_mut(2048) {
             // SAFETY: a plain write to an element of our own buffer; volatile
             // so the allocator's zeroed pages are really touched.
-            unsafe { std::ptr::write_volatile(page.as_mut_ptr(), 0.0) };
+            unsafe { std::ptr::write_volatile(page.as_mut_ptr(), 0) };
         }
         Self { data, width, capacity, len: 0, head: 0, inserted: 0, sampled: 0, rng: Pcg64Mcg::seed_from_u64(seed) }
     }
@@ -96,8 +102,8 @@ impl Replay {
         self.sampled
     }
 
-    /// Appends transitions (a multiple of `width` floats), overwriting the oldest when full.
-    pub fn insert(&mut self, transitions: &[f32]) {
+    /// Appends transitions (a multiple of `width` words), overwriting the oldest when full.
+    pub fn insert(&mut self, transitions: &[u16]) {
         assert_eq!(transitions.len() % self.width, 0, "transition batch is not a whole number of transitions");
         for t in transitions.chunks_exact(self.width) {
             self.data[self.head * self.width..(self.head + 1) * self.width].copy_from_slice(t);
@@ -161,6 +167,9 @@ impl Replay {
         let mut r = BufReader::with_capacity(1 << 20, std::fs::File::open(path).map_err(io)?);
         let mut magic = [0u8; 8];
         r.read_exact(&mut magic).map_err(|_| bad("too short for a header".into()))?;
+        if &magic == MAGIC_F32 {
+            return Err(bad("a snapshot of f32 rows, written by an older rotorhive; delete it (or start a new run directory) to start with an empty memory".into()));
+        }
         if &magic != MAGIC {
             return Err(bad("not a rotorhive replay snapshot".into()));
         }
@@ -171,15 +180,15 @@ impl Replay {
         };
         let (w, len, inserted) = (word()?, word()?, word()?);
         if w as usize != width {
-            return Err(bad(format!("transitions of {w} floats, expected {width}")));
+            return Err(bad(format!("transitions of {w} words, expected {width}")));
         }
         let mut mem = Self::new(capacity, width, seed);
-        let mut buf = vec![0u8; width * 4];
-        let mut row = vec![0f32; width];
+        let mut buf = vec![0u8; width * 2];
+        let mut row = vec![0u16; width];
         for i in 0..len {
             r.read_exact(&mut buf).map_err(|_| bad(format!("truncated: {i} of {len} transitions")))?;
-            for (v, b) in row.iter_mut().zip(buf.chunks_exact(4)) {
-                *v = f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+            for (v, b) in row.iter_mut().zip(buf.chunks_exact(2)) {
+                *v = u16::from_le_bytes([b[0], b[1]]);
             }
             mem.insert(&row);
         }
@@ -187,9 +196,9 @@ impl Replay {
         Ok(mem)
     }
 
-    /// Fills `out` (a multiple of `width` floats) with transitions drawn
+    /// Fills `out` (a multiple of `width` words) with transitions drawn
     /// uniformly with replacement. Panics when empty.
-    pub fn sample_into(&mut self, out: &mut [f32]) {
+    pub fn sample_into(&mut self, out: &mut [u16]) {
         assert!(self.len > 0, "cannot sample an empty replay memory");
         for o in out.chunks_exact_mut(self.width) {
             let i = self.rng.random_range(0..self.len);
@@ -206,11 +215,11 @@ mod tests {
     #[test]
     fn fifo_overwrites_the_oldest() {
         let mut r = Replay::new(3, 2, 1);
-        r.insert(&[1.0, 1.0, 2.0, 2.0, 3.0, 3.0, 4.0, 4.0]);
+        r.insert(&[1, 1, 2, 2, 3, 3, 4, 4]);
         assert_eq!(r.len(), 3);
         assert_eq!(r.inserted(), 4);
         let mut seen = std::collections::BTreeSet::new();
-        let mut out = vec![0.0; 2 * 200];
+        let mut out = vec![0; 2 * 200];
         r.sample_into(&mut out);
         for t in out.chunks(2) {
             assert_eq!(t[0], t[1]);
@@ -225,7 +234,7 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("r.bin");
         let mut r = Replay::new(4, 3, 1);
-        r.insert(&(0..18).map(|i| i as f32).collect::<Vec<_>>());
+        r.insert(&(0..18).collect::<Vec<_>>());
         let mut s = r.begin_snapshot(&path).unwrap();
         let mut steps = 0;
         while !r.snapshot_step(&mut s, 1).unwrap() {
@@ -235,11 +244,11 @@ mod tests {
         let back = Replay::load(&path, 4, 3, 2).unwrap();
         assert_eq!((back.len(), back.inserted()), (4, 6));
         // Oldest first: rows 2..6 of what went in.
-        let rows: Vec<f32> = (0..4).map(|i| back.data[back.row(i) * 3]).collect();
-        assert_eq!(rows, vec![6.0, 9.0, 12.0, 15.0]);
+        let rows: Vec<u16> = (0..4).map(|i| back.data[back.row(i) * 3]).collect();
+        assert_eq!(rows, vec![6, 9, 12, 15]);
         // A smaller memory keeps the newest.
         let small = Replay::load(&path, 2, 3, 2).unwrap();
-        assert_eq!((0..2).map(|i| small.data[small.row(i) * 3]).collect::<Vec<_>>(), vec![12.0, 15.0]);
+        assert_eq!((0..2).map(|i| small.data[small.row(i) * 3]).collect::<Vec<_>>(), vec![12, 15]);
         assert!(matches!(Replay::load(&path, 4, 5, 2), Err(SnapshotError::Format { .. })));
         let bytes = std::fs::read(&path).unwrap();
         std::fs::write(&path, &bytes[..bytes.len() - 5]).unwrap();
@@ -247,14 +256,17 @@ mod tests {
         assert!(e.contains("truncated"), "{e}");
         std::fs::write(&path, b"hello").unwrap();
         assert!(Replay::load(&path, 4, 3, 2).is_err());
+        std::fs::write(&path, b"RHREPLAY\x03\0\0\0\0\0\0\0").unwrap();
+        let e = Replay::load(&path, 4, 3, 2).unwrap_err().to_string();
+        assert!(e.contains("older rotorhive"), "{e}");
         let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]
     fn sampling_is_roughly_uniform() {
         let mut r = Replay::new(10, 1, 2);
-        r.insert(&(0..10).map(|i| i as f32).collect::<Vec<_>>());
-        let mut out = vec![0.0; 10_000];
+        r.insert(&(0..10).collect::<Vec<_>>());
+        let mut out = vec![0; 10_000];
         r.sample_into(&mut out);
         let mut counts = [0; 10];
         for v in out {

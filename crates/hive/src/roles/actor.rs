@@ -9,7 +9,7 @@ use anyhow::{Context, Result, bail};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use rotorhive_model::QNet;
-use rotorhive_msg::{ActionHeader, OBS_LEN, ObsHeader, RoleKind, TRANSITION_LEN, TransitionHeader, WeightsHeader};
+use rotorhive_msg::{ActionHeader, OBS_LEN, ObsHeader, PACKED_LEN, RoleKind, TransitionHeader, WeightsHeader, pack_transition};
 use rotorhive_transport::Channel;
 
 use super::{Counters, EpisodeHeader, POLL, STALL_TIMEOUT, episodes_channel, open};
@@ -41,7 +41,7 @@ pub fn run(role: RoleArgs, e: usize) -> Result<()> {
     let mut act_tx = hub.sender::<u8, ActionHeader>(&Channel::actions(e), n, STALL_TIMEOUT)?;
     let steps_n = cfg.learner.n_step;
     // An episode's end can release up to n transitions of one agent.
-    let mut trans_tx = hub.sender::<f32, TransitionHeader>(&Channel::transitions(envs), steps_n * n * TRANSITION_LEN, STALL_TIMEOUT)?;
+    let mut trans_tx = hub.sender::<u16, TransitionHeader>(&Channel::transitions(envs), steps_n * n * PACKED_LEN, STALL_TIMEOUT)?;
     let mut w_rx = hub.receiver::<f32, WeightsHeader>(&Channel::weights(envs))?;
     let mut ep_tx = hub.sender::<f32, EpisodeHeader>(&episodes_channel(envs), 3 * n, STALL_TIMEOUT)?;
     let mut tel = Counters::new(&hub, RoleKind::Actor, e, super::sim::roles_of(&cfg))?;
@@ -125,18 +125,15 @@ pub fn run(role: RoleArgs, e: usize) -> Result<()> {
             let global = transitions * envs as u64;
             let eps_now = epsilon(&cfg, global);
             // n-step transitions leave once n rewards are known or the
-            // episode ended; they are assembled in place in the loaned sample.
+            // episode ended; they are packed in place in the loaned sample.
             nstep.push(&prev_actions, rewards, dones);
             let count = nstep.out.len();
             if count > 0 {
-                let sent = trans_tx.send_with(count * TRANSITION_LEN, |th, out| {
+                let sent = trans_tx.send_with(count * PACKED_LEN, |th, out| {
                     *th = TransitionHeader { actor: e as u32, count: count as u32, seq, weight_version: version, episodes };
-                    for (o, t) in out.chunks_exact_mut(TRANSITION_LEN).zip(&nstep.out) {
-                        o[..OBS_LEN].copy_from_slice(nstep.obs(t.slot, t.agent));
-                        o[OBS_LEN..2 * OBS_LEN].copy_from_slice(&obs[t.agent * OBS_LEN..(t.agent + 1) * OBS_LEN]);
-                        o[2 * OBS_LEN] = t.action as f32;
-                        o[2 * OBS_LEN + 1] = t.ret;
-                        o[2 * OBS_LEN + 2] = if t.done { 1.0 } else { 0.0 };
+                    for (o, t) in out.chunks_exact_mut(PACKED_LEN).zip(&nstep.out) {
+                        let next = &obs[t.agent * OBS_LEN..(t.agent + 1) * OBS_LEN];
+                        pack_transition(nstep.obs(t.slot, t.agent), next, t.action as f32, t.ret, if t.done { 1.0 } else { 0.0 }, o);
                     }
                 });
                 match sent {

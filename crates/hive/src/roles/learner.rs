@@ -10,7 +10,7 @@ use rotorhive_model::Device;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use rotorhive_model::{Dqn, DqnConfig, QNet, num_params};
-use rotorhive_msg::{MinibatchHeader, OBS_LEN, RoleKind, TRANSITION_LEN, WeightsHeader};
+use rotorhive_msg::{MinibatchHeader, OBS_LEN, PACKED_LEN, RoleKind, TRANSITION_LEN, WeightsHeader, unpack_transition};
 use rotorhive_transport::Channel;
 
 use super::{Counters, POLL, STALL_TIMEOUT, open};
@@ -52,7 +52,9 @@ pub fn run(role: RoleArgs) -> Result<()> {
         dqn.load_state(&state_path).with_context(|| format!("restoring the learner from {}", state_path.display()))?;
         tracing::info!("learner restored from {} at update {}", state_path.display(), dqn.updates());
     }
-    let mut rx = hub.receiver::<f32, MinibatchHeader>(&Channel::minibatches(cfg.replay.prefetch))?;
+    let mut rx = hub.receiver::<u16, MinibatchHeader>(&Channel::minibatches(cfg.replay.prefetch))?;
+    // Minibatches arrive packed (16-bit depth); the network takes floats.
+    let mut batch = Vec::new();
     let mut w_tx = hub.sender::<f32, WeightsHeader>(&Channel::weights(cfg.sim.envs), num_params(), STALL_TIMEOUT)?;
     let mut tel = Counters::new(&hub, RoleKind::Learner, 0, super::sim::roles_of(&cfg))?;
     // Versions go on increasing across restarts.
@@ -94,8 +96,9 @@ pub fn run(role: RoleArgs) -> Result<()> {
             }
         }
         last_update = Instant::now();
-        let loss = dqn.update(msg.payload()).context("learner update")?;
+        unpack_batch(msg.payload(), &mut batch)?;
         drop(msg);
+        let loss = dqn.update(&batch).context("learner update")?;
         let tm = dqn.timing();
         tel.sample.stage_ns[0] += tm.forward_ns;
         tel.sample.stage_ns[1] += tm.backward_ns;
@@ -118,6 +121,19 @@ pub fn run(role: RoleArgs) -> Result<()> {
     save_atomic(&dqn.online, &run_dir.join("final.safetensors"))?;
     save_state_atomic(&dqn, &state_path)?;
     tel.tick(true);
+    Ok(())
+}
+
+/// Unpacks a minibatch of packed transitions into `out`, the learner's
+/// float layout (`TRANSITION_LEN` per transition).
+fn unpack_batch(packed: &[u16], out: &mut Vec<f32>) -> Result<()> {
+    if packed.is_empty() || packed.len() % PACKED_LEN != 0 {
+        anyhow::bail!("a minibatch of {} words is not a whole number of packed transitions ({PACKED_LEN} words each)", packed.len());
+    }
+    out.resize(packed.len() / PACKED_LEN * TRANSITION_LEN, 0.0);
+    for (p, o) in packed.chunks_exact(PACKED_LEN).zip(out.chunks_exact_mut(TRANSITION_LEN)) {
+        unpack_transition(p, o);
+    }
     Ok(())
 }
 

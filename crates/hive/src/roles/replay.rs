@@ -5,7 +5,7 @@
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use rotorhive_msg::{MinibatchHeader, RoleKind, TRANSITION_LEN, TransitionHeader};
+use rotorhive_msg::{MinibatchHeader, PACKED_LEN, RoleKind, TransitionHeader};
 use rotorhive_replay::Replay;
 use rotorhive_transport::{Channel, TransportError};
 
@@ -20,21 +20,21 @@ pub fn run(role: RoleArgs) -> Result<()> {
     let snap_path = run_dir.as_ref().map(|d| d.join("replay.bin"));
     let mut mem = match &snap_path {
         Some(p) if p.exists() => {
-            let m = Replay::load(p, r.capacity, TRANSITION_LEN, cfg.seed ^ 0x5e1a).context("restoring the replay memory")?;
+            let m = Replay::load(p, r.capacity, PACKED_LEN, cfg.seed ^ 0x5e1a).context("restoring the replay memory")?;
             tracing::info!("replay restored {} transitions from {}", m.len(), p.display());
             m
         }
-        _ => Replay::new(r.capacity, TRANSITION_LEN, cfg.seed ^ 0x5e1a),
+        _ => Replay::new(r.capacity, PACKED_LEN, cfg.seed ^ 0x5e1a),
     };
     let snap_every = (r.snapshot_every_s > 0.0).then(|| Duration::from_secs_f64(r.snapshot_every_s));
     let mut last_snap = Instant::now();
     let mut snapshot: Option<rotorhive_replay::Snapshot> = None;
-    let mut rx = hub.receiver::<f32, TransitionHeader>(&Channel::transitions(cfg.sim.envs))?;
+    let mut rx = hub.receiver::<u16, TransitionHeader>(&Channel::transitions(cfg.sim.envs))?;
     // Transitions are throughput, not latency: sleep at once when idle.
     rx.set_spin(Duration::ZERO);
     // A full learner queue is normal (the learner is busy): the send gives up
     // after a millisecond and the replay goes back to inserting.
-    let mut tx = hub.sender::<f32, MinibatchHeader>(&Channel::minibatches(r.prefetch), r.batch * TRANSITION_LEN, Duration::from_millis(1))?;
+    let mut tx = hub.sender::<u16, MinibatchHeader>(&Channel::minibatches(r.prefetch), r.batch * PACKED_LEN, Duration::from_millis(1))?;
     let mut tel = Counters::new(&hub, RoleKind::Replay, 0, super::sim::roles_of(&cfg))?;
     let mut next_seq = vec![None::<u64>; cfg.sim.envs];
     let mut mb_seq = 0u64;
@@ -58,7 +58,7 @@ pub fn run(role: RoleArgs) -> Result<()> {
         let mut sent = false;
         if ready && limit.allows(mb_seq, mem.inserted()) && Instant::now() >= backoff_until {
             let t = Instant::now();
-            let res = tx.send_with(r.batch * TRANSITION_LEN, |h, out| {
+            let res = tx.send_with(r.batch * PACKED_LEN, |h, out| {
                 mem.sample_into(out);
                 *h = MinibatchHeader { batch: r.batch as u32, _pad: 0, seq: mb_seq, replay_len: mem.len() as u64, inserted: mem.inserted() };
             });
@@ -144,7 +144,7 @@ const SNAPSHOT_CHUNK: usize = 256;
 
 /// Inserts one transition batch, counting sequence gaps of its actor (a
 /// restarted actor starts again at 0, which is not loss) and corrupt values.
-fn ingest(m: &rotorhive_transport::Msg<rotorhive_transport::Ipc, f32, TransitionHeader>, mem: &mut Replay, next_seq: &mut [Option<u64>], lost: &mut u64) {
+fn ingest(m: &rotorhive_transport::Msg<rotorhive_transport::Ipc, u16, TransitionHeader>, mem: &mut Replay, next_seq: &mut [Option<u64>], lost: &mut u64) {
     let h = *m.user_header();
     if let Some(slot) = next_seq.get_mut(h.actor as usize) {
         if let Some(want) = *slot
@@ -158,24 +158,37 @@ fn ingest(m: &rotorhive_transport::Msg<rotorhive_transport::Ipc, f32, Transition
     mem.insert(m.payload());
 }
 
-/// Counts transitions whose action or done flag is not 0 or 1, or whose depth
-/// leaves [0, 1]: a torn or foreign write would show here.
-fn corrupt(batch: &[f32]) -> u64 {
-    use rotorhive_msg::OBS_LEN;
-    let depth = OBS_LEN - rotorhive_msg::VEL_DIM;
+/// Counts transitions whose action or done flag is not 0 or 1, or whose
+/// velocities or reward are not finite: a torn or foreign write would show
+/// here (16-bit depth has no invalid value to look for).
+fn corrupt(batch: &[u16]) -> u64 {
+    use rotorhive_msg::{PACKED_SCALARS, packed_scalar};
     batch
-        .chunks_exact(TRANSITION_LEN)
+        .chunks_exact(PACKED_LEN)
         .filter(|t| {
-            let a = t[2 * OBS_LEN];
-            let d = t[2 * OBS_LEN + 2];
-            !(a == 0.0 || a == 1.0) || !(d == 0.0 || d == 1.0) || t[..depth].iter().chain(&t[OBS_LEN..OBS_LEN + depth]).any(|v| !(0.0..=1.0).contains(v))
+            let a = packed_scalar(t, PACKED_SCALARS - 3);
+            let d = packed_scalar(t, PACKED_SCALARS - 1);
+            !(a == 0.0 || a == 1.0) || !(d == 0.0 || d == 1.0) || (0..PACKED_SCALARS).any(|k| !packed_scalar(t, k).is_finite())
         })
         .count() as u64
 }
 
 #[cfg(test)]
 mod tests {
-    use super::SampleLimit;
+    use super::{SampleLimit, corrupt};
+    use rotorhive_msg::{OBS_LEN, PACKED_LEN, pack_transition};
+
+    #[test]
+    fn corrupt_transitions_are_counted() {
+        let obs = vec![0.25f32; OBS_LEN];
+        let mut batch = vec![0u16; 4 * PACKED_LEN];
+        let rows: Vec<(f32, f32, f32)> = vec![(1.0, 3.0, 0.0), (0.5, 3.0, 0.0), (0.0, f32::NAN, 1.0), (0.0, -100.0, 2.0)];
+        for (t, (a, r, d)) in batch.chunks_exact_mut(PACKED_LEN).zip(rows) {
+            pack_transition(&obs, &obs, a, r, d, t);
+        }
+        assert_eq!(corrupt(&batch[..PACKED_LEN]), 0);
+        assert_eq!(corrupt(&batch), 3);
+    }
 
     #[test]
     fn sampling_waits_for_inserts_past_the_buffer() {
