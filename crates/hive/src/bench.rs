@@ -216,6 +216,8 @@ fn bench_render(agents: &[usize], renderer: &str, steps: usize, threads: usize, 
     let mut measure = |n: usize, batched: bool| -> Result<(f64, f64)> {
         let cfg = SimConfig { agents: n, renderer: kind, batched, render_threads: threads, ..SimConfig::default() };
         let mut env = VecEnv::try_new(cfg, arena.clone(), 1)?;
+        // As in `hive sim`: observations are assembled in the loaned sample.
+        env.drop_observation_buffer();
         if let Some(g) = env.gpu() {
             adapter = g.adapter().to_string();
         }

@@ -5,6 +5,14 @@
 //! (msgpack over a loopback TCP connection, as PRL4AirSim's RPC did), side by
 //! side in one run. Each message is answered by a small acknowledgement;
 //! latency is half the round trip.
+//!
+//! Where the clock starts: when the message is ready where its producer
+//! writes it. In rotorhive that is the loaned sample itself (the sim
+//! assembles its observations there, the actor packs its transitions there,
+//! the learner writes its weights there), so the shared-memory time starts
+//! once the loan is filled; over RPC it is the producer's own buffer, so the
+//! msgpack time includes serializing it. The shared-memory time with a copy
+//! of a finished buffer into the loan is reported beside it.
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{TcpListener, TcpStream};
@@ -139,7 +147,7 @@ pub fn run(iters: usize, json_out: bool) -> Result<()> {
         let mut shm = Vec::new();
         for (k, (_, n)) in kinds().iter().enumerate() {
             let src = &sources[k];
-            let mut lat = Vec::with_capacity(iters);
+            let (mut lat, mut lat_copy) = (Vec::with_capacity(iters), Vec::with_capacity(iters));
             let warm = 20;
             let mut t_all = Instant::now();
             for i in 0..iters + warm {
@@ -147,19 +155,23 @@ pub fn run(iters: usize, json_out: bool) -> Result<()> {
                     t_all = Instant::now();
                 }
                 let t = Instant::now();
+                let mut ready = t;
                 tx.send_with(*n, |h, p| {
                     *h = ObsHeader { env: 0, agents: k as u32, first: 0, total: 0, step: i as u64, physics_ns: 0, render_ns: 0 };
                     p.copy_from_slice(src);
+                    ready = Instant::now();
                 })?;
                 let m = rx.recv_timeout(TIMEOUT)?.context("no acknowledgement from the peer")?;
                 if m.user_header().step != i as u64 || m.payload()[0] != 1 {
                     bail!("wrong acknowledgement");
                 }
                 if i >= warm {
-                    lat.push(t.elapsed().as_secs_f64() * 1e6 / 2.0);
+                    lat.push(ready.elapsed().as_secs_f64() * 1e6 / 2.0);
+                    lat_copy.push(t.elapsed().as_secs_f64() * 1e6 / 2.0);
                 }
             }
-            shm.push(stats(lat, t_all.elapsed().as_secs_f64()));
+            let wall = t_all.elapsed().as_secs_f64();
+            shm.push((stats(lat, wall), stats(lat_copy, wall)));
         }
         tx.send_with(1, |h, _| *h = ObsHeader { agents: u32::MAX, ..ObsHeader::default() })?;
         let mut s = TcpStream::connect(("127.0.0.1", port)).context("connecting to the peer")?;
@@ -195,17 +207,33 @@ pub fn run(iters: usize, json_out: bool) -> Result<()> {
             tcp.push(stats(lat, t_all.elapsed().as_secs_f64()));
         }
         drop(s);
-        println!("{:>17} {:>10} {:>12} {:>12} {:>12} {:>14} {:>14} {:>12} {:>8}", "message", "KiB", "shm p50 µs", "shm p99 µs", "shm msg/s", "msgpack p50 µs", "msgpack p99 µs", "msgpack/s", "ratio");
+        println!(
+            "{:>17} {:>8} {:>11} {:>11} {:>10} {:>16} {:>15} {:>15} {:>11} {:>7} {:>12}",
+            "message", "KiB", "shm p50 µs", "shm p99 µs", "shm msg/s", "+copy-in p50 µs", "msgpack p50 µs", "msgpack p99 µs", "msgpack/s", "ratio", "ratio +copy"
+        );
         let mut rows = Vec::new();
         for (k, (name, n)) in kinds().iter().enumerate() {
-            let (a, b) = (&shm[k], &tcp[k]);
-            let ratio = b.p50 / a.p50;
-            println!("{name:>17} {:>10.1} {:>12.1} {:>12.1} {:>12.0} {:>14.1} {:>14.1} {:>12.0} {:>7.1}x", *n as f64 * 4.0 / 1024.0, a.p50, a.p99, a.per_s, b.p50, b.p99, b.per_s, ratio);
+            let ((a, c), b) = (&shm[k], &tcp[k]);
+            let (ratio, ratio_copy) = (b.p50 / a.p50, b.p50 / c.p50);
+            println!(
+                "{name:>17} {:>8.1} {:>11.1} {:>11.1} {:>10.0} {:>16.1} {:>15.1} {:>15.1} {:>11.0} {:>6.0}x {:>11.0}x",
+                *n as f64 * 4.0 / 1024.0,
+                a.p50,
+                a.p99,
+                a.per_s,
+                c.p50,
+                b.p50,
+                b.p99,
+                b.per_s,
+                ratio,
+                ratio_copy
+            );
             rows.push(json!({
                 "name": name, "bytes": n * 4,
                 "shm_p50_us": a.p50, "shm_p90_us": a.p90, "shm_p99_us": a.p99, "shm_msgs_per_s": a.per_s,
+                "shm_copy_in_p50_us": c.p50, "shm_copy_in_p99_us": c.p99,
                 "baseline_p50_us": b.p50, "baseline_p90_us": b.p90, "baseline_p99_us": b.p99, "baseline_msgs_per_s": b.per_s,
-                "ratio": ratio,
+                "ratio": ratio, "ratio_with_copy_in": ratio_copy,
             }));
         }
         Ok(rows)
@@ -220,7 +248,7 @@ pub fn run(iters: usize, json_out: bool) -> Result<()> {
     if !left.is_empty() {
         bail!("shared memory left behind: {left:?}");
     }
-    println!("latency = half the round trip (message + 1-byte acknowledgement); the \"empty\" row is the transport's own share (a 4-byte payload); {iters} messages per row");
+    println!("latency = half the round trip (message + 1-byte acknowledgement), from the message being ready where its producer writes it: shm from the filled loan (rotorhive's roles write their messages in place), msgpack from the sender's buffer (serializing included); +copy-in: shm from a finished buffer copied into the loan; the \"empty\" row is the transport's own share (a 4-byte payload); {iters} messages per row");
     if json_out {
         let get = |name: &str| rows.iter().find(|r| r["name"] == name).cloned().unwrap_or_default();
         println!(

@@ -171,6 +171,8 @@ pub struct VecEnv {
     /// Previous depth frame per agent.
     prev: Vec<f32>,
     obs: Vec<f32>,
+    /// Whether `obs` is assembled at each step.
+    keep_obs: bool,
     rewards: Vec<f32>,
     dones: Vec<Done>,
     finished: Vec<Episode>,
@@ -278,6 +280,7 @@ impl VecEnv {
             cur: vec![0.0; n * px],
             prev: vec![0.0; n * px],
             obs: vec![0.0; n * obs_len],
+            keep_obs: true,
             rewards: vec![0.0; n],
             dones: vec![Done::Running; n],
             finished: Vec::new(),
@@ -321,6 +324,7 @@ impl VecEnv {
 
     /// Observations after the last step, `agents × obs_len`. Agents that were
     /// reset in that step show the first observation of their new episode.
+    /// Empty after [`drop_observation_buffer`](Self::drop_observation_buffer).
     pub fn observations(&self) -> &[f32] {
         &self.obs
     }
@@ -542,15 +546,37 @@ impl VecEnv {
     }
 
     fn assemble_obs(&mut self) {
+        if !self.keep_obs {
+            return;
+        }
+        let mut obs = std::mem::take(&mut self.obs);
+        self.write_observations(0, &mut obs);
+        self.obs = obs;
+    }
+
+    /// Writes the observations of agents `first..` (as many whole rows as
+    /// `out` holds, `obs_len` floats each) straight into `out`: the sim
+    /// process assembles them in the loaned shared-memory sample this way.
+    pub fn write_observations(&self, first: usize, out: &mut [f32]) {
         let px = self.cfg.camera.side * self.cfg.camera.side;
         let len = 2 * px + 3;
-        for i in 0..self.cfg.agents {
-            let o = &mut self.obs[i * len..(i + 1) * len];
+        assert!(out.len() % len == 0 && first + out.len() / len <= self.cfg.agents, "observation rows out of range");
+        for (j, o) in out.chunks_exact_mut(len).enumerate() {
+            let i = first + j;
             o[..px].copy_from_slice(&self.prev[i * px..(i + 1) * px]);
             o[px..2 * px].copy_from_slice(&self.cur[i * px..(i + 1) * px]);
             let b = &self.world.bodies[self.bodies[i]];
             let v = b.rotation().inverse() * b.linvel();
             o[2 * px..].copy_from_slice(&v.to_array());
         }
+    }
+
+    /// Stops keeping the [`observations`](Self::observations) buffer (it
+    /// becomes empty) for a caller that assembles each step's observations
+    /// where it needs them with [`write_observations`](Self::write_observations),
+    /// saving a copy per step.
+    pub fn drop_observation_buffer(&mut self) {
+        self.keep_obs = false;
+        self.obs = Vec::new();
     }
 }

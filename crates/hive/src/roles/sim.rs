@@ -24,6 +24,8 @@ pub fn run(role: RoleArgs, env_index: usize) -> Result<()> {
     let mut env = VecEnv::try_new_lanes(cfg.sim_config(), &arenas, cfg.seed.wrapping_mul(1000).wrapping_add(env_index as u64)).context("starting the simulator")?;
     let batched = cfg.batched();
     assert_eq!(env.obs_len(), OBS_LEN, "simulator and message layouts disagree");
+    // Observations are assembled straight into the loaned sample (send_obs).
+    env.drop_observation_buffer();
     let mut obs_tx = hub.sender::<f32, ObsHeader>(&Channel::obs(env_index, cfg.obs_messages_per_step()), obs_batch_len(n), STALL_TIMEOUT)?;
     let mut act_rx = hub.receiver::<u8, ActionHeader>(&Channel::actions(env_index))?;
     let mut tel = Counters::new(&hub, RoleKind::Sim, env_index, roles_of(&cfg))?;
@@ -198,7 +200,7 @@ pub(crate) fn send_obs(tx: &mut rotorhive_transport::Sender<rotorhive_transport:
         tx.send_with(obs_batch_len(n), |h, p| {
             *h = ObsHeader { env: e as u32, agents: n as u32, first: first as u32, total: total as u32, step, physics_ns: timing.0, render_ns: timing.1 };
             let (obs, rest) = p.split_at_mut(n * OBS_LEN);
-            obs.copy_from_slice(&env.observations()[first * OBS_LEN..(first + n) * OBS_LEN]);
+            env.write_observations(first, obs);
             let (rew, done) = rest.split_at_mut(n);
             rew.copy_from_slice(&env.rewards()[first..first + n]);
             for (d, k) in done.iter_mut().zip(&env.dones()[first..first + n]) {
