@@ -75,6 +75,18 @@ fn flying_into_an_obstacle_is_a_collision_and_resets_only_that_agent() {
     let len = env.obs_len();
     assert_eq!(&obs[..1024], &obs[1024..2048]);
     assert_ne!(&obs[len..len + 1024], &obs[len + 1024..len + 2048]);
+    // Written in place (as the sim process does), any rows are the same.
+    let mut rows = vec![-1.0; len];
+    env.write_observations(1, &mut rows);
+    assert_eq!(&rows[..], &obs[len..2 * len]);
+    let mut all = vec![-1.0; 2 * len];
+    env.write_observations(0, &mut all);
+    assert_eq!(&all[..], obs);
+    env.drop_observation_buffer();
+    env.step(&[0, 0]);
+    assert!(env.observations().is_empty());
+    env.write_observations(0, &mut all);
+    assert_ne!(&all[len + 1024..len + 2048], &rows[1024..2048], "agent 1 flew on: its view changed");
 }
 
 #[test]
