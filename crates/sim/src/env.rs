@@ -560,7 +560,7 @@ impl VecEnv {
     pub fn write_observations(&self, first: usize, out: &mut [f32]) {
         let px = self.cfg.camera.side * self.cfg.camera.side;
         let len = 2 * px + 3;
-        assert!(out.len() % len == 0 && first + out.len() / len <= self.cfg.agents, "observation rows out of range");
+        assert!(out.len().is_multiple_of(len) && first + out.len() / len <= self.cfg.agents, "observation rows out of range");
         for (j, o) in out.chunks_exact_mut(len).enumerate() {
             let i = first + j;
             o[..px].copy_from_slice(&self.prev[i * px..(i + 1) * px]);

@@ -127,7 +127,7 @@ pub fn run(role: RoleArgs) -> Result<()> {
 /// Unpacks a minibatch of packed transitions into `out`, the learner's
 /// float layout (`TRANSITION_LEN` per transition).
 fn unpack_batch(packed: &[u16], out: &mut Vec<f32>) -> Result<()> {
-    if packed.is_empty() || packed.len() % PACKED_LEN != 0 {
+    if packed.is_empty() || !packed.len().is_multiple_of(PACKED_LEN) {
         anyhow::bail!("a minibatch of {} words is not a whole number of packed transitions ({PACKED_LEN} words each)", packed.len());
     }
     out.resize(packed.len() / PACKED_LEN * TRANSITION_LEN, 0.0);
