@@ -233,9 +233,11 @@ impl DepthRenderer {
             }
             return;
         }
-        // Pieces: at least two per thread, so that cameras of unequal cost
-        // even out.
-        let bands = (2 * threads).div_ceil(cameras.len()).min(n);
+        // Pieces: whole cameras, handed out as threads come free (cameras
+        // differ in cost); with fewer cameras than threads, each is cut
+        // into as many bands of rows as it takes to busy every thread (more
+        // bands would only repeat each band's obstacle gathering).
+        let bands = threads.div_ceil(cameras.len()).min(n);
         let rows = n.div_ceil(bands);
         let pieces = out.chunks_mut(px).enumerate().flat_map(|(c, img)| img.chunks_mut(rows * n).enumerate().map(move |(b, part)| (c, b * rows, part)));
         let queue = Mutex::new(pieces);
