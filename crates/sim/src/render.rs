@@ -175,8 +175,8 @@ struct Scratch {
     candidates: Vec<u32>,
 }
 
-/// The batched renderer. Holds scratch space so a step allocates nothing
-/// but the work queue, and a persistent pool of render threads.
+/// The batched renderer. Holds scratch space so a step allocates nothing,
+/// and a persistent pool of render threads.
 #[derive(Debug)]
 pub struct DepthRenderer {
     spec: CameraSpec,
