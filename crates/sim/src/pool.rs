@@ -66,8 +66,8 @@ impl Pool {
             match spawned {
                 Ok(h) => workers.push(h),
                 Err(e) => {
-                    let pool = Self { shared, workers };
-                    drop(pool);
+                    // Dropping the pool stops the workers already started.
+                    drop(Self { shared, workers });
                     return Err(e);
                 }
             }

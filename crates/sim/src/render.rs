@@ -198,11 +198,6 @@ impl DepthRenderer {
         self.spec
     }
 
-    /// Threads a call renders on, the caller included.
-    pub fn threads(&self) -> usize {
-        self.pool.threads()
-    }
-
     /// Renders every camera into `out` (`cameras.len() × side²`), normalised
     /// depth in [0, 1] (planar depth divided by the range, clipped at 1).
     /// With `drones`, camera `i` (drone `first_agent + i`) sees every drone
