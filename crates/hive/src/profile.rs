@@ -22,8 +22,49 @@ fn role_kind(name: &str) -> Option<RoleKind> {
     [RoleKind::Sim, RoleKind::Actor, RoleKind::Replay, RoleKind::Learner].into_iter().find(|r| r.name() == name)
 }
 
-/// The report as Markdown text.
-pub fn report(run_dir: &Path) -> Result<String> {
+/// One role's figures over a run.
+pub struct RoleProfile {
+    /// `learner-0`, `sim-1`, …
+    pub name: String,
+    /// Mean CPU % of the process (100 = one core).
+    pub cpu: f64,
+    /// Stage names and the share of the role's wall time in each.
+    pub stages: [(&'static str, f64); 4],
+    /// Share of wall time spent waiting on other processes.
+    pub wait: f64,
+}
+
+/// The bottleneck of a run: the role that waits least on the others.
+pub struct Bottleneck {
+    /// The role, as `learner-0`.
+    pub role: String,
+    /// Its busiest stage.
+    pub stage: &'static str,
+    /// That stage's share of the role's wall time.
+    pub busy: f64,
+    /// The role's share of wall time spent waiting on others.
+    pub wait: f64,
+}
+
+/// What `hive profile` reads from a run's telemetry.
+pub struct Profile {
+    /// Every role, in name order.
+    pub roles: Vec<RoleProfile>,
+    /// Mean whole-machine CPU % (100 = every core busy).
+    pub machine_cpu: f64,
+    /// None when no role ran long enough to tell.
+    pub bottleneck: Option<Bottleneck>,
+}
+
+impl Profile {
+    /// Whether the machine's cores were busy almost all the time.
+    pub fn saturated(&self) -> bool {
+        self.machine_cpu > 85.0
+    }
+}
+
+/// Reads a run's `telemetry.csv`.
+pub fn analyse(run_dir: &Path) -> Result<Profile> {
     let path = run_dir.join("telemetry.csv");
     let text = std::fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))?;
     let mut rows: BTreeMap<(String, String), Vec<Row>> = BTreeMap::new();
@@ -39,12 +80,7 @@ pub fn report(run_dir: &Path) -> Result<String> {
     if rows.is_empty() {
         bail!("{}: no telemetry rows", path.display());
     }
-    let mut out = String::new();
-    writeln!(out, "# Profile of {}\n", run_dir.display())?;
-    writeln!(out, "| role | CPU % (mean) | share of CPU | {} |", ["stage 0", "stage 1", "stage 2", "stage 3"].join(" | "))?;
-    writeln!(out, "|---|---|---|---|---|---|---|")?;
-    let total_cpu: f64 = rows.values().map(|r| mean(r.iter().map(|x| x.cpu))).filter(|v| v.is_finite()).sum();
-    let mut candidates = Vec::new();
+    let mut roles = Vec::new();
     let mut machine = Vec::new();
     for ((role, index), r) in &rows {
         let Some(kind) = role_kind(role) else { continue };
@@ -55,24 +91,40 @@ pub fn report(run_dir: &Path) -> Result<String> {
         if span_ms <= 0.0 {
             continue;
         }
-        let share: Vec<f64> = (0..4).map(|k| (last.stages[k] - first.stages[k]) / span_ms).collect();
-        let cpu = mean(r.iter().map(|x| x.cpu));
+        let share: [f64; 4] = std::array::from_fn(|k| (last.stages[k] - first.stages[k]) / span_ms);
         machine.extend(r.iter().map(|x| x.machine));
-        let cells: Vec<String> = (0..4).map(|k| format!("{} {:.0} %", names[k], share[k] * 100.0)).collect();
-        writeln!(out, "| {role}-{index} | {cpu:.0} | {:.0} % | {} |", cpu / total_cpu * 100.0, cells.join(" | "))?;
         // The waiting stage: transport for every role, idle for the replay.
         let wait = if kind == RoleKind::Replay { share[2] + share[3] } else { share[3] };
-        let (busiest, busy) = (0..4).filter(|k| names[*k] != "transport_wait" && names[*k] != "idle").map(|k| (names[k], share[k])).fold(("", -1.0), |a, b| if b.1 > a.1 { b } else { a });
-        candidates.push((wait, format!("{role}-{index}"), busiest, busy));
+        roles.push(RoleProfile { name: format!("{role}-{index}"), cpu: mean(r.iter().map(|x| x.cpu)), stages: std::array::from_fn(|k| (names[k], share[k])), wait });
     }
-    let machine_cpu = mean(machine.into_iter());
+    let bottleneck = roles
+        .iter()
+        .min_by(|a, b| a.wait.total_cmp(&b.wait))
+        .map(|r| {
+            let (stage, busy) = r.stages.iter().filter(|(n, _)| *n != "transport_wait" && *n != "idle").fold(("", -1.0), |a, b| if b.1 > a.1 { *b } else { a });
+            Bottleneck { role: r.name.clone(), stage, busy, wait: r.wait }
+        });
+    Ok(Profile { roles, machine_cpu: mean(machine.into_iter()), bottleneck })
+}
+
+/// The report as Markdown text.
+pub fn report(run_dir: &Path) -> Result<String> {
+    let p = analyse(run_dir)?;
+    let mut out = String::new();
+    writeln!(out, "# Profile of {}\n", run_dir.display())?;
+    writeln!(out, "| role | CPU % (mean) | share of CPU | {} |", ["stage 0", "stage 1", "stage 2", "stage 3"].join(" | "))?;
+    writeln!(out, "|---|---|---|---|---|---|---|")?;
+    let total_cpu: f64 = p.roles.iter().map(|r| r.cpu).filter(|v| v.is_finite()).sum();
+    for r in &p.roles {
+        let cells: Vec<String> = r.stages.iter().map(|(n, s)| format!("{n} {:.0} %", s * 100.0)).collect();
+        writeln!(out, "| {} | {:.0} | {:.0} % | {} |", r.name, r.cpu, r.cpu / total_cpu * 100.0, cells.join(" | "))?;
+    }
     writeln!(out, "\nStage columns: share of the role's wall time spent in each stage; `transport_wait` / `idle` is time spent waiting on another process.")?;
-    writeln!(out, "Machine CPU: {machine_cpu:.0} % on average over {} cores.", std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1))?;
-    candidates.sort_by(|a, b| a.0.total_cmp(&b.0));
-    if let Some((wait, role, stage, busy)) = candidates.first() {
-        writeln!(out, "\n**Bottleneck: {role}, stage `{stage}`** ({:.0} % of its wall time; it waits on others only {:.0} % of the time).", busy * 100.0, wait * 100.0)?;
-        if machine_cpu > 85.0 {
-            writeln!(out, "The machine's CPU is saturated ({machine_cpu:.0} %): the roles compete for cores, so the run is CPU-bound, as in the paper.")?;
+    writeln!(out, "Machine CPU: {:.0} % on average over {} cores.", p.machine_cpu, std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1))?;
+    if let Some(b) = &p.bottleneck {
+        writeln!(out, "\n**Bottleneck: {}, stage `{}`** ({:.0} % of its wall time; it waits on others only {:.0} % of the time).", b.role, b.stage, b.busy * 100.0, b.wait * 100.0)?;
+        if p.saturated() {
+            writeln!(out, "The machine's CPU is saturated ({:.0} %): the roles compete for cores, so the run is CPU-bound, as in the paper.", p.machine_cpu)?;
         }
     }
     Ok(out)

@@ -55,37 +55,156 @@ fn load(path: &Path) -> Result<TableConfig> {
     Ok(c)
 }
 
+/// The bottleneck of a cell's run as the table shows it: `learner-0 forward (52 %)`.
+fn bottleneck_cell(r: &Value) -> String {
+    match (r["bottleneck"].as_str(), r["bottleneck_busy_pct"].as_f64()) {
+        (Some(b), Some(p)) => format!("{b} ({p:.0} %)"),
+        _ => "—".to_string(),
+    }
+}
+
 fn fmt_opt(v: &Value, digits: usize) -> String {
     v.as_f64().map_or("—".to_string(), |x| format!("{x:.digits$}"))
+}
+
+/// One cell of the grid over its seeds.
+#[derive(Debug)]
+struct CellMedian {
+    mode: String,
+    envs: u64,
+    agents: u64,
+    runs: usize,
+    converged: usize,
+    /// Median time to the threshold; infinite when the median run missed it.
+    time: f64,
+    steps_per_s: f64,
+    updates_per_s: f64,
+    /// The bottleneck most of the cell's runs name.
+    bottleneck: Option<String>,
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n == 0 { f64::NAN } else if n % 2 == 1 { v[n / 2] } else { (v[n / 2 - 1] + v[n / 2]) / 2.0 }
+}
+
+/// The cells of `rows` in order of first appearance, with the medians over
+/// their seeds; a run that missed the threshold counts as slower than any.
+fn cell_medians(rows: &[Value]) -> Vec<CellMedian> {
+    let mut keys: Vec<(&str, u64, u64)> = Vec::new();
+    for r in rows {
+        let cell = (r["mode"].as_str().unwrap_or(""), r["envs"].as_u64().unwrap_or(0), r["agents"].as_u64().unwrap_or(0));
+        if !keys.contains(&cell) {
+            keys.push(cell);
+        }
+    }
+    keys.into_iter()
+        .map(|(mode, envs, agents)| {
+            let of: Vec<&Value> = rows.iter().filter(|r| r["mode"] == mode && r["envs"] == envs && r["agents"] == agents).collect();
+            let times: Vec<f64> = of.iter().map(|r| r["time_to_threshold_s"].as_f64().unwrap_or(f64::INFINITY)).collect();
+            let of_key = |k: &str| median(of.iter().filter_map(|r| r[k].as_f64()).collect());
+            let named: Vec<&str> = of.iter().filter_map(|r| r["bottleneck"].as_str()).collect();
+            let bottleneck = named.iter().max_by_key(|b| named.iter().filter(|x| x == b).count()).map(|b| b.to_string());
+            CellMedian {
+                mode: mode.to_string(),
+                envs,
+                agents,
+                runs: of.len(),
+                converged: times.iter().filter(|t| t.is_finite()).count(),
+                time: median(times),
+                steps_per_s: of_key("env_steps_per_s"),
+                updates_per_s: of_key("updates_per_s"),
+                bottleneck,
+            }
+        })
+        .collect()
+}
+
+fn fmt_time(t: f64, budget_s: f64) -> String {
+    if t.is_finite() { format!("{t:.0}") } else { format!("> {budget_s:.0}") }
 }
 
 /// One line per cell over its seeds: how many reached the threshold and the
 /// median time to it, a run that missed it counting as slower than the budget
 /// (one seed's time swings by tens of seconds; the median reads the trend).
-fn medians(md: &mut String, rows: &[Value], budget_s: f64) -> Result<()> {
+fn medians(md: &mut String, cells: &[CellMedian], budget_s: f64) -> Result<()> {
     writeln!(md, "\nMedian over seeds (a run that missed the threshold counts as slower than the budget):\n")?;
-    writeln!(md, "| observations | envs | agents | converged | median time to 300 (s) | median agent-steps/s | median updates/s |")?;
-    writeln!(md, "|---|---|---|---|---|---|---|")?;
-    let mut cells: Vec<(&str, u64, u64)> = Vec::new();
-    for r in rows {
-        let cell = (r["mode"].as_str().unwrap_or(""), r["envs"].as_u64().unwrap_or(0), r["agents"].as_u64().unwrap_or(0));
-        if !cells.contains(&cell) {
-            cells.push(cell);
+    writeln!(md, "| observations | envs | agents | converged | median time to 300 (s) | median agent-steps/s | median updates/s | bottleneck |")?;
+    writeln!(md, "|---|---|---|---|---|---|---|---|")?;
+    for c in cells {
+        writeln!(
+            md,
+            "| {} | {} | {} | {}/{} | {} | {:.0} | {:.0} | {} |",
+            c.mode,
+            c.envs,
+            c.agents,
+            c.converged,
+            c.runs,
+            fmt_time(c.time, budget_s),
+            c.steps_per_s,
+            c.updates_per_s,
+            c.bottleneck.as_deref().unwrap_or("—")
+        )?;
+    }
+    Ok(())
+}
+
+/// Agent-steps/s within this fraction of each other count as the same pace.
+const SAME_PACE: f64 = 0.15;
+
+/// Per observation mode: the median times in order of total agents, whether
+/// they fall at every step, and, where they do not, whether the two cells ran
+/// at the same pace (agent-steps/s), i.e. the machine gave the larger cell no
+/// more work per second than the smaller one.
+fn trend(md: &mut String, cells: &[CellMedian], budget_s: f64) -> Result<()> {
+    let mut modes: Vec<&str> = Vec::new();
+    for c in cells {
+        if !modes.contains(&c.mode.as_str()) {
+            modes.push(&c.mode);
         }
     }
-    let median = |mut v: Vec<f64>| -> f64 {
-        v.sort_by(f64::total_cmp);
-        let n = v.len();
-        if n == 0 { f64::NAN } else if n % 2 == 1 { v[n / 2] } else { (v[n / 2 - 1] + v[n / 2]) / 2.0 }
-    };
-    for (mode, envs, agents) in cells {
-        let of: Vec<&Value> = rows.iter().filter(|r| r["mode"] == mode && r["envs"] == envs && r["agents"] == agents).collect();
-        let times: Vec<f64> = of.iter().map(|r| r["time_to_threshold_s"].as_f64().unwrap_or(f64::INFINITY)).collect();
-        let converged = times.iter().filter(|t| t.is_finite()).count();
-        let t = median(times);
-        let time = if t.is_finite() { format!("{t:.0}") } else { format!("> {budget_s:.0}") };
-        let of_key = |k: &str| median(of.iter().filter_map(|r| r[k].as_f64()).collect());
-        writeln!(md, "| {mode} | {envs} | {agents} | {converged}/{} | {time} | {:.0} | {:.0} |", of.len(), of_key("env_steps_per_s"), of_key("updates_per_s"))?;
+    writeln!(md, "\nTrend of the time to the threshold as agents rise:\n")?;
+    for mode in modes {
+        let mut of: Vec<&CellMedian> = cells.iter().filter(|c| c.mode == mode).collect();
+        of.sort_by_key(|c| c.envs * c.agents);
+        let path: Vec<String> = of
+            .iter()
+            .map(|c| {
+                let n = c.envs * c.agents;
+                format!("{n} agent{} {} s", if n == 1 { "" } else { "s" }, fmt_time(c.time, budget_s))
+            })
+            .collect();
+        let flat: Vec<(&CellMedian, &CellMedian)> = of.windows(2).map(|w| (w[0], w[1])).filter(|(a, b)| !(b.time < a.time)).collect();
+        if of.len() < 2 {
+            writeln!(md, "- {mode}: {} (one cell, no trend).", path.join(""))?;
+        } else if flat.is_empty() {
+            writeln!(md, "- {mode}: {}: falls at every step, as in the paper.", path.join(" → "))?;
+        } else {
+            let pairs: Vec<String> = flat
+                .iter()
+                .map(|(a, b)| {
+                    let pace = b.steps_per_s / a.steps_per_s - 1.0;
+                    let same = if pace.abs() <= SAME_PACE { ", same pace" } else { "" };
+                    format!("{} → {} agents ({:+.0} % agent-steps/s{same})", a.envs * a.agents, b.envs * b.agents, pace * 100.0)
+                })
+                .collect();
+            writeln!(md, "- {mode}: {}: **does not fall** at {}.", path.join(" → "), pairs.join(", "))?;
+            if flat.iter().all(|(a, b)| (b.steps_per_s / a.steps_per_s - 1.0).abs() <= SAME_PACE) {
+                let bottlenecks: Vec<&str> = flat.iter().flat_map(|(a, b)| [a, b]).filter_map(|c| c.bottleneck.as_deref()).collect();
+                let mut named: Vec<&str> = Vec::new();
+                for b in bottlenecks {
+                    if !named.contains(&b) {
+                        named.push(b);
+                    }
+                }
+                let by = if named.is_empty() { String::new() } else { format!(" (bottleneck: {})", named.join(", ")) };
+                writeln!(
+                    md,
+                    "  Where it does not fall, the larger cell ran no more agent-steps per second than the smaller{by}: this machine gives both the same work per second, so the extra agents cannot shorten the run and the difference is run-to-run spread. More cores or a GPU learner raise that ceiling."
+                )?;
+            }
+        }
     }
     Ok(())
 }
@@ -127,11 +246,17 @@ pub fn run(config: &Path, out: &Path, json_out: bool) -> Result<()> {
                     .filter(|p: &(f64, f64)| p.1.is_finite())
                     .collect();
                 curves.push((format!("{mode} {envs}x{agents} s{seed}"), curve));
+                // The paper's finding per cell: which role set the pace.
+                let (bottleneck, busy) = match crate::profile::analyse(&dir) {
+                    Ok(p) => p.bottleneck.map_or((Value::Null, Value::Null), |b| (json!(format!("{} {}", b.role, b.stage)), json!(b.busy * 100.0))),
+                    Err(_) => (Value::Null, Value::Null),
+                };
                 rows.push(json!({
                     "mode": mode, "envs": envs, "agents": agents, "agents_total": envs * agents, "seed": seed,
                     "converged": summary["converged"], "time_to_threshold_s": summary["time_to_threshold_s"],
                     "wall_s": summary["wall_s"], "env_steps_per_s": summary["env_steps_per_s"], "updates_per_s": summary["updates_per_s"],
                     "cpu_util_mean_pct": summary["cpu_util_mean_pct"], "gpu_util_mean_pct": summary["gpu_util_mean_pct"], "gpu_power_mean_w": summary["gpu_power_mean_w"],
+                    "bottleneck": bottleneck, "bottleneck_busy_pct": busy,
                     "rolling_reward": summary["rolling_reward"], "peak_rss_mb": summary["peak_rss_mb"], "failure": summary["failure"],
                     "run_dir": dir.display().to_string(),
                 }));
@@ -141,9 +266,9 @@ pub fn run(config: &Path, out: &Path, json_out: bool) -> Result<()> {
     let mut md = String::new();
     writeln!(md, "# Agent-count table (the paper's Table II) on this machine\n")?;
     writeln!(md, "Budget {:.0} s per cell; threshold: rolling mean of the last 50 episodes ≥ the config's threshold. Paper: i7-11700K + RTX 2070 Super, AirSim.\n", tc.budget_s)?;
-    writeln!(md, "| observations | envs | agents | total | seed | time to 300 (s) | agent-steps/s | updates/s | CPU % | GPU % | GPU W | paper time | paper CPU % | paper GPU % | paper GPU W |")?;
-    writeln!(md, "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")?;
-    let mut csv = String::from("mode,envs,agents,agents_total,seed,converged,time_to_threshold_s,wall_s,env_steps_per_s,updates_per_s,cpu_util_mean_pct,gpu_util_mean_pct,gpu_power_mean_w,paper_time,paper_cpu_pct,paper_gpu_pct,paper_gpu_w\n");
+    writeln!(md, "| observations | envs | agents | total | seed | time to 300 (s) | agent-steps/s | updates/s | CPU % | bottleneck | GPU % | GPU W | paper time | paper CPU % | paper GPU % | paper GPU W |")?;
+    writeln!(md, "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")?;
+    let mut csv = String::from("mode,envs,agents,agents_total,seed,converged,time_to_threshold_s,wall_s,env_steps_per_s,updates_per_s,cpu_util_mean_pct,bottleneck,bottleneck_busy_pct,gpu_util_mean_pct,gpu_power_mean_w,paper_time,paper_cpu_pct,paper_gpu_pct,paper_gpu_w\n");
     for r in &rows {
         let (mode, envs, agents) = (r["mode"].as_str().unwrap_or(""), r["envs"].as_u64().unwrap_or(0) as usize, r["agents"].as_u64().unwrap_or(0) as usize);
         let p = paper(mode, envs, agents);
@@ -154,12 +279,13 @@ pub fn run(config: &Path, out: &Path, json_out: bool) -> Result<()> {
         let pc = |f: fn(&(&str, u32, u32, u32)) -> String| p.as_ref().map_or("—".to_string(), f);
         writeln!(
             md,
-            "| {mode} | {envs} | {agents} | {} | {} | {time} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            "| {mode} | {envs} | {agents} | {} | {} | {time} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
             envs * agents,
             r["seed"],
             fmt_opt(&r["env_steps_per_s"], 0),
             fmt_opt(&r["updates_per_s"], 0),
             fmt_opt(&r["cpu_util_mean_pct"], 0),
+            bottleneck_cell(r),
             fmt_opt(&r["gpu_util_mean_pct"], 0),
             fmt_opt(&r["gpu_power_mean_w"], 0),
             pc(|p| p.0.to_string()),
@@ -169,7 +295,7 @@ pub fn run(config: &Path, out: &Path, json_out: bool) -> Result<()> {
         )?;
         writeln!(
             csv,
-            "{mode},{envs},{agents},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            "{mode},{envs},{agents},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
             envs * agents,
             r["seed"],
             r["converged"],
@@ -178,6 +304,8 @@ pub fn run(config: &Path, out: &Path, json_out: bool) -> Result<()> {
             fmt_opt(&r["env_steps_per_s"], 0),
             fmt_opt(&r["updates_per_s"], 1),
             fmt_opt(&r["cpu_util_mean_pct"], 1),
+            r["bottleneck"].as_str().unwrap_or(""),
+            r["bottleneck_busy_pct"].as_f64().map_or(String::new(), |v| format!("{v:.0}")),
             r["gpu_util_mean_pct"].as_f64().map_or(String::new(), |v| format!("{v:.1}")),
             r["gpu_power_mean_w"].as_f64().map_or(String::new(), |v| format!("{v:.1}")),
             pc(|p| p.0.to_string()),
@@ -186,9 +314,11 @@ pub fn run(config: &Path, out: &Path, json_out: bool) -> Result<()> {
             pc(|p| p.3.to_string()),
         )?;
     }
+    let cells = cell_medians(&rows);
     if tc.seeds.len() > 1 {
-        medians(&mut md, &rows, tc.budget_s)?;
+        medians(&mut md, &cells, tc.budget_s)?;
     }
+    trend(&mut md, &cells, tc.budget_s)?;
     writeln!(md, "\nGPU columns are empty without an NVIDIA GPU. Runs: {}.", out.display())?;
     std::fs::write(out.join("agent-table.md"), &md)?;
     std::fs::write(out.join("agent-table.csv"), &csv)?;
@@ -199,4 +329,53 @@ pub fn run(config: &Path, out: &Path, json_out: bool) -> Result<()> {
         println!("{}", json!({ "budget_s": tc.budget_s, "rows": rows, "table": out.join("agent-table.md").display().to_string() }));
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{cell_medians, trend};
+    use serde_json::{Value, json};
+
+    fn row(agents: u64, seed: u64, time: Option<f64>, steps: f64) -> Value {
+        json!({ "mode": "batched", "envs": 1, "agents": agents, "seed": seed, "time_to_threshold_s": time,
+                "env_steps_per_s": steps, "updates_per_s": 100.0, "bottleneck": "learner-0 forward" })
+    }
+
+    fn trend_of(rows: &[Value]) -> String {
+        let mut md = String::new();
+        trend(&mut md, &cell_medians(rows), 220.0).unwrap();
+        md
+    }
+
+    #[test]
+    fn medians_count_a_missed_threshold_as_slowest() {
+        let rows = [row(1, 1, Some(140.0), 2000.0), row(1, 2, Some(150.0), 2200.0), row(25, 1, None, 4000.0), row(25, 2, Some(90.0), 3800.0)];
+        let cells = cell_medians(&rows);
+        assert_eq!(cells.len(), 2);
+        assert_eq!((cells[0].time, cells[0].converged, cells[0].steps_per_s), (145.0, 2, 2100.0));
+        assert!(cells[1].time.is_infinite());
+        assert_eq!(cells[1].converged, 1);
+        assert_eq!(cells[1].bottleneck.as_deref(), Some("learner-0 forward"));
+    }
+
+    #[test]
+    fn trend_says_whether_times_fall_and_names_same_pace_cells() {
+        let falling = [row(1, 1, Some(140.0), 2000.0), row(25, 1, Some(90.0), 3800.0), row(50, 1, Some(80.0), 5000.0)];
+        let md = trend_of(&falling);
+        assert!(md.contains("falls at every step"), "{md}");
+        assert!(!md.contains("does not fall"), "{md}");
+
+        // 25 → 50 agents: slower, at the same agent-steps/s (+5 %).
+        let flat = [row(1, 1, Some(140.0), 2000.0), row(25, 1, Some(80.0), 3800.0), row(50, 1, None, 3990.0)];
+        let md = trend_of(&flat);
+        assert!(md.contains("**does not fall** at 25 → 50 agents (+5 % agent-steps/s, same pace)"), "{md}");
+        assert!(md.contains("no more agent-steps per second"), "{md}");
+        assert!(md.contains("learner-0 forward"), "{md}");
+
+        // Slower with a much higher pace: not put down to the machine.
+        let slower = [row(25, 1, Some(80.0), 3000.0), row(50, 1, Some(95.0), 6000.0)];
+        let md = trend_of(&slower);
+        assert!(md.contains("(+100 % agent-steps/s)"), "{md}");
+        assert!(!md.contains("no more agent-steps per second"), "{md}");
+    }
 }
