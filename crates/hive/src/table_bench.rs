@@ -175,7 +175,7 @@ fn trend(md: &mut String, cells: &[CellMedian], budget_s: f64) -> Result<()> {
                 format!("{n} agent{} {} s", if n == 1 { "" } else { "s" }, fmt_time(c.time, budget_s))
             })
             .collect();
-        let flat: Vec<(&CellMedian, &CellMedian)> = of.windows(2).map(|w| (w[0], w[1])).filter(|(a, b)| !(b.time < a.time)).collect();
+        let flat: Vec<(&CellMedian, &CellMedian)> = of.windows(2).map(|w| (w[0], w[1])).filter(|(a, b)| b.time.partial_cmp(&a.time) != Some(std::cmp::Ordering::Less)).collect();
         if of.len() < 2 {
             writeln!(md, "- {mode}: {} (one cell, no trend).", path.join(""))?;
         } else if flat.is_empty() {
