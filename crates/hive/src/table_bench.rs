@@ -83,6 +83,17 @@ struct CellMedian {
     bottleneck: Option<String>,
 }
 
+/// The distinct items of `it`, in order of first appearance.
+fn distinct<T: PartialEq>(it: impl IntoIterator<Item = T>) -> Vec<T> {
+    let mut out = Vec::new();
+    for x in it {
+        if !out.contains(&x) {
+            out.push(x);
+        }
+    }
+    out
+}
+
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     let n = v.len();
@@ -92,14 +103,8 @@ fn median(mut v: Vec<f64>) -> f64 {
 /// The cells of `rows` in order of first appearance, with the medians over
 /// their seeds; a run that missed the threshold counts as slower than any.
 fn cell_medians(rows: &[Value]) -> Vec<CellMedian> {
-    let mut keys: Vec<(&str, u64, u64)> = Vec::new();
-    for r in rows {
-        let cell = (r["mode"].as_str().unwrap_or(""), r["envs"].as_u64().unwrap_or(0), r["agents"].as_u64().unwrap_or(0));
-        if !keys.contains(&cell) {
-            keys.push(cell);
-        }
-    }
-    keys.into_iter()
+    distinct(rows.iter().map(|r| (r["mode"].as_str().unwrap_or(""), r["envs"].as_u64().unwrap_or(0), r["agents"].as_u64().unwrap_or(0))))
+        .into_iter()
         .map(|(mode, envs, agents)| {
             let of: Vec<&Value> = rows.iter().filter(|r| r["mode"] == mode && r["envs"] == envs && r["agents"] == agents).collect();
             let times: Vec<f64> = of.iter().map(|r| r["time_to_threshold_s"].as_f64().unwrap_or(f64::INFINITY)).collect();
@@ -153,17 +158,17 @@ fn medians(md: &mut String, cells: &[CellMedian], budget_s: f64) -> Result<()> {
 /// Agent-steps/s within this fraction of each other count as the same pace.
 const SAME_PACE: f64 = 0.15;
 
+/// How much faster (+) or slower (−) cell `b` ran than cell `a`, in agent-steps/s.
+fn pace_change(a: &CellMedian, b: &CellMedian) -> f64 {
+    b.steps_per_s / a.steps_per_s - 1.0
+}
+
 /// Per observation mode: the median times in order of total agents, whether
 /// they fall at every step, and, where they do not, whether the two cells ran
 /// at the same pace (agent-steps/s), i.e. the machine gave the larger cell no
 /// more work per second than the smaller one.
 fn trend(md: &mut String, cells: &[CellMedian], budget_s: f64) -> Result<()> {
-    let mut modes: Vec<&str> = Vec::new();
-    for c in cells {
-        if !modes.contains(&c.mode.as_str()) {
-            modes.push(&c.mode);
-        }
-    }
+    let modes = distinct(cells.iter().map(|c| c.mode.as_str()));
     writeln!(md, "\nTrend of the time to the threshold as agents rise:\n")?;
     for mode in modes {
         let mut of: Vec<&CellMedian> = cells.iter().filter(|c| c.mode == mode).collect();
@@ -184,20 +189,14 @@ fn trend(md: &mut String, cells: &[CellMedian], budget_s: f64) -> Result<()> {
             let pairs: Vec<String> = flat
                 .iter()
                 .map(|(a, b)| {
-                    let pace = b.steps_per_s / a.steps_per_s - 1.0;
+                    let pace = pace_change(a, b);
                     let same = if pace.abs() <= SAME_PACE { ", same pace" } else { "" };
                     format!("{} → {} agents ({:+.0} % agent-steps/s{same})", a.envs * a.agents, b.envs * b.agents, pace * 100.0)
                 })
                 .collect();
             writeln!(md, "- {mode}: {}: **does not fall** at {}.", path.join(" → "), pairs.join(", "))?;
-            if flat.iter().all(|(a, b)| (b.steps_per_s / a.steps_per_s - 1.0).abs() <= SAME_PACE) {
-                let bottlenecks: Vec<&str> = flat.iter().flat_map(|(a, b)| [a, b]).filter_map(|c| c.bottleneck.as_deref()).collect();
-                let mut named: Vec<&str> = Vec::new();
-                for b in bottlenecks {
-                    if !named.contains(&b) {
-                        named.push(b);
-                    }
-                }
+            if flat.iter().all(|(a, b)| pace_change(a, b).abs() <= SAME_PACE) {
+                let named = distinct(flat.iter().flat_map(|(a, b)| [a, b]).filter_map(|c| c.bottleneck.as_deref()));
                 let by = if named.is_empty() { String::new() } else { format!(" (bottleneck: {})", named.join(", ")) };
                 writeln!(
                     md,
