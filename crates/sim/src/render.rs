@@ -253,7 +253,7 @@ fn render_rows(scene: &Scene, spec: &CameraSpec, cam: &CameraPose, drones: Optio
     let view = View::new(spec, cam);
     let n = view.n;
     let (r0, r1) = (first_row, first_row + img.len() / n);
-    let (lo, hi) = frustum_floor_plan(cam, view.tan, view.range);
+    let (lo, hi) = floor_plan_of(view.o, view.fwd, view.left, view.up, view.tan, view.range);
     s.tick = s.tick.wrapping_add(1);
     if s.tick == 0 {
         s.stamp.fill(0);
@@ -395,7 +395,11 @@ impl View {
 /// fan of the four corner rays out to the range (planar depth ≤ range), so
 /// the bounding box of the origin and the four far corners holds it.
 pub(crate) fn frustum_floor_plan(cam: &CameraPose, tan: f32, range: f32) -> ([f32; 2], [f32; 2]) {
-    let (fwd, left, up, o) = (cam.rotation * Vector::X, cam.rotation * Vector::Y, cam.rotation * Vector::Z, cam.position);
+    floor_plan_of(cam.position, cam.rotation * Vector::X, cam.rotation * Vector::Y, cam.rotation * Vector::Z, tan, range)
+}
+
+/// [`frustum_floor_plan`] from a camera basis already at hand.
+fn floor_plan_of(o: Vector, fwd: Vector, left: Vector, up: Vector, tan: f32, range: f32) -> ([f32; 2], [f32; 2]) {
     let mut lo = [o.x, o.y];
     let mut hi = [o.x, o.y];
     for (a, b) in [(-1.0, -1.0), (-1.0, 1.0), (1.0, -1.0), (1.0, 1.0)] {
