@@ -170,9 +170,8 @@ pub struct VecEnv {
     cur: Vec<f32>,
     /// Previous depth frame per agent.
     prev: Vec<f32>,
+    /// Empty once dropped: the caller assembles observations itself.
     obs: Vec<f32>,
-    /// Whether `obs` is assembled at each step.
-    keep_obs: bool,
     rewards: Vec<f32>,
     dones: Vec<Done>,
     finished: Vec<Episode>,
@@ -280,7 +279,6 @@ impl VecEnv {
             cur: vec![0.0; n * px],
             prev: vec![0.0; n * px],
             obs: vec![0.0; n * obs_len],
-            keep_obs: true,
             rewards: vec![0.0; n],
             dones: vec![Done::Running; n],
             finished: Vec::new(),
@@ -546,7 +544,7 @@ impl VecEnv {
     }
 
     fn assemble_obs(&mut self) {
-        if !self.keep_obs {
+        if self.obs.is_empty() {
             return;
         }
         let mut obs = std::mem::take(&mut self.obs);
@@ -576,7 +574,6 @@ impl VecEnv {
     /// where it needs them with [`write_observations`](Self::write_observations),
     /// saving a copy per step.
     pub fn drop_observation_buffer(&mut self) {
-        self.keep_obs = false;
         self.obs = Vec::new();
     }
 }
