@@ -127,9 +127,10 @@ pub struct ReplaySection {
     /// produced past `min_fill` exceed the transitions the learner has
     /// sampled divided by this ratio (sampled per inserted). 0 turns it off.
     pub samples_per_insert: f64,
-    /// Seconds between snapshots of the memory to `RUN_DIR/replay.bin`
-    /// (written a chunk per loop, so inserts and samples go on; a restarted
-    /// or resumed replay starts from it). 0 turns snapshots off.
+    /// The memory is written through to `RUN_DIR/replay.bin` as it changes
+    /// (a restarted or resumed replay starts with every transition it had)
+    /// and the file is synced to disk every this many seconds. 0 turns the
+    /// file off.
     pub snapshot_every_s: f64,
 }
 
@@ -147,7 +148,9 @@ pub struct LearnerSection {
     pub max_rate_hz: f64,
     /// Updates between weight publications.
     pub publish_every: u64,
-    /// Seconds between checkpoints.
+    /// Seconds between checkpoints (`checkpoints/latest.safetensors` and the
+    /// learner's whole state): a learner killed at any moment restarts with
+    /// at most this much of its updates lost.
     pub checkpoint_every_s: f64,
     /// Threads for training.
     pub threads: usize,
@@ -211,7 +214,7 @@ impl Default for ReplaySection {
 
 impl Default for LearnerSection {
     fn default() -> Self {
-        Self { lr: 5e-4, gamma: 0.99, target_update: 150, max_rate_hz: 0.0, publish_every: 10, checkpoint_every_s: 20.0, threads: 1, huber_delta: 1.0, double_dqn: true, n_step: 1, device: "cpu".into() }
+        Self { lr: 5e-4, gamma: 0.99, target_update: 150, max_rate_hz: 0.0, publish_every: 10, checkpoint_every_s: 1.0, threads: 1, huber_delta: 1.0, double_dqn: true, n_step: 1, device: "cpu".into() }
     }
 }
 

@@ -66,10 +66,36 @@ struct Launcher {
 
 impl Launcher {
     fn spawn(&self, name: &str, args: &[String], append: bool) -> Result<Child> {
+        use std::os::unix::process::CommandExt;
         let path = self.logs.join(format!("{name}.log"));
+        // A role that keeps restarting keeps its log bounded: past
+        // MAX_LOG_BYTES the log moves to `.log.1` (one old log kept).
+        if append && std::fs::metadata(&path).is_ok_and(|m| m.len() > MAX_LOG_BYTES) {
+            let _ = std::fs::rename(&path, path.with_extension("log.1"));
+        }
+        let supervisor = std::process::id();
+        let mut cmd = Command::new(&self.exe);
+        // Roles get a process group of their own, so a terminal's SIGINT and
+        // SIGHUP reach the supervisor alone, which stops them in order; and
+        // they die with the supervisor however it dies (PR_SET_PDEATHSIG,
+        // plus the supervisor watch of every role).
+        cmd.process_group(0).env(crate::roles::SUPERVISOR_PID_ENV, supervisor.to_string());
+        // SAFETY: prctl(2), getppid(2) and raise(3) are async-signal-safe, as
+        // a pre_exec hook needs; nothing is allocated.
+        unsafe {
+            cmd.pre_exec(move || {
+                if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
+                // The supervisor may have died before the prctl took effect.
+                if libc::getppid() as u32 != supervisor {
+                    libc::raise(libc::SIGTERM);
+                }
+                Ok(())
+            });
+        }
         let log = std::fs::OpenOptions::new().create(true).append(append).write(true).truncate(!append).open(&path).with_context(|| format!("cannot open {}", path.display()))?;
-        Command::new(&self.exe)
-            .args(args)
+        cmd.args(args)
             .arg(&self.cfg_path)
             .args(["--prefix", &self.prefix, "--run-dir"])
             .arg(&self.run_dir)
@@ -86,6 +112,9 @@ impl Launcher {
             .with_context(|| format!("cannot start role {name}"))
     }
 }
+
+/// Size past which a role's log is moved aside when the role restarts.
+const MAX_LOG_BYTES: u64 = 16 << 20;
 
 /// A role that dies more often than this within `RESTART_WINDOW` stops the run.
 const MAX_RESTARTS: usize = 3;
@@ -147,6 +176,121 @@ fn civil_from_days(z: i64) -> (i64, u32, u32) {
     let d = (doy - (153 * mp + 2) / 5 + 1) as u32;
     let m = if mp < 10 { mp + 3 } else { mp - 9 } as u32;
     (yoe + era * 400 + (m <= 2) as i64, m, d)
+}
+
+/// The run directory's lock: one owner per run directory. `flock` on
+/// `RUN_DIR/run.lock`, held for the life of the run and released by the
+/// kernel when its holder dies, so a crashed run never blocks its own
+/// `--resume`. The file holds the owner's process id for the refusal message.
+fn lock_run_dir(dir: &std::path::Path) -> Result<File> {
+    let path = dir.join("run.lock");
+    let mut f = std::fs::OpenOptions::new().read(true).write(true).create(true).truncate(false).open(&path).with_context(|| format!("cannot open {}", path.display()))?;
+    match f.try_lock() {
+        Ok(()) => {
+            f.set_len(0).and_then(|_| writeln!(f, "{}", std::process::id())).with_context(|| format!("cannot write {}", path.display()))?;
+            Ok(f)
+        }
+        Err(std::fs::TryLockError::WouldBlock) => {
+            let holder = std::fs::read_to_string(&path).unwrap_or_default();
+            let holder = holder.trim();
+            bail!(
+                "run directory {} is in use by another hive train (process {}); wait for it to end or stop it first (it is left untouched)",
+                dir.display(),
+                if holder.is_empty() { "unknown" } else { holder }
+            )
+        }
+        Err(std::fs::TryLockError::Error(e)) => Err(e).with_context(|| format!("cannot lock {}", path.display())),
+    }
+}
+
+/// A CSV table of the run directory; a failed write (a full disk, a
+/// directory gone) names the file.
+struct Table {
+    path: PathBuf,
+    file: File,
+}
+
+impl Table {
+    /// Opens `RUN_DIR/name`: appended to when `append` and it exists,
+    /// otherwise created with `header`.
+    fn open(dir: &std::path::Path, name: &str, header: &str, append: bool) -> Result<Self> {
+        let path = dir.join(name);
+        let append = append && path.exists();
+        let file = std::fs::OpenOptions::new().create(true).append(append).write(true).truncate(!append).open(&path).with_context(|| format!("cannot write {}", path.display()))?;
+        let mut t = Self { path, file };
+        if !append {
+            writeln!(t, "{header}")?;
+        }
+        Ok(t)
+    }
+
+    /// What `writeln!` calls: one row, whose failure names the file.
+    fn write_fmt(&mut self, line: std::fmt::Arguments) -> Result<()> {
+        self.file.write_fmt(line).with_context(|| format!("cannot write {}", self.path.display()))
+    }
+}
+
+/// Most points a time series of the supervisor keeps (plots need no more).
+const MAX_POINTS: usize = 4096;
+
+/// A time series whose memory stays bounded however long the run: when it
+/// reaches `MAX_POINTS`, every other point goes and from then on only every
+/// other sample is kept (and so on), so it always spans the whole run.
+#[derive(Default)]
+struct Series {
+    points: Vec<(f64, f64)>,
+    stride: usize,
+    seen: usize,
+}
+
+impl Series {
+    fn push(&mut self, p: (f64, f64)) {
+        self.stride = self.stride.max(1);
+        self.seen += 1;
+        if !(self.seen - 1).is_multiple_of(self.stride) {
+            return;
+        }
+        self.points.push(p);
+        if self.points.len() >= MAX_POINTS {
+            let kept: Vec<_> = self.points.iter().copied().step_by(2).collect();
+            self.points = kept;
+            self.stride *= 2;
+            self.seen = 0;
+        }
+    }
+}
+
+/// A running mean (and maximum) that keeps no samples.
+#[derive(Default, Clone, Copy)]
+struct Mean {
+    sum: f64,
+    n: u64,
+    max: f64,
+}
+
+impl Mean {
+    fn add(&mut self, v: f64) {
+        self.sum += v;
+        self.n += 1;
+        self.max = if self.n == 1 { v } else { self.max.max(v) };
+    }
+
+    fn mean(&self) -> Option<f64> {
+        (self.n > 0).then(|| self.sum / self.n as f64)
+    }
+}
+
+/// Prints a line to stdout; a closed terminal (SIGHUP) makes this fail, which
+/// must not stop the run from writing its records.
+fn say(line: &str) {
+    let _ = writeln!(std::io::stdout(), "{line}");
+}
+
+/// The last line of a role's log that reports an error, for the message
+/// that tells why the role died.
+fn last_error(log: &std::path::Path) -> Option<String> {
+    let text = std::fs::read_to_string(log).ok()?;
+    text.lines().rev().find(|l| l.contains("error")).map(|l| l.trim().to_string())
 }
 
 /// One greedy evaluation during training.
@@ -250,6 +394,8 @@ pub fn run(a: TrainArgs) -> Result<()> {
     let run_dir = a.resume.clone().or_else(|| a.run_dir.clone()).unwrap_or_else(|| PathBuf::from("runs").join(timestamp()));
     std::fs::create_dir_all(&run_dir).with_context(|| format!("cannot create run directory {}", run_dir.display()))?;
     let run_dir = run_dir.canonicalize()?;
+    // Nothing of the run directory is written before its lock is held.
+    let _lock = lock_run_dir(&run_dir)?;
     // Roles read the arena relative to their working directory: resolve it now.
     cfg.sim.arena = cfg.sim.arena.canonicalize().with_context(|| format!("arena {}", cfg.sim.arena.display()))?;
     if !cfg.eval.arena.is_empty() {
@@ -266,7 +412,8 @@ pub fn run(a: TrainArgs) -> Result<()> {
     }
     let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.subsec_nanos()).unwrap_or(0);
     let prefix = format!("run-{}-{nanos:x}", std::process::id());
-    let hub = Hub::<Ipc>::new(&prefix, "train")?;
+    rotorhive_transport::handle_hangup();
+    let hub = Hub::<Ipc>::new(&prefix, &rotorhive_transport::supervisor_node_name(&prefix))?;
     let envs = cfg.sim.envs;
     let mut ep_rx = hub.receiver::<f32, EpisodeHeader>(&episodes_channel(envs))?;
     let mut tel_rx = hub.receiver::<u8, Telemetry>(&Channel::telemetry(crate::roles::sim::roles_of(&cfg)))?;
@@ -288,20 +435,12 @@ pub fn run(a: TrainArgs) -> Result<()> {
     let mut restarts = 0u64;
 
     // A resumed run appends to its tables (wall time starts again at 0).
-    let table = |name: &str, header: &str| -> Result<File> {
-        let path = run_dir.join(name);
-        let append = a.resume.is_some() && path.exists();
-        let mut f = std::fs::OpenOptions::new().create(true).append(append).write(true).truncate(!append).open(&path).with_context(|| format!("cannot write {}", path.display()))?;
-        if !append {
-            writeln!(f, "{header}")?;
-        }
-        Ok(f)
-    };
-    let mut metrics = table("metrics.csv", "kind,wall_s,env_steps,episodes,episode_reward,rolling_reward,epsilon,updates,replay_size")?;
-    if a.resume.is_some() {
+    let resumed = a.resume.is_some();
+    let mut metrics = Table::open(&run_dir, "metrics.csv", "kind,wall_s,env_steps,episodes,episode_reward,rolling_reward,epsilon,updates,replay_size", resumed)?;
+    if resumed {
         writeln!(metrics, "resume,0,,,,,,,")?;
     }
-    let mut telemetry = table("telemetry.csv", "wall_s,role,index,pid,cpu_pct,rss_mb,machine_cpu_pct,heartbeat,work,work2,weight_version,lost,stage0_ms,stage1_ms,stage2_ms,stage3_ms,gpu_util_pct,gpu_mem_mb,gpu_power_w,value")?;
+    let mut telemetry = Table::open(&run_dir, "telemetry.csv", "wall_s,role,index,pid,cpu_pct,rss_mb,machine_cpu_pct,heartbeat,work,work2,weight_version,lost,stage0_ms,stage1_ms,stage2_ms,stage3_ms,gpu_util_pct,gpu_mem_mb,gpu_power_w,value", resumed)?;
 
     let bar = if a.quiet { ProgressBar::hidden() } else { ProgressBar::new_spinner() };
     bar.set_style(ProgressStyle::with_template("{spinner} [{elapsed_precise}] {msg}").expect("valid template"));
@@ -312,14 +451,14 @@ pub fn run(a: TrainArgs) -> Result<()> {
     let mut recent: VecDeque<f32> = VecDeque::with_capacity(window);
     let mut episodes = 0u64;
     let mut successes_recent: VecDeque<bool> = VecDeque::with_capacity(window);
-    let mut curve: Vec<(f64, f64)> = Vec::new();
+    let mut curve = Series::default();
     let mut epsilon = cfg.actor.eps_start;
     let mut latest: BTreeMap<(u32, u32), Telemetry> = BTreeMap::new();
     let mut sys = System::new().map_err(|e| anyhow::anyhow!("cannot read system statistics: {e}"))?;
-    let mut cpu_samples: Vec<f64> = Vec::new();
+    let mut cpu_mean = Mean::default();
     let gpu = crate::gpu_monitor::GpuMonitor::new();
-    let mut gpu_samples: Vec<crate::gpu_monitor::GpuReading> = Vec::new();
-    let mut util_series: BTreeMap<String, Vec<(f64, f64)>> = BTreeMap::new();
+    let (mut gpu_util, mut gpu_power, mut gpu_mem) = (Mean::default(), Mean::default(), Mean::default());
+    let mut util_series: BTreeMap<String, Series> = BTreeMap::new();
     let mut peak_rss_mb = 0.0f64;
     let mut time_to_threshold: Option<f64> = None;
     let mut last_tick = Instant::now();
@@ -341,148 +480,160 @@ pub fn run(a: TrainArgs) -> Result<()> {
     }
     let mut evals: Vec<EvalPoint> = Vec::new();
 
-    loop {
-        if hub.shutdown_requested() {
-            interrupted = true;
-            break;
-        }
-        // Episodes from every actor.
-        while let Some(m) = ep_rx.try_recv()? {
-            let h = *m.user_header();
-            epsilon = h.epsilon_micro as f64 / 1e6;
-            for e in m.payload().chunks_exact(3) {
-                episodes += 1;
-                if recent.len() == window {
-                    recent.pop_front();
-                    successes_recent.pop_front();
+    // Any error of the loop (a table that cannot be written, a role that
+    // cannot be started again) stops the run as a failure: the roles are
+    // stopped and the records written all the same.
+    let mut supervise = || -> Result<()> {
+        loop {
+            if hub.shutdown_requested() {
+                interrupted = true;
+                break;
+            }
+            // Episodes from every actor.
+            while let Some(m) = ep_rx.try_recv()? {
+                let h = *m.user_header();
+                epsilon = h.epsilon_micro as f64 / 1e6;
+                for e in m.payload().chunks_exact(3) {
+                    episodes += 1;
+                    if recent.len() == window {
+                        recent.pop_front();
+                        successes_recent.pop_front();
+                    }
+                    recent.push_back(e[0]);
+                    successes_recent.push_back(e[2] == rotorhive_msg::DoneKind::Goal as u8 as f32);
+                    let wall = start.elapsed().as_secs_f64();
+                    let roll = rolling(&recent);
+                    writeln!(
+                        metrics,
+                        "episode,{wall:.3},{},{episodes},{},{roll:.3},{epsilon:.4},{},{}",
+                        sum_work(&latest, RoleKind::Sim),
+                        e[0],
+                        sum_work(&latest, RoleKind::Learner),
+                        latest.get(&(RoleKind::Replay as u32, 0)).map(|t| t.value_milli).unwrap_or(0)
+                    )?;
+                    if recent.len() == window && roll >= threshold && time_to_threshold.is_none() {
+                        time_to_threshold = Some(wall);
+                        let _ = eval_now.send(());
+                    }
                 }
-                recent.push_back(e[0]);
-                successes_recent.push_back(e[2] == rotorhive_msg::DoneKind::Goal as u8 as f32);
+            }
+            evals.extend(eval_rx.try_iter());
+            let best_eval = best_of(&evals);
+            while let Some(m) = tel_rx.try_recv()? {
+                let t = *m.user_header();
+                latest.insert((t.role, t.index), t);
+            }
+            if let Some(t) = time_to_threshold {
+                // Without evaluation the run ends at the threshold; with it,
+                // training goes on until a greedy evaluation (at any time of the
+                // run: the best is the result) is good enough.
+                let good = best_eval.is_some_and(|b| b.success >= cfg.eval.target_success);
+                if !eval_on || good || start.elapsed().as_secs_f64() - t >= cfg.eval.after_threshold_s {
+                    break;
+                }
+            }
+            if let Some(h) = &evaluator_thread
+                && h.is_finished()
+            {
+                failure = Some("the evaluator stopped; see the error below".into());
+                break;
+            }
+            // Supervision: a role that dies is cleaned up after and restarted
+            // (the learner from its last saved state); one that keeps dying
+            // stops the run.
+            for r in &mut children.roles {
+                let Some(status) = r.child.try_wait()? else { continue };
+                if hub.shutdown_requested() {
+                    break;
+                }
+                let log = logs.join(format!("{}.log", r.name));
+                let now = Instant::now();
+                while r.restarts.front().is_some_and(|t| now.duration_since(*t) > RESTART_WINDOW) {
+                    r.restarts.pop_front();
+                }
+                if r.restarts.len() >= MAX_RESTARTS {
+                    let why = last_error(&log).map_or(String::new(), |e| format!(": {e}"));
+                failure = Some(format!("role {} died {} times within {} s (last: {status}{why}); giving up; see {}", r.name, r.restarts.len() + 1, RESTART_WINDOW.as_secs(), log.display()));
+                    break;
+                }
+                let cleaned = cleanup_dead_nodes();
                 let wall = start.elapsed().as_secs_f64();
+                bar.println(format!("[{wall:.1} s] role {} exited ({status}); cleaned {cleaned} dead node(s), restarting", r.name));
+                tracing::warn!("role {} exited ({status}); restarting", r.name);
+                r.child = launcher.spawn(&r.name, &r.args, true)?;
+                r.restarts.push_back(now);
+                restarts += 1;
+                writeln!(metrics, "restart,{wall:.3},,,,,,,")?;
+            }
+            if failure.is_some() {
+                break;
+            }
+            let wall = start.elapsed().as_secs_f64();
+            if wall >= cfg.max_seconds {
+                break;
+            }
+            if last_tick.elapsed() >= Duration::from_secs(1) {
+                last_tick = Instant::now();
+                let pids: Vec<Pid> = children.roles.iter().map(|r| Pid::from_u32(r.child.id())).collect();
+                sys.refresh_cpu_usage();
+                sys.refresh_processes(ProcessesToUpdate::Some(&pids), true);
+                let machine = sys.global_cpu_usage() as f64;
+                cpu_mean.add(machine);
+                let g = gpu.read();
+                if let Some(g) = g {
+                    gpu_util.add(g.util_pct);
+                    gpu_power.add(g.power_w);
+                    gpu_mem.add(g.mem_mb);
+                    util_series.entry("GPU".into()).or_default().push((wall, g.util_pct));
+                }
+                let gcols = g.map_or(",,".to_string(), |g| format!("{:.1},{:.1},{:.1}", g.util_pct, g.mem_mb, g.power_w));
+                util_series.entry("machine CPU".into()).or_default().push((wall, machine));
+                let mut rss_total = 0.0;
+                for t in latest.values() {
+                    let p = sys.process(Pid::from_u32(t.pid));
+                    let (cpu, rss) = p.map(|p| (p.cpu_usage() as f64, p.memory() as f64 / 1e6)).unwrap_or((f64::NAN, f64::NAN));
+                    if rss.is_finite() {
+                        rss_total += rss;
+                    }
+                    let role = RoleKind::from_code(t.role).map(|r| r.name()).unwrap_or("?");
+                    let ms = |i: usize| t.stage_ns[i] as f64 / 1e6;
+                    writeln!(
+                        telemetry,
+                        "{wall:.3},{role},{},{},{cpu:.1},{rss:.1},{machine:.1},{},{},{},{},{},{:.1},{:.1},{:.1},{:.1},{gcols},{}",
+                        t.index, t.pid, t.heartbeat, t.work, t.work2, t.weight_version, t.lost, ms(0), ms(1), ms(2), ms(3), gauge(&t)
+                    )?;
+                    if cpu.is_finite() {
+                        // Per-process CPU is in % of one core; the plot shows % of the machine.
+                        let cores = sys.cpus().len().max(1) as f64;
+                        util_series.entry(format!("{role}-{}", t.index)).or_default().push((wall, cpu / cores));
+                    }
+                }
+                peak_rss_mb = peak_rss_mb.max(rss_total);
                 let roll = rolling(&recent);
+                curve.push((wall, roll));
                 writeln!(
                     metrics,
-                    "episode,{wall:.3},{},{episodes},{},{roll:.3},{epsilon:.4},{},{}",
+                    "tick,{wall:.3},{},{episodes},,{roll:.3},{epsilon:.4},{},{}",
                     sum_work(&latest, RoleKind::Sim),
-                    e[0],
                     sum_work(&latest, RoleKind::Learner),
                     latest.get(&(RoleKind::Replay as u32, 0)).map(|t| t.value_milli).unwrap_or(0)
                 )?;
-                if recent.len() == window && roll >= threshold && time_to_threshold.is_none() {
-                    time_to_threshold = Some(wall);
-                    let _ = eval_now.send(());
-                }
+                let steps = sum_work(&latest, RoleKind::Sim);
+                let updates = sum_work(&latest, RoleKind::Learner);
+                bar.set_message(format!(
+                    "steps {steps} ({:.0}/s) | episodes {episodes} | rolling reward {roll:.1} | eps {epsilon:.3} | updates {updates} ({:.1}/s) | best eval {} | cpu {machine:.0}%{}",
+                    steps as f64 / wall.max(1e-9),
+                    updates as f64 / wall.max(1e-9),
+                    best_eval.map_or("-".to_string(), |b| format!("{:.0}%", b.success * 100.0)),
+                    g.map_or(String::new(), |g| format!(" | gpu {:.0}% {:.0} W", g.util_pct, g.power_w)),
+                ));
             }
+            std::thread::sleep(Duration::from_millis(20));
         }
-        evals.extend(eval_rx.try_iter());
-        let best_eval = best_of(&evals);
-        while let Some(m) = tel_rx.try_recv()? {
-            let t = *m.user_header();
-            latest.insert((t.role, t.index), t);
-        }
-        if let Some(t) = time_to_threshold {
-            // Without evaluation the run ends at the threshold; with it,
-            // training goes on until a greedy evaluation (at any time of the
-            // run: the best is the result) is good enough.
-            let good = best_eval.is_some_and(|b| b.success >= cfg.eval.target_success);
-            if !eval_on || good || start.elapsed().as_secs_f64() - t >= cfg.eval.after_threshold_s {
-                break;
-            }
-        }
-        if let Some(h) = &evaluator_thread
-            && h.is_finished()
-        {
-            failure = Some("the evaluator stopped; see the error below".into());
-            break;
-        }
-        // Supervision: a role that dies is cleaned up after and restarted
-        // (the learner from its last saved state); one that keeps dying
-        // stops the run.
-        for r in &mut children.roles {
-            let Some(status) = r.child.try_wait()? else { continue };
-            if hub.shutdown_requested() {
-                break;
-            }
-            let log = logs.join(format!("{}.log", r.name));
-            let now = Instant::now();
-            while r.restarts.front().is_some_and(|t| now.duration_since(*t) > RESTART_WINDOW) {
-                r.restarts.pop_front();
-            }
-            if r.restarts.len() >= MAX_RESTARTS {
-                failure = Some(format!("role {} died {} times within {} s (last: {status}); giving up; see {}", r.name, r.restarts.len() + 1, RESTART_WINDOW.as_secs(), log.display()));
-                break;
-            }
-            let cleaned = cleanup_dead_nodes();
-            let wall = start.elapsed().as_secs_f64();
-            bar.println(format!("[{wall:.1} s] role {} exited ({status}); cleaned {cleaned} dead node(s), restarting", r.name));
-            tracing::warn!("role {} exited ({status}); restarting", r.name);
-            r.child = launcher.spawn(&r.name, &r.args, true)?;
-            r.restarts.push_back(now);
-            restarts += 1;
-            writeln!(metrics, "restart,{wall:.3},,,,,,,")?;
-        }
-        if failure.is_some() {
-            break;
-        }
-        let wall = start.elapsed().as_secs_f64();
-        if wall >= cfg.max_seconds {
-            break;
-        }
-        if last_tick.elapsed() >= Duration::from_secs(1) {
-            last_tick = Instant::now();
-            let pids: Vec<Pid> = children.roles.iter().map(|r| Pid::from_u32(r.child.id())).collect();
-            sys.refresh_cpu_usage();
-            sys.refresh_processes(ProcessesToUpdate::Some(&pids), true);
-            let machine = sys.global_cpu_usage() as f64;
-            cpu_samples.push(machine);
-            let g = gpu.read();
-            if let Some(g) = g {
-                gpu_samples.push(g);
-                util_series.entry("GPU".into()).or_default().push((wall, g.util_pct));
-            }
-            let gcols = g.map_or(",,".to_string(), |g| format!("{:.1},{:.1},{:.1}", g.util_pct, g.mem_mb, g.power_w));
-            util_series.entry("machine CPU".into()).or_default().push((wall, machine));
-            let mut rss_total = 0.0;
-            for t in latest.values() {
-                let p = sys.process(Pid::from_u32(t.pid));
-                let (cpu, rss) = p.map(|p| (p.cpu_usage() as f64, p.memory() as f64 / 1e6)).unwrap_or((f64::NAN, f64::NAN));
-                if rss.is_finite() {
-                    rss_total += rss;
-                }
-                let role = RoleKind::from_code(t.role).map(|r| r.name()).unwrap_or("?");
-                let ms = |i: usize| t.stage_ns[i] as f64 / 1e6;
-                writeln!(
-                    telemetry,
-                    "{wall:.3},{role},{},{},{cpu:.1},{rss:.1},{machine:.1},{},{},{},{},{},{:.1},{:.1},{:.1},{:.1},{gcols},{}",
-                    t.index, t.pid, t.heartbeat, t.work, t.work2, t.weight_version, t.lost, ms(0), ms(1), ms(2), ms(3), gauge(&t)
-                )?;
-                if cpu.is_finite() {
-                    // Per-process CPU is in % of one core; the plot shows % of the machine.
-                    let cores = sys.cpus().len().max(1) as f64;
-                    util_series.entry(format!("{role}-{}", t.index)).or_default().push((wall, cpu / cores));
-                }
-            }
-            peak_rss_mb = peak_rss_mb.max(rss_total);
-            let roll = rolling(&recent);
-            curve.push((wall, roll));
-            writeln!(
-                metrics,
-                "tick,{wall:.3},{},{episodes},,{roll:.3},{epsilon:.4},{},{}",
-                sum_work(&latest, RoleKind::Sim),
-                sum_work(&latest, RoleKind::Learner),
-                latest.get(&(RoleKind::Replay as u32, 0)).map(|t| t.value_milli).unwrap_or(0)
-            )?;
-            let steps = sum_work(&latest, RoleKind::Sim);
-            let updates = sum_work(&latest, RoleKind::Learner);
-            bar.set_message(format!(
-                "steps {steps} ({:.0}/s) | episodes {episodes} | rolling reward {roll:.1} | eps {epsilon:.3} | updates {updates} ({:.1}/s) | best eval {} | cpu {machine:.0}%{}",
-                steps as f64 / wall.max(1e-9),
-                updates as f64 / wall.max(1e-9),
-                best_eval.map_or("-".to_string(), |b| format!("{:.0}%", b.success * 100.0)),
-                g.map_or(String::new(), |g| format!(" | gpu {:.0}% {:.0} W", g.util_pct, g.power_w)),
-            ));
-        }
-        std::thread::sleep(Duration::from_millis(20));
+        Ok(())
+    };
+    if let Err(e) = supervise() {
+        failure = Some(format!("{e:#}"));
     }
     let wall = start.elapsed().as_secs_f64();
     bar.finish_and_clear();
@@ -536,10 +687,10 @@ pub fn run(a: TrainArgs) -> Result<()> {
         "renderer": cfg.sim.renderer,
         "env_steps_per_s": env_steps as f64 / wall,
         "updates_per_s": updates as f64 / wall,
-        "cpu_util_mean_pct": if cpu_samples.is_empty() { None } else { Some(cpu_samples.iter().sum::<f64>() / cpu_samples.len() as f64) },
-        "gpu_util_mean_pct": (!gpu_samples.is_empty()).then(|| gpu_samples.iter().map(|g| g.util_pct).sum::<f64>() / gpu_samples.len() as f64),
-        "gpu_power_mean_w": (!gpu_samples.is_empty()).then(|| gpu_samples.iter().map(|g| g.power_w).sum::<f64>() / gpu_samples.len() as f64),
-        "gpu_mem_peak_mb": gpu_samples.iter().map(|g| g.mem_mb).reduce(f64::max),
+        "cpu_util_mean_pct": cpu_mean.mean(),
+        "gpu_util_mean_pct": gpu_util.mean(),
+        "gpu_power_mean_w": gpu_power.mean(),
+        "gpu_mem_peak_mb": gpu_mem.mean().map(|_| gpu_mem.max),
         "peak_rss_mb": peak_rss_mb,
         "restarts": restarts,
         "lost_messages": latest.values().map(|t| t.lost).sum::<u64>(),
@@ -555,28 +706,35 @@ pub fn run(a: TrainArgs) -> Result<()> {
         "failure": failure,
         "leftover_services": leftover,
     });
-    std::fs::write(run_dir.join("summary.json"), serde_json::to_string_pretty(&summary)? + "\n")?;
-    let series: Vec<(String, Vec<(f64, f64)>)> = util_series.into_iter().collect();
+    let summary_path = run_dir.join("summary.json");
+    if let Err(e) = std::fs::write(&summary_path, serde_json::to_string_pretty(&summary)? + "\n") {
+        let also = failure.map_or(String::new(), |f| format!(" (the run had failed: {f})"));
+        bail!("cannot write {}: {e}{also}", summary_path.display());
+    }
+    let series: Vec<(String, Vec<(f64, f64)>)> = util_series.into_iter().map(|(k, v)| (k, v.points)).collect();
     // A plot that cannot be drawn costs the picture, not the run's result.
     if let Err(e) = crate::draw::lines_plot("utilisation (% of the machine)", "wall time (s)", "%", &series, &run_dir.join("utilisation.png")) {
         tracing::warn!("utilisation.png not written: {e:#}");
     }
-    if let Err(e) = crate::draw::reward_plot(&curve.iter().copied().filter(|p| p.1.is_finite()).collect::<Vec<_>>(), threshold, &run_dir.join("reward.png")) {
+    if let Err(e) = crate::draw::reward_plot(&curve.points.iter().copied().filter(|p| p.1.is_finite()).collect::<Vec<_>>(), threshold, &run_dir.join("reward.png")) {
         tracing::warn!("reward.png not written: {e:#}");
     }
-    println!(
+    say(&format!(
         "run {}: {} in {wall:.1} s, {episodes} episodes, rolling reward {roll:.1}, {env_steps} agent-steps, {updates} updates",
         run_dir.display(),
         match time_to_threshold {
             Some(t) => format!("converged at {t:.1} s"),
             None => "did not converge".to_string(),
         }
-    );
+    ));
     match crate::profile::report(&run_dir) {
         Ok(r) => {
-            std::fs::write(run_dir.join("profile.md"), &r)?;
+            let path = run_dir.join("profile.md");
+            if let Err(e) = std::fs::write(&path, &r) {
+                tracing::warn!("cannot write {}: {e}", path.display());
+            }
             if let Some(line) = r.lines().find(|l| l.starts_with("**Bottleneck")) {
-                println!("{}", line.replace("**", ""));
+                say(&line.replace("**", ""));
             }
         }
         Err(e) => tracing::warn!("no profile: {e:#}"),

@@ -10,6 +10,9 @@ use std::path::{Path, PathBuf};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
+mod journal;
+pub use journal::Journal;
+
 /// Snapshot header: rows of `u16` words.
 const MAGIC: &[u8; 8] = b"RHRPLU16";
 /// Header of snapshots of `f32` rows, written before rows were packed.

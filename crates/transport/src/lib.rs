@@ -15,9 +15,10 @@
 
 use std::fmt::Debug;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
+use iceoryx2::node::NodeView;
 use iceoryx2::port::BackpressureAction;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
@@ -142,9 +143,16 @@ impl<S: Service> Hub<S> {
         &self.prefix
     }
 
-    /// True once the process was asked to terminate (SIGINT or SIGTERM).
+    /// True once the process was asked to stop: SIGINT, SIGTERM, SIGHUP (see
+    /// [`handle_hangup`]) or [`request_stop`]. Sticky and process-wide, so
+    /// every role thread of a process sees it, however many hubs ask.
     pub fn shutdown_requested(&self) -> bool {
-        self.node.wait(Duration::ZERO).is_err()
+        // iceoryx2 hands a termination signal to the first caller only (it
+        // swaps its flag back); keep it for everyone.
+        if self.node.wait(Duration::ZERO).is_err() {
+            request_stop();
+        }
+        stop_requested()
     }
 
     fn service_name(&self, ch: &Channel) -> Result<ServiceName> {
@@ -197,7 +205,9 @@ impl<S: Service> Hub<S> {
             .publisher_builder()
             .initial_max_slice_len(max_len.max(1))
             .set_backpressure_handler(move |info: &iceoryx2::port::BackpressureInfo| {
-                if info.elapsed_time < stall_timeout {
+                // A process asked to stop gives up at once instead of waiting
+                // out the stall timeout.
+                if info.elapsed_time < stall_timeout && !stop_requested() {
                     // Give the receiver the core instead of spinning on it.
                     std::thread::sleep(Duration::from_micros(50));
                     BackpressureAction::Retry
@@ -380,6 +390,62 @@ impl<S: Service, T: Debug + ZeroCopySend + Default + Copy + 'static, H: Debug + 
     pub fn received(&self) -> u64 {
         self.received
     }
+}
+
+static STOP: AtomicBool = AtomicBool::new(false);
+
+/// Asks every loop of this process to stop (as SIGTERM would).
+pub fn request_stop() {
+    STOP.store(true, Ordering::SeqCst);
+}
+
+/// True once [`request_stop`] was called or a handled signal arrived
+/// (SIGHUP after [`handle_hangup`]; SIGINT and SIGTERM are seen through a
+/// hub's [`Hub::shutdown_requested`]).
+pub fn stop_requested() -> bool {
+    STOP.load(Ordering::SeqCst)
+}
+
+extern "C" fn on_hangup(_: libc::c_int) {
+    // Only an atomic store: async-signal-safe.
+    STOP.store(true, Ordering::SeqCst);
+}
+
+/// Makes SIGHUP (a closed terminal, a dropped SSH session) a request to stop
+/// cleanly, like SIGINT and SIGTERM, instead of killing the process with its
+/// shared memory left behind.
+pub fn handle_hangup() {
+    // SAFETY: installs a handler that only stores to an atomic; the
+    // sigaction struct is fully initialised (zeroed, then the handler set).
+    unsafe {
+        let mut sa: libc::sigaction = std::mem::zeroed();
+        sa.sa_sigaction = on_hangup as *const () as libc::sighandler_t;
+        libc::sigemptyset(&mut sa.sa_mask);
+        libc::sigaction(libc::SIGHUP, &sa, std::ptr::null_mut());
+    }
+}
+
+/// The name of the supervisor's node of run `prefix`: roles watch for it.
+pub fn supervisor_node_name(prefix: &str) -> String {
+    format!("train.{prefix}")
+}
+
+/// Whether a node called `name` is alive (`Some(true)`), known but dead
+/// (`Some(false)`), or not registered at all (`None`).
+pub fn node_alive(name: &str) -> Option<bool> {
+    let mut state = None;
+    let _ = Node::<Ipc>::list(Config::global_config(), |s| {
+        let (alive, details) = match &s {
+            NodeState::Alive(v) => (true, v.details().clone()),
+            NodeState::Dead(v) => (false, v.details().clone()),
+            _ => return CallbackProgression::Continue,
+        };
+        if details.is_some_and(|d| d.name().as_str() == name) {
+            state = Some(state.unwrap_or(false) || alive);
+        }
+        CallbackProgression::Continue
+    });
+    state
 }
 
 /// Removes the resources of iceoryx2 nodes whose processes died; returns how

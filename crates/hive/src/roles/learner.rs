@@ -74,6 +74,7 @@ pub fn run(role: RoleArgs) -> Result<()> {
     publish(&dqn, &mut version)?;
     let min_period = if cfg.learner.max_rate_hz > 0.0 { Duration::from_secs_f64(1.0 / cfg.learner.max_rate_hz) } else { Duration::ZERO };
     let mut last_ckpt = Instant::now();
+    let mut saves = (0u32, Duration::ZERO);
     let mut last_update = Instant::now();
     // The published loss is the mean over the updates since the last
     // telemetry sample: one minibatch's loss is too noisy to show a trend.
@@ -113,10 +114,17 @@ pub fn run(role: RoleArgs) -> Result<()> {
             tel.sample.work2 = version;
         }
         if last_ckpt.elapsed().as_secs_f64() >= cfg.learner.checkpoint_every_s {
+            let t = Instant::now();
             save_atomic(&dqn.online, &ckpt_dir.join("latest.safetensors"))?;
             save_state_atomic(&dqn, &state_path)?;
+            saves.0 += 1;
+            saves.1 += t.elapsed();
             last_ckpt = Instant::now();
         }
+    }
+    if saves.0 > 0 {
+        // What a checkpoint costs the learner (it saves every `checkpoint_every_s`).
+        tracing::info!("learner: {} checkpoints, {:.2} ms each on average", saves.0, saves.1.as_secs_f64() * 1e3 / saves.0 as f64);
     }
     save_atomic(&dqn.online, &run_dir.join("final.safetensors"))?;
     save_state_atomic(&dqn, &state_path)?;

@@ -21,11 +21,59 @@ pub const STALL_TIMEOUT: Duration = Duration::from_secs(2);
 /// How long a role sleeps on an empty channel before re-checking for shutdown.
 pub const POLL: Duration = Duration::from_millis(100);
 
-/// Every role's start: the validated config and the run's hub.
+/// Every role's start: the validated config and the run's hub. SIGHUP
+/// stops the role as SIGTERM does, and the role stops when the supervisor of
+/// its run goes (see [`watch_supervisor`]).
 pub fn open(role: &RoleArgs, node: &str) -> Result<(Config, Hub<Ipc>)> {
     let cfg = Config::load(role.cfg.config.as_deref(), &role.cfg.set)?;
+    rotorhive_transport::handle_hangup();
     let hub = Hub::<Ipc>::new(&role.prefix, node).with_context(|| format!("role {node}"))?;
+    watch_supervisor(&role.prefix, node)?;
     Ok((cfg, hub))
+}
+
+/// The environment variable through which `hive train` tells its roles its
+/// process id.
+pub const SUPERVISOR_PID_ENV: &str = "ROTORHIVE_SUPERVISOR_PID";
+
+/// How long a role whose supervisor is gone has to stop cleanly before it
+/// exits at once (the whole run is down within 2 s of its supervisor).
+const ORPHAN_GRACE: Duration = Duration::from_millis(1500);
+
+/// Stops this role when its run's supervisor is gone, however it went
+/// (SIGKILL, the OOM killer): a thread checks every 200 ms whether the
+/// supervisor that started it is still its parent, and whether the
+/// supervisor's iceoryx2 node (once seen) is alive, which also covers roles
+/// started by hand with `--prefix`. It then asks the role to stop, and ends
+/// the process if it has not stopped within [`ORPHAN_GRACE`]. (`hive train`
+/// also sets `PR_SET_PDEATHSIG`, which signals at once.)
+fn watch_supervisor(prefix: &str, node: &str) -> Result<()> {
+    let parent: Option<i32> = std::env::var(SUPERVISOR_PID_ENV).ok().and_then(|v| v.parse().ok());
+    let supervisor = rotorhive_transport::supervisor_node_name(prefix);
+    let node = node.to_string();
+    std::thread::Builder::new()
+        .name("supervisor-watch".into())
+        .spawn(move || {
+            let mut seen = false;
+            loop {
+                std::thread::sleep(Duration::from_millis(200));
+                // SAFETY: getppid(2) has no preconditions.
+                let orphaned = parent.is_some_and(|p| unsafe { libc::getppid() } != p);
+                let state = rotorhive_transport::node_alive(&supervisor);
+                seen |= state == Some(true);
+                if orphaned || (seen && state != Some(true)) {
+                    tracing::warn!("{node}: the supervisor of this run is gone; stopping");
+                    rotorhive_transport::request_stop();
+                    std::thread::sleep(ORPHAN_GRACE);
+                    eprintln!("{node}: did not stop within {ORPHAN_GRACE:?} of its supervisor's end; exiting");
+                    // SAFETY: _exit(2) ends the process without running
+                    // anything else; shared memory is cleaned by the next start.
+                    unsafe { libc::_exit(3) };
+                }
+            }
+        })
+        .context("cannot start the supervisor watch")?;
+    Ok(())
 }
 
 /// Episode summaries, actor → supervisor: header plus `[f32]` triples

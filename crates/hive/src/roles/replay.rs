@@ -6,7 +6,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use rotorhive_msg::{MinibatchHeader, PACKED_LEN, RoleKind, TransitionHeader};
-use rotorhive_replay::Replay;
+use rotorhive_replay::{Journal, Replay};
 use rotorhive_transport::{Channel, TransportError};
 
 use super::{Counters, open};
@@ -15,20 +15,20 @@ use crate::RoleArgs;
 pub fn run(role: RoleArgs) -> Result<()> {
     let (cfg, hub) = open(&role, "replay")?;
     let r = &cfg.replay;
-    // A restarted (or resumed) replay starts from its last snapshot.
-    let run_dir = role.run_dir.clone();
-    let snap_path = run_dir.as_ref().map(|d| d.join("replay.bin"));
-    let mut mem = match &snap_path {
-        Some(p) if p.exists() => {
-            let m = Replay::load(p, r.capacity, PACKED_LEN, cfg.seed ^ 0x5e1a).context("restoring the replay memory")?;
-            tracing::info!("replay restored {} transitions from {}", m.len(), p.display());
-            m
+    // The memory is written through to RUN_DIR/replay.bin as it changes: a
+    // restarted (or resumed) replay starts with every transition it had.
+    let (mut mem, mut journal) = match &role.run_dir {
+        Some(d) if r.snapshot_every_s > 0.0 => {
+            let (m, j) = Journal::open(&d.join("replay.bin"), r.capacity, PACKED_LEN, cfg.seed ^ 0x5e1a).context("restoring the replay memory")?;
+            if m.len() > 0 {
+                tracing::info!("replay restored {} transitions from {}", m.len(), j.path().display());
+            }
+            (m, Some(j))
         }
-        _ => Replay::new(r.capacity, PACKED_LEN, cfg.seed ^ 0x5e1a),
+        _ => (Replay::new(r.capacity, PACKED_LEN, cfg.seed ^ 0x5e1a), None),
     };
-    let snap_every = (r.snapshot_every_s > 0.0).then(|| Duration::from_secs_f64(r.snapshot_every_s));
-    let mut last_snap = Instant::now();
-    let mut snapshot: Option<rotorhive_replay::Snapshot> = None;
+    let sync_every = Duration::from_secs_f64(r.snapshot_every_s.max(1e-3));
+    let mut last_sync = Instant::now();
     let mut rx = hub.receiver::<u16, TransitionHeader>(&Channel::transitions(cfg.sim.envs))?;
     // Transitions are throughput, not latency: sleep at once when idle.
     rx.set_spin(Duration::ZERO);
@@ -50,7 +50,7 @@ pub fn run(role: RoleArgs) -> Result<()> {
         // to the learner even while producers flood the memory.
         for _ in 0..INGEST_PER_LOOP {
             let Some(m) = rx.try_recv().context("receiving transitions")? else { break };
-            ingest(&m, &mut mem, &mut next_seq, &mut tel.sample.lost);
+            ingest(&m, &mut mem, journal.as_mut(), &mut next_seq, &mut tel.sample.lost)?;
             got = true;
         }
         tel.stage(0, t);
@@ -72,17 +72,11 @@ pub fn run(role: RoleArgs) -> Result<()> {
                 Err(e) => return Err(e).context("sending a minibatch"),
             }
         }
-        // Snapshots a chunk per loop: inserts and samples go on in between.
-        if let (Some(every), Some(path)) = (snap_every, &snap_path) {
-            if snapshot.is_none() && last_snap.elapsed() >= every && mem.len() > 0 {
-                snapshot = Some(mem.begin_snapshot(path)?);
-            }
-            if let Some(s) = &mut snapshot
-                && mem.snapshot_step(s, SNAPSHOT_CHUNK)?
-            {
-                snapshot = None;
-                last_snap = Instant::now();
-            }
+        if let Some(j) = &journal
+            && last_sync.elapsed() >= sync_every
+        {
+            j.sync()?;
+            last_sync = Instant::now();
         }
         tel.sample.work = mem.inserted();
         tel.sample.work2 = mb_seq;
@@ -93,14 +87,13 @@ pub fn run(role: RoleArgs) -> Result<()> {
             // Nothing to do: sleep on the transitions channel.
             let wait = if ready { Duration::from_millis(2) } else { super::POLL };
             if let Some(m) = rx.recv_timeout(wait).context("waiting for transitions")? {
-                ingest(&m, &mut mem, &mut next_seq, &mut tel.sample.lost);
+                ingest(&m, &mut mem, journal.as_mut(), &mut next_seq, &mut tel.sample.lost)?;
             }
             tel.stage(2, t);
         }
     }
-    if let (Some(_), Some(path)) = (snap_every, &snap_path) {
-        drop(snapshot);
-        mem.save(path).context("saving the replay memory")?;
+    if let Some(j) = &journal {
+        j.sync()?;
     }
     tel.tick(true);
     Ok(())
@@ -139,12 +132,10 @@ impl SampleLimit {
 /// Transition batches taken per loop before the next minibatch is offered.
 const INGEST_PER_LOOP: usize = 4;
 
-/// Transitions written per loop while snapshotting (about 4 MiB, a few ms).
-const SNAPSHOT_CHUNK: usize = 256;
-
-/// Inserts one transition batch, counting sequence gaps of its actor (a
-/// restarted actor starts again at 0, which is not loss) and corrupt values.
-fn ingest(m: &rotorhive_transport::Msg<rotorhive_transport::Ipc, u16, TransitionHeader>, mem: &mut Replay, next_seq: &mut [Option<u64>], lost: &mut u64) {
+/// Inserts one transition batch (and records it in the journal), counting
+/// sequence gaps of its actor (a restarted actor starts again at 0, which is
+/// not loss) and corrupt values.
+fn ingest(m: &rotorhive_transport::Msg<rotorhive_transport::Ipc, u16, TransitionHeader>, mem: &mut Replay, journal: Option<&mut Journal>, next_seq: &mut [Option<u64>], lost: &mut u64) -> Result<()> {
     let h = *m.user_header();
     if let Some(slot) = next_seq.get_mut(h.actor as usize) {
         if let Some(want) = *slot
@@ -156,6 +147,10 @@ fn ingest(m: &rotorhive_transport::Msg<rotorhive_transport::Ipc, u16, Transition
     }
     *lost += corrupt(m.payload());
     mem.insert(m.payload());
+    if let Some(j) = journal {
+        j.record(mem, m.payload().len() / PACKED_LEN)?;
+    }
+    Ok(())
 }
 
 /// Counts transitions whose action or done flag is not 0 or 1, or whose
