@@ -141,7 +141,7 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
         BenchCmd::Replay { producers, seconds, json } => crate::replay_bench::run(producers, seconds, json),
         BenchCmd::ReplayProducer { prefix, index, producers, batches } => crate::replay_bench::producer(&prefix, index, producers, batches),
         BenchCmd::Table { config, out, json } => crate::table_bench::run(&config, &out, json),
-        BenchCmd::Learner { threads, batch, updates, compare, json } => crate::roles::learner::bench(threads, batch, updates, compare, json),
+        BenchCmd::Learner { threads, batch, updates, compare, json } => crate::learner_bench::bench(threads, batch, updates, compare, json),
     }
 }
 
@@ -290,7 +290,7 @@ impl ObsHop {
             let hub = Hub::<Ipc>::new(&prefix, "bench-render-actor")?;
             let mut rx = hub.receiver::<f32, rotorhive_msg::ObsHeader>(&ch)?;
             let _ = ready_tx.send(());
-            let mut gather = crate::roles::actor::Gather::new(n);
+            let mut gather = rotorhive_roles::actor::Gather::new(n);
             while !halt.load(std::sync::atomic::Ordering::Relaxed) {
                 let Some(m) = rx.recv_timeout(std::time::Duration::from_millis(10))? else { continue };
                 let h = *m.user_header();
@@ -311,7 +311,7 @@ impl ObsHop {
     /// the nanoseconds this took.
     fn carry(&mut self, env: &VecEnv, step: u64, batched: bool) -> Result<u64> {
         let t = Instant::now();
-        crate::roles::sim::send_obs(&mut self.tx, env, 0, step, (0, 0), batched)?;
+        rotorhive_roles::sim::send_obs(&mut self.tx, env, 0, step, (0, 0), batched)?;
         let got = self.gathered.recv_timeout(std::time::Duration::from_secs(10)).map_err(|_| anyhow::anyhow!("step {step}'s observations were not gathered within 10 s"))?;
         if got != step {
             bail!("gathered step {got}, expected {step}");

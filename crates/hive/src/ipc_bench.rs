@@ -244,7 +244,7 @@ pub fn run(iters: usize, json_out: bool) -> Result<()> {
     drop(hub);
     let rows = result?;
     status?;
-    let left = services_of_run(&prefix);
+    let left = services_of_run::<Ipc>(&prefix);
     if !left.is_empty() {
         bail!("shared memory left behind: {left:?}");
     }

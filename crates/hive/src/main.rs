@@ -8,16 +8,18 @@ mod ipc_bench;
 mod profile;
 mod replay_bench;
 mod table_bench;
-mod config;
 mod draw;
 mod eval;
-mod roles;
+mod learner_bench;
+mod role_cmd;
 mod train;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Args, Parser, Subcommand};
+use role_cmd::RoleArgs;
+use rotorhive_msg::RoleKind;
 
 /// Trains simulated quadrotors to fly through obstacle fields from depth
 /// images, with every process talking through zero-copy shared memory.
@@ -36,19 +38,6 @@ pub struct ConfigArgs {
     /// Override a config key, e.g. `--set sim.agents=10` (repeatable).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub set: Vec<String>,
-}
-
-/// What every role needs to find its run.
-#[derive(Args, Debug, Clone)]
-pub struct RoleArgs {
-    #[command(flatten)]
-    pub cfg: ConfigArgs,
-    /// Service-name prefix of the run (every service of a run starts with it).
-    #[arg(long)]
-    pub prefix: String,
-    /// Run directory (checkpoints are written here).
-    #[arg(long)]
-    pub run_dir: Option<PathBuf>,
 }
 
 #[derive(Subcommand, Debug)]
@@ -125,10 +114,10 @@ fn main() -> ExitCode {
     iceoryx2::prelude::set_log_level(iceoryx2::prelude::LogLevel::Error);
     let result = match cli.command {
         Command::Train(a) => train::run(a),
-        Command::Sim { role, env } => roles::sim::run(role, env),
-        Command::Actor { role, env } => roles::actor::run(role, env),
-        Command::Replay { role } => roles::replay::run(role),
-        Command::Learner { role } => roles::learner::run(role),
+        Command::Sim { role, env } => role_cmd::run(&role, RoleKind::Sim, env),
+        Command::Actor { role, env } => role_cmd::run(&role, RoleKind::Actor, env),
+        Command::Replay { role } => role_cmd::run(&role, RoleKind::Replay, 0),
+        Command::Learner { role } => role_cmd::run(&role, RoleKind::Learner, 0),
         Command::Eval(a) => eval::run(a),
         Command::Bench(b) => bench::run(b),
         Command::RenderArena(a) => draw::render_arena(a),

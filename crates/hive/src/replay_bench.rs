@@ -177,7 +177,7 @@ pub fn run(producers: usize, seconds: f64, json_out: bool) -> Result<()> {
     drop(hub);
     let _ = std::fs::remove_dir_all(&dir);
     let out = result?;
-    let left = services_of_run(&prefix);
+    let left = services_of_run::<Ipc>(&prefix);
     if !left.is_empty() {
         bail!("shared memory left behind: {left:?}");
     }

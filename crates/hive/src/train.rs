@@ -20,13 +20,14 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use rotorhive_model::{Device, QNet};
 use rotorhive_msg::{RoleKind, Telemetry, WeightsHeader};
-use rotorhive_transport::{Channel, Hub, Ipc, cleanup_dead_nodes, services_of_run};
+use iceoryx2::service::Service;
+use rotorhive_transport::{Channel, Hub, Ipc, Local, cleanup_dead_nodes, services_of_run};
 use serde_json::json;
 use sysinfo::{Pid, ProcessesToUpdate, System};
 
 use crate::ConfigArgs;
-use crate::config::Config;
-use crate::roles::{EpisodeHeader, episodes_channel};
+use rotorhive_msg::EpisodeHeader;
+use rotorhive_roles::{Config, episodes_channel, roles_of};
 
 #[derive(Args, Debug)]
 pub struct TrainArgs {
@@ -41,6 +42,10 @@ pub struct TrainArgs {
     /// No progress bar (for logs and tests).
     #[arg(long)]
     pub quiet: bool,
+    /// Serial mode, for debugging: every role as a thread of this process
+    /// over iceoryx2's `local` service (no restarts), same run directory.
+    #[arg(long)]
+    pub serial: bool,
     /// Continue a stopped run in RUN_DIR: its config (plus any --set), the
     /// learner's saved state and the replay memory's snapshot.
     #[arg(long, value_name = "RUN_DIR", conflicts_with = "run_dir")]
@@ -79,7 +84,7 @@ impl Launcher {
         // SIGHUP reach the supervisor alone, which stops them in order; and
         // they die with the supervisor however it dies (PR_SET_PDEATHSIG,
         // plus the supervisor watch of every role).
-        cmd.process_group(0).env(crate::roles::SUPERVISOR_PID_ENV, supervisor.to_string());
+        cmd.process_group(0).env(crate::role_cmd::SUPERVISOR_PID_ENV, supervisor.to_string());
         // SAFETY: prctl(2), getppid(2) and raise(3) are async-signal-safe, as
         // a pre_exec hook needs; nothing is allocated.
         unsafe {
@@ -324,8 +329,8 @@ fn best_of(evals: &[EvalPoint]) -> Option<EvalPoint> {
 /// (or when asked through `now`), on its own iceoryx2 node, and keeps the
 /// best weights as `checkpoints/best.safetensors`. Every evaluation uses the
 /// same spawn positions, so they compare.
-fn evaluator(prefix: String, cfg: Config, run_dir: PathBuf, start: Instant, stop: Arc<AtomicBool>, now: mpsc::Receiver<()>, out: mpsc::Sender<EvalPoint>) -> Result<()> {
-    let hub = Hub::<Ipc>::new(&prefix, "eval")?;
+fn evaluator<S: Service>(prefix: String, cfg: Config, run_dir: PathBuf, start: Instant, stop: Arc<AtomicBool>, now: mpsc::Receiver<()>, out: mpsc::Sender<EvalPoint>) -> Result<()> {
+    let hub = Hub::<S>::new(&prefix, "eval")?;
     let mut rx = hub.receiver::<f32, WeightsHeader>(&Channel::weights(cfg.sim.envs))?;
     let mut net = QNet::new(0, &Device::Cpu)?;
     net.set_threads(1);
@@ -413,25 +418,84 @@ pub fn run(a: TrainArgs) -> Result<()> {
     let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.subsec_nanos()).unwrap_or(0);
     let prefix = format!("run-{}-{nanos:x}", std::process::id());
     rotorhive_transport::handle_hangup();
-    let hub = Hub::<Ipc>::new(&prefix, &rotorhive_transport::supervisor_node_name(&prefix))?;
+    if a.serial {
+        // Candle's pools stay single-threaded, as in the role processes.
+        // SAFETY: no thread of this process has started yet.
+        unsafe {
+            std::env::set_var("RAYON_NUM_THREADS", "1");
+            std::env::set_var("CANDLE_NUM_THREADS", "1");
+        }
+        supervise::<Local>(&a, cfg, run_dir, cfg_path, prefix)
+    } else {
+        supervise::<Ipc>(&a, cfg, run_dir, cfg_path, prefix)
+    }
+}
+
+/// The roles of a run: child processes (restarted when they die), or, in
+/// serial mode, threads of this process.
+enum Members {
+    Processes { launcher: Launcher, children: Children },
+    Threads(Vec<(String, std::thread::JoinHandle<Result<()>>)>),
+}
+
+impl Members {
+    fn pids(&self) -> Vec<Pid> {
+        match self {
+            Members::Processes { children, .. } => children.roles.iter().map(|r| Pid::from_u32(r.child.id())).collect(),
+            Members::Threads(_) => vec![Pid::from_u32(std::process::id())],
+        }
+    }
+
+    /// Stops every role; in serial mode returns the first role's error.
+    fn stop(&mut self) -> Option<String> {
+        match self {
+            Members::Processes { children, .. } => {
+                children.stop();
+                None
+            }
+            Members::Threads(threads) => {
+                rotorhive_transport::request_stop();
+                let mut first = None;
+                for (name, h) in threads.drain(..) {
+                    let err = match h.join() {
+                        Ok(Ok(())) => None,
+                        Ok(Err(e)) => Some(format!("{e:#}")),
+                        Err(_) => Some(format!("role {name} panicked")),
+                    };
+                    first = first.or(err);
+                }
+                first
+            }
+        }
+    }
+}
+
+/// Supervises the run `prefix` over the iceoryx2 service `S` (`ipc` for role
+/// processes, `local` for serial mode) until it ends, then writes its records.
+fn supervise<S: Service>(a: &TrainArgs, cfg: Config, run_dir: PathBuf, cfg_path: PathBuf, prefix: String) -> Result<()> {
+    let hub = Hub::<S>::new(&prefix, &rotorhive_transport::supervisor_node_name(&prefix))?;
     let envs = cfg.sim.envs;
     let mut ep_rx = hub.receiver::<f32, EpisodeHeader>(&episodes_channel(envs))?;
-    let mut tel_rx = hub.receiver::<u8, Telemetry>(&Channel::telemetry(crate::roles::sim::roles_of(&cfg)))?;
+    let mut tel_rx = hub.receiver::<u8, Telemetry>(&Channel::telemetry(roles_of(&cfg)))?;
 
-    let exe = std::env::current_exe().context("cannot find the hive executable")?;
     let logs = run_dir.join("logs");
     std::fs::create_dir_all(&logs)?;
-    let mut specs: Vec<(String, Vec<String>)> = vec![("learner".into(), vec!["learner".into()]), ("replay".into(), vec!["replay".into()])];
-    for e in 0..envs {
-        specs.push((format!("actor-{e}"), vec!["actor".into(), "--env".into(), e.to_string()]));
-        specs.push((format!("sim-{e}"), vec!["sim".into(), "--env".into(), e.to_string()]));
-    }
-    let launcher = Launcher { exe: exe.clone(), cfg_path: cfg_path.clone(), prefix: prefix.clone(), run_dir: run_dir.clone(), logs: logs.clone() };
-    let mut children = Children { roles: Vec::new() };
-    for (name, args) in specs {
-        let child = launcher.spawn(&name, &args, false)?;
-        children.roles.push(Role { name, args, child, restarts: VecDeque::new() });
-    }
+    let mut members = if a.serial {
+        Members::Threads(rotorhive_roles::spawn_serial(&cfg, &prefix, &run_dir)?)
+    } else {
+        let exe = std::env::current_exe().context("cannot find the hive executable")?;
+        let launcher = Launcher { exe, cfg_path: cfg_path.clone(), prefix: prefix.clone(), run_dir: run_dir.clone(), logs: logs.clone() };
+        let mut children = Children { roles: Vec::new() };
+        for (name, role, index) in rotorhive_roles::role_names(&cfg) {
+            let mut args = vec![role.name().to_string()];
+            if matches!(role, RoleKind::Sim | RoleKind::Actor) {
+                args.extend(["--env".to_string(), index.to_string()]);
+            }
+            let child = launcher.spawn(&name, &args, false)?;
+            children.roles.push(Role { name, args, child, restarts: VecDeque::new() });
+        }
+        Members::Processes { launcher, children }
+    };
     let mut restarts = 0u64;
 
     // A resumed run appends to its tables (wall time starts again at 0).
@@ -476,7 +540,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
     let mut evaluator_thread = None;
     if eval_on {
         let (p, c, d, st) = (prefix.clone(), cfg.clone(), run_dir.clone(), eval_stop.clone());
-        evaluator_thread = Some(std::thread::Builder::new().name("eval".into()).spawn(move || evaluator(p, c, d, start, st, eval_now_rx, eval_tx))?);
+        evaluator_thread = Some(std::thread::Builder::new().name("eval".into()).spawn(move || evaluator::<S>(p, c, d, start, st, eval_now_rx, eval_tx))?);
     }
     let mut evals: Vec<EvalPoint> = Vec::new();
 
@@ -541,29 +605,39 @@ pub fn run(a: TrainArgs) -> Result<()> {
             // Supervision: a role that dies is cleaned up after and restarted
             // (the learner from its last saved state); one that keeps dying
             // stops the run.
-            for r in &mut children.roles {
-                let Some(status) = r.child.try_wait()? else { continue };
-                if hub.shutdown_requested() {
-                    break;
+            match &mut members {
+                Members::Threads(threads) => {
+                    // A role thread ends only with an error (or a stop).
+                    if let Some((name, _)) = threads.iter().find(|(_, h)| h.is_finished()) {
+                        failure = Some(format!("role {name} stopped"));
+                    }
                 }
-                let log = logs.join(format!("{}.log", r.name));
-                let now = Instant::now();
-                while r.restarts.front().is_some_and(|t| now.duration_since(*t) > RESTART_WINDOW) {
-                    r.restarts.pop_front();
+                Members::Processes { launcher, children } => {
+                    for r in &mut children.roles {
+                        let Some(status) = r.child.try_wait()? else { continue };
+                        if hub.shutdown_requested() {
+                            break;
+                        }
+                        let log = logs.join(format!("{}.log", r.name));
+                        let now = Instant::now();
+                        while r.restarts.front().is_some_and(|t| now.duration_since(*t) > RESTART_WINDOW) {
+                            r.restarts.pop_front();
+                        }
+                        if r.restarts.len() >= MAX_RESTARTS {
+                            let why = last_error(&log).map_or(String::new(), |e| format!(": {e}"));
+                        failure = Some(format!("role {} died {} times within {} s (last: {status}{why}); giving up; see {}", r.name, r.restarts.len() + 1, RESTART_WINDOW.as_secs(), log.display()));
+                            break;
+                        }
+                        let cleaned = cleanup_dead_nodes();
+                        let wall = start.elapsed().as_secs_f64();
+                        bar.println(format!("[{wall:.1} s] role {} exited ({status}); cleaned {cleaned} dead node(s), restarting", r.name));
+                        tracing::warn!("role {} exited ({status}); restarting", r.name);
+                        r.child = launcher.spawn(&r.name, &r.args, true)?;
+                        r.restarts.push_back(now);
+                        restarts += 1;
+                        writeln!(metrics, "restart,{wall:.3},,,,,,,")?;
+                    }
                 }
-                if r.restarts.len() >= MAX_RESTARTS {
-                    let why = last_error(&log).map_or(String::new(), |e| format!(": {e}"));
-                failure = Some(format!("role {} died {} times within {} s (last: {status}{why}); giving up; see {}", r.name, r.restarts.len() + 1, RESTART_WINDOW.as_secs(), log.display()));
-                    break;
-                }
-                let cleaned = cleanup_dead_nodes();
-                let wall = start.elapsed().as_secs_f64();
-                bar.println(format!("[{wall:.1} s] role {} exited ({status}); cleaned {cleaned} dead node(s), restarting", r.name));
-                tracing::warn!("role {} exited ({status}); restarting", r.name);
-                r.child = launcher.spawn(&r.name, &r.args, true)?;
-                r.restarts.push_back(now);
-                restarts += 1;
-                writeln!(metrics, "restart,{wall:.3},,,,,,,")?;
             }
             if failure.is_some() {
                 break;
@@ -574,7 +648,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
             }
             if last_tick.elapsed() >= Duration::from_secs(1) {
                 last_tick = Instant::now();
-                let pids: Vec<Pid> = children.roles.iter().map(|r| Pid::from_u32(r.child.id())).collect();
+                let pids = members.pids();
                 sys.refresh_cpu_usage();
                 sys.refresh_processes(ProcessesToUpdate::Some(&pids), true);
                 let machine = sys.global_cpu_usage() as f64;
@@ -656,11 +730,16 @@ pub fn run(a: TrainArgs) -> Result<()> {
     }
     evals.extend(eval_rx.try_iter());
     let best_eval = best_of(&evals);
-    children.stop();
+    if let Some(e) = members.stop() {
+        failure = Some(match failure {
+            Some(f) => format!("{f}: {e}"),
+            None => e,
+        });
+    }
     drop(ep_rx);
     drop(tel_rx);
     drop(hub);
-    let leftover = services_of_run(&prefix);
+    let leftover = services_of_run::<S>(&prefix);
 
     let env_steps = sum_work(&latest, RoleKind::Sim);
     let updates = sum_work(&latest, RoleKind::Learner);

@@ -7,7 +7,8 @@
 //! `u8`; the layouts of those slices are documented on each header and computed
 //! by the helpers below, so the sender and the receiver never disagree.
 //!
-//! This crate is the only one that derives `ZeroCopySend`.
+//! This crate is the only one that derives `ZeroCopySend` (besides test-only
+//! headers).
 
 use iceoryx2::prelude::ZeroCopySend;
 
@@ -232,6 +233,22 @@ pub struct WeightsHeader {
     pub updates: u64,
     /// Number of floats in the payload.
     pub len: u64,
+}
+
+/// Header of an episodes message, actor → supervisor. Payload: `[f32]`
+/// triples (return, steps, [`DoneKind`] code), one per finished episode.
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[type_name("rotorhive::EpisodeHeader")]
+#[repr(C)]
+pub struct EpisodeHeader {
+    /// Actor index.
+    pub actor: u32,
+    /// Episodes in the message.
+    pub count: u32,
+    /// Transitions this actor has produced.
+    pub transitions: u64,
+    /// Exploration rate in use ×1e6.
+    pub epsilon_micro: u64,
 }
 
 /// The role a telemetry sample comes from.

@@ -463,11 +463,12 @@ pub fn cleanup_dead_nodes() -> usize {
     cleaned
 }
 
-/// Names of the live iceoryx2 services whose name starts with the run's prefix.
-pub fn services_of_run(prefix: &str) -> Vec<String> {
+/// Names of the live iceoryx2 services of service type `S` whose name
+/// starts with the run's prefix.
+pub fn services_of_run<S: Service>(prefix: &str) -> Vec<String> {
     let want = format!("rotorhive/{prefix}/");
     let mut out = Vec::new();
-    let _ = iceoryx2::service::ipc::Service::list(Config::global_config(), |s| {
+    let _ = S::list(Config::global_config(), |s| {
         let name = s.static_details.name().to_string();
         if name.starts_with(&want) {
             out.push(name);

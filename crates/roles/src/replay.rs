@@ -9,15 +9,17 @@ use rotorhive_msg::{MinibatchHeader, PACKED_LEN, RoleKind, TransitionHeader};
 use rotorhive_replay::{Journal, Replay};
 use rotorhive_transport::{Channel, TransportError};
 
-use super::{Counters, open};
-use crate::RoleArgs;
+use iceoryx2::service::Service;
 
-pub fn run(role: RoleArgs) -> Result<()> {
-    let (cfg, hub) = open(&role, "replay")?;
+use crate::{Counters, Ctx, roles_of};
+
+/// Runs the replay memory until the run stops.
+pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
+    let (cfg, hub) = (cx.cfg, cx.hub);
     let r = &cfg.replay;
     // The memory is written through to RUN_DIR/replay.bin as it changes: a
     // restarted (or resumed) replay starts with every transition it had.
-    let (mut mem, mut journal) = match &role.run_dir {
+    let (mut mem, mut journal) = match cx.run_dir {
         Some(d) if r.snapshot_every_s > 0.0 => {
             let (m, j) = Journal::open(&d.join("replay.bin"), r.capacity, PACKED_LEN, cfg.seed ^ 0x5e1a).context("restoring the replay memory")?;
             if m.len() > 0 {
@@ -35,11 +37,11 @@ pub fn run(role: RoleArgs) -> Result<()> {
     // A full learner queue is normal (the learner is busy): the send gives up
     // after a millisecond and the replay goes back to inserting.
     let mut tx = hub.sender::<u16, MinibatchHeader>(&Channel::minibatches(r.prefetch), r.batch * PACKED_LEN, Duration::from_millis(1))?;
-    let mut tel = Counters::new(&hub, RoleKind::Replay, 0, super::sim::roles_of(&cfg))?;
+    let mut tel = Counters::new(hub, RoleKind::Replay, 0, roles_of(cfg))?;
     let mut next_seq = vec![None::<u64>; cfg.sim.envs];
     let mut mb_seq = 0u64;
     let mut backoff_until = Instant::now();
-    let mut limit = SampleLimit::new(&cfg);
+    let mut limit = SampleLimit::new(cfg);
     loop {
         if hub.shutdown_requested() {
             break;
@@ -85,7 +87,7 @@ pub fn run(role: RoleArgs) -> Result<()> {
         if !got && !sent {
             let t = Instant::now();
             // Nothing to do: sleep on the transitions channel.
-            let wait = if ready { Duration::from_millis(2) } else { super::POLL };
+            let wait = if ready { Duration::from_millis(2) } else { crate::POLL };
             if let Some(m) = rx.recv_timeout(wait).context("waiting for transitions")? {
                 ingest(&m, &mut mem, journal.as_mut(), &mut next_seq, &mut tel.sample.lost)?;
             }
@@ -135,7 +137,7 @@ const INGEST_PER_LOOP: usize = 4;
 /// Inserts one transition batch (and records it in the journal), counting
 /// sequence gaps of its actor (a restarted actor starts again at 0, which is
 /// not loss) and corrupt values.
-fn ingest(m: &rotorhive_transport::Msg<rotorhive_transport::Ipc, u16, TransitionHeader>, mem: &mut Replay, journal: Option<&mut Journal>, next_seq: &mut [Option<u64>], lost: &mut u64) -> Result<()> {
+fn ingest<S: Service>(m: &rotorhive_transport::Msg<S, u16, TransitionHeader>, mem: &mut Replay, journal: Option<&mut Journal>, next_seq: &mut [Option<u64>], lost: &mut u64) -> Result<()> {
     let h = *m.user_header();
     if let Some(slot) = next_seq.get_mut(h.actor as usize) {
         if let Some(want) = *slot

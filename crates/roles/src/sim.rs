@@ -8,14 +8,17 @@ use rotorhive_msg::{ActionHeader, OBS_LEN, ObsHeader, RoleKind, WeightsHeader, o
 use rotorhive_sim::VecEnv;
 use rotorhive_transport::Channel;
 
-use super::{Counters, POLL, STALL_TIMEOUT, open};
-use crate::RoleArgs;
+use iceoryx2::service::Service;
+use rotorhive_transport::{Hub, Receiver, Sender};
+
+use crate::{Counters, Ctx, POLL, STALL_TIMEOUT, roles_of};
 
 /// How long a sim waits for actions before publishing the same step again.
 const RESEND: std::time::Duration = std::time::Duration::from_millis(1000);
 
-pub fn run(role: RoleArgs, env_index: usize) -> Result<()> {
-    let (cfg, hub) = open(&role, &format!("sim-{env_index}"))?;
+/// Runs simulator `env_index` until the run stops.
+pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
+    let (cfg, hub) = (cx.cfg, cx.hub);
     if env_index >= cfg.sim.envs {
         bail!("--env {env_index} is out of range: the config has {} environments", cfg.sim.envs);
     }
@@ -28,8 +31,8 @@ pub fn run(role: RoleArgs, env_index: usize) -> Result<()> {
     env.drop_observation_buffer();
     let mut obs_tx = hub.sender::<f32, ObsHeader>(&Channel::obs(env_index, cfg.obs_messages_per_step()), obs_batch_len(n), STALL_TIMEOUT)?;
     let mut act_rx = hub.receiver::<u8, ActionHeader>(&Channel::actions(env_index))?;
-    let mut tel = Counters::new(&hub, RoleKind::Sim, env_index, roles_of(&cfg))?;
-    let mut limiter = RateLimiter::new(&hub, &cfg)?;
+    let mut tel = Counters::new(hub, RoleKind::Sim, env_index, roles_of(cfg))?;
+    let mut limiter = RateLimiter::new(hub, cfg)?;
     let mut step = 0u64;
     let mut timing = (0u64, 0u64);
     let mut need_send = true;
@@ -83,7 +86,7 @@ pub fn run(role: RoleArgs, env_index: usize) -> Result<()> {
         tel.sample.work2 += env.finished().len() as u64;
         need_send = true;
         let t = Instant::now();
-        limiter.wait(&hub, step)?;
+        limiter.wait(hub, step)?;
         // Waiting on the rate limit is waiting on another process.
         tel.stage(3, t);
     }
@@ -98,8 +101,8 @@ pub fn run(role: RoleArgs, env_index: usize) -> Result<()> {
 /// publication. Both sides count from when learning began, so transitions
 /// that never reached the replay (sent before it subscribed, say) cannot
 /// make the two sides wait on each other.
-struct RateLimiter {
-    weights: Option<rotorhive_transport::Receiver<rotorhive_transport::Ipc, f32, WeightsHeader>>,
+pub struct RateLimiter<S: Service> {
+    weights: Option<Receiver<S, f32, WeightsHeader>>,
     per_step: f64,
     per_update: f64,
     slack: f64,
@@ -114,8 +117,9 @@ struct RateLimiter {
 /// How long the learner may make no progress before the limit lets a step through.
 const STARVED: std::time::Duration = std::time::Duration::from_secs(1);
 
-impl RateLimiter {
-    fn new(hub: &rotorhive_transport::Hub<rotorhive_transport::Ipc>, cfg: &crate::config::Config) -> Result<Self> {
+impl<S: Service> RateLimiter<S> {
+    /// The insert side of the rate limit of the run `cfg` describes.
+    pub fn new(hub: &Hub<S>, cfg: &crate::Config) -> Result<Self> {
         let r = &cfg.replay;
         let on = r.samples_per_insert > 0.0;
         let weights = if on {
@@ -147,7 +151,7 @@ impl RateLimiter {
     /// refilling after a restart, or n-step transitions are still pending),
     /// so the limit is off until its update count moves again: it never
     /// deadlocks the run nor slows a refill.
-    fn wait(&mut self, hub: &rotorhive_transport::Hub<rotorhive_transport::Ipc>, steps: u64) -> Result<()> {
+    pub fn wait(&mut self, hub: &Hub<S>, steps: u64) -> Result<()> {
         let Some(rx) = &mut self.weights else { return Ok(()) };
         let start = std::time::Instant::now();
         let mut progress = start;
@@ -192,7 +196,7 @@ impl RateLimiter {
 
 /// Publishes the observations of a step: one message for all agents
 /// (batched), or one message per agent (non-batched, the old path on purpose).
-pub(crate) fn send_obs(tx: &mut rotorhive_transport::Sender<rotorhive_transport::Ipc, f32, ObsHeader>, env: &VecEnv, e: usize, step: u64, timing: (u64, u64), batched: bool) -> rotorhive_transport::Result<()> {
+pub fn send_obs<S: Service>(tx: &mut Sender<S, f32, ObsHeader>, env: &VecEnv, e: usize, step: u64, timing: (u64, u64), batched: bool) -> rotorhive_transport::Result<()> {
     let total = env.agents();
     let per = if batched { total } else { 1 };
     for first in (0..total).step_by(per) {
@@ -209,9 +213,4 @@ pub(crate) fn send_obs(tx: &mut rotorhive_transport::Sender<rotorhive_transport:
         })?;
     }
     Ok(())
-}
-
-/// Processes that publish telemetry in a run.
-pub fn roles_of(cfg: &crate::config::Config) -> usize {
-    2 * cfg.sim.envs + 2
 }

@@ -12,9 +12,12 @@ use rotorhive_model::QNet;
 use rotorhive_msg::{ActionHeader, OBS_LEN, ObsHeader, PACKED_LEN, RoleKind, TransitionHeader, WeightsHeader, pack_transition};
 use rotorhive_transport::Channel;
 
-use super::{Counters, EpisodeHeader, POLL, STALL_TIMEOUT, episodes_channel, open};
-use crate::RoleArgs;
+use iceoryx2::service::Service;
+use rotorhive_msg::EpisodeHeader;
+use rotorhive_transport::Sender;
+
 use crate::config::Config;
+use crate::{Counters, Ctx, POLL, STALL_TIMEOUT, episodes_channel, roles_of};
 
 /// Exploration rate after `transitions` (across all actors): constant until
 /// the replay memory is full, then linear decay.
@@ -28,8 +31,9 @@ pub fn epsilon(cfg: &Config, transitions: u64) -> f64 {
     a.eps_start + (a.eps_end - a.eps_start) * frac
 }
 
-pub fn run(role: RoleArgs, e: usize) -> Result<()> {
-    let (cfg, hub) = open(&role, &format!("actor-{e}"))?;
+/// Runs the actor of environment `e` until the run stops.
+pub fn run<S: Service>(cx: Ctx<'_, S>, e: usize) -> Result<()> {
+    let (cfg, hub) = (cx.cfg, cx.hub);
     if e >= cfg.sim.envs {
         bail!("--env {e} is out of range: the config has {} environments", cfg.sim.envs);
     }
@@ -44,7 +48,7 @@ pub fn run(role: RoleArgs, e: usize) -> Result<()> {
     let mut trans_tx = hub.sender::<u16, TransitionHeader>(&Channel::transitions(envs), steps_n * n * PACKED_LEN, STALL_TIMEOUT)?;
     let mut w_rx = hub.receiver::<f32, WeightsHeader>(&Channel::weights(envs))?;
     let mut ep_tx = hub.sender::<f32, EpisodeHeader>(&episodes_channel(envs), 3 * n, STALL_TIMEOUT)?;
-    let mut tel = Counters::new(&hub, RoleKind::Actor, e, super::sim::roles_of(&cfg))?;
+    let mut tel = Counters::new(hub, RoleKind::Actor, e, roles_of(cfg))?;
     let mut rng = Pcg64Mcg::seed_from_u64(cfg.seed ^ (0xac70 + e as u64));
 
     let mut version = 0u64;
@@ -123,7 +127,7 @@ pub fn run(role: RoleArgs, e: usize) -> Result<()> {
         let t = Instant::now();
         if have_prev {
             let global = transitions * envs as u64;
-            let eps_now = epsilon(&cfg, global);
+            let eps_now = epsilon(cfg, global);
             // n-step transitions leave once n rewards are known or the
             // episode ended; they are packed in place in the loaned sample.
             nstep.push(&prev_actions, rewards, dones);
@@ -170,7 +174,7 @@ pub fn run(role: RoleArgs, e: usize) -> Result<()> {
         tel.stage(1, t);
 
         let t = Instant::now();
-        let eps = epsilon(&cfg, transitions * envs as u64);
+        let eps = epsilon(cfg, transitions * envs as u64);
         let greedy = net.greedy(obs)?;
         for i in 0..n {
             actions[i] = if rng.random::<f64>() < eps { rng.random_range(0..2u8) } else { greedy[i] };
@@ -291,11 +295,9 @@ mod tests {
     }
 }
 
-/// Publishes one action batch answering observation step `step`; a failed
-/// send is reported and counted, and the sim will publish the step again.
 /// Assembles one step's observation batch (the layout of a batched message)
 /// from per-agent messages, as the non-batched mode sends them.
-pub(crate) struct Gather {
+pub struct Gather {
     n: usize,
     buf: Vec<f32>,
     step: u64,
@@ -303,13 +305,14 @@ pub(crate) struct Gather {
 }
 
 impl Gather {
-    pub(crate) fn new(n: usize) -> Self {
+    /// A gatherer of `n` agents' observations.
+    pub fn new(n: usize) -> Self {
         Self { n, buf: vec![0.0; rotorhive_msg::obs_batch_len(n)], step: u64::MAX, have: 0 }
     }
 
     /// Copies in the agents of one message; true once all agents of its
     /// step are in (a message of a newer step starts the batch afresh).
-    pub(crate) fn add(&mut self, h: &ObsHeader, src: &[f32]) -> bool {
+    pub fn add(&mut self, h: &ObsHeader, src: &[f32]) -> bool {
         let n = self.n;
         if h.step != self.step || self.have == 0 {
             self.step = h.step;
@@ -329,12 +332,14 @@ impl Gather {
     }
 
     /// The gathered batch: observations, rewards, dones.
-    pub(crate) fn batch(&self) -> &[f32] {
+    pub fn batch(&self) -> &[f32] {
         &self.buf
     }
 }
 
-fn send_actions(tx: &mut rotorhive_transport::Sender<rotorhive_transport::Ipc, u8, ActionHeader>, e: usize, step: u64, actions: &[u8], lost: &mut u64) {
+/// Publishes one action batch answering observation step `step`; a failed
+/// send is reported and counted, and the sim will publish the step again.
+fn send_actions<S: Service>(tx: &mut Sender<S, u8, ActionHeader>, e: usize, step: u64, actions: &[u8], lost: &mut u64) {
     let n = actions.len();
     if let Err(err) = tx.send_with(n, |ah, out| {
         *ah = ActionHeader { env: e as u32, agents: n as u32, step };

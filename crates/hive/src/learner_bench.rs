@@ -1,0 +1,105 @@
+//! `hive bench learner`: updates per second on random minibatches through
+//! the learner's update path, and actor inference latency at batch 1 and 50.
+
+use std::time::Instant;
+
+use anyhow::{Result, bail};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64Mcg;
+use rotorhive_model::{Device, Dqn, DqnConfig};
+use rotorhive_msg::{OBS_LEN, TRANSITION_LEN};
+use rotorhive_roles::Config;
+use rotorhive_roles::learner::dqn_config;
+
+/// One path's figures in `hive bench learner`.
+struct PathFigures {
+    updates_per_s: f64,
+    forward_ms: f64,
+    backward_ms: f64,
+    optimiser_ms: f64,
+    infer_b1_ms: f64,
+    infer_b50_ms: f64,
+}
+
+impl PathFigures {
+    fn json(&self) -> serde_json::Value {
+        serde_json::json!({ "updates_per_s": self.updates_per_s, "forward_ms": self.forward_ms, "backward_ms": self.backward_ms, "optimiser_ms": self.optimiser_ms, "infer_b1_ms": self.infer_b1_ms, "infer_b50_ms": self.infer_b50_ms })
+    }
+}
+
+/// Measures updates and inference on one path (fused or generic).
+fn measure(fused: bool, threads: usize, batch: usize, updates: usize) -> Result<PathFigures> {
+    let cfg = Config::default();
+    let mut dqn = Dqn::new(DqnConfig { double: false, ..dqn_config(&cfg) }, 1, &Device::Cpu)?;
+    dqn.set_fused(fused)?;
+    dqn.set_threads(threads);
+    let mut rng = Pcg64Mcg::seed_from_u64(3);
+    let mut data: Vec<f32> = (0..batch * TRANSITION_LEN).map(|_| rng.random::<f32>()).collect();
+    for i in 0..batch {
+        data[i * TRANSITION_LEN + 2 * OBS_LEN] = (i % 2) as f32;
+    }
+    for _ in 0..5 {
+        dqn.update(&data)?;
+    }
+    let (mut f, mut b, mut o) = (0u64, 0u64, 0u64);
+    let start = Instant::now();
+    for _ in 0..updates {
+        dqn.update(&data)?;
+        let t = dqn.timing();
+        f += t.forward_ns;
+        b += t.backward_ns;
+        o += t.optimiser_ns;
+    }
+    let wall = start.elapsed().as_secs_f64();
+    let ms = |ns: u64| ns as f64 / 1e6 / updates as f64;
+    let infer = |n: usize| -> Result<f64> {
+        let obs: Vec<f32> = (0..n * OBS_LEN).map(|i| (i % 97) as f32 / 97.0).collect();
+        dqn.online.greedy(&obs)?;
+        let reps = 50;
+        let t = Instant::now();
+        for _ in 0..reps {
+            dqn.online.greedy(&obs)?;
+        }
+        Ok(t.elapsed().as_secs_f64() * 1e3 / reps as f64)
+    };
+    Ok(PathFigures { updates_per_s: updates as f64 / wall, forward_ms: ms(f), backward_ms: ms(b), optimiser_ms: ms(o), infer_b1_ms: infer(1)?, infer_b50_ms: infer(50)? })
+}
+
+/// `hive bench learner`: updates per second on random minibatches through the
+/// same update path, and actor inference latency at batch 1 and 50; with
+/// `compare`, the generic path of stock candle ops measured in the same run.
+pub fn bench(threads: usize, batch: usize, updates: usize, compare: bool, json: bool) -> Result<()> {
+    if threads == 0 || batch == 0 || updates == 0 {
+        bail!("--threads, --batch and --updates must be positive");
+    }
+    // The fused path shards over `threads` threads itself; candle's
+    // elementwise pool must stay single-threaded (it serialises concurrent
+    // callers), its GEMMs (generic path) use `RAYON_NUM_THREADS`.
+    // SAFETY: no other thread exists yet in this process.
+    unsafe {
+        std::env::set_var("RAYON_NUM_THREADS", threads.to_string());
+        std::env::set_var("CANDLE_NUM_THREADS", "1");
+    }
+    let fused = measure(true, threads, batch, updates)?;
+    let generic = if compare { Some(measure(false, threads, batch, updates)?) } else { None };
+    for (name, p) in std::iter::once(("fused", &fused)).chain(generic.as_ref().map(|g| ("generic", g))) {
+        println!(
+            "{name:>8}: threads {threads}, batch {batch}: {:.1} updates/s (forward {:.2} ms, backward {:.2} ms, optimiser {:.2} ms); inference batch 1: {:.3} ms, batch 50: {:.3} ms",
+            p.updates_per_s, p.forward_ms, p.backward_ms, p.optimiser_ms, p.infer_b1_ms, p.infer_b50_ms
+        );
+    }
+    if let Some(g) = &generic {
+        println!("speed-up of the fused path: {:.1}× updates/s, {:.1}× batch-50 inference", fused.updates_per_s / g.updates_per_s, g.infer_b50_ms / fused.infer_b50_ms);
+    }
+    if json {
+        let mut v = fused.json();
+        v["threads"] = threads.into();
+        v["batch"] = batch.into();
+        if let Some(g) = &generic {
+            v["generic"] = g.json();
+            v["speedup"] = (fused.updates_per_s / g.updates_per_s).into();
+        }
+        println!("{v}");
+    }
+    Ok(())
+}

@@ -1,0 +1,131 @@
+//! The roles of a rotorhive run and what they share: the config, the
+//! context a role runs in, telemetry counters, and the serial mode that runs
+//! every role as a thread of one process.
+//!
+//! Each role is a function generic over the iceoryx2 service type: `ipc`
+//! when `hive` runs it as a process of its own, `local` when it runs as a
+//! thread beside the others ([`serial`]), the debugging mode and the home of
+//! fast role tests. A role takes a [`Ctx`] and no command-line types.
+
+pub mod actor;
+pub mod config;
+pub mod learner;
+pub mod replay;
+pub mod sim;
+
+use std::path::{Path, PathBuf};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result};
+use iceoryx2::service::Service;
+use rotorhive_msg::{RoleKind, STAGES, Telemetry};
+pub use rotorhive_msg::EpisodeHeader;
+use rotorhive_transport::{Channel, Hub, Local, Sender};
+
+pub use config::Config;
+
+/// What a role runs in: its run's hub (the node and the service-name
+/// prefix), the run's resolved config and its directory. A role stops when
+/// `hub.shutdown_requested()` (a signal, or `rotorhive_transport::request_stop`).
+pub struct Ctx<'a, S: Service> {
+    /// The role's node in the run.
+    pub hub: &'a Hub<S>,
+    /// The run's validated config.
+    pub cfg: &'a Config,
+    /// The run directory (checkpoints, the replay's file); none for a role
+    /// that keeps nothing.
+    pub run_dir: Option<&'a Path>,
+}
+
+/// How long a send may wait on a full receiver before the stall is reported.
+pub const STALL_TIMEOUT: Duration = Duration::from_secs(2);
+/// How long a role sleeps on an empty channel before re-checking for shutdown.
+pub const POLL: Duration = Duration::from_millis(100);
+
+/// The episodes channel, actors → supervisor.
+pub fn episodes_channel(envs: usize) -> Channel {
+    Channel { name: "episodes".into(), publishers: envs, subscribers: 1, buffer: 256, overflow: false, history: 0 }
+}
+
+/// Processes (or threads) that publish telemetry in a run.
+pub fn roles_of(cfg: &Config) -> usize {
+    2 * cfg.sim.envs + 2
+}
+
+/// The roles of a run, by node name and what starts them: the learner, the
+/// replay, and an actor and a sim per environment.
+pub fn role_names(cfg: &Config) -> Vec<(String, RoleKind, usize)> {
+    let mut v = vec![("learner".to_string(), RoleKind::Learner, 0), ("replay".to_string(), RoleKind::Replay, 0)];
+    for e in 0..cfg.sim.envs {
+        v.push((format!("actor-{e}"), RoleKind::Actor, e));
+        v.push((format!("sim-{e}"), RoleKind::Sim, e));
+    }
+    v
+}
+
+/// Runs one role in the calling thread until the run stops.
+pub fn run_role<S: Service>(cx: Ctx<'_, S>, role: RoleKind, index: usize) -> Result<()> {
+    match role {
+        RoleKind::Sim => sim::run(cx, index),
+        RoleKind::Actor => actor::run(cx, index),
+        RoleKind::Replay => replay::run(cx),
+        RoleKind::Learner => learner::run(cx),
+    }
+}
+
+/// Serial mode: every role of the run as a thread of this process, over
+/// iceoryx2's `local` service (run `prefix`). Returns each thread's name and
+/// handle; `rotorhive_transport::request_stop` ends them all.
+pub fn spawn_serial(cfg: &Config, prefix: &str, run_dir: &Path) -> Result<Vec<(String, JoinHandle<Result<()>>)>> {
+    let mut out = Vec::new();
+    for (name, role, index) in role_names(cfg) {
+        let (cfg, prefix, dir): (Config, String, PathBuf) = (cfg.clone(), prefix.to_string(), run_dir.to_path_buf());
+        let node = name.clone();
+        let h = std::thread::Builder::new()
+            .name(name.clone())
+            .spawn(move || {
+                let hub = Hub::<Local>::new(&prefix, &node).with_context(|| format!("role {node}"))?;
+                run_role(Ctx { hub: &hub, cfg: &cfg, run_dir: Some(&dir) }, role, index).with_context(|| format!("role {node}"))
+            })
+            .with_context(|| format!("cannot start the {name} thread"))?;
+        out.push((name, h));
+    }
+    Ok(out)
+}
+
+/// A role's telemetry: counters and stage timers, published about once a second.
+pub struct Counters<S: Service> {
+    /// The sample being filled.
+    pub sample: Telemetry,
+    tx: Sender<S, u8, Telemetry>,
+    last: Instant,
+}
+
+impl<S: Service> Counters<S> {
+    /// Counters of role `role` number `index` in a run of `roles` roles.
+    pub fn new(hub: &Hub<S>, role: RoleKind, index: usize, roles: usize) -> Result<Self> {
+        let tx = hub.sender::<u8, Telemetry>(&Channel::telemetry(roles), 1, Duration::from_millis(10))?;
+        let sample = Telemetry { role: role as u32, index: index as u32, pid: std::process::id(), ..Telemetry::default() };
+        Ok(Self { sample, tx, last: Instant::now() - Duration::from_secs(10) })
+    }
+
+    /// Adds the time since `since` to stage `i`.
+    pub fn stage(&mut self, i: usize, since: Instant) {
+        debug_assert!(i < STAGES);
+        self.sample.stage_ns[i] += since.elapsed().as_nanos() as u64;
+    }
+
+    /// Publishes when a second has passed since the last sample (or `force`).
+    pub fn tick(&mut self, force: bool) -> bool {
+        if !force && self.last.elapsed() < Duration::from_secs(1) {
+            return false;
+        }
+        self.last = Instant::now();
+        self.sample.heartbeat += 1;
+        let s = self.sample;
+        // Telemetry overflows rather than blocks; a failure here is not fatal.
+        let _ = self.tx.send_with(1, |h, _| *h = s);
+        true
+    }
+}
