@@ -146,7 +146,7 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
 }
 
 fn bench_sim(agents: &[usize], steps: usize, threads: usize, arena: &std::path::Path, json: bool) -> Result<()> {
-    if agents.iter().any(|n| *n == 0) || steps == 0 || threads == 0 {
+    if agents.contains(&0) || steps == 0 || threads == 0 {
         bail!("--agents, --steps and --threads must be positive");
     }
     let arena = Arena::load(arena)?;
@@ -201,7 +201,7 @@ fn bench_sim(agents: &[usize], steps: usize, threads: usize, arena: &std::path::
 /// and actions in both modes: batched (one call, one submission, one
 /// synchronisation per step) and non-batched (one of each per agent).
 fn bench_render(agents: &[usize], renderer: &str, steps: usize, threads: usize, arena: &std::path::Path, plot: &std::path::Path, json: bool) -> Result<()> {
-    if agents.iter().any(|n| *n == 0) || steps == 0 {
+    if agents.contains(&0) || steps == 0 {
         bail!("--agents and --steps must be positive");
     }
     let kind = match renderer {
@@ -258,7 +258,10 @@ fn bench_render(agents: &[usize], renderer: &str, steps: usize, threads: usize, 
     )?;
     println!("plot: {}", plot.display());
     if json {
-        println!("{}", json!({ "renderer": renderer, "adapter": adapter, "threads": threads, "steps": steps, "rows": rows, "plot": plot.display().to_string() }));
+        println!(
+            "{}",
+            json!({ "renderer": renderer, "adapter": adapter, "threads": threads, "steps": steps, "rows": rows, "plot": plot.display().to_string() })
+        );
     }
     Ok(())
 }
@@ -312,7 +315,10 @@ impl ObsHop {
     fn carry(&mut self, env: &VecEnv, step: u64, batched: bool) -> Result<u64> {
         let t = Instant::now();
         rotorhive_roles::sim::send_obs(&mut self.tx, env, 0, step, (0, 0), batched)?;
-        let got = self.gathered.recv_timeout(std::time::Duration::from_secs(10)).map_err(|_| anyhow::anyhow!("step {step}'s observations were not gathered within 10 s"))?;
+        let got = self
+            .gathered
+            .recv_timeout(std::time::Duration::from_secs(10))
+            .map_err(|_| anyhow::anyhow!("step {step}'s observations were not gathered within 10 s"))?;
         if got != step {
             bail!("gathered step {got}, expected {step}");
         }

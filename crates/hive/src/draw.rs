@@ -157,10 +157,12 @@ fn draw_arena(arena: &Arena, paths: &[Vec<(f32, f32)>], out: &Path) -> Result<()
                     .map_err(plot_err)?;
             }
             Obstacle::Cylinder { center, radius, .. } => {
-                let pts: Vec<(f32, f32)> = (0..24).map(|k| {
-                    let t = k as f32 / 24.0 * std::f32::consts::TAU;
-                    (center[0] + radius * t.cos(), center[1] + radius * t.sin())
-                }).collect();
+                let pts: Vec<(f32, f32)> = (0..24)
+                    .map(|k| {
+                        let t = k as f32 / 24.0 * std::f32::consts::TAU;
+                        (center[0] + radius * t.cos(), center[1] + radius * t.sin())
+                    })
+                    .collect();
                 chart.draw_series(std::iter::once(Polygon::new(pts, BLACK.mix(0.7).filled()))).map_err(plot_err)?;
             }
         }

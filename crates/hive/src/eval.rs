@@ -81,7 +81,10 @@ pub fn run(a: EvalArgs) -> Result<()> {
     let (success_rate, mean_reward, collisions) = (st.success_rate(), st.mean_reward, st.collisions);
     println!("{n} episodes on {}: success {:.1} %, collisions {collisions}, mean reward {mean_reward:.1}", a.arena.display(), success_rate * 100.0);
     if a.json {
-        println!("{}", serde_json::json!({ "success_rate": success_rate, "mean_reward": mean_reward, "episodes": n, "collisions": collisions, "arena": a.arena.display().to_string() }));
+        println!(
+            "{}",
+            serde_json::json!({ "success_rate": success_rate, "mean_reward": mean_reward, "episodes": n, "collisions": collisions, "arena": a.arena.display().to_string() })
+        );
     }
     Ok(())
 }

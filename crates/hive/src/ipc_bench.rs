@@ -138,7 +138,12 @@ pub fn run(iters: usize, json_out: bool) -> Result<()> {
     let mut tx = hub.sender::<f32, ObsHeader>(&request_channel(), max, TIMEOUT)?;
     let mut rx = hub.receiver::<u8, ActionHeader>(&ack_channel())?;
     let exe = std::env::current_exe()?;
-    let mut child = Command::new(exe).args(["bench", "ipc-peer", "--prefix", &prefix]).stdout(Stdio::piped()).stderr(Stdio::inherit()).spawn().context("starting the peer process")?;
+    let mut child = Command::new(exe)
+        .args(["bench", "ipc-peer", "--prefix", &prefix])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .context("starting the peer process")?;
     let result = (|| -> Result<Vec<serde_json::Value>> {
         let mut line = String::new();
         BufReader::new(child.stdout.take().context("peer stdout")?).read_line(&mut line)?;
@@ -209,7 +214,17 @@ pub fn run(iters: usize, json_out: bool) -> Result<()> {
         drop(s);
         println!(
             "{:>17} {:>8} {:>11} {:>11} {:>10} {:>16} {:>15} {:>15} {:>11} {:>7} {:>12}",
-            "message", "KiB", "shm p50 µs", "shm p99 µs", "shm msg/s", "+copy-in p50 µs", "msgpack p50 µs", "msgpack p99 µs", "msgpack/s", "ratio", "ratio +copy"
+            "message",
+            "KiB",
+            "shm p50 µs",
+            "shm p99 µs",
+            "shm msg/s",
+            "+copy-in p50 µs",
+            "msgpack p50 µs",
+            "msgpack p99 µs",
+            "msgpack/s",
+            "ratio",
+            "ratio +copy"
         );
         let mut rows = Vec::new();
         for (k, (name, n)) in kinds().iter().enumerate() {
@@ -248,7 +263,9 @@ pub fn run(iters: usize, json_out: bool) -> Result<()> {
     if !left.is_empty() {
         bail!("shared memory left behind: {left:?}");
     }
-    println!("latency = half the round trip (message + 1-byte acknowledgement), from the message being ready where its producer writes it: shm from the filled loan (rotorhive's roles write their messages in place), msgpack from the sender's buffer (serializing included); +copy-in: shm from a finished buffer copied into the loan; the \"empty\" row is the transport's own share (a 4-byte payload); {iters} messages per row");
+    println!(
+        "latency = half the round trip (message + 1-byte acknowledgement), from the message being ready where its producer writes it: shm from the filled loan (rotorhive's roles write their messages in place), msgpack from the sender's buffer (serializing included); +copy-in: shm from a finished buffer copied into the loan; the \"empty\" row is the transport's own share (a 4-byte payload); {iters} messages per row"
+    );
     if json_out {
         let get = |name: &str| rows.iter().find(|r| r["name"] == name).cloned().unwrap_or_default();
         println!(

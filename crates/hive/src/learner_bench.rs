@@ -62,7 +62,14 @@ fn measure(fused: bool, threads: usize, batch: usize, updates: usize) -> Result<
         }
         Ok(t.elapsed().as_secs_f64() * 1e3 / reps as f64)
     };
-    Ok(PathFigures { updates_per_s: updates as f64 / wall, forward_ms: ms(f), backward_ms: ms(b), optimiser_ms: ms(o), infer_b1_ms: infer(1)?, infer_b50_ms: infer(50)? })
+    Ok(PathFigures {
+        updates_per_s: updates as f64 / wall,
+        forward_ms: ms(f),
+        backward_ms: ms(b),
+        optimiser_ms: ms(o),
+        infer_b1_ms: infer(1)?,
+        infer_b50_ms: infer(50)?,
+    })
 }
 
 /// `hive bench learner`: updates per second on random minibatches through the
@@ -89,7 +96,11 @@ pub fn bench(threads: usize, batch: usize, updates: usize, compare: bool, json: 
         );
     }
     if let Some(g) = &generic {
-        println!("speed-up of the fused path: {:.1}× updates/s, {:.1}× batch-50 inference", fused.updates_per_s / g.updates_per_s, g.infer_b50_ms / fused.infer_b50_ms);
+        println!(
+            "speed-up of the fused path: {:.1}× updates/s, {:.1}× batch-50 inference",
+            fused.updates_per_s / g.updates_per_s,
+            g.infer_b50_ms / fused.infer_b50_ms
+        );
     }
     if json {
         let mut v = fused.json();

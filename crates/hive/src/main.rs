@@ -3,15 +3,15 @@
 //! pictures and system benchmarks.
 
 mod bench;
-mod gpu_monitor;
-mod ipc_bench;
-mod profile;
-mod replay_bench;
-mod table_bench;
 mod draw;
 mod eval;
+mod gpu_monitor;
+mod ipc_bench;
 mod learner_bench;
+mod profile;
+mod replay_bench;
 mod role_cmd;
+mod table_bench;
 mod train;
 
 use std::path::PathBuf;
@@ -99,7 +99,9 @@ fn main() -> ExitCode {
         }
     };
     tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::try_from_env("HIVE_LOG").unwrap_or_else(|_| "info,wgpu_core=warn,wgpu_hal=warn,naga=warn,iceoryx2=warn".into()))
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_env("HIVE_LOG").unwrap_or_else(|_| "info,wgpu_core=warn,wgpu_hal=warn,naga=warn,iceoryx2=warn".into()),
+        )
         .with_writer(std::io::stderr)
         .init();
     // Keep freed tensor buffers in the heap instead of returning them to the

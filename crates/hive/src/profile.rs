@@ -95,15 +95,17 @@ pub fn analyse(run_dir: &Path) -> Result<Profile> {
         machine.extend(r.iter().map(|x| x.machine));
         // The waiting stage: transport for every role, idle for the replay.
         let wait = if kind == RoleKind::Replay { share[2] + share[3] } else { share[3] };
-        roles.push(RoleProfile { name: format!("{role}-{index}"), cpu: mean(r.iter().map(|x| x.cpu)), stages: std::array::from_fn(|k| (names[k], share[k])), wait });
-    }
-    let bottleneck = roles
-        .iter()
-        .min_by(|a, b| a.wait.total_cmp(&b.wait))
-        .map(|r| {
-            let (stage, busy) = r.stages.iter().filter(|(n, _)| *n != "transport_wait" && *n != "idle").fold(("", -1.0), |a, b| if b.1 > a.1 { *b } else { a });
-            Bottleneck { role: r.name.clone(), stage, busy, wait: r.wait }
+        roles.push(RoleProfile {
+            name: format!("{role}-{index}"),
+            cpu: mean(r.iter().map(|x| x.cpu)),
+            stages: std::array::from_fn(|k| (names[k], share[k])),
+            wait,
         });
+    }
+    let bottleneck = roles.iter().min_by(|a, b| a.wait.total_cmp(&b.wait)).map(|r| {
+        let (stage, busy) = r.stages.iter().filter(|(n, _)| *n != "transport_wait" && *n != "idle").fold(("", -1.0), |a, b| if b.1 > a.1 { *b } else { a });
+        Bottleneck { role: r.name.clone(), stage, busy, wait: r.wait }
+    });
     Ok(Profile { roles, machine_cpu: mean(machine.into_iter()), bottleneck })
 }
 
@@ -122,7 +124,14 @@ pub fn report(run_dir: &Path) -> Result<String> {
     writeln!(out, "\nStage columns: share of the role's wall time spent in each stage; `transport_wait` / `idle` is time spent waiting on another process.")?;
     writeln!(out, "Machine CPU: {:.0} % on average over {} cores.", p.machine_cpu, std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1))?;
     if let Some(b) = &p.bottleneck {
-        writeln!(out, "\n**Bottleneck: {}, stage `{}`** ({:.0} % of its wall time; it waits on others only {:.0} % of the time).", b.role, b.stage, b.busy * 100.0, b.wait * 100.0)?;
+        writeln!(
+            out,
+            "\n**Bottleneck: {}, stage `{}`** ({:.0} % of its wall time; it waits on others only {:.0} % of the time).",
+            b.role,
+            b.stage,
+            b.busy * 100.0,
+            b.wait * 100.0
+        )?;
         if p.saturated() {
             writeln!(out, "The machine's CPU is saturated ({:.0} %): the roles compete for cores, so the run is CPU-bound, as in the paper.", p.machine_cpu)?;
         }

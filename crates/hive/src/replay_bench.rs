@@ -56,7 +56,18 @@ fn spawn_producers(prefix: &str, producers: usize, batches: usize) -> Result<Vec
     (0..producers)
         .map(|i| {
             Command::new(&exe)
-                .args(["bench", "replay-producer", "--prefix", prefix, "--index", &i.to_string(), "--producers", &producers.to_string(), "--batches", &batches.to_string()])
+                .args([
+                    "bench",
+                    "replay-producer",
+                    "--prefix",
+                    prefix,
+                    "--index",
+                    &i.to_string(),
+                    "--producers",
+                    &producers.to_string(),
+                    "--batches",
+                    &batches.to_string(),
+                ])
                 .stdout(Stdio::piped())
                 .spawn()
                 .context("starting a producer")
@@ -80,7 +91,7 @@ fn join_producers(children: Vec<Child>) -> Result<f64> {
 }
 
 pub fn run(producers: usize, seconds: f64, json_out: bool) -> Result<()> {
-    if producers == 0 || !(seconds > 0.0) {
+    if producers == 0 || !(seconds.is_finite() && seconds > 0.0) {
         bail!("--producers and --seconds must be positive");
     }
     let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.subsec_nanos()).unwrap_or(0);
@@ -160,7 +171,10 @@ pub fn run(producers: usize, seconds: f64, json_out: bool) -> Result<()> {
         let mixed_samples = got as f64 / mixed_secs;
         println!("{:>10} {:>16} {:>16} {:>22} {:>22}", "producers", "inserts/s alone", "samples/s alone", "inserts/s (together)", "samples/s (together)");
         println!("{producers:>10} {inserts_per_s:>16.0} {samples_per_s:>16.0} {mixed_inserts:>22.0} {mixed_samples:>22.0}");
-        println!("packed transitions of {PACKED_LEN} u16 words ({:.1} KiB: 16-bit depth), {PER_MSG} per message; minibatches of 32; cpprb (in-process, Python) on this machine: 538,000 inserts/s, 15,500 samples/s", PACKED_LEN as f64 * 2.0 / 1024.0);
+        println!(
+            "packed transitions of {PACKED_LEN} u16 words ({:.1} KiB: 16-bit depth), {PER_MSG} per message; minibatches of 32; cpprb (in-process, Python) on this machine: 538,000 inserts/s, 15,500 samples/s",
+            PACKED_LEN as f64 * 2.0 / 1024.0
+        );
         Ok(json!({
             "producers": producers,
             "inserts_per_s": inserts_per_s,

@@ -97,7 +97,13 @@ fn distinct<T: PartialEq>(it: impl IntoIterator<Item = T>) -> Vec<T> {
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     let n = v.len();
-    if n == 0 { f64::NAN } else if n % 2 == 1 { v[n / 2] } else { (v[n / 2 - 1] + v[n / 2]) / 2.0 }
+    if n == 0 {
+        f64::NAN
+    } else if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        (v[n / 2 - 1] + v[n / 2]) / 2.0
+    }
 }
 
 /// The cells of `rows` in order of first appearance, with the medians over
@@ -180,7 +186,8 @@ fn trend(md: &mut String, cells: &[CellMedian], budget_s: f64) -> Result<()> {
                 format!("{n} agent{} {} s", if n == 1 { "" } else { "s" }, fmt_time(c.time, budget_s))
             })
             .collect();
-        let flat: Vec<(&CellMedian, &CellMedian)> = of.windows(2).map(|w| (w[0], w[1])).filter(|(a, b)| b.time.partial_cmp(&a.time) != Some(std::cmp::Ordering::Less)).collect();
+        let flat: Vec<(&CellMedian, &CellMedian)> =
+            of.windows(2).map(|w| (w[0], w[1])).filter(|(a, b)| b.time.partial_cmp(&a.time) != Some(std::cmp::Ordering::Less)).collect();
         if of.len() < 2 {
             writeln!(md, "- {mode}: {} (one cell, no trend).", path.join(""))?;
         } else if flat.is_empty() {
@@ -226,7 +233,12 @@ pub fn run(config: &Path, out: &Path, json_out: bool) -> Result<()> {
                 eprintln!("[{k}/{total}] {name}: up to {:.0} s", tc.budget_s);
                 let mut cmd = Command::new(&exe);
                 cmd.arg("train").arg(&tc.config).arg("--quiet").arg("--run-dir").arg(&dir).arg("--max-seconds").arg(tc.budget_s.to_string());
-                for s in tc.set.iter().cloned().chain([format!("sim.envs={envs}"), format!("sim.agents={agents}"), format!("sim.observation_mode=\"{mode}\""), format!("seed={seed}")]) {
+                for s in tc.set.iter().cloned().chain([
+                    format!("sim.envs={envs}"),
+                    format!("sim.agents={agents}"),
+                    format!("sim.observation_mode=\"{mode}\""),
+                    format!("seed={seed}"),
+                ]) {
                     cmd.arg("--set").arg(s);
                 }
                 let status = cmd.status().with_context(|| format!("cell {name}: cannot start hive train"))?;
@@ -264,10 +276,19 @@ pub fn run(config: &Path, out: &Path, json_out: bool) -> Result<()> {
     }
     let mut md = String::new();
     writeln!(md, "# Agent-count table (the paper's Table II) on this machine\n")?;
-    writeln!(md, "Budget {:.0} s per cell; threshold: rolling mean of the last 50 episodes ≥ the config's threshold. Paper: i7-11700K + RTX 2070 Super, AirSim.\n", tc.budget_s)?;
-    writeln!(md, "| observations | envs | agents | total | seed | time to 300 (s) | agent-steps/s | updates/s | CPU % | bottleneck | GPU % | GPU W | paper time | paper CPU % | paper GPU % | paper GPU W |")?;
+    writeln!(
+        md,
+        "Budget {:.0} s per cell; threshold: rolling mean of the last 50 episodes ≥ the config's threshold. Paper: i7-11700K + RTX 2070 Super, AirSim.\n",
+        tc.budget_s
+    )?;
+    writeln!(
+        md,
+        "| observations | envs | agents | total | seed | time to 300 (s) | agent-steps/s | updates/s | CPU % | bottleneck | GPU % | GPU W | paper time | paper CPU % | paper GPU % | paper GPU W |"
+    )?;
     writeln!(md, "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")?;
-    let mut csv = String::from("mode,envs,agents,agents_total,seed,converged,time_to_threshold_s,wall_s,env_steps_per_s,updates_per_s,cpu_util_mean_pct,bottleneck,bottleneck_busy_pct,gpu_util_mean_pct,gpu_power_mean_w,paper_time,paper_cpu_pct,paper_gpu_pct,paper_gpu_w\n");
+    let mut csv = String::from(
+        "mode,envs,agents,agents_total,seed,converged,time_to_threshold_s,wall_s,env_steps_per_s,updates_per_s,cpu_util_mean_pct,bottleneck,bottleneck_busy_pct,gpu_util_mean_pct,gpu_power_mean_w,paper_time,paper_cpu_pct,paper_gpu_pct,paper_gpu_w\n",
+    );
     for r in &rows {
         let (mode, envs, agents) = (r["mode"].as_str().unwrap_or(""), r["envs"].as_u64().unwrap_or(0) as usize, r["agents"].as_u64().unwrap_or(0) as usize);
         let p = paper(mode, envs, agents);

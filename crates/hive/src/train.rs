@@ -17,10 +17,10 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
+use iceoryx2::service::Service;
 use indicatif::{ProgressBar, ProgressStyle};
 use rotorhive_model::{Device, QNet};
 use rotorhive_msg::{RoleKind, Telemetry, WeightsHeader};
-use iceoryx2::service::Service;
 use rotorhive_transport::{Channel, Hub, Ipc, Local, cleanup_dead_nodes, services_of_run};
 use serde_json::json;
 use sysinfo::{Pid, ProcessesToUpdate, System};
@@ -99,7 +99,13 @@ impl Launcher {
                 Ok(())
             });
         }
-        let log = std::fs::OpenOptions::new().create(true).append(append).write(true).truncate(!append).open(&path).with_context(|| format!("cannot open {}", path.display()))?;
+        let log = std::fs::OpenOptions::new()
+            .create(true)
+            .append(append)
+            .write(true)
+            .truncate(!append)
+            .open(&path)
+            .with_context(|| format!("cannot open {}", path.display()))?;
         cmd.args(args)
             .arg(&self.cfg_path)
             .args(["--prefix", &self.prefix, "--run-dir"])
@@ -189,7 +195,13 @@ fn civil_from_days(z: i64) -> (i64, u32, u32) {
 /// `--resume`. The file holds the owner's process id for the refusal message.
 fn lock_run_dir(dir: &std::path::Path) -> Result<File> {
     let path = dir.join("run.lock");
-    let mut f = std::fs::OpenOptions::new().read(true).write(true).create(true).truncate(false).open(&path).with_context(|| format!("cannot open {}", path.display()))?;
+    let mut f = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(&path)
+        .with_context(|| format!("cannot open {}", path.display()))?;
     match f.try_lock() {
         Ok(()) => {
             f.set_len(0).and_then(|_| writeln!(f, "{}", std::process::id())).with_context(|| format!("cannot write {}", path.display()))?;
@@ -221,7 +233,13 @@ impl Table {
     fn open(dir: &std::path::Path, name: &str, header: &str, append: bool) -> Result<Self> {
         let path = dir.join(name);
         let append = append && path.exists();
-        let file = std::fs::OpenOptions::new().create(true).append(append).write(true).truncate(!append).open(&path).with_context(|| format!("cannot write {}", path.display()))?;
+        let file = std::fs::OpenOptions::new()
+            .create(true)
+            .append(append)
+            .write(true)
+            .truncate(!append)
+            .open(&path)
+            .with_context(|| format!("cannot write {}", path.display()))?;
         let mut t = Self { path, file };
         if !append {
             writeln!(t, "{header}")?;
@@ -329,7 +347,15 @@ fn best_of(evals: &[EvalPoint]) -> Option<EvalPoint> {
 /// (or when asked through `now`), on its own iceoryx2 node, and keeps the
 /// best weights as `checkpoints/best.safetensors`. Every evaluation uses the
 /// same spawn positions, so they compare.
-fn evaluator<S: Service>(prefix: String, cfg: Config, run_dir: PathBuf, start: Instant, stop: Arc<AtomicBool>, now: mpsc::Receiver<()>, out: mpsc::Sender<EvalPoint>) -> Result<()> {
+fn evaluator<S: Service>(
+    prefix: String,
+    cfg: Config,
+    run_dir: PathBuf,
+    start: Instant,
+    stop: Arc<AtomicBool>,
+    now: mpsc::Receiver<()>,
+    out: mpsc::Sender<EvalPoint>,
+) -> Result<()> {
     let hub = Hub::<S>::new(&prefix, "eval")?;
     let mut rx = hub.receiver::<f32, WeightsHeader>(&Channel::weights(cfg.sim.envs))?;
     let mut net = QNet::new(0, &Device::Cpu)?;
@@ -404,7 +430,8 @@ pub fn run(a: TrainArgs) -> Result<()> {
     // Roles read the arena relative to their working directory: resolve it now.
     cfg.sim.arena = cfg.sim.arena.canonicalize().with_context(|| format!("arena {}", cfg.sim.arena.display()))?;
     if !cfg.eval.arena.is_empty() {
-        cfg.eval.arena = std::path::Path::new(&cfg.eval.arena).canonicalize().with_context(|| format!("key `eval.arena`: {}", cfg.eval.arena))?.display().to_string();
+        cfg.eval.arena =
+            std::path::Path::new(&cfg.eval.arena).canonicalize().with_context(|| format!("key `eval.arena`: {}", cfg.eval.arena))?.display().to_string();
         cfg.eval_arenas()?;
     }
     let cfg_path = run_dir.join("config.toml");
@@ -435,14 +462,14 @@ pub fn run(a: TrainArgs) -> Result<()> {
 /// serial mode, threads of this process.
 enum Members {
     Processes { launcher: Launcher, children: Children },
-    Threads(Vec<(String, std::thread::JoinHandle<Result<()>>)>),
+    Threads { stop: Arc<AtomicBool>, threads: Vec<(String, std::thread::JoinHandle<Result<()>>)> },
 }
 
 impl Members {
     fn pids(&self) -> Vec<Pid> {
         match self {
             Members::Processes { children, .. } => children.roles.iter().map(|r| Pid::from_u32(r.child.id())).collect(),
-            Members::Threads(_) => vec![Pid::from_u32(std::process::id())],
+            Members::Threads { .. } => vec![Pid::from_u32(std::process::id())],
         }
     }
 
@@ -453,8 +480,8 @@ impl Members {
                 children.stop();
                 None
             }
-            Members::Threads(threads) => {
-                rotorhive_transport::request_stop();
+            Members::Threads { stop, threads } => {
+                stop.store(true, Ordering::SeqCst);
                 let mut first = None;
                 for (name, h) in threads.drain(..) {
                     let err = match h.join() {
@@ -481,7 +508,8 @@ fn supervise<S: Service>(a: &TrainArgs, cfg: Config, run_dir: PathBuf, cfg_path:
     let logs = run_dir.join("logs");
     std::fs::create_dir_all(&logs)?;
     let mut members = if a.serial {
-        Members::Threads(rotorhive_roles::spawn_serial(&cfg, &prefix, &run_dir)?)
+        let stop = Arc::new(AtomicBool::new(false));
+        Members::Threads { threads: rotorhive_roles::spawn_serial(&cfg, &prefix, &run_dir, &stop)?, stop }
     } else {
         let exe = std::env::current_exe().context("cannot find the hive executable")?;
         let launcher = Launcher { exe, cfg_path: cfg_path.clone(), prefix: prefix.clone(), run_dir: run_dir.clone(), logs: logs.clone() };
@@ -500,11 +528,17 @@ fn supervise<S: Service>(a: &TrainArgs, cfg: Config, run_dir: PathBuf, cfg_path:
 
     // A resumed run appends to its tables (wall time starts again at 0).
     let resumed = a.resume.is_some();
-    let mut metrics = Table::open(&run_dir, "metrics.csv", "kind,wall_s,env_steps,episodes,episode_reward,rolling_reward,epsilon,updates,replay_size", resumed)?;
+    let mut metrics =
+        Table::open(&run_dir, "metrics.csv", "kind,wall_s,env_steps,episodes,episode_reward,rolling_reward,epsilon,updates,replay_size", resumed)?;
     if resumed {
         writeln!(metrics, "resume,0,,,,,,,")?;
     }
-    let mut telemetry = Table::open(&run_dir, "telemetry.csv", "wall_s,role,index,pid,cpu_pct,rss_mb,machine_cpu_pct,heartbeat,work,work2,weight_version,lost,stage0_ms,stage1_ms,stage2_ms,stage3_ms,gpu_util_pct,gpu_mem_mb,gpu_power_w,value", resumed)?;
+    let mut telemetry = Table::open(
+        &run_dir,
+        "telemetry.csv",
+        "wall_s,role,index,pid,cpu_pct,rss_mb,machine_cpu_pct,heartbeat,work,work2,weight_version,lost,stage0_ms,stage1_ms,stage2_ms,stage3_ms,gpu_util_pct,gpu_mem_mb,gpu_power_w,value",
+        resumed,
+    )?;
 
     let bar = if a.quiet { ProgressBar::hidden() } else { ProgressBar::new_spinner() };
     bar.set_style(ProgressStyle::with_template("{spinner} [{elapsed_precise}] {msg}").expect("valid template"));
@@ -606,7 +640,7 @@ fn supervise<S: Service>(a: &TrainArgs, cfg: Config, run_dir: PathBuf, cfg_path:
             // (the learner from its last saved state); one that keeps dying
             // stops the run.
             match &mut members {
-                Members::Threads(threads) => {
+                Members::Threads { threads, .. } => {
                     // A role thread ends only with an error (or a stop).
                     if let Some((name, _)) = threads.iter().find(|(_, h)| h.is_finished()) {
                         failure = Some(format!("role {name} stopped"));
@@ -625,7 +659,13 @@ fn supervise<S: Service>(a: &TrainArgs, cfg: Config, run_dir: PathBuf, cfg_path:
                         }
                         if r.restarts.len() >= MAX_RESTARTS {
                             let why = last_error(&log).map_or(String::new(), |e| format!(": {e}"));
-                        failure = Some(format!("role {} died {} times within {} s (last: {status}{why}); giving up; see {}", r.name, r.restarts.len() + 1, RESTART_WINDOW.as_secs(), log.display()));
+                            failure = Some(format!(
+                                "role {} died {} times within {} s (last: {status}{why}); giving up; see {}",
+                                r.name,
+                                r.restarts.len() + 1,
+                                RESTART_WINDOW.as_secs(),
+                                log.display()
+                            ));
                             break;
                         }
                         let cleaned = cleanup_dead_nodes();
@@ -674,7 +714,18 @@ fn supervise<S: Service>(a: &TrainArgs, cfg: Config, run_dir: PathBuf, cfg_path:
                     writeln!(
                         telemetry,
                         "{wall:.3},{role},{},{},{cpu:.1},{rss:.1},{machine:.1},{},{},{},{},{},{:.1},{:.1},{:.1},{:.1},{gcols},{}",
-                        t.index, t.pid, t.heartbeat, t.work, t.work2, t.weight_version, t.lost, ms(0), ms(1), ms(2), ms(3), gauge(&t)
+                        t.index,
+                        t.pid,
+                        t.heartbeat,
+                        t.work,
+                        t.work2,
+                        t.weight_version,
+                        t.lost,
+                        ms(0),
+                        ms(1),
+                        ms(2),
+                        ms(3),
+                        gauge(t)
                     )?;
                     if cpu.is_finite() {
                         // Per-process CPU is in % of one core; the plot shows % of the machine.
@@ -795,7 +846,9 @@ fn supervise<S: Service>(a: &TrainArgs, cfg: Config, run_dir: PathBuf, cfg_path:
     if let Err(e) = crate::draw::lines_plot("utilisation (% of the machine)", "wall time (s)", "%", &series, &run_dir.join("utilisation.png")) {
         tracing::warn!("utilisation.png not written: {e:#}");
     }
-    if let Err(e) = crate::draw::reward_plot(&curve.points.iter().copied().filter(|p| p.1.is_finite()).collect::<Vec<_>>(), threshold, &run_dir.join("reward.png")) {
+    if let Err(e) =
+        crate::draw::reward_plot(&curve.points.iter().copied().filter(|p| p.1.is_finite()).collect::<Vec<_>>(), threshold, &run_dir.join("reward.png"))
+    {
         tracing::warn!("reward.png not written: {e:#}");
     }
     say(&format!(

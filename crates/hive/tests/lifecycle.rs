@@ -32,7 +32,20 @@ fn hive(args: &[&str], dir: &Path) -> Command {
 /// A small, long training run in `dir` (the tests stop it).
 fn start_run(dir: &Path) -> Run {
     let child = hive(&["train", "configs/default.toml", "--quiet", "--max-seconds", "150", "--run-dir"], dir)
-        .args(["--set", "sim.agents=8", "--set", "replay.min_fill=300", "--set", "replay.capacity=2000", "--set", "eval.every_s=0", "--set", "threshold=100000", "--set", "learner.checkpoint_every_s=1"])
+        .args([
+            "--set",
+            "sim.agents=8",
+            "--set",
+            "replay.min_fill=300",
+            "--set",
+            "replay.capacity=2000",
+            "--set",
+            "eval.every_s=0",
+            "--set",
+            "threshold=100000",
+            "--set",
+            "learner.checkpoint_every_s=1",
+        ])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -114,7 +127,7 @@ fn kill_learner_after_checkpoint(dir: &Path, after: Duration) -> f64 {
     let lost = SystemTime::now().duration_since(saved).unwrap().as_secs_f64();
     wait_for("the learner to come back", Duration::from_secs(30), || role_state(dir, "learner").is_some_and(|(_, p, _)| p != pid));
     let log = std::fs::read_to_string(dir.join("logs/learner.log")).unwrap();
-    let restored: u64 = log.lines().filter_map(|l| l.split(" at update ").nth(1)).last().expect("the learner restored its state").trim().parse().unwrap();
+    let restored: u64 = log.lines().filter_map(|l| l.split(" at update ").nth(1)).next_back().expect("the learner restored its state").trim().parse().unwrap();
     assert!(restored > 0, "restored at update 0:\n{log}");
     lost
 }
@@ -170,7 +183,9 @@ fn no_role_outlives_a_killed_supervisor_by_two_seconds() {
     let _turn = TURN.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
     let dir = tmp("orphans");
     let run = start_run(&dir);
-    wait_for("every role to report", Duration::from_secs(60), || ["sim", "actor", "replay", "learner"].iter().all(|r| role_state(&dir, r).is_some()) && role_state(&dir, "learner").is_some_and(|(_, _, u)| u > 5));
+    wait_for("every role to report", Duration::from_secs(60), || {
+        ["sim", "actor", "replay", "learner"].iter().all(|r| role_state(&dir, r).is_some()) && role_state(&dir, "learner").is_some_and(|(_, _, u)| u > 5)
+    });
     let pids: Vec<(&str, i32)> = ["sim", "actor", "replay", "learner"].iter().map(|r| (*r, role_state(&dir, r).unwrap().1)).collect();
     assert!(pids.iter().all(|(_, p)| !gone(*p)), "{pids:?}");
     let out = run.signal_and_wait(libc::SIGKILL);

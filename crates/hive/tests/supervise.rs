@@ -41,7 +41,20 @@ fn killed_roles_are_restarted_and_training_goes_on() {
         .current_dir(root())
         .args(["train", "configs/default.toml", "--quiet", "--max-seconds", "70", "--run-dir"])
         .arg(&dir)
-        .args(["--set", "sim.agents=8", "--set", "replay.min_fill=300", "--set", "replay.capacity=2000", "--set", "learner.checkpoint_every_s=2", "--set", "eval.every_s=0", "--set", "threshold=100000"])
+        .args([
+            "--set",
+            "sim.agents=8",
+            "--set",
+            "replay.min_fill=300",
+            "--set",
+            "replay.capacity=2000",
+            "--set",
+            "learner.checkpoint_every_s=2",
+            "--set",
+            "eval.every_s=0",
+            "--set",
+            "threshold=100000",
+        ])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -71,7 +84,9 @@ fn killed_roles_are_restarted_and_training_goes_on() {
         // A new process of the role reports, and the learner keeps updating.
         wait_for(&format!("{role} to come back"), Duration::from_secs(30), || role_state(&dir, role).is_some_and(|(p, _)| p != pid));
         let (_, learner_before) = role_state(&dir, "learner").unwrap();
-        wait_for(&format!("updates after killing {role} ({before})"), Duration::from_secs(30), || role_state(&dir, "learner").is_some_and(|(_, u)| u > learner_before + 5));
+        wait_for(&format!("updates after killing {role} ({before})"), Duration::from_secs(30), || {
+            role_state(&dir, "learner").is_some_and(|(_, u)| u > learner_before + 5)
+        });
     }
     // The restored learner went on from its saved update count.
     let (_, updates) = role_state(&dir, "learner").unwrap();

@@ -43,7 +43,28 @@ fn short_multi_process_training_run() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "train failed: {stderr}\n{}", String::from_utf8_lossy(&out.stdout));
     let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
-    for key in ["converged", "threshold", "time_to_threshold_s", "wall_s", "env_steps", "episodes", "learner_updates", "envs", "agents_per_env", "agents_total", "observation_mode", "renderer", "env_steps_per_s", "updates_per_s", "cpu_util_mean_pct", "gpu_util_mean_pct", "gpu_power_mean_w", "peak_rss_mb", "restarts", "checkpoint"] {
+    for key in [
+        "converged",
+        "threshold",
+        "time_to_threshold_s",
+        "wall_s",
+        "env_steps",
+        "episodes",
+        "learner_updates",
+        "envs",
+        "agents_per_env",
+        "agents_total",
+        "observation_mode",
+        "renderer",
+        "env_steps_per_s",
+        "updates_per_s",
+        "cpu_util_mean_pct",
+        "gpu_util_mean_pct",
+        "gpu_power_mean_w",
+        "peak_rss_mb",
+        "restarts",
+        "checkpoint",
+    ] {
         assert!(summary.get(key).is_some(), "summary.json lacks {key}: {summary}");
     }
     // Real work crossed the processes.
@@ -109,7 +130,15 @@ fn bad_input_is_refused_clearly() {
     fails_with(&["train", "--set", "sim.agents=\"many\""], &["agents"]);
     fails_with(&["train", "--set", "sim.arena=\"/nonexistent/a.toml\""], &["/nonexistent/a.toml"]);
     let bad_arena = dir.join("arena.toml");
-    std::fs::write(&bad_arena, std::fs::read_to_string(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../configs/arenas/test.toml")).unwrap().replacen("radius = ", "radius = -", 1)).unwrap();
+    std::fs::write(
+        &bad_arena,
+        std::fs::read_to_string(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../configs/arenas/test.toml")).unwrap().replacen(
+            "radius = ",
+            "radius = -",
+            1,
+        ),
+    )
+    .unwrap();
     fails_with(&["train", "--set", &format!("sim.arena=\"{}\"", bad_arena.display())], &["arena.toml", "obstacle", "radius"]);
     let trunc = dir.join("w.safetensors");
     std::fs::write(&trunc, b"\x10\x00\x00\x00\x00\x00\x00\x00{\"a\":").unwrap();
@@ -132,7 +161,18 @@ fn bad_input_is_refused_clearly() {
 fn a_stopped_run_resumes() {
     let _turn = TRAINING.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
     let dir = tmp("resume");
-    let small = ["--set", "sim.agents=8", "--set", "replay.min_fill=300", "--set", "replay.capacity=2000", "--set", "learner.checkpoint_every_s=3", "--set", "eval.every_s=0"];
+    let small = [
+        "--set",
+        "sim.agents=8",
+        "--set",
+        "replay.min_fill=300",
+        "--set",
+        "replay.capacity=2000",
+        "--set",
+        "learner.checkpoint_every_s=3",
+        "--set",
+        "eval.every_s=0",
+    ];
     let out = hive().args(["train", "configs/default.toml", "--quiet", "--max-seconds", "20", "--run-dir"]).arg(&dir).args(small).output().unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let first: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();

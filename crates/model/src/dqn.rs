@@ -85,11 +85,18 @@ struct Batch {
 
 impl Batch {
     fn split(batch: &[f32]) -> Result<Self> {
-        if batch.is_empty() || batch.len() % TRANSITION_LEN != 0 {
+        if batch.is_empty() || !batch.len().is_multiple_of(TRANSITION_LEN) {
             return Err(ModelError::Shape { what: "minibatch", expected: TRANSITION_LEN, got: batch.len() });
         }
         let n = batch.len() / TRANSITION_LEN;
-        let mut b = Batch { n, s: Vec::with_capacity(n * OBS_LEN), s2: Vec::with_capacity(n * OBS_LEN), actions: Vec::with_capacity(n), rewards: Vec::with_capacity(n), dones: Vec::with_capacity(n) };
+        let mut b = Batch {
+            n,
+            s: Vec::with_capacity(n * OBS_LEN),
+            s2: Vec::with_capacity(n * OBS_LEN),
+            actions: Vec::with_capacity(n),
+            rewards: Vec::with_capacity(n),
+            dones: Vec::with_capacity(n),
+        };
         for t in batch.chunks_exact(TRANSITION_LEN) {
             b.s.extend_from_slice(&t[..OBS_LEN]);
             b.s2.extend_from_slice(&t[OBS_LEN..2 * OBS_LEN]);
@@ -208,7 +215,12 @@ impl Dqn {
         let value = loss.to_scalar::<f32>()?;
         let t1 = Instant::now();
         let store = loss.backward()?;
-        let grads = self.online.vars().iter().map(|v| store.get(v.as_tensor()).cloned().ok_or_else(|| ModelError::Device("a parameter got no gradient".into()))).collect::<Result<Vec<_>>>()?;
+        let grads = self
+            .online
+            .vars()
+            .iter()
+            .map(|v| store.get(v.as_tensor()).cloned().ok_or_else(|| ModelError::Device("a parameter got no gradient".into())))
+            .collect::<Result<Vec<_>>>()?;
         let t2 = Instant::now();
         Ok(Shard { loss: value, grads, forward_ns: (t1 - t0).as_nanos() as u64, backward_ns: (t2 - t1).as_nanos() as u64 })
     }
@@ -218,7 +230,7 @@ impl Dqn {
     /// into one shard per thread whose forward and backward passes run in
     /// parallel (each single-threaded); their gradients are summed.
     pub fn update(&mut self, batch: &[f32]) -> Result<f32> {
-        if batch.is_empty() || batch.len() % TRANSITION_LEN != 0 {
+        if batch.is_empty() || !batch.len().is_multiple_of(TRANSITION_LEN) {
             return Err(ModelError::Shape { what: "minibatch", expected: TRANSITION_LEN, got: batch.len() });
         }
         let n = batch.len() / TRANSITION_LEN;
@@ -236,7 +248,7 @@ impl Dqn {
         let t2 = Instant::now();
         self.opt.step(&self.online, &total.grads)?;
         self.updates += 1;
-        if self.updates % self.cfg.target_update == 0 {
+        if self.updates.is_multiple_of(self.cfg.target_update) {
             self.sync_target()?;
         }
         self.timing = UpdateTiming { forward_ns: total.forward_ns, backward_ns: total.backward_ns, optimiser_ns: t2.elapsed().as_nanos() as u64 };
@@ -268,9 +280,8 @@ impl Dqn {
         let bad = |message: String| ModelError::Checkpoint { file: file.clone(), message };
         let bytes = std::fs::read(path).map_err(|e| bad(format!("cannot read: {e}")))?;
         let map = candle_core::safetensors::load_buffer(&bytes, &candle_core::Device::Cpu).map_err(|e| bad(format!("not a valid safetensors file: {e}")))?;
-        let sub = |prefix: &str| -> HashMap<String, Tensor> {
-            map.iter().filter_map(|(k, v)| k.strip_prefix(prefix).map(|n| (n.to_string(), v.clone()))).collect()
-        };
+        let sub =
+            |prefix: &str| -> HashMap<String, Tensor> { map.iter().filter_map(|(k, v)| k.strip_prefix(prefix).map(|n| (n.to_string(), v.clone()))).collect() };
         let counter = |name: &str| -> Result<u64> {
             let t = map.get(name).ok_or_else(|| bad(format!("tensor `{name}` is missing")))?;
             let v = t.to_dtype(DType::I64)?.flatten_all()?.to_vec1::<i64>()?;

@@ -273,7 +273,7 @@ impl QNet {
 
     /// [`QNet::q_values`] in `shards` data-parallel parts.
     pub fn q_values_sharded(&self, obs: &[f32], shards: usize) -> Result<Vec<f32>> {
-        if obs.len() % OBS_LEN != 0 || obs.is_empty() {
+        if !obs.len().is_multiple_of(OBS_LEN) || obs.is_empty() {
             return Err(ModelError::Shape { what: "observation batch", expected: OBS_LEN, got: obs.len() });
         }
         let n = obs.len() / OBS_LEN;
@@ -349,7 +349,10 @@ impl QNet {
         for ((name, shape), v) in PARAMS.iter().zip(&self.params) {
             let t = tensors.get(*name).ok_or_else(|| ModelError::Checkpoint { file: file.into(), message: format!("tensor `{name}` is missing") })?;
             if t.dims() != *shape {
-                return Err(ModelError::Checkpoint { file: file.into(), message: format!("tensor `{name}` has shape {:?}, the network needs {:?}", t.dims(), shape) });
+                return Err(ModelError::Checkpoint {
+                    file: file.into(),
+                    message: format!("tensor `{name}` has shape {:?}, the network needs {:?}", t.dims(), shape),
+                });
             }
             v.set(&t.to_dtype(DType::F32)?.to_device(&self.device)?)?;
         }

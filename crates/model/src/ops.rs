@@ -314,7 +314,7 @@ impl CustomOp1 for MaxPool2 {
     fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
         let x = slice(storage, layout, self.name())?;
         let (rows, c) = layout.shape().dims2()?;
-        if rows % (self.h * self.w) != 0 || self.h % 2 != 0 || self.w % 2 != 0 {
+        if rows % (self.h * self.w) != 0 || !self.h.is_multiple_of(2) || !self.w.is_multiple_of(2) {
             bail!("maxpool: {rows} rows do not make {}×{} maps", self.h, self.w);
         }
         let batch = rows / (self.h * self.w);

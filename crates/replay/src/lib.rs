@@ -171,7 +171,9 @@ impl Replay {
         let mut magic = [0u8; 8];
         r.read_exact(&mut magic).map_err(|_| bad("too short for a header".into()))?;
         if &magic == MAGIC_F32 {
-            return Err(bad("a snapshot of f32 rows, written by an older rotorhive; delete it (or start a new run directory) to start with an empty memory".into()));
+            return Err(bad(
+                "a snapshot of f32 rows, written by an older rotorhive; delete it (or start a new run directory) to start with an empty memory".into()
+            ));
         }
         if &magic != MAGIC {
             return Err(bad("not a rotorhive replay snapshot".into()));

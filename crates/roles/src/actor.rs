@@ -263,38 +263,6 @@ impl NStep {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn n_step_returns_and_episode_ends() {
-        let mut s = NStep::new(3, 0.5, 1);
-        let obs = |v: f32| vec![v; OBS_LEN];
-        s.store(&obs(0.0));
-        // Steps with rewards 1, 2, 4: the first transition leaves with
-        // 1 + 0.5·2 + 0.25·4 = 3, from observation 0, not done.
-        let mut left = Vec::new();
-        for (k, r) in [1.0, 2.0, 4.0].into_iter().enumerate() {
-            s.push(&[k as u8 % 2], &[r], &[0.0]);
-            left.extend(s.out.iter().map(|t| (s.obs(t.slot, 0)[0], t.action, t.ret, t.done)));
-            s.store(&obs(k as f32 + 1.0));
-        }
-        assert_eq!(left, vec![(0.0, 0, 3.0, false)]);
-        // The episode ends with reward −8: the two pending steps and this
-        // one leave as done: 2 + 0.5·4 + 0.25·(−8) = 2, 4 − 4 = 0, −8.
-        s.push(&[1], &[-8.0], &[1.0]);
-        let got: Vec<_> = s.out.iter().map(|t| (s.obs(t.slot, 0)[0], t.ret, t.done)).collect();
-        assert_eq!(got, vec![(1.0, 2.0, true), (2.0, 0.0, true), (3.0, -8.0, true)]);
-        // One-step returns are the plain transitions.
-        let mut one = NStep::new(1, 0.99, 2);
-        one.store(&[obs(5.0), obs(6.0)].concat());
-        one.push(&[0, 1], &[3.0, -100.0], &[0.0, 1.0]);
-        let got: Vec<_> = one.out.iter().map(|t| (t.agent, one.obs(t.slot, t.agent)[0], t.ret, t.done)).collect();
-        assert_eq!(got, vec![(0, 5.0, 3.0, false), (1, 6.0, -100.0, true)]);
-    }
-}
-
 /// Assembles one step's observation batch (the layout of a batched message)
 /// from per-agent messages, as the non-batched mode sends them.
 pub struct Gather {
@@ -347,5 +315,37 @@ fn send_actions<S: Service>(tx: &mut Sender<S, u8, ActionHeader>, e: usize, step
     }) {
         tracing::warn!("actor {e}: {err}");
         *lost += 1;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn n_step_returns_and_episode_ends() {
+        let mut s = NStep::new(3, 0.5, 1);
+        let obs = |v: f32| vec![v; OBS_LEN];
+        s.store(&obs(0.0));
+        // Steps with rewards 1, 2, 4: the first transition leaves with
+        // 1 + 0.5·2 + 0.25·4 = 3, from observation 0, not done.
+        let mut left = Vec::new();
+        for (k, r) in [1.0, 2.0, 4.0].into_iter().enumerate() {
+            s.push(&[k as u8 % 2], &[r], &[0.0]);
+            left.extend(s.out.iter().map(|t| (s.obs(t.slot, 0)[0], t.action, t.ret, t.done)));
+            s.store(&obs(k as f32 + 1.0));
+        }
+        assert_eq!(left, vec![(0.0, 0, 3.0, false)]);
+        // The episode ends with reward −8: the two pending steps and this
+        // one leave as done: 2 + 0.5·4 + 0.25·(−8) = 2, 4 − 4 = 0, −8.
+        s.push(&[1], &[-8.0], &[1.0]);
+        let got: Vec<_> = s.out.iter().map(|t| (s.obs(t.slot, 0)[0], t.ret, t.done)).collect();
+        assert_eq!(got, vec![(1.0, 2.0, true), (2.0, 0.0, true), (3.0, -8.0, true)]);
+        // One-step returns are the plain transitions.
+        let mut one = NStep::new(1, 0.99, 2);
+        one.store(&[obs(5.0), obs(6.0)].concat());
+        one.push(&[0, 1], &[3.0, -100.0], &[0.0, 1.0]);
+        let got: Vec<_> = one.out.iter().map(|t| (t.agent, one.obs(t.slot, t.agent)[0], t.ret, t.done)).collect();
+        assert_eq!(got, vec![(0, 5.0, 3.0, false), (1, 6.0, -100.0, true)]);
     }
 }

@@ -214,7 +214,19 @@ impl Default for ReplaySection {
 
 impl Default for LearnerSection {
     fn default() -> Self {
-        Self { lr: 5e-4, gamma: 0.99, target_update: 150, max_rate_hz: 0.0, publish_every: 10, checkpoint_every_s: 1.0, threads: 1, huber_delta: 1.0, double_dqn: true, n_step: 1, device: "cpu".into() }
+        Self {
+            lr: 5e-4,
+            gamma: 0.99,
+            target_update: 150,
+            max_rate_hz: 0.0,
+            publish_every: 10,
+            checkpoint_every_s: 1.0,
+            threads: 1,
+            huber_delta: 1.0,
+            double_dqn: true,
+            n_step: 1,
+            device: "cpu".into(),
+        }
     }
 }
 

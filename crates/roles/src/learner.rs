@@ -18,7 +18,13 @@ use crate::{Counters, Ctx, POLL, STALL_TIMEOUT, roles_of};
 /// The DQN settings of a config's `[learner]`.
 pub fn dqn_config(cfg: &Config) -> DqnConfig {
     let l = &cfg.learner;
-    DqnConfig { lr: l.lr, gamma: (l.gamma as f32).powi(l.n_step as i32), target_update: l.target_update, huber_delta: l.huber_delta as f32, double: l.double_dqn }
+    DqnConfig {
+        lr: l.lr,
+        gamma: (l.gamma as f32).powi(l.n_step as i32),
+        target_update: l.target_update,
+        huber_delta: l.huber_delta as f32,
+        double: l.double_dqn,
+    }
 }
 
 /// Writes a checkpoint atomically (temporary file, then rename).

@@ -14,13 +14,15 @@ pub mod replay;
 pub mod sim;
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use iceoryx2::service::Service;
-use rotorhive_msg::{RoleKind, STAGES, Telemetry};
 pub use rotorhive_msg::EpisodeHeader;
+use rotorhive_msg::{RoleKind, STAGES, Telemetry};
 use rotorhive_transport::{Channel, Hub, Local, Sender};
 
 pub use config::Config;
@@ -76,16 +78,16 @@ pub fn run_role<S: Service>(cx: Ctx<'_, S>, role: RoleKind, index: usize) -> Res
 
 /// Serial mode: every role of the run as a thread of this process, over
 /// iceoryx2's `local` service (run `prefix`). Returns each thread's name and
-/// handle; `rotorhive_transport::request_stop` ends them all.
-pub fn spawn_serial(cfg: &Config, prefix: &str, run_dir: &Path) -> Result<Vec<(String, JoinHandle<Result<()>>)>> {
+/// handle; setting `stop` (or `rotorhive_transport::request_stop`) ends them.
+pub fn spawn_serial(cfg: &Config, prefix: &str, run_dir: &Path, stop: &Arc<AtomicBool>) -> Result<Vec<(String, JoinHandle<Result<()>>)>> {
     let mut out = Vec::new();
     for (name, role, index) in role_names(cfg) {
         let (cfg, prefix, dir): (Config, String, PathBuf) = (cfg.clone(), prefix.to_string(), run_dir.to_path_buf());
-        let node = name.clone();
+        let (node, stop) = (name.clone(), stop.clone());
         let h = std::thread::Builder::new()
             .name(name.clone())
             .spawn(move || {
-                let hub = Hub::<Local>::new(&prefix, &node).with_context(|| format!("role {node}"))?;
+                let hub = Hub::<Local>::new(&prefix, &node).with_context(|| format!("role {node}"))?.with_stop(stop);
                 run_role(Ctx { hub: &hub, cfg: &cfg, run_dir: Some(&dir) }, role, index).with_context(|| format!("role {node}"))
             })
             .with_context(|| format!("cannot start the {name} thread"))?;

@@ -22,7 +22,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     let (mut mem, mut journal) = match cx.run_dir {
         Some(d) if r.snapshot_every_s > 0.0 => {
             let (m, j) = Journal::open(&d.join("replay.bin"), r.capacity, PACKED_LEN, cfg.seed ^ 0x5e1a).context("restoring the replay memory")?;
-            if m.len() > 0 {
+            if !m.is_empty() {
                 tracing::info!("replay restored {} transitions from {}", m.len(), j.path().display());
             }
             (m, Some(j))
@@ -137,7 +137,13 @@ const INGEST_PER_LOOP: usize = 4;
 /// Inserts one transition batch (and records it in the journal), counting
 /// sequence gaps of its actor (a restarted actor starts again at 0, which is
 /// not loss) and corrupt values.
-fn ingest<S: Service>(m: &rotorhive_transport::Msg<S, u16, TransitionHeader>, mem: &mut Replay, journal: Option<&mut Journal>, next_seq: &mut [Option<u64>], lost: &mut u64) -> Result<()> {
+fn ingest<S: Service>(
+    m: &rotorhive_transport::Msg<S, u16, TransitionHeader>,
+    mem: &mut Replay,
+    journal: Option<&mut Journal>,
+    next_seq: &mut [Option<u64>],
+    lost: &mut u64,
+) -> Result<()> {
     let h = *m.user_header();
     if let Some(slot) = next_seq.get_mut(h.actor as usize) {
         if let Some(want) = *slot

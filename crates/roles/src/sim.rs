@@ -24,7 +24,8 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
     }
     let arenas = cfg.lane_arenas(env_index)?;
     let n = cfg.sim.agents;
-    let mut env = VecEnv::try_new_lanes(cfg.sim_config(), &arenas, cfg.seed.wrapping_mul(1000).wrapping_add(env_index as u64)).context("starting the simulator")?;
+    let mut env =
+        VecEnv::try_new_lanes(cfg.sim_config(), &arenas, cfg.seed.wrapping_mul(1000).wrapping_add(env_index as u64)).context("starting the simulator")?;
     let batched = cfg.batched();
     assert_eq!(env.obs_len(), OBS_LEN, "simulator and message layouts disagree");
     // Observations are assembled straight into the loaned sample (send_obs).
@@ -196,7 +197,14 @@ impl<S: Service> RateLimiter<S> {
 
 /// Publishes the observations of a step: one message for all agents
 /// (batched), or one message per agent (non-batched, the old path on purpose).
-pub fn send_obs<S: Service>(tx: &mut Sender<S, f32, ObsHeader>, env: &VecEnv, e: usize, step: u64, timing: (u64, u64), batched: bool) -> rotorhive_transport::Result<()> {
+pub fn send_obs<S: Service>(
+    tx: &mut Sender<S, f32, ObsHeader>,
+    env: &VecEnv,
+    e: usize,
+    step: u64,
+    timing: (u64, u64),
+    batched: bool,
+) -> rotorhive_transport::Result<()> {
     let total = env.agents();
     let per = if batched { total } else { 1 };
     for first in (0..total).step_by(per) {

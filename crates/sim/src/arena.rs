@@ -135,15 +135,7 @@ pub struct GenParams {
 
 impl Default for GenParams {
     fn default() -> Self {
-        Self {
-            length: 150.0,
-            width: 12.0,
-            height: 6.0,
-            spacing: 6.0,
-            first_x: 12.0,
-            block_within: 90.0,
-            drone_radius: 0.3,
-        }
+        Self { length: 150.0, width: 12.0, height: 6.0, spacing: 6.0, first_x: 12.0, block_within: 90.0, drone_radius: 0.3 }
     }
 }
 
@@ -167,7 +159,12 @@ impl Lanes {
     /// line at y = offsets[k], walls of its own width, so an agent neither
     /// sees nor touches another lane. One arena is itself, unchanged.
     pub fn new(arenas: &[Arena]) -> Result<Self, ArenaError> {
-        let first = arenas.first().ok_or_else(|| ArenaError::Invalid { file: "lanes".into(), what: "lanes".into(), field: "arenas".into(), message: "no arena given".into() })?;
+        let first = arenas.first().ok_or_else(|| ArenaError::Invalid {
+            file: "lanes".into(),
+            what: "lanes".into(),
+            field: "arenas".into(),
+            message: "no arena given".into(),
+        })?;
         if arenas.len() == 1 {
             return Ok(Self { world: first.clone(), offsets: vec![0.0], spawns: vec![first.spawn.clone()] });
         }
@@ -191,7 +188,9 @@ impl Lanes {
             for o in &a.obstacles {
                 obstacles.push(match *o {
                     Obstacle::Box { center, half_extents } => Obstacle::Box { center: [center[0], center[1] + off, center[2]], half_extents },
-                    Obstacle::Cylinder { center, radius, half_height } => Obstacle::Cylinder { center: [center[0], center[1] + off, center[2]], radius, half_height },
+                    Obstacle::Cylinder { center, radius, half_height } => {
+                        Obstacle::Cylinder { center: [center[0], center[1] + off, center[2]], radius, half_height }
+                    }
                 });
             }
             // The lane's own walls, longer than the camera sees past either end.
@@ -203,7 +202,8 @@ impl Lanes {
                 });
             }
         }
-        let world = Arena { name: format!("{} lanes", arenas.len()), length: first.length, width: total, height: first.height, spawn: first.spawn.clone(), obstacles };
+        let world =
+            Arena { name: format!("{} lanes", arenas.len()), length: first.length, width: total, height: first.height, spawn: first.spawn.clone(), obstacles };
         Ok(Self { world, offsets, spawns: arenas.iter().map(|a| a.spawn.clone()).collect() })
     }
 }
@@ -218,10 +218,7 @@ impl Arena {
 
     /// Parses and validates arena TOML; `file` names the source in messages.
     pub fn parse(text: &str, file: &str) -> Result<Self, ArenaError> {
-        let arena: Arena = toml::from_str(text).map_err(|e| ArenaError::Parse {
-            file: file.to_string(),
-            message: e.to_string().trim_end().to_string(),
-        })?;
+        let arena: Arena = toml::from_str(text).map_err(|e| ArenaError::Parse { file: file.to_string(), message: e.to_string().trim_end().to_string() })?;
         arena.validate(file)?;
         Ok(arena)
     }
@@ -233,12 +230,7 @@ impl Arena {
 
     /// Checks sizes, the spawn region and that every obstacle lies inside the arena.
     pub fn validate(&self, file: &str) -> Result<(), ArenaError> {
-        let bad = |what: String, field: &str, message: String| ArenaError::Invalid {
-            file: file.to_string(),
-            what,
-            field: field.to_string(),
-            message,
-        };
+        let bad = |what: String, field: &str, message: String| ArenaError::Invalid { file: file.to_string(), what, field: field.to_string(), message };
         let arena = || "arena".to_string();
         for (field, v) in [("length", self.length), ("width", self.width), ("height", self.height)] {
             if !(v.is_finite() && v > 0.0) {
@@ -258,7 +250,14 @@ impl Arena {
         }
         const EPS: f32 = 1e-3;
         for (i, o) in self.obstacles.iter().enumerate() {
-            let what = format!("obstacle {} ({})", i + 1, match o { Obstacle::Box { .. } => "box", Obstacle::Cylinder { .. } => "cylinder" });
+            let what = format!(
+                "obstacle {} ({})",
+                i + 1,
+                match o {
+                    Obstacle::Box { .. } => "box",
+                    Obstacle::Cylinder { .. } => "cylinder",
+                }
+            );
             match o {
                 Obstacle::Box { half_extents, .. } => {
                     if half_extents.iter().any(|h| !(h.is_finite() && *h > 0.0)) {

@@ -112,11 +112,7 @@ pub fn control(p: &QuadParams, g: &Gains, s: &DroneState, vel_sp: Vector, alt_sp
 
     // Attitude error e = ½ vee(R_dᵀR − RᵀR_d) in the body frame (Lee et al.);
     // with M = R_dᵀR, M_ij = bd_i · b_j.
-    let e = Vector::new(
-        0.5 * (bz_d.dot(by) - by_d.dot(bz)),
-        0.5 * (bx_d.dot(bz) - bz_d.dot(bx)),
-        0.5 * (by_d.dot(bx) - bx_d.dot(by)),
-    );
+    let e = Vector::new(0.5 * (bz_d.dot(by) - by_d.dot(bz)), 0.5 * (bx_d.dot(bz) - bz_d.dot(bx)), 0.5 * (by_d.dot(bx) - bx_d.dot(by)));
     let rate_sp = Vector::new(-g.att * e.x, -g.att * e.y, -g.att_yaw * e.z);
     let w_body = r.inverse() * s.angvel;
     let j = Vector::from(p.inertia);

@@ -465,11 +465,8 @@ impl VecEnv {
         self.assemble_obs();
         self.total_steps += 1;
         let t4 = Instant::now();
-        self.timing = StepTiming {
-            physics_ns: (t1 - t0).as_nanos() as u64,
-            render_ns: (t3 - t2).as_nanos() as u64,
-            reset_ns: ((t2 - t1) + (t4 - t3)).as_nanos() as u64,
-        };
+        self.timing =
+            StepTiming { physics_ns: (t1 - t0).as_nanos() as u64, render_ns: (t3 - t2).as_nanos() as u64, reset_ns: ((t2 - t1) + (t4 - t3)).as_nanos() as u64 };
         Ok(())
     }
 

@@ -181,7 +181,8 @@ impl GpuDepthRenderer {
                 storage(2),
             ],
         });
-        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor { label: Some("depth"), bind_group_layouts: &[Some(&layout)], immediate_size: 0 });
+        let pipeline_layout =
+            device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor { label: Some("depth"), bind_group_layouts: &[Some(&layout)], immediate_size: 0 });
         let pipeline = |entry: &str, cull_mode: Option<wgpu::Face>| {
             device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
                 label: Some(entry),
@@ -221,9 +222,19 @@ impl GpuDepthRenderer {
         let drone_pipeline = pipeline("vs_drone", None);
         let layout_cull = SceneLayout::new(scene, spec.range);
         let sphere = sphere_triangles();
-        let vbuf = |label, v: &[[f32; 3]]| device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents: bytemuck::cast_slice(v), usage: wgpu::BufferUsages::VERTEX });
+        let vbuf = |label, v: &[[f32; 3]]| {
+            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents: bytemuck::cast_slice(v),
+                usage: wgpu::BufferUsages::VERTEX,
+            })
+        };
         let scene_vertices = vbuf("scene", &layout_cull.vertices);
-        let scene_indices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some("scene indices"), contents: bytemuck::cast_slice(&layout_cull.indices), usage: wgpu::BufferUsages::INDEX });
+        let scene_indices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("scene indices"),
+            contents: bytemuck::cast_slice(&layout_cull.indices),
+            usage: wgpu::BufferUsages::INDEX,
+        });
         let sphere_vertices = vbuf("sphere", &sphere);
         let params = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("params"),
@@ -272,13 +283,24 @@ impl GpuDepthRenderer {
             let rows = cameras.div_ceil(COLS);
             let size = wgpu::Extent3d { width: COLS * side, height: rows * side, depth_or_array_layers: 1 };
             let texture = |format, usage, label| {
-                self.device.create_texture(&wgpu::TextureDescriptor { label: Some(label), size, mip_level_count: 1, sample_count: 1, dimension: wgpu::TextureDimension::D2, format, usage, view_formats: &[] })
+                self.device.create_texture(&wgpu::TextureDescriptor {
+                    label: Some(label),
+                    size,
+                    mip_level_count: 1,
+                    sample_count: 1,
+                    dimension: wgpu::TextureDimension::D2,
+                    format,
+                    usage,
+                    view_formats: &[],
+                })
             };
             let color = texture(wgpu::TextureFormat::R32Float, wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC, "depth atlas");
             let depth = texture(wgpu::TextureFormat::Depth32Float, wgpu::TextureUsages::RENDER_ATTACHMENT, "z buffer");
-            let buffer = |label, size: u64, usage| self.device.create_buffer(&wgpu::BufferDescriptor { label: Some(label), size, usage, mapped_at_creation: false });
+            let buffer =
+                |label, size: u64, usage| self.device.create_buffer(&wgpu::BufferDescriptor { label: Some(label), size, usage, mapped_at_creation: false });
             let readback = buffer("readback", u64::from(COLS * side * 4 * rows * side), wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST);
-            let cams = buffer("cameras", u64::from(cameras) * std::mem::size_of::<GpuCamera>() as u64, wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST);
+            let cams =
+                buffer("cameras", u64::from(cameras) * std::mem::size_of::<GpuCamera>() as u64, wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST);
             let drone_buf = buffer("drones", u64::from(drone_capacity) * 16, wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST);
             let bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("depth"),
@@ -319,7 +341,8 @@ impl GpuDepthRenderer {
             }
         }));
         let tan = (self.spec.fov_deg.to_radians() / 2.0).tan();
-        let params = Params { inv_tan: 1.0 / tan, near: NEAR, far: self.spec.range, drones: nd.max(1), radius: drones.map_or(0.0, |d| d.radius), _pad: [0.0; 3] };
+        let params =
+            Params { inv_tan: 1.0 / tan, near: NEAR, far: self.spec.range, drones: nd.max(1), radius: drones.map_or(0.0, |d| d.radius), _pad: [0.0; 3] };
         self.ensure_frame(n, nd);
         let f = self.frame.as_ref().expect("frame");
         self.queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
@@ -377,7 +400,10 @@ impl GpuDepthRenderer {
         let row_bytes = COLS * s * 4;
         enc.copy_texture_to_buffer(
             wgpu::TexelCopyTextureInfo { texture: &f.color, mip_level: 0, origin: wgpu::Origin3d::ZERO, aspect: wgpu::TextureAspect::All },
-            wgpu::TexelCopyBufferInfo { buffer: &f.readback, layout: wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(row_bytes), rows_per_image: None } },
+            wgpu::TexelCopyBufferInfo {
+                buffer: &f.readback,
+                layout: wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(row_bytes), rows_per_image: None },
+            },
             wgpu::Extent3d { width: COLS * s, height: rows * s, depth_or_array_layers: 1 },
         );
         self.queue.submit([enc.finish()]);
@@ -578,10 +604,41 @@ fn shape_triangles(sh: &Shape, h: f32) -> Vec<[f32; 3]> {
 /// A unit sphere (icosahedron subdivided twice, 320 triangles).
 fn sphere_triangles() -> Vec<[f32; 3]> {
     let p = (1.0 + 5f32.sqrt()) / 2.0;
-    let v = [[-1.0, p, 0.0], [1.0, p, 0.0], [-1.0, -p, 0.0], [1.0, -p, 0.0], [0.0, -1.0, p], [0.0, 1.0, p], [0.0, -1.0, -p], [0.0, 1.0, -p], [p, 0.0, -1.0], [p, 0.0, 1.0], [-p, 0.0, -1.0], [-p, 0.0, 1.0]];
+    let v = [
+        [-1.0, p, 0.0],
+        [1.0, p, 0.0],
+        [-1.0, -p, 0.0],
+        [1.0, -p, 0.0],
+        [0.0, -1.0, p],
+        [0.0, 1.0, p],
+        [0.0, -1.0, -p],
+        [0.0, 1.0, -p],
+        [p, 0.0, -1.0],
+        [p, 0.0, 1.0],
+        [-p, 0.0, -1.0],
+        [-p, 0.0, 1.0],
+    ];
     let f: [[usize; 3]; 20] = [
-        [0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4], [11, 10, 2], [10, 7, 6], [7, 1, 8],
-        [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8], [3, 8, 9], [4, 9, 5], [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1],
+        [0, 11, 5],
+        [0, 5, 1],
+        [0, 1, 7],
+        [0, 7, 10],
+        [0, 10, 11],
+        [1, 5, 9],
+        [5, 11, 4],
+        [11, 10, 2],
+        [10, 7, 6],
+        [7, 1, 8],
+        [3, 9, 4],
+        [3, 4, 2],
+        [3, 2, 6],
+        [3, 6, 8],
+        [3, 8, 9],
+        [4, 9, 5],
+        [2, 4, 11],
+        [6, 2, 10],
+        [8, 6, 7],
+        [9, 8, 1],
     ];
     let norm = |a: [f32; 3]| {
         let l = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();

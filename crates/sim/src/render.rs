@@ -91,13 +91,9 @@ impl Scene {
                     let h = Vector::from(half_extents);
                     Shape::Box { min: c - h, max: c + h }
                 }
-                Obstacle::Cylinder { center, radius, half_height } => Shape::Cylinder {
-                    cx: center[0],
-                    cy: center[1],
-                    r2: radius * radius,
-                    zmin: center[2] - half_height,
-                    zmax: center[2] + half_height,
-                },
+                Obstacle::Cylinder { center, radius, half_height } => {
+                    Shape::Cylinder { cx: center[0], cy: center[1], r2: radius * radius, zmin: center[2] - half_height, zmax: center[2] + half_height }
+                }
             })
             .collect();
         let hw = arena.width / 2.0;
@@ -344,7 +340,8 @@ impl View {
         let mut far = f32::NEG_INFINITY;
         let (mut a0, mut a1, mut b0, mut b1) = (f32::INFINITY, f32::NEG_INFINITY, f32::INFINITY, f32::NEG_INFINITY);
         for k in 0..8 {
-            let p = Vector::new(if k & 1 == 0 { min.x } else { max.x }, if k & 2 == 0 { min.y } else { max.y }, if k & 4 == 0 { min.z } else { max.z }) - self.o;
+            let p =
+                Vector::new(if k & 1 == 0 { min.x } else { max.x }, if k & 2 == 0 { min.y } else { max.y }, if k & 4 == 0 { min.z } else { max.z }) - self.o;
             let x = p.dot(self.fwd);
             near = near.min(x);
             far = far.max(x);
@@ -510,14 +507,7 @@ mod tests {
     use crate::arena::Spawn;
 
     fn arena(obstacles: Vec<Obstacle>) -> Arena {
-        Arena {
-            name: "t".into(),
-            length: 100.0,
-            width: 40.0,
-            height: 10.0,
-            spawn: Spawn { x: 1.0, y: [0.0, 0.0], z: 5.0 },
-            obstacles,
-        }
+        Arena { name: "t".into(), length: 100.0, width: 40.0, height: 10.0, spawn: Spawn { x: 1.0, y: [0.0, 0.0], z: 5.0 }, obstacles }
     }
 
     fn render(a: &Arena, cam: CameraPose, spec: CameraSpec) -> Vec<f32> {
@@ -568,7 +558,11 @@ mod tests {
     fn a_rotated_camera_sees_the_side_wall() {
         let spec = CameraSpec { range: 30.0, ..CameraSpec::default() };
         // Yawed 90° left, the camera at y = 0 faces the wall at y = +20.
-        let img = render(&arena(vec![]), CameraPose { position: Vector::new(50.0, 0.0, 5.0), rotation: Rotation::from_rotation_z(std::f32::consts::FRAC_PI_2) }, spec);
+        let img = render(
+            &arena(vec![]),
+            CameraPose { position: Vector::new(50.0, 0.0, 5.0), rotation: Rotation::from_rotation_z(std::f32::consts::FRAC_PI_2) },
+            spec,
+        );
         let centre = img[15 * 32 + 15];
         assert!((centre - 20.0).abs() < 1e-3, "{centre}");
     }
@@ -579,7 +573,10 @@ mod tests {
         let scene = Scene::new(&a);
         let spec = CameraSpec::default();
         let cams: Vec<CameraPose> = (0..37)
-            .map(|i| CameraPose { position: Vector::new(2.0 + i as f32 * 3.0, (i as f32 * 0.37).sin() * 4.0, 2.0), rotation: Rotation::from_rotation_z(i as f32 * 0.05 - 0.9) })
+            .map(|i| CameraPose {
+                position: Vector::new(2.0 + i as f32 * 3.0, (i as f32 * 0.37).sin() * 4.0, 2.0),
+                rotation: Rotation::from_rotation_z(i as f32 * 0.05 - 0.9),
+            })
             .collect();
         let mut one = vec![0.0; 37 * 1024];
         let mut two = vec![0.0; 37 * 1024];
@@ -623,11 +620,22 @@ mod tests {
         for spec in [CameraSpec::default(), CameraSpec { side: 17, fov_deg: 70.0, range: 35.0 }] {
             let px = spec.side * spec.side;
             let positions: Vec<Vector> = (0..60)
-                .map(|_| Vector::new(rng.random_range(0.5..a.length - 0.5), rng.random_range(-a.width / 2.0 + 0.3..a.width / 2.0 - 0.3), rng.random_range(0.3..a.height - 0.3)))
+                .map(|_| {
+                    Vector::new(
+                        rng.random_range(0.5..a.length - 0.5),
+                        rng.random_range(-a.width / 2.0 + 0.3..a.width / 2.0 - 0.3),
+                        rng.random_range(0.3..a.height - 0.3),
+                    )
+                })
                 .collect();
             let cams: Vec<CameraPose> = positions
                 .iter()
-                .map(|p| CameraPose { position: *p, rotation: Rotation::from_rotation_z(rng.random_range(-3.2..3.2)) * Rotation::from_rotation_y(rng.random_range(-0.6..0.6)) * Rotation::from_rotation_x(rng.random_range(-0.6..0.6)) })
+                .map(|p| CameraPose {
+                    position: *p,
+                    rotation: Rotation::from_rotation_z(rng.random_range(-3.2..3.2))
+                        * Rotation::from_rotation_y(rng.random_range(-0.6..0.6))
+                        * Rotation::from_rotation_x(rng.random_range(-0.6..0.6)),
+                })
                 .collect();
             let drones = Drones { positions: &positions, radius: 0.4 };
             let mut fast = vec![0.0; cams.len() * px];

@@ -241,7 +241,10 @@ fn lanes_put_arenas_side_by_side_and_keep_them_apart() {
     // (10 m away), not the next lane.
     let spec = CameraSpec::default();
     let scene = Scene::new(&lanes.world);
-    let cam = CameraPose { position: rapier3d::math::Vector::new(50.0, lanes.offsets[0], 4.0), rotation: rapier3d::math::Rotation::from_rotation_z(std::f32::consts::FRAC_PI_2) };
+    let cam = CameraPose {
+        position: rapier3d::math::Vector::new(50.0, lanes.offsets[0], 4.0),
+        rotation: rapier3d::math::Rotation::from_rotation_z(std::f32::consts::FRAC_PI_2),
+    };
     let mut img = vec![0.0; spec.side * spec.side];
     DepthRenderer::new(spec, 1).render(&scene, &[cam], 0, None, &mut img);
     let centre = img[(spec.side / 2) * spec.side + spec.side / 2] * spec.range;

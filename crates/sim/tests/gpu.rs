@@ -24,7 +24,9 @@ fn random_views(arena: &Arena, n: usize, seed: u64) -> Vec<CameraPose> {
     let mut views = Vec::new();
     while views.len() < n {
         let position = Vector::new(rng.random_range(0.0..arena.length), rng.random_range(-hw + 0.7..hw - 0.7), rng.random_range(0.8..arena.height - 0.8));
-        let rotation = Rotation::from_rotation_z(rng.random_range(-1.0..1.0)) * Rotation::from_rotation_y(rng.random_range(-0.2..0.2)) * Rotation::from_rotation_x(rng.random_range(-0.2..0.2));
+        let rotation = Rotation::from_rotation_z(rng.random_range(-1.0..1.0))
+            * Rotation::from_rotation_y(rng.random_range(-0.2..0.2))
+            * Rotation::from_rotation_x(rng.random_range(-0.2..0.2));
         // Where a drone can be: not inside or touching an obstacle.
         let clear = arena.obstacles.iter().all(|o| {
             let (lo, hi) = o.aabb();
@@ -42,10 +44,18 @@ fn random_views(arena: &Arena, n: usize, seed: u64) -> Vec<CameraPose> {
 fn edge(img: &[f32], side: usize, u: usize, v: usize, jump: f32, range: f32) -> bool {
     let d = img[v * side + u];
     let mut near = Vec::new();
-    if u > 0 { near.push(img[v * side + u - 1]); }
-    if u + 1 < side { near.push(img[v * side + u + 1]); }
-    if v > 0 { near.push(img[(v - 1) * side + u]); }
-    if v + 1 < side { near.push(img[(v + 1) * side + u]); }
+    if u > 0 {
+        near.push(img[v * side + u - 1]);
+    }
+    if u + 1 < side {
+        near.push(img[v * side + u + 1]);
+    }
+    if v > 0 {
+        near.push(img[(v - 1) * side + u]);
+    }
+    if v + 1 < side {
+        near.push(img[(v + 1) * side + u]);
+    }
     near.iter().any(|n| (n - d).abs() * range > jump)
 }
 
@@ -88,7 +98,13 @@ fn wgpu_matches_cpu_on_random_views() {
     g.render(&cams, &agents, None, &mut out).unwrap();
     let (mae, off) = compare(&cpu, &out, spec);
     let all = cpu.iter().zip(&out).map(|(a, b)| ((a - b).abs() * spec.range) as f64).sum::<f64>() / cpu.len() as f64;
-    println!("adapter {}: mean |wgpu − cpu| {:.2} mm over non-edge pixels ({:.2} mm over all), {:.2} % of pixels off by > 5 cm", g.adapter(), mae * 1000.0, all * 1000.0, off * 100.0);
+    println!(
+        "adapter {}: mean |wgpu − cpu| {:.2} mm over non-edge pixels ({:.2} mm over all), {:.2} % of pixels off by > 5 cm",
+        g.adapter(),
+        mae * 1000.0,
+        all * 1000.0,
+        off * 100.0
+    );
     // The views see something: not every pixel at the range.
     assert!(cpu.iter().filter(|d| **d < 0.99).count() > cpu.len() / 4, "views see too little");
     assert!(mae < 0.01, "mean absolute error {mae} m over non-edge pixels");
@@ -123,7 +139,10 @@ fn wgpu_shows_other_drones_only_in_interactive_mode() {
     let scene = Scene::new(&arena);
     let spec = CameraSpec::default();
     // Drone 0 looks along +x at drone 1, 3 m ahead.
-    let cams = [CameraPose { position: Vector::new(10.0, 0.0, 3.0), rotation: Rotation::IDENTITY }, CameraPose { position: Vector::new(13.0, 0.0, 3.0), rotation: Rotation::IDENTITY }];
+    let cams = [
+        CameraPose { position: Vector::new(10.0, 0.0, 3.0), rotation: Rotation::IDENTITY },
+        CameraPose { position: Vector::new(13.0, 0.0, 3.0), rotation: Rotation::IDENTITY },
+    ];
     let positions: Vec<Vector> = cams.iter().map(|c| c.position).collect();
     let drones = Drones { positions: &positions, radius: 0.5 };
     let px = spec.side * spec.side;
@@ -135,7 +154,12 @@ fn wgpu_shows_other_drones_only_in_interactive_mode() {
     let centre = (spec.side / 2) * spec.side + spec.side / 2;
     let expect = 2.5 / spec.range;
     assert!((cpu[centre] - expect).abs() < 0.01, "cpu sees the drone at {}", cpu[centre] * spec.range);
-    assert!((out[centre] - cpu[centre]).abs() * spec.range < 0.02, "wgpu sees the drone at {} m, cpu at {} m", out[centre] * spec.range, cpu[centre] * spec.range);
+    assert!(
+        (out[centre] - cpu[centre]).abs() * spec.range < 0.02,
+        "wgpu sees the drone at {} m, cpu at {} m",
+        out[centre] * spec.range,
+        cpu[centre] * spec.range
+    );
     assert!(hidden[centre] > 0.9, "drone visible without interactive mode");
     // Drone 1 does not see itself.
     assert!(out[px + centre] > 0.9, "a camera sees its own drone: {}", out[px + centre]);
@@ -187,4 +211,3 @@ fn golden_image() {
     }
     assert!(failures.is_empty(), "golden image mismatch ({}); actual and diff images in {}", failures.join(", "), out_dir.display());
 }
-

@@ -123,10 +123,14 @@ impl Channel {
     }
 }
 
+/// The publish-subscribe service of a channel and its event service.
+type Services<S, T, H> = (iceoryx2::service::port_factory::publish_subscribe::PortFactory<S, [T], H>, iceoryx2::service::port_factory::event::PortFactory<S>);
+
 /// A role's handle on its run: the iceoryx2 node and the run's name prefix.
 pub struct Hub<S: Service> {
     node: Node<S>,
     prefix: String,
+    stop: Arc<AtomicBool>,
 }
 
 impl<S: Service> Hub<S> {
@@ -135,7 +139,14 @@ impl<S: Service> Hub<S> {
         let err = |e: &dyn Debug| TransportError::Node { node: node_name.to_string(), message: format!("{e:?}") };
         let name = NodeName::new(node_name).map_err(|e| err(&e))?;
         let node = NodeBuilder::new().name(&name).create::<S>().map_err(|e| err(&e))?;
-        Ok(Self { node, prefix: prefix.to_string() })
+        Ok(Self { node, prefix: prefix.to_string(), stop: Arc::new(AtomicBool::new(false)) })
+    }
+
+    /// Shares `stop` with this hub: setting it stops the loops that use the
+    /// hub, as a signal would (the roles of one serial run share one).
+    pub fn with_stop(mut self, stop: Arc<AtomicBool>) -> Self {
+        self.stop = stop;
+        self
     }
 
     /// The run prefix.
@@ -144,7 +155,8 @@ impl<S: Service> Hub<S> {
     }
 
     /// True once the process was asked to stop: SIGINT, SIGTERM, SIGHUP (see
-    /// [`handle_hangup`]) or [`request_stop`]. Sticky and process-wide, so
+    /// [`handle_hangup`]) or [`request_stop`]; or this hub's run was (see
+    /// [`Hub::with_stop`]). Sticky and process-wide, so
     /// every role thread of a process sees it, however many hubs ask.
     pub fn shutdown_requested(&self) -> bool {
         // iceoryx2 hands a termination signal to the first caller only (it
@@ -152,7 +164,7 @@ impl<S: Service> Hub<S> {
         if self.node.wait(Duration::ZERO).is_err() {
             request_stop();
         }
-        stop_requested()
+        stop_requested() || self.stop.load(Ordering::SeqCst)
     }
 
     fn service_name(&self, ch: &Channel) -> Result<ServiceName> {
@@ -160,7 +172,7 @@ impl<S: Service> Hub<S> {
         ServiceName::new(&full).map_err(|e| TransportError::Open { channel: full.clone(), op: "name service", message: format!("{e:?}") })
     }
 
-    fn open<T, H>(&self, ch: &Channel) -> Result<(iceoryx2::service::port_factory::publish_subscribe::PortFactory<S, [T], H>, iceoryx2::service::port_factory::event::PortFactory<S>)>
+    fn open<T, H>(&self, ch: &Channel) -> Result<Services<S, T, H>>
     where
         T: Debug + ZeroCopySend + 'static,
         H: Debug + ZeroCopySend + Default + 'static,

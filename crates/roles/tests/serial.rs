@@ -1,0 +1,127 @@
+//! Fast role tests: every role as a thread of this test over iceoryx2's
+//! `local` service (serial mode), with real simulation, real rendering and
+//! a real network, for a few seconds each. Each case checks what crossed the
+//! channels through the roles' own telemetry and episodes.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use rotorhive_msg::{EpisodeHeader, RoleKind, Telemetry};
+use rotorhive_roles::{Config, episodes_channel, roles_of, spawn_serial};
+use rotorhive_transport::{Channel, Hub, Local};
+
+/// What a serial run of `cfg` reported after `seconds`: the newest telemetry
+/// of every role, and the episodes the actors published.
+struct Report {
+    latest: BTreeMap<(u32, u32), Telemetry>,
+    episodes: u64,
+}
+
+impl Report {
+    fn work(&self, role: RoleKind) -> u64 {
+        self.latest.values().filter(|t| t.role == role as u32).map(|t| t.work).sum()
+    }
+
+    fn get(&self, role: RoleKind, index: u32) -> Telemetry {
+        *self.latest.get(&(role as u32, index)).unwrap_or_else(|| panic!("no telemetry of {role:?} {index}"))
+    }
+}
+
+fn config(overrides: &[&str]) -> Config {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let mut sets: Vec<String> = vec![
+        "sim.agents=4".into(),
+        "sim.generated_lanes=0".into(),
+        "replay.min_fill=200".into(),
+        "replay.capacity=2000".into(),
+        "eval.every_s=0".into(),
+        format!("sim.arena=\"{}\"", root.join("configs/arenas/train.toml").display()),
+    ];
+    sets.extend(overrides.iter().map(|s| s.to_string()));
+    Config::load(Some(&root.join("configs/default.toml")), &sets).unwrap()
+}
+
+/// Runs every role of `cfg` as threads until the learner has made `updates`
+/// updates (a watchdog fails the test after 60 s), then stops them.
+fn run_serial(name: &str, cfg: &Config, updates: u64) -> Report {
+    let dir = std::env::temp_dir().join(format!("rotorhive-serial-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let prefix = format!("serial-{name}");
+    let hub = Hub::<Local>::new(&prefix, "test").unwrap();
+    let mut tel = hub.receiver::<u8, Telemetry>(&Channel::telemetry(roles_of(cfg))).unwrap();
+    let mut eps = hub.receiver::<f32, EpisodeHeader>(&episodes_channel(cfg.sim.envs)).unwrap();
+    let stop = Arc::new(AtomicBool::new(false));
+    let threads = spawn_serial(cfg, &prefix, &dir, &stop).unwrap();
+    let mut report = Report { latest: BTreeMap::new(), episodes: 0 };
+    let start = Instant::now();
+    while report.latest.values().filter(|t| t.role == RoleKind::Learner as u32).map(|t| t.work).sum::<u64>() < updates {
+        assert!(start.elapsed() < Duration::from_secs(60), "watchdog: {name} made too few updates in 60 s");
+        if let Some((n, _)) = threads.iter().find(|(_, h)| h.is_finished()) {
+            panic!("{name}: role {n} stopped early");
+        }
+        while let Some(m) = tel.try_recv().unwrap() {
+            let t = *m.user_header();
+            report.latest.insert((t.role, t.index), t);
+        }
+        while let Some(m) = eps.try_recv().unwrap() {
+            report.episodes += m.user_header().count as u64;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    stop.store(true, Ordering::SeqCst);
+    for (n, h) in threads {
+        h.join().unwrap().unwrap_or_else(|e| panic!("{name}: role {n}: {e:#}"));
+    }
+    // The last counters every role publishes as it stops.
+    while let Some(m) = tel.try_recv().unwrap() {
+        let t = *m.user_header();
+        report.latest.insert((t.role, t.index), t);
+    }
+    assert!(dir.join("final.safetensors").exists() && dir.join("replay.bin").exists(), "{name}: the run directory lacks its files");
+    let _ = std::fs::remove_dir_all(&dir);
+    report
+}
+
+#[test]
+fn two_environments_non_batched_n_step_with_the_rate_limit() {
+    // Two sims and two actors, one message per agent (the actor's gather),
+    // 3-step returns, and the rate limit on both sides: every transition is
+    // sampled about once.
+    let cfg = config(&["sim.envs=2", "sim.observation_mode=\"non-batched\"", "learner.n_step=3", "replay.samples_per_insert=1.0"]);
+    let r = run_serial("two-envs", &cfg, 60);
+    for e in 0..2 {
+        let (sim, actor) = (r.get(RoleKind::Sim, e), r.get(RoleKind::Actor, e));
+        assert!(sim.work > 50 && actor.work > 50, "env {e}: sim steps {}, actor transitions {}", sim.work, actor.work);
+        assert_eq!(actor.lost, 0, "actor {e} lost observation steps");
+        assert!(actor.weight_version > 1, "actor {e} never took newer weights");
+    }
+    let replay = r.get(RoleKind::Replay, 0);
+    assert_eq!(replay.lost, 0, "the replay saw sequence gaps or corrupt transitions");
+    // Both actors' transitions reached the replay (n-step ones included).
+    let produced = r.get(RoleKind::Actor, 0).work + r.get(RoleKind::Actor, 1).work;
+    // At most what the transitions channel holds (8 batches of each actor,
+    // each at most n_step × agents transitions) may still be in flight.
+    let in_flight = 8 * 2 * 3 * 4;
+    assert!(replay.work + in_flight >= produced && replay.work <= produced, "replay inserted {}, actors produced {produced}", replay.work);
+    // The sample side of the limit: minibatches × batch stay within the
+    // transitions inserted since sampling began, plus its buffer.
+    let buffer = 2 * (cfg.replay.prefetch as u64 + cfg.learner.publish_every + 2) * cfg.replay.batch as u64;
+    let sampled = replay.work2 * cfg.replay.batch as u64;
+    assert!(sampled <= replay.work - cfg.replay.min_fill as u64 + buffer, "sampled {sampled} of {} inserted", replay.work);
+    assert!(r.episodes > 0, "no episodes reached the supervisor's channel");
+}
+
+#[test]
+fn one_environment_batched_without_the_rate_limit() {
+    let cfg = config(&["replay.samples_per_insert=0.0"]);
+    let r = run_serial("batched", &cfg, 100);
+    let (sim, actor, replay) = (r.get(RoleKind::Sim, 0), r.get(RoleKind::Actor, 0), r.get(RoleKind::Replay, 0));
+    assert!(sim.work >= 4 * 50, "sim agent-steps {}", sim.work);
+    assert_eq!(actor.lost + replay.lost, 0);
+    assert!(r.work(RoleKind::Learner) >= 100);
+    assert!(replay.work2 >= 100 && r.episodes > 0, "minibatches {}, episodes {}", replay.work2, r.episodes);
+}
