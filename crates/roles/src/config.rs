@@ -58,7 +58,7 @@ pub struct EvalSection {
 
 impl Default for EvalSection {
     fn default() -> Self {
-        Self { every_s: 15.0, episodes: 100, arena: String::new(), validation_arenas: 5, target_success: 0.8, after_threshold_s: 120.0 }
+        Self { every_s: 15.0, episodes: 100, arena: String::new(), validation_arenas: 10, target_success: 0.9, after_threshold_s: 240.0 }
     }
 }
 
@@ -165,6 +165,11 @@ pub struct LearnerSection {
     pub device: String,
 }
 
+/// `configs/default.toml`, the one source of the defaults: `hive train`
+/// without a config reads it, and the `Default` impls below must agree with
+/// it key for key (a test checks), since they fill keys a config leaves out.
+pub const DEFAULT_TOML: &str = include_str!("../../../configs/default.toml");
+
 impl Default for Config {
     fn default() -> Self {
         Self {
@@ -187,7 +192,7 @@ impl Default for SimSection {
             envs: 1,
             agents: 50,
             arena: PathBuf::from("configs/arenas/train.toml"),
-            generated_lanes: 0,
+            generated_lanes: 15,
             renderer: "cpu".into(),
             observation_mode: "batched".into(),
             interactive: false,
@@ -208,7 +213,7 @@ impl Default for ActorSection {
 
 impl Default for ReplaySection {
     fn default() -> Self {
-        Self { capacity: 15_000, min_fill: 15_000, batch: 32, prefetch: 4, samples_per_insert: 0.0, snapshot_every_s: 60.0 }
+        Self { capacity: 50_000, min_fill: 15_000, batch: 32, prefetch: 4, samples_per_insert: 1.0, snapshot_every_s: 60.0 }
     }
 }
 
@@ -246,7 +251,8 @@ impl Config {
     pub fn load(path: Option<&Path>, overrides: &[String]) -> Result<Self> {
         let (text, source) = match path {
             Some(p) => (std::fs::read_to_string(p).with_context(|| format!("config {}: cannot read", p.display()))?, p.display().to_string()),
-            None => (String::new(), "defaults".to_string()),
+            // The defaults are `configs/default.toml`, built in.
+            None => (DEFAULT_TOML.to_string(), "defaults (configs/default.toml)".to_string()),
         };
         let mut table: toml::Table = toml::from_str(&text).map_err(|e| anyhow::anyhow!("config {source}: {}", e.to_string().trim_end()))?;
         for o in overrides {
@@ -435,6 +441,16 @@ mod tests {
     use super::*;
 
     #[test]
+    fn the_defaults_are_configs_default_toml() {
+        // What `hive train` without a config resolves to, against the file
+        // the README trains with and against the built-in defaults.
+        let none = Config::load(None, &[]).unwrap().to_toml();
+        let file = Config::load(Some(&std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../configs/default.toml")), &[]).unwrap().to_toml();
+        assert_eq!(none, file);
+        assert_eq!(Config::default().to_toml(), none, "Config::default() and configs/default.toml disagree");
+    }
+
+    #[test]
     fn defaults_validate_and_round_trip() {
         let c = Config::default();
         c.validate().unwrap();
@@ -454,7 +470,7 @@ mod tests {
         assert!(e.contains("sim.agents"), "{e}");
         let e = format!("{:#}", Config::load(None, &["sim.agnets=3".into()]).unwrap_err());
         assert!(e.contains("agnets"), "{e}");
-        let e = format!("{:#}", Config::load(None, &["replay.batch=20000".into()]).unwrap_err());
+        let e = format!("{:#}", Config::load(None, &["replay.batch=60000".into()]).unwrap_err());
         assert!(e.contains("replay.batch"), "{e}");
         let e = format!("{:#}", Config::load(None, &["sim.agents=\"many\"".into()]).unwrap_err());
         assert!(e.contains("agents") || e.contains("invalid type"), "{e}");
