@@ -14,3 +14,49 @@ fn every_crate_is_in_the_code_map() {
     }
     assert!(n >= 6);
 }
+
+/// The workspace's crates and their direct dependencies (by package name,
+/// with the features asked of each), from `cargo metadata`.
+fn dependencies() -> Vec<(String, Vec<(String, Vec<String>)>)> {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let out = std::process::Command::new(env!("CARGO")).current_dir(&root).args(["metadata", "--format-version", "1", "--no-deps", "--offline"]).output().unwrap();
+    assert!(out.status.success(), "cargo metadata: {}", String::from_utf8_lossy(&out.stderr));
+    let meta: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    meta["packages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| {
+            let deps = p["dependencies"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .filter(|d| d["kind"].is_null())
+                .map(|d| (d["name"].as_str().unwrap().to_string(), d["features"].as_array().unwrap().iter().map(|f| f.as_str().unwrap().to_string()).collect()))
+                .collect();
+            (p["name"].as_str().unwrap().to_string(), deps)
+        })
+        .collect()
+}
+
+/// Architecture Invariant: the domain crates (sim, model, replay) never
+/// depend on the transport, iceoryx2 or zenoh; the transport never depends
+/// on candle or rapier.
+#[test]
+fn domain_crates_stay_pure_and_the_transport_knows_no_domain() {
+    let deps = dependencies();
+    assert!(deps.len() >= 7, "{deps:?}");
+    let uses = |krate: &str, what: &[&str]| -> Vec<String> {
+        let (_, d) = deps.iter().find(|(n, _)| n == krate).unwrap_or_else(|| panic!("no crate {krate}"));
+        d.iter().filter(|(n, _)| what.iter().any(|w| n.starts_with(w))).map(|(n, _)| n.clone()).collect()
+    };
+    for domain in ["rotorhive-sim", "rotorhive-model", "rotorhive-replay"] {
+        let bad = uses(domain, &["iceoryx2", "zenoh", "rotorhive-transport", "rotorhive-roles"]);
+        assert!(bad.is_empty(), "{domain} depends on {bad:?}");
+    }
+    let bad = uses("rotorhive-transport", &["candle", "rapier", "rotorhive-sim", "rotorhive-model"]);
+    assert!(bad.is_empty(), "rotorhive-transport depends on {bad:?}");
+    // Only the binary parses command lines: the roles take a context.
+    let bad = uses("rotorhive-roles", &["clap"]);
+    assert!(bad.is_empty(), "rotorhive-roles depends on {bad:?}");
+}
