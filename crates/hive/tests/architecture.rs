@@ -19,7 +19,8 @@ fn every_crate_is_in_the_code_map() {
 /// with the features asked of each), from `cargo metadata`.
 fn dependencies() -> Vec<(String, Vec<(String, Vec<String>)>)> {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
-    let out = std::process::Command::new(env!("CARGO")).current_dir(&root).args(["metadata", "--format-version", "1", "--no-deps", "--offline"]).output().unwrap();
+    let out =
+        std::process::Command::new(env!("CARGO")).current_dir(&root).args(["metadata", "--format-version", "1", "--no-deps", "--offline"]).output().unwrap();
     assert!(out.status.success(), "cargo metadata: {}", String::from_utf8_lossy(&out.stderr));
     let meta: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     meta["packages"]
