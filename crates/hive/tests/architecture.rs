@@ -15,9 +15,12 @@ fn every_crate_is_in_the_code_map() {
     assert!(n >= 6);
 }
 
+/// A dependency: its package name and the features asked of it.
+type Dependency = (String, Vec<String>);
+
 /// The workspace's crates and their direct dependencies (by package name,
 /// with the features asked of each), from `cargo metadata`.
-fn dependencies() -> Vec<(String, Vec<(String, Vec<String>)>)> {
+fn dependencies() -> Vec<(String, Vec<Dependency>)> {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
     let out =
         std::process::Command::new(env!("CARGO")).current_dir(&root).args(["metadata", "--format-version", "1", "--no-deps", "--offline"]).output().unwrap();
