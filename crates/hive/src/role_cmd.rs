@@ -33,10 +33,7 @@ pub fn run(args: &RoleArgs, role: RoleKind, index: usize) -> Result<()> {
     if matches!(role, RoleKind::Sim | RoleKind::Actor) && index >= cfg.sim.envs {
         anyhow::bail!("--env {index} is out of range: the config has {} environments", cfg.sim.envs);
     }
-    let node = match role {
-        RoleKind::Sim | RoleKind::Actor => format!("{}-{index}", role.name()),
-        _ => role.name().to_string(),
-    };
+    let node = rotorhive_roles::node_name(role, index);
     rotorhive_transport::handle_hangup();
     let hub = Hub::<Ipc>::new(&args.prefix, &node).with_context(|| format!("role {node}"))?;
     watch_supervisor(&args.prefix, &node)?;

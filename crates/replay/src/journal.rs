@@ -94,7 +94,7 @@ impl Journal {
         let file = std::fs::OpenOptions::new().read(true).write(true).create(true).truncate(true).open(&tmp).map_err(io)?;
         file.set_len(HEADER + (mem.capacity * mem.width * 2) as u64).map_err(io)?;
         file.write_all_at(JOURNAL_MAGIC, 0).map_err(io)?;
-        let mut j = Self { file, path: path.to_path_buf(), width: mem.width, capacity: mem.capacity };
+        let j = Self { file, path: path.to_path_buf(), width: mem.width, capacity: mem.capacity };
         for (w, v) in [mem.width, mem.capacity].into_iter().enumerate() {
             j.file.write_all_at(&(v as u64).to_le_bytes(), 8 + 8 * w as u64).map_err(io)?;
         }
@@ -103,7 +103,6 @@ impl Journal {
         }
         j.write_header(mem)?;
         std::fs::rename(&tmp, path).map_err(io)?;
-        j.path = path.to_path_buf();
         Ok(j)
     }
 

@@ -58,12 +58,21 @@ pub fn roles_of(cfg: &Config) -> usize {
 /// The roles of a run, by node name and what starts them: the learner, the
 /// replay, and an actor and a sim per environment.
 pub fn role_names(cfg: &Config) -> Vec<(String, RoleKind, usize)> {
-    let mut v = vec![("learner".to_string(), RoleKind::Learner, 0), ("replay".to_string(), RoleKind::Replay, 0)];
+    let mut v = vec![(node_name(RoleKind::Learner, 0), RoleKind::Learner, 0), (node_name(RoleKind::Replay, 0), RoleKind::Replay, 0)];
     for e in 0..cfg.sim.envs {
-        v.push((format!("actor-{e}"), RoleKind::Actor, e));
-        v.push((format!("sim-{e}"), RoleKind::Sim, e));
+        v.push((node_name(RoleKind::Actor, e), RoleKind::Actor, e));
+        v.push((node_name(RoleKind::Sim, e), RoleKind::Sim, e));
     }
     v
+}
+
+/// The node (and log) name of role `role` number `index`: `sim-0`,
+/// `actor-0`, `replay`, `learner`.
+pub fn node_name(role: RoleKind, index: usize) -> String {
+    match role {
+        RoleKind::Sim | RoleKind::Actor => format!("{}-{index}", role.name()),
+        RoleKind::Replay | RoleKind::Learner => role.name().to_string(),
+    }
 }
 
 /// Runs one role in the calling thread until the run stops.
