@@ -339,7 +339,10 @@ pub fn run(config: &Path, out: &Path, json_out: bool) -> Result<()> {
         medians(&mut md, &cells, tc.budget_s)?;
     }
     trend(&mut md, &cells, tc.budget_s)?;
-    writeln!(md, "\nGPU columns are empty without an NVIDIA GPU. Runs: {}.", out.display())?;
+    if rows.iter().all(|r| r["gpu_util_mean_pct"].is_null()) {
+        writeln!(md, "\nGPU columns are empty: no NVIDIA GPU was seen (NVML).")?;
+    }
+    writeln!(md, "\nRuns: {}.", out.display())?;
     std::fs::write(out.join("agent-table.md"), &md)?;
     std::fs::write(out.join("agent-table.csv"), &csv)?;
     crate::draw::lines_plot("rolling reward per cell", "wall time (s)", "rolling reward (50 episodes)", &curves, &out.join("agent-table.png"))?;
