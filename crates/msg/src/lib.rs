@@ -263,6 +263,8 @@ pub enum RoleKind {
     Replay = 2,
     /// `hive learner`.
     Learner = 3,
+    /// The link of a host (`hive train --listen`, `hive worker`).
+    Link = 4,
 }
 
 impl RoleKind {
@@ -273,6 +275,7 @@ impl RoleKind {
             1 => Some(Self::Actor),
             2 => Some(Self::Replay),
             3 => Some(Self::Learner),
+            4 => Some(Self::Link),
             _ => None,
         }
     }
@@ -284,6 +287,7 @@ impl RoleKind {
             Self::Actor => "actor",
             Self::Replay => "replay",
             Self::Learner => "learner",
+            Self::Link => "link",
         }
     }
 }
@@ -332,7 +336,35 @@ pub fn stage_names(role: RoleKind) -> [&'static str; STAGES] {
         RoleKind::Actor => ["inference", "assemble", "weights", "transport_wait"],
         RoleKind::Replay => ["insert", "sample", "idle", "transport_wait"],
         RoleKind::Learner => ["forward", "backward", "optimiser", "transport_wait"],
+        RoleKind::Link => ["receive", "forward", "weights", "send_wait"],
     }
+}
+
+/// A fingerprint of the message layout: every header's size and every
+/// payload length this build sends. Two hosts carry messages as raw bytes,
+/// so they must agree on it (the link refuses a host whose layout differs).
+pub fn layout_fingerprint() -> u64 {
+    use std::mem::size_of;
+    let parts = [
+        size_of::<ObsHeader>(),
+        size_of::<ActionHeader>(),
+        size_of::<TransitionHeader>(),
+        size_of::<MinibatchHeader>(),
+        size_of::<WeightsHeader>(),
+        size_of::<EpisodeHeader>(),
+        size_of::<Telemetry>(),
+        OBS_LEN,
+        PACKED_LEN,
+        NUM_ACTIONS,
+        STAGES,
+        DoneKind::Timeout as usize,
+    ];
+    // FNV-1a over the little-endian values.
+    let mut h = 0xcbf2_9ce4_8422_2325u64;
+    for b in parts.iter().flat_map(|v| (*v as u64).to_le_bytes()) {
+        h = (h ^ b as u64).wrapping_mul(0x0100_0000_01b3);
+    }
+    h
 }
 
 #[cfg(test)]

@@ -32,6 +32,31 @@ pub struct Config {
     pub learner: LearnerSection,
     /// Greedy evaluation during training.
     pub eval: EvalSection,
+    /// Hosts of the run (`hive train --listen`, `hive worker`).
+    pub cluster: ClusterSection,
+}
+
+/// `[cluster]`: a run across hosts. The head (`hive train --listen`) waits
+/// for `workers` worker hosts (`hive worker --connect`) before its clock
+/// starts; the `*_elsewhere` keys are filled in by the head as workers join
+/// (they size the channels and the rate limit) and are left at 0 by hand.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ClusterSection {
+    /// Worker hosts the run waits for; 0 = none.
+    pub workers: usize,
+    /// How long the head waits for them (s).
+    pub join_timeout_s: f64,
+    /// Environments on other hosts (set by the head).
+    pub envs_elsewhere: usize,
+    /// Agents on other hosts (set by the head).
+    pub agents_elsewhere: usize,
+}
+
+impl Default for ClusterSection {
+    fn default() -> Self {
+        Self { workers: 0, join_timeout_s: 60.0, envs_elsewhere: 0, agents_elsewhere: 0 }
+    }
 }
 
 /// `[eval]`: `hive train` flies the newest published weights greedily every
@@ -182,6 +207,7 @@ impl Default for Config {
             replay: ReplaySection::default(),
             learner: LearnerSection::default(),
             eval: EvalSection::default(),
+            cluster: ClusterSection::default(),
         }
     }
 }
@@ -248,6 +274,16 @@ impl Config {
         if self.batched() { 1 } else { self.sim.agents }
     }
 
+    /// Environments of the whole run, on every host.
+    pub fn envs_total(&self) -> usize {
+        self.sim.envs + self.cluster.envs_elsewhere
+    }
+
+    /// Agents of the whole run, on every host.
+    pub fn agents_total(&self) -> usize {
+        self.sim.envs * self.sim.agents + self.cluster.agents_elsewhere
+    }
+
     pub fn load(path: Option<&Path>, overrides: &[String]) -> Result<Self> {
         let (text, source) = match path {
             Some(p) => (std::fs::read_to_string(p).with_context(|| format!("config {}: cannot read", p.display()))?, p.display().to_string()),
@@ -272,6 +308,7 @@ impl Config {
             Ok(())
         }
         positive("max_seconds", self.max_seconds)?;
+        positive("cluster.join_timeout_s", self.cluster.join_timeout_s)?;
         positive("rolling_window", self.rolling_window as f64)?;
         let e = &self.eval;
         for (k, v) in [("eval.every_s", e.every_s), ("eval.after_threshold_s", e.after_threshold_s)] {

@@ -47,7 +47,7 @@ pub const POLL: Duration = Duration::from_millis(100);
 
 /// The episodes channel, actors → supervisor.
 pub fn episodes_channel(envs: usize) -> Channel {
-    Channel { name: "episodes".into(), publishers: envs, subscribers: 1, buffer: 256, overflow: false, history: 0 }
+    Channel::episodes(envs)
 }
 
 /// Processes (or threads) that publish telemetry in a run.
@@ -71,7 +71,7 @@ pub fn role_names(cfg: &Config) -> Vec<(String, RoleKind, usize)> {
 pub fn node_name(role: RoleKind, index: usize) -> String {
     match role {
         RoleKind::Sim | RoleKind::Actor => format!("{}-{index}", role.name()),
-        RoleKind::Replay | RoleKind::Learner => role.name().to_string(),
+        RoleKind::Replay | RoleKind::Learner | RoleKind::Link => role.name().to_string(),
     }
 }
 
@@ -82,6 +82,7 @@ pub fn run_role<S: Service>(cx: Ctx<'_, S>, role: RoleKind, index: usize) -> Res
         RoleKind::Actor => actor::run(cx, index),
         RoleKind::Replay => replay::run(cx),
         RoleKind::Learner => learner::run(cx),
+        RoleKind::Link => anyhow::bail!("the link is not a role of its own: it runs inside `hive train --listen` and `hive worker`"),
     }
 }
 
@@ -89,8 +90,25 @@ pub fn run_role<S: Service>(cx: Ctx<'_, S>, role: RoleKind, index: usize) -> Res
 /// iceoryx2's `local` service (run `prefix`). Returns each thread's name and
 /// handle; setting `stop` (or `rotorhive_transport::request_stop`) ends them.
 pub fn spawn_serial(cfg: &Config, prefix: &str, run_dir: &Path, stop: &Arc<AtomicBool>) -> Result<Vec<(String, JoinHandle<Result<()>>)>> {
+    spawn_threads(cfg, prefix, run_dir, stop, role_names(cfg))
+}
+
+/// The sims and actors of a host without the learner and replay (a worker
+/// host, whose link carries their transitions to the head).
+pub fn env_role_names(cfg: &Config) -> Vec<(String, RoleKind, usize)> {
+    role_names(cfg).into_iter().filter(|(_, r, _)| matches!(r, RoleKind::Sim | RoleKind::Actor)).collect()
+}
+
+/// Runs `roles` as threads of this process over iceoryx2's `local` service.
+pub fn spawn_threads(
+    cfg: &Config,
+    prefix: &str,
+    run_dir: &Path,
+    stop: &Arc<AtomicBool>,
+    roles: Vec<(String, RoleKind, usize)>,
+) -> Result<Vec<(String, JoinHandle<Result<()>>)>> {
     let mut out = Vec::new();
-    for (name, role, index) in role_names(cfg) {
+    for (name, role, index) in roles {
         let (cfg, prefix, dir): (Config, String, PathBuf) = (cfg.clone(), prefix.to_string(), run_dir.to_path_buf());
         let (node, stop) = (name.clone(), stop.clone());
         let h = std::thread::Builder::new()

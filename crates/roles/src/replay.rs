@@ -38,7 +38,8 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     // after a millisecond and the replay goes back to inserting.
     let mut tx = hub.sender::<u16, MinibatchHeader>(&Channel::minibatches(r.prefetch), r.batch * PACKED_LEN, Duration::from_millis(1))?;
     let mut tel = Counters::new(hub, RoleKind::Replay, 0, roles_of(cfg))?;
-    let mut next_seq = vec![None::<u64>; cfg.sim.envs];
+    // Actors of other hosts come through the link with indexes after ours.
+    let mut next_seq = vec![None::<u64>; cfg.envs_total()];
     let mut mb_seq = 0u64;
     let mut backoff_until = Instant::now();
     let mut limit = SampleLimit::new(cfg);

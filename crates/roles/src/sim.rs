@@ -132,7 +132,8 @@ impl<S: Service> RateLimiter<S> {
             None
         };
         let per_update = r.batch as f64 / r.samples_per_insert.max(f64::MIN_POSITIVE);
-        let agents = (cfg.sim.agents * cfg.sim.envs) as f64;
+        // Every host's sims feed the one replay memory.
+        let agents = cfg.agents_total() as f64;
         Ok(Self {
             weights,
             // Transitions per step across all sims (they run at the same pace).

@@ -103,9 +103,14 @@ impl Channel {
     pub fn actions(env: usize) -> Self {
         Self { name: format!("act.{env}"), publishers: 1, subscribers: 1, buffer: 2, overflow: false, history: 0 }
     }
-    /// Transition batches from every actor to the replay memory.
+    /// Transition batches from every actor of this host (and the host's
+    /// link, which brings other hosts' batches) to the replay memory.
     pub fn transitions(envs: usize) -> Self {
-        Self { name: "transitions".into(), publishers: envs, subscribers: 1, buffer: 8, overflow: false, history: 0 }
+        Self { name: "transitions".into(), publishers: envs + 1, subscribers: 1, buffer: 8, overflow: false, history: 0 }
+    }
+    /// Finished episodes from every actor of this host (and its link) to the supervisor.
+    pub fn episodes(envs: usize) -> Self {
+        Self { name: "episodes".into(), publishers: envs + 1, subscribers: 1, buffer: 256, overflow: false, history: 0 }
     }
     /// Minibatches from the replay memory to the learner.
     pub fn minibatches(prefetch: usize) -> Self {
@@ -113,13 +118,14 @@ impl Channel {
     }
     /// Weights from the learner to every actor (and to every sim, which reads
     /// the update count for rate limiting): only the newest matters, and a
-    /// late subscriber gets the last published version.
+    /// late subscriber gets the last published version. On a worker host the
+    /// link is the publisher; on the head it is one more subscriber.
     pub fn weights(envs: usize) -> Self {
-        Self { name: "weights".into(), publishers: 1, subscribers: 2 * envs + 2, buffer: 1, overflow: true, history: 1 }
+        Self { name: "weights".into(), publishers: 1, subscribers: 2 * envs + 3, buffer: 1, overflow: true, history: 1 }
     }
     /// Telemetry from every role to the supervisor; old samples may be overwritten.
     pub fn telemetry(roles: usize) -> Self {
-        Self { name: "telemetry".into(), publishers: roles + 2, subscribers: 2, buffer: 64, overflow: true, history: 0 }
+        Self { name: "telemetry".into(), publishers: roles + 3, subscribers: 2, buffer: 64, overflow: true, history: 0 }
     }
 }
 
@@ -138,7 +144,7 @@ impl<S: Service> Hub<S> {
     pub fn new(prefix: &str, node_name: &str) -> Result<Self> {
         let err = |e: &dyn Debug| TransportError::Node { node: node_name.to_string(), message: format!("{e:?}") };
         let name = NodeName::new(node_name).map_err(|e| err(&e))?;
-        let node = NodeBuilder::new().name(&name).create::<S>().map_err(|e| err(&e))?;
+        let node = NodeBuilder::new().name(&name).config(domain_config()).create::<S>().map_err(|e| err(&e))?;
         Ok(Self { node, prefix: prefix.to_string(), stop: Arc::new(AtomicBool::new(false)) })
     }
 
@@ -404,6 +410,40 @@ impl<S: Service, T: Debug + ZeroCopySend + Default + Copy + 'static, H: Debug + 
     }
 }
 
+/// The environment variable that names this process's shared-memory domain
+/// (`hive --domain NAME` sets it, and role processes inherit it).
+pub const DOMAIN_ENV: &str = "ROTORHIVE_DOMAIN";
+
+/// Checks a domain name: 1 to 32 letters, digits, `-` or `_`.
+pub fn check_domain(name: &str) -> std::result::Result<(), String> {
+    if name.is_empty() || name.len() > 32 || !name.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_') {
+        return Err(format!("domain {name:?}: use 1 to 32 letters, digits, '-' or '_'"));
+    }
+    Ok(())
+}
+
+/// The iceoryx2 config of this process's domain: the machine's shared one,
+/// or, where `ROTORHIVE_DOMAIN` names one, a domain of its own (its own file
+/// prefix and root directory), whose services and nodes the processes of
+/// other domains cannot see, exactly as if they ran on another host. Read
+/// once per process.
+pub fn domain_config() -> &'static Config {
+    static DOMAIN: std::sync::OnceLock<Option<Config>> = std::sync::OnceLock::new();
+    let own = DOMAIN.get_or_init(|| {
+        let name = std::env::var(DOMAIN_ENV).ok().filter(|n| !n.is_empty())?;
+        if let Err(e) = check_domain(&name) {
+            tracing::warn!("{DOMAIN_ENV}: {e}; using the machine's shared domain");
+            return None;
+        }
+        let mut c = Config::global_config().clone();
+        // Both were checked: short, and only characters valid in file names.
+        c.global.prefix = FileName::new(format!("rh_{name}_").as_bytes()).ok()?;
+        c.global.set_root_path(&Path::new(format!("/tmp/iceoryx2/rotorhive-{name}/").as_bytes()).ok()?);
+        Some(c)
+    });
+    own.as_ref().unwrap_or_else(|| Config::global_config())
+}
+
 static STOP: AtomicBool = AtomicBool::new(false);
 
 /// Asks every loop of this process to stop (as SIGTERM would).
@@ -446,7 +486,7 @@ pub fn supervisor_node_name(prefix: &str) -> String {
 /// (`Some(false)`), or not registered at all (`None`).
 pub fn node_alive(name: &str) -> Option<bool> {
     let mut state = None;
-    let _ = Node::<Ipc>::list(Config::global_config(), |s| {
+    let _ = Node::<Ipc>::list(domain_config(), |s| {
         let (alive, details) = match &s {
             NodeState::Alive(v) => (true, v.details().clone()),
             NodeState::Dead(v) => (false, v.details().clone()),
@@ -464,7 +504,7 @@ pub fn node_alive(name: &str) -> Option<bool> {
 /// many dead nodes were cleaned.
 pub fn cleanup_dead_nodes() -> usize {
     let mut cleaned = 0;
-    let _ = Node::<Ipc>::list(Config::global_config(), |state| {
+    let _ = Node::<Ipc>::list(domain_config(), |state| {
         if let NodeState::Dead(dead) = state
             && dead.try_remove_stale_resources().is_ok()
         {
@@ -480,7 +520,7 @@ pub fn cleanup_dead_nodes() -> usize {
 pub fn services_of_run<S: Service>(prefix: &str) -> Vec<String> {
     let want = format!("rotorhive/{prefix}/");
     let mut out = Vec::new();
-    let _ = S::list(Config::global_config(), |s| {
+    let _ = S::list(domain_config(), |s| {
         let name = s.static_details.name().to_string();
         if name.starts_with(&want) {
             out.push(name);

@@ -1,0 +1,697 @@
+//! The link between hosts: the only crate that imports zenoh.
+//!
+//! iceoryx2 stays the transport inside each host; the link of a host is one
+//! more member of its run that carries, over one Zenoh session on TCP (peer
+//! mode, explicit endpoints, no multicast, no router):
+//! - transition batches worker → head, loss-free: zenoh's
+//!   `CongestionControl::Block`, a bounded FIFO on the head, then the head's
+//!   bounded iceoryx2 send retried while the replay is full, so back-pressure
+//!   reaches the worker's actors end to end;
+//! - weights head → worker, newest only (a ring of one), republished on the
+//!   worker's shared memory once per host;
+//! - telemetry and episodes worker → head (they may drop under load; drops
+//!   are counted).
+//!
+//! Observations, actions and minibatches never leave their host. Headers and
+//! payloads cross as raw bytes ([`wire`]); both ends check the layout
+//! fingerprint at the join and refuse a mismatch.
+
+pub mod wire;
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use iceoryx2::service::Service;
+use rotorhive_msg::{EpisodeHeader, RoleKind, Telemetry, TransitionHeader, WeightsHeader};
+use rotorhive_transport::{Channel, Hub, TransportError};
+use zenoh::Wait;
+use zenoh::handlers::{FifoChannel, FifoChannelHandler, RingChannel};
+use zenoh::qos::CongestionControl;
+use zenoh::query::Query;
+use zenoh::sample::SampleKind;
+
+pub use wire::{Hello, Welcome};
+
+/// Errors of the link, naming the endpoint or the peer.
+#[derive(Debug, thiserror::Error)]
+pub enum LinkError {
+    /// An endpoint that is not `tcp/HOST:PORT`.
+    #[error("endpoint {0:?}: expected tcp/HOST:PORT (for example tcp/192.168.1.10:7447)")]
+    BadEndpoint(String),
+    /// Zenoh refused to open the session or a declaration.
+    #[error("zenoh ({what}): {message}")]
+    Zenoh {
+        /// What was attempted.
+        what: String,
+        /// Zenoh's error.
+        message: String,
+    },
+    /// No head answered a worker in time.
+    #[error("no head answered at {endpoint} within {secs:.0} s (is `hive train --listen {endpoint}` running there, and the port open?)")]
+    NoHead {
+        /// The endpoint tried.
+        endpoint: String,
+        /// Seconds waited.
+        secs: f64,
+    },
+    /// The head refused the worker.
+    #[error("the head at {endpoint} refused this worker: {why}")]
+    Refused {
+        /// The head's endpoint.
+        endpoint: String,
+        /// Its reason.
+        why: String,
+    },
+    /// Too few workers joined before the timeout.
+    #[error("only {joined} of {wanted} worker hosts joined within {secs:.0} s (`cluster.join_timeout_s`)")]
+    TooFewWorkers {
+        /// Joined.
+        joined: usize,
+        /// Wanted.
+        wanted: usize,
+        /// Seconds waited.
+        secs: f64,
+    },
+    /// The head went away without ending the run.
+    #[error("lost the head: its session ended without the run's end")]
+    LostHead,
+    /// Shared memory on this host.
+    #[error(transparent)]
+    Transport(#[from] TransportError),
+    /// Stopped by a signal while waiting.
+    #[error("stopped while waiting for {0}")]
+    Stopped(&'static str),
+}
+
+/// Result of this crate.
+pub type Result<T> = std::result::Result<T, LinkError>;
+
+fn zerr(what: impl Into<String>) -> impl FnOnce(zenoh::Error) -> LinkError {
+    let what = what.into();
+    move |e| LinkError::Zenoh { what, message: e.to_string() }
+}
+
+/// Checks that `ep` is `tcp/HOST:PORT`.
+pub fn check_endpoint(ep: &str) -> Result<()> {
+    let bad = || LinkError::BadEndpoint(ep.to_string());
+    let rest = ep.strip_prefix("tcp/").ok_or_else(bad)?;
+    let (host, port) = rest.rsplit_once(':').ok_or_else(bad)?;
+    if host.is_empty() || port.parse::<u16>().is_err() {
+        return Err(bad());
+    }
+    Ok(())
+}
+
+/// The layout this build sends: the message layout and the model's size.
+pub fn layout(num_params: usize) -> u64 {
+    let salt = std::env::var("ROTORHIVE_LAYOUT_SALT").ok().and_then(|s| s.parse::<u64>().ok()).unwrap_or(0);
+    rotorhive_msg::layout_fingerprint() ^ (num_params as u64).rotate_left(17) ^ salt
+}
+
+/// Opens a peer session that listens on or connects to `endpoint`.
+fn open(listen: Option<&str>, connect: Option<&str>) -> Result<zenoh::Session> {
+    let mut c = zenoh::Config::default();
+    let set = |c: &mut zenoh::Config, k: &str, v: &str| c.insert_json5(k, v).map_err(|e| LinkError::Zenoh { what: format!("config {k}"), message: e.to_string() });
+    set(&mut c, "mode", r#""peer""#)?;
+    set(&mut c, "scouting/multicast/enabled", "false")?;
+    set(&mut c, "scouting/gossip/enabled", "false")?;
+    // A head held busy for a while must not make zenoh close the link and
+    // lose what is in flight (the default is 5 s); the head's own stall is
+    // bounded by the run's stop.
+    set(&mut c, "transport/link/tx/queue/congestion_control/block/wait_before_close", "60000000")?;
+    match (listen, connect) {
+        (Some(l), _) => {
+            check_endpoint(l)?;
+            set(&mut c, "listen/endpoints", &format!(r#"["{l}"]"#))?;
+            set(&mut c, "connect/endpoints", "[]")?;
+        }
+        (None, Some(k)) => {
+            check_endpoint(k)?;
+            set(&mut c, "listen/endpoints", "[]")?;
+            set(&mut c, "connect/endpoints", &format!(r#"["{k}"]"#))?;
+        }
+        (None, None) => {}
+    }
+    let what = match (listen, connect) {
+        (Some(l), _) => format!("listen on {l}"),
+        (None, Some(k)) => format!("connect to {k}"),
+        _ => "open".into(),
+    };
+    zenoh::open(c).wait().map_err(zerr(what))
+}
+
+fn key(run: &str, what: &str) -> String {
+    format!("rotorhive/{run}/{what}")
+}
+
+/// The key of the join queryable.
+const JOIN: &str = "rotorhive/join";
+
+/// A worker host of the run, as the head sees it.
+#[derive(Debug, Clone)]
+pub struct Host {
+    /// Host name.
+    pub name: String,
+    /// Its place (1 = first worker).
+    pub slot: u32,
+    /// Environments.
+    pub envs: u32,
+    /// Agents per environment.
+    pub agents: u32,
+    /// Its first environment's index in the run.
+    pub env_offset: u32,
+}
+
+/// Counters of the head's link, shared with the supervisor.
+#[derive(Debug, Default)]
+pub struct HeadStats {
+    /// Transition batches brought in.
+    pub batches: AtomicU64,
+    /// Transitions brought in.
+    pub transitions: AtomicU64,
+    /// Transition batches lost between hosts (per-actor sequence gaps).
+    pub lost_batches: AtomicU64,
+    /// Transitions in the lost batches, estimated at the batch size seen.
+    pub lost_transitions: AtomicU64,
+    /// Episode or telemetry messages that could not be delivered.
+    pub dropped: AtomicU64,
+    /// Weight versions sent.
+    pub weights_sent: AtomicU64,
+    /// Workers that joined again after the start.
+    pub rejoins: AtomicU64,
+}
+
+/// The head's end of the link: listens, admits workers, then bridges.
+pub struct Head {
+    session: zenoh::Session,
+    run: String,
+    layout: u64,
+    queryable: zenoh::query::Queryable<FifoChannelHandler<Query>>,
+    _token: zenoh::liveliness::LivelinessToken,
+    hosts: Vec<Host>,
+    pending: Vec<(Query, Hello)>,
+}
+
+impl Head {
+    /// Listens on `endpoint` for the workers of run `run`.
+    pub fn listen(endpoint: &str, run: &str, layout: u64) -> Result<Self> {
+        let session = open(Some(endpoint), None)?;
+        let queryable = session.declare_queryable(JOIN).with(FifoChannel::new(64)).wait().map_err(zerr("declare the join queryable"))?;
+        let token = session.liveliness().declare_token(key(run, "head")).wait().map_err(zerr("declare the head's liveliness"))?;
+        Ok(Self { session, run: run.to_string(), layout, queryable, _token: token, hosts: Vec::new(), pending: Vec::new() })
+    }
+
+    /// Waits for `wanted` workers (at most `timeout`) and places their
+    /// environments after the head's `head_envs`, in order of joining. They
+    /// wait for their answer until [`Head::admit`].
+    pub fn gather(&mut self, wanted: usize, head_envs: usize, timeout: Duration, stop: impl Fn() -> bool) -> Result<Vec<Host>> {
+        let start = Instant::now();
+        while self.pending.len() < wanted {
+            if stop() {
+                return Err(LinkError::Stopped("worker hosts"));
+            }
+            let left = timeout.saturating_sub(start.elapsed());
+            if left.is_zero() {
+                return Err(LinkError::TooFewWorkers { joined: self.pending.len(), wanted, secs: timeout.as_secs_f64() });
+            }
+            let Ok(Some(q)) = self.queryable.recv_timeout(left.min(Duration::from_millis(100))) else { continue };
+            match self.check(&q) {
+                Ok(h) => {
+                    if let Some(i) = self.pending.iter().position(|(_, p)| p.host == h.host) {
+                        // The same host asking again (it retried): keep the newest.
+                        self.pending[i] = (q, h);
+                    } else {
+                        tracing::info!("worker {} joined: {} × {} agents", h.host, h.envs, h.agents);
+                        self.pending.push((q, h));
+                    }
+                }
+                Err(why) => refuse(&q, &why),
+            }
+        }
+        let mut env_offset = head_envs as u32;
+        self.hosts.clear();
+        for (i, (_, h)) in self.pending.iter().enumerate() {
+            self.hosts.push(Host { name: h.host.clone(), slot: i as u32 + 1, envs: h.envs, agents: h.agents, env_offset });
+            env_offset += h.envs;
+        }
+        Ok(self.hosts.clone())
+    }
+
+    /// Answers the gathered workers: each gets its place, the config
+    /// `welcome` gives it and the arena.
+    pub fn admit(&mut self, welcome: impl Fn(&Host) -> (String, String)) {
+        for ((q, _), host) in self.pending.drain(..).zip(&self.hosts) {
+            let (config, arena) = welcome(host);
+            reply(&q, &Welcome::Joined { slot: host.slot, env_offset: host.env_offset, run: self.run.clone(), config, arena });
+        }
+    }
+
+    fn check(&self, q: &Query) -> std::result::Result<Hello, String> {
+        let bytes = q.payload().map(|p| p.to_bytes().into_owned()).unwrap_or_default();
+        let h = Hello::decode(&bytes).ok_or("not a rotorhive worker's join request")?;
+        if h.layout != self.layout {
+            return Err(format!(
+                "message layout mismatch: the worker's is {:016x}, the head's {:016x}; run the same build of hive on every host",
+                h.layout, self.layout
+            ));
+        }
+        if h.envs == 0 || h.agents == 0 {
+            return Err(format!("a worker needs at least one environment and one agent, got {} × {}", h.envs, h.agents));
+        }
+        Ok(h)
+    }
+
+    /// Starts bridging for the roles of run `prefix` over iceoryx2 service
+    /// `S` on this host: a thread that ends (sending the run's end to the
+    /// workers) when `stop` is set. `envs` and `roles` size the channels as
+    /// the head's roles do; `config_for` gives a returning worker its config.
+    pub fn bridge<S: Service>(self, prefix: String, envs: usize, roles: usize, stop: Arc<AtomicBool>, config_for: ConfigFor) -> Result<HeadLink> {
+        let stats = Arc::new(HeadStats::default());
+        let (st, sp) = (stats.clone(), stop.clone());
+        let hosts = self.hosts.clone();
+        let thread = std::thread::Builder::new()
+            .name("link".into())
+            .spawn(move || {
+                let hub = Hub::<S>::new(&prefix, "link")?.with_stop(sp.clone());
+                head_loop(&self, &hub, envs, roles, &sp, &st, config_for)
+            })
+            .map_err(|e| LinkError::Zenoh { what: "start the link thread".into(), message: e.to_string() })?;
+        Ok(HeadLink { thread: Some(thread), stop, stats, hosts })
+    }
+}
+
+/// Gives a worker that joins again its config and arena.
+pub type ConfigFor = Box<dyn Fn(&Host) -> (String, String) + Send>;
+
+fn reply(q: &Query, w: &Welcome) {
+    if let Err(e) = q.reply(JOIN, w.encode()).wait() {
+        tracing::warn!("cannot answer a worker: {e}");
+    }
+}
+
+fn refuse(q: &Query, why: &str) {
+    tracing::warn!("refused a worker: {why}");
+    reply(q, &Welcome::Refused(why.to_string()));
+}
+
+/// The running head link.
+pub struct HeadLink {
+    thread: Option<std::thread::JoinHandle<Result<()>>>,
+    stop: Arc<AtomicBool>,
+    /// Its counters.
+    pub stats: Arc<HeadStats>,
+    /// The workers that joined at the start.
+    pub hosts: Vec<Host>,
+}
+
+impl HeadLink {
+    /// Whether the thread ended (with an error: it runs until stopped).
+    pub fn is_finished(&self) -> bool {
+        self.thread.as_ref().is_none_or(|t| t.is_finished())
+    }
+
+    /// Ends the run on the workers and stops the thread; returns its error.
+    pub fn stop(&mut self) -> Result<()> {
+        self.stop.store(true, Ordering::SeqCst);
+        match self.thread.take().map(|t| t.join()) {
+            Some(Ok(r)) => r,
+            Some(Err(_)) => Err(LinkError::Zenoh { what: "link thread".into(), message: "panicked".into() }),
+            None => Ok(()),
+        }
+    }
+}
+
+impl Drop for HeadLink {
+    fn drop(&mut self) {
+        let _ = self.stop();
+    }
+}
+
+/// Telemetry of a link: stages `receive`, `forward`, `weights`, `send_wait`.
+struct LinkTelemetry<S: Service> {
+    tx: rotorhive_transport::Sender<S, u8, Telemetry>,
+    sample: Telemetry,
+    last: Instant,
+}
+
+impl<S: Service> LinkTelemetry<S> {
+    fn new(hub: &Hub<S>, roles: usize, index: usize) -> Result<Self> {
+        let tx = hub.sender::<u8, Telemetry>(&Channel::telemetry(roles), 1, Duration::from_millis(10))?;
+        let sample = Telemetry { role: RoleKind::Link as u32, index: index as u32, pid: std::process::id(), ..Telemetry::default() };
+        Ok(Self { tx, sample, last: Instant::now() })
+    }
+    fn stage(&mut self, i: usize, since: Instant) {
+        self.sample.stage_ns[i] += since.elapsed().as_nanos() as u64;
+    }
+    fn tick(&mut self) {
+        if self.last.elapsed() >= Duration::from_secs(1) {
+            self.last = Instant::now();
+            self.sample.heartbeat += 1;
+            let s = self.sample;
+            let _ = self.tx.send_with(1, |h, _| *h = s);
+        }
+    }
+}
+
+/// Sends into shared memory, retrying while the receiver is full (bounded
+/// back-pressure, never a loss) until `stop`.
+fn send_retrying<S: Service, T, H>(
+    tx: &mut rotorhive_transport::Sender<S, T, H>,
+    len: usize,
+    stop: &AtomicBool,
+    mut fill: impl FnMut(&mut H, &mut [T]),
+) -> Result<bool>
+where
+    T: std::fmt::Debug + iceoryx2::prelude::ZeroCopySend + Default + Copy + 'static,
+    H: std::fmt::Debug + iceoryx2::prelude::ZeroCopySend + Default + 'static,
+{
+    loop {
+        match tx.send_with(len, &mut fill) {
+            Ok(()) => return Ok(true),
+            Err(TransportError::Stalled { .. }) if !stop.load(Ordering::SeqCst) && !rotorhive_transport::stop_requested() => continue,
+            Err(TransportError::Stalled { .. }) => return Ok(false),
+            Err(e) => return Err(e.into()),
+        }
+    }
+}
+
+fn head_loop<S: Service>(head: &Head, hub: &Hub<S>, envs: usize, roles: usize, stop: &AtomicBool, stats: &HeadStats, config_for: ConfigFor) -> Result<()> {
+    let s = &head.session;
+    let run = &head.run;
+    let decl = |what: &str| zerr(format!("declare {what}"));
+    let trans_sub = s.declare_subscriber(key(run, "transitions")).with(FifoChannel::new(4)).wait().map_err(decl("the transitions subscriber"))?;
+    let ep_sub = s.declare_subscriber(key(run, "episodes")).with(FifoChannel::new(256)).wait().map_err(decl("the episodes subscriber"))?;
+    let tel_sub = s.declare_subscriber(key(run, "telemetry")).with(RingChannel::new(256)).wait().map_err(decl("the telemetry subscriber"))?;
+    let w_pub = s.declare_publisher(key(run, "weights")).congestion_control(CongestionControl::Block).wait().map_err(decl("the weights publisher"))?;
+    let end_pub = s.declare_publisher(key(run, "end")).congestion_control(CongestionControl::Block).wait().map_err(decl("the end publisher"))?;
+
+    let total_envs = envs + head.hosts.iter().map(|h| h.envs as usize).sum::<usize>();
+    let max_batch = rotorhive_msg::PACKED_LEN * 1024;
+    let mut trans_tx = hub.sender::<u16, TransitionHeader>(&Channel::transitions(envs), max_batch, Duration::from_millis(200))?;
+    let mut ep_tx = hub.sender::<f32, EpisodeHeader>(&Channel::episodes(envs), 3 * 4096, Duration::from_millis(200))?;
+    let mut w_rx = hub.receiver::<f32, WeightsHeader>(&Channel::weights(envs))?;
+    let mut tel = LinkTelemetry::new(hub, roles, 0)?;
+    let mut tel_tx = hub.sender::<u8, Telemetry>(&Channel::telemetry(roles), 1, Duration::from_millis(10))?;
+    let mut next_seq: Vec<Option<u64>> = vec![None; total_envs];
+    let mut version = 0u64;
+    let hosts = &head.hosts;
+    while !stop.load(Ordering::SeqCst) && !hub.shutdown_requested() {
+        // Weights out: the newest version, once per host (zenoh fans out).
+        let t = Instant::now();
+        if let Some(w) = w_rx.latest()? {
+            let h = *w.user_header();
+            if h.version != version {
+                version = h.version;
+                let bytes = wire::payload_bytes(w.payload()).to_vec();
+                w_pub.put(bytes).attachment(wire::header_bytes(&h).to_vec()).wait().map_err(zerr("send weights"))?;
+                stats.weights_sent.fetch_add(1, Ordering::Relaxed);
+                tel.sample.weight_version = version;
+            }
+        }
+        tel.stage(2, t);
+        // Transitions in, loss-free: the FIFO is bounded and the send waits.
+        let t = Instant::now();
+        let got = trans_sub.recv_timeout(Duration::from_millis(5)).ok().flatten();
+        tel.stage(0, t);
+        if let Some(smp) = got {
+            let t = Instant::now();
+            let Some(h) = smp.attachment().and_then(|a| wire::header_from::<TransitionHeader>(&a.to_bytes())) else {
+                stats.dropped.fetch_add(1, Ordering::Relaxed);
+                continue;
+            };
+            let payload = smp.payload();
+            let words = payload.len() / 2;
+            if words != h.count as usize * rotorhive_msg::PACKED_LEN || words > max_batch {
+                stats.dropped.fetch_add(1, Ordering::Relaxed);
+                tracing::warn!("a transition batch of {} bytes does not hold the {} transitions its header says", payload.len(), h.count);
+                continue;
+            }
+            if let Some(slot) = next_seq.get_mut(h.actor as usize) {
+                if let Some(want) = *slot
+                    && h.seq > want
+                {
+                    stats.lost_batches.fetch_add(h.seq - want, Ordering::Relaxed);
+                    stats.lost_transitions.fetch_add((h.seq - want) * h.count as u64, Ordering::Relaxed);
+                    tel.sample.lost += h.seq - want;
+                }
+                *slot = Some(h.seq + 1);
+            }
+            let sent = send_retrying(&mut trans_tx, words, stop, |hdr, p| {
+                *hdr = h;
+                // Zenoh's fragments straight into the loaned sample.
+                let out = wire::payload_bytes_mut(p);
+                let mut at = 0;
+                for frag in payload.slices() {
+                    out[at..at + frag.len()].copy_from_slice(frag);
+                    at += frag.len();
+                }
+            })?;
+            if sent {
+                stats.batches.fetch_add(1, Ordering::Relaxed);
+                stats.transitions.fetch_add(h.count as u64, Ordering::Relaxed);
+                tel.sample.work += h.count as u64;
+                tel.sample.work2 += payload.len() as u64;
+            }
+            tel.stage(3, t);
+        }
+        let t = Instant::now();
+        while let Ok(Some(smp)) = ep_sub.try_recv() {
+            let Some(h) = smp.attachment().and_then(|a| wire::header_from::<EpisodeHeader>(&a.to_bytes())) else { continue };
+            let bytes = smp.payload().to_bytes();
+            let len = bytes.len() / 4;
+            if len != 3 * h.count as usize || len > 3 * 4096 {
+                stats.dropped.fetch_add(1, Ordering::Relaxed);
+                continue;
+            }
+            if ep_tx
+                .send_with(len, |hdr, p| {
+                    *hdr = h;
+                    wire::payload_bytes_mut(p).copy_from_slice(&bytes);
+                })
+                .is_err()
+            {
+                stats.dropped.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+        while let Ok(Some(smp)) = tel_sub.try_recv() {
+            if let Some(t) = smp.attachment().and_then(|a| wire::header_from::<Telemetry>(&a.to_bytes())) {
+                let _ = tel_tx.send_with(1, |h, _| *h = t);
+            }
+        }
+        tel.stage(1, t);
+        // A worker that comes back (restarted) gets its old place.
+        while let Ok(Some(q)) = head.queryable.try_recv() {
+            match head.check(&q) {
+                Ok(h) => match hosts.iter().find(|x| x.name == h.host) {
+                    Some(x) if x.envs == h.envs && x.agents == h.agents => {
+                        let (config, arena) = config_for(x);
+                        reply(&q, &Welcome::Joined { slot: x.slot, env_offset: x.env_offset, run: run.clone(), config, arena });
+                        // Its actors start their sequences afresh.
+                        for e in x.env_offset as usize..(x.env_offset + x.envs) as usize {
+                            if let Some(s) = next_seq.get_mut(e) {
+                                *s = None;
+                            }
+                        }
+                        stats.rejoins.fetch_add(1, Ordering::Relaxed);
+                        tracing::info!("worker {} joined again", x.name);
+                    }
+                    Some(x) => refuse(&q, &format!("host {} joined with {} × {} agents, and comes back with {} × {}", x.name, x.envs, x.agents, h.envs, h.agents)),
+                    None => refuse(&q, "the run has all its worker hosts (`cluster.workers`)"),
+                },
+                Err(why) => refuse(&q, &why),
+            }
+        }
+        tel.tick();
+    }
+    // The run's end, so the workers exit 0 instead of reporting a lost head.
+    let _ = end_pub.put(b"end".to_vec()).wait();
+    // Let the message leave before the session closes.
+    std::thread::sleep(Duration::from_millis(200));
+    Ok(())
+}
+
+/// How a worker's link ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum WorkerEnd {
+    /// The head ended the run.
+    RunEnded,
+    /// This process was asked to stop.
+    Stopped,
+}
+
+/// Counters of a worker's link.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct WorkerStats {
+    /// Transition batches sent.
+    pub batches: u64,
+    /// Transitions sent.
+    pub transitions: u64,
+    /// Weight versions received.
+    pub weights: u64,
+    /// Newest weight version received.
+    pub weight_version: u64,
+    /// Episode or telemetry messages dropped.
+    pub dropped: u64,
+}
+
+/// A worker's end of the link.
+pub struct Worker {
+    session: zenoh::Session,
+    endpoint: String,
+    /// The head's answer.
+    pub slot: u32,
+    /// Index of this host's first environment in the run.
+    pub env_offset: u32,
+    /// The run's name.
+    pub run: String,
+    /// The head's resolved config (TOML).
+    pub config: String,
+    /// The training arena (TOML).
+    pub arena: String,
+}
+
+impl Worker {
+    /// Connects to the head at `endpoint` and joins its run, asking again
+    /// until `timeout` (the head may start later than the worker).
+    pub fn join(endpoint: &str, hello: &Hello, timeout: Duration, stop: impl Fn() -> bool) -> Result<Self> {
+        let session = open(None, Some(endpoint))?;
+        let start = Instant::now();
+        while start.elapsed() < timeout {
+            if stop() {
+                return Err(LinkError::Stopped("the head"));
+            }
+            let left = timeout.saturating_sub(start.elapsed()).max(Duration::from_millis(100));
+            let replies = session.get(JOIN).payload(hello.encode()).timeout(left.min(Duration::from_secs(5))).wait().map_err(zerr("ask to join"))?;
+            // Every answer ends the wait; none means nobody is there yet.
+            if let Ok(r) = replies.recv() {
+                let bytes = match r.result() {
+                    Ok(s) => s.payload().to_bytes().into_owned(),
+                    Err(e) => return Err(LinkError::Refused { endpoint: endpoint.into(), why: String::from_utf8_lossy(&e.payload().to_bytes()).into_owned() }),
+                };
+                match Welcome::decode(&bytes) {
+                    Some(Welcome::Joined { slot, env_offset, run, config, arena }) => {
+                        return Ok(Self { session, endpoint: endpoint.into(), slot, env_offset, run, config, arena });
+                    }
+                    Some(Welcome::Refused(why)) => return Err(LinkError::Refused { endpoint: endpoint.into(), why }),
+                    None => return Err(LinkError::Refused { endpoint: endpoint.into(), why: "an answer that is not a rotorhive welcome".into() }),
+                }
+            }
+            // The session keeps trying to connect meanwhile.
+            std::thread::sleep(Duration::from_millis(200));
+        }
+        Err(LinkError::NoHead { endpoint: endpoint.into(), secs: timeout.as_secs_f64() })
+    }
+
+    /// The head's endpoint.
+    pub fn endpoint(&self) -> &str {
+        &self.endpoint
+    }
+
+    /// Bridges this host's sims and actors (run `prefix` over service `S`,
+    /// `envs` environments, `roles` telemetry publishers) to the head until
+    /// the head ends the run, the head is lost, or this process stops.
+    pub fn bridge<S: Service>(&self, hub: &Hub<S>, envs: usize, roles: usize, stats: &mut WorkerStats) -> Result<WorkerEnd> {
+        let s = &self.session;
+        let run = &self.run;
+        let decl = |what: &str| zerr(format!("declare {what}"));
+        let trans_pub = s.declare_publisher(key(run, "transitions")).congestion_control(CongestionControl::Block).wait().map_err(decl("the transitions publisher"))?;
+        let ep_pub = s.declare_publisher(key(run, "episodes")).congestion_control(CongestionControl::Drop).wait().map_err(decl("the episodes publisher"))?;
+        let tel_pub = s.declare_publisher(key(run, "telemetry")).congestion_control(CongestionControl::Drop).wait().map_err(decl("the telemetry publisher"))?;
+        let w_sub = s.declare_subscriber(key(run, "weights")).with(RingChannel::new(1)).wait().map_err(decl("the weights subscriber"))?;
+        let end_sub = s.declare_subscriber(key(run, "end")).with(FifoChannel::new(4)).wait().map_err(decl("the end subscriber"))?;
+        let head_sub = s.liveliness().declare_subscriber(key(run, "head")).history(true).with(FifoChannel::new(16)).wait().map_err(decl("the head's liveliness"))?;
+        let _token = s.liveliness().declare_token(key(run, &format!("host/{}", self.slot))).wait().map_err(decl("this host's liveliness"))?;
+
+        let off = self.env_offset;
+        let mut trans_rx = hub.receiver::<u16, TransitionHeader>(&Channel::transitions(envs))?;
+        let mut ep_rx = hub.receiver::<f32, EpisodeHeader>(&Channel::episodes(envs))?;
+        let mut tel_rx = hub.receiver::<u8, Telemetry>(&Channel::telemetry(roles))?;
+        let mut w_tx: Option<rotorhive_transport::Sender<S, f32, WeightsHeader>> = None;
+        let mut tel = LinkTelemetry::new(hub, roles, 0)?;
+        let mut head_seen = false;
+        loop {
+            if hub.shutdown_requested() {
+                return Ok(WorkerEnd::Stopped);
+            }
+            if end_sub.try_recv().ok().flatten().is_some() {
+                return Ok(WorkerEnd::RunEnded);
+            }
+            while let Ok(Some(l)) = head_sub.try_recv() {
+                match l.kind() {
+                    SampleKind::Put => head_seen = true,
+                    SampleKind::Delete if head_seen => {
+                        // The end message may be right behind: look once more.
+                        std::thread::sleep(Duration::from_millis(300));
+                        if end_sub.try_recv().ok().flatten().is_some() {
+                            return Ok(WorkerEnd::RunEnded);
+                        }
+                        return Err(LinkError::LostHead);
+                    }
+                    SampleKind::Delete => {}
+                }
+            }
+            // Weights in: the newest, republished on this host.
+            let t = Instant::now();
+            if let Ok(Some(smp)) = w_sub.try_recv()
+                && let Some(h) = smp.attachment().and_then(|a| wire::header_from::<WeightsHeader>(&a.to_bytes()))
+            {
+                let bytes = smp.payload().to_bytes();
+                let len = bytes.len() / 4;
+                if len as u64 == h.len {
+                    if w_tx.is_none() {
+                        w_tx = Some(hub.sender::<f32, WeightsHeader>(&Channel::weights(envs), len, Duration::from_millis(200))?);
+                    }
+                    if let Some(tx) = w_tx.as_mut() {
+                        tx.send_with(len, |hdr, p| {
+                            *hdr = h;
+                            wire::payload_bytes_mut(p).copy_from_slice(&bytes);
+                        })?;
+                    }
+                    stats.weights += 1;
+                    stats.weight_version = h.version;
+                    tel.sample.weight_version = h.version;
+                }
+            }
+            tel.stage(2, t);
+            // Transitions out: blocking put, so a busy head slows the actors.
+            let t = Instant::now();
+            let m = trans_rx.recv_timeout(Duration::from_millis(5))?;
+            tel.stage(0, t);
+            if let Some(m) = m {
+                let t = Instant::now();
+                let mut h = *m.user_header();
+                h.actor += off;
+                trans_pub.put(wire::payload_bytes(m.payload()).to_vec()).attachment(wire::header_bytes(&h).to_vec()).wait().map_err(zerr("send transitions"))?;
+                stats.batches += 1;
+                stats.transitions += h.count as u64;
+                tel.sample.work += h.count as u64;
+                tel.sample.work2 += std::mem::size_of_val(m.payload()) as u64;
+                tel.stage(3, t);
+            }
+            let t = Instant::now();
+            while let Some(m) = ep_rx.try_recv()? {
+                let mut h = *m.user_header();
+                h.actor += off;
+                if ep_pub.put(wire::payload_bytes(m.payload()).to_vec()).attachment(wire::header_bytes(&h).to_vec()).wait().is_err() {
+                    stats.dropped += 1;
+                }
+            }
+            while let Some(m) = tel_rx.try_recv()? {
+                let mut t = *m.user_header();
+                if t.role == RoleKind::Link as u32 {
+                    t.index = self.slot;
+                } else {
+                    t.index += off;
+                }
+                // A process id means nothing on the head's host.
+                t.pid = 0;
+                if tel_pub.put(Vec::new()).attachment(wire::header_bytes(&t).to_vec()).wait().is_err() {
+                    stats.dropped += 1;
+                }
+            }
+            tel.stage(1, t);
+            tel.tick();
+        }
+    }
+}

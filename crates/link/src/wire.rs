@@ -1,0 +1,214 @@
+//! What crosses between hosts, byte for byte: message headers and payloads
+//! as they lie in shared memory (little-endian, same build, checked by the
+//! layout fingerprint), and the two control messages of a join. Nothing here
+//! goes through a general-purpose serializer.
+
+use rotorhive_msg::{EpisodeHeader, Telemetry, TransitionHeader, WeightsHeader};
+
+/// A `#[repr(C)]` message header without implicit padding (every gap is a
+/// named field), so each of its bytes is initialised and any bytes of the
+/// right length are a valid value.
+///
+/// # Safety
+/// Only for such types (the sizes are checked by a test).
+pub unsafe trait Plain: Copy + Default + 'static {}
+
+// SAFETY: repr(C), fields u32/u64/i64 with explicit padding (`_pad`) only.
+unsafe impl Plain for TransitionHeader {}
+// SAFETY: as above.
+unsafe impl Plain for EpisodeHeader {}
+// SAFETY: as above.
+unsafe impl Plain for WeightsHeader {}
+// SAFETY: as above.
+unsafe impl Plain for Telemetry {}
+
+/// The bytes of a header.
+pub fn header_bytes<H: Plain>(h: &H) -> &[u8] {
+    // SAFETY: `H: Plain` has no uninitialised bytes; the slice covers exactly `h`.
+    unsafe { std::slice::from_raw_parts((h as *const H).cast::<u8>(), std::mem::size_of::<H>()) }
+}
+
+/// A header from its bytes, if they are exactly its size.
+pub fn header_from<H: Plain>(b: &[u8]) -> Option<H> {
+    if b.len() != std::mem::size_of::<H>() {
+        return None;
+    }
+    // SAFETY: the length matches and every bit pattern is a valid `H`;
+    // the read does not assume alignment.
+    Some(unsafe { std::ptr::read_unaligned(b.as_ptr().cast::<H>()) })
+}
+
+/// Plain payload elements: every bit pattern is a value.
+///
+/// # Safety
+/// Only for primitive integers and floats.
+pub unsafe trait Elem: Copy + 'static {}
+// SAFETY: a primitive integer.
+unsafe impl Elem for u16 {}
+// SAFETY: a primitive float.
+unsafe impl Elem for f32 {}
+
+/// A payload as bytes.
+pub fn payload_bytes<T: Elem>(p: &[T]) -> &[u8] {
+    // SAFETY: primitive elements without padding; same memory, byte view.
+    unsafe { std::slice::from_raw_parts(p.as_ptr().cast::<u8>(), std::mem::size_of_val(p)) }
+}
+
+/// A payload as bytes to write.
+pub fn payload_bytes_mut<T: Elem>(p: &mut [T]) -> &mut [u8] {
+    // SAFETY: as above; any bytes written form valid elements.
+    unsafe { std::slice::from_raw_parts_mut(p.as_mut_ptr().cast::<u8>(), std::mem::size_of_val(p)) }
+}
+
+const HELLO: [u8; 4] = *b"RHJ1";
+const WELCOME: [u8; 4] = *b"RHW1";
+
+/// A worker's request to join a run.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Hello {
+    /// The worker's message layout ([`rotorhive_msg::layout_fingerprint`] and the model's size).
+    pub layout: u64,
+    /// Environments (sims) it runs.
+    pub envs: u32,
+    /// Agents per environment.
+    pub agents: u32,
+    /// Its host name (a worker that comes back under the same name gets its old place).
+    pub host: String,
+}
+
+/// The head's answer.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Welcome {
+    /// Joined.
+    Joined {
+        /// The worker's place among the run's hosts (1 = first worker).
+        slot: u32,
+        /// Index of its first environment in the run (its actors' indexes start here).
+        env_offset: u32,
+        /// The run's name: the key prefix of its data.
+        run: String,
+        /// The head's resolved config (TOML, as in the head's `config.toml`).
+        config: String,
+        /// The training arena (TOML), so the worker needs no shared filesystem.
+        arena: String,
+    },
+    /// Refused, with why.
+    Refused(String),
+}
+
+fn put_str(out: &mut Vec<u8>, s: &str) {
+    out.extend_from_slice(&(s.len() as u32).to_le_bytes());
+    out.extend_from_slice(s.as_bytes());
+}
+
+/// Reads little-endian fields off a message, failing on a short one.
+struct Reader<'a>(&'a [u8]);
+
+impl Reader<'_> {
+    fn take(&mut self, n: usize) -> Option<&[u8]> {
+        if self.0.len() < n {
+            return None;
+        }
+        let (a, b) = self.0.split_at(n);
+        self.0 = b;
+        Some(a)
+    }
+    fn u32(&mut self) -> Option<u32> {
+        Some(u32::from_le_bytes(self.take(4)?.try_into().ok()?))
+    }
+    fn u64(&mut self) -> Option<u64> {
+        Some(u64::from_le_bytes(self.take(8)?.try_into().ok()?))
+    }
+    fn str(&mut self) -> Option<String> {
+        let n = self.u32()? as usize;
+        String::from_utf8(self.take(n)?.to_vec()).ok()
+    }
+}
+
+impl Hello {
+    /// Its bytes.
+    pub fn encode(&self) -> Vec<u8> {
+        let mut out = HELLO.to_vec();
+        out.extend_from_slice(&self.layout.to_le_bytes());
+        out.extend_from_slice(&self.envs.to_le_bytes());
+        out.extend_from_slice(&self.agents.to_le_bytes());
+        put_str(&mut out, &self.host);
+        out
+    }
+
+    /// Reads one, or `None` for bytes that are not a hello.
+    pub fn decode(b: &[u8]) -> Option<Self> {
+        let mut r = Reader(b);
+        if r.take(4)? != HELLO {
+            return None;
+        }
+        Some(Self { layout: r.u64()?, envs: r.u32()?, agents: r.u32()?, host: r.str()? })
+    }
+}
+
+impl Welcome {
+    /// Its bytes.
+    pub fn encode(&self) -> Vec<u8> {
+        let mut out = WELCOME.to_vec();
+        match self {
+            Welcome::Joined { slot, env_offset, run, config, arena } => {
+                out.extend_from_slice(&0u32.to_le_bytes());
+                out.extend_from_slice(&slot.to_le_bytes());
+                out.extend_from_slice(&env_offset.to_le_bytes());
+                put_str(&mut out, run);
+                put_str(&mut out, config);
+                put_str(&mut out, arena);
+            }
+            Welcome::Refused(why) => {
+                out.extend_from_slice(&1u32.to_le_bytes());
+                put_str(&mut out, why);
+            }
+        }
+        out
+    }
+
+    /// Reads one, or `None` for bytes that are not a welcome.
+    pub fn decode(b: &[u8]) -> Option<Self> {
+        let mut r = Reader(b);
+        if r.take(4)? != WELCOME {
+            return None;
+        }
+        match r.u32()? {
+            0 => Some(Welcome::Joined { slot: r.u32()?, env_offset: r.u32()?, run: r.str()?, config: r.str()?, arena: r.str()? }),
+            1 => Some(Welcome::Refused(r.str()?)),
+            _ => None,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn headers_have_no_hidden_padding() {
+        // Field sizes add up to the type's size: no implicit padding bytes.
+        assert_eq!(std::mem::size_of::<TransitionHeader>(), 4 + 4 + 8 + 8 + 8);
+        assert_eq!(std::mem::size_of::<EpisodeHeader>(), 4 + 4 + 8 + 8);
+        assert_eq!(std::mem::size_of::<WeightsHeader>(), 8 + 8 + 8);
+        assert_eq!(std::mem::size_of::<Telemetry>(), 4 * 4 + 6 * 8 + 4 * 8);
+    }
+
+    #[test]
+    fn headers_and_control_messages_round_trip() {
+        let h = TransitionHeader { actor: 3, count: 50, seq: 77, weight_version: 9, episodes: 1234 };
+        let back: TransitionHeader = header_from(header_bytes(&h)).unwrap();
+        assert_eq!((back.actor, back.count, back.seq, back.weight_version, back.episodes), (3, 50, 77, 9, 1234));
+        assert!(header_from::<TransitionHeader>(&header_bytes(&h)[1..]).is_none());
+        let hello = Hello { layout: 42, envs: 2, agents: 37, host: "b".into() };
+        assert_eq!(Hello::decode(&hello.encode()), Some(hello.clone()));
+        assert!(Hello::decode(&hello.encode()[..10]).is_none());
+        let w = Welcome::Joined { slot: 1, env_offset: 1, run: "r".into(), config: "seed = 1".into(), arena: "x".into() };
+        assert_eq!(Welcome::decode(&w.encode()), Some(w));
+        assert!(Welcome::decode(&hello.encode()).is_none());
+        let p = [1.5f32, -2.0];
+        let mut q = [0f32; 2];
+        payload_bytes_mut(&mut q).copy_from_slice(payload_bytes(&p));
+        assert_eq!(p, q);
+    }
+}
