@@ -13,6 +13,7 @@ mod replay_bench;
 mod role_cmd;
 mod table_bench;
 mod train;
+mod worker;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -26,6 +27,11 @@ use rotorhive_msg::RoleKind;
 #[derive(Parser, Debug)]
 #[command(name = "hive", version, about)]
 struct Cli {
+    /// Shared-memory domain: processes in different domains cannot see each
+    /// other's shared memory, as if on different hosts (default: the
+    /// machine's shared domain). Role processes inherit it.
+    #[arg(long, global = true, value_name = "NAME")]
+    domain: Option<String>,
     #[command(subcommand)]
     command: Command,
 }
@@ -70,6 +76,9 @@ enum Command {
         #[command(flatten)]
         role: RoleArgs,
     },
+    /// Join a run on another host (`hive train --listen`): run its sims and
+    /// actors here, and their link; ends when the head's run ends.
+    Worker(worker::WorkerArgs),
     /// Evaluate a checkpoint with the greedy policy.
     Eval(eval::EvalArgs),
     /// Where a run's time went: CPU and wall-time shares per role and stage,
@@ -100,7 +109,8 @@ fn main() -> ExitCode {
     };
     tracing_subscriber::fmt()
         .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_env("HIVE_LOG").unwrap_or_else(|_| "info,wgpu_core=warn,wgpu_hal=warn,naga=warn,iceoryx2=warn".into()),
+            tracing_subscriber::EnvFilter::try_from_env("HIVE_LOG")
+                .unwrap_or_else(|_| "info,wgpu_core=warn,wgpu_hal=warn,naga=warn,iceoryx2=warn,zenoh=error,zenoh_transport=error".into()),
         )
         .with_writer(std::io::stderr)
         .init();
@@ -112,6 +122,14 @@ fn main() -> ExitCode {
         libc::mallopt(libc::M_MMAP_THRESHOLD, 32 << 20);
         libc::mallopt(libc::M_TRIM_THRESHOLD, 256 << 20);
     }
+    if let Some(d) = &cli.domain {
+        if let Err(e) = rotorhive_transport::check_domain(d) {
+            eprintln!("error: --domain: {e}");
+            return ExitCode::from(2);
+        }
+        // SAFETY: no thread has started yet; role processes inherit it.
+        unsafe { std::env::set_var(rotorhive_transport::DOMAIN_ENV, d) };
+    }
     // iceoryx2 warns about running without a config file; only errors matter here.
     iceoryx2::prelude::set_log_level(iceoryx2::prelude::LogLevel::Error);
     let result = match cli.command {
@@ -120,6 +138,7 @@ fn main() -> ExitCode {
         Command::Actor { role, env } => role_cmd::run(&role, RoleKind::Actor, env),
         Command::Replay { role } => role_cmd::run(&role, RoleKind::Replay, 0),
         Command::Learner { role } => role_cmd::run(&role, RoleKind::Learner, 0),
+        Command::Worker(a) => worker::run(a),
         Command::Eval(a) => eval::run(a),
         Command::Bench(b) => bench::run(b),
         Command::RenderArena(a) => draw::render_arena(a),

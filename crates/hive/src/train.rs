@@ -50,6 +50,11 @@ pub struct TrainArgs {
     /// learner's saved state and the replay memory's snapshot.
     #[arg(long, value_name = "RUN_DIR", conflicts_with = "run_dir")]
     pub resume: Option<PathBuf>,
+    /// Head of a run across hosts: listen for workers (`hive worker
+    /// --connect`) on this endpoint, e.g. tcp/0.0.0.0:7447; `[cluster]
+    /// workers` says how many the run waits for.
+    #[arg(long, value_name = "tcp/ADDR:PORT")]
+    pub listen: Option<String>,
 }
 
 struct Role {
@@ -434,17 +439,36 @@ pub fn run(a: TrainArgs) -> Result<()> {
             std::path::Path::new(&cfg.eval.arena).canonicalize().with_context(|| format!("key `eval.arena`: {}", cfg.eval.arena))?.display().to_string();
         cfg.eval_arenas()?;
     }
+    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.subsec_nanos()).unwrap_or(0);
+    let prefix = format!("run-{}-{nanos:x}", std::process::id());
+    rotorhive_transport::handle_hangup();
+    let link = match &a.listen {
+        Some(ep) => Some(gather_workers(ep, &prefix, &mut cfg)?),
+        None if cfg.cluster.workers > 0 => bail!("key `cluster.workers` = {} needs --listen tcp/ADDR:PORT for the workers to join", cfg.cluster.workers),
+        None => {
+            cfg.cluster.envs_elsewhere = 0;
+            cfg.cluster.agents_elsewhere = 0;
+            None
+        }
+    };
     let cfg_path = run_dir.join("config.toml");
     std::fs::write(&cfg_path, cfg.to_toml()).with_context(|| format!("cannot write {}", cfg_path.display()))?;
+    let link = match link {
+        Some(mut head) => {
+            // The workers get the config every role of this run reads, and the arena.
+            let text = (cfg.to_toml(), std::fs::read_to_string(&cfg.sim.arena).with_context(|| format!("arena {}", cfg.sim.arena.display()))?);
+            let t = text.clone();
+            head.admit(move |_| t.clone());
+            Some((head, text))
+        }
+        None => None,
+    };
 
     // Resources of crashed earlier runs would otherwise linger in /dev/shm.
     let stale = cleanup_dead_nodes();
     if stale > 0 {
         tracing::info!("cleaned {stale} dead iceoryx2 nodes of earlier runs");
     }
-    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.subsec_nanos()).unwrap_or(0);
-    let prefix = format!("run-{}-{nanos:x}", std::process::id());
-    rotorhive_transport::handle_hangup();
     if a.serial {
         // Candle's pools stay single-threaded, as in the role processes.
         // SAFETY: no thread of this process has started yet.
@@ -452,10 +476,59 @@ pub fn run(a: TrainArgs) -> Result<()> {
             std::env::set_var("RAYON_NUM_THREADS", "1");
             std::env::set_var("CANDLE_NUM_THREADS", "1");
         }
-        supervise::<Local>(&a, cfg, run_dir, cfg_path, prefix)
+        supervise::<Local>(&a, cfg, run_dir, cfg_path, prefix, link)
     } else {
-        supervise::<Ipc>(&a, cfg, run_dir, cfg_path, prefix)
+        supervise::<Ipc>(&a, cfg, run_dir, cfg_path, prefix, link)
     }
+}
+
+/// `summary.json`'s `hosts`: this host, then every worker host, with the
+/// agent-steps their sims reported and the transitions lost on the way.
+fn hosts_summary(
+    cfg: &Config,
+    latest: &BTreeMap<(u32, u32), Telemetry>,
+    link: Option<&(Arc<rotorhive_link::HeadStats>, Vec<rotorhive_link::Host>)>,
+) -> serde_json::Value {
+    let steps = |from: u32, to: u32| latest.values().filter(|t| t.role == RoleKind::Sim as u32 && (from..to).contains(&t.index)).map(|t| t.work).sum::<u64>();
+    let lost_here = latest.values().filter(|t| t.role == RoleKind::Replay as u32).map(|t| t.lost).sum::<u64>();
+    let envs = cfg.sim.envs as u32;
+    let mut out = vec![json!({
+        "name": host_name(), "role": "head", "envs": envs, "agents": cfg.sim.agents, "env_steps": steps(0, envs), "lost_transitions": lost_here,
+    })];
+    if let Some((stats, hosts)) = link {
+        let lost = stats.lost_by_env.lock().map(|v| v.clone()).unwrap_or_default();
+        for h in hosts {
+            let (a, b) = (h.env_offset, h.env_offset + h.envs);
+            out.push(json!({
+                "name": h.name, "role": "worker", "envs": h.envs, "agents": h.agents, "env_steps": steps(a, b),
+                "lost_transitions": lost.get(a as usize..b as usize).map_or(0, |l| l.iter().sum::<u64>()),
+            }));
+        }
+    }
+    serde_json::Value::Array(out)
+}
+
+/// This machine's name.
+pub fn host_name() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/hostname").map(|s| s.trim().to_string()).ok().filter(|s| !s.is_empty()).unwrap_or_else(|| "localhost".into())
+}
+
+/// Listens on `ep` and waits for `cluster.workers` worker hosts; their
+/// environments and agents go into `cfg.cluster`.
+fn gather_workers(ep: &str, prefix: &str, cfg: &mut Config) -> Result<rotorhive_link::Head> {
+    let mut head = rotorhive_link::Head::listen(ep, prefix, rotorhive_link::layout(rotorhive_model::num_params()))?;
+    let wanted = cfg.cluster.workers;
+    if wanted > 0 {
+        say(&format!("listening on {ep}: waiting for {wanted} worker host(s), at most {:.0} s", cfg.cluster.join_timeout_s));
+    }
+    let timeout = Duration::from_secs_f64(cfg.cluster.join_timeout_s);
+    let hosts = head.gather(wanted, cfg.sim.envs, cfg.sim.agents, timeout, rotorhive_transport::stop_requested)?;
+    cfg.cluster.envs_elsewhere = hosts.iter().map(|h| h.envs as usize).sum();
+    cfg.cluster.agents_elsewhere = hosts.iter().map(|h| (h.envs * h.agents) as usize).sum();
+    for h in &hosts {
+        say(&format!("worker {} joined: {} × {} agents (environments {}..{})", h.name, h.envs, h.agents, h.env_offset, h.env_offset + h.envs));
+    }
+    Ok(head)
 }
 
 /// The roles of a run: child processes (restarted when they die), or, in
@@ -499,7 +572,14 @@ impl Members {
 
 /// Supervises the run `prefix` over the iceoryx2 service `S` (`ipc` for role
 /// processes, `local` for serial mode) until it ends, then writes its records.
-fn supervise<S: Service>(a: &TrainArgs, cfg: Config, run_dir: PathBuf, cfg_path: PathBuf, prefix: String) -> Result<()> {
+fn supervise<S: Service>(
+    a: &TrainArgs,
+    cfg: Config,
+    run_dir: PathBuf,
+    cfg_path: PathBuf,
+    prefix: String,
+    link: Option<(rotorhive_link::Head, (String, String))>,
+) -> Result<()> {
     let hub = Hub::<S>::new(&prefix, &rotorhive_transport::supervisor_node_name(&prefix))?;
     let envs = cfg.sim.envs;
     let mut ep_rx = hub.receiver::<f32, EpisodeHeader>(&episodes_channel(envs))?;
@@ -525,6 +605,12 @@ fn supervise<S: Service>(a: &TrainArgs, cfg: Config, run_dir: PathBuf, cfg_path:
         Members::Processes { launcher, children }
     };
     let mut restarts = 0u64;
+    let mut link = match link {
+        Some((head, text)) => {
+            Some(head.bridge::<S>(prefix.clone(), envs, roles_of(&cfg), Arc::new(AtomicBool::new(false)), Box::new(move |_| text.clone()))?)
+        }
+        None => None,
+    };
 
     // A resumed run appends to its tables (wall time starts again at 0).
     let resumed = a.resume.is_some();
@@ -634,6 +720,13 @@ fn supervise<S: Service>(a: &TrainArgs, cfg: Config, run_dir: PathBuf, cfg_path:
                 && h.is_finished()
             {
                 failure = Some("the evaluator stopped; see the error below".into());
+                break;
+            }
+            if link.as_ref().is_some_and(|l| l.is_finished()) {
+                failure = Some(match link.take().map(|mut l| l.stop()) {
+                    Some(Err(e)) => format!("the link to the worker hosts stopped: {e}"),
+                    _ => "the link to the worker hosts stopped".into(),
+                });
                 break;
             }
             // Supervision: a role that dies is cleaned up after and restarted
@@ -781,6 +874,13 @@ fn supervise<S: Service>(a: &TrainArgs, cfg: Config, run_dir: PathBuf, cfg_path:
     }
     evals.extend(eval_rx.try_iter());
     let best_eval = best_of(&evals);
+    // The workers end with the run: tell them before the roles go.
+    let link_stats = link.as_ref().map(|l| (l.stats.clone(), l.hosts.clone()));
+    if let Some(Err(e)) = link.take().map(|mut l| l.stop())
+        && failure.is_none()
+    {
+        failure = Some(format!("link: {e}"));
+    }
     if let Some(e) = members.stop() {
         failure = Some(match failure {
             Some(f) => format!("{f}: {e}"),
@@ -794,6 +894,7 @@ fn supervise<S: Service>(a: &TrainArgs, cfg: Config, run_dir: PathBuf, cfg_path:
 
     let env_steps = sum_work(&latest, RoleKind::Sim);
     let updates = sum_work(&latest, RoleKind::Learner);
+    let hosts = hosts_summary(&cfg, &latest, link_stats.as_ref());
     let final_ckpt = run_dir.join("final.safetensors");
     let last_checkpoint = if final_ckpt.exists() { Some(final_ckpt) } else { Some(run_dir.join("checkpoints/latest.safetensors")).filter(|p| p.exists()) };
     // The run's result is the best greedy policy seen, else the last weights.
@@ -812,7 +913,8 @@ fn supervise<S: Service>(a: &TrainArgs, cfg: Config, run_dir: PathBuf, cfg_path:
         "learner_updates": updates,
         "envs": envs,
         "agents_per_env": cfg.sim.agents,
-        "agents_total": envs * cfg.sim.agents,
+        "agents_total": cfg.agents_total(),
+        "hosts": hosts,
         "observation_mode": cfg.sim.observation_mode,
         "renderer": cfg.sim.renderer,
         "env_steps_per_s": env_steps as f64 / wall,

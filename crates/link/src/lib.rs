@@ -112,7 +112,8 @@ pub fn layout(num_params: usize) -> u64 {
 /// Opens a peer session that listens on or connects to `endpoint`.
 fn open(listen: Option<&str>, connect: Option<&str>) -> Result<zenoh::Session> {
     let mut c = zenoh::Config::default();
-    let set = |c: &mut zenoh::Config, k: &str, v: &str| c.insert_json5(k, v).map_err(|e| LinkError::Zenoh { what: format!("config {k}"), message: e.to_string() });
+    let set =
+        |c: &mut zenoh::Config, k: &str, v: &str| c.insert_json5(k, v).map_err(|e| LinkError::Zenoh { what: format!("config {k}"), message: e.to_string() });
     set(&mut c, "mode", r#""peer""#)?;
     set(&mut c, "scouting/multicast/enabled", "false")?;
     set(&mut c, "scouting/gossip/enabled", "false")?;
@@ -174,6 +175,8 @@ pub struct HeadStats {
     pub lost_batches: AtomicU64,
     /// Transitions in the lost batches, estimated at the batch size seen.
     pub lost_transitions: AtomicU64,
+    /// The same, per environment of the run (index = actor).
+    pub lost_by_env: std::sync::Mutex<Vec<u64>>,
     /// Episode or telemetry messages that could not be delivered.
     pub dropped: AtomicU64,
     /// Weight versions sent.
@@ -191,6 +194,7 @@ pub struct Head {
     _token: zenoh::liveliness::LivelinessToken,
     hosts: Vec<Host>,
     pending: Vec<(Query, Hello)>,
+    default_agents: u32,
 }
 
 impl Head {
@@ -199,13 +203,15 @@ impl Head {
         let session = open(Some(endpoint), None)?;
         let queryable = session.declare_queryable(JOIN).with(FifoChannel::new(64)).wait().map_err(zerr("declare the join queryable"))?;
         let token = session.liveliness().declare_token(key(run, "head")).wait().map_err(zerr("declare the head's liveliness"))?;
-        Ok(Self { session, run: run.to_string(), layout, queryable, _token: token, hosts: Vec::new(), pending: Vec::new() })
+        Ok(Self { session, run: run.to_string(), layout, queryable, _token: token, hosts: Vec::new(), pending: Vec::new(), default_agents: 1 })
     }
 
     /// Waits for `wanted` workers (at most `timeout`) and places their
     /// environments after the head's `head_envs`, in order of joining. They
     /// wait for their answer until [`Head::admit`].
-    pub fn gather(&mut self, wanted: usize, head_envs: usize, timeout: Duration, stop: impl Fn() -> bool) -> Result<Vec<Host>> {
+    /// A worker that asks for 0 agents per environment gets `default_agents`.
+    pub fn gather(&mut self, wanted: usize, head_envs: usize, default_agents: usize, timeout: Duration, stop: impl Fn() -> bool) -> Result<Vec<Host>> {
+        self.default_agents = default_agents as u32;
         let start = Instant::now();
         while self.pending.len() < wanted {
             if stop() {
@@ -249,7 +255,10 @@ impl Head {
 
     fn check(&self, q: &Query) -> std::result::Result<Hello, String> {
         let bytes = q.payload().map(|p| p.to_bytes().into_owned()).unwrap_or_default();
-        let h = Hello::decode(&bytes).ok_or("not a rotorhive worker's join request")?;
+        let mut h = Hello::decode(&bytes).ok_or("not a rotorhive worker's join request")?;
+        if h.agents == 0 {
+            h.agents = self.default_agents;
+        }
         if h.layout != self.layout {
             return Err(format!(
                 "message layout mismatch: the worker's is {:016x}, the head's {:016x}; run the same build of hive on every host",
@@ -394,6 +403,9 @@ fn head_loop<S: Service>(head: &Head, hub: &Hub<S>, envs: usize, roles: usize, s
     let mut tel = LinkTelemetry::new(hub, roles, 0)?;
     let mut tel_tx = hub.sender::<u8, Telemetry>(&Channel::telemetry(roles), 1, Duration::from_millis(10))?;
     let mut next_seq: Vec<Option<u64>> = vec![None; total_envs];
+    if let Ok(mut l) = stats.lost_by_env.lock() {
+        *l = vec![0; total_envs];
+    }
     let mut version = 0u64;
     let hosts = &head.hosts;
     while !stop.load(Ordering::SeqCst) && !hub.shutdown_requested() {
@@ -434,6 +446,9 @@ fn head_loop<S: Service>(head: &Head, hub: &Hub<S>, envs: usize, roles: usize, s
                     stats.lost_batches.fetch_add(h.seq - want, Ordering::Relaxed);
                     stats.lost_transitions.fetch_add((h.seq - want) * h.count as u64, Ordering::Relaxed);
                     tel.sample.lost += h.seq - want;
+                    if let Some(l) = stats.lost_by_env.lock().ok().as_mut().and_then(|v| v.get_mut(h.actor as usize)) {
+                        *l += (h.seq - want) * h.count as u64;
+                    }
                 }
                 *slot = Some(h.seq + 1);
             }
@@ -496,7 +511,9 @@ fn head_loop<S: Service>(head: &Head, hub: &Hub<S>, envs: usize, roles: usize, s
                         stats.rejoins.fetch_add(1, Ordering::Relaxed);
                         tracing::info!("worker {} joined again", x.name);
                     }
-                    Some(x) => refuse(&q, &format!("host {} joined with {} × {} agents, and comes back with {} × {}", x.name, x.envs, x.agents, h.envs, h.agents)),
+                    Some(x) => {
+                        refuse(&q, &format!("host {} joined with {} × {} agents, and comes back with {} × {}", x.name, x.envs, x.agents, h.envs, h.agents))
+                    }
                     None => refuse(&q, "the run has all its worker hosts (`cluster.workers`)"),
                 },
                 Err(why) => refuse(&q, &why),
@@ -595,12 +612,14 @@ impl Worker {
         let s = &self.session;
         let run = &self.run;
         let decl = |what: &str| zerr(format!("declare {what}"));
-        let trans_pub = s.declare_publisher(key(run, "transitions")).congestion_control(CongestionControl::Block).wait().map_err(decl("the transitions publisher"))?;
+        let trans_pub =
+            s.declare_publisher(key(run, "transitions")).congestion_control(CongestionControl::Block).wait().map_err(decl("the transitions publisher"))?;
         let ep_pub = s.declare_publisher(key(run, "episodes")).congestion_control(CongestionControl::Drop).wait().map_err(decl("the episodes publisher"))?;
         let tel_pub = s.declare_publisher(key(run, "telemetry")).congestion_control(CongestionControl::Drop).wait().map_err(decl("the telemetry publisher"))?;
         let w_sub = s.declare_subscriber(key(run, "weights")).with(RingChannel::new(1)).wait().map_err(decl("the weights subscriber"))?;
         let end_sub = s.declare_subscriber(key(run, "end")).with(FifoChannel::new(4)).wait().map_err(decl("the end subscriber"))?;
-        let head_sub = s.liveliness().declare_subscriber(key(run, "head")).history(true).with(FifoChannel::new(16)).wait().map_err(decl("the head's liveliness"))?;
+        let head_sub =
+            s.liveliness().declare_subscriber(key(run, "head")).history(true).with(FifoChannel::new(16)).wait().map_err(decl("the head's liveliness"))?;
         let _token = s.liveliness().declare_token(key(run, &format!("host/{}", self.slot))).wait().map_err(decl("this host's liveliness"))?;
 
         let off = self.env_offset;
@@ -662,7 +681,11 @@ impl Worker {
                 let t = Instant::now();
                 let mut h = *m.user_header();
                 h.actor += off;
-                trans_pub.put(wire::payload_bytes(m.payload()).to_vec()).attachment(wire::header_bytes(&h).to_vec()).wait().map_err(zerr("send transitions"))?;
+                trans_pub
+                    .put(wire::payload_bytes(m.payload()).to_vec())
+                    .attachment(wire::header_bytes(&h).to_vec())
+                    .wait()
+                    .map_err(zerr("send transitions"))?;
                 stats.batches += 1;
                 stats.transitions += h.count as u64;
                 tel.sample.work += h.count as u64;

@@ -1,0 +1,147 @@
+//! `hive worker`: a host that lends its cores to a run on another host. It
+//! joins the head (`hive train --listen`), takes the run's resolved config
+//! and arena from it, runs E sims × N agents with their actors as threads
+//! over this host's shared memory, and its link carries their transitions
+//! to the head and the head's weights back.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use rotorhive_link::{Hello, Worker, WorkerEnd, WorkerStats};
+use rotorhive_roles::{Config, env_role_names, roles_of};
+use rotorhive_transport::{Hub, Local};
+
+/// `hive worker` arguments.
+#[derive(Args, Debug)]
+pub struct WorkerArgs {
+    /// The head's endpoint, as it listens: tcp/ADDR:PORT.
+    #[arg(long, value_name = "tcp/ADDR:PORT")]
+    pub connect: String,
+    /// Environments (sims) on this host.
+    #[arg(long, default_value_t = 1)]
+    pub envs: u32,
+    /// Agents per environment (default: the head's `sim.agents`).
+    #[arg(long)]
+    pub agents: Option<u32>,
+    /// This host's name in the run's records (default: the machine's name,
+    /// with the domain when one is given).
+    #[arg(long)]
+    pub name: Option<String>,
+    /// Where the worker keeps the config and arena it was sent (default
+    /// `runs/worker-<pid>`).
+    #[arg(long)]
+    pub run_dir: Option<PathBuf>,
+    /// How long to keep asking the head to join (s).
+    #[arg(long, default_value_t = 60.0)]
+    pub join_timeout: f64,
+}
+
+pub fn run(a: WorkerArgs) -> Result<()> {
+    if a.envs == 0 || a.agents == Some(0) {
+        bail!("--envs and --agents must be at least 1");
+    }
+    if !(a.join_timeout.is_finite() && a.join_timeout > 0.0) {
+        bail!("--join-timeout must be positive, got {}", a.join_timeout);
+    }
+    rotorhive_link::check_endpoint(&a.connect)?;
+    rotorhive_transport::handle_hangup();
+    let name = a.name.clone().unwrap_or_else(|| match std::env::var(rotorhive_transport::DOMAIN_ENV) {
+        Ok(d) if !d.is_empty() => format!("{}/{d}", crate::train::host_name()),
+        _ => crate::train::host_name(),
+    });
+    let hello = Hello { layout: rotorhive_link::layout(rotorhive_model::num_params()), envs: a.envs, agents: a.agents.unwrap_or(0), host: name.clone() };
+    let link = Worker::join(&a.connect, &hello, Duration::from_secs_f64(a.join_timeout), rotorhive_transport::stop_requested)?;
+    let run_dir = a.run_dir.clone().unwrap_or_else(|| PathBuf::from("runs").join(format!("worker-{}", std::process::id())));
+    std::fs::create_dir_all(&run_dir).with_context(|| format!("cannot create {}", run_dir.display()))?;
+    let run_dir = run_dir.canonicalize()?;
+    let cfg = worker_config(&link, &run_dir, a.envs as usize, a.agents)?;
+    println!(
+        "joined the run at {} as worker {} ({name}): {} × {} agents, environments {}..{}",
+        a.connect,
+        link.slot,
+        cfg.sim.envs,
+        cfg.sim.agents,
+        link.env_offset,
+        link.env_offset as usize + cfg.sim.envs
+    );
+    // Candle's pools stay single-threaded per role, as in role processes.
+    // SAFETY: the only threads so far are zenoh's, which read neither.
+    unsafe {
+        std::env::set_var("RAYON_NUM_THREADS", "1");
+        std::env::set_var("CANDLE_NUM_THREADS", "1");
+    }
+    let prefix = format!("worker-{}", std::process::id());
+    let stop = Arc::new(AtomicBool::new(false));
+    let mut threads = rotorhive_roles::spawn_threads(&cfg, &prefix, &run_dir, &stop, env_role_names(&cfg))?;
+    let mut stats = WorkerStats::default();
+    let end = std::thread::scope(|s| {
+        let bridge = s.spawn(|| -> Result<WorkerEnd> {
+            let hub = Hub::<Local>::new(&prefix, "link")?.with_stop(stop.clone());
+            Ok(link.bridge(&hub, cfg.sim.envs, roles_of(&cfg), &mut stats)?)
+        });
+        // A role thread ends only with an error (or the stop): watch them.
+        while !bridge.is_finished() {
+            if let Some((name, _)) = threads.iter().find(|(_, h)| h.is_finished()) {
+                let name = name.clone();
+                stop.store(true, Ordering::SeqCst);
+                let _ = bridge.join();
+                return Err(anyhow::anyhow!("role {name} stopped"));
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        bridge.join().map_err(|_| anyhow::anyhow!("the link panicked"))?
+    });
+    stop.store(true, Ordering::SeqCst);
+    let mut first = None;
+    for (name, h) in threads.drain(..) {
+        let err = match h.join() {
+            Ok(Ok(())) => None,
+            Ok(Err(e)) => Some(format!("role {name}: {e:#}")),
+            Err(_) => Some(format!("role {name} panicked")),
+        };
+        first = first.or(err);
+    }
+    println!(
+        "worker {name}: {} transitions in {} batches sent, weights version {} ({} received), {} messages dropped",
+        stats.transitions, stats.batches, stats.weight_version, stats.weights, stats.dropped
+    );
+    match end {
+        Ok(WorkerEnd::RunEnded) => {
+            println!("the head ended the run");
+            Ok(())
+        }
+        Ok(WorkerEnd::Stopped) => Ok(()),
+        Err(e) => Err(match first {
+            Some(f) => e.context(f),
+            None => e,
+        }),
+    }
+}
+
+/// This host's config: the head's, with this host's environments and
+/// agents, its own seeds, and the arena it was sent.
+fn worker_config(link: &Worker, run_dir: &std::path::Path, envs: usize, agents: Option<u32>) -> Result<Config> {
+    let head_cfg = run_dir.join("head-config.toml");
+    std::fs::write(&head_cfg, &link.config).with_context(|| format!("cannot write {}", head_cfg.display()))?;
+    let arena = run_dir.join("arena.toml");
+    std::fs::write(&arena, &link.arena).with_context(|| format!("cannot write {}", arena.display()))?;
+    let head = Config::load(Some(&head_cfg), &[]).context("the config the head sent")?;
+    let agents = agents.map_or(head.sim.agents, |n| n as usize);
+    let sets = [
+        format!("sim.envs={envs}"),
+        format!("sim.agents={agents}"),
+        format!("sim.arena={:?}", arena.display().to_string()),
+        // Other seeds than the head's environments, so the hosts explore differently.
+        format!("seed={}", head.seed.wrapping_add(1000 * link.slot as u64)),
+        "cluster.workers=0".to_string(),
+        format!("cluster.envs_elsewhere={}", head.envs_total() - envs),
+        format!("cluster.agents_elsewhere={}", head.agents_total() - envs * agents),
+    ];
+    let cfg = Config::load(Some(&head_cfg), &sets).context("this worker's config")?;
+    std::fs::write(run_dir.join("config.toml"), cfg.to_toml())?;
+    Ok(cfg)
+}
