@@ -1,0 +1,162 @@
+//! A run across hosts, faked on one machine with two shared-memory domains
+//! joined by real Zenoh sessions on TCP loopback (real processes, real
+//! shared memory, a real network path): the head trains from a worker's
+//! transitions with none lost; a worker of another build is refused; bad
+//! addresses and a missing head fail with a clear error instead of a hang.
+
+use std::path::PathBuf;
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("rotorhive-cluster-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+/// A TCP port nobody listens on right now.
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
+}
+
+fn hive(args: &[&str]) -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_hive"));
+    c.current_dir(root()).args(args).stdout(Stdio::piped()).stderr(Stdio::piped());
+    c
+}
+
+/// The runs of this file take turns (two at once on 2 cores blur the checks).
+static TURN: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn small_run() -> Vec<&'static str> {
+    vec![
+        "--quiet",
+        "--set",
+        "sim.agents=8",
+        "--set",
+        "replay.min_fill=300",
+        "--set",
+        "replay.capacity=4000",
+        "--set",
+        "eval.every_s=0",
+        "--set",
+        "threshold=100000",
+    ]
+}
+
+fn text(o: &Output) -> String {
+    format!("stdout:\n{}\nstderr:\n{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
+}
+
+#[test]
+fn a_head_trains_from_a_worker_on_another_domain_without_loss() {
+    let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = tmp("head");
+    let wdir = tmp("worker");
+    let ep = format!("tcp/127.0.0.1:{}", free_port());
+    let (hd, wd) = (format!("ch{}", std::process::id()), format!("cw{}", std::process::id()));
+    let mut head_args = vec!["--domain", &hd, "train", "configs/default.toml", "--listen", &ep, "--max-seconds", "25", "--run-dir"];
+    let dir_s = dir.display().to_string();
+    head_args.push(&dir_s);
+    head_args.extend(small_run());
+    head_args.extend(["--set", "cluster.workers=1", "--set", "cluster.join_timeout_s=30"]);
+    let head = hive(&head_args).spawn().unwrap();
+    // The worker may start before the head listens: it keeps asking.
+    let wdir_s = wdir.display().to_string();
+    let worker = hive(&["--domain", &wd, "worker", "--connect", &ep, "--agents", "8", "--name", "second-host", "--run-dir", &wdir_s]).spawn().unwrap();
+    let w = worker.wait_with_output().unwrap();
+    let h = head.wait_with_output().unwrap();
+    assert!(h.status.success(), "head: {}", text(&h));
+    assert!(w.status.success(), "worker: {}", text(&w));
+    let wout = String::from_utf8_lossy(&w.stdout);
+    assert!(wout.contains("the head ended the run"), "{wout}");
+    // The weights the worker's actors act with rise with the head's learner.
+    let version: u64 = wout.split("weights version ").nth(1).and_then(|s| s.split_whitespace().next()).and_then(|v| v.parse().ok()).unwrap();
+    assert!(version > 5, "weights version on the worker: {version}\n{wout}");
+
+    let s: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    let hosts = s["hosts"].as_array().unwrap();
+    assert_eq!(hosts.len(), 2, "{s}");
+    assert_eq!(hosts[1]["name"], "second-host");
+    assert_eq!(s["agents_total"], 16);
+    for host in hosts {
+        assert_eq!(host["lost_transitions"], 0, "{s}");
+        assert!(host["env_steps"].as_u64().unwrap() > 1000, "every host stepped: {s}");
+    }
+    assert_eq!(s["lost_messages"], 0, "{s}");
+    assert_eq!(s["leftover_services"].as_array().unwrap().len(), 0, "{s}");
+    assert!(s["learner_updates"].as_u64().unwrap() > 50, "{s}");
+    // The worker's actor (environment 1 of the run) reached the head's
+    // records: its telemetry rows count transitions and episodes.
+    let tel = std::fs::read_to_string(dir.join("telemetry.csv")).unwrap();
+    let remote: Vec<&str> = tel.lines().filter(|l| l.split(',').nth(1) == Some("actor") && l.split(',').nth(2) == Some("1")).collect();
+    let last = remote.last().unwrap_or_else(|| panic!("no telemetry of the worker's actor:\n{tel}"));
+    let cols: Vec<&str> = last.split(',').collect();
+    assert!(cols[8].parse::<u64>().unwrap() > 1000 && cols[9].parse::<u64>().unwrap() > 10, "{last}");
+    // The link is a member with its own telemetry.
+    assert!(tel.lines().any(|l| l.split(',').nth(1) == Some("link")), "{tel}");
+    // Nothing of the head's domain is left in shared memory.
+    let left: Vec<String> = std::fs::read_dir("/dev/shm")
+        .unwrap()
+        .filter_map(|e| e.ok().map(|e| e.file_name().to_string_lossy().into_owned()))
+        .filter(|n| (n.starts_with(&format!("rh_{hd}_")) || n.starts_with(&format!("rh_{wd}_"))) && !n.ends_with("global_mgmt"))
+        .collect();
+    assert!(left.is_empty(), "{left:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+    let _ = std::fs::remove_dir_all(&wdir);
+}
+
+#[test]
+fn a_worker_of_another_layout_is_refused_and_the_head_gives_up_in_time() {
+    let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = tmp("mismatch");
+    let ep = format!("tcp/127.0.0.1:{}", free_port());
+    let dir_s = dir.display().to_string();
+    let mut args = vec!["--domain", "mismatch", "train", "--listen", &ep, "--run-dir", &dir_s];
+    args.extend(small_run());
+    args.extend(["--set", "cluster.workers=1", "--set", "cluster.join_timeout_s=6"]);
+    let t = Instant::now();
+    let head = hive(&args).spawn().unwrap();
+    let w = hive(&["worker", "--connect", &ep, "--join-timeout", "20"]).env("ROTORHIVE_LAYOUT_SALT", "7").output().unwrap();
+    assert!(!w.status.success());
+    let err = String::from_utf8_lossy(&w.stderr);
+    assert!(err.contains("message layout mismatch") && err.contains("same build"), "{err}");
+    let h = head.wait_with_output().unwrap();
+    assert!(!h.status.success(), "{}", text(&h));
+    let err = String::from_utf8_lossy(&h.stderr);
+    assert!(err.contains("only 0 of 1 worker hosts joined within 6 s"), "{err}");
+    assert!(t.elapsed() < Duration::from_secs(30), "{:?}", t.elapsed());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn bad_addresses_and_a_missing_head_fail_clearly() {
+    let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
+    let check = |args: &[&str], want: &str| {
+        let t = Instant::now();
+        let o = hive(args).output().unwrap();
+        assert!(!o.status.success(), "{args:?} succeeded");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains(want), "{args:?}: {err}");
+        assert!(!err.contains("panicked"), "{err}");
+        t.elapsed()
+    };
+    check(&["worker", "--connect", "192.168.1.10:7447"], "expected tcp/HOST:PORT");
+    check(&["worker", "--connect", "tcp/127.0.0.1:http"], "expected tcp/HOST:PORT");
+    let port = free_port();
+    let waited = check(&["worker", "--connect", &format!("tcp/127.0.0.1:{port}"), "--join-timeout", "3"], "no head answered");
+    assert!(waited < Duration::from_secs(15), "{waited:?}");
+    check(&["train", "--set", "cluster.workers=1"], "needs --listen");
+    check(&["train", "--listen", "localhost"], "expected tcp/HOST:PORT");
+    check(&["--domain", "no/slash", "train"], "use 1 to 32 letters");
+    // A port another program holds.
+    let busy = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let ep = format!("tcp/127.0.0.1:{}", busy.local_addr().unwrap().port());
+    let dir = tmp("busy");
+    check(&["train", "--listen", &ep, "--run-dir", &dir.display().to_string()], &format!("listen on {ep}"));
+    let _ = std::fs::remove_dir_all(&dir);
+}
