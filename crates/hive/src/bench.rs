@@ -68,6 +68,32 @@ pub enum BenchCmd {
         #[arg(long)]
         json: bool,
     },
+    /// Transition batches across hosts: two processes in two shared-memory
+    /// domains joined by their links over Zenoh on TCP loopback, against
+    /// msgpack over TCP with the same batches, side by side.
+    Link {
+        /// Seconds per path.
+        #[arg(long, default_value_t = 5.0)]
+        seconds: f64,
+        /// Transitions per batch (an actor's batch: one per agent).
+        #[arg(long, default_value_t = 50)]
+        batch: usize,
+        /// Print one JSON object as the last line.
+        #[arg(long)]
+        json: bool,
+    },
+    /// One side of `bench link` (started by it).
+    #[command(hide = true)]
+    LinkSide {
+        #[arg(long)]
+        side: String,
+        #[arg(long)]
+        endpoint: String,
+        #[arg(long)]
+        seconds: f64,
+        #[arg(long)]
+        batch: usize,
+    },
     /// The far side of `bench ipc` (started by it).
     #[command(hide = true)]
     IpcPeer {
@@ -138,6 +164,8 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
         BenchCmd::Render { agents, renderer, steps, threads, arena, plot, json } => bench_render(&agents, &renderer, steps, threads, &arena, &plot, json),
         BenchCmd::Ipc { iters, json } => crate::ipc_bench::run(iters, json),
         BenchCmd::IpcPeer { prefix } => crate::ipc_bench::peer(&prefix),
+        BenchCmd::Link { seconds, batch, json } => crate::link_bench::run(seconds, batch, json),
+        BenchCmd::LinkSide { side, endpoint, seconds, batch } => crate::link_bench::side(&side, &endpoint, seconds, batch),
         BenchCmd::Replay { producers, seconds, json } => crate::replay_bench::run(producers, seconds, json),
         BenchCmd::ReplayProducer { prefix, index, producers, batches } => crate::replay_bench::producer(&prefix, index, producers, batches),
         BenchCmd::Table { config, out, json } => crate::table_bench::run(&config, &out, json),

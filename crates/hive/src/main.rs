@@ -8,6 +8,7 @@ mod eval;
 mod gpu_monitor;
 mod ipc_bench;
 mod learner_bench;
+mod link_bench;
 mod profile;
 mod replay_bench;
 mod role_cmd;

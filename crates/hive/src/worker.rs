@@ -76,13 +76,20 @@ pub fn run(a: WorkerArgs) -> Result<()> {
     }
     let prefix = format!("worker-{}", std::process::id());
     let stop = Arc::new(AtomicBool::new(false));
-    let mut threads = rotorhive_roles::spawn_threads(&cfg, &prefix, &run_dir, &stop, env_role_names(&cfg))?;
     let mut stats = WorkerStats::default();
+    let mut threads = Vec::new();
     let end = std::thread::scope(|s| {
+        let (ready_tx, ready_rx) = std::sync::mpsc::channel();
         let bridge = s.spawn(|| -> Result<WorkerEnd> {
             let hub = Hub::<Local>::new(&prefix, "link")?.with_stop(stop.clone());
-            Ok(link.bridge(&hub, cfg.sim.envs, roles_of(&cfg), &mut stats)?)
+            Ok(link.bridge(&hub, cfg.sim.envs, roles_of(&cfg), &mut stats, move || {
+                let _ = ready_tx.send(());
+            })?)
         });
+        // The sims and actors start once the link takes their batches.
+        if ready_rx.recv().is_ok() {
+            threads = rotorhive_roles::spawn_threads(&cfg, &prefix, &run_dir, &stop, env_role_names(&cfg))?;
+        }
         // A role thread ends only with an error (or the stop): watch them.
         while !bridge.is_finished() {
             if let Some((name, _)) = threads.iter().find(|(_, h)| h.is_finished()) {

@@ -195,6 +195,17 @@ pub struct Head {
     hosts: Vec<Host>,
     pending: Vec<(Query, Hello)>,
     default_agents: u32,
+    subs: HeadSubscribers,
+}
+
+type Fifo = zenoh::pubsub::Subscriber<FifoChannelHandler<zenoh::sample::Sample>>;
+
+/// The head's subscribers, declared before any worker is admitted, so that
+/// a worker's first batch already has somewhere to go.
+struct HeadSubscribers {
+    transitions: Fifo,
+    episodes: Fifo,
+    telemetry: zenoh::pubsub::Subscriber<zenoh::handlers::RingChannelHandler<zenoh::sample::Sample>>,
 }
 
 impl Head {
@@ -203,7 +214,13 @@ impl Head {
         let session = open(Some(endpoint), None)?;
         let queryable = session.declare_queryable(JOIN).with(FifoChannel::new(64)).wait().map_err(zerr("declare the join queryable"))?;
         let token = session.liveliness().declare_token(key(run, "head")).wait().map_err(zerr("declare the head's liveliness"))?;
-        Ok(Self { session, run: run.to_string(), layout, queryable, _token: token, hosts: Vec::new(), pending: Vec::new(), default_agents: 1 })
+        let decl = |what: &str| zerr(format!("declare {what}"));
+        let subs = HeadSubscribers {
+            transitions: session.declare_subscriber(key(run, "transitions")).with(FifoChannel::new(4)).wait().map_err(decl("the transitions subscriber"))?,
+            episodes: session.declare_subscriber(key(run, "episodes")).with(FifoChannel::new(256)).wait().map_err(decl("the episodes subscriber"))?,
+            telemetry: session.declare_subscriber(key(run, "telemetry")).with(RingChannel::new(256)).wait().map_err(decl("the telemetry subscriber"))?,
+        };
+        Ok(Self { subs, session, run: run.to_string(), layout, queryable, _token: token, hosts: Vec::new(), pending: Vec::new(), default_agents: 1 })
     }
 
     /// Waits for `wanted` workers (at most `timeout`) and places their
@@ -389,9 +406,7 @@ fn head_loop<S: Service>(head: &Head, hub: &Hub<S>, envs: usize, roles: usize, s
     let s = &head.session;
     let run = &head.run;
     let decl = |what: &str| zerr(format!("declare {what}"));
-    let trans_sub = s.declare_subscriber(key(run, "transitions")).with(FifoChannel::new(4)).wait().map_err(decl("the transitions subscriber"))?;
-    let ep_sub = s.declare_subscriber(key(run, "episodes")).with(FifoChannel::new(256)).wait().map_err(decl("the episodes subscriber"))?;
-    let tel_sub = s.declare_subscriber(key(run, "telemetry")).with(RingChannel::new(256)).wait().map_err(decl("the telemetry subscriber"))?;
+    let (trans_sub, ep_sub, tel_sub) = (&head.subs.transitions, &head.subs.episodes, &head.subs.telemetry);
     let w_pub = s.declare_publisher(key(run, "weights")).congestion_control(CongestionControl::Block).wait().map_err(decl("the weights publisher"))?;
     let end_pub = s.declare_publisher(key(run, "end")).congestion_control(CongestionControl::Block).wait().map_err(decl("the end publisher"))?;
 
@@ -443,6 +458,7 @@ fn head_loop<S: Service>(head: &Head, hub: &Hub<S>, envs: usize, roles: usize, s
                 if let Some(want) = *slot
                     && h.seq > want
                 {
+                    tracing::warn!("head link: actor {} batches {want}..{} missing", h.actor, h.seq);
                     stats.lost_batches.fetch_add(h.seq - want, Ordering::Relaxed);
                     stats.lost_transitions.fetch_add((h.seq - want) * h.count as u64, Ordering::Relaxed);
                     tel.sample.lost += h.seq - want;
@@ -608,7 +624,10 @@ impl Worker {
     /// Bridges this host's sims and actors (run `prefix` over service `S`,
     /// `envs` environments, `roles` telemetry publishers) to the head until
     /// the head ends the run, the head is lost, or this process stops.
-    pub fn bridge<S: Service>(&self, hub: &Hub<S>, envs: usize, roles: usize, stats: &mut WorkerStats) -> Result<WorkerEnd> {
+    /// `on_ready` runs once the link takes this host's batches and the head
+    /// takes the link's: start the actors then, or their first batches go
+    /// nowhere.
+    pub fn bridge<S: Service>(&self, hub: &Hub<S>, envs: usize, roles: usize, stats: &mut WorkerStats, on_ready: impl FnOnce()) -> Result<WorkerEnd> {
         let s = &self.session;
         let run = &self.run;
         let decl = |what: &str| zerr(format!("declare {what}"));
@@ -621,13 +640,27 @@ impl Worker {
         let head_sub =
             s.liveliness().declare_subscriber(key(run, "head")).history(true).with(FifoChannel::new(16)).wait().map_err(decl("the head's liveliness"))?;
         let _token = s.liveliness().declare_token(key(run, &format!("host/{}", self.slot))).wait().map_err(decl("this host's liveliness"))?;
-
         let off = self.env_offset;
         let mut trans_rx = hub.receiver::<u16, TransitionHeader>(&Channel::transitions(envs))?;
         let mut ep_rx = hub.receiver::<f32, EpisodeHeader>(&Channel::episodes(envs))?;
         let mut tel_rx = hub.receiver::<u8, Telemetry>(&Channel::telemetry(roles))?;
         let mut w_tx: Option<rotorhive_transport::Sender<S, f32, WeightsHeader>> = None;
         let mut tel = LinkTelemetry::new(hub, roles, 0)?;
+        // Zenoh drops what no subscriber matches: send nothing before the
+        // head's transitions subscriber is known here.
+        let t = Instant::now();
+        while !trans_pub.matching_status().wait().map_err(zerr("matching status"))?.matching() {
+            if t.elapsed() > Duration::from_secs(20) {
+                return Err(LinkError::LostHead);
+            }
+            if hub.shutdown_requested() {
+                return Ok(WorkerEnd::Stopped);
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+
+        on_ready();
+        let mut wseq = std::collections::HashMap::new();
         let mut head_seen = false;
         loop {
             if hub.shutdown_requested() {
@@ -680,6 +713,12 @@ impl Worker {
             if let Some(m) = m {
                 let t = Instant::now();
                 let mut h = *m.user_header();
+                if let Some(w) = wseq.get(&h.actor)
+                    && *w != h.seq
+                {
+                    tracing::warn!("worker link: actor {} batches {w}..{} missing in shared memory", h.actor, h.seq);
+                }
+                wseq.insert(h.actor, h.seq + 1);
                 h.actor += off;
                 trans_pub
                     .put(wire::payload_bytes(m.payload()).to_vec())

@@ -1,0 +1,222 @@
+//! `hive bench link`: transition batches from a worker host to a head host,
+//! the way a run across hosts carries them: a producer writes batches into
+//! the worker's shared memory, the worker's link puts them on Zenoh (TCP),
+//! the head's link writes them into the head's shared memory, a consumer
+//! (in the replay's place) counts them and checks every sequence number.
+//! The two sides are two processes in two shared-memory domains, as on two
+//! hosts. Side by side, in the same run: the same batches as msgpack
+//! records over one TCP connection (PRL4AirSim's transport), streamed
+//! without acknowledgements, which is the baseline's best case.
+
+use std::io::{Read, Write};
+use std::process::{Command, Stdio};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use rotorhive_msg::{PACKED_LEN, TransitionHeader};
+use rotorhive_transport::{Channel, Hub, Ipc};
+use serde::{Deserialize, Serialize};
+use serde_json::json;
+
+const RUN: &str = "bench-link";
+
+/// Runs the benchmark: the link between two domains, then msgpack over TCP.
+pub fn run(seconds: f64, batch: usize, json_out: bool) -> Result<()> {
+    if !(seconds.is_finite() && seconds > 0.0) || batch == 0 || batch > 1024 {
+        bail!("--seconds must be positive and --batch between 1 and 1024");
+    }
+    let port = std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();
+    let ep = format!("tcp/127.0.0.1:{port}");
+    let exe = std::env::current_exe()?;
+    let pid = std::process::id();
+    let side = |name: &str, domain: String| -> Result<std::process::Child> {
+        Command::new(&exe)
+            .args(["--domain", &domain, "bench", "link-side", "--side", name, "--endpoint", &ep])
+            .args(["--seconds", &seconds.to_string(), "--batch", &batch.to_string()])
+            .stdout(Stdio::piped())
+            .spawn()
+            .with_context(|| format!("cannot start the {name} side"))
+    };
+    let head = side("head", format!("lbh{pid}"))?;
+    let worker = side("worker", format!("lbw{pid}"))?;
+    let w = worker.wait_with_output()?;
+    let h = head.wait_with_output()?;
+    let last = |o: &std::process::Output| -> Result<serde_json::Value> {
+        let out = String::from_utf8_lossy(&o.stdout);
+        let line = out.lines().last().unwrap_or("");
+        serde_json::from_str(line).with_context(|| format!("a side of the link bench failed ({}): {out}", o.status))
+    };
+    let (hj, wj) = (last(&h)?, last(&w)?);
+    let got = hj["transitions"].as_u64().unwrap_or(0);
+    let secs = hj["seconds"].as_f64().unwrap_or(f64::NAN);
+    let lost = hj["lost"].as_u64().unwrap_or(0);
+    let link_rate = got as f64 / secs;
+    let (base_got, base_secs) = msgpack_tcp(seconds, batch)?;
+    let base_rate = base_got as f64 / base_secs;
+    let mb = |r: f64| r * (PACKED_LEN * 2) as f64 / 1e6;
+    println!("{:<32} {:>14} {:>10} {:>8}", "path", "transitions/s", "MB/s", "lost");
+    println!("{:<32} {:>14.0} {:>10.0} {:>8}", "link: shm → zenoh/TCP → shm", link_rate, mb(link_rate), lost);
+    println!("{:<32} {:>14.0} {:>10.0} {:>8}", "msgpack over TCP (baseline)", base_rate, mb(base_rate), "-");
+    println!(
+        "ratio {:.1}×; batches of {batch} transitions ({} bytes each), {seconds} s per path; worker sent {} transitions",
+        link_rate / base_rate,
+        PACKED_LEN * 2,
+        wj["sent"]
+    );
+    if json_out {
+        println!(
+            "{}",
+            json!({
+                "transitions_per_s": link_rate, "lost": lost, "received": got, "sent": wj["sent"],
+                "baseline_transitions_per_s": base_rate, "ratio": link_rate / base_rate,
+                "batch": batch, "seconds": seconds, "bytes_per_transition": PACKED_LEN * 2, "endpoint": ep,
+            })
+        );
+    }
+    Ok(())
+}
+
+/// One side of the link benchmark, in its own domain (started by [`run`]).
+pub fn side(side: &str, ep: &str, seconds: f64, batch: usize) -> Result<()> {
+    let layout = rotorhive_link::layout(rotorhive_model::num_params());
+    let stop = Arc::new(AtomicBool::new(false));
+    match side {
+        "head" => {
+            let mut head = rotorhive_link::Head::listen(ep, RUN, layout)?;
+            head.gather(1, 1, batch, Duration::from_secs(30), rotorhive_transport::stop_requested)?;
+            head.admit(|_| (String::new(), String::new()));
+            let hub = Hub::<Ipc>::new(RUN, "bench-consumer")?;
+            let mut rx = hub.receiver::<u16, TransitionHeader>(&Channel::transitions(1))?;
+            let mut link = head.bridge::<Ipc>(RUN.into(), 1, 2, stop.clone(), Box::new(|_| (String::new(), String::new())))?;
+            let (mut got, mut lost, mut next, mut first) = (0u64, 0u64, None::<u64>, None::<Instant>);
+            let deadline = Instant::now() + Duration::from_secs_f64(seconds) + Duration::from_secs(20);
+            while Instant::now() < deadline {
+                if first.is_some_and(|t| t.elapsed().as_secs_f64() >= seconds) {
+                    break;
+                }
+                let Some(m) = rx.recv_timeout(Duration::from_millis(100))? else { continue };
+                let h = *m.user_header();
+                if let Some(want) = next
+                    && h.seq != want
+                {
+                    lost += h.seq.saturating_sub(want) * h.count as u64;
+                }
+                next = Some(h.seq + 1);
+                if m.payload().len() != h.count as usize * PACKED_LEN || m.payload()[PACKED_LEN - 1] != (h.seq as u16) {
+                    bail!("batch {} arrived damaged", h.seq);
+                }
+                first.get_or_insert_with(Instant::now);
+                got += h.count as u64;
+            }
+            let secs = first.map_or(0.0, |t| t.elapsed().as_secs_f64());
+            link.stop()?;
+            let st = &link.stats;
+            tracing::info!(
+                "head link: {} batches in, {} lost between hosts, {} dropped",
+                st.batches.load(Ordering::Relaxed),
+                st.lost_batches.load(Ordering::Relaxed),
+                st.dropped.load(Ordering::Relaxed)
+            );
+            println!("{}", json!({"transitions": got, "seconds": secs, "lost": lost}));
+        }
+        "worker" => {
+            let hello = rotorhive_link::Hello { layout, envs: 1, agents: batch as u32, host: "bench-worker".into() };
+            let w = rotorhive_link::Worker::join(ep, &hello, Duration::from_secs(30), rotorhive_transport::stop_requested)?;
+            let hub = Hub::<Ipc>::new(RUN, "bench-link")?.with_stop(stop.clone());
+            let (ready_tx, ready_rx) = std::sync::mpsc::channel::<()>();
+            let producer = {
+                let stop = stop.clone();
+                std::thread::spawn(move || -> Result<u64> {
+                    // Start once the link takes batches.
+                    let _ = ready_rx.recv();
+                    let hub = Hub::<Ipc>::new(RUN, "bench-producer")?;
+                    let mut tx = hub.sender::<u16, TransitionHeader>(&Channel::transitions(1), batch * PACKED_LEN, rotorhive_roles::STALL_TIMEOUT)?;
+                    // A burst sent within ~100 ms of a publisher's creation lost
+                    // batches 8..N to the subscriber created before it in about
+                    // one run in four (iceoryx2 0.10, not yet understood; the
+                    // link's sequence check reports it): let the new publisher
+                    // settle first, as an actor does while its sim starts.
+                    std::thread::sleep(Duration::from_millis(500));
+                    let mut seq = 0u64;
+                    while !stop.load(Ordering::Relaxed) {
+                        let r = tx.send_with(batch * PACKED_LEN, |h, p| {
+                            *h = TransitionHeader { actor: 0, count: batch as u32, seq, weight_version: 0, episodes: 0 };
+                            // The payload stays as the loan left it (an actor packs its
+                            // transitions in place; the baseline serializes one buffer
+                            // over and over); a marker proves each batch's identity.
+                            p[PACKED_LEN - 1] = seq as u16;
+                        });
+                        match r {
+                            Ok(()) => seq += 1,
+                            Err(rotorhive_transport::TransportError::Stalled { .. }) => {}
+                            Err(e) => return Err(e.into()),
+                        }
+                    }
+                    Ok(seq * batch as u64)
+                })
+            };
+            let mut stats = rotorhive_link::WorkerStats::default();
+            let end = w.bridge(&hub, 1, 2, &mut stats, move || {
+                let _ = ready_tx.send(());
+            });
+            stop.store(true, Ordering::SeqCst);
+            let produced = producer.join().map_err(|_| anyhow::anyhow!("producer panicked"))??;
+            end?;
+            println!("{}", json!({"sent": stats.transitions, "produced": produced}));
+        }
+        other => bail!("--side {other}: head or worker"),
+    }
+    Ok(())
+}
+
+/// A transition batch as a msgpack record (what an RPC framework sends).
+#[derive(Serialize, Deserialize)]
+struct Batch {
+    actor: u32,
+    seq: u64,
+    count: u32,
+    data: Vec<u16>,
+}
+
+/// The baseline: the same batches as length-prefixed msgpack records over
+/// one loopback TCP connection, for `seconds`. Returns (transitions, s).
+fn msgpack_tcp(seconds: f64, batch: usize) -> Result<(u64, f64)> {
+    let listener = std::net::TcpListener::bind("127.0.0.1:0")?;
+    let addr = listener.local_addr()?;
+    let receiver = std::thread::spawn(move || -> Result<(u64, f64)> {
+        let (mut s, _) = listener.accept()?;
+        let (mut got, mut first, mut buf) = (0u64, None::<Instant>, Vec::new());
+        loop {
+            let mut len = [0u8; 4];
+            if s.read_exact(&mut len).is_err() {
+                break;
+            }
+            buf.resize(u32::from_le_bytes(len) as usize, 0);
+            s.read_exact(&mut buf)?;
+            let b: Batch = rmp_serde::from_slice(&buf).context("decoding msgpack")?;
+            first.get_or_insert_with(Instant::now);
+            got += b.count as u64;
+            if first.is_some_and(|t| t.elapsed().as_secs_f64() >= seconds) {
+                break;
+            }
+        }
+        Ok((got, first.map_or(0.0, |t| t.elapsed().as_secs_f64())))
+    });
+    let mut s = std::net::TcpStream::connect(addr)?;
+    s.set_nodelay(true)?;
+    let mut b = Batch { actor: 0, seq: 0, count: batch as u32, data: vec![7u16; batch * PACKED_LEN] };
+    loop {
+        let bytes = rmp_serde::to_vec(&b)?;
+        if s.write_all(&(bytes.len() as u32).to_le_bytes()).and_then(|_| s.write_all(&bytes)).is_err() {
+            break;
+        }
+        b.seq += 1;
+        if receiver.is_finished() {
+            break;
+        }
+    }
+    drop(s);
+    receiver.join().map_err(|_| anyhow::anyhow!("baseline receiver panicked"))?
+}
