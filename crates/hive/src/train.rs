@@ -442,6 +442,8 @@ pub fn run(a: TrainArgs) -> Result<()> {
     let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.subsec_nanos()).unwrap_or(0);
     let prefix = format!("run-{}-{nanos:x}", std::process::id());
     rotorhive_transport::handle_hangup();
+    // The head's environments come first in the run.
+    cfg.cluster.env_offset = 0;
     let link = match &a.listen {
         Some(ep) => Some(gather_workers(ep, &prefix, &mut cfg)?),
         None if cfg.cluster.workers > 0 => bail!("key `cluster.workers` = {} needs --listen tcp/ADDR:PORT for the workers to join", cfg.cluster.workers),

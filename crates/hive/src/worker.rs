@@ -142,8 +142,8 @@ fn worker_config(link: &Worker, run_dir: &std::path::Path, envs: usize, agents: 
         format!("sim.envs={envs}"),
         format!("sim.agents={agents}"),
         format!("sim.arena={:?}", arena.display().to_string()),
-        // Other seeds than the head's environments, so the hosts explore differently.
-        format!("seed={}", head.seed.wrapping_add(1000 * link.slot as u64)),
+        // Seeded as these environments of a one-host run would be.
+        format!("cluster.env_offset={}", link.env_offset),
         "cluster.workers=0".to_string(),
         format!("cluster.envs_elsewhere={}", head.envs_total() - envs),
         format!("cluster.agents_elsewhere={}", head.agents_total() - envs * agents),

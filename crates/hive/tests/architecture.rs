@@ -60,6 +60,16 @@ fn domain_crates_stay_pure_and_the_transport_knows_no_domain() {
     }
     let bad = uses("rotorhive-transport", &["candle", "rapier", "rotorhive-sim", "rotorhive-model"]);
     assert!(bad.is_empty(), "rotorhive-transport depends on {bad:?}");
+    // Zenoh stays in the link crate; the link knows no model, simulator or role.
+    for (krate, d) in &deps {
+        if krate != "rotorhive-link" {
+            assert!(!d.iter().any(|(n, _)| n == "zenoh"), "{krate} imports zenoh: only rotorhive-link may");
+        }
+    }
+    let bad = uses("rotorhive-link", &["candle", "rapier", "rotorhive-sim", "rotorhive-model", "rotorhive-roles"]);
+    assert!(bad.is_empty(), "rotorhive-link depends on {bad:?}");
+    let zenoh = deps.iter().find(|(n, _)| n == "rotorhive-link").and_then(|(_, d)| d.iter().find(|(n, _)| n == "zenoh")).expect("the link imports zenoh");
+    assert_eq!(zenoh.1, vec!["transport_tcp".to_string()], "zenoh with its TCP transport only");
     // Only the binary parses command lines: the roles take a context.
     let bad = uses("rotorhive-roles", &["clap"]);
     assert!(bad.is_empty(), "rotorhive-roles depends on {bad:?}");

@@ -160,3 +160,69 @@ fn bad_addresses_and_a_missing_head_fail_clearly() {
     check(&["train", "--listen", &ep, "--run-dir", &dir.display().to_string()], &format!("listen on {ep}"));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Lines of a child's stdout, each with when it was read.
+fn lines_of(child: &mut std::process::Child) -> std::sync::mpsc::Receiver<(Instant, String)> {
+    use std::io::BufRead;
+    let out = child.stdout.take().unwrap();
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for l in std::io::BufReader::new(out).lines().map_while(Result::ok) {
+            let _ = tx.send((Instant::now(), l));
+        }
+    });
+    rx
+}
+
+fn wait_line(rx: &std::sync::mpsc::Receiver<(Instant, String)>, want: &str, within: Duration) -> Option<Instant> {
+    let end = Instant::now() + within;
+    while let Some(left) = end.checked_duration_since(Instant::now()) {
+        match rx.recv_timeout(left) {
+            Ok((t, l)) if l.contains(want) => return Some(t),
+            Ok(_) => {}
+            Err(_) => return None,
+        }
+    }
+    None
+}
+
+#[test]
+fn a_killed_worker_comes_back_and_a_killed_head_is_noticed() {
+    let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = tmp("restart");
+    let ep = format!("tcp/127.0.0.1:{}", free_port());
+    let hd = format!("rh{}", std::process::id());
+    let dir_s = dir.display().to_string();
+    let mut args = vec!["--domain", &hd, "train", "--listen", &ep, "--max-seconds", "30", "--run-dir", &dir_s];
+    args.extend(small_run());
+    args.extend(["--set", "cluster.workers=1"]);
+    let mut head = hive(&args).spawn().unwrap();
+    let worker = |domain: &str| hive(&["--domain", domain, "worker", "--connect", &ep, "--agents", "8", "--name", "w"]).spawn().unwrap();
+    let mut first = worker(&format!("wa{}", std::process::id()));
+    let first_lines = lines_of(&mut first);
+    assert!(wait_line(&first_lines, "joined the run", Duration::from_secs(30)).is_some());
+    std::thread::sleep(Duration::from_secs(6));
+    first.kill().unwrap();
+    first.wait().unwrap();
+    // The same host comes back: it gets its old place within 5 s.
+    let started = Instant::now();
+    let mut second = worker(&format!("wb{}", std::process::id()));
+    let second_lines = lines_of(&mut second);
+    let joined = wait_line(&second_lines, "joined the run", Duration::from_secs(20)).expect("the restarted worker joined");
+    assert!(joined.duration_since(started) < Duration::from_secs(5), "{:?}", joined.duration_since(started));
+    assert!(head.try_wait().unwrap().is_none(), "the head stopped when its worker died");
+    std::thread::sleep(Duration::from_secs(6));
+    // Now the head dies without ending the run: the worker notices.
+    head.kill().unwrap();
+    head.wait().unwrap();
+    let t = Instant::now();
+    let o = second.wait_with_output().unwrap();
+    assert!(!o.status.success(), "{}", text(&o));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("lost the head"), "{err}");
+    assert!(t.elapsed() < Duration::from_secs(15), "{:?}", t.elapsed());
+    // The restarted worker's batches reached the head: its telemetry says so.
+    let tel = std::fs::read_to_string(dir.join("telemetry.csv")).unwrap();
+    assert!(tel.lines().any(|l| l.split(',').nth(1) == Some("sim") && l.split(',').nth(2) == Some("1")), "{tel}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

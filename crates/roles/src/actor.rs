@@ -49,7 +49,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, e: usize) -> Result<()> {
     let mut w_rx = hub.receiver::<f32, WeightsHeader>(&Channel::weights(envs))?;
     let mut ep_tx = hub.sender::<f32, EpisodeHeader>(&episodes_channel(envs), 3 * n, STALL_TIMEOUT)?;
     let mut tel = Counters::new(hub, RoleKind::Actor, e, roles_of(cfg))?;
-    let mut rng = Pcg64Mcg::seed_from_u64(cfg.seed ^ (0xac70 + e as u64));
+    let mut rng = Pcg64Mcg::seed_from_u64(cfg.seed ^ (0xac70 + (cfg.cluster.env_offset + e) as u64));
 
     let mut version = 0u64;
     let mut nstep = NStep::new(steps_n, cfg.learner.gamma as f32, n);

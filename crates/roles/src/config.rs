@@ -51,11 +51,15 @@ pub struct ClusterSection {
     pub envs_elsewhere: usize,
     /// Agents on other hosts (set by the head).
     pub agents_elsewhere: usize,
+    /// Index in the run of this host's first environment (set by a worker
+    /// from the head's answer): its sims and actors seed themselves as
+    /// those environments of a one-host run would.
+    pub env_offset: usize,
 }
 
 impl Default for ClusterSection {
     fn default() -> Self {
-        Self { workers: 0, join_timeout_s: 60.0, envs_elsewhere: 0, agents_elsewhere: 0 }
+        Self { workers: 0, join_timeout_s: 60.0, envs_elsewhere: 0, agents_elsewhere: 0, env_offset: 0 }
     }
 }
 

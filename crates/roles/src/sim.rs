@@ -24,8 +24,8 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
     }
     let arenas = cfg.lane_arenas(env_index)?;
     let n = cfg.sim.agents;
-    let mut env =
-        VecEnv::try_new_lanes(cfg.sim_config(), &arenas, cfg.seed.wrapping_mul(1000).wrapping_add(env_index as u64)).context("starting the simulator")?;
+    let mut env = VecEnv::try_new_lanes(cfg.sim_config(), &arenas, cfg.seed.wrapping_mul(1000).wrapping_add((cfg.cluster.env_offset + env_index) as u64))
+        .context("starting the simulator")?;
     let batched = cfg.batched();
     assert_eq!(env.obs_len(), OBS_LEN, "simulator and message layouts disagree");
     // Observations are assembled straight into the loaned sample (send_obs).
