@@ -30,7 +30,6 @@ pub fn run(seconds: f64, batch: usize, json_out: bool) -> Result<()> {
     let port = std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();
     let ep = format!("tcp/127.0.0.1:{port}");
     let exe = std::env::current_exe()?;
-    let pid = std::process::id();
     let side = |name: &str, domain: String| -> Result<std::process::Child> {
         Command::new(&exe)
             .args(["--domain", &domain, "bench", "link-side", "--side", name, "--endpoint", &ep])
@@ -39,8 +38,8 @@ pub fn run(seconds: f64, batch: usize, json_out: bool) -> Result<()> {
             .spawn()
             .with_context(|| format!("cannot start the {name} side"))
     };
-    let head = side("head", format!("lbh{pid}"))?;
-    let worker = side("worker", format!("lbw{pid}"))?;
+    let head = side("head", "linkbench-head".to_string())?;
+    let worker = side("worker", "linkbench-worker".to_string())?;
     let w = worker.wait_with_output()?;
     let h = head.wait_with_output()?;
     let last = |o: &std::process::Output| -> Result<serde_json::Value> {

@@ -19,7 +19,7 @@ struct Row {
 }
 
 fn role_kind(name: &str) -> Option<RoleKind> {
-    [RoleKind::Sim, RoleKind::Actor, RoleKind::Replay, RoleKind::Learner].into_iter().find(|r| r.name() == name)
+    [RoleKind::Sim, RoleKind::Actor, RoleKind::Replay, RoleKind::Learner, RoleKind::Link].into_iter().find(|r| r.name() == name)
 }
 
 /// One role's figures over a run.
@@ -94,7 +94,12 @@ pub fn analyse(run_dir: &Path) -> Result<Profile> {
         let share: [f64; 4] = std::array::from_fn(|k| (last.stages[k] - first.stages[k]) / span_ms);
         machine.extend(r.iter().map(|x| x.machine));
         // The waiting stage: transport for every role, idle for the replay.
-        let wait = if kind == RoleKind::Replay { share[2] + share[3] } else { share[3] };
+        let wait = match kind {
+            RoleKind::Replay => share[2] + share[3],
+            // A link waits for the network (receive) or for its receiver (send_wait).
+            RoleKind::Link => share[0] + share[3],
+            _ => share[3],
+        };
         roles.push(RoleProfile {
             name: format!("{role}-{index}"),
             cpu: mean(r.iter().map(|x| x.cpu)),
@@ -119,7 +124,12 @@ pub fn report(run_dir: &Path) -> Result<String> {
     let total_cpu: f64 = p.roles.iter().map(|r| r.cpu).filter(|v| v.is_finite()).sum();
     for r in &p.roles {
         let cells: Vec<String> = r.stages.iter().map(|(n, s)| format!("{n} {:.0} %", s * 100.0)).collect();
-        writeln!(out, "| {} | {:.0} | {:.0} % | {} |", r.name, r.cpu, r.cpu / total_cpu * 100.0, cells.join(" | "))?;
+        if r.cpu.is_finite() {
+            writeln!(out, "| {} | {:.0} | {:.0} % | {} |", r.name, r.cpu, r.cpu / total_cpu * 100.0, cells.join(" | "))?;
+        } else {
+            // Roles of other hosts: their CPU is not this machine's to read.
+            writeln!(out, "| {} | — (other host) | — | {} |", r.name, cells.join(" | "))?;
+        }
     }
     writeln!(out, "\nStage columns: share of the role's wall time spent in each stage; `transport_wait` / `idle` is time spent waiting on another process.")?;
     writeln!(out, "Machine CPU: {:.0} % on average over {} cores.", p.machine_cpu, std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1))?;

@@ -73,7 +73,10 @@ fn watch_supervisor(prefix: &str, node: &str) -> Result<()> {
                     tracing::warn!("{node}: the supervisor of this run is gone; stopping");
                     rotorhive_transport::request_stop();
                     std::thread::sleep(ORPHAN_GRACE);
-                    eprintln!("{node}: did not stop within {ORPHAN_GRACE:?} of its supervisor's end; exiting");
+                    let _ = std::io::Write::write_fmt(
+                        &mut std::io::stderr(),
+                        format_args!("{node}: did not stop within {ORPHAN_GRACE:?} of its supervisor's end; exiting\n"),
+                    );
                     // SAFETY: _exit(2) ends the process without running
                     // anything else; shared memory is cleaned by the next start.
                     unsafe { libc::_exit(3) };

@@ -22,6 +22,12 @@ struct TableConfig {
     cells: Vec<[usize; 2]>,
     #[serde(default)]
     set: Vec<String>,
+    /// Cells of E > 1 environments run as E hosts, as the paper's two PCs:
+    /// the head (`hive train --listen`) with one environment and E − 1
+    /// workers (`hive worker`) with one each, every host in its own
+    /// shared-memory domain, joined over TCP loopback.
+    #[serde(default)]
+    split_hosts: bool,
 }
 
 /// The paper's Table II: (mode, envs, agents) → (train time, CPU %, GPU %, GPU W).
@@ -231,17 +237,39 @@ pub fn run(config: &Path, out: &Path, json_out: bool) -> Result<()> {
                 let dir = out.join(&name);
                 let _ = std::fs::remove_dir_all(&dir);
                 eprintln!("[{k}/{total}] {name}: up to {:.0} s", tc.budget_s);
+                let hosts = if tc.split_hosts { envs } else { 1 };
                 let mut cmd = Command::new(&exe);
+                let endpoint = format!("tcp/127.0.0.1:{}", std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port());
+                if hosts > 1 {
+                    cmd.args(["--domain", "table-host0"]);
+                }
                 cmd.arg("train").arg(&tc.config).arg("--quiet").arg("--run-dir").arg(&dir).arg("--max-seconds").arg(tc.budget_s.to_string());
-                for s in tc.set.iter().cloned().chain([
-                    format!("sim.envs={envs}"),
+                let mut sets = vec![
+                    format!("sim.envs={}", if hosts > 1 { 1 } else { envs }),
                     format!("sim.agents={agents}"),
                     format!("sim.observation_mode=\"{mode}\""),
                     format!("seed={seed}"),
-                ]) {
+                ];
+                if hosts > 1 {
+                    cmd.args(["--listen", &endpoint]);
+                    sets.push(format!("cluster.workers={}", hosts - 1));
+                }
+                for s in tc.set.iter().cloned().chain(sets) {
                     cmd.arg("--set").arg(s);
                 }
-                let status = cmd.status().with_context(|| format!("cell {name}: cannot start hive train"))?;
+                let mut head = cmd.spawn().with_context(|| format!("cell {name}: cannot start hive train"))?;
+                let mut workers = Vec::new();
+                for h in 1..hosts {
+                    let mut w = Command::new(&exe);
+                    w.args(["--domain", &format!("table-host{h}"), "worker", "--connect", &endpoint]);
+                    w.args(["--agents", &agents.to_string(), "--name", &format!("host{h}"), "--run-dir"]).arg(dir.join(format!("worker-{h}")));
+                    w.stdout(std::process::Stdio::null());
+                    workers.push(w.spawn().with_context(|| format!("cell {name}: cannot start hive worker"))?);
+                }
+                let status = head.wait()?;
+                for mut w in workers {
+                    let _ = w.wait();
+                }
                 let summary: Value = std::fs::read_to_string(dir.join("summary.json"))
                     .ok()
                     .and_then(|t| serde_json::from_str(&t).ok())
@@ -263,7 +291,7 @@ pub fn run(config: &Path, out: &Path, json_out: bool) -> Result<()> {
                     Err(_) => (Value::Null, Value::Null),
                 };
                 rows.push(json!({
-                    "mode": mode, "envs": envs, "agents": agents, "agents_total": envs * agents, "seed": seed,
+                    "mode": mode, "envs": envs, "agents": agents, "agents_total": envs * agents, "seed": seed, "hosts": hosts,
                     "converged": summary["converged"], "time_to_threshold_s": summary["time_to_threshold_s"],
                     "wall_s": summary["wall_s"], "env_steps_per_s": summary["env_steps_per_s"], "updates_per_s": summary["updates_per_s"],
                     "cpu_util_mean_pct": summary["cpu_util_mean_pct"], "gpu_util_mean_pct": summary["gpu_util_mean_pct"], "gpu_power_mean_w": summary["gpu_power_mean_w"],
@@ -297,9 +325,10 @@ pub fn run(config: &Path, out: &Path, json_out: bool) -> Result<()> {
             None => format!("> {}", fmt_opt(&r["wall_s"], 0)),
         };
         let pc = |f: fn(&(&str, u32, u32, u32)) -> String| p.as_ref().map_or("—".to_string(), f);
+        let envs_cell = if r["hosts"].as_u64().unwrap_or(1) > 1 { format!("{envs} (hosts)") } else { envs.to_string() };
         writeln!(
             md,
-            "| {mode} | {envs} | {agents} | {} | {} | {time} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            "| {mode} | {envs_cell} | {agents} | {} | {} | {time} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
             envs * agents,
             r["seed"],
             fmt_opt(&r["env_steps_per_s"], 0),
@@ -341,6 +370,12 @@ pub fn run(config: &Path, out: &Path, json_out: bool) -> Result<()> {
     trend(&mut md, &cells, tc.budget_s)?;
     if rows.iter().all(|r| r["gpu_util_mean_pct"].is_null()) {
         writeln!(md, "\nGPU columns are empty: no NVIDIA GPU was seen (NVML).")?;
+    }
+    if tc.split_hosts {
+        writeln!(
+            md,
+            "\nCells marked (hosts) ran each environment as a host of its own (the head and `hive worker`s, each in its own shared-memory domain, joined by their links over TCP loopback), as the paper's two PCs; here they share this machine's cores."
+        )?;
     }
     writeln!(md, "\nRuns: {}.", out.display())?;
     std::fs::write(out.join("agent-table.md"), &md)?;

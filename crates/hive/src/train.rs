@@ -783,7 +783,9 @@ fn supervise<S: Service>(
             }
             if last_tick.elapsed() >= Duration::from_secs(1) {
                 last_tick = Instant::now();
-                let pids = members.pids();
+                let mut pids = members.pids();
+                // The link runs in this process: its telemetry carries this pid.
+                pids.push(Pid::from_u32(std::process::id()));
                 sys.refresh_cpu_usage();
                 sys.refresh_processes(ProcessesToUpdate::Some(&pids), true);
                 let machine = sys.global_cpu_usage() as f64;
@@ -941,7 +943,11 @@ fn supervise<S: Service>(
         "leftover_services": leftover,
     });
     let summary_path = run_dir.join("summary.json");
-    if let Err(e) = std::fs::write(&summary_path, serde_json::to_string_pretty(&summary)? + "\n") {
+    // Through a temporary file: a full disk leaves no half-written summary.
+    let tmp_summary = run_dir.join("summary.json.tmp");
+    let written = std::fs::write(&tmp_summary, serde_json::to_string_pretty(&summary)? + "\n").and_then(|_| std::fs::rename(&tmp_summary, &summary_path));
+    if let Err(e) = written {
+        let _ = std::fs::remove_file(&tmp_summary);
         let also = failure.map_or(String::new(), |f| format!(" (the run had failed: {f})"));
         bail!("cannot write {}: {e}{also}", summary_path.display());
     }

@@ -58,7 +58,9 @@ fn a_head_trains_from_a_worker_on_another_domain_without_loss() {
     let dir = tmp("head");
     let wdir = tmp("worker");
     let ep = format!("tcp/127.0.0.1:{}", free_port());
-    let (hd, wd) = (format!("ch{}", std::process::id()), format!("cw{}", std::process::id()));
+    // Fixed domain names: each domain keeps one small management file in
+    // /dev/shm, as the machine's shared domain does.
+    let (hd, wd) = ("cluster-head".to_string(), "cluster-worker".to_string());
     let mut head_args = vec!["--domain", &hd, "train", "configs/default.toml", "--listen", &ep, "--max-seconds", "25", "--run-dir"];
     let dir_s = dir.display().to_string();
     head_args.push(&dir_s);
@@ -191,14 +193,14 @@ fn a_killed_worker_comes_back_and_a_killed_head_is_noticed() {
     let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
     let dir = tmp("restart");
     let ep = format!("tcp/127.0.0.1:{}", free_port());
-    let hd = format!("rh{}", std::process::id());
+    let hd = "cluster-head".to_string();
     let dir_s = dir.display().to_string();
     let mut args = vec!["--domain", &hd, "train", "--listen", &ep, "--max-seconds", "30", "--run-dir", &dir_s];
     args.extend(small_run());
     args.extend(["--set", "cluster.workers=1"]);
     let mut head = hive(&args).spawn().unwrap();
     let worker = |domain: &str| hive(&["--domain", domain, "worker", "--connect", &ep, "--agents", "8", "--name", "w"]).spawn().unwrap();
-    let mut first = worker(&format!("wa{}", std::process::id()));
+    let mut first = worker("cluster-worker");
     let first_lines = lines_of(&mut first);
     assert!(wait_line(&first_lines, "joined the run", Duration::from_secs(30)).is_some());
     std::thread::sleep(Duration::from_secs(6));
@@ -206,7 +208,7 @@ fn a_killed_worker_comes_back_and_a_killed_head_is_noticed() {
     first.wait().unwrap();
     // The same host comes back: it gets its old place within 5 s.
     let started = Instant::now();
-    let mut second = worker(&format!("wb{}", std::process::id()));
+    let mut second = worker("cluster-worker2");
     let second_lines = lines_of(&mut second);
     let joined = wait_line(&second_lines, "joined the run", Duration::from_secs(20)).expect("the restarted worker joined");
     assert!(joined.duration_since(started) < Duration::from_secs(5), "{:?}", joined.duration_since(started));

@@ -121,6 +121,9 @@ fn open(listen: Option<&str>, connect: Option<&str>) -> Result<zenoh::Session> {
     // lose what is in flight (the default is 5 s); the head's own stall is
     // bounded by the run's stop.
     set(&mut c, "transport/link/tx/queue/congestion_control/block/wait_before_close", "60000000")?;
+    // A transition batch is hundreds of kilobytes: read the link in large
+    // chunks (the default is one 64 KiB batch).
+    set(&mut c, "transport/link/rx/buffer_size", "4194304")?;
     match (listen, connect) {
         (Some(l), _) => {
             check_endpoint(l)?;

@@ -126,7 +126,9 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, e: usize) -> Result<()> {
 
         let t = Instant::now();
         if have_prev {
-            let global = transitions * envs as u64;
+            // Every environment of the run, on every host, acts at about
+            // this actor's pace.
+            let global = transitions * cfg.envs_total() as u64;
             let eps_now = epsilon(cfg, global);
             // n-step transitions leave once n rewards are known or the
             // episode ended; they are packed in place in the loaned sample.
@@ -174,7 +176,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, e: usize) -> Result<()> {
         tel.stage(1, t);
 
         let t = Instant::now();
-        let eps = epsilon(cfg, transitions * envs as u64);
+        let eps = epsilon(cfg, transitions * cfg.envs_total() as u64);
         let greedy = net.greedy(obs)?;
         for i in 0..n {
             actions[i] = if rng.random::<f64>() < eps { rng.random_range(0..2u8) } else { greedy[i] };
