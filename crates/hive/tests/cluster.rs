@@ -228,3 +228,61 @@ fn a_killed_worker_comes_back_and_a_killed_head_is_noticed() {
     assert!(tel.lines().any(|l| l.split(',').nth(1) == Some("sim") && l.split(',').nth(2) == Some("1")), "{tel}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn a_head_held_busy_slows_the_worker_without_loss() {
+    let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = tmp("busy-head");
+    let ep = format!("tcp/127.0.0.1:{}", free_port());
+    let dir_s = dir.display().to_string();
+    let mut args = vec!["--domain", "cluster-head", "train", "--listen", &ep, "--max-seconds", "30", "--run-dir", &dir_s];
+    args.extend(small_run());
+    // No rate limit: the worker's actors push as fast as they can, so a
+    // stalled replay is felt at once.
+    args.extend(["--set", "cluster.workers=1", "--set", "replay.samples_per_insert=0"]);
+    let head = hive(&args).spawn().unwrap();
+    let mut worker = hive(&["--domain", "cluster-worker", "worker", "--connect", &ep, "--agents", "8"]).spawn().unwrap();
+    let lines = lines_of(&mut worker);
+    assert!(wait_line(&lines, "joined the run", Duration::from_secs(30)).is_some());
+    // The replay's process id, from the head's telemetry.
+    let tel = dir.join("telemetry.csv");
+    let end = Instant::now() + Duration::from_secs(30);
+    let pid = loop {
+        let t = std::fs::read_to_string(&tel).unwrap_or_default();
+        if let Some(l) = t.lines().find(|l| l.split(',').nth(1) == Some("replay")) {
+            break l.split(',').nth(3).unwrap().parse::<i32>().unwrap();
+        }
+        assert!(Instant::now() < end, "no replay telemetry");
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    std::thread::sleep(Duration::from_secs(8));
+    // Hold the head's replay for 1.5 s (under the actors' 2 s stall bound,
+    // past which an actor gives a batch up and counts it lost): transitions
+    // pile up in the head's link, then zenoh's queue, then the worker's link
+    // and actors wait.
+    // SAFETY: plain signals to a child process of this test's run.
+    unsafe { libc::kill(pid, libc::SIGSTOP) };
+    std::thread::sleep(Duration::from_millis(1500));
+    // SAFETY: as above.
+    unsafe { libc::kill(pid, libc::SIGCONT) };
+    let h = head.wait_with_output().unwrap();
+    let w = worker.wait_with_output().unwrap();
+    assert!(h.status.success(), "head: {}", text(&h));
+    assert!(w.status.success(), "worker: {}", text(&w));
+    let s: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    for host in s["hosts"].as_array().unwrap() {
+        assert_eq!(host["lost_transitions"], 0, "{s}");
+    }
+    // No actor gave a batch up (a sim may re-publish a step whose actions
+    // came late: that loses nothing).
+    let t = std::fs::read_to_string(&tel).unwrap();
+    for l in t.lines().filter(|l| l.split(',').nth(1) == Some("actor")) {
+        assert_eq!(l.split(',').nth(11), Some("0"), "{l}");
+    }
+    // The head's link waited on the replay for the time it stood still
+    // (and the worker, behind it, with it).
+    let link = t.lines().filter(|l| l.split(',').nth(1) == Some("link") && l.split(',').nth(2) == Some("0")).last().unwrap().to_string();
+    let send_wait_ms: f64 = link.split(',').nth(15).unwrap().parse().unwrap();
+    assert!(send_wait_ms > 1000.0, "the head's link waited {send_wait_ms} ms on the replay: {link}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
