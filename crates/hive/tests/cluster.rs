@@ -281,7 +281,7 @@ fn a_head_held_busy_slows_the_worker_without_loss() {
     }
     // The head's link waited on the replay for the time it stood still
     // (and the worker, behind it, with it).
-    let link = t.lines().filter(|l| l.split(',').nth(1) == Some("link") && l.split(',').nth(2) == Some("0")).next_back().unwrap().to_string();
+    let link = t.lines().rfind(|l| l.split(',').nth(1) == Some("link") && l.split(',').nth(2) == Some("0")).unwrap().to_string();
     let send_wait_ms: f64 = link.split(',').nth(15).unwrap().parse().unwrap();
     assert!(send_wait_ms > 1000.0, "the head's link waited {send_wait_ms} ms on the replay: {link}");
     let _ = std::fs::remove_dir_all(&dir);
