@@ -842,8 +842,17 @@ fn supervise<S: Service>(
                 )?;
                 let steps = sum_work(&latest, RoleKind::Sim);
                 let updates = sum_work(&latest, RoleKind::Learner);
+                // Across hosts: each host's share of the agent-steps.
+                let hosts = link.as_ref().map_or(String::new(), |l| {
+                    let of = |from: u32, to: u32| {
+                        latest.values().filter(|t| t.role == RoleKind::Sim as u32 && (from..to).contains(&t.index)).map(|t| t.work).sum::<u64>()
+                    };
+                    let mut parts = vec![format!("here {}", of(0, envs as u32))];
+                    parts.extend(l.hosts.iter().map(|h| format!("{} {}", h.name, of(h.env_offset, h.env_offset + h.envs))));
+                    format!(" | hosts: {}", parts.join(", "))
+                });
                 bar.set_message(format!(
-                    "steps {steps} ({:.0}/s) | episodes {episodes} | rolling reward {roll:.1} | eps {epsilon:.3} | updates {updates} ({:.1}/s) | best eval {} | cpu {machine:.0}%{}",
+                    "steps {steps} ({:.0}/s){hosts} | episodes {episodes} | rolling reward {roll:.1} | eps {epsilon:.3} | updates {updates} ({:.1}/s) | best eval {} | cpu {machine:.0}%{}",
                     steps as f64 / wall.max(1e-9),
                     updates as f64 / wall.max(1e-9),
                     best_eval.map_or("-".to_string(), |b| format!("{:.0}%", b.success * 100.0)),
