@@ -22,6 +22,30 @@ use serde_json::json;
 
 const RUN: &str = "bench-link";
 
+/// A batch of `batch` packed transitions with depth images like the sim's
+/// (smooth ramps between 0.2 and 1 of the range, open sky at 1), the same
+/// bytes on both paths: raw through the link, msgpack-encoded in the baseline.
+fn sample_batch(batch: usize) -> Vec<u16> {
+    use rotorhive_msg::{DEPTH_PIXELS, FRAMES, OBS_LEN};
+    let mut out = vec![0u16; batch * PACKED_LEN];
+    let mut s = vec![0f32; OBS_LEN];
+    let mut next = vec![0f32; OBS_LEN];
+    for (k, o) in out.chunks_exact_mut(PACKED_LEN).enumerate() {
+        for i in 0..FRAMES * DEPTH_PIXELS {
+            let (row, col) = ((i % DEPTH_PIXELS) / 32, i % 32);
+            let d = if row < 10 { 1.0 } else { 0.2 + 0.8 * (((col + k) % 32) as f32 / 31.0) };
+            s[i] = d;
+            next[i] = (d * 0.98).min(1.0);
+        }
+        for v in 0..3 {
+            s[FRAMES * DEPTH_PIXELS + v] = 0.5 + v as f32;
+            next[FRAMES * DEPTH_PIXELS + v] = 0.6 + v as f32;
+        }
+        rotorhive_msg::pack_transition(&s, &next, (k % 2) as f32, 1.5, 0.0, o);
+    }
+    out
+}
+
 /// Runs the benchmark: the link between two domains, then msgpack over TCP.
 pub fn run(seconds: f64, batch: usize, json_out: bool) -> Result<()> {
     if !(seconds.is_finite() && seconds > 0.0) || batch == 0 || batch > 1024 {
@@ -127,6 +151,7 @@ pub fn side(side: &str, ep: &str, seconds: f64, batch: usize) -> Result<()> {
             let (ready_tx, ready_rx) = std::sync::mpsc::channel::<()>();
             let producer = {
                 let stop = stop.clone();
+                let data = sample_batch(batch);
                 std::thread::spawn(move || -> Result<u64> {
                     // Start once the link takes batches.
                     let _ = ready_rx.recv();
@@ -142,9 +167,9 @@ pub fn side(side: &str, ep: &str, seconds: f64, batch: usize) -> Result<()> {
                     while !stop.load(Ordering::Relaxed) {
                         let r = tx.send_with(batch * PACKED_LEN, |h, p| {
                             *h = TransitionHeader { actor: 0, count: batch as u32, seq, weight_version: 0, episodes: 0 };
-                            // The payload stays as the loan left it (an actor packs its
-                            // transitions in place; the baseline serializes one buffer
-                            // over and over); a marker proves each batch's identity.
+                            // Written into the loan, as the baseline serializes its
+                            // buffer; a marker proves each batch's identity.
+                            p.copy_from_slice(&data);
                             p[PACKED_LEN - 1] = seq as u16;
                         });
                         match r {
@@ -205,7 +230,7 @@ fn msgpack_tcp(seconds: f64, batch: usize) -> Result<(u64, f64)> {
     });
     let mut s = std::net::TcpStream::connect(addr)?;
     s.set_nodelay(true)?;
-    let mut b = Batch { actor: 0, seq: 0, count: batch as u32, data: vec![7u16; batch * PACKED_LEN] };
+    let mut b = Batch { actor: 0, seq: 0, count: batch as u32, data: sample_batch(batch) };
     loop {
         let bytes = rmp_serde::to_vec(&b)?;
         if s.write_all(&(bytes.len() as u32).to_le_bytes()).and_then(|_| s.write_all(&bytes)).is_err() {
