@@ -226,11 +226,20 @@ fn lock_run_dir(dir: &std::path::Path) -> Result<File> {
 }
 
 /// A CSV table of the run directory; a failed write (a full disk, a
-/// directory gone) names the file.
+/// directory gone) names the file. Past `TABLE_CAP` bytes it moves to
+/// `NAME.1` (replacing an older one) and starts afresh with its header, so
+/// a run of any length keeps at most twice the cap per table on disk.
 struct Table {
     path: PathBuf,
     file: File,
+    header: String,
+    written: u64,
+    cap: u64,
 }
+
+/// Bytes a table grows to before it is rotated (hours of a default run:
+/// `metrics.csv` grows by about 20 MB an hour, `telemetry.csv` by about 4).
+const TABLE_CAP: u64 = 256 << 20;
 
 impl Table {
     /// Opens `RUN_DIR/name`: appended to when `append` and it exists,
@@ -245,7 +254,8 @@ impl Table {
             .truncate(!append)
             .open(&path)
             .with_context(|| format!("cannot write {}", path.display()))?;
-        let mut t = Self { path, file };
+        let written = if append { file.metadata().map(|m| m.len()).unwrap_or(0) } else { 0 };
+        let mut t = Self { path, file, header: header.to_string(), written, cap: TABLE_CAP };
         if !append {
             writeln!(t, "{header}")?;
         }
@@ -254,7 +264,21 @@ impl Table {
 
     /// What `writeln!` calls: one row, whose failure names the file.
     fn write_fmt(&mut self, line: std::fmt::Arguments) -> Result<()> {
-        self.file.write_fmt(line).with_context(|| format!("cannot write {}", self.path.display()))
+        if self.written > self.cap {
+            self.rotate()?;
+        }
+        let row = line.to_string();
+        self.written += row.len() as u64;
+        self.file.write_all(row.as_bytes()).with_context(|| format!("cannot write {}", self.path.display()))
+    }
+
+    fn rotate(&mut self) -> Result<()> {
+        let old = self.path.with_extension("csv.1");
+        std::fs::rename(&self.path, &old).with_context(|| format!("cannot move {} to {}", self.path.display(), old.display()))?;
+        self.file = File::create(&self.path).with_context(|| format!("cannot write {}", self.path.display()))?;
+        self.written = 0;
+        let header = self.header.clone();
+        writeln!(self, "{header}")
     }
 }
 
@@ -997,4 +1021,26 @@ fn supervise<S: Service>(
         bail!("shared memory left behind after the run: {leftover:?}");
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_table_past_its_cap_moves_aside_and_starts_again_with_its_header() {
+        let dir = std::env::temp_dir().join(format!("rotorhive-table-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut t = Table::open(&dir, "metrics.csv", "a,b", false).unwrap();
+        t.cap = 100;
+        for i in 0..40 {
+            writeln!(t, "{i},{}", i * 2).unwrap();
+        }
+        let now = std::fs::read_to_string(dir.join("metrics.csv")).unwrap();
+        let old = std::fs::read_to_string(dir.join("metrics.csv.1")).unwrap();
+        assert!(now.starts_with("a,b\n") && old.starts_with("a,b\n"), "{now:?} {old:?}");
+        assert!(now.len() <= 120 && old.len() <= 120, "{} {}", now.len(), old.len());
+        assert!(now.ends_with("39,78\n"), "{now:?}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }
