@@ -286,3 +286,90 @@ fn a_head_held_busy_slows_the_worker_without_loss() {
     assert!(send_wait_ms > 1000.0, "the head's link waited {send_wait_ms} ms on the replay: {link}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Two network namespaces joined by a veth pair, removed on drop.
+struct NetPair {
+    a: String,
+    b: String,
+}
+
+impl NetPair {
+    fn new() -> Result<Self, String> {
+        let id = std::process::id() % 100_000;
+        let (a, b) = (format!("rha{id}"), format!("rhb{id}"));
+        let run = |args: &[&str]| -> Result<(), String> {
+            let o = Command::new("ip").args(args).output().map_err(|e| format!("ip {args:?}: {e}"))?;
+            if o.status.success() { Ok(()) } else { Err(format!("ip {args:?}: {}", String::from_utf8_lossy(&o.stderr).trim())) }
+        };
+        let pair = Self { a: a.clone(), b: b.clone() };
+        let (va, vb) = (format!("va{id}"), format!("vb{id}"));
+        run(&["netns", "add", &a])?;
+        run(&["netns", "add", &b])?;
+        run(&["link", "add", &va, "type", "veth", "peer", "name", &vb])?;
+        run(&["link", "set", &va, "netns", &a])?;
+        run(&["link", "set", &vb, "netns", &b])?;
+        run(&["-n", &a, "addr", "add", "10.78.0.1/24", "dev", &va])?;
+        run(&["-n", &b, "addr", "add", "10.78.0.2/24", "dev", &vb])?;
+        for (ns, dev) in [(&a, &va), (&b, &vb)] {
+            run(&["-n", ns, "link", "set", "lo", "up"])?;
+            run(&["-n", ns, "link", "set", dev, "up"])?;
+        }
+        Ok(pair)
+    }
+
+    /// `hive args` inside namespace `ns`, with a /dev/shm of its own.
+    fn hive(&self, ns: &str, args: &[&str]) -> Command {
+        let mut line = format!("mount -t tmpfs none /dev/shm && exec {}", env!("CARGO_BIN_EXE_hive"));
+        for a in args {
+            line.push_str(&format!(" '{a}'"));
+        }
+        let mut c = Command::new("ip");
+        c.current_dir(root()).args(["netns", "exec", ns, "unshare", "-m", "--propagation", "private", "sh", "-c", &line]);
+        c.stdout(Stdio::piped()).stderr(Stdio::piped());
+        c
+    }
+}
+
+impl Drop for NetPair {
+    fn drop(&mut self) {
+        for ns in [&self.a, &self.b] {
+            let _ = Command::new("ip").args(["netns", "del", ns]).output();
+        }
+    }
+}
+
+#[test]
+fn two_hosts_in_two_network_namespaces_with_their_own_shared_memory() {
+    let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
+    // SAFETY: geteuid has no preconditions.
+    if unsafe { libc::geteuid() } != 0 {
+        println!("skipped: network namespaces need root");
+        return;
+    }
+    let net = match NetPair::new() {
+        Ok(n) => n,
+        Err(e) => {
+            println!("skipped: cannot make two network namespaces here: {e}");
+            return;
+        }
+    };
+    let dir = tmp("netns");
+    let dir_s = dir.display().to_string();
+    let mut args = vec!["train", "--listen", "tcp/10.78.0.1:7447", "--max-seconds", "20", "--run-dir", &dir_s];
+    args.extend(small_run());
+    args.extend(["--set", "cluster.workers=1"]);
+    let head = net.hive(&net.a, &args).spawn().unwrap();
+    let worker = net.hive(&net.b, &["worker", "--connect", "tcp/10.78.0.1:7447", "--agents", "8", "--name", "other-host"]).spawn().unwrap();
+    let w = worker.wait_with_output().unwrap();
+    let h = head.wait_with_output().unwrap();
+    assert!(h.status.success(), "head: {}", text(&h));
+    assert!(w.status.success(), "worker: {}", text(&w));
+    let s: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    let hosts = s["hosts"].as_array().unwrap();
+    assert_eq!(hosts.len(), 2, "{s}");
+    for host in hosts {
+        assert_eq!(host["lost_transitions"], 0, "{s}");
+        assert!(host["env_steps"].as_u64().unwrap() > 1000, "{s}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
