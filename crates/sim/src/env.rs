@@ -177,6 +177,8 @@ pub struct VecEnv {
     finished: Vec<Episode>,
     timing: StepTiming,
     total_steps: u64,
+    /// Whether an agent whose episode ends starts its next one in the same step.
+    autoreset: bool,
 }
 
 impl VecEnv {
@@ -284,6 +286,7 @@ impl VecEnv {
             finished: Vec::new(),
             timing: StepTiming::default(),
             total_steps: 0,
+            autoreset: true,
             cfg,
         };
         for i in 0..n {
@@ -448,7 +451,9 @@ impl VecEnv {
             self.dones[i] = done;
             if done != Done::Running {
                 self.finished.push(Episode { agent: i, reward: self.returns[i], steps: self.steps[i], done });
-                self.reset_agent(i);
+                if self.autoreset {
+                    self.reset_agent(i);
+                }
             }
         }
         let t2 = Instant::now();
@@ -458,7 +463,7 @@ impl VecEnv {
         // A reset agent starts with both frames equal to its first view.
         let px = self.cfg.camera.side * self.cfg.camera.side;
         for i in 0..self.cfg.agents {
-            if self.dones[i] != Done::Running {
+            if self.autoreset && self.dones[i] != Done::Running {
                 self.prev[i * px..(i + 1) * px].copy_from_slice(&self.cur[i * px..(i + 1) * px]);
             }
         }
@@ -564,6 +569,45 @@ impl VecEnv {
             let v = b.rotation().inverse() * b.linvel();
             o[2 * px..].copy_from_slice(&v.to_array());
         }
+    }
+
+    /// Whether an agent whose episode ends starts its next episode in the
+    /// same step (the default, as training wants), or stays where it ended
+    /// with its last frames rendered (its observation is the episode's final
+    /// one) until [`reset_agents`](Self::reset_agents) starts it again.
+    pub fn set_autoreset(&mut self, on: bool) {
+        self.autoreset = on;
+    }
+
+    /// Starts a new episode for every agent whose `mask` entry is true:
+    /// a new spawn (drawn from this env's generator), both frames its first
+    /// view, reward 0 and `Done::Running`; the other agents keep their state
+    /// and observations.
+    pub fn reset_agents(&mut self, mask: &[bool]) -> Result<(), GpuError> {
+        assert_eq!(mask.len(), self.cfg.agents, "one flag per agent");
+        if !mask.iter().any(|m| *m) {
+            return Ok(());
+        }
+        for (i, _) in mask.iter().enumerate().filter(|(_, m)| **m) {
+            self.reset_agent(i);
+            self.rewards[i] = 0.0;
+            self.dones[i] = Done::Running;
+        }
+        // The others' current frames are drawn again from the same poses:
+        // the same images.
+        self.render()?;
+        let px = self.cfg.camera.side * self.cfg.camera.side;
+        for (i, _) in mask.iter().enumerate().filter(|(_, m)| **m) {
+            self.prev[i * px..(i + 1) * px].copy_from_slice(&self.cur[i * px..(i + 1) * px]);
+        }
+        self.assemble_obs();
+        Ok(())
+    }
+
+    /// Draws future spawns from a generator seeded with `seed` (Gymnasium's
+    /// `reset(seed=...)`); reset the agents after it for a reproducible start.
+    pub fn reseed(&mut self, seed: u64) {
+        self.rng = Pcg64Mcg::seed_from_u64(seed);
     }
 
     /// Stops keeping the [`observations`](Self::observations) buffer (it

@@ -252,3 +252,41 @@ fn lanes_put_arenas_side_by_side_and_keep_them_apart() {
     // Lengths must agree.
     assert!(Lanes::new(&[a, open_arena(90.0, vec![])]).is_err());
 }
+
+#[test]
+fn without_autoreset_an_ended_agent_keeps_its_last_frames_until_it_is_reset() {
+    let arena = open_arena(100.0, vec![Obstacle::Box { center: [30.0, 0.0, 4.0], half_extents: [0.5, 10.0, 4.0] }]);
+    let mut env = VecEnv::new(SimConfig { max_steps: 3, ..cfg(2) }, arena, 7);
+    env.set_autoreset(false);
+    let start = env.observations().to_vec();
+    let spawn_x = env.positions()[0][0];
+    for _ in 0..3 {
+        env.step(&[1, 0]);
+    }
+    assert_eq!(env.dones(), &[Done::Timeout, Done::Timeout]);
+    assert_eq!(env.finished().len(), 2);
+    // Both stayed where their episode ended, and their observation is the
+    // last one of that episode, not a fresh spawn's.
+    let ended = env.observations().to_vec();
+    let ended_pos = env.positions();
+    assert!(ended_pos[0][0] > spawn_x + 1.0, "{ended_pos:?}");
+    assert_ne!(&ended[..env.obs_len()], &start[..env.obs_len()]);
+    // Reset only agent 0.
+    env.reset_agents(&[true, false]).unwrap();
+    let after = env.observations();
+    let n = env.obs_len();
+    let px = 32 * 32;
+    assert_eq!(env.dones(), &[Done::Running, Done::Timeout]);
+    assert!((env.positions()[0][0] - spawn_x).abs() < 1e-4, "agent 0 is back at its spawn");
+    assert_eq!(env.positions()[1], ended_pos[1], "agent 1 did not move");
+    assert_eq!(&after[n..2 * n], &ended[n..2 * n], "agent 1's observation is unchanged");
+    assert_eq!(&after[..px], &after[px..2 * px], "a reset agent's two frames are its first view");
+    // Reseeding makes the spawns reproducible.
+    let mut a = VecEnv::new(SimConfig { max_steps: 3, ..cfg(2) }, open_arena(100.0, vec![]), 1);
+    let mut b = VecEnv::new(SimConfig { max_steps: 3, ..cfg(2) }, open_arena(100.0, vec![]), 2);
+    for e in [&mut a, &mut b] {
+        e.reseed(42);
+        e.reset_agents(&[true, true]).unwrap();
+    }
+    assert_eq!(a.observations(), b.observations());
+}
