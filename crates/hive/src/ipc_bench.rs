@@ -14,7 +14,7 @@
 //! msgpack time includes serializing it. The shared-memory time with a copy
 //! of a finished buffer into the loan is reported beside it.
 
-use std::io::{BufRead, BufReader, Read, Write};
+use std::io::{BufRead, BufReader, Write};
 use std::net::{TcpListener, TcpStream};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
@@ -64,6 +64,25 @@ struct RpcAck {
 
 const TIMEOUT: Duration = Duration::from_secs(5);
 
+/// Writes one length-prefixed message (a little-endian `u32` length, then
+/// the bytes): the framing of the msgpack baselines.
+pub(crate) fn write_frame(s: &mut impl std::io::Write, bytes: &[u8]) -> std::io::Result<()> {
+    s.write_all(&(bytes.len() as u32).to_le_bytes())?;
+    s.write_all(bytes)
+}
+
+/// Reads one length-prefixed message into `buf`; `false` when the peer
+/// closed the connection between messages.
+pub(crate) fn read_frame(s: &mut impl std::io::Read, buf: &mut Vec<u8>) -> std::io::Result<bool> {
+    let mut len = [0u8; 4];
+    if s.read_exact(&mut len).is_err() {
+        return Ok(false);
+    }
+    buf.resize(u32::from_le_bytes(len) as usize, 0);
+    s.read_exact(buf)?;
+    Ok(true)
+}
+
 /// The far side: answers every message (shared memory and TCP) with an
 /// acknowledgement carrying a checksum of what it read.
 pub fn peer(prefix: &str) -> Result<()> {
@@ -92,20 +111,13 @@ pub fn peer(prefix: &str) -> Result<()> {
     let (mut s, _) = listener.accept()?;
     s.set_nodelay(true)?;
     let mut buf = Vec::new();
-    loop {
-        let mut len = [0u8; 4];
-        if s.read_exact(&mut len).is_err() {
-            break;
-        }
-        buf.resize(u32::from_le_bytes(len) as usize, 0);
-        s.read_exact(&mut buf)?;
+    while read_frame(&mut s, &mut buf)? {
         let m: RpcMsg = rmp_serde::from_slice(&buf).context("decoding msgpack")?;
         if m.kind as usize >= kinds().len() || m.data.is_empty() {
             bail!("msgpack message {} of unknown kind {} or empty", m.seq, m.kind);
         }
         let ack = rmp_serde::to_vec(&RpcAck { seq: m.seq, checksum: m.data[0] + m.data[m.data.len() - 1] })?;
-        s.write_all(&(ack.len() as u32).to_le_bytes())?;
-        s.write_all(&ack)?;
+        write_frame(&mut s, &ack)?;
     }
     Ok(())
 }
@@ -195,12 +207,10 @@ pub fn run(iters: usize, json_out: bool) -> Result<()> {
                 // The sender's data lives in its own buffers, as in the sim;
                 // it is serialized from there, not cloned first.
                 let msg = rmp_serde::to_vec(&RpcMsgRef { kind: k as u32, seq: i as u64, data: &sources[k] })?;
-                s.write_all(&(msg.len() as u32).to_le_bytes())?;
-                s.write_all(&msg)?;
-                let mut len = [0u8; 4];
-                s.read_exact(&mut len)?;
-                buf.resize(u32::from_le_bytes(len) as usize, 0);
-                s.read_exact(&mut buf)?;
+                write_frame(&mut s, &msg)?;
+                if !read_frame(&mut s, &mut buf)? {
+                    bail!("the TCP peer closed the connection");
+                }
                 let ack: RpcAck = rmp_serde::from_slice(&buf)?;
                 if ack.seq != i as u64 {
                     bail!("wrong TCP acknowledgement");

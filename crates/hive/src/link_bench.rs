@@ -8,7 +8,6 @@
 //! records over one TCP connection (PRL4AirSim's transport), streamed
 //! without acknowledgements, which is the baseline's best case.
 
-use std::io::{Read, Write};
 use std::process::{Command, Stdio};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -19,6 +18,8 @@ use rotorhive_msg::{PACKED_LEN, TransitionHeader};
 use rotorhive_transport::{Channel, Hub, Ipc};
 use serde::{Deserialize, Serialize};
 use serde_json::json;
+
+use crate::ipc_bench::{read_frame, write_frame};
 
 const RUN: &str = "bench-link";
 
@@ -212,13 +213,7 @@ fn msgpack_tcp(seconds: f64, batch: usize) -> Result<(u64, f64)> {
     let receiver = std::thread::spawn(move || -> Result<(u64, f64)> {
         let (mut s, _) = listener.accept()?;
         let (mut got, mut first, mut buf) = (0u64, None::<Instant>, Vec::new());
-        loop {
-            let mut len = [0u8; 4];
-            if s.read_exact(&mut len).is_err() {
-                break;
-            }
-            buf.resize(u32::from_le_bytes(len) as usize, 0);
-            s.read_exact(&mut buf)?;
+        while read_frame(&mut s, &mut buf)? {
             let b: Batch = rmp_serde::from_slice(&buf).context("decoding msgpack")?;
             first.get_or_insert_with(Instant::now);
             got += b.count as u64;
@@ -233,7 +228,7 @@ fn msgpack_tcp(seconds: f64, batch: usize) -> Result<(u64, f64)> {
     let mut b = Batch { actor: 0, seq: 0, count: batch as u32, data: sample_batch(batch) };
     loop {
         let bytes = rmp_serde::to_vec(&b)?;
-        if s.write_all(&(bytes.len() as u32).to_le_bytes()).and_then(|_| s.write_all(&bytes)).is_err() {
+        if write_frame(&mut s, &bytes).is_err() {
             break;
         }
         b.seq += 1;

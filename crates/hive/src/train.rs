@@ -581,16 +581,7 @@ impl Members {
             }
             Members::Threads { stop, threads } => {
                 stop.store(true, Ordering::SeqCst);
-                let mut first = None;
-                for (name, h) in threads.drain(..) {
-                    let err = match h.join() {
-                        Ok(Ok(())) => None,
-                        Ok(Err(e)) => Some(format!("{e:#}")),
-                        Err(_) => Some(format!("role {name} panicked")),
-                    };
-                    first = first.or(err);
-                }
-                first
+                rotorhive_roles::join_threads(std::mem::take(threads))
             }
         }
     }

@@ -103,15 +103,7 @@ pub fn run(a: WorkerArgs) -> Result<()> {
         bridge.join().map_err(|_| anyhow::anyhow!("the link panicked"))?
     });
     stop.store(true, Ordering::SeqCst);
-    let mut first = None;
-    for (name, h) in threads.drain(..) {
-        let err = match h.join() {
-            Ok(Ok(())) => None,
-            Ok(Err(e)) => Some(format!("role {name}: {e:#}")),
-            Err(_) => Some(format!("role {name} panicked")),
-        };
-        first = first.or(err);
-    }
+    let first = rotorhive_roles::join_threads(threads);
     println!(
         "worker {name}: {} transitions in {} batches sent, weights version {} ({} received), {} messages dropped",
         stats.transitions, stats.batches, stats.weight_version, stats.weights, stats.dropped

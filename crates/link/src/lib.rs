@@ -370,6 +370,10 @@ impl<S: Service> LinkTelemetry<S> {
         let sample = Telemetry { role: RoleKind::Link as u32, index: index as u32, pid: std::process::id(), ..Telemetry::default() };
         Ok(Self { tx, sample, last: Instant::now() })
     }
+    /// Passes on another host's telemetry sample (it may be overwritten).
+    fn forward(&mut self, t: Telemetry) {
+        let _ = self.tx.send_with(1, |h, _| *h = t);
+    }
     fn stage(&mut self, i: usize, since: Instant) {
         self.sample.stage_ns[i] += since.elapsed().as_nanos() as u64;
     }
@@ -419,7 +423,6 @@ fn head_loop<S: Service>(head: &Head, hub: &Hub<S>, envs: usize, roles: usize, s
     let mut ep_tx = hub.sender::<f32, EpisodeHeader>(&Channel::episodes(envs), 3 * 4096, Duration::from_millis(200))?;
     let mut w_rx = hub.receiver::<f32, WeightsHeader>(&Channel::weights(envs))?;
     let mut tel = LinkTelemetry::new(hub, roles, 0)?;
-    let mut tel_tx = hub.sender::<u8, Telemetry>(&Channel::telemetry(roles), 1, Duration::from_millis(10))?;
     let mut next_seq: Vec<Option<u64>> = vec![None; total_envs];
     if let Ok(mut l) = stats.lost_by_env.lock() {
         *l = vec![0; total_envs];
@@ -510,7 +513,7 @@ fn head_loop<S: Service>(head: &Head, hub: &Hub<S>, envs: usize, roles: usize, s
         }
         while let Ok(Some(smp)) = tel_sub.try_recv() {
             if let Some(t) = smp.attachment().and_then(|a| wire::header_from::<Telemetry>(&a.to_bytes())) {
-                let _ = tel_tx.send_with(1, |h, _| *h = t);
+                tel.forward(t);
             }
         }
         tel.stage(1, t);

@@ -123,6 +123,21 @@ pub fn spawn_threads(
     Ok(out)
 }
 
+/// Joins role threads started by [`spawn_threads`] (after their stop was
+/// set); returns the first error (each already names its role) or panic.
+pub fn join_threads(threads: Vec<(String, JoinHandle<Result<()>>)>) -> Option<String> {
+    let mut first = None;
+    for (name, h) in threads {
+        let err = match h.join() {
+            Ok(Ok(())) => None,
+            Ok(Err(e)) => Some(format!("{e:#}")),
+            Err(_) => Some(format!("role {name} panicked")),
+        };
+        first = first.or(err);
+    }
+    first
+}
+
 /// A role's telemetry: counters and stage timers, published about once a second.
 pub struct Counters<S: Service> {
     /// The sample being filled.
