@@ -4,19 +4,11 @@
 //! transitions with none lost; a worker of another build is refused; bad
 //! addresses and a missing head fail with a clear error instead of a hang.
 
-use std::path::PathBuf;
+mod common;
+
+use common::{root, tmp};
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
-
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
-
-fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("rotorhive-cluster-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    d
-}
 
 /// A TCP port nobody listens on right now.
 fn free_port() -> u16 {

@@ -5,19 +5,12 @@
 //! and right before a checkpoint loses at most 2 s of updates; and when the
 //! supervisor is SIGKILLed, no role outlives it by 2 s.
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use common::{root, tmp, wait_for};
+use std::path::Path;
 use std::process::{Child, Command, Output, Stdio};
-use std::time::{Duration, Instant, SystemTime};
-
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
-
-fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("rotorhive-test-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    d
-}
+use std::time::{Duration, SystemTime};
 
 /// The runs of this file take turns: the checks of this file are about
 /// seconds, and two runs at once on a 2-core machine would blur them.
@@ -99,14 +92,6 @@ fn role_state(dir: &Path, role: &str) -> Option<(f64, i32, u64)> {
     let row = text.lines().skip(1).filter(|l| l.split(',').nth(1) == Some(role)).last()?.to_string();
     let f: Vec<&str> = row.split(',').collect();
     Some((f[0].parse().ok()?, f[3].parse().ok()?, f[8].parse().ok()?))
-}
-
-fn wait_for(what: &str, timeout: Duration, mut f: impl FnMut() -> bool) {
-    let t = Instant::now();
-    while !f() {
-        assert!(t.elapsed() < timeout, "timed out waiting for {what}");
-        std::thread::sleep(Duration::from_millis(100));
-    }
 }
 
 fn mtime(p: &Path) -> SystemTime {

@@ -3,19 +3,12 @@
 //! state), counts the restarts, training goes on, and nothing is left in
 //! shared memory.
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use common::{root, tmp, wait_for};
+use std::path::Path;
 use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
-
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
-
-fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("rotorhive-test-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    d
-}
+use std::time::Duration;
 
 /// Newest pid and counter of a role from `telemetry.csv`.
 fn role_state(dir: &Path, role: &str) -> Option<(i32, u64)> {
@@ -24,14 +17,6 @@ fn role_state(dir: &Path, role: &str) -> Option<(i32, u64)> {
         let f: Vec<&str> = l.split(',').collect();
         (f[3].parse().unwrap(), f[8].parse().unwrap())
     })
-}
-
-fn wait_for(what: &str, timeout: Duration, mut f: impl FnMut() -> bool) {
-    let t = Instant::now();
-    while !f() {
-        assert!(t.elapsed() < timeout, "timed out waiting for {what}");
-        std::thread::sleep(Duration::from_millis(200));
-    }
 }
 
 #[test]

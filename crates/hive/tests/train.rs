@@ -2,19 +2,16 @@
 //! iceoryx2 shared memory, trains a real network for a short while, and
 //! leaves nothing behind. Bad input is refused with a clear message.
 
+mod common;
+
+use common::{root, tmp};
 use std::path::PathBuf;
 use std::process::Command;
 
 fn hive() -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_hive"));
-    c.current_dir(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../.."));
+    c.current_dir(root());
     c
-}
-
-fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("rotorhive-test-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    d
 }
 
 fn csv_rows(path: &PathBuf) -> Vec<Vec<String>> {
