@@ -515,14 +515,7 @@ impl VecEnv {
     }
 
     fn render(&mut self) -> Result<(), GpuError> {
-        let cams: Vec<CameraPose> = self
-            .bodies
-            .iter()
-            .map(|h| {
-                let b = &self.world.bodies[*h];
-                CameraPose { position: b.translation(), rotation: *b.rotation() }
-            })
-            .collect();
+        let cams: Vec<CameraPose> = (0..self.cfg.agents).map(|i| self.camera(i)).collect();
         let positions: Vec<Vector> = cams.iter().map(|c| c.position).collect();
         let drones = self.cfg.interactive.then_some(Drones { positions: &positions, radius: self.cfg.drone_radius });
         let px = self.cfg.camera.side * self.cfg.camera.side;
@@ -565,9 +558,7 @@ impl VecEnv {
             let i = first + j;
             o[..px].copy_from_slice(&self.prev[i * px..(i + 1) * px]);
             o[px..2 * px].copy_from_slice(&self.cur[i * px..(i + 1) * px]);
-            let b = &self.world.bodies[self.bodies[i]];
-            let v = b.rotation().inverse() * b.linvel();
-            o[2 * px..].copy_from_slice(&v.to_array());
+            o[2 * px..].copy_from_slice(&self.body_velocity(i));
         }
     }
 
@@ -593,15 +584,55 @@ impl VecEnv {
             self.rewards[i] = 0.0;
             self.dones[i] = Done::Running;
         }
-        // The others' current frames are drawn again from the same poses:
-        // the same images.
-        self.render()?;
+        let reset: Vec<usize> = mask.iter().enumerate().filter(|(_, m)| **m).map(|(i, _)| i).collect();
         let px = self.cfg.camera.side * self.cfg.camera.side;
-        for (i, _) in mask.iter().enumerate().filter(|(_, m)| **m) {
+        if self.cfg.interactive {
+            // Interactive drones see each other: every image may change.
+            self.render()?;
+        } else {
+            // Only the reset agents' views change: draw just those.
+            let mut img = vec![0.0; reset.len() * px];
+            let cams: Vec<CameraPose> = reset.iter().map(|i| self.camera(*i)).collect();
+            match &mut self.gpu {
+                Some(g) => {
+                    let ids: Vec<u32> = reset.iter().map(|i| *i as u32).collect();
+                    g.render(&cams, &ids, None, &mut img)?;
+                }
+                None => self.renderer.render(&self.scene, &cams, 0, None, &mut img),
+            }
+            for (k, i) in reset.iter().enumerate() {
+                self.cur[i * px..(i + 1) * px].copy_from_slice(&img[k * px..(k + 1) * px]);
+            }
+        }
+        for i in reset {
             self.prev[i * px..(i + 1) * px].copy_from_slice(&self.cur[i * px..(i + 1) * px]);
         }
         self.assemble_obs();
         Ok(())
+    }
+
+    /// Writes every agent's observation split in two, as Gymnasium's `Dict`
+    /// observation holds it: `depth` (`agents × 2 × side²`, the previous
+    /// frame then the current one) and `velocity` (`agents × 3`, body frame).
+    pub fn write_observations_split(&self, depth: &mut [f32], velocity: &mut [f32]) {
+        let px = self.cfg.camera.side * self.cfg.camera.side;
+        let n = self.cfg.agents;
+        assert!(depth.len() == n * 2 * px && velocity.len() == n * 3, "observation buffers of the wrong size");
+        for (i, (d, v)) in depth.chunks_exact_mut(2 * px).zip(velocity.chunks_exact_mut(3)).enumerate() {
+            d[..px].copy_from_slice(&self.prev[i * px..(i + 1) * px]);
+            d[px..].copy_from_slice(&self.cur[i * px..(i + 1) * px]);
+            v.copy_from_slice(&self.body_velocity(i));
+        }
+    }
+
+    fn camera(&self, agent: usize) -> CameraPose {
+        let b = &self.world.bodies[self.bodies[agent]];
+        CameraPose { position: b.translation(), rotation: *b.rotation() }
+    }
+
+    fn body_velocity(&self, agent: usize) -> [f32; 3] {
+        let b = &self.world.bodies[self.bodies[agent]];
+        (b.rotation().inverse() * b.linvel()).to_array()
     }
 
     /// Draws future spawns from a generator seeded with `seed` (Gymnasium's

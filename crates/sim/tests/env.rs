@@ -290,3 +290,52 @@ fn without_autoreset_an_ended_agent_keeps_its_last_frames_until_it_is_reset() {
     }
     assert_eq!(a.observations(), b.observations());
 }
+
+#[test]
+fn resetting_ended_agents_by_hand_matches_autoreset_step_for_step() {
+    // What Gymnasium's SAME_STEP mode does (step without autoreset, keep the
+    // final observations, reset the ended agents) gives the same episodes and
+    // observations as the training path's autoreset, for the same seed.
+    let arena = Arena::load(&arena_file("train.toml")).unwrap();
+    let make = || VecEnv::new(SimConfig { max_steps: 30, ..cfg(6) }, arena.clone(), 11);
+    let (mut auto, mut by_hand) = (make(), make());
+    by_hand.set_autoreset(false);
+    let n = auto.obs_len();
+    let mut ended = 0;
+    for t in 0..80u32 {
+        let actions: Vec<u8> = (0..6u32).map(|i| ((t * 7 + i * 3) % 5 < 2) as u8).collect();
+        auto.step(&actions);
+        by_hand.step(&actions);
+        assert_eq!(auto.rewards(), by_hand.rewards(), "step {t}");
+        assert_eq!(auto.dones(), by_hand.dones(), "step {t}");
+        let mask: Vec<bool> = by_hand.dones().iter().map(|d| *d != Done::Running).collect();
+        // Before the reset, an ended agent's observation is its last view.
+        for (i, m) in mask.iter().enumerate() {
+            if *m {
+                assert_ne!(&by_hand.observations()[i * n..(i + 1) * n], &auto.observations()[i * n..(i + 1) * n], "step {t} agent {i}");
+            }
+        }
+        ended += mask.iter().filter(|m| **m).count();
+        by_hand.reset_agents(&mask).unwrap();
+        assert_eq!(auto.observations(), by_hand.observations(), "step {t}");
+    }
+    assert!(ended >= 6, "the test needs ended episodes, saw {ended}");
+}
+
+#[test]
+fn split_observations_are_the_flat_rows_cut_in_two() {
+    let arena = Arena::load(&arena_file("train.toml")).unwrap();
+    let mut env = VecEnv::new(cfg(3), arena, 5);
+    env.step(&[0, 1, 1]);
+    env.step(&[1, 1, 0]);
+    let (n, px) = (env.obs_len(), 32 * 32);
+    let mut depth = vec![0.0; 3 * 2 * px];
+    let mut vel = vec![0.0; 3 * 3];
+    env.write_observations_split(&mut depth, &mut vel);
+    for i in 0..3 {
+        let row = &env.observations()[i * n..(i + 1) * n];
+        assert_eq!(&depth[i * 2 * px..(i + 1) * 2 * px], &row[..2 * px]);
+        assert_eq!(&vel[i * 3..(i + 1) * 3], &row[2 * px..]);
+    }
+    assert!(vel.iter().any(|v| *v != 0.0));
+}
