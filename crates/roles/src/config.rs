@@ -407,13 +407,20 @@ impl Config {
     /// The arenas environment `env` trains in: `sim.arena` and
     /// `sim.generated_lanes` generated ones (seeds that no shipped arena uses).
     pub fn lane_arenas(&self, env: usize) -> Result<Vec<Arena>> {
-        let mut v = vec![self.arena()?];
-        let p = self.gen_params()?;
+        Ok(self.lanes_around(self.arena()?, env))
+    }
+
+    /// `base` and the `sim.generated_lanes` generated arenas of environment
+    /// `env` beside it, of `base`'s size (what [`Config::lane_arenas`] gives
+    /// for an arena that is not a file, as the Python package's).
+    pub fn lanes_around(&self, base: Arena, env: usize) -> Vec<Arena> {
+        let p = GenParams { length: base.length, width: base.width, height: base.height, ..GenParams::default() };
+        let mut v = vec![base];
         for k in 0..self.sim.generated_lanes {
             let seed = 1_000_000 + self.seed.wrapping_mul(100_000) + (env as u64) * 1000 + k as u64;
             v.push(Arena::generate(&format!("lane-{k}"), seed, &p));
         }
-        Ok(v)
+        v
     }
 
     /// The arenas of greedy evaluations during training: `eval.arena`, or by

@@ -1,0 +1,47 @@
+"""rotorhive from Python: many simulated quadrotors flying through obstacle
+fields from depth images, as Gymnasium environments.
+
+    import gymnasium as gym
+    import rotorhive  # registers the environments
+
+    envs = gym.make_vec("rotorhive/Navigate-v0", num_envs=50)
+    obs, infos = envs.reset(seed=1)
+    obs, rewards, terminations, truncations, infos = envs.step(envs.action_space.sample())
+
+``rotorhive/Navigate-v0`` is a native vector environment (N drones of one
+simulator, stepped in Rust with the GIL released); ``rotorhive/NavigateSingle-v0``
+is one drone. `rotorhive.net` loads `hive train` checkpoints (numpy, PyTorch),
+`rotorhive.sb3` adapts the vector environment to Stable-Baselines3 and
+`python -m rotorhive.bench` measures agent-steps per second.
+"""
+
+import gymnasium as _gym
+
+from . import _rotorhive
+from ._rotorhive import OBS_LEN, QNetwork
+from .envs import COLLISION, DONE_NAMES, GOAL, RUNNING, TIMEOUT, NavigateEnv, NavigateVectorEnv, sim_keys
+
+__version__ = _rotorhive.__version__
+
+__all__ = [
+    "COLLISION",
+    "DONE_NAMES",
+    "GOAL",
+    "OBS_LEN",
+    "RUNNING",
+    "TIMEOUT",
+    "NavigateEnv",
+    "NavigateVectorEnv",
+    "QNetwork",
+    "sim_keys",
+]
+
+if "rotorhive/Navigate-v0" not in _gym.registry:
+    _gym.register(
+        id="rotorhive/Navigate-v0",
+        entry_point="rotorhive.envs:NavigateEnv",
+        vector_entry_point="rotorhive.envs:NavigateVectorEnv",
+        max_episode_steps=None,
+    )
+if "rotorhive/NavigateSingle-v0" not in _gym.registry:
+    _gym.register(id="rotorhive/NavigateSingle-v0", entry_point="rotorhive.envs:NavigateEnv")

@@ -1,0 +1,344 @@
+//! `rotorhive._rotorhive`: the native half of the Python package.
+//!
+//! [`Sim`] owns one [`VecEnv`], built from the same config, arenas, lanes
+//! and seeds as `hive train`'s first simulator, and steps it with the GIL
+//! released, writing observations, rewards and done codes straight into
+//! numpy arrays that the Python environment owns (no copy in between).
+//! [`QNetwork`] is the learner's network (`rotorhive_model::QNet`): it loads
+//! and saves `.safetensors` checkpoints and computes Q-values, so Python can
+//! check a conversion of the weights against it. The Gymnasium classes, the
+//! autoreset modes and the argument checks live in `python/rotorhive`.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use numpy::ndarray::{Array2, Array3};
+use numpy::{IntoPyArray, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyReadwriteArray1, PyReadwriteArray2, PyReadwriteArray4, PyUntypedArrayMethods};
+use pyo3::exceptions::{PyRuntimeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64Mcg;
+use rotorhive_model::{Device, OBS_LEN, PARAMS, QNet};
+use rotorhive_roles::Config;
+use rotorhive_roles::config::SimSection;
+use rotorhive_sim::{Arena, GenParams, VecEnv};
+
+/// The shipped training arena: the default of `arena`, as in `hive train`.
+const TRAIN_ARENA: &str = include_str!("../../../configs/arenas/train.toml");
+
+fn value_error(e: impl std::fmt::Display) -> PyErr {
+    PyValueError::new_err(e.to_string())
+}
+
+/// The arena an environment flies in: a file, a generated one, or the
+/// shipped training arena.
+fn base_arena(arena: Option<&str>, arena_seed: Option<u64>) -> PyResult<Arena> {
+    match (arena, arena_seed) {
+        (Some(_), Some(_)) => Err(value_error("give `arena` (a file) or `arena_seed` (a generated arena), not both")),
+        (Some(p), None) => Arena::load(Path::new(p)).map_err(value_error),
+        (None, Some(s)) => Ok(Arena::generate(&format!("generated-{s}"), s, &GenParams::default())),
+        (None, None) => Ok(Arena::parse(TRAIN_ARENA, "configs/arenas/train.toml").expect("the shipped arena is valid")),
+    }
+}
+
+/// Builds the environment as `hive sim --env 0` does for the config that
+/// the built-in defaults and `overrides` (`sim.key=value`) give.
+fn build_env(agents: usize, seed: u64, arena: Option<&str>, arena_seed: Option<u64>, overrides: &[String]) -> PyResult<(VecEnv, usize)> {
+    if agents == 0 {
+        return Err(value_error("`num_envs` must be at least 1"));
+    }
+    let mut ov = overrides.to_vec();
+    ov.push(format!("sim.agents={agents}"));
+    ov.push(format!("seed={seed}"));
+    let cfg = Config::load(None, &ov).map_err(|e| value_error(format!("{e:#}").replace("config defaults (configs/default.toml): ", "")))?;
+    let arenas = cfg.lanes_around(base_arena(arena, arena_seed)?, 0);
+    let lanes = arenas.len();
+    let env = VecEnv::try_new_lanes(cfg.sim_config(), &arenas, cfg.seed.wrapping_mul(1000)).map_err(|e| PyRuntimeError::new_err(format!("the simulator could not start: {e}")))?;
+    Ok((env, lanes))
+}
+
+fn check_len(what: &str, got: usize, want: usize) -> PyResult<()> {
+    if got != want {
+        return Err(value_error(format!("{what}: expected {want} elements, got {got}")));
+    }
+    Ok(())
+}
+
+fn check_actions(actions: &[u8], agents: usize) -> PyResult<()> {
+    check_len("actions", actions.len(), agents)?;
+    if let Some(i) = actions.iter().position(|a| *a > 1) {
+        return Err(value_error(format!("actions[{i}] = {} is out of range: the action space is Discrete(2)", actions[i])));
+    }
+    Ok(())
+}
+
+/// N drones of one simulator.
+#[pyclass(module = "rotorhive._rotorhive", unsendable)]
+struct Sim {
+    env: VecEnv,
+    lanes: usize,
+}
+
+#[pymethods]
+impl Sim {
+    /// `overrides` are `sim.key=value` strings, as `hive train --set`.
+    #[new]
+    #[pyo3(signature = (agents, seed=0, arena=None, arena_seed=None, overrides=Vec::new()))]
+    fn new(agents: usize, seed: u64, arena: Option<String>, arena_seed: Option<u64>, overrides: Vec<String>) -> PyResult<Self> {
+        let (mut env, lanes) = build_env(agents, seed, arena.as_deref(), arena_seed, &overrides)?;
+        env.drop_observation_buffer();
+        env.set_autoreset(false);
+        Ok(Self { env, lanes })
+    }
+
+    #[getter]
+    fn agents(&self) -> usize {
+        self.env.agents()
+    }
+
+    #[getter]
+    fn side(&self) -> usize {
+        self.env.config().camera.side
+    }
+
+    #[getter]
+    fn max_steps(&self) -> u32 {
+        self.env.config().max_steps
+    }
+
+    #[getter]
+    fn lanes(&self) -> usize {
+        self.lanes
+    }
+
+    #[getter]
+    fn arena_name(&self) -> String {
+        self.env.arena().name.clone()
+    }
+
+    /// Environment steps taken so far.
+    #[getter]
+    fn total_steps(&self) -> u64 {
+        self.env.total_steps()
+    }
+
+    /// Draws future spawns from a generator seeded with `seed`.
+    fn reseed(&mut self, seed: u64) {
+        self.env.reseed(seed);
+    }
+
+    /// Steps every agent (no autoreset: an ended agent keeps its last
+    /// frames) and writes the observations, rewards, done codes and, for
+    /// the agents whose episode ended, its return and length.
+    #[allow(clippy::too_many_arguments)]
+    fn step(
+        &mut self,
+        py: Python<'_>,
+        actions: PyReadonlyArray1<'_, u8>,
+        mut depth: PyReadwriteArray4<'_, f32>,
+        mut velocity: PyReadwriteArray2<'_, f32>,
+        mut rewards: PyReadwriteArray1<'_, f32>,
+        mut dones: PyReadwriteArray1<'_, u8>,
+        mut ep_return: PyReadwriteArray1<'_, f32>,
+        mut ep_length: PyReadwriteArray1<'_, i32>,
+    ) -> PyResult<()> {
+        let n = self.env.agents();
+        let a = actions.as_slice()?;
+        check_actions(a, n)?;
+        let (d, v) = (depth.as_slice_mut()?, velocity.as_slice_mut()?);
+        let (r, k) = (rewards.as_slice_mut()?, dones.as_slice_mut()?);
+        let (er, el) = (ep_return.as_slice_mut()?, ep_length.as_slice_mut()?);
+        for (what, len) in [("rewards", r.len()), ("dones", k.len()), ("ep_return", er.len()), ("ep_length", el.len())] {
+            check_len(what, len, n)?;
+        }
+        let env = &mut self.env;
+        py.detach(|| -> PyResult<()> {
+            env.try_step(a).map_err(|e| PyRuntimeError::new_err(format!("rendering failed: {e}")))?;
+            write_obs(env, d, v)?;
+            r.copy_from_slice(env.rewards());
+            for (k, done) in k.iter_mut().zip(env.dones()) {
+                *k = *done as u8;
+            }
+            for e in env.finished() {
+                er[e.agent] = e.reward;
+                el[e.agent] = e.steps as i32;
+            }
+            Ok(())
+        })
+    }
+
+    /// Starts new episodes for the agents in `mask` (all of them without a
+    /// mask) and writes every agent's observation.
+    #[pyo3(signature = (depth, velocity, mask=None))]
+    fn reset(&mut self, py: Python<'_>, mut depth: PyReadwriteArray4<'_, f32>, mut velocity: PyReadwriteArray2<'_, f32>, mask: Option<PyReadonlyArray1<'_, bool>>) -> PyResult<()> {
+        let n = self.env.agents();
+        let mask: Vec<bool> = match &mask {
+            Some(m) => m.as_slice()?.to_vec(),
+            None => vec![true; n],
+        };
+        check_len("reset_mask", mask.len(), n)?;
+        let (d, v) = (depth.as_slice_mut()?, velocity.as_slice_mut()?);
+        let env = &mut self.env;
+        py.detach(|| -> PyResult<()> {
+            env.reset_agents(&mask).map_err(|e| PyRuntimeError::new_err(format!("rendering failed: {e}")))?;
+            write_obs(env, d, v)
+        })
+    }
+
+    /// Writes every agent's current observation.
+    fn observe(&self, mut depth: PyReadwriteArray4<'_, f32>, mut velocity: PyReadwriteArray2<'_, f32>) -> PyResult<()> {
+        write_obs(&self.env, depth.as_slice_mut()?, velocity.as_slice_mut()?)
+    }
+}
+
+fn write_obs(env: &VecEnv, depth: &mut [f32], velocity: &mut [f32]) -> PyResult<()> {
+    let n = env.agents();
+    let px = env.config().camera.side.pow(2);
+    check_len("depth", depth.len(), n * 2 * px)?;
+    check_len("velocity", velocity.len(), n * 3)?;
+    env.write_observations_split(depth, velocity);
+    Ok(())
+}
+
+/// Agent-steps per second of the Rust `VecEnv` alone, stepped with random
+/// actions for `seconds`, its observations written once per step as the sim
+/// role does: the baseline of `rotorhive.bench`.
+#[pyfunction]
+#[pyo3(signature = (agents, seconds, seed=0, overrides=Vec::new()))]
+fn rust_agent_steps_per_second(py: Python<'_>, agents: usize, seconds: f64, seed: u64, overrides: Vec<String>) -> PyResult<f64> {
+    let (mut env, _) = build_env(agents, seed, None, None, &overrides)?;
+    env.drop_observation_buffer();
+    py.detach(|| {
+        let mut rng = Pcg64Mcg::seed_from_u64(seed);
+        let mut obs = vec![0.0f32; agents * env.obs_len()];
+        let mut actions = vec![0u8; agents];
+        let t0 = Instant::now();
+        let mut steps = 0u64;
+        while steps == 0 || t0.elapsed().as_secs_f64() < seconds {
+            for a in actions.iter_mut() {
+                *a = rng.random_range(0..2);
+            }
+            env.try_step(&actions).map_err(|e| PyRuntimeError::new_err(format!("rendering failed: {e}")))?;
+            env.write_observations(0, &mut obs);
+            steps += 1;
+        }
+        Ok((steps * agents as u64) as f64 / t0.elapsed().as_secs_f64())
+    })
+}
+
+/// The Rust `VecEnv` as `hive train` runs it (reset in the step), flown
+/// with `actions` (`T × agents`): the observations (`T+1 × agents × obs`,
+/// the first from the start), rewards and done codes (`T × agents`). The
+/// tests compare the Python environment with it step for step.
+#[pyfunction]
+#[pyo3(signature = (actions, seed=0, arena=None, arena_seed=None, overrides=Vec::new()))]
+#[allow(clippy::type_complexity)]
+fn reference_rollout<'py>(
+    py: Python<'py>,
+    actions: PyReadonlyArray2<'py, u8>,
+    seed: u64,
+    arena: Option<String>,
+    arena_seed: Option<u64>,
+    overrides: Vec<String>,
+) -> PyResult<(Bound<'py, PyArray3<f32>>, Bound<'py, PyArray2<f32>>, Bound<'py, PyArray2<u8>>)> {
+    let (t, n) = (actions.shape()[0], actions.shape()[1]);
+    let acts = actions.as_array();
+    let (mut env, _) = build_env(n, seed, arena.as_deref(), arena_seed, &overrides)?;
+    let len = env.obs_len();
+    let mut obs = Array3::<f32>::zeros((t + 1, n, len));
+    let mut rewards = Array2::<f32>::zeros((t, n));
+    let mut dones = Array2::<u8>::zeros((t, n));
+    obs.as_slice_mut().expect("contiguous")[..n * len].copy_from_slice(env.observations());
+    for s in 0..t {
+        let a: Vec<u8> = acts.row(s).to_vec();
+        check_actions(&a, n)?;
+        env.try_step(&a).map_err(|e| PyRuntimeError::new_err(format!("rendering failed: {e}")))?;
+        obs.as_slice_mut().expect("contiguous")[(s + 1) * n * len..(s + 2) * n * len].copy_from_slice(env.observations());
+        rewards.row_mut(s).as_slice_mut().expect("contiguous").copy_from_slice(env.rewards());
+        for (k, d) in dones.row_mut(s).iter_mut().zip(env.dones()) {
+            *k = *d as u8;
+        }
+    }
+    Ok((obs.into_pyarray(py), rewards.into_pyarray(py), dones.into_pyarray(py)))
+}
+
+/// The keys of the config's `[sim]` section, which the environments take as
+/// keyword arguments.
+#[pyfunction]
+fn sim_keys() -> Vec<String> {
+    match toml::Value::try_from(SimSection::default()) {
+        Ok(toml::Value::Table(t)) => t.keys().cloned().collect(),
+        _ => Vec::new(),
+    }
+}
+
+/// The learner's Q-network (`hive eval`'s network), on the CPU.
+#[pyclass(module = "rotorhive._rotorhive", name = "QNetwork", unsendable)]
+struct QNetwork {
+    net: QNet,
+}
+
+fn model_error(e: rotorhive_model::ModelError) -> PyErr {
+    value_error(e)
+}
+
+#[pymethods]
+impl QNetwork {
+    /// A freshly initialised network, deterministic for a seed.
+    #[new]
+    #[pyo3(signature = (seed=0))]
+    fn new(seed: u64) -> PyResult<Self> {
+        Ok(Self { net: QNet::new(seed, &Device::Cpu).map_err(model_error)? })
+    }
+
+    /// Loads a checkpoint written by `hive train` (`checkpoints/*.safetensors`).
+    #[staticmethod]
+    fn load(path: PathBuf) -> PyResult<Self> {
+        let net = QNet::new(0, &Device::Cpu).map_err(model_error)?;
+        net.load(&path).map_err(model_error)?;
+        Ok(Self { net })
+    }
+
+    /// Saves the weights as a rotorhive checkpoint.
+    fn save(&self, path: PathBuf) -> PyResult<()> {
+        self.net.save(&path).map_err(model_error)
+    }
+
+    /// Q-values `(B, 2)` of flat observations `(B, 2051)`: the previous and
+    /// the current depth frame, row-major, then the body-frame velocity.
+    fn q_values<'py>(&self, py: Python<'py>, obs: PyReadonlyArray2<'py, f32>) -> PyResult<Bound<'py, PyArray2<f32>>> {
+        let b = obs.shape()[0];
+        if obs.shape()[1] != OBS_LEN || b == 0 {
+            return Err(value_error(format!("observations must have shape (B, {OBS_LEN}) with B >= 1, got {:?}", obs.shape())));
+        }
+        let flat: Vec<f32> = obs.as_array().iter().copied().collect();
+        let q = self.net.q_values(&flat).map_err(model_error)?;
+        Ok(Array2::from_shape_vec((b, 2), q).expect("two Q-values per observation").into_pyarray(py))
+    }
+
+    /// The weights in rotorhive's layout, by name (see `rotorhive.net` for
+    /// PyTorch's).
+    fn weights<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let d = PyDict::new(py);
+        let named = self.net.named();
+        for (name, shape) in PARAMS {
+            let data: Vec<f32> = named[name].flatten_all().and_then(|t| t.to_vec1()).map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+            let a = numpy::ndarray::ArrayD::from_shape_vec(shape.to_vec(), data).expect("the parameter's shape");
+            d.set_item(name, a.into_pyarray(py))?;
+        }
+        Ok(d)
+    }
+}
+
+#[pymodule]
+fn _rotorhive(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<Sim>()?;
+    m.add_class::<QNetwork>()?;
+    m.add_function(wrap_pyfunction!(rust_agent_steps_per_second, m)?)?;
+    m.add_function(wrap_pyfunction!(reference_rollout, m)?)?;
+    m.add_function(wrap_pyfunction!(sim_keys, m)?)?;
+    m.add("OBS_LEN", OBS_LEN)?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    Ok(())
+}
