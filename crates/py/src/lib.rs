@@ -13,7 +13,9 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use numpy::ndarray::{Array2, Array3};
-use numpy::{IntoPyArray, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyReadwriteArray1, PyReadwriteArray2, PyReadwriteArray4, PyUntypedArrayMethods};
+use numpy::{
+    IntoPyArray, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyReadwriteArray1, PyReadwriteArray2, PyReadwriteArray4, PyUntypedArrayMethods,
+};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -22,7 +24,7 @@ use rand_pcg::Pcg64Mcg;
 use rotorhive_model::{Device, OBS_LEN, PARAMS, QNet};
 use rotorhive_roles::Config;
 use rotorhive_roles::config::SimSection;
-use rotorhive_sim::{Arena, GenParams, VecEnv};
+use rotorhive_sim::{Arena, Autoreset, GenParams, VecEnv};
 
 /// The shipped training arena: the default of `arena`, as in `hive train`.
 const TRAIN_ARENA: &str = include_str!("../../../configs/arenas/train.toml");
@@ -54,7 +56,8 @@ fn build_env(agents: usize, seed: u64, arena: Option<&str>, arena_seed: Option<u
     let cfg = Config::load(None, &ov).map_err(|e| value_error(format!("{e:#}").replace("config defaults (configs/default.toml): ", "")))?;
     let arenas = cfg.lanes_around(base_arena(arena, arena_seed)?, 0);
     let lanes = arenas.len();
-    let env = VecEnv::try_new_lanes(cfg.sim_config(), &arenas, cfg.seed.wrapping_mul(1000)).map_err(|e| PyRuntimeError::new_err(format!("the simulator could not start: {e}")))?;
+    let env = VecEnv::try_new_lanes(cfg.sim_config(), &arenas, cfg.seed.wrapping_mul(1000))
+        .map_err(|e| PyRuntimeError::new_err(format!("the simulator could not start: {e}")))?;
     Ok((env, lanes))
 }
 
@@ -88,7 +91,7 @@ impl Sim {
     fn new(agents: usize, seed: u64, arena: Option<String>, arena_seed: Option<u64>, overrides: Vec<String>) -> PyResult<Self> {
         let (mut env, lanes) = build_env(agents, seed, arena.as_deref(), arena_seed, &overrides)?;
         env.drop_observation_buffer();
-        env.set_autoreset(false);
+        env.set_autoreset(Autoreset::Disabled);
         Ok(Self { env, lanes })
     }
 
@@ -123,13 +126,27 @@ impl Sim {
         self.env.total_steps()
     }
 
+    /// When an ended agent starts its next episode: `"next"` (in the next
+    /// step, its action ignored), `"same"` (in the same step) or
+    /// `"disabled"` (the default here: only through `reset`).
+    fn set_autoreset(&mut self, mode: &str) -> PyResult<()> {
+        let m = match mode {
+            "next" => Autoreset::NextStep,
+            "same" => Autoreset::SameStep,
+            "disabled" => Autoreset::Disabled,
+            other => return Err(value_error(format!("autoreset {other:?} is not \"next\", \"same\" or \"disabled\""))),
+        };
+        self.env.set_autoreset(m);
+        Ok(())
+    }
+
     /// Draws future spawns from a generator seeded with `seed`.
     fn reseed(&mut self, seed: u64) {
         self.env.reseed(seed);
     }
 
-    /// Steps every agent (no autoreset: an ended agent keeps its last
-    /// frames) and writes the observations, rewards, done codes and, for
+    /// Steps every agent (by default without autoreset: an ended agent
+    /// keeps its last frames) and writes the observations, rewards, done codes and, for
     /// the agents whose episode ended, its return and length.
     #[allow(clippy::too_many_arguments)]
     fn step(
@@ -171,7 +188,13 @@ impl Sim {
     /// Starts new episodes for the agents in `mask` (all of them without a
     /// mask) and writes every agent's observation.
     #[pyo3(signature = (depth, velocity, mask=None))]
-    fn reset(&mut self, py: Python<'_>, mut depth: PyReadwriteArray4<'_, f32>, mut velocity: PyReadwriteArray2<'_, f32>, mask: Option<PyReadonlyArray1<'_, bool>>) -> PyResult<()> {
+    fn reset(
+        &mut self,
+        py: Python<'_>,
+        mut depth: PyReadwriteArray4<'_, f32>,
+        mut velocity: PyReadwriteArray2<'_, f32>,
+        mask: Option<PyReadonlyArray1<'_, bool>>,
+    ) -> PyResult<()> {
         let n = self.env.agents();
         let mask: Vec<bool> = match &mask {
             Some(m) => m.as_slice()?.to_vec(),

@@ -30,6 +30,23 @@ pub enum Done {
     Timeout = 3,
 }
 
+/// When an agent whose episode ended starts its next one (Gymnasium's
+/// autoreset modes).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Autoreset {
+    /// In the same step: the step's observation is the new episode's first
+    /// (training's mode; the ended episode's last view is never drawn).
+    #[default]
+    SameStep,
+    /// In the next step, which ignores the agent's action and gives reward 0
+    /// and `Done::Running`: the ending step's observation is the episode's
+    /// last view.
+    NextStep,
+    /// Only through [`VecEnv::reset_agents`]; until then the agent keeps its
+    /// last frames.
+    Disabled,
+}
+
 /// Which renderer draws the depth images.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum RendererKind {
@@ -177,8 +194,10 @@ pub struct VecEnv {
     finished: Vec<Episode>,
     timing: StepTiming,
     total_steps: u64,
-    /// Whether an agent whose episode ends starts its next one in the same step.
-    autoreset: bool,
+    /// When an agent whose episode ends starts its next one.
+    autoreset: Autoreset,
+    /// Agents that started a new episode in the last step (`NextStep`).
+    restarted: Vec<bool>,
 }
 
 impl VecEnv {
@@ -286,7 +305,8 @@ impl VecEnv {
             finished: Vec::new(),
             timing: StepTiming::default(),
             total_steps: 0,
-            autoreset: true,
+            autoreset: Autoreset::SameStep,
+            restarted: vec![false; n],
             cfg,
         };
         for i in 0..n {
@@ -434,7 +454,16 @@ impl VecEnv {
         let t1 = Instant::now();
 
         self.finished.clear();
+        self.restarted.fill(false);
         for i in 0..self.cfg.agents {
+            if self.autoreset == Autoreset::NextStep && self.dones[i] != Done::Running {
+                // Ended in the last step: starts again now, its action ignored.
+                self.reset_agent(i);
+                self.rewards[i] = 0.0;
+                self.dones[i] = Done::Running;
+                self.restarted[i] = true;
+                continue;
+            }
             self.steps[i] += 1;
             let x = self.world.bodies[self.bodies[i]].translation().x;
             let (reward, done) = if self.collided[i] {
@@ -451,8 +480,9 @@ impl VecEnv {
             self.dones[i] = done;
             if done != Done::Running {
                 self.finished.push(Episode { agent: i, reward: self.returns[i], steps: self.steps[i], done });
-                if self.autoreset {
+                if self.autoreset == Autoreset::SameStep {
                     self.reset_agent(i);
+                    self.restarted[i] = true;
                 }
             }
         }
@@ -463,7 +493,7 @@ impl VecEnv {
         // A reset agent starts with both frames equal to its first view.
         let px = self.cfg.camera.side * self.cfg.camera.side;
         for i in 0..self.cfg.agents {
-            if self.autoreset && self.dones[i] != Done::Running {
+            if self.restarted[i] {
                 self.prev[i * px..(i + 1) * px].copy_from_slice(&self.cur[i * px..(i + 1) * px]);
             }
         }
@@ -562,12 +592,10 @@ impl VecEnv {
         }
     }
 
-    /// Whether an agent whose episode ends starts its next episode in the
-    /// same step (the default, as training wants), or stays where it ended
-    /// with its last frames rendered (its observation is the episode's final
-    /// one) until [`reset_agents`](Self::reset_agents) starts it again.
-    pub fn set_autoreset(&mut self, on: bool) {
-        self.autoreset = on;
+    /// When an agent whose episode ends starts its next one (training uses
+    /// the default, [`Autoreset::SameStep`]).
+    pub fn set_autoreset(&mut self, mode: Autoreset) {
+        self.autoreset = mode;
     }
 
     /// Starts a new episode for every agent whose `mask` entry is true:

@@ -11,6 +11,6 @@ mod pool;
 pub mod render;
 
 pub use arena::{Arena, ArenaError, GenParams, Lanes, Obstacle, Spawn};
-pub use env::{Done, Episode, LanesError, RendererKind, SimConfig, StepTiming, VecEnv};
+pub use env::{Autoreset, Done, Episode, LanesError, RendererKind, SimConfig, StepTiming, VecEnv};
 pub use gpu::{GpuDepthRenderer, GpuError};
 pub use render::{CameraPose, CameraSpec, DepthRenderer, Scene};

@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use rotorhive_sim::{Arena, Done, Obstacle, SimConfig, Spawn, VecEnv};
+use rotorhive_sim::{Arena, Autoreset, Done, Obstacle, SimConfig, Spawn, VecEnv};
 
 fn open_arena(length: f32, obstacles: Vec<Obstacle>) -> Arena {
     Arena { name: "open".into(), length, width: 20.0, height: 8.0, spawn: Spawn { x: 2.0, y: [0.0, 0.0], z: 3.0 }, obstacles }
@@ -257,7 +257,7 @@ fn lanes_put_arenas_side_by_side_and_keep_them_apart() {
 fn without_autoreset_an_ended_agent_keeps_its_last_frames_until_it_is_reset() {
     let arena = open_arena(100.0, vec![Obstacle::Box { center: [30.0, 0.0, 4.0], half_extents: [0.5, 10.0, 4.0] }]);
     let mut env = VecEnv::new(SimConfig { max_steps: 3, ..cfg(2) }, arena, 7);
-    env.set_autoreset(false);
+    env.set_autoreset(Autoreset::Disabled);
     let start = env.observations().to_vec();
     let spawn_x = env.positions()[0][0];
     for _ in 0..3 {
@@ -299,7 +299,7 @@ fn resetting_ended_agents_by_hand_matches_autoreset_step_for_step() {
     let arena = Arena::load(&arena_file("train.toml")).unwrap();
     let make = || VecEnv::new(SimConfig { max_steps: 30, ..cfg(6) }, arena.clone(), 11);
     let (mut auto, mut by_hand) = (make(), make());
-    by_hand.set_autoreset(false);
+    by_hand.set_autoreset(Autoreset::Disabled);
     let n = auto.obs_len();
     let mut ended = 0;
     for t in 0..80u32 {
@@ -338,4 +338,36 @@ fn split_observations_are_the_flat_rows_cut_in_two() {
         assert_eq!(&vel[i * 3..(i + 1) * 3], &row[2 * px..]);
     }
     assert!(vel.iter().any(|v| *v != 0.0));
+}
+
+#[test]
+fn next_step_autoreset_starts_the_next_episode_one_step_later() {
+    let arena = open_arena(100.0, vec![]);
+    let mut env = VecEnv::new(SimConfig { max_steps: 3, ..cfg(2) }, arena, 3);
+    env.set_autoreset(Autoreset::NextStep);
+    let n = env.obs_len();
+    let px = 32 * 32;
+    for _ in 0..3 {
+        env.step(&[1, 0]);
+    }
+    assert_eq!(env.dones(), &[Done::Timeout, Done::Timeout]);
+    // The ending step shows the episode's last view, not a fresh spawn's.
+    let obs = env.observations();
+    assert_ne!(&obs[..px], &obs[px..2 * px]);
+    env.step(&[1, 1]);
+    assert_eq!(env.dones(), &[Done::Running, Done::Running]);
+    assert_eq!(env.rewards(), &[0.0, 0.0]);
+    assert!(env.finished().is_empty());
+    let obs = env.observations();
+    for i in 0..2 {
+        let o = &obs[i * n..(i + 1) * n];
+        assert_eq!(&o[..px], &o[px..2 * px], "agent {i} starts with both frames its first view");
+        assert!((o[2 * px] - 1.0).abs() < 1e-6, "at the forward speed");
+    }
+    // And its next episode counts from there: three more steps end it.
+    env.step(&[1, 0]);
+    env.step(&[1, 0]);
+    assert_eq!(env.dones(), &[Done::Running, Done::Running]);
+    env.step(&[1, 0]);
+    assert_eq!(env.dones(), &[Done::Timeout, Done::Timeout]);
 }

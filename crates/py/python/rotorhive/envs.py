@@ -140,6 +140,10 @@ class NavigateVectorEnv(VectorEnv):
             names = ", ".join(m.name for m in AutoresetMode)
             raise ValueError(f"autoreset_mode {autoreset_mode!r} is not one of {names}") from None
         self._sim = _rotorhive.Sim(n, seed, _arena(arena), arena_seed, _overrides("rotorhive/Navigate-v0", sim))
+        if self.autoreset_mode == AutoresetMode.NEXT_STEP:
+            # The simulator itself restarts an ended agent in the next step,
+            # without drawing it twice.
+            self._sim.set_autoreset("next")
         self.metadata = {**type(self).metadata, "autoreset_mode": self.autoreset_mode}
         self.num_envs = n
         self.copy = bool(copy)
@@ -241,16 +245,6 @@ class NavigateVectorEnv(VectorEnv):
         terminated = (b.dones == COLLISION) | (b.dones == GOAL)
         truncated = b.dones == TIMEOUT
         rewards = b.rewards.astype(np.float64)
-        if mode == AutoresetMode.NEXT_STEP:
-            # The agents that ended in the previous step ignore this step's
-            # action and start their next episode instead (reward 0).
-            pending = self._ended.copy()
-            if pending.any():
-                self._sim.reset(b.depth, b.velocity, pending)
-                rewards[pending] = 0.0
-                terminated[pending] = False
-                truncated[pending] = False
-                b.dones[pending] = RUNNING
         ended = terminated | truncated
         infos: dict[str, Any] = self._episode_infos(ended) if ended.any() else {}
         if mode == AutoresetMode.SAME_STEP and ended.any():
@@ -262,7 +256,7 @@ class NavigateVectorEnv(VectorEnv):
             infos["final_info"] = self._episode_infos(ended)
             infos["_final_info"] = ended.copy()
             self._sim.reset(b.depth, b.velocity, np.ascontiguousarray(ended))
-        else:
+        elif mode == AutoresetMode.DISABLED:
             self._ended = ended
         return self._obs(), rewards, terminated, truncated, infos
 
