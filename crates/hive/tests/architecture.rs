@@ -70,6 +70,13 @@ fn domain_crates_stay_pure_and_the_transport_knows_no_domain() {
     assert!(bad.is_empty(), "rotorhive-link depends on {bad:?}");
     let zenoh = deps.iter().find(|(n, _)| n == "rotorhive-link").and_then(|(_, d)| d.iter().find(|(n, _)| n == "zenoh")).expect("the link imports zenoh");
     assert_eq!(zenoh.1, vec!["transport_tcp".to_string()], "zenoh with its TCP transport only");
+    // Python stays in the Python package's crate.
+    for (krate, d) in &deps {
+        if krate != "rotorhive-py" {
+            let py: Vec<&String> = d.iter().map(|(n, _)| n).filter(|n| *n == "pyo3" || *n == "numpy").collect();
+            assert!(py.is_empty(), "{krate} imports {py:?}: only rotorhive-py may");
+        }
+    }
     // Only the binary parses command lines: the roles take a context.
     let bad = uses("rotorhive-roles", &["clap"]);
     assert!(bad.is_empty(), "rotorhive-roles depends on {bad:?}");
