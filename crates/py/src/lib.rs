@@ -140,6 +140,13 @@ impl Sim {
         Ok(())
     }
 
+    /// Seconds spent in the last step's physics, rendering and resets.
+    #[getter]
+    fn timing(&self) -> (f64, f64, f64) {
+        let t = self.env.timing();
+        (t.physics_ns as f64 * 1e-9, t.render_ns as f64 * 1e-9, t.reset_ns as f64 * 1e-9)
+    }
+
     /// Draws future spawns from a generator seeded with `seed`.
     fn reseed(&mut self, seed: u64) {
         self.env.reseed(seed);

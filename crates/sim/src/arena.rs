@@ -149,6 +149,9 @@ pub struct Lanes {
     pub offsets: Vec<f32>,
     /// Each lane's spawn region, in its own coordinates.
     pub spawns: Vec<Spawn>,
+    /// Each lane's free space along y, between its walls' inner faces:
+    /// nothing beyond them can be seen from inside the lane.
+    pub bounds: Vec<[f32; 2]>,
 }
 
 /// Thickness of the walls between lanes (metres).
@@ -166,7 +169,8 @@ impl Lanes {
             message: "no arena given".into(),
         })?;
         if arenas.len() == 1 {
-            return Ok(Self { world: first.clone(), offsets: vec![0.0], spawns: vec![first.spawn.clone()] });
+            let hw = first.width / 2.0;
+            return Ok(Self { world: first.clone(), offsets: vec![0.0], spawns: vec![first.spawn.clone()], bounds: vec![[-hw, hw]] });
         }
         for a in arenas {
             if a.length != first.length || a.height != first.height {
@@ -182,9 +186,11 @@ impl Lanes {
         let total = pitch * arenas.len() as f32;
         let mut obstacles = Vec::new();
         let mut offsets = Vec::new();
+        let mut bounds = Vec::new();
         for (k, a) in arenas.iter().enumerate() {
             let off = -total / 2.0 + pitch * (k as f32 + 0.5);
             offsets.push(off);
+            bounds.push([off - a.width / 2.0, off + a.width / 2.0]);
             for o in &a.obstacles {
                 obstacles.push(match *o {
                     Obstacle::Box { center, half_extents } => Obstacle::Box { center: [center[0], center[1] + off, center[2]], half_extents },
@@ -204,7 +210,7 @@ impl Lanes {
         }
         let world =
             Arena { name: format!("{} lanes", arenas.len()), length: first.length, width: total, height: first.height, spawn: first.spawn.clone(), obstacles };
-        Ok(Self { world, offsets, spawns: arenas.iter().map(|a| a.spawn.clone()).collect() })
+        Ok(Self { world, offsets, spawns: arenas.iter().map(|a| a.spawn.clone()).collect(), bounds })
     }
 }
 

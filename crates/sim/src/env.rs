@@ -224,7 +224,7 @@ impl VecEnv {
     }
 
     fn with_lanes(cfg: SimConfig, lanes: Lanes, seed: u64) -> Result<Self, GpuError> {
-        let Lanes { world: arena, offsets: lane_offsets, spawns: lane_spawns } = lanes;
+        let Lanes { world: arena, offsets: lane_offsets, spawns: lane_spawns, bounds: lane_bounds } = lanes;
         assert!(cfg.agents > 0, "a VecEnv needs at least one agent");
         let mut world = PhysicsWorld::new();
         world.gravity = Vector::new(0.0, 0.0, -9.81);
@@ -276,7 +276,8 @@ impl VecEnv {
         let n = cfg.agents;
         let px = cfg.camera.side * cfg.camera.side;
         let obs_len = 2 * px + 3;
-        let scene = Scene::new(&arena);
+        let mut scene = Scene::new(&arena);
+        scene.set_lanes(&lane_bounds);
         let gpu = match cfg.renderer {
             RendererKind::Cpu => None,
             RendererKind::Wgpu => Some(GpuDepthRenderer::new(cfg.camera, &scene)?),
