@@ -231,29 +231,59 @@ fn write_obs(env: &VecEnv, depth: &mut [f32], velocity: &mut [f32]) -> PyResult<
     Ok(())
 }
 
-/// Agent-steps per second of the Rust `VecEnv` alone, stepped with random
-/// actions for `seconds`, its observations written once per step as the sim
-/// role does: the baseline of `rotorhive.bench`.
+/// Agent-steps per second of the Rust `VecEnv` alone for `seconds`: the
+/// baseline of `rotorhive.bench`. It flies the rows of `actions` in turn
+/// (`K × agents`; random when absent), restarts ended agents as `autoreset`
+/// says (`"next"`, the vector environment's default, or `"same"`) and
+/// writes each step's observations split as the Python environment does,
+/// from the same start (`reset(seed=1)`), so that the two fly the same
+/// episodes and differ only by the Python layer.
 #[pyfunction]
-#[pyo3(signature = (agents, seconds, seed=0, overrides=Vec::new()))]
-fn rust_agent_steps_per_second(py: Python<'_>, agents: usize, seconds: f64, seed: u64, overrides: Vec<String>) -> PyResult<f64> {
+#[pyo3(signature = (agents, seconds, seed=0, overrides=Vec::new(), actions=None, autoreset="next"))]
+fn rust_agent_steps_per_second(
+    py: Python<'_>,
+    agents: usize,
+    seconds: f64,
+    seed: u64,
+    overrides: Vec<String>,
+    actions: Option<PyReadonlyArray2<'_, u8>>,
+    autoreset: &str,
+) -> PyResult<f64> {
     let (mut env, _) = build_env(agents, seed, None, None, &overrides)?;
     env.drop_observation_buffer();
-    py.detach(|| {
-        let mut rng = Pcg64Mcg::seed_from_u64(seed);
-        let mut obs = vec![0.0f32; agents * env.obs_len()];
-        let mut actions = vec![0u8; agents];
-        let t0 = Instant::now();
-        let mut steps = 0u64;
-        while steps == 0 || t0.elapsed().as_secs_f64() < seconds {
-            for a in actions.iter_mut() {
-                *a = rng.random_range(0..2);
+    env.set_autoreset(match autoreset {
+        "next" => Autoreset::NextStep,
+        "same" => Autoreset::SameStep,
+        other => return Err(value_error(format!("autoreset {other:?} is not \"next\" or \"same\""))),
+    });
+    let rows: Vec<u8> = match &actions {
+        Some(a) => {
+            if a.shape()[1] != agents || a.shape()[0] == 0 {
+                return Err(value_error(format!("actions must have shape (K, {agents}), got {:?}", a.shape())));
             }
-            env.try_step(&actions).map_err(|e| PyRuntimeError::new_err(format!("rendering failed: {e}")))?;
-            env.write_observations(0, &mut obs);
+            a.as_array().iter().copied().collect()
+        }
+        None => {
+            let mut rng = Pcg64Mcg::seed_from_u64(seed);
+            (0..64 * agents).map(|_| rng.random_range(0..2)).collect()
+        }
+    };
+    check_actions(&rows[..agents], agents)?;
+    py.detach(|| {
+        // The start of the bench's Python environments: `reset(seed=1)`.
+        env.reseed(1);
+        env.reset_agents(&vec![true; agents]).map_err(|e| PyRuntimeError::new_err(format!("rendering failed: {e}")))?;
+        let px = env.config().camera.side.pow(2);
+        let (mut depth, mut vel) = (vec![0.0f32; agents * 2 * px], vec![0.0f32; agents * 3]);
+        let t0 = Instant::now();
+        let mut steps = 0usize;
+        while steps == 0 || t0.elapsed().as_secs_f64() < seconds {
+            let k = steps % (rows.len() / agents);
+            env.try_step(&rows[k * agents..(k + 1) * agents]).map_err(|e| PyRuntimeError::new_err(format!("rendering failed: {e}")))?;
+            env.write_observations_split(&mut depth, &mut vel);
             steps += 1;
         }
-        Ok((steps * agents as u64) as f64 / t0.elapsed().as_secs_f64())
+        Ok((steps * agents) as f64 / t0.elapsed().as_secs_f64())
     })
 }
 

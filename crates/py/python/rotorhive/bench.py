@@ -19,8 +19,7 @@ from . import _rotorhive
 from .envs import NavigateEnv, NavigateVectorEnv
 
 
-def _time_env(env, n: int, seconds: float, rng: np.random.Generator) -> float:
-    actions = rng.integers(0, 2, size=(64, n))
+def _time_env(env, n: int, seconds: float, actions: np.ndarray) -> float:
     env.reset(seed=1)
     steps = 0
     t0 = time.perf_counter()
@@ -31,20 +30,24 @@ def _time_env(env, n: int, seconds: float, rng: np.random.Generator) -> float:
 
 
 def bench(agents=(1, 8, 50), seconds: float = 2.0, rounds: int = 3, sync: bool = True) -> list[dict]:
-    """One row per agent count: median agent-steps/s of the Rust `VecEnv`,
-    of `rotorhive/Navigate-v0` (default settings: copies, NEXT_STEP) and of
-    a `SyncVectorEnv` of `NavigateEnv`s, and the ratios."""
+    """One row per agent count: median agent-steps/s of the Rust `VecEnv`
+    (the same actions, the same autoreset mode, observations written as the
+    Python environment writes them), of `rotorhive/Navigate-v0` (default
+    settings: copies, NEXT_STEP) and of a `SyncVectorEnv` of `NavigateEnv`s,
+    and the ratios."""
     rng = np.random.default_rng(0)
     rows = []
     for n in agents:
         vec = NavigateVectorEnv(n)
         single = gym.vector.SyncVectorEnv([NavigateEnv for _ in range(n)]) if sync else None
         rust, py, sv = [], [], []
+        # All three fly the same rows of random actions, in turn.
+        actions = rng.integers(0, 2, size=(64, n)).astype(np.uint8)
         for _ in range(rounds):
-            rust.append(_rotorhive.rust_agent_steps_per_second(n, seconds))
-            py.append(_time_env(vec, n, seconds, rng))
+            rust.append(_rotorhive.rust_agent_steps_per_second(n, seconds, actions=actions))
+            py.append(_time_env(vec, n, seconds, actions))
             if single is not None:
-                sv.append(_time_env(single, n, seconds, rng))
+                sv.append(_time_env(single, n, seconds, actions))
         row = {"agents": n, "rust_vecenv": statistics.median(rust), "python_vector_env": statistics.median(py)}
         row["python_over_rust"] = row["python_vector_env"] / row["rust_vecenv"]
         if single is not None:
