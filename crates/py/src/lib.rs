@@ -24,7 +24,7 @@ use rand_pcg::Pcg64Mcg;
 use rotorhive_model::{Device, OBS_LEN, PARAMS, QNet};
 use rotorhive_roles::Config;
 use rotorhive_roles::config::SimSection;
-use rotorhive_sim::{Arena, Autoreset, GenParams, VecEnv};
+use rotorhive_sim::{Arena, Autoreset, GenParams, GpuError, VecEnv};
 
 /// The shipped training arena: the default of `arena`, as in `hive train`.
 const TRAIN_ARENA: &str = include_str!("../../../configs/arenas/train.toml");
@@ -59,6 +59,20 @@ fn build_env(agents: usize, seed: u64, arena: Option<&str>, arena_seed: Option<u
     let env = VecEnv::try_new_lanes(cfg.sim_config(), &arenas, cfg.seed.wrapping_mul(1000))
         .map_err(|e| PyRuntimeError::new_err(format!("the simulator could not start: {e}")))?;
     Ok((env, lanes))
+}
+
+fn render_error(e: GpuError) -> PyErr {
+    PyRuntimeError::new_err(format!("rendering failed: {e}"))
+}
+
+/// The simulator's autoreset mode named as the Python layer names it.
+fn parse_autoreset(mode: &str) -> PyResult<Autoreset> {
+    match mode {
+        "next" => Ok(Autoreset::NextStep),
+        "same" => Ok(Autoreset::SameStep),
+        "disabled" => Ok(Autoreset::Disabled),
+        other => Err(value_error(format!("autoreset {other:?} is not \"next\", \"same\" or \"disabled\""))),
+    }
 }
 
 fn check_len(what: &str, got: usize, want: usize) -> PyResult<()> {
@@ -130,13 +144,7 @@ impl Sim {
     /// step, its action ignored), `"same"` (in the same step) or
     /// `"disabled"` (the default here: only through `reset`).
     fn set_autoreset(&mut self, mode: &str) -> PyResult<()> {
-        let m = match mode {
-            "next" => Autoreset::NextStep,
-            "same" => Autoreset::SameStep,
-            "disabled" => Autoreset::Disabled,
-            other => return Err(value_error(format!("autoreset {other:?} is not \"next\", \"same\" or \"disabled\""))),
-        };
-        self.env.set_autoreset(m);
+        self.env.set_autoreset(parse_autoreset(mode)?);
         Ok(())
     }
 
@@ -178,7 +186,7 @@ impl Sim {
         }
         let env = &mut self.env;
         py.detach(|| -> PyResult<()> {
-            env.try_step(a).map_err(|e| PyRuntimeError::new_err(format!("rendering failed: {e}")))?;
+            env.try_step(a).map_err(render_error)?;
             write_obs(env, d, v)?;
             r.copy_from_slice(env.rewards());
             for (k, done) in k.iter_mut().zip(env.dones()) {
@@ -211,7 +219,7 @@ impl Sim {
         let (d, v) = (depth.as_slice_mut()?, velocity.as_slice_mut()?);
         let env = &mut self.env;
         py.detach(|| -> PyResult<()> {
-            env.reset_agents(&mask).map_err(|e| PyRuntimeError::new_err(format!("rendering failed: {e}")))?;
+            env.reset_agents(&mask).map_err(render_error)?;
             write_obs(env, d, v)
         })
     }
@@ -251,11 +259,11 @@ fn rust_agent_steps_per_second(
 ) -> PyResult<f64> {
     let (mut env, _) = build_env(agents, seed, None, None, &overrides)?;
     env.drop_observation_buffer();
-    env.set_autoreset(match autoreset {
-        "next" => Autoreset::NextStep,
-        "same" => Autoreset::SameStep,
-        other => return Err(value_error(format!("autoreset {other:?} is not \"next\" or \"same\""))),
-    });
+    match parse_autoreset(autoreset)? {
+        // Never restarted, ended agents would fly on unscored.
+        Autoreset::Disabled => return Err(value_error("the bench's autoreset is \"next\" or \"same\"")),
+        mode => env.set_autoreset(mode),
+    }
     let rows: Vec<u8> = match &actions {
         Some(a) => {
             if a.shape()[1] != agents || a.shape()[0] == 0 {
@@ -272,14 +280,14 @@ fn rust_agent_steps_per_second(
     py.detach(|| {
         // The start of the bench's Python environments: `reset(seed=1)`.
         env.reseed(1);
-        env.reset_agents(&vec![true; agents]).map_err(|e| PyRuntimeError::new_err(format!("rendering failed: {e}")))?;
+        env.reset_agents(&vec![true; agents]).map_err(render_error)?;
         let px = env.config().camera.side.pow(2);
         let (mut depth, mut vel) = (vec![0.0f32; agents * 2 * px], vec![0.0f32; agents * 3]);
         let t0 = Instant::now();
         let mut steps = 0usize;
         while steps == 0 || t0.elapsed().as_secs_f64() < seconds {
             let k = steps % (rows.len() / agents);
-            env.try_step(&rows[k * agents..(k + 1) * agents]).map_err(|e| PyRuntimeError::new_err(format!("rendering failed: {e}")))?;
+            env.try_step(&rows[k * agents..(k + 1) * agents]).map_err(render_error)?;
             env.write_observations_split(&mut depth, &mut vel);
             steps += 1;
         }
@@ -313,7 +321,7 @@ fn reference_rollout<'py>(
     for s in 0..t {
         let a: Vec<u8> = acts.row(s).to_vec();
         check_actions(&a, n)?;
-        env.try_step(&a).map_err(|e| PyRuntimeError::new_err(format!("rendering failed: {e}")))?;
+        env.try_step(&a).map_err(render_error)?;
         obs.as_slice_mut().expect("contiguous")[(s + 1) * n * len..(s + 2) * n * len].copy_from_slice(env.observations());
         rewards.row_mut(s).as_slice_mut().expect("contiguous").copy_from_slice(env.rewards());
         for (k, d) in dones.row_mut(s).iter_mut().zip(env.dones()) {

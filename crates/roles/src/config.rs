@@ -400,8 +400,7 @@ impl Config {
 
     /// Parameters of generated arenas: the training arena's size.
     fn gen_params(&self) -> Result<GenParams> {
-        let a = self.arena()?;
-        Ok(GenParams { length: a.length, width: a.width, height: a.height, ..GenParams::default() })
+        Ok(gen_params_like(&self.arena()?))
     }
 
     /// The arenas environment `env` trains in: `sim.arena` and
@@ -414,7 +413,7 @@ impl Config {
     /// `env` beside it, of `base`'s size (what [`Config::lane_arenas`] gives
     /// for an arena that is not a file, as the Python package's).
     pub fn lanes_around(&self, base: Arena, env: usize) -> Vec<Arena> {
-        let p = GenParams { length: base.length, width: base.width, height: base.height, ..GenParams::default() };
+        let p = gen_params_like(&base);
         let mut v = vec![base];
         for k in 0..self.sim.generated_lanes {
             let seed = 1_000_000 + self.seed.wrapping_mul(100_000) + (env as u64) * 1000 + k as u64;
@@ -459,6 +458,11 @@ impl Config {
 
 /// Applies one `a.b=value` override; the value is parsed as TOML, or taken as
 /// a string when it does not parse.
+/// Parameters of generated arenas of `a`'s size.
+fn gen_params_like(a: &Arena) -> GenParams {
+    GenParams { length: a.length, width: a.width, height: a.height, ..GenParams::default() }
+}
+
 fn apply_override(table: &mut toml::Table, o: &str) -> Result<()> {
     let Some((key, raw)) = o.split_once('=') else {
         bail!("override {o:?} is not of the form key=value");

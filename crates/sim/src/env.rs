@@ -605,15 +605,15 @@ impl VecEnv {
     /// and observations.
     pub fn reset_agents(&mut self, mask: &[bool]) -> Result<(), GpuError> {
         assert_eq!(mask.len(), self.cfg.agents, "one flag per agent");
-        if !mask.iter().any(|m| *m) {
+        let reset: Vec<usize> = mask.iter().enumerate().filter(|(_, m)| **m).map(|(i, _)| i).collect();
+        if reset.is_empty() {
             return Ok(());
         }
-        for (i, _) in mask.iter().enumerate().filter(|(_, m)| **m) {
+        for &i in &reset {
             self.reset_agent(i);
             self.rewards[i] = 0.0;
             self.dones[i] = Done::Running;
         }
-        let reset: Vec<usize> = mask.iter().enumerate().filter(|(_, m)| **m).map(|(i, _)| i).collect();
         let px = self.cfg.camera.side * self.cfg.camera.side;
         if self.cfg.interactive {
             // Interactive drones see each other: every image may change.
