@@ -4,12 +4,13 @@
 
 use std::collections::HashMap;
 use std::path::Path;
-use std::sync::{Arc, Mutex};
+use std::sync::Mutex;
 use std::time::Instant;
 
 use candle_core::{D, DType, Tensor};
 
-use crate::ops::{AdamHyper, AdamStep, TdHuber, adam};
+use crate::kernels::{OFFSETS, Rows, Workspace};
+use crate::ops::{AdamHyper, AdamStep, adam};
 use crate::{ACTIONS, ModelError, OBS_LEN, PARAMS, QNet, Result, TRANSITION_LEN, argmax};
 
 /// Hyper-parameters of the DQN update.
@@ -54,18 +55,17 @@ impl Adam {
         Self { lr: lr as f32, t: 0, m: sizes.clone().map(|n| vec![0.0; n]).collect(), v: sizes.map(|n| vec![0.0; n]).collect() }
     }
 
-    /// One step with the gradients of every parameter, in canonical order.
-    fn step(&mut self, net: &QNet, grads: &[Tensor]) -> Result<()> {
+    /// One step with the gradients of every parameter, flat in canonical order.
+    fn step(&mut self, net: &QNet, grads: &[f32]) -> Result<()> {
         self.t += 1;
         let hyper = AdamHyper { lr: self.lr, beta1: 0.9, beta2: 0.999, eps: 1e-8, t: self.t };
-        for (((var, m), v), g) in net.vars().iter().zip(&mut self.m).zip(&mut self.v).zip(grads) {
+        for (i, ((var, m), v)) in net.vars().iter().zip(&mut self.m).zip(&mut self.v).enumerate() {
+            let g = &grads[OFFSETS[i]..OFFSETS[i + 1]];
             if var.device().is_cpu() {
-                let op = AdamStep { moments: Mutex::new((m.as_mut_slice(), v.as_mut_slice())), hyper };
-                var.as_tensor().inplace_op2(&g.contiguous()?, &op)?;
+                var.as_tensor().inplace_op1(&AdamStep { grad: g, moments: Mutex::new((m.as_mut_slice(), v.as_mut_slice())), hyper })?;
             } else {
                 let mut p = var.as_tensor().flatten_all()?.to_vec1::<f32>()?;
-                let g = g.flatten_all()?.to_vec1::<f32>()?;
-                adam(&mut p, &g, m, v, hyper);
+                adam(&mut p, g, m, v, hyper);
                 var.set(&Tensor::from_vec(p, var.shape(), var.device())?)?;
             }
         }
@@ -73,49 +73,9 @@ impl Adam {
     }
 }
 
-/// A minibatch split into its parts.
-struct Batch {
-    n: usize,
-    s: Vec<f32>,
-    s2: Vec<f32>,
-    actions: Vec<u32>,
-    rewards: Vec<f32>,
-    dones: Vec<f32>,
-}
-
-impl Batch {
-    fn split(batch: &[f32]) -> Result<Self> {
-        if batch.is_empty() || !batch.len().is_multiple_of(TRANSITION_LEN) {
-            return Err(ModelError::Shape { what: "minibatch", expected: TRANSITION_LEN, got: batch.len() });
-        }
-        let n = batch.len() / TRANSITION_LEN;
-        let mut b = Batch {
-            n,
-            s: Vec::with_capacity(n * OBS_LEN),
-            s2: Vec::with_capacity(n * OBS_LEN),
-            actions: Vec::with_capacity(n),
-            rewards: Vec::with_capacity(n),
-            dones: Vec::with_capacity(n),
-        };
-        for t in batch.chunks_exact(TRANSITION_LEN) {
-            b.s.extend_from_slice(&t[..OBS_LEN]);
-            b.s2.extend_from_slice(&t[OBS_LEN..2 * OBS_LEN]);
-            let a = t[2 * OBS_LEN];
-            if !(a >= 0.0 && (a as usize) < ACTIONS && a.fract() == 0.0) {
-                return Err(ModelError::Shape { what: "minibatch action (0 or 1)", expected: ACTIONS, got: a as usize });
-            }
-            b.actions.push(a as u32);
-            b.rewards.push(t[2 * OBS_LEN + 1]);
-            b.dones.push(t[2 * OBS_LEN + 2]);
-        }
-        Ok(b)
-    }
-}
-
 /// One shard's share of an update.
 struct Shard {
     loss: f32,
-    grads: Vec<Tensor>,
     forward_ns: u64,
     backward_ns: u64,
 }
@@ -130,6 +90,28 @@ pub struct Dqn {
     updates: u64,
     timing: UpdateTiming,
     shards: usize,
+    /// One workspace per shard of the fused path.
+    work: Vec<Mutex<Workspace>>,
+    /// The shards' gradients summed, flat in canonical order.
+    grads: Vec<f32>,
+}
+
+fn poisoned<T>(_: T) -> ModelError {
+    ModelError::Device("a learner workspace was poisoned by a panic".into())
+}
+
+/// Checks a minibatch's size and actions; returns its rows.
+fn rows_of(batch: &[f32]) -> Result<usize> {
+    if batch.is_empty() || !batch.len().is_multiple_of(TRANSITION_LEN) {
+        return Err(ModelError::Shape { what: "minibatch", expected: TRANSITION_LEN, got: batch.len() });
+    }
+    for t in batch.chunks_exact(TRANSITION_LEN) {
+        let a = t[2 * OBS_LEN];
+        if !(a >= 0.0 && (a as usize) < ACTIONS && a.fract() == 0.0) {
+            return Err(ModelError::Shape { what: "minibatch action (0 or 1)", expected: ACTIONS, got: a as usize });
+        }
+    }
+    Ok(batch.len() / TRANSITION_LEN)
 }
 
 impl Dqn {
@@ -137,7 +119,8 @@ impl Dqn {
     pub fn new(cfg: DqnConfig, seed: u64, device: &candle_core::Device) -> Result<Self> {
         let online = QNet::new(seed, device)?;
         let target = QNet::new(seed, device)?;
-        Ok(Self { online, target, opt: Adam::new(cfg.lr), cfg, updates: 0, timing: UpdateTiming::default(), shards: 1 })
+        let grads = vec![0.0; OFFSETS[10]];
+        Ok(Self { online, target, opt: Adam::new(cfg.lr), cfg, updates: 0, timing: UpdateTiming::default(), shards: 1, work: Vec::new(), grads })
     }
 
     /// Uses the fused CPU path (default on the CPU) or the generic one.
@@ -169,31 +152,46 @@ impl Dqn {
         self.target.copy_from(&self.online)
     }
 
-    /// The TD targets `r + γ (1 − done) Q'(s', a*)` of a batch.
-    fn targets(&self, b: &Batch) -> Result<Vec<f32>> {
-        let dev = self.online.device();
-        let s2 = Tensor::from_slice(&b.s2, (b.n, OBS_LEN), dev)?;
-        let q_target = self.target.forward(&s2)?.detach().flatten_all()?.to_vec1::<f32>()?;
-        let next: Vec<f32> = if self.cfg.double {
-            let q_online = self.online.forward(&s2)?.detach().flatten_all()?.to_vec1::<f32>()?;
-            q_online.chunks(ACTIONS).zip(q_target.chunks(ACTIONS)).map(|(o, t)| t[argmax(o)]).collect()
-        } else {
-            q_target.chunks(ACTIONS).map(|t| t[argmax(t)]).collect()
-        };
-        Ok((0..b.n).map(|i| b.rewards[i] + self.cfg.gamma * (1.0 - b.dones[i]) * next[i]).collect())
+    /// The TD target `r + γ (1 − done) Q'(s', a*)` of transition `t`, given
+    /// the target network's and (double DQN) the online network's Q-values
+    /// of `s'`.
+    fn target_of(&self, t: &[f32], q_target: &[f32], q_online: &[f32]) -> f32 {
+        let pick = if self.cfg.double { q_online } else { q_target };
+        let (r, done) = (t[2 * OBS_LEN + 1], t[2 * OBS_LEN + 2]);
+        r + self.cfg.gamma * (1.0 - done) * q_target[argmax(pick)]
     }
 
-    /// The Huber TD loss of `b` summed and divided by `denom`.
-    fn loss_of(&self, b: &Batch, denom: usize) -> Result<Tensor> {
-        let y = self.targets(b)?;
+    /// The Huber loss of `e` and its derivative.
+    fn huber(&self, e: f32) -> (f32, f32) {
+        let d = self.cfg.huber_delta;
+        let loss = if e.abs() <= d { 0.5 * e * e } else { d * (e.abs() - 0.5 * d) };
+        (loss, e.clamp(-d, d))
+    }
+
+    /// The mean Huber TD loss of a minibatch (`n × TRANSITION_LEN` floats) as
+    /// a differentiable candle tensor over stock candle ops: the reference
+    /// the fused path is tested against, and the path off the CPU.
+    pub fn loss(&self, batch: &[f32]) -> Result<Tensor> {
+        let n = rows_of(batch)?;
+        self.loss_generic(batch, n)
+    }
+
+    fn loss_generic(&self, batch: &[f32], denom: usize) -> Result<Tensor> {
+        let n = rows_of(batch)?;
         let dev = self.online.device();
-        let q = self.online.forward(&Tensor::from_slice(&b.s, (b.n, OBS_LEN), dev)?)?;
-        if self.online.fused() {
-            let op = TdHuber { actions: Arc::new(b.actions.clone()), targets: Arc::new(y), delta: self.cfg.huber_delta, denom };
-            return Ok(q.apply_op1(op)?);
-        }
-        let a = Tensor::from_slice(&b.actions, (b.n, 1), dev)?;
-        let y = Tensor::from_vec(y, (b.n, 1), dev)?;
+        let column = |from: usize, len: usize| -> Vec<f32> { batch.chunks_exact(TRANSITION_LEN).flat_map(|t| t[from..from + len].to_vec()).collect() };
+        let s2 = Tensor::from_vec(column(OBS_LEN, OBS_LEN), (n, OBS_LEN), dev)?;
+        let q_target = self.target.forward_generic(&s2)?.detach().flatten_all()?.to_vec1::<f32>()?;
+        let q_online = if self.cfg.double { self.online.forward_generic(&s2)?.detach().flatten_all()?.to_vec1::<f32>()? } else { q_target.clone() };
+        let y: Vec<f32> = batch
+            .chunks_exact(TRANSITION_LEN)
+            .enumerate()
+            .map(|(i, t)| self.target_of(t, &q_target[i * ACTIONS..(i + 1) * ACTIONS], &q_online[i * ACTIONS..(i + 1) * ACTIONS]))
+            .collect();
+        let actions: Vec<u32> = batch.chunks_exact(TRANSITION_LEN).map(|t| t[2 * OBS_LEN] as u32).collect();
+        let q = self.online.forward_generic(&Tensor::from_vec(column(0, OBS_LEN), (n, OBS_LEN), dev)?)?;
+        let a = Tensor::from_vec(actions, (n, 1), dev)?;
+        let y = Tensor::from_vec(y, (n, 1), dev)?;
         let abs = (q.gather(&a, D::Minus1)? - y)?.abs()?;
         let d = self.cfg.huber_delta as f64;
         let c = abs.clamp(0.0, d)?;
@@ -201,52 +199,96 @@ impl Dqn {
         Ok(loss.sum_all()?.affine(1.0 / denom as f64, 0.0)?)
     }
 
-    /// The mean Huber TD loss of a minibatch (`n × TRANSITION_LEN` floats),
-    /// differentiable with respect to the online network.
-    pub fn loss(&self, batch: &[f32]) -> Result<Tensor> {
-        let b = Batch::split(batch)?;
-        self.loss_of(&b, b.n)
+    /// Loss and gradients (into `ws.grads`) of the rows of `part`, a shard
+    /// of a minibatch of `denom` rows, on the fused path: the target network
+    /// on `s'`, the online network on `s` (and `s'` in the same batch for
+    /// double DQN), the loss's gradient on the taken actions, backward.
+    fn shard_fused(&self, part: &[f32], denom: usize, ws: &mut Workspace) -> Result<Shard> {
+        let t0 = Instant::now();
+        let n = part.len() / TRANSITION_LEN;
+        let s = Rows { data: part, stride: TRANSITION_LEN, offset: 0, n };
+        let s2 = Rows { offset: OBS_LEN, ..s };
+        self.target.with_weights(|w| ws.forward(w, &[s2]))?;
+        let q_target = ws.q[..n * ACTIONS].to_vec();
+        self.online.with_weights(|w| {
+            let both = [s, s2];
+            ws.forward(w, if self.cfg.double { &both } else { &both[..1] })?;
+            let q_online = if self.cfg.double { ws.q[n * ACTIONS..2 * n * ACTIONS].to_vec() } else { Vec::new() };
+            let (q, mut loss) = (ws.q[..n * ACTIONS].to_vec(), 0.0);
+            let dq = ws.dq_mut(n);
+            dq.fill(0.0);
+            for (i, t) in part.chunks_exact(TRANSITION_LEN).enumerate() {
+                let qt = &q_target[i * ACTIONS..(i + 1) * ACTIONS];
+                let y = self.target_of(t, qt, if self.cfg.double { &q_online[i * ACTIONS..(i + 1) * ACTIONS] } else { qt });
+                let at = i * ACTIONS + t[2 * OBS_LEN] as usize;
+                let (l, g) = self.huber(q[at] - y);
+                loss += l;
+                dq[at] = g / denom as f32;
+            }
+            let t1 = Instant::now();
+            ws.backward(w, n)?;
+            Ok(Shard { loss: loss / denom as f32, forward_ns: (t1 - t0).as_nanos() as u64, backward_ns: t1.elapsed().as_nanos() as u64 })
+        })
     }
 
-    /// Loss and gradients of the rows `part` of a minibatch of `denom` rows.
-    fn shard(&self, part: &[f32], denom: usize) -> Result<Shard> {
-        let t0 = Instant::now();
-        let loss = self.loss_of(&Batch::split(part)?, denom)?;
-        let value = loss.to_scalar::<f32>()?;
-        let t1 = Instant::now();
-        let store = loss.backward()?;
-        let grads = self
-            .online
-            .vars()
-            .iter()
-            .map(|v| store.get(v.as_tensor()).cloned().ok_or_else(|| ModelError::Device("a parameter got no gradient".into())))
-            .collect::<Result<Vec<_>>>()?;
-        let t2 = Instant::now();
-        Ok(Shard { loss: value, grads, forward_ns: (t1 - t0).as_nanos() as u64, backward_ns: (t2 - t1).as_nanos() as u64 })
+    /// Loss and flat gradients of a whole minibatch (`n × TRANSITION_LEN`
+    /// floats) on the path in use, without updating anything.
+    pub fn gradients(&mut self, batch: &[f32]) -> Result<(f32, Vec<f32>)> {
+        let loss = self.compute_gradients(batch)?.loss;
+        Ok((loss, self.last_gradients()?.to_vec()))
+    }
+
+    /// Loss and gradients of a minibatch into `self.grads`: on the fused path
+    /// with several threads, one shard per thread whose forward and backward
+    /// passes run in parallel (each single-threaded), their gradients summed.
+    fn compute_gradients(&mut self, batch: &[f32]) -> Result<Shard> {
+        let n = rows_of(batch)?;
+        if !self.online.fused() {
+            let t0 = Instant::now();
+            let loss = self.loss_generic(batch, n)?;
+            let t1 = Instant::now();
+            let store = loss.backward()?;
+            self.grads.clear();
+            for v in self.online.vars() {
+                let g = store.get(v.as_tensor()).ok_or_else(|| ModelError::Device("a parameter got no gradient".into()))?;
+                self.grads.extend(g.flatten_all()?.to_vec1::<f32>()?);
+            }
+            return Ok(Shard { loss: loss.to_scalar::<f32>()?, forward_ns: (t1 - t0).as_nanos() as u64, backward_ns: t1.elapsed().as_nanos() as u64 });
+        }
+        let shards = self.shards.min(n / 8).max(1);
+        while self.work.len() < shards {
+            self.work.push(Mutex::new(Workspace::default()));
+        }
+        let parts: Vec<&[f32]> = batch.chunks(n.div_ceil(shards) * TRANSITION_LEN).collect();
+        let results = crate::ops::sharded(parts.len(), |i| self.shard_fused(parts[i], n, &mut *self.work[i].lock().map_err(poisoned)?));
+        // The other shards' gradients are added into the first's.
+        let mut results = results.into_iter();
+        let Some(first) = results.next() else { unreachable!("a non-empty batch has a shard") };
+        let mut total = first?;
+        let (head, tail) = self.work.split_at_mut(1);
+        let sum = &mut head[0].get_mut().map_err(poisoned)?.grads[..OFFSETS[10]];
+        for (r, ws) in results.zip(tail) {
+            total.loss += r?.loss;
+            sum.iter_mut().zip(&ws.get_mut().map_err(poisoned)?.grads).for_each(|(a, b)| *a += b);
+        }
+        Ok(total)
+    }
+
+    /// The gradients [`Dqn::compute_gradients`] left, flat.
+    fn last_gradients(&mut self) -> Result<&[f32]> {
+        if !self.online.fused() {
+            return Ok(&self.grads);
+        }
+        Ok(&self.work[0].get_mut().map_err(poisoned)?.grads[..OFFSETS[10]])
     }
 
     /// One update on a minibatch of `n × TRANSITION_LEN` floats; returns the
-    /// loss. On the fused path with several threads, the minibatch is split
-    /// into one shard per thread whose forward and backward passes run in
-    /// parallel (each single-threaded); their gradients are summed.
+    /// loss.
     pub fn update(&mut self, batch: &[f32]) -> Result<f32> {
-        if batch.is_empty() || !batch.len().is_multiple_of(TRANSITION_LEN) {
-            return Err(ModelError::Shape { what: "minibatch", expected: TRANSITION_LEN, got: batch.len() });
-        }
-        let n = batch.len() / TRANSITION_LEN;
-        let shards = if self.online.fused() { self.shards.min(n / 8).max(1) } else { 1 };
-        let parts: Vec<&[f32]> = batch.chunks(n.div_ceil(shards) * TRANSITION_LEN).collect();
-        let results = crate::ops::sharded(parts.len(), |i| self.shard(parts[i], n));
-        let mut shards = results.into_iter().collect::<Result<Vec<_>>>()?.into_iter();
-        let Some(mut total) = shards.next() else { unreachable!("a non-empty batch has a shard") };
-        for s in shards {
-            total.loss += s.loss;
-            for (a, b) in total.grads.iter_mut().zip(&s.grads) {
-                *a = (&*a + b)?;
-            }
-        }
+        let total = self.compute_gradients(batch)?;
         let t2 = Instant::now();
-        self.opt.step(&self.online, &total.grads)?;
+        let grads = if self.online.fused() { &self.work[0].get_mut().map_err(poisoned)?.grads[..OFFSETS[10]] } else { &self.grads };
+        self.opt.step(&self.online, grads)?;
         self.updates += 1;
         if self.updates.is_multiple_of(self.cfg.target_update) {
             self.sync_target()?;
@@ -317,8 +359,7 @@ impl Dqn {
 #[cfg(test)]
 impl Dqn {
     /// One Adam step with given gradients (tests compare it with candle-nn).
-    pub(crate) fn opt_step(&mut self, grads: &candle_core::backprop::GradStore) -> Result<()> {
-        let grads: Vec<Tensor> = self.online.vars().iter().map(|v| grads.get(v.as_tensor()).unwrap().clone()).collect();
-        self.opt.step(&self.online, &grads)
+    pub(crate) fn opt_step(&mut self, grads: &[f32]) -> Result<()> {
+        self.opt.step(&self.online, grads)
     }
 }

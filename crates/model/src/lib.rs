@@ -3,29 +3,32 @@
 //! The network is the design's: conv 2→16 (6×6, stride 2) → conv 16→32 (3×3)
 //! → max-pool 2 → 1152 features; velocity 3→16; concat → 64 → 2 Q-values.
 //!
-//! Two forward paths compute the same function:
-//! - the fused CPU path ([`ops`]): convolutions as an im2col gather plus one
-//!   GEMM with bias and ReLU fused, activations channels-last, a pooling op
-//!   with an exact gradient, a TD-Huber loss op and an in-place Adam; the image
-//!   gets no gradient;
-//! - the generic path: stock candle ops (`conv2d`, `matmul`, reductions) that
-//!   run on any device (CUDA with the `cuda` feature). Pooling there is a
-//!   reshape and two `max` reductions, whose gradient is exact (candle-nn
-//!   0.11.1's `max_pool2d` backward is 4× too small).
+//! Two paths compute the same function and gradients:
+//! - the fused CPU path ([`kernels`]): forward and hand-written backward over
+//!   raw slices in a reused workspace, convolutions as im2col plus one GEMM,
+//!   activations channels-last, pooling with its argmax kept, the TD-Huber
+//!   loss's gradient on the taken actions, Adam in place; the image gets no
+//!   gradient;
+//! - the generic path: stock candle ops (`conv2d`, `matmul`, reductions) and
+//!   candle's autograd, on any device (CUDA with the `cuda` feature). Pooling
+//!   there is a reshape and two `max` reductions, whose gradient is exact
+//!   (candle-nn 0.11.1's `max_pool2d` backward is 4× too small).
 //!
 //! Weights travel as one flat `f32` vector in a canonical order ([`PARAMS`]) and
 //! are saved as safetensors.
 
 mod dqn;
+mod kernels;
 mod ops;
 
 use std::collections::HashMap;
 use std::path::Path;
+use std::sync::{Arc, Mutex};
 
 pub use candle_core::Device;
 use candle_core::{DType, Tensor, Var};
 pub use dqn::{Dqn, DqnConfig, UpdateTiming};
-use ops::{Gather, Linear, MaxPool2};
+use kernels::{Rows, Weights, Workspace};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
@@ -125,39 +128,26 @@ pub enum ModelError {
 /// Result of this crate.
 pub type Result<T> = std::result::Result<T, ModelError>;
 
-/// Patch copies for the two convolutions (im2col), shared by every network.
-#[derive(Debug, Clone)]
-struct Im2Col {
-    conv1: Gather,
-    conv2: Gather,
+/// Workspaces of the fused path, one per concurrent forward pass, reused
+/// across calls (and shared by clones of a network).
+#[derive(Default)]
+struct Scratch(Mutex<Vec<Workspace>>);
+
+impl std::fmt::Debug for Scratch {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Scratch")
+    }
 }
 
-impl Im2Col {
-    fn new() -> Self {
-        // conv1 reads the observation row (channels-first frames); rows of the
-        // patch matrix are output pixels (oy, ox), columns (c, ky, kx): runs of
-        // K1 contiguous pixels.
-        let mut r1 = Vec::with_capacity(H1 * H1 * FRAMES * K1);
-        for oy in 0..H1 {
-            for ox in 0..H1 {
-                for c in 0..FRAMES {
-                    for ky in 0..K1 {
-                        r1.push((c * SIDE * SIDE + (oy * S1 + ky) * SIDE + ox * S1) as u32);
-                    }
-                }
-            }
+impl Scratch {
+    fn take(&self) -> Workspace {
+        self.0.lock().ok().and_then(|mut v| v.pop()).unwrap_or_default()
+    }
+
+    fn put(&self, ws: Workspace) {
+        if let Ok(mut v) = self.0.lock() {
+            v.push(ws);
         }
-        // conv2 reads conv1's channels-last output; columns (ky, kx, c): runs
-        // of K2·C1 contiguous values.
-        let mut r2 = Vec::with_capacity(H2 * H2 * K2);
-        for oy in 0..H2 {
-            for ox in 0..H2 {
-                for ky in 0..K2 {
-                    r2.push((((oy + ky) * H1 + ox) * C1) as u32);
-                }
-            }
-        }
-        Self { conv1: Gather::new(r1, K1, OBS_LEN), conv2: Gather::new(r2, K2 * C1, H1 * H1 * C1) }
     }
 }
 
@@ -165,7 +155,7 @@ impl Im2Col {
 #[derive(Debug, Clone)]
 pub struct QNet {
     params: Vec<Var>,
-    im2col: Im2Col,
+    scratch: Arc<Scratch>,
     device: Device,
     fused: bool,
     threads: usize,
@@ -185,7 +175,7 @@ impl QNet {
             let data: Vec<f32> = (0..n).map(|_| rng.random_range(-bound..bound)).collect();
             params.push(Var::from_tensor(&Tensor::from_vec(data, *shape, device)?)?);
         }
-        Ok(Self { params, im2col: Im2Col::new(), device: device.clone(), fused: device.is_cpu(), threads: 1 })
+        Ok(Self { params, scratch: Arc::default(), device: device.clone(), fused: device.is_cpu(), threads: 1 })
     }
 
     /// The device the network lives on.
@@ -230,24 +220,29 @@ impl QNet {
 
     fn forward_fused(&self, obs: &Tensor) -> Result<Tensor> {
         let b = obs.dim(0)?;
-        let relu = Linear { relu: true };
-        let obs = obs.contiguous()?;
-        // conv1: gather patches, one GEMM with bias and ReLU → [B·196, 16] channels-last.
-        let x = obs.apply_op1(self.im2col.conv1.clone())?.reshape((b * H1 * H1, FRAMES * K1 * K1))?;
-        let x = x.apply_op3(self.p(0), self.p(1), relu)?;
-        // conv2 on the channels-last map.
-        let x = x.reshape((b, H1 * H1 * C1))?.apply_op1(self.im2col.conv2.clone())?.reshape((b * H2 * H2, K2 * K2 * C1))?;
-        let x = x.apply_op3(self.p(2), self.p(3), relu)?;
-        let x = x.apply_op1(MaxPool2 { h: H2, w: H2 })?;
-        let v = obs.narrow(1, FRAMES * SIDE * SIDE, VEL)?.contiguous()?;
-        let v = v.apply_op3(self.p(4), self.p(5), relu)?;
-        let h = Tensor::cat(&[&x, &v], 1)?;
-        let h = h.apply_op3(self.p(6), self.p(7), relu)?;
-        Ok(h.apply_op3(self.p(8), self.p(9), Linear { relu: false })?)
+        let q = self.q_values(&obs.flatten_all()?.to_vec1::<f32>()?)?;
+        Ok(Tensor::from_vec(q, (b, ACTIONS), &self.device)?)
     }
 
-    /// The same network with stock candle ops (channels-first `conv2d`).
-    fn forward_generic(&self, obs: &Tensor) -> Result<Tensor> {
+    /// Runs `f` on the parameters' CPU slices (read-locked for its duration).
+    pub(crate) fn with_weights<R>(&self, f: impl FnOnce(&Weights) -> Result<R>) -> Result<R> {
+        let guards: Vec<_> = self.params.iter().map(|v| v.as_tensor().storage_and_layout()).collect();
+        let mut w: [&[f32]; 10] = [&[]; 10];
+        for (slot, (storage, layout)) in w.iter_mut().zip(&guards) {
+            let candle_core::Storage::Cpu(cpu) = &**storage else {
+                return Err(ModelError::Device("the fused path runs on the CPU only".into()));
+            };
+            let Some((start, end)) = layout.contiguous_offsets() else {
+                return Err(ModelError::Device("a parameter is not contiguous".into()));
+            };
+            *slot = &cpu.as_slice::<f32>()?[start..end];
+        }
+        f(&Weights(w))
+    }
+
+    /// The same network with stock candle ops (channels-first `conv2d`),
+    /// differentiable by candle's autograd.
+    pub(crate) fn forward_generic(&self, obs: &Tensor) -> Result<Tensor> {
         let b = obs.dim(0)?;
         let img = obs.narrow(1, 0, FRAMES * SIDE * SIDE)?.reshape((b, FRAMES, SIDE, SIDE))?;
         let w1 = self.p(0).reshape((C1, FRAMES, K1, K1))?;
@@ -277,18 +272,30 @@ impl QNet {
             return Err(ModelError::Shape { what: "observation batch", expected: OBS_LEN, got: obs.len() });
         }
         let n = obs.len() / OBS_LEN;
-        let one = |part: &[f32]| -> Result<Vec<f32>> {
-            let t = Tensor::from_slice(part, (part.len() / OBS_LEN, OBS_LEN), &self.device)?;
-            Ok(self.forward(&t)?.flatten_all()?.to_vec1::<f32>()?)
-        };
-        if shards <= 1 || !self.fused {
-            return one(obs);
+        if !self.fused {
+            let t = Tensor::from_slice(obs, (n, OBS_LEN), &self.device)?;
+            return Ok(self.forward_generic(&t)?.flatten_all()?.to_vec1::<f32>()?);
         }
-        let parts: Vec<&[f32]> = obs.chunks(n.div_ceil(shards) * OBS_LEN).collect();
+        let parts: Vec<&[f32]> = obs.chunks(n.div_ceil(shards.max(1)) * OBS_LEN).collect();
+        let mut spaces: Vec<Mutex<Workspace>> = parts.iter().map(|_| Mutex::new(self.scratch.take())).collect();
+        let done = self.with_weights(|w| {
+            ops::sharded(parts.len(), |i| {
+                let mut ws = spaces[i].lock().map_err(|_| ModelError::Device("a workspace was poisoned".into()))?;
+                ws.forward(w, &[Rows::packed(parts[i])])
+            })
+            .into_iter()
+            .collect::<Result<Vec<usize>>>()
+        });
         let mut q = Vec::with_capacity(n * ACTIONS);
-        for r in ops::sharded(parts.len(), |i| one(parts[i])) {
-            q.extend(r?);
+        for (ws, rows) in spaces.iter_mut().zip(done.as_deref().unwrap_or(&[])) {
+            if let Ok(ws) = ws.get_mut() {
+                q.extend_from_slice(&ws.q[..rows * ACTIONS]);
+            }
         }
+        for ws in spaces {
+            self.scratch.put(ws.into_inner().unwrap_or_default());
+        }
+        done?;
         Ok(q)
     }
 

@@ -28,9 +28,15 @@ fn cfg(double: bool) -> DqnConfig {
     DqnConfig { lr: 1e-3, gamma: 0.9, target_update: 1000, huber_delta: 10.0, double }
 }
 
-fn grads_of(dqn: &Dqn, batch: &[f32]) -> Vec<Vec<f32>> {
+/// Gradients through candle's autograd over stock ops (the reference), flat.
+fn autograd(dqn: &Dqn, batch: &[f32]) -> Vec<f32> {
     let grads = dqn.loss(batch).unwrap().backward().unwrap();
-    dqn.online.vars().iter().map(|v| grads.get(v.as_tensor()).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap()).collect()
+    dqn.online.vars().iter().flat_map(|v| grads.get(v.as_tensor()).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap()).collect()
+}
+
+/// The slice of parameter `i` in a flat vector.
+fn part(flat: &[f32], i: usize) -> &[f32] {
+    &flat[kernels::OFFSETS[i]..kernels::OFFSETS[i + 1]]
 }
 
 fn close(a: &[f32], b: &[f32], tol: f32, what: &str) {
@@ -54,47 +60,28 @@ fn forward_matches_stock_candle_convolutions() {
     }
 }
 
-/// Gradients of the whole loss (every custom op in the chain) on the fused
-/// path against the generic path of stock candle ops, plain and double DQN.
+/// Gradients of the whole loss on the fused path (hand-written backward:
+/// convolutions, pooling to its argmax, ReLU masks, the TD-Huber loss)
+/// against candle's autograd over stock ops, plain and double DQN, one shard
+/// and two.
 #[test]
 fn fused_gradients_match_stock_candle() {
-    for (seed, double) in [(1, false), (2, true), (3, true)] {
+    for (seed, double, threads) in [(1, false, 1), (2, true, 1), (3, true, 2)] {
         let mut dqn = Dqn::new(cfg(double), seed, &Device::Cpu).unwrap();
+        dqn.set_threads(threads);
         dqn.target.load_flat(&random(num_params(), seed + 50, -0.1, 0.1)).unwrap();
-        let batch = transitions(7, seed + 20);
-        let fused = grads_of(&dqn, &batch);
-        let l1 = dqn.loss(&batch).unwrap().to_scalar::<f32>().unwrap();
-        dqn.set_fused(false).unwrap();
-        let plain = grads_of(&dqn, &batch);
+        let batch = transitions(17, seed + 20);
+        let (l1, fused) = dqn.gradients(&batch).unwrap();
+        let plain = autograd(&dqn, &batch);
         let l2 = dqn.loss(&batch).unwrap().to_scalar::<f32>().unwrap();
         assert!((l1 - l2).abs() <= 1e-4 * l2.abs().max(1.0), "loss {l1} vs {l2}");
-        for ((name, _), (f, p)) in PARAMS.iter().zip(fused.iter().zip(&plain)) {
-            close(f, p, 1e-3, name);
+        for (i, (name, _)) in PARAMS.iter().enumerate() {
+            close(part(&fused, i), part(&plain, i), 1e-3, name);
         }
+        dqn.set_fused(false).unwrap();
+        let (l3, generic) = dqn.gradients(&batch).unwrap();
+        assert_eq!((l3, &generic), (l2, &plain), "the generic path's gradients are autograd's");
     }
-}
-
-/// Max-pooling routes the gradient to the window's maximum, all of it (the
-/// stock candle-nn 0.11.1 backward gives a quarter).
-#[test]
-fn pooling_gradient_is_exact() {
-    let dev = Device::Cpu;
-    let (b, h, c) = (2, 4, 3);
-    let x = Var::from_vec(random(b * h * h * c, 8, -1.0, 1.0), (b * h * h, c), &dev).unwrap();
-    let y = x.as_tensor().apply_op1(MaxPool2 { h, w: h }).unwrap();
-    let w = Tensor::from_vec(random(y.elem_count(), 9, -1.0, 1.0), y.shape(), &dev).unwrap();
-    let g = (y * &w).unwrap().sum_all().unwrap().backward().unwrap();
-    let g = g.get(x.as_tensor()).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
-    // Reference: the stock reshape + max formulation (channels-last).
-    let x2 = Var::from_tensor(x.as_tensor()).unwrap();
-    let y2 = x2.as_tensor().reshape((b, h / 2, 2, h / 2, 2, c)).unwrap().max(4).unwrap().max(2).unwrap().reshape((b, h / 2 * (h / 2) * c)).unwrap();
-    let g2 = (y2 * &w).unwrap().sum_all().unwrap().backward().unwrap();
-    let g2 = g2.get(x2.as_tensor()).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
-    close(&g, &g2, 1e-6, "pool grad");
-    // Every output's weight lands on exactly one input.
-    let total: f32 = g.iter().sum();
-    let expected: f32 = w.flatten_all().unwrap().to_vec1::<f32>().unwrap().iter().sum();
-    assert!((total - expected).abs() < 1e-4, "{total} vs {expected}");
 }
 
 /// The in-place Adam follows candle-nn's AdamW (weight decay 0) step for step.
@@ -107,7 +94,7 @@ fn adam_matches_candle_nn() {
     for step in 0..5 {
         let batch = transitions(4, 30 + step);
         opt.step(&reference.loss(&batch).unwrap().backward().unwrap()).unwrap();
-        let grads = dqn.loss(&batch).unwrap().backward().unwrap();
+        let grads = autograd(&dqn, &batch);
         dqn.opt_step(&grads).unwrap();
         close(&dqn.online.to_flat().unwrap(), &reference.online.to_flat().unwrap(), 1e-4, "weights after adam");
     }
@@ -161,12 +148,13 @@ fn learner_state_round_trips() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// Autograd gradients of the DQN loss against central finite differences, in
-/// every parameter tensor (convolutions and pooling included).
+/// The fused path's gradients of the DQN loss against central finite
+/// differences of its loss, in every parameter tensor (convolutions and
+/// pooling included).
 #[test]
 fn gradients_match_finite_differences() {
     let dev = Device::Cpu;
-    let dqn = Dqn::new(cfg(false), 4, &dev).unwrap();
+    let mut dqn = Dqn::new(cfg(false), 4, &dev).unwrap();
     // Push the target net away from the online one so the TD error is not zero.
     dqn.target.load_flat(&random(num_params(), 99, -0.1, 0.1)).unwrap();
     let n = 6;
@@ -177,15 +165,15 @@ fn gradients_match_finite_differences() {
         data[i * TRANSITION_LEN + 2 * OBS_LEN + 2] = if i == 3 { 1.0 } else { 0.0 };
     }
     let batch = data;
-    let loss = dqn.loss(&batch).unwrap();
-    let grads = loss.backward().unwrap();
+    let (_, grads) = dqn.gradients(&batch).unwrap();
     let flat = dqn.online.to_flat().unwrap();
     let mut rng = Pcg64Mcg::seed_from_u64(7);
     let mut off = 0;
     let mut checked = 0;
     for (pi, (name, shape)) in PARAMS.iter().enumerate() {
         let len: usize = shape.iter().product();
-        let g = grads.get(dqn.online.vars()[pi].as_tensor()).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        assert_eq!(len, kernels::OFFSETS[pi + 1] - kernels::OFFSETS[pi], "{name}");
+        let g = part(&grads, pi).to_vec();
         // The largest-gradient entry and a few random ones.
         let mut idx: Vec<usize> = (0..4).map(|_| rng.random_range(0..len)).collect();
         idx.push((0..len).max_by(|a, b| g[*a].abs().total_cmp(&g[*b].abs())).unwrap());
@@ -199,17 +187,17 @@ fn gradients_match_finite_differences() {
                     let mut plus = flat.clone();
                     plus[off + i] += eps;
                     dqn.online.load_flat(&plus).unwrap();
-                    let lp = dqn.loss(&batch).unwrap().to_scalar::<f32>().unwrap();
+                    let lp = dqn.gradients(&batch).unwrap().0;
                     let mut minus = flat.clone();
                     minus[off + i] -= eps;
                     dqn.online.load_flat(&minus).unwrap();
-                    let lm = dqn.loss(&batch).unwrap().to_scalar::<f32>().unwrap();
+                    let lm = dqn.gradients(&batch).unwrap().0;
                     (lp - lm) / (2.0 * eps)
                 })
                 .collect();
             dqn.online.load_flat(&flat).unwrap();
             let ok = fds.iter().any(|fd| (fd - g[i]).abs() <= 2e-3 + 0.05 * fd.abs().max(g[i].abs()));
-            assert!(ok, "{name}[{i}]: autograd {} vs finite differences {fds:?}", g[i]);
+            assert!(ok, "{name}[{i}]: backward {} vs finite differences {fds:?}", g[i]);
             checked += 1;
         }
         off += len;
