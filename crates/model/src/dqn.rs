@@ -16,8 +16,14 @@ use crate::{ACTIONS, ModelError, OBS_LEN, PARAMS, QNet, Result, TRANSITION_LEN, 
 /// Hyper-parameters of the DQN update.
 #[derive(Debug, Clone, Copy)]
 pub struct DqnConfig {
-    /// Adam learning rate.
+    /// Adam learning rate at the first update.
     pub lr: f64,
+    /// Learning rate reached after `lr_decay_updates` updates (linear decay;
+    /// held from then on).
+    pub lr_final: f64,
+    /// Updates over which the learning rate falls from `lr` to `lr_final`;
+    /// 0 keeps `lr` throughout.
+    pub lr_decay_updates: u64,
     /// Discount.
     pub gamma: f32,
     /// Updates between target-network copies.
@@ -44,21 +50,40 @@ pub struct UpdateTiming {
 /// path updates every parameter in place in one pass.
 struct Adam {
     lr: f32,
+    lr_final: f32,
+    decay: u64,
     t: u64,
     m: Vec<Vec<f32>>,
     v: Vec<Vec<f32>>,
 }
 
 impl Adam {
-    fn new(lr: f64) -> Self {
+    fn new(cfg: &DqnConfig) -> Self {
         let sizes = PARAMS.iter().map(|(_, s)| s.iter().product::<usize>());
-        Self { lr: lr as f32, t: 0, m: sizes.clone().map(|n| vec![0.0; n]).collect(), v: sizes.map(|n| vec![0.0; n]).collect() }
+        Self {
+            lr: cfg.lr as f32,
+            lr_final: cfg.lr_final as f32,
+            decay: cfg.lr_decay_updates,
+            t: 0,
+            m: sizes.clone().map(|n| vec![0.0; n]).collect(),
+            v: sizes.map(|n| vec![0.0; n]).collect(),
+        }
+    }
+
+    /// The learning rate of step `t` (from 1): linear from `lr` to `lr_final`
+    /// over `decay` steps.
+    fn lr_at(&self, t: u64) -> f32 {
+        if self.decay == 0 {
+            return self.lr;
+        }
+        let frac = ((t - 1) as f64 / self.decay as f64).min(1.0) as f32;
+        self.lr + (self.lr_final - self.lr) * frac
     }
 
     /// One step with the gradients of every parameter, flat in canonical order.
     fn step(&mut self, net: &QNet, grads: &[f32]) -> Result<()> {
         self.t += 1;
-        let hyper = AdamHyper { lr: self.lr, beta1: 0.9, beta2: 0.999, eps: 1e-8, t: self.t };
+        let hyper = AdamHyper { lr: self.lr_at(self.t), beta1: 0.9, beta2: 0.999, eps: 1e-8, t: self.t };
         for (i, ((var, m), v)) in net.vars().iter().zip(&mut self.m).zip(&mut self.v).enumerate() {
             let g = &grads[OFFSETS[i]..OFFSETS[i + 1]];
             if var.device().is_cpu() {
@@ -120,7 +145,7 @@ impl Dqn {
         let online = QNet::new(seed, device)?;
         let target = QNet::new(seed, device)?;
         let grads = vec![0.0; OFFSETS[10]];
-        Ok(Self { online, target, opt: Adam::new(cfg.lr), cfg, updates: 0, timing: UpdateTiming::default(), shards: 1, work: Vec::new(), grads })
+        Ok(Self { online, target, opt: Adam::new(&cfg), cfg, updates: 0, timing: UpdateTiming::default(), shards: 1, work: Vec::new(), grads })
     }
 
     /// Uses the fused CPU path (default on the CPU) or the generic one.
@@ -361,5 +386,23 @@ impl Dqn {
     /// One Adam step with given gradients (tests compare it with candle-nn).
     pub(crate) fn opt_step(&mut self, grads: &[f32]) -> Result<()> {
         self.opt.step(&self.online, grads)
+    }
+}
+
+#[cfg(test)]
+mod schedule_tests {
+    use super::*;
+
+    #[test]
+    fn the_learning_rate_falls_linearly_then_holds() {
+        let cfg = DqnConfig { lr: 1e-3, lr_final: 2e-4, lr_decay_updates: 100, gamma: 0.9, target_update: 10, huber_delta: 1.0, double: true };
+        let adam = Adam::new(&cfg);
+        let close = |a: f32, b: f32| (a - b).abs() < 1e-9;
+        assert!(close(adam.lr_at(1), 1e-3));
+        assert!(close(adam.lr_at(51), 6e-4), "{}", adam.lr_at(51));
+        assert!(close(adam.lr_at(101), 2e-4));
+        assert!(close(adam.lr_at(10_000), 2e-4));
+        let constant = Adam::new(&DqnConfig { lr_decay_updates: 0, ..cfg });
+        assert!(close(constant.lr_at(10_000), 1e-3));
     }
 }

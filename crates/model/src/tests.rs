@@ -25,7 +25,7 @@ fn transitions(n: usize, seed: u64) -> Vec<f32> {
 }
 
 fn cfg(double: bool) -> DqnConfig {
-    DqnConfig { lr: 1e-3, gamma: 0.9, target_update: 1000, huber_delta: 10.0, double }
+    DqnConfig { lr: 1e-3, lr_final: 1e-3, lr_decay_updates: 0, gamma: 0.9, target_update: 1000, huber_delta: 10.0, double }
 }
 
 /// Gradients through candle's autograd over stock ops (the reference), flat.
@@ -238,7 +238,9 @@ fn flat_weights_and_checkpoints_round_trip() {
 #[test]
 fn updates_reduce_the_loss_on_a_fixed_batch() {
     let dev = Device::Cpu;
-    let mut dqn = Dqn::new(DqnConfig { lr: 1e-3, gamma: 0.0, target_update: 10_000, huber_delta: 1.0, double: false }, 1, &dev).unwrap();
+    let mut dqn =
+        Dqn::new(DqnConfig { lr: 1e-3, lr_final: 1e-3, lr_decay_updates: 0, gamma: 0.0, target_update: 10_000, huber_delta: 1.0, double: false }, 1, &dev)
+            .unwrap();
     let n = 32;
     let mut data = random(n * TRANSITION_LEN, 11, 0.0, 1.0);
     for i in 0..n {

@@ -167,8 +167,13 @@ pub struct ReplaySection {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct LearnerSection {
-    /// Adam learning rate.
+    /// Adam learning rate at the first update.
     pub lr: f64,
+    /// Learning rate after `lr_decay_updates` updates (linear decay, then held).
+    pub lr_final: f64,
+    /// Updates over which the learning rate falls from `lr` to `lr_final`; 0
+    /// keeps `lr`.
+    pub lr_decay_updates: u64,
     /// Discount.
     pub gamma: f64,
     /// Updates between target-network copies.
@@ -251,6 +256,8 @@ impl Default for LearnerSection {
     fn default() -> Self {
         Self {
             lr: 5e-4,
+            lr_final: 5e-4,
+            lr_decay_updates: 0,
             gamma: 0.99,
             target_update: 150,
             max_rate_hz: 0.0,
@@ -379,6 +386,7 @@ impl Config {
         }
         let l = &self.learner;
         positive("learner.lr", l.lr)?;
+        positive("learner.lr_final", l.lr_final)?;
         if !(0.0..1.0).contains(&l.gamma) {
             bail!("key `learner.gamma` must lie in [0, 1), got {}", l.gamma);
         }

@@ -20,6 +20,8 @@ pub fn dqn_config(cfg: &Config) -> DqnConfig {
     let l = &cfg.learner;
     DqnConfig {
         lr: l.lr,
+        lr_final: l.lr_final,
+        lr_decay_updates: l.lr_decay_updates,
         gamma: (l.gamma as f32).powi(l.n_step as i32),
         target_update: l.target_update,
         huber_delta: l.huber_delta as f32,
