@@ -39,7 +39,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, e: usize) -> Result<()> {
     }
     let n = cfg.sim.agents;
     let envs = cfg.sim.envs;
-    let mut net = QNet::new(cfg.seed, &rotorhive_model::device(&cfg.actor.device)?)?;
+    let mut net = QNet::new(cfg.seed, &rotorhive_model::device(cfg.actor.device.as_str())?)?;
     net.set_threads(cfg.actor.threads);
     let mut obs_rx = hub.receiver::<f32, ObsHeader>(&Channel::obs(e, cfg.obs_messages_per_step()))?;
     let mut act_tx = hub.sender::<u8, ActionHeader>(&Channel::actions(e), n, STALL_TIMEOUT)?;

@@ -10,6 +10,78 @@ use serde::{Deserialize, Serialize};
 
 use rotorhive_sim::{Arena, CameraSpec, GenParams, RendererKind, SimConfig};
 
+/// A config value that is one of a few names: parsed when the config is read
+/// (toml names the key in the error), written back as the same name.
+macro_rules! named_enum {
+    ($(#[$doc:meta])* $name:ident, { $($(#[$vdoc:meta])* $variant:ident = $text:literal),+ $(,)? }) => {
+        $(#[$doc])*
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+        #[serde(try_from = "String", into = "String")]
+        pub enum $name {
+            $($(#[$vdoc])* $variant),+
+        }
+
+        impl $name {
+            /// The name the config uses.
+            pub fn as_str(self) -> &'static str {
+                match self {
+                    $(Self::$variant => $text),+
+                }
+            }
+        }
+
+        impl TryFrom<String> for $name {
+            type Error = String;
+
+            fn try_from(s: String) -> std::result::Result<Self, String> {
+                match s.as_str() {
+                    $($text => Ok(Self::$variant),)+
+                    _ => Err(format!("must be one of {:?}, got {s:?}", [$($text),+])),
+                }
+            }
+        }
+
+        impl From<$name> for String {
+            fn from(v: $name) -> String {
+                v.as_str().to_string()
+            }
+        }
+
+        impl std::fmt::Display for $name {
+            fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.write_str(self.as_str())
+            }
+        }
+    };
+}
+
+named_enum!(
+    /// `sim.renderer`.
+    Renderer, {
+    /// Ray casting on the CPU.
+    Cpu = "cpu",
+    /// wgpu (Vulkan; lavapipe without a GPU).
+    Wgpu = "wgpu",
+});
+
+named_enum!(
+    /// `sim.observation_mode`.
+    ObservationMode, {
+    /// One message per step with every agent's observation.
+    Batched = "batched",
+    /// One message (and render call) per agent.
+    NonBatched = "non-batched",
+});
+
+named_enum!(
+    /// `actor.device` and `learner.device`.
+    DeviceName, {
+    /// The CPU.
+    Cpu = "cpu",
+    /// GPU 0 through CUDA (a build with `--features cuda`).
+    Cuda = "cuda",
+});
+
 /// The whole configuration of a run.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -105,10 +177,10 @@ pub struct SimSection {
     /// different seeds in every environment); agents start each episode in
     /// a lane drawn at random. 0 trains on `arena` alone.
     pub generated_lanes: usize,
-    /// `cpu` (ray casting) or `wgpu`.
-    pub renderer: String,
-    /// `batched` or `non-batched`.
-    pub observation_mode: String,
+    /// The renderer.
+    pub renderer: Renderer,
+    /// One observation message per step or one per agent.
+    pub observation_mode: ObservationMode,
     /// Drones collide with and see each other.
     pub interactive: bool,
     /// Physics step (s).
@@ -137,7 +209,7 @@ pub struct ActorSection {
     /// Threads for inference.
     pub threads: usize,
     /// Device for inference: "cpu", or "cuda" in a build with `--features cuda`.
-    pub device: String,
+    pub device: DeviceName,
 }
 
 /// `[replay]`.
@@ -196,7 +268,7 @@ pub struct LearnerSection {
     /// discounted rewards and the learner bootstraps with gamma^n.
     pub n_step: usize,
     /// Device for training: "cpu", or "cuda" in a build with `--features cuda`.
-    pub device: String,
+    pub device: DeviceName,
 }
 
 /// `configs/default.toml`, the one source of the defaults: `hive train`
@@ -228,8 +300,8 @@ impl Default for SimSection {
             agents: 50,
             arena: PathBuf::from("configs/arenas/train.toml"),
             generated_lanes: 15,
-            renderer: "cpu".into(),
-            observation_mode: "batched".into(),
+            renderer: Renderer::Cpu,
+            observation_mode: ObservationMode::Batched,
             interactive: false,
             physics_dt: 0.02,
             action_period: 1.0,
@@ -242,7 +314,7 @@ impl Default for SimSection {
 
 impl Default for ActorSection {
     fn default() -> Self {
-        Self { eps_start: 1.0, eps_end: 0.1, eps_decay: 300_000, threads: 1, device: "cpu".into() }
+        Self { eps_start: 1.0, eps_end: 0.1, eps_decay: 300_000, threads: 1, device: DeviceName::Cpu }
     }
 }
 
@@ -267,7 +339,7 @@ impl Default for LearnerSection {
             huber_delta: 1.0,
             double_dqn: true,
             n_step: 1,
-            device: "cpu".into(),
+            device: DeviceName::Cpu,
         }
     }
 }
@@ -277,7 +349,7 @@ impl Config {
     /// `key=value` overrides and validates the result.
     /// Whether a sim publishes all its agents' observations in one message.
     pub fn batched(&self) -> bool {
-        self.sim.observation_mode == "batched"
+        self.sim.observation_mode == ObservationMode::Batched
     }
 
     /// Observation messages a sim publishes per step.
@@ -349,12 +421,6 @@ impl Config {
         if s.envs > 64 || s.agents > 4096 {
             bail!("keys `sim.envs` ({}) and `sim.agents` ({}) must be at most 64 and 4096", s.envs, s.agents);
         }
-        if !["cpu", "wgpu"].contains(&s.renderer.as_str()) {
-            bail!("key `sim.renderer` must be \"cpu\" or \"wgpu\", got {:?}", s.renderer);
-        }
-        if !["batched", "non-batched"].contains(&s.observation_mode.as_str()) {
-            bail!("key `sim.observation_mode` must be \"batched\" or \"non-batched\", got {:?}", s.observation_mode);
-        }
         let a = &self.actor;
         for (k, v) in [("actor.eps_start", a.eps_start), ("actor.eps_end", a.eps_end)] {
             if !(0.0..=1.0).contains(&v) {
@@ -372,7 +438,7 @@ impl Config {
             bail!("key `replay.samples_per_insert` must be 0 (off) or positive, got {}", self.replay.samples_per_insert);
         }
         for (k, v) in [("actor.device", &a.device), ("learner.device", &self.learner.device)] {
-            rotorhive_model::device(v).with_context(|| format!("key `{k}`"))?;
+            rotorhive_model::device(v.as_str()).with_context(|| format!("key `{k}`"))?;
         }
         let r = &self.replay;
         positive("replay.capacity", r.capacity as f64)?;
@@ -452,8 +518,11 @@ impl Config {
             interactive: s.interactive,
             camera: CameraSpec { range: s.depth_range, ..CameraSpec::default() },
             render_threads: s.render_threads,
-            renderer: if s.renderer == "wgpu" { RendererKind::Wgpu } else { RendererKind::Cpu },
-            batched: s.observation_mode == "batched",
+            renderer: match s.renderer {
+                Renderer::Cpu => RendererKind::Cpu,
+                Renderer::Wgpu => RendererKind::Wgpu,
+            },
+            batched: self.batched(),
             ..SimConfig::default()
         }
     }
@@ -523,7 +592,7 @@ mod tests {
         let c = Config::load(None, &["sim.agents=7".into(), "learner.lr=0.01".into(), "sim.observation_mode=batched".into()]).unwrap();
         assert_eq!(c.sim.agents, 7);
         assert_eq!(c.learner.lr, 0.01);
-        assert_eq!(c.sim.observation_mode, "batched");
+        assert_eq!(c.sim.observation_mode, ObservationMode::Batched);
         let e = format!("{:#}", Config::load(None, &["sim.observation_mode=sideways".into()]).unwrap_err());
         assert!(e.contains("sim.observation_mode"), "{e}");
         let e = format!("{:#}", Config::load(None, &["sim.agents=0".into()]).unwrap_err());

@@ -51,7 +51,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     let run_dir = cx.run_dir.map_or_else(|| PathBuf::from("."), Path::to_path_buf);
     let ckpt_dir = run_dir.join("checkpoints");
     std::fs::create_dir_all(&ckpt_dir).with_context(|| format!("cannot create {}", ckpt_dir.display()))?;
-    let mut dqn = Dqn::new(dqn_config(cfg), cfg.seed, &rotorhive_model::device(&cfg.learner.device)?)?;
+    let mut dqn = Dqn::new(dqn_config(cfg), cfg.seed, &rotorhive_model::device(cfg.learner.device.as_str())?)?;
     dqn.set_threads(cfg.learner.threads);
     // A restarted (or resumed) learner goes on from its last saved state:
     // weights, target, Adam moments and counters.
