@@ -654,6 +654,8 @@ fn supervise<S: Service>(
     let mut successes_recent: VecDeque<bool> = VecDeque::with_capacity(window);
     let mut curve = Series::default();
     let mut epsilon = cfg.actor.eps_start;
+    let schedule = cfg.deterministic.then(|| rotorhive_roles::schedule::Schedule::new(&cfg));
+    let mut order = EpisodeOrder::new(envs, cfg.deterministic);
     let mut latest: BTreeMap<(u32, u32), Telemetry> = BTreeMap::new();
     let mut sys = System::new().map_err(|e| anyhow::anyhow!("cannot read system statistics: {e}"))?;
     let mut cpu_mean = Mean::default();
@@ -690,11 +692,26 @@ fn supervise<S: Service>(
                 interrupted = true;
                 break;
             }
-            // Episodes from every actor.
+            // Episodes from every actor; a deterministic run's in (step,
+            // environment) order, with its schedule's counts.
             while let Some(m) = ep_rx.try_recv()? {
-                let h = *m.user_header();
+                order.push(*m.user_header(), m.payload());
+            }
+            for (h, payload) in order.ready() {
                 epsilon = h.epsilon_micro as f64 / 1e6;
-                for e in m.payload().chunks_exact(3) {
+                let (env_steps, updates, replay_size) = match &schedule {
+                    Some(s) => (
+                        h.step * cfg.agents_total() as u64,
+                        s.minibatches_after(h.step),
+                        (h.step * cfg.agents_total() as u64).min(cfg.replay.capacity as u64) as i64,
+                    ),
+                    None => (
+                        sum_work(&latest, RoleKind::Sim),
+                        sum_work(&latest, RoleKind::Learner),
+                        latest.get(&(RoleKind::Replay as u32, 0)).map(|t| t.value_milli).unwrap_or(0),
+                    ),
+                };
+                for e in payload.chunks_exact(3) {
                     episodes += 1;
                     if recent.len() == window {
                         recent.pop_front();
@@ -704,14 +721,7 @@ fn supervise<S: Service>(
                     successes_recent.push_back(e[2] == rotorhive_msg::DoneKind::Goal as u8 as f32);
                     let wall = start.elapsed().as_secs_f64();
                     let roll = rolling(&recent);
-                    writeln!(
-                        metrics,
-                        "episode,{wall:.3},{},{episodes},{},{roll:.3},{epsilon:.4},{},{}",
-                        sum_work(&latest, RoleKind::Sim),
-                        e[0],
-                        sum_work(&latest, RoleKind::Learner),
-                        latest.get(&(RoleKind::Replay as u32, 0)).map(|t| t.value_milli).unwrap_or(0)
-                    )?;
+                    writeln!(metrics, "episode,{wall:.3},{env_steps},{episodes},{},{roll:.3},{epsilon:.4},{updates},{replay_size}", e[0])?;
                     if recent.len() == window && roll >= threshold && time_to_threshold.is_none() {
                         time_to_threshold = Some(wall);
                         let _ = eval_now.send(());
@@ -724,7 +734,15 @@ fn supervise<S: Service>(
                 let t = *m.user_header();
                 latest.insert((t.role, t.index), t);
             }
-            if let Some(t) = time_to_threshold {
+            if let Some(s) = &schedule {
+                // A deterministic run ends when its schedule is done: every
+                // round reported and the learner through its last update.
+                if order.through() >= s.rounds() && sum_work(&latest, RoleKind::Learner) >= s.total_updates() {
+                    break;
+                }
+            } else if cfg.max_env_steps > 0 && sum_work(&latest, RoleKind::Sim) >= cfg.max_env_steps {
+                break;
+            } else if let Some(t) = time_to_threshold {
                 // Without evaluation the run ends at the threshold; with it,
                 // training goes on until a greedy evaluation (at any time of the
                 // run: the best is the result) is good enough.
@@ -1033,5 +1051,44 @@ mod tests {
         assert!(now.len() <= 120 && old.len() <= 120, "{} {}", now.len(), old.len());
         assert!(now.ends_with("39,78\n"), "{now:?}");
         let _ = std::fs::remove_dir_all(&dir);
+    }
+}
+
+/// Episode messages in the order they are written to `metrics.csv`: as they
+/// come, or (a deterministic run) by (step, environment): every actor of
+/// such a run reports every step, so once each has reported step `k`,
+/// everything up to `k` is known.
+struct EpisodeOrder {
+    ordered: bool,
+    /// Newest step each environment reported.
+    latest: Vec<Option<u64>>,
+    held: BTreeMap<(u64, u32), Vec<(EpisodeHeader, Vec<f32>)>>,
+}
+
+impl EpisodeOrder {
+    fn new(envs: usize, ordered: bool) -> Self {
+        Self { ordered, latest: vec![None; envs], held: BTreeMap::new() }
+    }
+
+    fn push(&mut self, h: EpisodeHeader, payload: &[f32]) {
+        if let Some(l) = self.latest.get_mut(h.actor as usize) {
+            *l = Some(l.map_or(h.step, |v| v.max(h.step)));
+        }
+        self.held.entry((if self.ordered { h.step } else { 0 }, if self.ordered { h.actor } else { 0 })).or_default().push((h, payload.to_vec()));
+    }
+
+    /// The step every environment has reported (0 before all have).
+    fn through(&self) -> u64 {
+        self.latest.iter().map(|l| l.unwrap_or(0)).min().unwrap_or(0)
+    }
+
+    /// The messages that can be written now, in order.
+    fn ready(&mut self) -> Vec<(EpisodeHeader, Vec<f32>)> {
+        if !self.ordered {
+            return std::mem::take(&mut self.held).into_values().flatten().collect();
+        }
+        let upto = self.through();
+        let later = self.held.split_off(&(upto + 1, 0));
+        std::mem::replace(&mut self.held, later).into_values().flatten().collect()
     }
 }

@@ -249,6 +249,9 @@ pub struct EpisodeHeader {
     pub transitions: u64,
     /// Exploration rate in use ×1e6.
     pub epsilon_micro: u64,
+    /// The observation step the episodes ended on (a deterministic run's
+    /// round).
+    pub step: u64,
 }
 
 /// The role a telemetry sample comes from.

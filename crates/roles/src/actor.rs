@@ -17,6 +17,7 @@ use rotorhive_msg::EpisodeHeader;
 use rotorhive_transport::Sender;
 
 use crate::config::Config;
+use crate::schedule::Schedule;
 use crate::{Counters, Ctx, POLL, STALL_TIMEOUT, episodes_channel, roles_of};
 
 /// Exploration rate after `transitions` (across all actors): constant until
@@ -52,6 +53,10 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, e: usize) -> Result<()> {
     let mut rng = Pcg64Mcg::seed_from_u64(cfg.seed ^ (0xac70 + (cfg.cluster.env_offset + e) as u64));
 
     let mut version = 0u64;
+    // The update count of the weights in use (0: the initial ones, which
+    // the learner's first publication also carries).
+    let mut weights_updates = 0u64;
+    let schedule = cfg.deterministic.then(|| Schedule::new(cfg));
     let mut nstep = NStep::new(steps_n, cfg.learner.gamma as f32, n);
     let mut prev_actions = vec![0u8; n];
     let mut have_prev = false;
@@ -75,7 +80,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, e: usize) -> Result<()> {
             // its saved update count, which never lies behind.
             if h.version != version {
                 net.load_flat(w.payload()).context("loading published weights")?;
-                version = h.version;
+                (version, weights_updates) = (h.version, h.updates);
                 tel.sample.weight_version = version;
             }
         }
@@ -88,6 +93,10 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, e: usize) -> Result<()> {
         let h = *msg.user_header();
         if h.total as usize != n || h.first as usize + h.agents as usize > n || msg.payload().len() != rotorhive_msg::obs_batch_len(h.agents as usize) {
             bail!("observation batch from sim {e} has agents {}..{} of {}, the config says {n}", h.first, h.first + h.agents, h.total);
+        }
+        if schedule.is_some_and(|s| h.step > s.rounds()) {
+            // A deterministic run's budget is spent: nothing more to act on.
+            continue;
         }
         if have_prev && h.step + 1 == expected_step {
             // The sim published this step again: our actions were not seen.
@@ -124,6 +133,38 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, e: usize) -> Result<()> {
         let (obs, rest) = p.split_at(n * OBS_LEN);
         let (rewards, dones) = rest.split_at(n);
 
+        if let Some(s) = &schedule {
+            // The weights this step must act with, published once the
+            // learner has made exactly those updates.
+            let need = s.updates_for_step(h.step);
+            while weights_updates != need {
+                if weights_updates > need {
+                    bail!("actor {e}: weights of update {weights_updates} arrived before step {} needed those of update {need}", h.step);
+                }
+                if hub.shutdown_requested() {
+                    tel.tick(true);
+                    return Ok(());
+                }
+                match w_rx.latest().context("reading weights")? {
+                    Some(w) => {
+                        net.load_flat(w.payload()).context("loading published weights")?;
+                        (version, weights_updates) = (w.user_header().version, w.user_header().updates);
+                        tel.sample.weight_version = version;
+                    }
+                    None => std::thread::sleep(std::time::Duration::from_micros(200)),
+                }
+            }
+        }
+        let t = Instant::now();
+        let eps = epsilon(cfg, transitions * cfg.envs_total() as u64);
+        let greedy = net.greedy(obs)?;
+        for i in 0..n {
+            actions[i] = if rng.random::<f64>() < eps { rng.random_range(0..2u8) } else { greedy[i] };
+        }
+        tel.stage(0, t);
+        // The actions leave first; then this step's transitions (round
+        // `h.step` of a deterministic run, which must follow the acting).
+        send_actions(&mut act_tx, e, h.step, &actions, &mut tel.sample.lost);
         let t = Instant::now();
         if have_prev {
             // Every environment of the run, on every host, acts at about
@@ -134,7 +175,9 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, e: usize) -> Result<()> {
             // episode ended; they are packed in place in the loaned sample.
             nstep.push(&prev_actions, rewards, dones);
             let count = nstep.out.len();
-            if count > 0 {
+            // A deterministic run sends every round, empty or not: the
+            // replay inserts rounds whole.
+            if count > 0 || schedule.is_some() {
                 let sent = trans_tx.send_with(count * PACKED_LEN, |th, out| {
                     *th = TransitionHeader { actor: e as u32, count: count as u32, seq, weight_version: version, episodes };
                     for (o, t) in out.chunks_exact_mut(PACKED_LEN).zip(&nstep.out) {
@@ -147,6 +190,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, e: usize) -> Result<()> {
                         seq += 1;
                         transitions += count as u64;
                     }
+                    Err(err) if schedule.is_some() => bail!("actor {e}: a deterministic run cannot lose transitions: {err}"),
                     Err(err) => {
                         tracing::warn!("actor {e}: {err}");
                         tel.sample.lost += 1;
@@ -164,29 +208,25 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, e: usize) -> Result<()> {
                     episodes += 1;
                 }
             }
-            if !finished.is_empty() {
+            // A deterministic run reports every round, so that the
+            // supervisor can write episodes in (step, environment) order.
+            if !finished.is_empty() || schedule.is_some() {
                 let count = finished.len() / 3;
-                let _ = ep_tx.send_with(finished.len(), |eh, out| {
-                    *eh = EpisodeHeader { actor: e as u32, count: count as u32, transitions, epsilon_micro: (eps_now * 1e6) as u64 };
+                let sent = ep_tx.send_with(finished.len(), |eh, out| {
+                    *eh = EpisodeHeader { actor: e as u32, count: count as u32, transitions, epsilon_micro: (eps_now * 1e6) as u64, step: h.step };
                     out.copy_from_slice(&finished);
                 });
+                if let (Err(err), Some(_)) = (sent, &schedule) {
+                    bail!("actor {e}: a deterministic run cannot lose episodes: {err}");
+                }
             }
             tel.sample.value_milli = (eps_now * 1000.0) as i64;
         }
         tel.stage(1, t);
-
-        let t = Instant::now();
-        let eps = epsilon(cfg, transitions * cfg.envs_total() as u64);
-        let greedy = net.greedy(obs)?;
-        for i in 0..n {
-            actions[i] = if rng.random::<f64>() < eps { rng.random_range(0..2u8) } else { greedy[i] };
-        }
-        tel.stage(0, t);
         nstep.store(obs);
         drop(whole);
         prev_actions.copy_from_slice(&actions);
         have_prev = true;
-        send_actions(&mut act_tx, e, h.step, &actions, &mut tel.sample.lost);
         tel.sample.work = transitions;
         tel.sample.work2 = episodes;
     }

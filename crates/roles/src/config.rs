@@ -94,6 +94,13 @@ pub struct Config {
     pub threshold: f64,
     /// Episodes in the rolling mean.
     pub rolling_window: usize,
+    /// A run that is a pure function of its config and seed: the roles
+    /// follow [`crate::schedule::Schedule`] instead of their own pace, and
+    /// the run ends after `max_env_steps` agent-steps (not at convergence).
+    pub deterministic: bool,
+    /// Budget in agent-steps (every host's agents); 0 = none. Required by a
+    /// deterministic run.
+    pub max_env_steps: u64,
     /// Simulator settings.
     pub sim: SimSection,
     /// Actor settings.
@@ -283,6 +290,8 @@ impl Default for Config {
             max_seconds: 600.0,
             threshold: 300.0,
             rolling_window: 50,
+            deterministic: false,
+            max_env_steps: 0,
             sim: SimSection::default(),
             actor: ActorSection::default(),
             replay: ReplaySection::default(),
@@ -391,6 +400,20 @@ impl Config {
             Ok(())
         }
         positive("max_seconds", self.max_seconds)?;
+        if self.deterministic {
+            if self.max_env_steps == 0 {
+                bail!("key `deterministic` needs a budget: set `max_env_steps` (agent-steps) above 0");
+            }
+            if self.replay.samples_per_insert <= 0.0 {
+                bail!("key `deterministic` needs `replay.samples_per_insert` above 0 (the schedule follows it)");
+            }
+            if self.learner.max_rate_hz != 0.0 {
+                bail!("key `deterministic` needs `learner.max_rate_hz = 0` (the schedule sets the pace)");
+            }
+            if self.cluster.workers > 0 || self.cluster.envs_elsewhere > 0 {
+                bail!("key `deterministic` is not supported across hosts yet (`cluster.workers` is {})", self.cluster.workers);
+            }
+        }
         positive("cluster.join_timeout_s", self.cluster.join_timeout_s)?;
         positive("rolling_window", self.rolling_window as f64)?;
         let e = &self.eval;

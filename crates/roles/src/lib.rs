@@ -11,6 +11,7 @@ pub mod actor;
 pub mod config;
 pub mod learner;
 pub mod replay;
+pub mod schedule;
 pub mod sim;
 
 use std::path::{Path, PathBuf};

@@ -2,6 +2,7 @@
 //! actors publish (checking each actor's sequence numbers for loss) and keeps
 //! the learner's minibatch queue full once the memory holds `min_fill`.
 
+use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
@@ -11,6 +12,7 @@ use rotorhive_transport::{Channel, TransportError};
 
 use iceoryx2::service::Service;
 
+use crate::schedule::Schedule;
 use crate::{Counters, Ctx, roles_of};
 
 /// Runs the replay memory until the run stops.
@@ -43,6 +45,9 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     let mut mb_seq = 0u64;
     let mut backoff_until = Instant::now();
     let mut limit = SampleLimit::new(cfg);
+    if cfg.deterministic {
+        return run_scheduled(cfg, hub, &mut mem, journal.as_mut(), &mut rx, &mut tx, &mut tel);
+    }
     loop {
         if hub.shutdown_requested() {
             break;
@@ -132,6 +137,120 @@ impl SampleLimit {
     }
 }
 
+/// The replay of a deterministic run ([`Schedule`]): transition batches wait
+/// per environment until every environment's batch of the next round is in,
+/// then go in environment by environment; after round `k` exactly
+/// `minibatches_after(k)` minibatches have gone out, each sampled (from the
+/// seeded generator) before the next round goes in, and offered until the
+/// learner takes it.
+fn run_scheduled<S: Service>(
+    cfg: &crate::config::Config,
+    hub: &rotorhive_transport::Hub<S>,
+    mem: &mut Replay,
+    mut journal: Option<&mut Journal>,
+    rx: &mut rotorhive_transport::Receiver<S, u16, TransitionHeader>,
+    tx: &mut rotorhive_transport::Sender<S, u16, MinibatchHeader>,
+    tel: &mut Counters<S>,
+) -> Result<()> {
+    let schedule = Schedule::new(cfg);
+    let batch = cfg.replay.batch;
+    let mut pending: Vec<VecDeque<Vec<u16>>> = vec![VecDeque::new(); cfg.sim.envs];
+    let mut next_seq = vec![None::<u64>; cfg.sim.envs];
+    let (mut rounds, mut sent) = (0u64, 0u64);
+    let mut minibatch: Option<Vec<u16>> = None;
+    while !hub.shutdown_requested() {
+        let t = Instant::now();
+        let mut busy = false;
+        while let Some(m) = rx.try_recv().context("receiving transitions")? {
+            enqueue(&m, &mut pending, &mut next_seq, &mut tel.sample.lost)?;
+            busy = true;
+        }
+        tel.stage(0, t);
+        // The minibatches owed after the rounds in, one at a time, then the
+        // next round.
+        if minibatch.is_none() && sent < schedule.minibatches_after(rounds) {
+            let mut out = vec![0u16; batch * PACKED_LEN];
+            mem.sample_into(&mut out);
+            minibatch = Some(out);
+        }
+        if let Some(out) = &minibatch {
+            let t = Instant::now();
+            let res = tx.send_with(out.len(), |h, o| {
+                o.copy_from_slice(out);
+                *h = MinibatchHeader { batch: batch as u32, _pad: 0, seq: sent, replay_len: mem.len() as u64, inserted: mem.inserted() };
+            });
+            tel.stage(1, t);
+            match res {
+                Ok(()) => {
+                    sent += 1;
+                    minibatch = None;
+                    busy = true;
+                }
+                Err(TransportError::Stalled { .. }) => {}
+                Err(e) => return Err(e).context("sending a minibatch"),
+            }
+        } else if rounds < schedule.rounds() && pending.iter().all(|q| !q.is_empty()) {
+            for q in &mut pending {
+                let b = q.pop_front().unwrap_or_default();
+                mem.insert(&b);
+                if let Some(j) = journal.as_deref_mut() {
+                    j.record(mem, b.len() / PACKED_LEN)?;
+                }
+            }
+            rounds += 1;
+            busy = true;
+        }
+        tel.sample.work = mem.inserted();
+        tel.sample.work2 = sent;
+        tel.sample.value_milli = mem.len() as i64;
+        tel.tick(false);
+        if !busy {
+            let t = Instant::now();
+            if let Some(m) = rx.recv_timeout(Duration::from_millis(1)).context("waiting for transitions")? {
+                enqueue(&m, &mut pending, &mut next_seq, &mut tel.sample.lost)?;
+            }
+            tel.stage(2, t);
+        }
+    }
+    if let Some(j) = &journal {
+        j.sync()?;
+    }
+    tel.tick(true);
+    Ok(())
+}
+
+/// Queues a deterministic run's transition batch behind its environment's
+/// earlier ones.
+fn enqueue<S: Service>(
+    m: &rotorhive_transport::Msg<S, u16, TransitionHeader>,
+    pending: &mut [VecDeque<Vec<u16>>],
+    next_seq: &mut [Option<u64>],
+    lost: &mut u64,
+) -> Result<()> {
+    let h = *m.user_header();
+    let envs = pending.len();
+    let Some(q) = pending.get_mut(h.actor as usize) else {
+        anyhow::bail!("transitions from actor {} of a run with {envs} environments", h.actor);
+    };
+    check_seq(&h, next_seq, lost);
+    *lost += corrupt(m.payload());
+    q.push_back(m.payload().to_vec());
+    Ok(())
+}
+
+/// Counts a gap in an actor's sequence numbers (a restarted actor starts
+/// again at 0, which is not loss).
+fn check_seq(h: &TransitionHeader, next_seq: &mut [Option<u64>], lost: &mut u64) {
+    if let Some(slot) = next_seq.get_mut(h.actor as usize) {
+        if let Some(want) = *slot
+            && h.seq > want
+        {
+            *lost += h.seq - want;
+        }
+        *slot = Some(h.seq + 1);
+    }
+}
+
 /// Transition batches taken per loop before the next minibatch is offered.
 const INGEST_PER_LOOP: usize = 4;
 
@@ -145,15 +264,7 @@ fn ingest<S: Service>(
     next_seq: &mut [Option<u64>],
     lost: &mut u64,
 ) -> Result<()> {
-    let h = *m.user_header();
-    if let Some(slot) = next_seq.get_mut(h.actor as usize) {
-        if let Some(want) = *slot
-            && h.seq > want
-        {
-            *lost += h.seq - want;
-        }
-        *slot = Some(h.seq + 1);
-    }
+    check_seq(m.user_header(), next_seq, lost);
     *lost += corrupt(m.payload());
     mem.insert(m.payload());
     if let Some(j) = journal {
