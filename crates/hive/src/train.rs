@@ -1032,27 +1032,8 @@ fn supervise<S: Service>(
     Ok(())
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn a_table_past_its_cap_moves_aside_and_starts_again_with_its_header() {
-        let dir = std::env::temp_dir().join(format!("rotorhive-table-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let mut t = Table::open(&dir, "metrics.csv", "a,b", false).unwrap();
-        t.cap = 100;
-        for i in 0..40 {
-            writeln!(t, "{i},{}", i * 2).unwrap();
-        }
-        let now = std::fs::read_to_string(dir.join("metrics.csv")).unwrap();
-        let old = std::fs::read_to_string(dir.join("metrics.csv.1")).unwrap();
-        assert!(now.starts_with("a,b\n") && old.starts_with("a,b\n"), "{now:?} {old:?}");
-        assert!(now.len() <= 120 && old.len() <= 120, "{} {}", now.len(), old.len());
-        assert!(now.ends_with("39,78\n"), "{now:?}");
-        let _ = std::fs::remove_dir_all(&dir);
-    }
-}
+/// One episodes message: its header and its (return, length, done) triples.
+type Reported = (EpisodeHeader, Vec<f32>);
 
 /// Episode messages in the order they are written to `metrics.csv`: as they
 /// come, or (a deterministic run) by (step, environment): every actor of
@@ -1062,7 +1043,7 @@ struct EpisodeOrder {
     ordered: bool,
     /// Newest step each environment reported.
     latest: Vec<Option<u64>>,
-    held: BTreeMap<(u64, u32), Vec<(EpisodeHeader, Vec<f32>)>>,
+    held: BTreeMap<(u64, u32), Vec<Reported>>,
 }
 
 impl EpisodeOrder {
@@ -1083,12 +1064,55 @@ impl EpisodeOrder {
     }
 
     /// The messages that can be written now, in order.
-    fn ready(&mut self) -> Vec<(EpisodeHeader, Vec<f32>)> {
+    fn ready(&mut self) -> Vec<Reported> {
         if !self.ordered {
             return std::mem::take(&mut self.held).into_values().flatten().collect();
         }
         let upto = self.through();
         let later = self.held.split_off(&(upto + 1, 0));
         std::mem::replace(&mut self.held, later).into_values().flatten().collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_table_past_its_cap_moves_aside_and_starts_again_with_its_header() {
+        let dir = std::env::temp_dir().join(format!("rotorhive-table-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut t = Table::open(&dir, "metrics.csv", "a,b", false).unwrap();
+        t.cap = 100;
+        for i in 0..40 {
+            writeln!(t, "{i},{}", i * 2).unwrap();
+        }
+        let now = std::fs::read_to_string(dir.join("metrics.csv")).unwrap();
+        let old = std::fs::read_to_string(dir.join("metrics.csv.1")).unwrap();
+        assert!(now.starts_with("a,b\n") && old.starts_with("a,b\n"), "{now:?} {old:?}");
+        assert!(now.len() <= 120 && old.len() <= 120, "{} {}", now.len(), old.len());
+        assert!(now.ends_with("39,78\n"), "{now:?}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn a_deterministic_run_writes_episodes_by_step_then_environment() {
+        let h = |actor: u32, step: u64| EpisodeHeader { actor, count: 1, transitions: 0, epsilon_micro: 0, step };
+        let mut o = EpisodeOrder::new(2, true);
+        o.push(h(1, 3), &[1.0, 1.0, 1.0]);
+        o.push(h(1, 4), &[2.0, 1.0, 1.0]);
+        // Environment 0 has reported nothing yet: nothing can be written.
+        assert!(o.ready().is_empty());
+        o.push(h(0, 3), &[3.0, 1.0, 1.0]);
+        let got: Vec<(u32, u64)> = o.ready().iter().map(|(h, _)| (h.actor, h.step)).collect();
+        assert_eq!(got, vec![(0, 3), (1, 3)]);
+        assert_eq!(o.through(), 3);
+        o.push(h(0, 4), &[]);
+        assert_eq!(o.ready().iter().map(|(h, _)| (h.actor, h.step)).collect::<Vec<_>>(), vec![(0, 4), (1, 4)]);
+        // Free-running: as they come.
+        let mut o = EpisodeOrder::new(2, false);
+        o.push(h(1, 9), &[]);
+        o.push(h(0, 2), &[]);
+        assert_eq!(o.ready().iter().map(|(h, _)| h.actor).collect::<Vec<_>>(), vec![1, 0]);
     }
 }
