@@ -57,6 +57,17 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, e: usize) -> Result<()> {
     // the learner's first publication also carries).
     let mut weights_updates = 0u64;
     let schedule = cfg.deterministic.then(|| Schedule::new(cfg));
+    if schedule.is_some() {
+        // A message sent before its receiver exists is lost without a
+        // trace: a deterministic run's first round waits for the replay and
+        // the supervisor to be there.
+        while trans_tx.receivers() == 0 || ep_tx.receivers() == 0 {
+            if hub.shutdown_requested() {
+                return Ok(());
+            }
+            std::thread::sleep(POLL / 10);
+        }
+    }
     let mut nstep = NStep::new(steps_n, cfg.learner.gamma as f32, n);
     let mut prev_actions = vec![0u8; n];
     let mut have_prev = false;

@@ -158,6 +158,10 @@ fn run_scheduled<S: Service>(
     let mut next_seq = vec![None::<u64>; cfg.sim.envs];
     let (mut rounds, mut sent) = (0u64, 0u64);
     let mut minibatch: Option<Vec<u16>> = None;
+    // A minibatch sent before the learner subscribes would be lost.
+    while tx.receivers() == 0 && !hub.shutdown_requested() {
+        std::thread::sleep(Duration::from_millis(10));
+    }
     while !hub.shutdown_requested() {
         let t = Instant::now();
         let mut busy = false;

@@ -237,7 +237,7 @@ impl<S: Service> Hub<S> {
             .create()
             .map_err(|e| open_err("create publisher", &e))?;
         let notifier = ev.notifier_builder().create().map_err(|e| open_err("create notifier", &e))?;
-        Ok(Sender { publisher, notifier, channel: ch.name.clone(), stalls, stall_timeout, sent: 0 })
+        Ok(Sender { publisher, notifier, service: ps, channel: ch.name.clone(), stalls, stall_timeout, sent: 0 })
     }
 
     /// A receiver on a channel.
@@ -258,6 +258,7 @@ impl<S: Service> Hub<S> {
 pub struct Sender<S: Service, T: Debug + ZeroCopySend + 'static, H: Debug + ZeroCopySend + 'static> {
     publisher: Publisher<S, [T], H>,
     notifier: Notifier<S>,
+    service: iceoryx2::service::port_factory::publish_subscribe::PortFactory<S, [T], H>,
     channel: String,
     stalls: Arc<AtomicU64>,
     stall_timeout: Duration,
@@ -297,7 +298,13 @@ impl<S: Service, T: Debug + ZeroCopySend + Default + Copy + 'static, H: Debug + 
         self.sent
     }
 
-    /// Messages given up after the stall timeout.
+    /// Receivers connected to the channel now.
+    pub fn receivers(&self) -> usize {
+        use iceoryx2::service::port_factory::PortFactory as _;
+        self.service.dynamic_config().number_of_subscribers()
+    }
+
+    /// Sends that gave up on a full receiver so far.
     pub fn stalls(&self) -> u64 {
         self.stalls.load(Ordering::Relaxed)
     }
