@@ -28,6 +28,12 @@ struct TableConfig {
     /// shared-memory domain, joined over TCP loopback.
     #[serde(default)]
     split_hosts: bool,
+    /// When above 0, every cell is a deterministic run (`deterministic =
+    /// true`) of this many agent-steps: a cell gives the same episodes and
+    /// weights every time, so cells differ only by what they are, not by the
+    /// processes' timing (the wall-clock `budget_s` still bounds each run).
+    #[serde(default)]
+    deterministic_env_steps: u64,
 }
 
 /// The paper's Table II: (mode, envs, agents) → (train time, CPU %, GPU %, GPU W).
@@ -54,6 +60,9 @@ fn load(path: &Path) -> Result<TableConfig> {
     }
     if let Some(m) = c.modes.iter().find(|m| !["batched", "non-batched"].contains(&m.as_str())) {
         bail!("table config {}: key `modes`: {m:?} is neither \"batched\" nor \"non-batched\"", path.display());
+    }
+    if c.deterministic_env_steps > 0 && c.split_hosts {
+        bail!("table config {}: `deterministic_env_steps` cannot be combined with `split_hosts` (deterministic runs are one host's)", path.display());
     }
     if let Some(cell) = c.cells.iter().find(|c| c[0] == 0 || c[1] == 0) {
         bail!("table config {}: key `cells`: {cell:?} has zero environments or agents", path.display());
@@ -250,6 +259,9 @@ pub fn run(config: &Path, out: &Path, json_out: bool) -> Result<()> {
                     format!("sim.observation_mode=\"{mode}\""),
                     format!("seed={seed}"),
                 ];
+                if tc.deterministic_env_steps > 0 {
+                    sets.extend(["deterministic=true".to_string(), format!("max_env_steps={}", tc.deterministic_env_steps)]);
+                }
                 if hosts > 1 {
                     cmd.args(["--listen", &endpoint]);
                     sets.push(format!("cluster.workers={}", hosts - 1));
@@ -304,6 +316,13 @@ pub fn run(config: &Path, out: &Path, json_out: bool) -> Result<()> {
     }
     let mut md = String::new();
     writeln!(md, "# Agent-count table (the paper's Table II) on this machine\n")?;
+    if tc.deterministic_env_steps > 0 {
+        writeln!(
+            md,
+            "Every cell is a deterministic run of {} agent-steps (`deterministic = true`): the same episodes and weights every time.\n",
+            tc.deterministic_env_steps
+        )?;
+    }
     writeln!(
         md,
         "Budget {:.0} s per cell; threshold: rolling mean of the last 50 episodes ≥ the config's threshold. Paper: i7-11700K + RTX 2070 Super, AirSim.\n",
