@@ -9,10 +9,13 @@ use std::process::Command;
 
 /// A short deterministic run of `sets`; returns its episode rows without
 /// `wall_s`, its final network's bytes and its summary.
-fn run(name: &str, sets: &[&str]) -> (Vec<String>, Vec<u8>, serde_json::Value) {
+fn run(name: &str, sets: &[&str], serial: bool) -> (Vec<String>, Vec<u8>, serde_json::Value) {
     let dir = tmp(name);
     let mut c = Command::new(env!("CARGO_BIN_EXE_hive"));
     c.current_dir(root()).args(["train", "configs/default.toml", "--quiet", "--max-seconds", "120", "--run-dir"]).arg(&dir);
+    if serial {
+        c.arg("--serial");
+    }
     let common = ["deterministic=true", "sim.generated_lanes=0", "replay.capacity=3000", "eval.every_s=0", "seed=5"];
     for s in common.iter().chain(sets) {
         c.args(["--set", s]);
@@ -35,9 +38,11 @@ fn run(name: &str, sets: &[&str]) -> (Vec<String>, Vec<u8>, serde_json::Value) {
     (rows, weights, summary)
 }
 
-fn assert_reproducible(name: &str, sets: &[&str], updates: u64) {
-    let (rows_a, weights_a, summary) = run(&format!("{name}-a"), sets);
-    let (rows_b, weights_b, _) = run(&format!("{name}-b"), sets);
+/// Two runs of `sets`, the second as processes or (`serial`) as threads of
+/// one process: the same records either way.
+fn assert_reproducible(name: &str, sets: &[&str], updates: u64, serial: bool) {
+    let (rows_a, weights_a, summary) = run(&format!("{name}-a"), sets, false);
+    let (rows_b, weights_b, _) = run(&format!("{name}-b"), sets, serial);
     assert!(rows_a.len() > 20, "{name}: only {} episodes", rows_a.len());
     assert_eq!(summary["learner_updates"].as_u64(), Some(updates), "{name}: the schedule's updates, all made: {summary}");
     if let Some(i) = rows_a.iter().zip(&rows_b).position(|(a, b)| a != b) {
@@ -48,10 +53,11 @@ fn assert_reproducible(name: &str, sets: &[&str], updates: u64) {
 }
 
 /// One environment, batched observations, one-step returns: 3,000
-/// agent-steps of 4 agents (750 rounds), 1 + (3,000 - 200) / 32 = 88 updates.
+/// agent-steps of 4 agents (750 rounds), 1 + (3,000 - 200) / 32 = 88 updates;
+/// the second run in serial mode (every role a thread, iceoryx2 `local`).
 #[test]
-fn one_batched_environment_repeats_exactly() {
-    assert_reproducible("det-one", &["max_env_steps=3000", "sim.agents=4", "replay.min_fill=200"], 88);
+fn one_batched_environment_repeats_exactly_in_processes_and_in_serial_mode() {
+    assert_reproducible("det-one", &["max_env_steps=3000", "sim.agents=4", "replay.min_fill=200"], 88, true);
 }
 
 /// Two environments of non-batched observations (the actor's gather),
@@ -59,5 +65,5 @@ fn one_batched_environment_repeats_exactly() {
 #[test]
 fn two_non_batched_environments_with_n_step_repeat_exactly() {
     let sets = ["max_env_steps=4800", "sim.envs=2", "sim.agents=4", "sim.observation_mode=\"non-batched\"", "learner.n_step=3", "replay.min_fill=320"];
-    assert_reproducible("det-two", &sets, 1 + (4800 - 320) / 32);
+    assert_reproducible("det-two", &sets, 1 + (4800 - 320) / 32, false);
 }
