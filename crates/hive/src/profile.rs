@@ -54,6 +54,9 @@ pub struct Profile {
     pub machine_cpu: f64,
     /// None when no role ran long enough to tell.
     pub bottleneck: Option<Bottleneck>,
+    /// Mean CPU % of `hive train`'s own process (monitor, evaluator and, on
+    /// a head, the link), when the roles ran as processes of their own.
+    pub supervisor_cpu: Option<f64>,
 }
 
 impl Profile {
@@ -82,6 +85,7 @@ pub fn analyse(run_dir: &Path) -> Result<Profile> {
     }
     let mut roles = Vec::new();
     let mut machine = Vec::new();
+    let supervisor_cpu = rows.get(&("supervisor".to_string(), "0".to_string())).map(|r| mean(r.iter().map(|x| x.cpu)));
     for ((role, index), r) in &rows {
         let Some(kind) = role_kind(role) else { continue };
         let names = stage_names(kind);
@@ -111,7 +115,7 @@ pub fn analyse(run_dir: &Path) -> Result<Profile> {
         let (stage, busy) = r.stages.iter().filter(|(n, _)| *n != "transport_wait" && *n != "idle").fold(("", -1.0), |a, b| if b.1 > a.1 { *b } else { a });
         Bottleneck { role: r.name.clone(), stage, busy, wait: r.wait }
     });
-    Ok(Profile { roles, machine_cpu: mean(machine.into_iter()), bottleneck })
+    Ok(Profile { roles, machine_cpu: mean(machine.into_iter()), bottleneck, supervisor_cpu })
 }
 
 /// The report as Markdown text.
@@ -121,7 +125,7 @@ pub fn report(run_dir: &Path) -> Result<String> {
     writeln!(out, "# Profile of {}\n", run_dir.display())?;
     writeln!(out, "| role | CPU % (mean) | share of CPU | {} |", ["stage 0", "stage 1", "stage 2", "stage 3"].join(" | "))?;
     writeln!(out, "|---|---|---|---|---|---|---|")?;
-    let total_cpu: f64 = p.roles.iter().map(|r| r.cpu).filter(|v| v.is_finite()).sum();
+    let total_cpu: f64 = p.roles.iter().map(|r| r.cpu).chain(p.supervisor_cpu).filter(|v| v.is_finite()).sum();
     for r in &p.roles {
         let cells: Vec<String> = r.stages.iter().map(|(n, s)| format!("{n} {:.0} %", s * 100.0)).collect();
         if r.cpu.is_finite() {
@@ -130,6 +134,9 @@ pub fn report(run_dir: &Path) -> Result<String> {
             // Roles of other hosts: their CPU is not this machine's to read.
             writeln!(out, "| {} | — (other host) | — | {} |", r.name, cells.join(" | "))?;
         }
+    }
+    if let Some(cpu) = p.supervisor_cpu.filter(|c| c.is_finite()) {
+        writeln!(out, "| supervisor (monitor, evaluator, link) | {cpu:.0} | {:.0} % | — | — | — | — |", cpu / total_cpu * 100.0)?;
     }
     writeln!(out, "\nStage columns: share of the role's wall time spent in each stage; `transport_wait` / `idle` is time spent waiting on another process.")?;
     writeln!(out, "Machine CPU: {:.0} % on average over {} cores.", p.machine_cpu, std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1))?;

@@ -863,6 +863,16 @@ fn supervise<S: Service>(
                         util_series.entry(format!("{role}-{}", t.index)).or_default().push((wall, cpu / cores));
                     }
                 }
+                // This process's own row (the monitor, the evaluator and, on
+                // a head, the link): in serial mode every role is a thread of
+                // it, so its CPU is the run's and the row is left out.
+                if let (Members::Processes { .. }, Some(p)) = (&members, sys.process(Pid::from_u32(std::process::id()))) {
+                    let (cpu, rss) = (p.cpu_usage() as f64, p.memory() as f64 / 1e6);
+                    rss_total += rss;
+                    writeln!(telemetry, "{wall:.3},supervisor,0,{},{cpu:.1},{rss:.1},{machine:.1},0,0,0,0,0,0.0,0.0,0.0,0.0,{gcols},", std::process::id())?;
+                    let cores = sys.cpus().len().max(1) as f64;
+                    util_series.entry("supervisor".into()).or_default().push((wall, cpu / cores));
+                }
                 peak_rss_mb = peak_rss_mb.max(rss_total);
                 let roll = rolling(&recent);
                 curve.push((wall, roll));

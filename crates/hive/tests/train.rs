@@ -89,6 +89,12 @@ fn short_multi_process_training_run() {
     // an NVIDIA GPU the GPU fields are empty and the summary's GPU keys null.
     let learner_cpu = tel.iter().filter(|r| r[1] == "learner").filter_map(|r| r[4].parse::<f64>().ok()).fold(0.0, f64::max);
     assert!(learner_cpu > 25.0, "learner CPU {learner_cpu} % of a core");
+    // The supervisor's own process has its row (it monitors and evaluates),
+    // and the profile shows it.
+    let own: Vec<f64> = tel.iter().filter(|r| r[1] == "supervisor").filter_map(|r| r[4].parse::<f64>().ok()).collect();
+    assert!(own.len() >= 10 && own.iter().all(|c| c.is_finite()), "supervisor rows: {own:?}");
+    let profile = std::fs::read_to_string(dir.join("profile.md")).unwrap();
+    assert!(profile.contains("| supervisor (monitor, evaluator, link) |"), "{profile}");
     if !std::path::Path::new("/dev/nvidiactl").exists() {
         assert!(summary["gpu_util_mean_pct"].is_null() && summary["gpu_power_mean_w"].is_null(), "{summary}");
         assert!(tel.iter().all(|r| r[16].is_empty() && r[17].is_empty() && r[18].is_empty()), "GPU columns filled without a GPU");
