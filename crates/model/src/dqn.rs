@@ -9,7 +9,7 @@ use std::time::Instant;
 
 use candle_core::{D, DType, Tensor};
 
-use crate::kernels::{OFFSETS, Rows, Workspace};
+use crate::kernels::{OFFSETS, Rows, Workspace, poisoned};
 use crate::ops::{AdamHyper, AdamStep, adam};
 use crate::{ACTIONS, ModelError, OBS_LEN, PARAMS, QNet, Result, TRANSITION_LEN, argmax};
 
@@ -117,12 +117,18 @@ pub struct Dqn {
     shards: usize,
     /// One workspace per shard of the fused path.
     work: Vec<Mutex<Workspace>>,
-    /// The shards' gradients summed, flat in canonical order.
+    /// The generic path's gradients, flat in canonical order (the fused
+    /// path sums its shards' into the first workspace).
     grads: Vec<f32>,
 }
 
-fn poisoned<T>(_: T) -> ModelError {
-    ModelError::Device("a learner workspace was poisoned by a panic".into())
+/// The gradients [`Dqn::compute_gradients`] left, flat in canonical order.
+fn gradients_in<'a>(fused: bool, generic: &'a [f32], work: &'a mut [Mutex<Workspace>]) -> Result<&'a [f32]> {
+    match (fused, work.first_mut()) {
+        (true, Some(ws)) => Ok(&ws.get_mut().map_err(poisoned)?.grads[..OFFSETS[10]]),
+        (true, None) => Err(ModelError::Device("no gradients computed yet".into())),
+        (false, _) => Ok(generic),
+    }
 }
 
 /// Checks a minibatch's size and actions; returns its rows.
@@ -144,8 +150,7 @@ impl Dqn {
     pub fn new(cfg: DqnConfig, seed: u64, device: &candle_core::Device) -> Result<Self> {
         let online = QNet::new(seed, device)?;
         let target = QNet::new(seed, device)?;
-        let grads = vec![0.0; OFFSETS[10]];
-        Ok(Self { online, target, opt: Adam::new(&cfg), cfg, updates: 0, timing: UpdateTiming::default(), shards: 1, work: Vec::new(), grads })
+        Ok(Self { online, target, opt: Adam::new(&cfg), cfg, updates: 0, timing: UpdateTiming::default(), shards: 1, work: Vec::new(), grads: Vec::new() })
     }
 
     /// Uses the fused CPU path (default on the CPU) or the generic one.
@@ -201,8 +206,8 @@ impl Dqn {
         self.loss_generic(batch, n)
     }
 
-    fn loss_generic(&self, batch: &[f32], denom: usize) -> Result<Tensor> {
-        let n = rows_of(batch)?;
+    /// [`Dqn::loss`] of a checked minibatch of `n` rows.
+    fn loss_generic(&self, batch: &[f32], n: usize) -> Result<Tensor> {
         let dev = self.online.device();
         let column = |from: usize, len: usize| -> Vec<f32> { batch.chunks_exact(TRANSITION_LEN).flat_map(|t| t[from..from + len].to_vec()).collect() };
         let s2 = Tensor::from_vec(column(OBS_LEN, OBS_LEN), (n, OBS_LEN), dev)?;
@@ -221,7 +226,7 @@ impl Dqn {
         let d = self.cfg.huber_delta as f64;
         let c = abs.clamp(0.0, d)?;
         let loss = ((c.sqr()? * 0.5)? + ((abs - &c)? * d)?)?;
-        Ok(loss.sum_all()?.affine(1.0 / denom as f64, 0.0)?)
+        Ok(loss.sum_all()?.affine(1.0 / n as f64, 0.0)?)
     }
 
     /// Loss and gradients (into `ws.grads`) of the rows of `part`, a shard
@@ -234,17 +239,16 @@ impl Dqn {
         let s = Rows { data: part, stride: TRANSITION_LEN, offset: 0, n };
         let s2 = Rows { offset: OBS_LEN, ..s };
         self.target.with_weights(|w| ws.forward(w, &[s2]))?;
-        let q_target = ws.q[..n * ACTIONS].to_vec();
+        ws.keep_q(n);
         self.online.with_weights(|w| {
             let both = [s, s2];
             ws.forward(w, if self.cfg.double { &both } else { &both[..1] })?;
-            let q_online = if self.cfg.double { ws.q[n * ACTIONS..2 * n * ACTIONS].to_vec() } else { Vec::new() };
-            let (q, mut loss) = (ws.q[..n * ACTIONS].to_vec(), 0.0);
-            let dq = ws.dq_mut(n);
-            dq.fill(0.0);
+            // Rows 0..n: Q(s); rows n..2n (double DQN): the online Q(s').
+            let (q, q_target, dq) = ws.loss_view(n);
+            let mut loss = 0.0;
             for (i, t) in part.chunks_exact(TRANSITION_LEN).enumerate() {
                 let qt = &q_target[i * ACTIONS..(i + 1) * ACTIONS];
-                let y = self.target_of(t, qt, if self.cfg.double { &q_online[i * ACTIONS..(i + 1) * ACTIONS] } else { qt });
+                let y = self.target_of(t, qt, if self.cfg.double { &q[(n + i) * ACTIONS..(n + i + 1) * ACTIONS] } else { qt });
                 let at = i * ACTIONS + t[2 * OBS_LEN] as usize;
                 let (l, g) = self.huber(q[at] - y);
                 loss += l;
@@ -260,7 +264,7 @@ impl Dqn {
     /// floats) on the path in use, without updating anything.
     pub fn gradients(&mut self, batch: &[f32]) -> Result<(f32, Vec<f32>)> {
         let loss = self.compute_gradients(batch)?.loss;
-        Ok((loss, self.last_gradients()?.to_vec()))
+        Ok((loss, gradients_in(self.online.fused(), &self.grads, &mut self.work)?.to_vec()))
     }
 
     /// Loss and gradients of a minibatch into `self.grads`: on the fused path
@@ -299,20 +303,12 @@ impl Dqn {
         Ok(total)
     }
 
-    /// The gradients [`Dqn::compute_gradients`] left, flat.
-    fn last_gradients(&mut self) -> Result<&[f32]> {
-        if !self.online.fused() {
-            return Ok(&self.grads);
-        }
-        Ok(&self.work[0].get_mut().map_err(poisoned)?.grads[..OFFSETS[10]])
-    }
-
     /// One update on a minibatch of `n × TRANSITION_LEN` floats; returns the
     /// loss.
     pub fn update(&mut self, batch: &[f32]) -> Result<f32> {
         let total = self.compute_gradients(batch)?;
         let t2 = Instant::now();
-        let grads = if self.online.fused() { &self.work[0].get_mut().map_err(poisoned)?.grads[..OFFSETS[10]] } else { &self.grads };
+        let grads = gradients_in(self.online.fused(), &self.grads, &mut self.work)?;
         self.opt.step(&self.online, grads)?;
         self.updates += 1;
         if self.updates.is_multiple_of(self.cfg.target_update) {

@@ -2,6 +2,14 @@
 //! out over raw `f32` slices, with every buffer allocated once in a
 //! [`Workspace`] and every product a `gemm` call.
 //!
+//! The element-wise passes (bias and ReLU, masks, im2col, pooling and their
+//! gradients) are compiled for AVX2 beside the baseline and picked at run
+//! time (`multiversion`): the baseline x86-64 build left them scalar, and
+//! they were a fifth of an update's time (`perf record` on `hive bench
+//! learner --threads 1`). AVX-512 versions of these passes measured slower
+//! on this Zen 4 machine and were dropped; the products use gemm's AVX-512
+//! kernels.
+//!
 //! It replaced a chain of candle custom ops (im2col gather, fused linear,
 //! pooling, TD-Huber) driven by candle's autograd. Measured side by side
 //! (`taskset -c 0 hive bench learner --threads 1`, this 2-core Zen 4 VM),
@@ -67,7 +75,7 @@ impl<'a> Rows<'a> {
 }
 
 /// Every buffer of one forward and backward pass, grown on demand and then
-/// reused: an update allocates nothing.
+/// reused: no buffer of the passes is allocated per update.
 #[derive(Default)]
 pub(crate) struct Workspace {
     rows: usize,
@@ -81,6 +89,8 @@ pub(crate) struct Workspace {
     h: Vec<f32>,
     /// Q-values of the last forward pass, `[rows, 2]`.
     pub(crate) q: Vec<f32>,
+    /// Q-values kept from an earlier pass ([`Workspace::keep_q`]).
+    q_kept: Vec<f32>,
     dq: Vec<f32>,
     dh: Vec<f32>,
     dfeat: Vec<f32>,
@@ -91,20 +101,24 @@ pub(crate) struct Workspace {
     pub(crate) grads: Vec<f32>,
 }
 
+/// The error of a workspace whose lock a panicking thread left poisoned.
+pub(crate) fn poisoned<T>(_: T) -> crate::ModelError {
+    crate::ModelError::Device("a workspace was poisoned by a panic".into())
+}
+
 fn fit(v: &mut Vec<f32>, len: usize) {
     if v.len() < len {
         v.resize(len, 0.0);
     }
 }
 
-/// `y = max(y + b, 0)` (or without the ReLU) for every row of `y`.
+/// `y = max(y + b, 0)` for every row of `y`.
 #[multiversion(targets("x86_64+avx2+fma+avx"))]
-fn bias_act<const C: usize>(y: &mut [f32], b: &[f32], relu: bool) {
+fn bias_relu<const C: usize>(y: &mut [f32], b: &[f32]) {
     let b: &[f32; C] = b.try_into().expect("a bias of the layer's width");
     for row in y.chunks_exact_mut(C) {
         for c in 0..C {
-            let s = row[c] + b[c];
-            row[c] = if relu { s.max(0.0) } else { s };
+            row[c] = (row[c] + b[c]).max(0.0);
         }
     }
 }
@@ -120,7 +134,7 @@ fn mask(g: &mut [f32], y: &[f32]) {
 #[multiversion(targets("x86_64+avx2+fma+avx"))]
 fn mask_and_sum<const C: usize>(g: &mut [f32], y: &[f32], db: &mut [f32]) {
     // Two passes: LLVM left the fused loop scalar at C = 16.
-    g.iter_mut().zip(y).for_each(|(g, y)| *g = if *y > 0.0 { *g } else { 0.0 });
+    mask(g, y);
     let mut acc = [0f32; C];
     for row in g.as_chunks::<C>().0 {
         for c in 0..C {
@@ -129,11 +143,6 @@ fn mask_and_sum<const C: usize>(g: &mut [f32], y: &[f32], db: &mut [f32]) {
     }
     db.iter_mut().zip(acc).for_each(|(d, a)| *d += a);
 }
-
-// The element-wise passes below are compiled for AVX-512 and AVX2 beside
-// the baseline and picked at run time (`multiversion`): the baseline x86-64
-// build left them scalar (SSE, no masks), and they were a fifth of an
-// update's time (`perf record` on `hive bench learner --threads 1`).
 
 /// conv1's patch rows of one observation: for every output pixel (oy, ox),
 /// runs of K1 pixels per (frame, ky).
@@ -153,6 +162,30 @@ fn im2col1(obs: &[f32], out: &mut [f32]) {
     }
 }
 
+/// The runs of conv2's im2col for one map: `f(at, o)` for each run of
+/// K2·C1 values, `at` its start in the channels-last conv1 map and `o` in
+/// the patch matrix.
+#[inline(always)]
+fn conv2_runs(mut f: impl FnMut(usize, usize)) {
+    let mut o = 0;
+    for oy in 0..H2 {
+        for ox in 0..H2 {
+            for ky in 0..K2 {
+                f(((oy + ky) * H1 + ox) * C1, o);
+                o += K2 * C1;
+            }
+        }
+    }
+}
+
+/// The four conv2 positions (rows of its channels-last map) under pooled
+/// output (py, px).
+#[inline(always)]
+fn window(py: usize, px: usize) -> [usize; 4] {
+    let r = 2 * py * H2 + 2 * px;
+    [r, r + 1, r + H2, r + H2 + 1]
+}
+
 /// conv2's patch rows of `n` channels-last maps: runs of K2·C1 values.
 #[multiversion(targets("x86_64+avx2+fma+avx"))]
 fn im2col2(a1: &[f32], cols: &mut [f32], n: usize) {
@@ -160,16 +193,7 @@ fn im2col2(a1: &[f32], cols: &mut [f32], n: usize) {
     for s in 0..n {
         let src = &a1[s * hw1 * C1..(s + 1) * hw1 * C1];
         let out = &mut cols[s * hw2 * P2..(s + 1) * hw2 * P2];
-        let mut o = 0;
-        for oy in 0..H2 {
-            for ox in 0..H2 {
-                for ky in 0..K2 {
-                    let at = ((oy + ky) * H1 + ox) * C1;
-                    out[o..o + K2 * C1].copy_from_slice(&src[at..at + K2 * C1]);
-                    o += K2 * C1;
-                }
-            }
-        }
+        conv2_runs(|at, o| out[o..o + K2 * C1].copy_from_slice(&src[at..at + K2 * C1]));
     }
 }
 
@@ -181,19 +205,12 @@ fn col2im2(dcols: &[f32], da1: &mut [f32], n: usize) {
     for s in 0..n {
         let src = &dcols[s * hw2 * P2..(s + 1) * hw2 * P2];
         let out = &mut da1[s * hw1 * C1..(s + 1) * hw1 * C1];
-        let mut o = 0;
-        for oy in 0..H2 {
-            for ox in 0..H2 {
-                for ky in 0..K2 {
-                    let at = ((oy + ky) * H1 + ox) * C1;
-                    let (d, g) = (&mut out[at..at + K2 * C1], &src[o..o + K2 * C1]);
-                    for j in 0..K2 * C1 {
-                        d[j] += g[j];
-                    }
-                    o += K2 * C1;
-                }
+        conv2_runs(|at, o| {
+            let (d, g) = (&mut out[at..at + K2 * C1], &src[o..o + K2 * C1]);
+            for j in 0..K2 * C1 {
+                d[j] += g[j];
             }
-        }
+        });
     }
 }
 
@@ -208,8 +225,7 @@ fn pool(a2: &[f32], feat: &mut [f32], arg: &mut [u8], n: usize) {
         let arg = &mut arg[s * FEAT..(s + 1) * FEAT];
         for py in 0..HP {
             for px in 0..HP {
-                let r = 2 * py * H2 + 2 * px;
-                let [x0, x1, x2, x3] = [r, r + 1, r + H2, r + H2 + 1].map(|r| &x[r * C2..(r + 1) * C2]);
+                let [x0, x1, x2, x3] = window(py, px).map(|r| &x[r * C2..(r + 1) * C2]);
                 let o = (py * HP + px) * C2;
                 let (out, arg) = (&mut out[o..o + C2], &mut arg[o..o + C2]);
                 for c in 0..C2 {
@@ -239,8 +255,7 @@ fn unpool(dfeat: &[f32], arg: &[u8], da2: &mut [f32], db2: &mut [f32], n: usize)
         let out = &mut da2[s * hw2 * C2..(s + 1) * hw2 * C2];
         for py in 0..HP {
             for px in 0..HP {
-                let r = 2 * py * H2 + 2 * px;
-                let rows = [r, r + 1, r + H2, r + H2 + 1];
+                let rows = window(py, px);
                 let o = (py * HP + px) * C2;
                 for c in 0..C2 {
                     out[rows[arg[o + c] as usize] * C2 + c] = d[o + c];
@@ -308,15 +323,15 @@ impl Workspace {
         }
         let a1 = &mut self.a1[..n * hw1 * C1];
         matmul(n * hw1, C1, P1, View::rows(&self.cols1, P1), View::transposed(w1, P1), a1, false)?;
-        bias_act::<C1>(a1, b1, true);
+        bias_relu::<C1>(a1, b1);
         im2col2(&self.a1, &mut self.cols2, n);
         let a2 = &mut self.a2[..n * hw2 * C2];
         matmul(n * hw2, C2, P2, View::rows(&self.cols2, P2), View::transposed(w2, P2), a2, false)?;
-        bias_act::<C2>(a2, b2, true);
+        bias_relu::<C2>(a2, b2);
         pool(&self.a2, &mut self.feat, &mut self.arg, n);
         let h = &mut self.h[..n * HID];
         matmul(n, HID, F, View::rows(&self.feat, F), View::transposed(w3, F), h, false)?;
-        bias_act::<HID>(h, b3, true);
+        bias_relu::<HID>(h, b3);
         for (q, h) in self.q[..n * ACTIONS].chunks_exact_mut(ACTIONS).zip(h.chunks_exact(HID)) {
             for (a, q) in q.iter_mut().enumerate() {
                 *q = b4[a] + w4[a * HID..(a + 1) * HID].iter().zip(h).map(|(w, x)| w * x).sum::<f32>();
@@ -325,15 +340,26 @@ impl Workspace {
         Ok(n)
     }
 
-    /// The gradient of the loss with respect to the Q-values of the first
-    /// `n` rows, `[n, 2]`, for the caller to write before [`Workspace::backward`].
-    pub(crate) fn dq_mut(&mut self, n: usize) -> &mut [f32] {
-        &mut self.dq[..n * ACTIONS]
+    /// Keeps the Q-values of the last forward pass's first `n` rows (the
+    /// target network's, of `s'`) for [`Workspace::loss_view`].
+    pub(crate) fn keep_q(&mut self, n: usize) {
+        self.q_kept.clear();
+        self.q_kept.extend_from_slice(&self.q[..n * ACTIONS]);
+    }
+
+    /// What the loss reads and writes: the last forward pass's Q-values,
+    /// the kept ones, and the gradient with respect to the Q-values of the
+    /// first `n` rows (`[n, 2]`, zeroed) for the caller to write before
+    /// [`Workspace::backward`].
+    pub(crate) fn loss_view(&mut self, n: usize) -> (&[f32], &[f32], &mut [f32]) {
+        let dq = &mut self.dq[..n * ACTIONS];
+        dq.fill(0.0);
+        (&self.q, &self.q_kept, dq)
     }
 
     /// Gradients of the loss over the first `n` rows of the last forward
     /// pass into `self.grads`, from the `dq` written through
-    /// [`Workspace::dq_mut`].
+    /// [`Workspace::loss_view`].
     pub(crate) fn backward(&mut self, w: &Weights, n: usize) -> crate::Result<()> {
         let [_, _, w2, _, _, _, w3, _, w4, _] = w.0;
         let (hw1, hw2) = (H1 * H1, H2 * H2);

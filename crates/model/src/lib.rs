@@ -280,7 +280,7 @@ impl QNet {
         let mut spaces: Vec<Mutex<Workspace>> = parts.iter().map(|_| Mutex::new(self.scratch.take())).collect();
         let done = self.with_weights(|w| {
             ops::sharded(parts.len(), |i| {
-                let mut ws = spaces[i].lock().map_err(|_| ModelError::Device("a workspace was poisoned".into()))?;
+                let mut ws = spaces[i].lock().map_err(kernels::poisoned)?;
                 ws.forward(w, &[Rows::packed(parts[i])])
             })
             .into_iter()
