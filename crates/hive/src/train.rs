@@ -700,11 +700,10 @@ fn supervise<S: Service>(
             for (h, payload) in order.ready() {
                 epsilon = h.epsilon_micro as f64 / 1e6;
                 let (env_steps, updates, replay_size) = match &schedule {
-                    Some(s) => (
-                        h.step * cfg.agents_total() as u64,
-                        s.minibatches_after(h.step),
-                        (h.step * cfg.agents_total() as u64).min(cfg.replay.capacity as u64) as i64,
-                    ),
+                    Some(s) => {
+                        let steps = h.step * cfg.agents_total() as u64;
+                        (steps, s.minibatches_after(h.step), steps.min(cfg.replay.capacity as u64) as i64)
+                    }
                     None => (
                         sum_work(&latest, RoleKind::Sim),
                         sum_work(&latest, RoleKind::Learner),

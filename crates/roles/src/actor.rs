@@ -14,7 +14,7 @@ use rotorhive_transport::Channel;
 
 use iceoryx2::service::Service;
 use rotorhive_msg::EpisodeHeader;
-use rotorhive_transport::Sender;
+use rotorhive_transport::{Receiver, Sender};
 
 use crate::config::Config;
 use crate::schedule::Schedule;
@@ -85,16 +85,8 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, e: usize) -> Result<()> {
             break;
         }
         let t = Instant::now();
-        if let Some(w) = w_rx.latest().context("reading weights")? {
-            let h = *w.user_header();
-            // Any other version is newer: a restarted learner goes on from
-            // its saved update count, which never lies behind.
-            if h.version != version {
-                net.load_flat(w.payload()).context("loading published weights")?;
-                (version, weights_updates) = (h.version, h.updates);
-                tel.sample.weight_version = version;
-            }
-        }
+        take_weights(&mut w_rx, &net, &mut version, &mut weights_updates)?;
+        tel.sample.weight_version = version;
         tel.stage(2, t);
         let t = Instant::now();
         let msg = obs_rx.recv_timeout(POLL).context("waiting for observations")?;
@@ -156,14 +148,10 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, e: usize) -> Result<()> {
                     tel.tick(true);
                     return Ok(());
                 }
-                match w_rx.latest().context("reading weights")? {
-                    Some(w) => {
-                        net.load_flat(w.payload()).context("loading published weights")?;
-                        (version, weights_updates) = (w.user_header().version, w.user_header().updates);
-                        tel.sample.weight_version = version;
-                    }
-                    None => std::thread::sleep(std::time::Duration::from_micros(200)),
+                if !take_weights(&mut w_rx, &net, &mut version, &mut weights_updates)? {
+                    std::thread::sleep(std::time::Duration::from_micros(200));
                 }
+                tel.sample.weight_version = version;
             }
         }
         let t = Instant::now();
@@ -243,6 +231,21 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, e: usize) -> Result<()> {
     }
     tel.tick(true);
     Ok(())
+}
+
+/// Loads the newest published weights when their version differs from
+/// `version` (any other version is newer: a restarted learner goes on from
+/// its saved update count, which never lies behind), recording their
+/// version and update count; true when it did.
+fn take_weights<S: Service>(rx: &mut Receiver<S, f32, WeightsHeader>, net: &QNet, version: &mut u64, updates: &mut u64) -> Result<bool> {
+    let Some(w) = rx.latest().context("reading weights")? else { return Ok(false) };
+    let h = *w.user_header();
+    if h.version == *version {
+        return Ok(false);
+    }
+    net.load_flat(w.payload()).context("loading published weights")?;
+    (*version, *updates) = (h.version, h.updates);
+    Ok(true)
 }
 
 /// One n-step transition ready to leave: the agent, the ring slot of its

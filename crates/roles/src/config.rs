@@ -10,77 +10,35 @@ use serde::{Deserialize, Serialize};
 
 use rotorhive_sim::{Arena, CameraSpec, GenParams, RendererKind, SimConfig};
 
-/// A config value that is one of a few names: parsed when the config is read
-/// (toml names the key in the error), written back as the same name.
-macro_rules! named_enum {
-    ($(#[$doc:meta])* $name:ident, { $($(#[$vdoc:meta])* $variant:ident = $text:literal),+ $(,)? }) => {
-        $(#[$doc])*
-        #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-        #[serde(try_from = "String", into = "String")]
-        pub enum $name {
-            $($(#[$vdoc])* $variant),+
-        }
-
-        impl $name {
-            /// The name the config uses.
-            pub fn as_str(self) -> &'static str {
-                match self {
-                    $(Self::$variant => $text),+
-                }
-            }
-        }
-
-        impl TryFrom<String> for $name {
-            type Error = String;
-
-            fn try_from(s: String) -> std::result::Result<Self, String> {
-                match s.as_str() {
-                    $($text => Ok(Self::$variant),)+
-                    _ => Err(format!("must be one of {:?}, got {s:?}", [$($text),+])),
-                }
-            }
-        }
-
-        impl From<$name> for String {
-            fn from(v: $name) -> String {
-                v.as_str().to_string()
-            }
-        }
-
-        impl std::fmt::Display for $name {
-            fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-                f.write_str(self.as_str())
-            }
-        }
-    };
+/// `sim.observation_mode`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ObservationMode {
+    /// One message per step with every agent's observation.
+    Batched,
+    /// One message (and render call) per agent.
+    NonBatched,
 }
 
-named_enum!(
-    /// `sim.renderer`.
-    Renderer, {
-    /// Ray casting on the CPU.
-    Cpu = "cpu",
-    /// wgpu (Vulkan; lavapipe without a GPU).
-    Wgpu = "wgpu",
-});
-
-named_enum!(
-    /// `sim.observation_mode`.
-    ObservationMode, {
-    /// One message per step with every agent's observation.
-    Batched = "batched",
-    /// One message (and render call) per agent.
-    NonBatched = "non-batched",
-});
-
-named_enum!(
-    /// `actor.device` and `learner.device`.
-    DeviceName, {
+/// `actor.device` and `learner.device`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum DeviceName {
     /// The CPU.
-    Cpu = "cpu",
+    Cpu,
     /// GPU 0 through CUDA (a build with `--features cuda`).
-    Cuda = "cuda",
-});
+    Cuda,
+}
+
+impl DeviceName {
+    /// The name the config uses (and `rotorhive_model::device` takes).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Cpu => "cpu",
+            Self::Cuda => "cuda",
+        }
+    }
+}
 
 /// The whole configuration of a run.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -185,7 +143,7 @@ pub struct SimSection {
     /// a lane drawn at random. 0 trains on `arena` alone.
     pub generated_lanes: usize,
     /// The renderer.
-    pub renderer: Renderer,
+    pub renderer: RendererKind,
     /// One observation message per step or one per agent.
     pub observation_mode: ObservationMode,
     /// Drones collide with and see each other.
@@ -309,7 +267,7 @@ impl Default for SimSection {
             agents: 50,
             arena: PathBuf::from("configs/arenas/train.toml"),
             generated_lanes: 15,
-            renderer: Renderer::Cpu,
+            renderer: RendererKind::Cpu,
             observation_mode: ObservationMode::Batched,
             interactive: false,
             physics_dt: 0.02,
@@ -541,10 +499,7 @@ impl Config {
             interactive: s.interactive,
             camera: CameraSpec { range: s.depth_range, ..CameraSpec::default() },
             render_threads: s.render_threads,
-            renderer: match s.renderer {
-                Renderer::Cpu => RendererKind::Cpu,
-                Renderer::Wgpu => RendererKind::Wgpu,
-            },
+            renderer: s.renderer,
             batched: self.batched(),
             ..SimConfig::default()
         }

@@ -26,7 +26,7 @@ pub use rotorhive_msg::EpisodeHeader;
 use rotorhive_msg::{RoleKind, STAGES, Telemetry};
 use rotorhive_transport::{Channel, Hub, Local, Sender};
 
-pub use config::{Config, DeviceName, ObservationMode, Renderer};
+pub use config::{Config, DeviceName, ObservationMode};
 
 /// What a role runs in: its run's hub (the node and the service-name
 /// prefix), the run's resolved config and its directory. A role stops when

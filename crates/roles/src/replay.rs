@@ -31,8 +31,6 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
         }
         _ => (Replay::new(r.capacity, PACKED_LEN, cfg.seed ^ 0x5e1a), None),
     };
-    let sync_every = Duration::from_secs_f64(r.snapshot_every_s.max(1e-3));
-    let mut last_sync = Instant::now();
     let mut rx = hub.receiver::<u16, TransitionHeader>(&Channel::transitions(cfg.sim.envs))?;
     // Transitions are throughput, not latency: sleep at once when idle.
     rx.set_spin(Duration::ZERO);
@@ -40,14 +38,15 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     // after a millisecond and the replay goes back to inserting.
     let mut tx = hub.sender::<u16, MinibatchHeader>(&Channel::minibatches(r.prefetch), r.batch * PACKED_LEN, Duration::from_millis(1))?;
     let mut tel = Counters::new(hub, RoleKind::Replay, 0, roles_of(cfg))?;
+    if cfg.deterministic {
+        return run_scheduled(cfg, hub, &mut mem, journal.as_mut(), &mut rx, &mut tx, &mut tel);
+    }
     // Actors of other hosts come through the link with indexes after ours.
     let mut next_seq = vec![None::<u64>; cfg.envs_total()];
     let mut mb_seq = 0u64;
     let mut backoff_until = Instant::now();
     let mut limit = SampleLimit::new(cfg);
-    if cfg.deterministic {
-        return run_scheduled(cfg, hub, &mut mem, journal.as_mut(), &mut rx, &mut tx, &mut tel);
-    }
+    let mut last_sync = Instant::now();
     loop {
         if hub.shutdown_requested() {
             break;
@@ -80,12 +79,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
                 Err(e) => return Err(e).context("sending a minibatch"),
             }
         }
-        if let Some(j) = &journal
-            && last_sync.elapsed() >= sync_every
-        {
-            j.sync()?;
-            last_sync = Instant::now();
-        }
+        sync_due(journal.as_ref(), &mut last_sync, cfg)?;
         tel.sample.work = mem.inserted();
         tel.sample.work2 = mb_seq;
         tel.sample.value_milli = mem.len() as i64;
@@ -157,7 +151,9 @@ fn run_scheduled<S: Service>(
     let mut pending: Vec<VecDeque<Vec<u16>>> = vec![VecDeque::new(); cfg.sim.envs];
     let mut next_seq = vec![None::<u64>; cfg.sim.envs];
     let (mut rounds, mut sent) = (0u64, 0u64);
-    let mut minibatch: Option<Vec<u16>> = None;
+    // The next minibatch, sampled once and offered until the learner takes it.
+    let (mut minibatch, mut drawn) = (vec![0u16; batch * PACKED_LEN], false);
+    let mut last_sync = Instant::now();
     // A minibatch sent before the learner subscribes would be lost.
     while tx.receivers() == 0 && !hub.shutdown_requested() {
         std::thread::sleep(Duration::from_millis(10));
@@ -172,22 +168,21 @@ fn run_scheduled<S: Service>(
         tel.stage(0, t);
         // The minibatches owed after the rounds in, one at a time, then the
         // next round.
-        if minibatch.is_none() && sent < schedule.minibatches_after(rounds) {
-            let mut out = vec![0u16; batch * PACKED_LEN];
-            mem.sample_into(&mut out);
-            minibatch = Some(out);
+        if !drawn && sent < schedule.minibatches_after(rounds) {
+            mem.sample_into(&mut minibatch);
+            drawn = true;
         }
-        if let Some(out) = &minibatch {
+        if drawn {
             let t = Instant::now();
-            let res = tx.send_with(out.len(), |h, o| {
-                o.copy_from_slice(out);
+            let res = tx.send_with(minibatch.len(), |h, o| {
+                o.copy_from_slice(&minibatch);
                 *h = MinibatchHeader { batch: batch as u32, _pad: 0, seq: sent, replay_len: mem.len() as u64, inserted: mem.inserted() };
             });
             tel.stage(1, t);
             match res {
                 Ok(()) => {
                     sent += 1;
-                    minibatch = None;
+                    drawn = false;
                     busy = true;
                 }
                 Err(TransportError::Stalled { .. }) => {}
@@ -195,15 +190,12 @@ fn run_scheduled<S: Service>(
             }
         } else if rounds < schedule.rounds() && pending.iter().all(|q| !q.is_empty()) {
             for q in &mut pending {
-                let b = q.pop_front().unwrap_or_default();
-                mem.insert(&b);
-                if let Some(j) = journal.as_deref_mut() {
-                    j.record(mem, b.len() / PACKED_LEN)?;
-                }
+                store(mem, journal.as_deref_mut(), &q.pop_front().unwrap_or_default())?;
             }
             rounds += 1;
             busy = true;
         }
+        sync_due(journal.as_deref(), &mut last_sync, cfg)?;
         tel.sample.work = mem.inserted();
         tel.sample.work2 = sent;
         tel.sample.value_milli = mem.len() as i64;
@@ -236,15 +228,15 @@ fn enqueue<S: Service>(
     let Some(q) = pending.get_mut(h.actor as usize) else {
         anyhow::bail!("transitions from actor {} of a run with {envs} environments", h.actor);
     };
-    check_seq(&h, next_seq, lost);
-    *lost += corrupt(m.payload());
+    check(m, next_seq, lost);
     q.push_back(m.payload().to_vec());
     Ok(())
 }
 
-/// Counts a gap in an actor's sequence numbers (a restarted actor starts
-/// again at 0, which is not loss).
-fn check_seq(h: &TransitionHeader, next_seq: &mut [Option<u64>], lost: &mut u64) {
+/// Counts a gap in the batch's actor's sequence numbers (a restarted actor
+/// starts again at 0, which is not loss) and its corrupt transitions.
+fn check<S: Service>(m: &rotorhive_transport::Msg<S, u16, TransitionHeader>, next_seq: &mut [Option<u64>], lost: &mut u64) {
+    let h = m.user_header();
     if let Some(slot) = next_seq.get_mut(h.actor as usize) {
         if let Some(want) = *slot
             && h.seq > want
@@ -253,6 +245,7 @@ fn check_seq(h: &TransitionHeader, next_seq: &mut [Option<u64>], lost: &mut u64)
         }
         *slot = Some(h.seq + 1);
     }
+    *lost += corrupt(m.payload());
 }
 
 /// Transition batches taken per loop before the next minibatch is offered.
@@ -268,11 +261,26 @@ fn ingest<S: Service>(
     next_seq: &mut [Option<u64>],
     lost: &mut u64,
 ) -> Result<()> {
-    check_seq(m.user_header(), next_seq, lost);
-    *lost += corrupt(m.payload());
-    mem.insert(m.payload());
+    check(m, next_seq, lost);
+    store(mem, journal, m.payload())
+}
+
+/// Syncs the journal to disk every `replay.snapshot_every_s`.
+fn sync_due(journal: Option<&Journal>, last_sync: &mut Instant, cfg: &crate::config::Config) -> Result<()> {
+    if let Some(j) = journal
+        && last_sync.elapsed().as_secs_f64() >= cfg.replay.snapshot_every_s.max(1e-3)
+    {
+        j.sync()?;
+        *last_sync = Instant::now();
+    }
+    Ok(())
+}
+
+/// Inserts a transition batch and records it in the journal.
+fn store(mem: &mut Replay, journal: Option<&mut Journal>, batch: &[u16]) -> Result<()> {
+    mem.insert(batch);
     if let Some(j) = journal {
-        j.record(mem, m.payload().len() / PACKED_LEN)?;
+        j.record(mem, batch.len() / PACKED_LEN)?;
     }
     Ok(())
 }

@@ -47,8 +47,9 @@ pub enum Autoreset {
     Disabled,
 }
 
-/// Which renderer draws the depth images.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+/// Which renderer draws the depth images (named `cpu` or `wgpu` in configs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum RendererKind {
     /// Ray casting on the CPU.
     #[default]
