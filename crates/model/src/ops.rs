@@ -49,21 +49,16 @@ pub(crate) fn serial<R>(f: impl FnOnce() -> R) -> R {
     r
 }
 
-/// Runs `f(i)` for every shard `i < shards` in parallel (shard 0 on this
-/// thread, the others on scoped threads), each with single-threaded GEMMs,
+/// Runs `f(i)` for every shard `i < shards` in parallel on rayon's pool
+/// (threads started once, not per call), each with single-threaded GEMMs,
 /// and returns the results in order. Candle's own elementwise pool must stay
 /// single-threaded (`CANDLE_NUM_THREADS=1`): it serialises concurrent callers.
 pub(crate) fn sharded<R: Send>(shards: usize, f: impl Fn(usize) -> R + Sync) -> Vec<R> {
     if shards <= 1 {
         return vec![serial(|| f(0))];
     }
-    std::thread::scope(|sc| {
-        let f = &f;
-        let others: Vec<_> = (1..shards).map(|i| sc.spawn(move || serial(|| f(i)))).collect();
-        let mut out = vec![serial(|| f(0))];
-        out.extend(others.into_iter().map(|h| h.join().unwrap_or_else(|p| std::panic::resume_unwind(p))));
-        out
-    })
+    use rayon::prelude::*;
+    (0..shards).into_par_iter().map(|i| serial(|| f(i))).collect()
 }
 
 fn parallelism() -> gemm::Parallelism {
