@@ -314,17 +314,28 @@ impl QNet {
         Ok(out)
     }
 
-    /// Writes the flat weights into the variables.
+    /// Writes the weights, flat in canonical order, into `into` (one copy
+    /// from each variable's storage on the CPU).
     pub fn write_flat(&self, into: &mut [f32]) -> Result<()> {
-        let flat = self.to_flat()?;
-        if into.len() != flat.len() {
-            return Err(ModelError::Shape { what: "weights buffer", expected: flat.len(), got: into.len() });
+        if into.len() != num_params() {
+            return Err(ModelError::Shape { what: "weights buffer", expected: num_params(), got: into.len() });
         }
-        into.copy_from_slice(&flat);
-        Ok(())
+        if !self.device.is_cpu() {
+            into.copy_from_slice(&self.to_flat()?);
+            return Ok(());
+        }
+        self.with_weights(|w| {
+            let mut off = 0;
+            for p in w.0 {
+                into[off..off + p.len()].copy_from_slice(p);
+                off += p.len();
+            }
+            Ok(())
+        })
     }
 
-    /// Replaces the weights with a flat vector in canonical order.
+    /// Replaces the weights with a flat vector in canonical order (in place
+    /// on the CPU: one copy into each variable's storage).
     pub fn load_flat(&self, flat: &[f32]) -> Result<()> {
         if flat.len() != num_params() {
             return Err(ModelError::Shape { what: "weights", expected: num_params(), got: flat.len() });
@@ -332,7 +343,12 @@ impl QNet {
         let mut off = 0;
         for (v, (_, shape)) in self.params.iter().zip(PARAMS) {
             let n: usize = shape.iter().product();
-            v.set(&Tensor::from_slice(&flat[off..off + n], shape, &self.device)?)?;
+            let part = &flat[off..off + n];
+            if self.device.is_cpu() {
+                v.as_tensor().inplace_op1(&ops::CopyIn(part))?;
+            } else {
+                v.set(&Tensor::from_slice(part, shape, &self.device)?)?;
+            }
             off += n;
         }
         Ok(())

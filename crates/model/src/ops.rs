@@ -133,6 +133,26 @@ pub(crate) fn adam(p: &mut [f32], g: &[f32], m: &mut [f32], v: &mut [f32], h: Ad
 
 /// [`adam`] on a candle variable in place (CPU), with the gradient and the
 /// moments kept by the caller.
+/// Overwrites a parameter in place with `src` (one copy, where `Var::set`
+/// of a new tensor makes two).
+pub(crate) struct CopyIn<'a>(pub(crate) &'a [f32]);
+
+impl InplaceOp1 for CopyIn<'_> {
+    fn name(&self) -> &'static str {
+        "rotorhive-copy-in"
+    }
+
+    fn cpu_fwd(&self, ps: &mut CpuStorage, pl: &Layout) -> candle_core::Result<()> {
+        let Some((start, end)) = pl.contiguous_offsets() else { bail!("copy-in needs a contiguous parameter") };
+        let CpuStorage::F32(p) = ps else { bail!("copy-in needs f32 parameters") };
+        if end - start != self.0.len() {
+            bail!("copy-in: parameter {}, source {}", end - start, self.0.len());
+        }
+        p[start..end].copy_from_slice(self.0);
+        Ok(())
+    }
+}
+
 pub(crate) struct AdamStep<'a> {
     pub(crate) grad: &'a [f32],
     pub(crate) moments: Mutex<(&'a mut [f32], &'a mut [f32])>,

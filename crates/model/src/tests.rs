@@ -214,6 +214,16 @@ fn flat_weights_and_checkpoints_round_trip() {
     b.load_flat(&a.to_flat().unwrap()).unwrap();
     assert_eq!(a.to_flat().unwrap(), b.to_flat().unwrap());
     assert_eq!(a.to_flat().unwrap().len(), num_params());
+    // Written straight into a buffer (as into a loaned message): the same
+    // floats; a buffer of the wrong size is refused.
+    let mut buf = vec![f32::NAN; num_params()];
+    b.write_flat(&mut buf).unwrap();
+    assert_eq!(buf, a.to_flat().unwrap());
+    assert!(b.write_flat(&mut buf[1..]).unwrap_err().to_string().contains("weights buffer"));
+    assert!(b.load_flat(&buf[1..]).is_err());
+    // Loaded in place, the network computes with the new weights.
+    let obs = random(3 * OBS_LEN, 4, 0.0, 1.0);
+    assert_eq!(a.q_values(&obs).unwrap(), b.q_values(&obs).unwrap());
 
     let dir = std::env::temp_dir().join(format!("rotorhive-model-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();

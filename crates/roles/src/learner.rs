@@ -72,12 +72,12 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
         let v = *version;
         let updates = dqn.updates();
         let net = &dqn.online;
-        let mut res = Ok(());
-        w_tx.send_with(num_params(), |h, p| {
+        // A failed write publishes nothing (no zero weights under a new version).
+        w_tx.try_send_with(num_params(), |h, p| {
             *h = WeightsHeader { version: v, updates, len: num_params() as u64 };
-            res = net.write_flat(p);
-        })?;
-        Ok(res?)
+            net.write_flat(p)
+        })??;
+        Ok(())
     };
     publish(&dqn, &mut version)?;
     let min_period = if cfg.learner.max_rate_hz > 0.0 { Duration::from_secs_f64(1.0 / cfg.learner.max_rate_hz) } else { Duration::ZERO };

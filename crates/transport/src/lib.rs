@@ -75,6 +75,24 @@ pub enum TransportError {
 /// Result of this crate.
 pub type Result<T> = std::result::Result<T, TransportError>;
 
+/// Plain data that may travel as a payload element: `Copy`, no padding, and
+/// every bit pattern a valid value, so a loan can be handed out before it is
+/// written.
+///
+/// # Safety
+/// Implement only for types with no invalid bit patterns and no padding.
+pub unsafe trait Plain: Debug + ZeroCopySend + Default + Copy + 'static {}
+// SAFETY: integers and floats: every bit pattern is a value, no padding.
+unsafe impl Plain for u8 {}
+// SAFETY: as above.
+unsafe impl Plain for u16 {}
+// SAFETY: as above.
+unsafe impl Plain for u32 {}
+// SAFETY: as above.
+unsafe impl Plain for u64 {}
+// SAFETY: as above.
+unsafe impl Plain for f32 {}
+
 /// Quality of service of one channel. Both sides derive the same spec from
 /// the same constructor, so their attributes always match.
 #[derive(Debug, Clone)]
@@ -212,7 +230,7 @@ impl<S: Service> Hub<S> {
     /// Back-pressure waits at most `stall_timeout` per message.
     pub fn sender<T, H>(&self, ch: &Channel, max_len: usize, stall_timeout: Duration) -> Result<Sender<S, T, H>>
     where
-        T: Debug + ZeroCopySend + Default + Copy + 'static,
+        T: Plain,
         H: Debug + ZeroCopySend + Default + 'static,
     {
         let (ps, ev) = self.open::<T, H>(ch)?;
@@ -265,17 +283,41 @@ pub struct Sender<S: Service, T: Debug + ZeroCopySend + 'static, H: Debug + Zero
     sent: u64,
 }
 
-impl<S: Service, T: Debug + ZeroCopySend + Default + Copy + 'static, H: Debug + ZeroCopySend + Default + 'static> Sender<S, T, H> {
+impl<S: Service, T: Plain, H: Debug + ZeroCopySend + Default + 'static> Sender<S, T, H> {
     /// Loans a sample of `len` elements in shared memory, lets `fill` write the
     /// header and the payload in place, sends it and wakes the receivers.
+    /// The loan is not pre-filled: `fill` must write every element it means
+    /// to send (the rest holds whatever an earlier sample left there).
     pub fn send_with(&mut self, len: usize, fill: impl FnOnce(&mut H, &mut [T])) -> Result<()> {
+        match self.try_send_with(len, |h, p| {
+            fill(h, p);
+            Ok::<(), std::convert::Infallible>(())
+        })? {
+            Ok(()) => Ok(()),
+        }
+    }
+
+    /// As [`Sender::send_with`], with a fill that may fail: when it does, the
+    /// loan is given back unsent and its error returned inside `Ok`, so a
+    /// half-written message is never published.
+    pub fn try_send_with<E>(&mut self, len: usize, fill: impl FnOnce(&mut H, &mut [T]) -> std::result::Result<(), E>) -> Result<std::result::Result<(), E>> {
         let io = |op, e: &dyn Debug, ch: &str| TransportError::Io { channel: ch.to_string(), op, message: format!("{e:?}") };
-        let mut sample = self.publisher.loan_slice(len).map_err(|e| io("loan", &e, &self.channel))?;
+        let uninit = self.publisher.loan_slice_uninit(len).map_err(|e| io("loan", &e, &self.channel))?;
+        // SAFETY: the payload lies in a shared-memory segment mapped from a
+        // file descriptor: its bytes are initialised memory (zero-filled by
+        // the OS when created, later holding earlier samples), and `T: Plain`
+        // has no invalid bit pattern, so reading it as `[T]` before `fill`
+        // writes it is sound. Skipping iceoryx2's default-fill saves a write
+        // of the whole payload per message (code audit T1: 410 KB for a
+        // 50-agent observation batch).
+        let mut sample = unsafe { uninit.assume_init() };
         {
             let (hdr, payload) = (sample.user_header_mut() as *mut H, sample.payload_mut());
             // SAFETY: the header and the payload are disjoint parts of the one
             // loaned sample; both borrows end before the sample is sent.
-            fill(unsafe { &mut *hdr }, payload);
+            if let Err(e) = fill(unsafe { &mut *hdr }, payload) {
+                return Ok(Err(e));
+            }
         }
         let before = self.stalls.load(Ordering::Relaxed);
         match sample.send() {
@@ -290,7 +332,7 @@ impl<S: Service, T: Debug + ZeroCopySend + Default + Copy + 'static, H: Debug + 
         self.sent += 1;
         // A missing listener (the receiver is restarting) is not an error.
         let _ = self.notifier.notify();
-        Ok(())
+        Ok(Ok(()))
     }
 
     /// Messages sent.
@@ -555,6 +597,33 @@ mod tests {
             let w = wait_slice(Duration::from_nanos(ns));
             assert!(w.as_micros() >= 1 && w <= Duration::from_millis(20), "{ns} ns -> {w:?}");
         }
+    }
+
+    #[test]
+    fn a_fill_that_fails_publishes_nothing() {
+        let hub = Hub::<Local>::new("unit-fail", "unit").unwrap();
+        let ch = Channel::weights(1);
+        let mut tx = hub.sender::<f32, Hdr>(&ch, 8, Duration::from_millis(200)).unwrap();
+        let mut rx = hub.receiver::<f32, Hdr>(&ch).unwrap();
+        let failed = tx
+            .try_send_with(8, |h, p| {
+                h.seq = 1;
+                p[0] = 1.0;
+                Err("cannot write the weights")
+            })
+            .unwrap();
+        assert_eq!(failed, Err("cannot write the weights"));
+        assert_eq!(tx.sent(), 0);
+        assert!(rx.try_recv().unwrap().is_none(), "a failed fill was published");
+        tx.try_send_with(8, |h, p| {
+            h.seq = 2;
+            p.fill(2.0);
+            Ok::<(), &str>(())
+        })
+        .unwrap()
+        .unwrap();
+        let m = rx.try_recv().unwrap().expect("the second message");
+        assert_eq!((m.user_header().seq, m.payload()), (2, &[2.0f32; 8][..]));
     }
 
     #[test]
