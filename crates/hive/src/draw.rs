@@ -1,5 +1,5 @@
 //! Pictures: arenas from above (with random-policy trajectories), depth
-//! frames, generated arena files, and the training curves of a run.
+//! frames and generated arena files (a run's curves: `rotorhive_records::plot`).
 
 use std::path::{Path, PathBuf};
 
@@ -9,6 +9,7 @@ use plotters::prelude::*;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
+use rotorhive_records::plot::{font, plot_err};
 use rotorhive_sim::{Arena, GenParams, Obstacle, SimConfig, VecEnv};
 
 /// `hive render-arena`.
@@ -74,25 +75,6 @@ pub fn gen_arena(a: GenArenaArgs) -> Result<()> {
     std::fs::write(&a.out, header + &arena.to_toml()).with_context(|| format!("cannot write {}", a.out.display()))?;
     println!("wrote {} ({} obstacles)", a.out.display(), arena.obstacles.len());
     Ok(())
-}
-
-/// The face every plot's text is drawn with, built into the binary: plots
-/// need no fonts installed on the machine (a bare GPU server has none).
-static FONT: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
-
-/// Registers [`FONT`] as plotters' "sans-serif", once per process.
-fn font() {
-    static ONCE: std::sync::Once = std::sync::Once::new();
-    ONCE.call_once(|| {
-        // The bytes are a fixed, valid TrueType file; a failure is a build defect.
-        if plotters::style::register_font("sans-serif", FontStyle::Normal, FONT).is_err() {
-            tracing::warn!("the built-in font could not be read; plots will lack text");
-        }
-    });
-}
-
-fn plot_err<E: std::fmt::Display>(e: E) -> anyhow::Error {
-    anyhow::anyhow!("drawing failed: {e}")
 }
 
 pub fn render_arena(a: RenderArenaArgs) -> Result<()> {
@@ -194,58 +176,5 @@ pub fn show_depth(a: ShowDepthArgs) -> Result<()> {
     }
     img.save(&a.out).with_context(|| format!("cannot write {}", a.out.display()))?;
     println!("wrote {} (previous | current frame, white = far)", a.out.display());
-    Ok(())
-}
-
-/// Draws rolling episode reward against wall time, with the threshold.
-pub fn reward_plot(points: &[(f64, f64)], threshold: f64, out: &Path) -> Result<()> {
-    font();
-    let root = BitMapBackend::new(out, (800, 480)).into_drawing_area();
-    root.fill(&WHITE).map_err(plot_err)?;
-    let tmax = points.last().map(|p| p.0).unwrap_or(1.0).max(1.0);
-    let lo = points.iter().map(|p| p.1).fold(-110.0f64, f64::min);
-    let hi = points.iter().map(|p| p.1).fold(threshold + 50.0, f64::max);
-    let mut chart = ChartBuilder::on(&root)
-        .caption("rolling episode reward", ("sans-serif", 20))
-        .margin(12)
-        .x_label_area_size(35)
-        .y_label_area_size(45)
-        .build_cartesian_2d(0f64..tmax, lo..hi)
-        .map_err(plot_err)?;
-    chart.configure_mesh().x_desc("wall time (s)").y_desc("reward").draw().map_err(plot_err)?;
-    chart.draw_series(LineSeries::new(points.iter().copied(), BLUE.stroke_width(2))).map_err(plot_err)?;
-    chart.draw_series(LineSeries::new([(0.0, threshold), (tmax, threshold)], RED.mix(0.6))).map_err(plot_err)?;
-    root.present().map_err(plot_err)?;
-    Ok(())
-}
-
-/// A line chart of several named series (e.g. milliseconds against agents).
-pub fn lines_plot(title: &str, x_desc: &str, y_desc: &str, series: &[(String, Vec<(f64, f64)>)], out: &Path) -> Result<()> {
-    font();
-    let root = BitMapBackend::new(out, (800, 480)).into_drawing_area();
-    root.fill(&WHITE).map_err(plot_err)?;
-    let pts = || series.iter().flat_map(|s| s.1.iter().copied());
-    let xmax = pts().map(|p| p.0).fold(1.0f64, f64::max);
-    let ymax = pts().map(|p| p.1).fold(1e-3f64, f64::max) * 1.1;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(title, ("sans-serif", 20))
-        .margin(12)
-        .x_label_area_size(35)
-        .y_label_area_size(55)
-        .build_cartesian_2d(0f64..xmax, 0f64..ymax)
-        .map_err(plot_err)?;
-    chart.configure_mesh().x_desc(x_desc).y_desc(y_desc).draw().map_err(plot_err)?;
-    let colors = [BLUE, RED, GREEN, MAGENTA, CYAN, BLACK];
-    for (i, (name, s)) in series.iter().enumerate() {
-        let c = colors[i % colors.len()];
-        chart
-            .draw_series(LineSeries::new(s.iter().copied(), c.stroke_width(2)))
-            .map_err(plot_err)?
-            .label(name.as_str())
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
-        chart.draw_series(s.iter().map(|p| Circle::new(*p, 3, c.filled()))).map_err(plot_err)?;
-    }
-    chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).draw().map_err(plot_err)?;
-    root.present().map_err(plot_err)?;
     Ok(())
 }

@@ -2,18 +2,11 @@
 //! (`sim`, `actor`, `replay`, `learner`), the main job (`train`), evaluation,
 //! pictures and system benchmarks.
 
-mod bench;
 mod draw;
 mod eval;
 mod gpu_monitor;
-mod ipc_bench;
-mod learner_bench;
-mod link_bench;
-mod profile;
-mod replay_bench;
 mod role_cmd;
-mod table_bench;
-mod train;
+mod supervisor;
 mod worker;
 
 use std::path::PathBuf;
@@ -50,7 +43,7 @@ pub struct ConfigArgs {
 #[derive(Subcommand, Debug)]
 enum Command {
     /// Train: start every role as a child process and supervise them.
-    Train(train::TrainArgs),
+    Train(supervisor::TrainArgs),
     /// Run one simulator (environment E) as its own process.
     Sim {
         #[command(flatten)]
@@ -90,7 +83,7 @@ enum Command {
     },
     /// System benchmarks; each prints one JSON line with --json.
     #[command(subcommand)]
-    Bench(bench::BenchCmd),
+    Bench(rotorhive_bench::BenchCmd),
     /// Draw an arena from above, optionally with random-policy trajectories.
     RenderArena(draw::RenderArenaArgs),
     /// Write one agent's two depth frames as a PNG.
@@ -134,18 +127,18 @@ fn main() -> ExitCode {
     // iceoryx2 warns about running without a config file; only errors matter here.
     iceoryx2::prelude::set_log_level(iceoryx2::prelude::LogLevel::Error);
     let result = match cli.command {
-        Command::Train(a) => train::run(a),
+        Command::Train(a) => supervisor::run(a),
         Command::Sim { role, env } => role_cmd::run(&role, RoleKind::Sim, env),
         Command::Actor { role, env } => role_cmd::run(&role, RoleKind::Actor, env),
         Command::Replay { role } => role_cmd::run(&role, RoleKind::Replay, 0),
         Command::Learner { role } => role_cmd::run(&role, RoleKind::Learner, 0),
         Command::Worker(a) => worker::run(a),
         Command::Eval(a) => eval::run(a),
-        Command::Bench(b) => bench::run(b),
+        Command::Bench(b) => rotorhive_bench::run(b),
         Command::RenderArena(a) => draw::render_arena(a),
         Command::ShowDepth(a) => draw::show_depth(a),
         Command::GenArena(a) => draw::gen_arena(a),
-        Command::Profile { run_dir } => profile::run(&run_dir),
+        Command::Profile { run_dir } => rotorhive_records::profile::run(&run_dir),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -50,8 +50,8 @@ pub fn run(a: WorkerArgs) -> Result<()> {
     rotorhive_link::check_endpoint(&a.connect)?;
     rotorhive_transport::handle_hangup();
     let name = a.name.clone().unwrap_or_else(|| match std::env::var(rotorhive_transport::DOMAIN_ENV) {
-        Ok(d) if !d.is_empty() => format!("{}/{d}", crate::train::host_name()),
-        _ => crate::train::host_name(),
+        Ok(d) if !d.is_empty() => format!("{}/{d}", crate::supervisor::host_name()),
+        _ => crate::supervisor::host_name(),
     });
     let hello = Hello { layout: rotorhive_link::layout(rotorhive_model::num_params()), envs: a.envs, agents: a.agents.unwrap_or(0), host: name.clone() };
     let link = Worker::join(&a.connect, &hello, Duration::from_secs_f64(a.join_timeout), rotorhive_transport::stop_requested)?;

@@ -396,7 +396,7 @@ fn send_retrying<S: Service, T, H>(
     mut fill: impl FnMut(&mut H, &mut [T]),
 ) -> Result<bool>
 where
-    T: std::fmt::Debug + iceoryx2::prelude::ZeroCopySend + Default + Copy + 'static,
+    T: rotorhive_transport::Plain,
     H: std::fmt::Debug + iceoryx2::prelude::ZeroCopySend + Default + 'static,
 {
     loop {

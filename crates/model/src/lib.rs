@@ -52,18 +52,10 @@ pub fn device(name: &str) -> Result<Device> {
     }
 }
 
-/// Side of the depth images.
-pub const SIDE: usize = 32;
-/// Depth frames per observation.
-pub const FRAMES: usize = 2;
-/// Velocity components per observation.
-pub const VEL: usize = 3;
-/// Floats per observation.
-pub const OBS_LEN: usize = FRAMES * SIDE * SIDE + VEL;
-/// Q-values per observation.
-pub const ACTIONS: usize = 2;
-/// Floats per transition: `s | s' | action | reward | done`.
-pub const TRANSITION_LEN: usize = 2 * OBS_LEN + 3;
+// The observation and transition layout, defined once in `rotorhive-msg`
+// (without its iceoryx2 feature): depth side, frames, velocity components,
+// floats per observation, actions, floats per transition.
+pub use rotorhive_msg::{DEPTH_SIDE as SIDE, FRAMES, NUM_ACTIONS as ACTIONS, OBS_LEN, TRANSITION_LEN, VEL_DIM as VEL};
 
 const C1: usize = 16; // conv1 channels
 const K1: usize = 6;

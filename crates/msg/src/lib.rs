@@ -8,8 +8,11 @@
 //! by the helpers below, so the sender and the receiver never disagree.
 //!
 //! This crate is the only one that derives `ZeroCopySend` (besides test-only
-//! headers).
+//! headers), and only with its `zero-copy` feature: without it the crate is
+//! the layout alone (constants, packing, done codes) and needs no iceoryx2,
+//! so the domain crates (the model) take their layout from here too.
 
+#[cfg(feature = "zero-copy")]
 use iceoryx2::prelude::ZeroCopySend;
 
 /// Side of one square depth image, in pixels.
@@ -63,8 +66,8 @@ impl DoneKind {
 /// observations, then `agents` rewards, then `agents` done codes
 /// ([`DoneKind`] as `f32`). Rows of agents that were reset in this step hold the
 /// first observation of their new episode.
-#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
-#[type_name("rotorhive::ObsHeader")]
+#[derive(Debug, Clone, Copy, Default)]
+#[cfg_attr(feature = "zero-copy", derive(ZeroCopySend), type_name("rotorhive::ObsHeader"))]
 #[repr(C)]
 pub struct ObsHeader {
     /// Environment (sim process) index.
@@ -91,8 +94,8 @@ pub const fn obs_batch_len(agents: usize) -> usize {
 }
 
 /// Header of an action batch, actor → sim. Payload: `[u8]`, one action per agent.
-#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
-#[type_name("rotorhive::ActionHeader")]
+#[derive(Debug, Clone, Copy, Default)]
+#[cfg_attr(feature = "zero-copy", derive(ZeroCopySend), type_name("rotorhive::ActionHeader"))]
 #[repr(C)]
 pub struct ActionHeader {
     /// Environment index.
@@ -186,8 +189,8 @@ pub fn unpack_transition(p: &[u16], out: &mut [f32]) {
 ///
 /// Payload: `[u16]` of `count × PACKED_LEN`, each transition packed by
 /// [`pack_transition`].
-#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
-#[type_name("rotorhive::TransitionHeader")]
+#[derive(Debug, Clone, Copy, Default)]
+#[cfg_attr(feature = "zero-copy", derive(ZeroCopySend), type_name("rotorhive::TransitionHeader"))]
 #[repr(C)]
 pub struct TransitionHeader {
     /// Actor index (= environment index).
@@ -205,26 +208,30 @@ pub struct TransitionHeader {
 
 /// Header of a minibatch, replay → learner. Payload: `[u16]` of
 /// `batch × PACKED_LEN`, packed transitions as in a transition batch.
-#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
-#[type_name("rotorhive::MinibatchHeader")]
+#[derive(Debug, Clone, Copy, Default)]
+#[cfg_attr(feature = "zero-copy", derive(ZeroCopySend), type_name("rotorhive::MinibatchHeader"))]
 #[repr(C)]
 pub struct MinibatchHeader {
     /// Transitions in the minibatch.
     pub batch: u32,
-    /// Padding for a stable layout.
-    pub _pad: u32,
+    /// Transitions whose acting weight version is known (those restored
+    /// from a snapshot are not).
+    pub acted: u32,
     /// Sequence number of the minibatch.
     pub seq: u64,
     /// Transitions in the replay memory when it was sampled.
     pub replay_len: u64,
     /// Transitions inserted into the replay memory so far.
     pub inserted: u64,
+    /// Sum of the weight versions the `acted` transitions were acted with
+    /// (the learner's policy lag is its version minus their mean).
+    pub acted_version_sum: u64,
 }
 
 /// Header of a weights message, learner → actors. Payload: `[f32]`, the flat
 /// parameters in the model's canonical order.
-#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
-#[type_name("rotorhive::WeightsHeader")]
+#[derive(Debug, Clone, Copy, Default)]
+#[cfg_attr(feature = "zero-copy", derive(ZeroCopySend), type_name("rotorhive::WeightsHeader"))]
 #[repr(C)]
 pub struct WeightsHeader {
     /// Version, increasing with every publication (1 is the first).
@@ -237,8 +244,8 @@ pub struct WeightsHeader {
 
 /// Header of an episodes message, actor → supervisor. Payload: `[f32]`
 /// triples (return, steps, [`DoneKind`] code), one per finished episode.
-#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
-#[type_name("rotorhive::EpisodeHeader")]
+#[derive(Debug, Clone, Copy, Default)]
+#[cfg_attr(feature = "zero-copy", derive(ZeroCopySend), type_name("rotorhive::EpisodeHeader"))]
 #[repr(C)]
 pub struct EpisodeHeader {
     /// Actor index.
@@ -303,8 +310,8 @@ pub const STAGES: usize = 4;
 /// Counters are cumulative since the role started; stage times are cumulative
 /// nanoseconds. What each counter and stage means depends on the role (see
 /// `stage_names`).
-#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
-#[type_name("rotorhive::Telemetry")]
+#[derive(Debug, Clone, Copy, Default)]
+#[cfg_attr(feature = "zero-copy", derive(ZeroCopySend), type_name("rotorhive::Telemetry"))]
 #[repr(C)]
 pub struct Telemetry {
     /// [`RoleKind`] code.
@@ -313,8 +320,9 @@ pub struct Telemetry {
     pub index: u32,
     /// Process id of the role.
     pub pid: u32,
-    /// Padding for a stable layout.
-    pub _pad: u32,
+    /// Learner: mean policy lag of its minibatches since the previous
+    /// sample, ×1000 weight versions; 0 for the other roles.
+    pub policy_lag_milli: u32,
     /// Heartbeat: samples sent so far.
     pub heartbeat: u64,
     /// Main work counter (env steps, transitions, minibatches, updates).
@@ -380,7 +388,7 @@ mod tests {
         assert_eq!(std::mem::size_of::<ObsHeader>(), 40);
         assert_eq!(std::mem::size_of::<ActionHeader>(), 16);
         assert_eq!(std::mem::size_of::<TransitionHeader>(), 32);
-        assert_eq!(std::mem::size_of::<MinibatchHeader>(), 32);
+        assert_eq!(std::mem::size_of::<MinibatchHeader>(), 40);
         assert_eq!(std::mem::size_of::<WeightsHeader>(), 24);
         assert_eq!(std::mem::size_of::<Telemetry>(), 96);
     }

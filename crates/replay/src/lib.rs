@@ -56,6 +56,9 @@ pub struct Snapshot {
 #[derive(Debug, Clone)]
 pub struct Replay {
     data: Vec<u16>,
+    /// Per row: the weight version the transition was acted with (0:
+    /// unknown, e.g. restored from a snapshot), for the policy lag.
+    versions: Vec<u32>,
     width: usize,
     capacity: usize,
     len: usize,
@@ -77,7 +80,7 @@ impl Replay {
             // so the allocator's zeroed pages are really touched.
             unsafe { std::ptr::write_volatile(page.as_mut_ptr(), 0) };
         }
-        Self { data, width, capacity, len: 0, head: 0, inserted: 0, sampled: 0, rng: Pcg64Mcg::seed_from_u64(seed) }
+        Self { data, versions: vec![0; capacity], width, capacity, len: 0, head: 0, inserted: 0, sampled: 0, rng: Pcg64Mcg::seed_from_u64(seed) }
     }
 
     /// Transitions held.
@@ -107,9 +110,17 @@ impl Replay {
 
     /// Appends transitions (a multiple of `width` words), overwriting the oldest when full.
     pub fn insert(&mut self, transitions: &[u16]) {
+        self.insert_acted(transitions, 0);
+    }
+
+    /// [`Replay::insert`] of transitions acted with weight version `version`
+    /// (0: unknown), which [`Replay::sample_into`] reports for the policy lag.
+    pub fn insert_acted(&mut self, transitions: &[u16], version: u64) {
         assert_eq!(transitions.len() % self.width, 0, "transition batch is not a whole number of transitions");
+        let version = u32::try_from(version).unwrap_or(u32::MAX);
         for t in transitions.chunks_exact(self.width) {
             self.data[self.head * self.width..(self.head + 1) * self.width].copy_from_slice(t);
+            self.versions[self.head] = version;
             self.head = (self.head + 1) % self.capacity;
             self.len = (self.len + 1).min(self.capacity);
             self.inserted += 1;
@@ -202,20 +213,58 @@ impl Replay {
     }
 
     /// Fills `out` (a multiple of `width` words) with transitions drawn
-    /// uniformly with replacement. Panics when empty.
-    pub fn sample_into(&mut self, out: &mut [u16]) {
+    /// uniformly with replacement, and returns the weight versions they were
+    /// acted with: their sum and how many were known. Panics when empty.
+    pub fn sample_into(&mut self, out: &mut [u16]) -> Acted {
         assert!(self.len > 0, "cannot sample an empty replay memory");
+        let mut acted = Acted::default();
         for o in out.chunks_exact_mut(self.width) {
             let i = self.rng.random_range(0..self.len);
             o.copy_from_slice(&self.data[i * self.width..(i + 1) * self.width]);
+            if self.versions[i] > 0 {
+                acted.version_sum += self.versions[i] as u64;
+                acted.known += 1;
+            }
             self.sampled += 1;
         }
+        acted
     }
+}
+
+/// The weight versions a sample's transitions were acted with.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Acted {
+    /// Sum of the known versions.
+    pub version_sum: u64,
+    /// Transitions whose version is known.
+    pub known: u32,
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_sample_reports_the_versions_it_was_acted_with() {
+        let mut r = Replay::new(4, 1, 1);
+        r.insert(&[9]);
+        r.insert_acted(&[1, 1], 5);
+        r.insert_acted(&[2], 7);
+        let mut out = vec![0; 400];
+        let acted = r.sample_into(&mut out);
+        // Version 0 (unknown) rows are left out of the sum.
+        let expect = out
+            .iter()
+            .map(|v| match v {
+                1 => 5,
+                2 => 7,
+                _ => 0,
+            })
+            .sum::<u64>();
+        assert_eq!(acted.version_sum, expect);
+        assert_eq!(acted.known as usize, out.iter().filter(|v| **v != 9).count());
+        assert!(acted.known > 0 && (acted.known as usize) < out.len());
+    }
 
     #[test]
     fn fifo_overwrites_the_oldest() {

@@ -87,6 +87,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     // The published loss is the mean over the updates since the last
     // telemetry sample: one minibatch's loss is too noisy to show a trend.
     let (mut loss_sum, mut loss_n) = (0.0f64, 0u32);
+    let (mut lag_sum, mut lag_n) = (0.0f64, 0u32);
     loop {
         if hub.shutdown_requested() {
             break;
@@ -95,7 +96,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
         let msg = rx.recv_timeout(POLL).context("waiting for minibatches")?;
         tel.stage(3, t);
         if tel.tick(false) {
-            (loss_sum, loss_n) = (0.0, 0);
+            (loss_sum, loss_n, lag_sum, lag_n) = (0.0, 0, 0.0, 0);
         }
         let Some(msg) = msg else { continue };
         if min_period > Duration::ZERO {
@@ -106,7 +107,14 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
         }
         last_update = Instant::now();
         unpack_batch(msg.payload(), &mut batch)?;
+        let mb = *msg.user_header();
         drop(msg);
+        if mb.acted > 0 {
+            // Policy lag: this learner's version minus the mean version the
+            // minibatch's transitions were acted with.
+            lag_sum += version as f64 - mb.acted_version_sum as f64 / mb.acted as f64;
+            lag_n += 1;
+        }
         let loss = dqn.update(&batch).context("learner update")?;
         let tm = dqn.timing();
         tel.sample.stage_ns[0] += tm.forward_ns;
@@ -116,6 +124,9 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
         loss_sum += loss as f64;
         loss_n += 1;
         tel.sample.value_milli = (loss_sum / loss_n as f64 * 1e6) as i64;
+        if lag_n > 0 {
+            tel.sample.policy_lag_milli = (lag_sum / lag_n as f64 * 1e3).clamp(0.0, u32::MAX as f64) as u32;
+        }
         if dqn.updates() % cfg.learner.publish_every == 0 {
             publish(&dqn, &mut version)?;
             tel.sample.weight_version = version;

@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use rotorhive_msg::{MinibatchHeader, PACKED_LEN, RoleKind, TransitionHeader};
-use rotorhive_replay::{Journal, Replay};
+use rotorhive_replay::{Acted, Journal, Replay};
 use rotorhive_transport::{Channel, TransportError};
 
 use iceoryx2::service::Service;
@@ -66,8 +66,8 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
         if ready && limit.allows(mb_seq, mem.inserted()) && Instant::now() >= backoff_until {
             let t = Instant::now();
             let res = tx.send_with(r.batch * PACKED_LEN, |h, out| {
-                mem.sample_into(out);
-                *h = MinibatchHeader { batch: r.batch as u32, _pad: 0, seq: mb_seq, replay_len: mem.len() as u64, inserted: mem.inserted() };
+                let acted = mem.sample_into(out);
+                *h = minibatch_header(&mem, r.batch, mb_seq, acted);
             });
             tel.stage(1, t);
             match res {
@@ -148,11 +148,11 @@ fn run_scheduled<S: Service>(
 ) -> Result<()> {
     let schedule = Schedule::new(cfg);
     let batch = cfg.replay.batch;
-    let mut pending: Vec<VecDeque<Vec<u16>>> = vec![VecDeque::new(); cfg.sim.envs];
+    let mut pending: Vec<VecDeque<(u64, Vec<u16>)>> = vec![VecDeque::new(); cfg.sim.envs];
     let mut next_seq = vec![None::<u64>; cfg.sim.envs];
     let (mut rounds, mut sent) = (0u64, 0u64);
     // The next minibatch, sampled once and offered until the learner takes it.
-    let (mut minibatch, mut drawn) = (vec![0u16; batch * PACKED_LEN], false);
+    let (mut minibatch, mut drawn, mut acted) = (vec![0u16; batch * PACKED_LEN], false, Acted::default());
     let mut last_sync = Instant::now();
     // A minibatch sent before the learner subscribes would be lost.
     while tx.receivers() == 0 && !hub.shutdown_requested() {
@@ -169,14 +169,14 @@ fn run_scheduled<S: Service>(
         // The minibatches owed after the rounds in, one at a time, then the
         // next round.
         if !drawn && sent < schedule.minibatches_after(rounds) {
-            mem.sample_into(&mut minibatch);
+            acted = mem.sample_into(&mut minibatch);
             drawn = true;
         }
         if drawn {
             let t = Instant::now();
             let res = tx.send_with(minibatch.len(), |h, o| {
                 o.copy_from_slice(&minibatch);
-                *h = MinibatchHeader { batch: batch as u32, _pad: 0, seq: sent, replay_len: mem.len() as u64, inserted: mem.inserted() };
+                *h = minibatch_header(mem, batch, sent, acted);
             });
             tel.stage(1, t);
             match res {
@@ -190,7 +190,8 @@ fn run_scheduled<S: Service>(
             }
         } else if rounds < schedule.rounds() && pending.iter().all(|q| !q.is_empty()) {
             for q in &mut pending {
-                store(mem, journal.as_deref_mut(), &q.pop_front().unwrap_or_default())?;
+                let (version, batch) = q.pop_front().unwrap_or_default();
+                store(mem, journal.as_deref_mut(), &batch, version)?;
             }
             rounds += 1;
             busy = true;
@@ -219,7 +220,7 @@ fn run_scheduled<S: Service>(
 /// earlier ones.
 fn enqueue<S: Service>(
     m: &rotorhive_transport::Msg<S, u16, TransitionHeader>,
-    pending: &mut [VecDeque<Vec<u16>>],
+    pending: &mut [VecDeque<(u64, Vec<u16>)>],
     next_seq: &mut [Option<u64>],
     lost: &mut u64,
 ) -> Result<()> {
@@ -229,7 +230,7 @@ fn enqueue<S: Service>(
         anyhow::bail!("transitions from actor {} of a run with {envs} environments", h.actor);
     };
     check(m, next_seq, lost);
-    q.push_back(m.payload().to_vec());
+    q.push_back((h.weight_version, m.payload().to_vec()));
     Ok(())
 }
 
@@ -262,7 +263,7 @@ fn ingest<S: Service>(
     lost: &mut u64,
 ) -> Result<()> {
     check(m, next_seq, lost);
-    store(mem, journal, m.payload())
+    store(mem, journal, m.payload(), m.user_header().weight_version)
 }
 
 /// Syncs the journal to disk every `replay.snapshot_every_s`.
@@ -276,13 +277,26 @@ fn sync_due(journal: Option<&Journal>, last_sync: &mut Instant, cfg: &crate::con
     Ok(())
 }
 
-/// Inserts a transition batch and records it in the journal.
-fn store(mem: &mut Replay, journal: Option<&mut Journal>, batch: &[u16]) -> Result<()> {
-    mem.insert(batch);
+/// Inserts a transition batch acted with weight version `version` and
+/// records it in the journal.
+fn store(mem: &mut Replay, journal: Option<&mut Journal>, batch: &[u16], version: u64) -> Result<()> {
+    mem.insert_acted(batch, version);
     if let Some(j) = journal {
         j.record(mem, batch.len() / PACKED_LEN)?;
     }
     Ok(())
+}
+
+/// The header of minibatch `seq` of `batch` transitions just sampled.
+fn minibatch_header(mem: &Replay, batch: usize, seq: u64, acted: Acted) -> MinibatchHeader {
+    MinibatchHeader {
+        batch: batch as u32,
+        acted: acted.known,
+        seq,
+        replay_len: mem.len() as u64,
+        inserted: mem.inserted(),
+        acted_version_sum: acted.version_sum,
+    }
 }
 
 /// Counts transitions whose action or done flag is not 0 or 1, or whose

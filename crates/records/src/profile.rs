@@ -11,12 +11,7 @@ use std::path::Path;
 use anyhow::{Context, Result, bail};
 use rotorhive_msg::{RoleKind, stage_names};
 
-struct Row {
-    wall: f64,
-    cpu: f64,
-    machine: f64,
-    stages: [f64; 4],
-}
+use crate::telemetry::TelemetryRow;
 
 fn role_kind(name: &str) -> Option<RoleKind> {
     [RoleKind::Sim, RoleKind::Actor, RoleKind::Replay, RoleKind::Learner, RoleKind::Link].into_iter().find(|r| r.name() == name)
@@ -57,6 +52,8 @@ pub struct Profile {
     /// Mean CPU % of `hive train`'s own process (monitor, evaluator and, on
     /// a head, the link), when the roles ran as processes of their own.
     pub supervisor_cpu: Option<f64>,
+    /// Mean policy lag of the learner's minibatches (weight versions).
+    pub policy_lag: Option<f64>,
 }
 
 impl Profile {
@@ -68,35 +65,28 @@ impl Profile {
 
 /// Reads a run's `telemetry.csv`.
 pub fn analyse(run_dir: &Path) -> Result<Profile> {
-    let path = run_dir.join("telemetry.csv");
-    let text = std::fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))?;
-    let mut rows: BTreeMap<(String, String), Vec<Row>> = BTreeMap::new();
-    for (i, line) in text.lines().enumerate().skip(1) {
-        let f: Vec<&str> = line.split(',').collect();
-        if f.len() < 16 {
-            bail!("{}: line {}: expected 16 fields, found {}", path.display(), i + 1, f.len());
-        }
-        let num = |k: usize| f[k].parse::<f64>().with_context(|| format!("{}: line {}: field {k} is not a number: {:?}", path.display(), i + 1, f[k]));
-        let row = Row { wall: num(0)?, cpu: num(4).unwrap_or(f64::NAN), machine: num(6)?, stages: [num(12)?, num(13)?, num(14)?, num(15)?] };
-        rows.entry((f[1].to_string(), f[2].to_string())).or_default().push(row);
+    let mut rows: BTreeMap<(String, u32), Vec<TelemetryRow>> = BTreeMap::new();
+    for row in crate::telemetry::read(run_dir)? {
+        rows.entry((row.role.clone(), row.index)).or_default().push(row);
     }
     if rows.is_empty() {
-        bail!("{}: no telemetry rows", path.display());
+        bail!("{}: no telemetry rows", run_dir.join("telemetry.csv").display());
     }
     let mut roles = Vec::new();
     let mut machine = Vec::new();
-    let supervisor_cpu = rows.get(&("supervisor".to_string(), "0".to_string())).map(|r| mean(r.iter().map(|x| x.cpu)));
+    let supervisor_cpu = rows.get(&("supervisor".to_string(), 0)).map(|r| mean(r.iter().map(|x| x.cpu_pct)));
+    let policy_lag = rows.get(&("learner".to_string(), 0)).map(|r| mean(r.iter().filter_map(|x| x.policy_lag))).filter(|v| v.is_finite());
     for ((role, index), r) in &rows {
         let Some(kind) = role_kind(role) else { continue };
         let names = stage_names(kind);
         // Cumulative timings: the difference over the run, after the first second.
         let (first, last) = (&r[0], &r[r.len() - 1]);
-        let span_ms = (last.wall - first.wall) * 1e3;
+        let span_ms = (last.wall_s - first.wall_s) * 1e3;
         if span_ms <= 0.0 {
             continue;
         }
-        let share: [f64; 4] = std::array::from_fn(|k| (last.stages[k] - first.stages[k]) / span_ms);
-        machine.extend(r.iter().map(|x| x.machine));
+        let share: [f64; 4] = std::array::from_fn(|k| (last.stage_ms[k] - first.stage_ms[k]) / span_ms);
+        machine.extend(r.iter().map(|x| x.machine_cpu_pct));
         // The waiting stage: transport for every role, idle for the replay.
         let wait = match kind {
             RoleKind::Replay => share[2] + share[3],
@@ -106,7 +96,7 @@ pub fn analyse(run_dir: &Path) -> Result<Profile> {
         };
         roles.push(RoleProfile {
             name: format!("{role}-{index}"),
-            cpu: mean(r.iter().map(|x| x.cpu)),
+            cpu: mean(r.iter().map(|x| x.cpu_pct)),
             stages: std::array::from_fn(|k| (names[k], share[k])),
             wait,
         });
@@ -115,7 +105,7 @@ pub fn analyse(run_dir: &Path) -> Result<Profile> {
         let (stage, busy) = r.stages.iter().filter(|(n, _)| *n != "transport_wait" && *n != "idle").fold(("", -1.0), |a, b| if b.1 > a.1 { *b } else { a });
         Bottleneck { role: r.name.clone(), stage, busy, wait: r.wait }
     });
-    Ok(Profile { roles, machine_cpu: mean(machine.into_iter()), bottleneck, supervisor_cpu })
+    Ok(Profile { roles, machine_cpu: mean(machine.into_iter()), bottleneck, supervisor_cpu, policy_lag })
 }
 
 /// The report as Markdown text.
@@ -139,6 +129,9 @@ pub fn report(run_dir: &Path) -> Result<String> {
         writeln!(out, "| supervisor (monitor, evaluator, link) | {cpu:.0} | {:.0} % | — | — | — | — |", cpu / total_cpu * 100.0)?;
     }
     writeln!(out, "\nStage columns: share of the role's wall time spent in each stage; `transport_wait` / `idle` is time spent waiting on another process.")?;
+    if let Some(lag) = p.policy_lag {
+        writeln!(out, "Policy lag: the learner trained on transitions acted {lag:.1} weight versions behind its own, on average.")?;
+    }
     writeln!(out, "Machine CPU: {:.0} % on average over {} cores.", p.machine_cpu, std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1))?;
     if let Some(b) = &p.bottleneck {
         writeln!(

@@ -1,5 +1,19 @@
 //! System benchmarks (`hive bench NAME`). Each prints a readable table and,
-//! with `--json`, one JSON object as the last line of stdout.
+//! with `--json`, one JSON object as the last line of stdout. They call the
+//! public APIs of the simulator, model, replay, transport, link and roles,
+//! and start `hive` processes (the running executable) where a benchmark
+//! needs two sides. Criterion micro-benchmarks live beside their crate
+//! (`crates/sim/benches/sim.rs`: `cargo bench -p rotorhive-sim`).
+//!
+//! | command | measures |
+//! |---|---|
+//! | `hive bench sim --agents 1,10,50,200` | agent-steps/s of the simulator and its stages |
+//! | `hive bench render --renderer cpu\|wgpu` | ms per step to gather all agents' depth, batched against non-batched (the paper's figure 5a) |
+//! | `hive bench learner --threads 2 --compare` | learner updates/s (fused CPU path against stock candle), inference at batch 1 and 50 |
+//! | `hive bench ipc` | obs, transition and weights messages between two processes: iceoryx2 against msgpack over loopback TCP |
+//! | `hive bench replay --producers 2` | transitions inserted/s and minibatches sampled/s by the replay process |
+//! | `hive bench link` | transition batches between two hosts' links over Zenoh against raw TCP |
+//! | `hive bench table --config FILE` | the paper's agent table: `hive train` per cell |
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -9,6 +23,12 @@ use clap::Subcommand;
 use serde_json::json;
 
 use rotorhive_sim::{Arena, RendererKind, SimConfig, VecEnv};
+
+mod ipc;
+mod learner;
+mod link;
+mod replay;
+mod table;
 
 #[derive(Subcommand, Debug)]
 pub enum BenchCmd {
@@ -162,14 +182,14 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
     match cmd {
         BenchCmd::Sim { agents, steps, threads, arena, json } => bench_sim(&agents, steps, threads, &arena, json),
         BenchCmd::Render { agents, renderer, steps, threads, arena, plot, json } => bench_render(&agents, &renderer, steps, threads, &arena, &plot, json),
-        BenchCmd::Ipc { iters, json } => crate::ipc_bench::run(iters, json),
-        BenchCmd::IpcPeer { prefix } => crate::ipc_bench::peer(&prefix),
-        BenchCmd::Link { seconds, batch, json } => crate::link_bench::run(seconds, batch, json),
-        BenchCmd::LinkSide { side, endpoint, seconds, batch } => crate::link_bench::side(&side, &endpoint, seconds, batch),
-        BenchCmd::Replay { producers, seconds, json } => crate::replay_bench::run(producers, seconds, json),
-        BenchCmd::ReplayProducer { prefix, index, producers, batches } => crate::replay_bench::producer(&prefix, index, producers, batches),
-        BenchCmd::Table { config, out, json } => crate::table_bench::run(&config, &out, json),
-        BenchCmd::Learner { threads, batch, updates, compare, json } => crate::learner_bench::bench(threads, batch, updates, compare, json),
+        BenchCmd::Ipc { iters, json } => crate::ipc::run(iters, json),
+        BenchCmd::IpcPeer { prefix } => crate::ipc::peer(&prefix),
+        BenchCmd::Link { seconds, batch, json } => crate::link::run(seconds, batch, json),
+        BenchCmd::LinkSide { side, endpoint, seconds, batch } => crate::link::side(&side, &endpoint, seconds, batch),
+        BenchCmd::Replay { producers, seconds, json } => crate::replay::run(producers, seconds, json),
+        BenchCmd::ReplayProducer { prefix, index, producers, batches } => crate::replay::producer(&prefix, index, producers, batches),
+        BenchCmd::Table { config, out, json } => crate::table::run(&config, &out, json),
+        BenchCmd::Learner { threads, batch, updates, compare, json } => crate::learner::bench(threads, batch, updates, compare, json),
     }
 }
 
@@ -277,7 +297,7 @@ fn bench_render(agents: &[usize], renderer: &str, steps: usize, threads: usize, 
     }
     println!("renderer {renderer} ({adapter}); observations carried through iceoryx2 to a gathering thread as in training");
     println!("paper (AirSim, RTX 2070): 10 agents 61 ms batched, 197 ms non-batched");
-    crate::draw::lines_plot(
+    rotorhive_records::plot::lines_plot(
         &format!("observation gathering per step ({renderer})"),
         "agents",
         "ms per step",

@@ -282,10 +282,11 @@ pub fn run(config: &Path, out: &Path, json_out: bool) -> Result<()> {
                 for mut w in workers {
                     let _ = w.wait();
                 }
-                let summary: Value = std::fs::read_to_string(dir.join("summary.json"))
-                    .ok()
-                    .and_then(|t| serde_json::from_str(&t).ok())
-                    .unwrap_or_else(|| json!({ "failure": format!("hive train exited with {status} and wrote no summary") }));
+                // The cell's result, read through the typed summary `hive train` writes.
+                let summary = match rotorhive_records::Summary::read(&dir) {
+                    Ok(s) => serde_json::to_value(&s)?,
+                    Err(e) => json!({ "failure": format!("hive train exited with {status}: {e:#}") }),
+                };
                 let curve: Vec<(f64, f64)> = std::fs::read_to_string(dir.join("metrics.csv"))
                     .unwrap_or_default()
                     .lines()
@@ -298,7 +299,7 @@ pub fn run(config: &Path, out: &Path, json_out: bool) -> Result<()> {
                     .collect();
                 curves.push((format!("{mode} {envs}x{agents} s{seed}"), curve));
                 // The paper's finding per cell: which role set the pace.
-                let (bottleneck, busy) = match crate::profile::analyse(&dir) {
+                let (bottleneck, busy) = match rotorhive_records::profile::analyse(&dir) {
                     Ok(p) => p.bottleneck.map_or((Value::Null, Value::Null), |b| (json!(format!("{} {}", b.role, b.stage)), json!(b.busy * 100.0))),
                     Err(_) => (Value::Null, Value::Null),
                 };
@@ -399,7 +400,7 @@ pub fn run(config: &Path, out: &Path, json_out: bool) -> Result<()> {
     writeln!(md, "\nRuns: {}.", out.display())?;
     std::fs::write(out.join("agent-table.md"), &md)?;
     std::fs::write(out.join("agent-table.csv"), &csv)?;
-    crate::draw::lines_plot("rolling reward per cell", "wall time (s)", "rolling reward (50 episodes)", &curves, &out.join("agent-table.png"))?;
+    rotorhive_records::plot::lines_plot("rolling reward per cell", "wall time (s)", "rolling reward (50 episodes)", &curves, &out.join("agent-table.png"))?;
     print!("{md}");
     println!("written: {}/agent-table.{{md,csv,png}}", out.display());
     if json_out {

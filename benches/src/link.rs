@@ -19,7 +19,7 @@ use rotorhive_transport::{Channel, Hub, Ipc};
 use serde::{Deserialize, Serialize};
 use serde_json::json;
 
-use crate::ipc_bench::{read_frame, write_frame};
+use crate::ipc::{read_frame, write_frame};
 
 const RUN: &str = "bench-link";
 

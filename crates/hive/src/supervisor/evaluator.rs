@@ -1,0 +1,157 @@
+//! The evaluator: greedy flights of the newest published weights beside
+//! training, on a thread of the supervisor with its own iceoryx2 node; the
+//! best weights are the run's result (`checkpoints/best.safetensors`).
+
+use std::fs::File;
+use std::io::Write;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc;
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result};
+use iceoryx2::service::Service;
+use rotorhive_model::{Device, QNet};
+use rotorhive_msg::WeightsHeader;
+use rotorhive_roles::Config;
+use rotorhive_transport::{Channel, Hub};
+
+/// One greedy evaluation during training.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct EvalPoint {
+    pub(super) wall: f64,
+    pub(super) updates: u64,
+    pub(super) success: f64,
+    pub(super) mean_reward: f64,
+}
+
+/// The best evaluation: highest success rate, then highest mean reward (the
+/// earliest of equals, as the evaluator keeps it).
+fn best_of(evals: &[EvalPoint]) -> Option<EvalPoint> {
+    evals.iter().copied().reduce(|a, b| if (b.success, b.mean_reward) > (a.success, a.mean_reward) { b } else { a })
+}
+
+/// Flies the newest published weights greedily every `eval.every_s` seconds
+/// (or when asked through `now`), on its own iceoryx2 node, and keeps the
+/// best weights as `checkpoints/best.safetensors`. Every evaluation uses the
+/// same spawn positions, so they compare.
+fn fly<S: Service>(
+    prefix: String,
+    cfg: Config,
+    run_dir: PathBuf,
+    start: Instant,
+    stop: Arc<AtomicBool>,
+    now: mpsc::Receiver<()>,
+    out: mpsc::Sender<EvalPoint>,
+) -> Result<()> {
+    let hub = Hub::<S>::new(&prefix, "eval")?;
+    let mut rx = hub.receiver::<f32, WeightsHeader>(&Channel::weights(cfg.sim.envs))?;
+    let mut net = QNet::new(0, &Device::Cpu)?;
+    net.set_threads(1);
+    let arenas = cfg.eval_arenas()?;
+    let every = Duration::from_secs_f64(cfg.eval.every_s);
+    let mut next = Instant::now() + every;
+    let mut best: Option<(f64, f64)> = None;
+    let mut csv = File::create(run_dir.join("evals.csv"))?;
+    writeln!(csv, "wall_s,updates,version,episodes,success_rate,mean_reward,best")?;
+    let ckpt_dir = run_dir.join("checkpoints");
+    std::fs::create_dir_all(&ckpt_dir)?;
+    while !stop.load(Ordering::Relaxed) {
+        let asked = now.try_recv().is_ok();
+        if !asked && Instant::now() < next {
+            std::thread::sleep(Duration::from_millis(50));
+            continue;
+        }
+        let Some(m) = rx.latest().context("reading weights to evaluate")? else {
+            // Nothing new since the last evaluation.
+            next = Instant::now() + Duration::from_millis(500);
+            continue;
+        };
+        let h = *m.user_header();
+        net.load_flat(m.payload()).context("loading weights to evaluate")?;
+        drop(m);
+        let st = crate::eval::fly_greedy(&net, cfg.sim_config(), &arenas, cfg.eval.episodes, cfg.seed.wrapping_add(7777))?;
+        let (success, mean_reward) = (st.success_rate(), st.mean_reward);
+        let better = best.is_none_or(|b| (success, mean_reward) > b);
+        if better {
+            best = Some((success, mean_reward));
+            let path = ckpt_dir.join("best.safetensors");
+            let tmp = ckpt_dir.join("best.safetensors.tmp");
+            net.save(&tmp)?;
+            std::fs::rename(&tmp, &path).with_context(|| format!("cannot write {}", path.display()))?;
+        }
+        let wall = start.elapsed().as_secs_f64();
+        writeln!(csv, "{wall:.3},{},{},{},{success:.4},{mean_reward:.2},{}", h.updates, h.version, st.episodes, better as u8)?;
+        let _ = out.send(EvalPoint { wall, updates: h.updates, success, mean_reward });
+        next = Instant::now() + every;
+    }
+    Ok(())
+}
+
+/// The evaluator thread of a run, and the evaluations it has reported.
+pub(super) struct Evaluator {
+    thread: Option<JoinHandle<Result<()>>>,
+    stop: Arc<AtomicBool>,
+    now: mpsc::Sender<()>,
+    rx: mpsc::Receiver<EvalPoint>,
+    evals: Vec<EvalPoint>,
+}
+
+impl Evaluator {
+    /// Starts evaluating every `eval.every_s` seconds (no thread when 0).
+    pub(super) fn start<S: Service>(cfg: &Config, prefix: &str, run_dir: &std::path::Path, start: Instant) -> Result<Self> {
+        let stop = Arc::new(AtomicBool::new(false));
+        let (now, now_rx) = mpsc::channel();
+        let (tx, rx) = mpsc::channel();
+        let mut thread = None;
+        if cfg.eval.every_s > 0.0 {
+            let (p, c, d, st) = (prefix.to_string(), cfg.clone(), run_dir.to_path_buf(), stop.clone());
+            thread = Some(std::thread::Builder::new().name("eval".into()).spawn(move || fly::<S>(p, c, d, start, st, now_rx, tx))?);
+        }
+        Ok(Self { thread, stop, now, rx, evals: Vec::new() })
+    }
+
+    /// Whether evaluations are made at all.
+    pub(super) fn on(&self) -> bool {
+        self.thread.is_some()
+    }
+
+    /// Asks for an evaluation now (the rolling reward crossed the threshold).
+    pub(super) fn ask_now(&self) {
+        let _ = self.now.send(());
+    }
+
+    /// Takes the evaluations reported since the last call.
+    pub(super) fn poll(&mut self) {
+        self.evals.extend(self.rx.try_iter());
+    }
+
+    /// Evaluations so far.
+    pub(super) fn count(&self) -> usize {
+        self.evals.len()
+    }
+
+    /// The best evaluation so far.
+    pub(super) fn best(&self) -> Option<EvalPoint> {
+        best_of(&self.evals)
+    }
+
+    /// Whether the thread ended before it was asked to (an error).
+    pub(super) fn died(&self) -> bool {
+        self.thread.as_ref().is_some_and(|h| h.is_finished())
+    }
+
+    /// Stops the thread; its error, if it had one.
+    pub(super) fn stop(&mut self) -> Option<String> {
+        self.stop.store(true, Ordering::Relaxed);
+        let err = match self.thread.take().map(|h| h.join()) {
+            None | Some(Ok(Ok(()))) => None,
+            Some(Ok(Err(e))) => Some(format!("{e:#}")),
+            Some(Err(_)) => Some("the evaluator panicked".into()),
+        };
+        self.poll();
+        err
+    }
+}

@@ -1,0 +1,199 @@
+//! The monitor: the roles' telemetry (cumulative counters, stage timers)
+//! joined once a second with each process's CPU and memory, the machine's
+//! CPU and the GPU's readings, written as typed rows of `telemetry.csv`
+//! (`rotorhive_records::TelemetryRow`), and summed for the progress line and
+//! `summary.json`.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::sync::Arc;
+
+use anyhow::Result;
+use iceoryx2::service::Service;
+use rotorhive_msg::{RoleKind, Telemetry};
+use rotorhive_records::{HostSummary, TelemetryRow};
+use rotorhive_roles::Config;
+use rotorhive_transport::Receiver;
+use sysinfo::{Pid, ProcessesToUpdate, System};
+
+use super::records::{Counts, Mean, Series, Table};
+use crate::gpu_monitor::{GpuMonitor, GpuReading};
+
+/// What the monitor knows of a run.
+pub(super) struct Monitor {
+    table: Table,
+    /// Each role's newest telemetry sample, by (role, index).
+    pub(super) latest: BTreeMap<(u32, u32), Telemetry>,
+    sys: System,
+    gpu: GpuMonitor,
+    /// Whole-machine CPU %, over the run.
+    pub(super) cpu: Mean,
+    /// GPU utilisation, power and memory, over the run.
+    pub(super) gpu_util: Mean,
+    pub(super) gpu_power: Mean,
+    pub(super) gpu_mem: Mean,
+    /// The learner's policy lag, over the run.
+    pub(super) policy_lag: Mean,
+    /// CPU % of the machine per process, for `utilisation.png`.
+    pub(super) util: BTreeMap<String, Series>,
+    /// Peak of the processes' summed resident memory.
+    pub(super) peak_rss_mb: f64,
+}
+
+/// One second's reading, for the progress line.
+pub(super) struct Reading {
+    pub(super) machine_cpu: f64,
+    pub(super) gpu: Option<GpuReading>,
+}
+
+impl Monitor {
+    /// Opens `telemetry.csv` (appended to when the run is resumed).
+    pub(super) fn open(run_dir: &Path, resumed: bool) -> Result<Self> {
+        Ok(Self {
+            table: Table::open(run_dir, "telemetry.csv", rotorhive_records::telemetry::HEADER, resumed)?,
+            latest: BTreeMap::new(),
+            sys: System::new().map_err(|e| anyhow::anyhow!("cannot read system statistics: {e}"))?,
+            gpu: GpuMonitor::new(),
+            cpu: Mean::default(),
+            gpu_util: Mean::default(),
+            gpu_power: Mean::default(),
+            gpu_mem: Mean::default(),
+            policy_lag: Mean::default(),
+            util: BTreeMap::new(),
+            peak_rss_mb: 0.0,
+        })
+    }
+
+    /// Takes every telemetry sample waiting.
+    pub(super) fn receive<S: Service>(&mut self, rx: &mut Receiver<S, u8, Telemetry>) -> Result<()> {
+        while let Some(m) = rx.try_recv()? {
+            let t = *m.user_header();
+            self.latest.insert((t.role, t.index), t);
+        }
+        Ok(())
+    }
+
+    /// The main work counter summed over every instance of `role`.
+    pub(super) fn sum_work(&self, role: RoleKind) -> u64 {
+        self.latest.values().filter(|t| t.role == role as u32).map(|t| t.work).sum()
+    }
+
+    /// Agent-steps, learner updates and replay size, from the telemetry.
+    pub(super) fn counts(&self) -> Counts {
+        let replay = self.latest.get(&(RoleKind::Replay as u32, 0)).map(|t| t.value_milli).unwrap_or(0);
+        (self.sum_work(RoleKind::Sim), self.sum_work(RoleKind::Learner), replay)
+    }
+
+    /// Agent-steps of the sims of environments `from..to`.
+    pub(super) fn steps_of(&self, from: u32, to: u32) -> u64 {
+        self.latest.values().filter(|t| t.role == RoleKind::Sim as u32 && (from..to).contains(&t.index)).map(|t| t.work).sum()
+    }
+
+    /// Reads CPU, memory and GPU and writes one row per role to
+    /// `telemetry.csv`, plus the supervisor's own row when the roles are
+    /// processes of their own (in serial mode its CPU is the whole run's).
+    pub(super) fn sample(&mut self, wall: f64, mut pids: Vec<Pid>, processes: bool) -> Result<Reading> {
+        let me = Pid::from_u32(std::process::id());
+        // The link runs in this process: its telemetry carries this pid.
+        pids.push(me);
+        self.sys.refresh_cpu_usage();
+        self.sys.refresh_processes(ProcessesToUpdate::Some(&pids), true);
+        let machine = self.sys.global_cpu_usage() as f64;
+        self.cpu.add(machine);
+        let gpu = self.gpu.read();
+        if let Some(g) = gpu {
+            self.gpu_util.add(g.util_pct);
+            self.gpu_power.add(g.power_w);
+            self.gpu_mem.add(g.mem_mb);
+            self.util.entry("GPU".into()).or_default().push((wall, g.util_pct));
+        }
+        self.util.entry("machine CPU".into()).or_default().push((wall, machine));
+        let cores = self.sys.cpus().len().max(1) as f64;
+        let mut rows: Vec<TelemetryRow> = self.latest.values().map(|t| role_row(t, wall, machine, gpu)).collect();
+        if processes {
+            rows.push(TelemetryRow { role: "supervisor".into(), pid: me.as_u32(), ..role_row(&Telemetry::default(), wall, machine, gpu) });
+        }
+        let mut rss_total = 0.0;
+        for row in &mut rows {
+            if let Some(p) = self.sys.process(Pid::from_u32(row.pid)) {
+                (row.cpu_pct, row.rss_mb) = (p.cpu_usage() as f64, p.memory() as f64 / 1e6);
+                rss_total += row.rss_mb;
+                // Per-process CPU is in % of one core; the plot shows % of the machine.
+                let name = if row.role == "supervisor" { row.role.clone() } else { format!("{}-{}", row.role, row.index) };
+                self.util.entry(name).or_default().push((wall, row.cpu_pct / cores));
+            }
+            if let Some(lag) = row.policy_lag {
+                self.policy_lag.add(lag);
+            }
+            write!(self.table, "{}", row.to_line())?;
+        }
+        self.peak_rss_mb = self.peak_rss_mb.max(rss_total);
+        Ok(Reading { machine_cpu: machine, gpu })
+    }
+
+    /// `summary.json`'s `hosts`: this host, then every worker host, with the
+    /// agent-steps their sims reported and the transitions lost on the way.
+    pub(super) fn hosts(&self, cfg: &Config, link: Option<&(Arc<rotorhive_link::HeadStats>, Vec<rotorhive_link::Host>)>) -> Vec<HostSummary> {
+        let lost_here = self.latest.values().filter(|t| t.role == RoleKind::Replay as u32).map(|t| t.lost).sum::<u64>();
+        let envs = cfg.sim.envs as u32;
+        let mut out = vec![HostSummary {
+            name: super::host_name(),
+            role: "head".into(),
+            envs,
+            agents: cfg.sim.agents as u32,
+            env_steps: self.steps_of(0, envs),
+            lost_transitions: lost_here,
+        }];
+        if let Some((stats, hosts)) = link {
+            let lost = stats.lost_by_env.lock().map(|v| v.clone()).unwrap_or_default();
+            for h in hosts {
+                let (a, b) = (h.env_offset, h.env_offset + h.envs);
+                out.push(HostSummary {
+                    name: h.name.clone(),
+                    role: "worker".into(),
+                    envs: h.envs,
+                    agents: h.agents,
+                    env_steps: self.steps_of(a, b),
+                    lost_transitions: lost.get(a as usize..b as usize).map_or(0, |l| l.iter().sum::<u64>()),
+                });
+            }
+        }
+        out
+    }
+}
+
+/// A role's row of `telemetry.csv` before its process is read (CPU and
+/// memory NaN: a role of another host keeps them so).
+fn role_row(t: &Telemetry, wall: f64, machine: f64, gpu: Option<GpuReading>) -> TelemetryRow {
+    let role = RoleKind::from_code(t.role);
+    TelemetryRow {
+        wall_s: wall,
+        role: role.map(|r| r.name()).unwrap_or("?").to_string(),
+        index: t.index,
+        pid: t.pid,
+        cpu_pct: f64::NAN,
+        rss_mb: f64::NAN,
+        machine_cpu_pct: machine,
+        heartbeat: t.heartbeat,
+        work: t.work,
+        work2: t.work2,
+        weight_version: t.weight_version,
+        lost: t.lost,
+        stage_ms: std::array::from_fn(|i| t.stage_ns[i] as f64 / 1e6),
+        gpu: gpu.map(|g| [g.util_pct, g.mem_mb, g.power_w]),
+        value: gauge(t),
+        policy_lag: (role == Some(RoleKind::Learner) && t.policy_lag_milli > 0).then(|| t.policy_lag_milli as f64 / 1e3),
+    }
+}
+
+/// The role's gauge of a telemetry sample in its own unit: the learner's
+/// mean loss over the updates since its previous sample, the actor's
+/// epsilon, the replay's size; empty for sims.
+fn gauge(t: &Telemetry) -> String {
+    match RoleKind::from_code(t.role) {
+        Some(RoleKind::Learner) => format!("{:.6}", t.value_milli as f64 / 1e6),
+        Some(RoleKind::Actor) => format!("{:.3}", t.value_milli as f64 / 1e3),
+        Some(RoleKind::Replay) => t.value_milli.to_string(),
+        _ => String::new(),
+    }
+}

@@ -1,0 +1,15 @@
+//! The records of a run directory: what `hive train` writes and what
+//! `hive profile`, `hive bench table` and scripts read back.
+//!
+//! - [`summary::Summary`]: `summary.json`, the run's result;
+//! - [`telemetry::TelemetryRow`]: a row of `telemetry.csv`;
+//! - [`profile`]: where a run's time went, from its telemetry;
+//! - [`plot`]: the run's curves as PNG files.
+
+pub mod plot;
+pub mod profile;
+pub mod summary;
+pub mod telemetry;
+
+pub use summary::{HostSummary, Summary};
+pub use telemetry::TelemetryRow;

@@ -1,0 +1,184 @@
+//! `summary.json`: the result of a run, written by `hive train` and read
+//! back by `hive bench table` and by scripts (design.md's contract names
+//! its keys; every field here is one of them).
+
+use std::path::Path;
+
+use anyhow::{Context, Result};
+use serde::{Deserialize, Serialize};
+
+/// One host of a run (`summary.json`'s `hosts`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct HostSummary {
+    /// The machine's name.
+    pub name: String,
+    /// `head` or `worker`.
+    pub role: String,
+    /// Environments it ran.
+    pub envs: u32,
+    /// Agents per environment.
+    pub agents: u32,
+    /// Agent-steps its sims reported.
+    pub env_steps: u64,
+    /// Transitions lost on the way from it.
+    pub lost_transitions: u64,
+}
+
+/// The result of one `hive train`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Summary {
+    /// Whether the rolling reward reached the threshold.
+    pub converged: bool,
+    /// The rolling-reward threshold.
+    pub threshold: f64,
+    /// Wall seconds to the threshold.
+    pub time_to_threshold_s: Option<f64>,
+    /// Wall seconds of the run.
+    pub wall_s: f64,
+    /// Agent-steps of every host.
+    pub env_steps: u64,
+    /// Episodes finished.
+    pub episodes: u64,
+    /// Rolling mean episode reward at the end.
+    pub rolling_reward: Option<f64>,
+    /// Share of the rolling window's episodes that reached the goal.
+    pub rolling_success_rate: Option<f64>,
+    /// Learner updates.
+    pub learner_updates: u64,
+    /// Environments of this host.
+    pub envs: usize,
+    /// Agents per environment.
+    pub agents_per_env: usize,
+    /// Agents of every host.
+    pub agents_total: usize,
+    /// Every host of the run, this one first.
+    pub hosts: Vec<HostSummary>,
+    /// `batched` or `non-batched`.
+    pub observation_mode: String,
+    /// `cpu` or `wgpu`.
+    pub renderer: String,
+    /// Agent-steps per wall second.
+    pub env_steps_per_s: f64,
+    /// Learner updates per wall second.
+    pub updates_per_s: f64,
+    /// Mean whole-machine CPU %.
+    pub cpu_util_mean_pct: Option<f64>,
+    /// Mean GPU utilisation (null without a GPU).
+    pub gpu_util_mean_pct: Option<f64>,
+    /// Mean GPU power (null without a GPU).
+    pub gpu_power_mean_w: Option<f64>,
+    /// Peak GPU memory (null without a GPU).
+    pub gpu_mem_peak_mb: Option<f64>,
+    /// Peak of the summed resident memory of the run's processes.
+    pub peak_rss_mb: f64,
+    /// Mean policy lag of the learner's minibatches: its weight version at
+    /// the update minus the version each transition was acted with.
+    pub policy_lag_mean: Option<f64>,
+    /// Roles restarted after dying.
+    pub restarts: u64,
+    /// Messages lost (sequence gaps), every role.
+    pub lost_messages: u64,
+    /// The run's result: the best greedy checkpoint, else the last weights.
+    pub checkpoint: Option<String>,
+    /// The last weights the learner saved.
+    pub last_checkpoint: Option<String>,
+    /// Greedy evaluations made.
+    pub evaluations: usize,
+    /// The best evaluation's success rate.
+    pub best_eval_success_rate: Option<f64>,
+    /// Its mean reward.
+    pub best_eval_mean_reward: Option<f64>,
+    /// When it was made (wall s).
+    pub best_eval_at_s: Option<f64>,
+    /// At which learner update.
+    pub best_eval_updates: Option<u64>,
+    /// Stopped by a signal.
+    pub interrupted: bool,
+    /// Continued from an earlier run (`--resume`).
+    pub resumed: bool,
+    /// Why the run failed, if it did.
+    pub failure: Option<String>,
+    /// iceoryx2 services of the run still there after it (should be none).
+    pub leftover_services: Vec<String>,
+}
+
+impl Summary {
+    /// Writes `RUN_DIR/summary.json` through a temporary file, so a full
+    /// disk leaves no half-written summary.
+    pub fn write(&self, run_dir: &Path) -> Result<()> {
+        let path = run_dir.join("summary.json");
+        let tmp = run_dir.join("summary.json.tmp");
+        let text = serde_json::to_string_pretty(self)? + "\n";
+        let written = std::fs::write(&tmp, text).and_then(|_| std::fs::rename(&tmp, &path));
+        if written.is_err() {
+            let _ = std::fs::remove_file(&tmp);
+        }
+        written.with_context(|| format!("cannot write {}", path.display()))
+    }
+
+    /// Reads `RUN_DIR/summary.json`; the error names the file.
+    pub fn read(run_dir: &Path) -> Result<Self> {
+        let path = run_dir.join("summary.json");
+        let text = std::fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))?;
+        serde_json::from_str(&text).with_context(|| format!("{} is not a summary of this build", path.display()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_summary_round_trips_through_its_file_with_the_contract_keys() {
+        let s = Summary {
+            converged: true,
+            threshold: 300.0,
+            time_to_threshold_s: Some(52.5),
+            wall_s: 60.0,
+            env_steps: 400_000,
+            episodes: 900,
+            rolling_reward: Some(310.0),
+            rolling_success_rate: Some(0.9),
+            learner_updates: 12_000,
+            envs: 2,
+            agents_per_env: 25,
+            agents_total: 50,
+            hosts: vec![HostSummary { name: "here".into(), role: "head".into(), envs: 2, agents: 25, env_steps: 400_000, lost_transitions: 0 }],
+            observation_mode: "batched".into(),
+            renderer: "cpu".into(),
+            env_steps_per_s: 6_666.7,
+            updates_per_s: 200.0,
+            cpu_util_mean_pct: Some(97.0),
+            gpu_util_mean_pct: None,
+            gpu_power_mean_w: None,
+            gpu_mem_peak_mb: None,
+            peak_rss_mb: 900.0,
+            policy_lag_mean: Some(4.5),
+            restarts: 0,
+            lost_messages: 0,
+            checkpoint: Some("runs/x/checkpoints/best.safetensors".into()),
+            last_checkpoint: None,
+            evaluations: 3,
+            best_eval_success_rate: Some(0.9),
+            best_eval_mean_reward: Some(250.0),
+            best_eval_at_s: Some(55.0),
+            best_eval_updates: Some(11_000),
+            interrupted: false,
+            resumed: false,
+            failure: None,
+            leftover_services: vec![],
+        };
+        let dir = std::env::temp_dir().join(format!("rotorhive-summary-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        s.write(&dir).unwrap();
+        assert_eq!(Summary::read(&dir).unwrap(), s);
+        let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+        for key in ["converged", "time_to_threshold_s", "agents_total", "gpu_util_mean_pct", "checkpoint", "policy_lag_mean", "hosts"] {
+            assert!(v.get(key).is_some(), "no key {key}");
+        }
+        assert!(v["gpu_util_mean_pct"].is_null());
+        std::fs::write(dir.join("summary.json"), "{\"converged\": 1}").unwrap();
+        assert!(Summary::read(&dir).unwrap_err().to_string().contains("summary.json"));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
