@@ -1,6 +1,6 @@
 //! ARCHITECTURE.md's code map names every crate of the workspace.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 #[test]
 fn every_crate_is_in_the_code_map() {
@@ -12,7 +12,80 @@ fn every_crate_is_in_the_code_map() {
         assert!(doc.contains(&format!("### `crates/{name}`")), "crates/{name} is missing from ARCHITECTURE.md's code map");
         n += 1;
     }
-    assert!(n >= 6);
+    assert!(n >= 8);
+    assert!(doc.contains("### `benches`"), "benches is missing from ARCHITECTURE.md's code map");
+}
+
+/// Rust source files under `dir`, recursively.
+fn sources(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.is_dir() {
+            out.extend(sources(&path));
+        } else if path.extension().is_some_and(|e| e == "rs") {
+            out.push(path);
+        }
+    }
+    out
+}
+
+/// A file's lines before its test module (`#[cfg(test)]` at the top level;
+/// test modules sit at the end of their file here); none for `tests.rs`.
+fn non_test_lines(path: &Path) -> Vec<String> {
+    if path.file_name().is_some_and(|n| n == "tests.rs") {
+        return Vec::new();
+    }
+    std::fs::read_to_string(path).unwrap().lines().take_while(|l| !l.starts_with("#[cfg(test)]")).map(str::to_string).collect()
+}
+
+/// Architecture Invariant: the binary is a thin layer: `crates/hive` holds
+/// at most a quarter of the workspace's non-test Rust lines.
+#[test]
+fn the_binary_holds_at_most_a_quarter_of_the_code() {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let mut dirs: Vec<PathBuf> = std::fs::read_dir(root.join("crates")).unwrap().map(|e| e.unwrap().path().join("src")).collect();
+    dirs.push(root.join("benches/src"));
+    let (mut total, mut hive) = (0, 0);
+    for dir in dirs.iter().filter(|d| d.exists()) {
+        let n: usize = sources(dir).iter().map(|f| non_test_lines(f).len()).sum();
+        total += n;
+        if dir.ends_with("crates/hive/src") {
+            hive = n;
+        }
+    }
+    assert!(hive > 0 && total > 10_000, "{hive} of {total}");
+    assert!(hive * 4 <= total, "crates/hive holds {hive} of {total} non-test lines ({:.1} %), more than 25 %", 100.0 * hive as f64 / total as f64);
+}
+
+/// Architecture Invariant: no function of the roles or of the supervisor
+/// is longer than 80 lines (from its `fn` line to its closing brace).
+#[test]
+fn role_and_supervisor_functions_stay_short() {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let mut files = sources(&root.join("crates/roles/src"));
+    files.extend(sources(&root.join("crates/hive/src/supervisor")));
+    assert!(files.len() >= 10, "{files:?}");
+    let mut long = Vec::new();
+    let mut checked = 0;
+    for f in &files {
+        let lines = non_test_lines(f);
+        for (i, l) in lines.iter().enumerate() {
+            let code = l.trim_start();
+            let indent = &l[..l.len() - code.len()];
+            let is_fn = ["fn ", "pub fn ", "pub(crate) fn ", "pub(super) fn ", "unsafe fn ", "pub const fn ", "const fn "].iter().any(|p| code.starts_with(p));
+            if !is_fn || code.ends_with(';') || code.ends_with('}') {
+                continue;
+            }
+            checked += 1;
+            let end = lines[i..].iter().position(|x| x == &format!("{indent}}}")).map_or(lines.len() - i, |k| k + 1);
+            if end > 80 {
+                long.push(format!("{}:{}: {end} lines", f.display(), i + 1));
+            }
+        }
+    }
+    assert!(checked > 50, "only {checked} functions found");
+    assert!(long.is_empty(), "functions longer than 80 lines: {long:#?}");
 }
 
 /// A dependency: its package name and the features asked of it.
@@ -54,10 +127,22 @@ fn domain_crates_stay_pure_and_the_transport_knows_no_domain() {
         let (_, d) = deps.iter().find(|(n, _)| n == krate).unwrap_or_else(|| panic!("no crate {krate}"));
         d.iter().filter(|(n, _)| what.iter().any(|w| n.starts_with(w))).map(|(n, _)| n.clone()).collect()
     };
-    for domain in ["rotorhive-sim", "rotorhive-model", "rotorhive-replay"] {
+    for domain in ["rotorhive-sim", "rotorhive-model", "rotorhive-replay", "rotorhive-records"] {
         let bad = uses(domain, &["iceoryx2", "zenoh", "rotorhive-transport", "rotorhive-roles"]);
         assert!(bad.is_empty(), "{domain} depends on {bad:?}");
+        // The layout crate without its iceoryx2 derive.
+        let (_, d) = deps.iter().find(|(n, _)| n == domain).unwrap();
+        if let Some((_, features)) = d.iter().find(|(n, _)| n == "rotorhive-msg") {
+            assert!(features.is_empty(), "{domain} takes rotorhive-msg with {features:?}: the domain crates use its layout only");
+        }
     }
+    // The model takes its layout (OBS_LEN, TRANSITION_LEN, …) from msg.
+    assert_eq!(uses("rotorhive-model", &["rotorhive-msg"]), vec!["rotorhive-msg".to_string()]);
+    let msg = deps.iter().find(|(n, _)| n == "rotorhive-msg").unwrap();
+    assert!(msg.1.iter().all(|(n, _)| n == "iceoryx2"), "rotorhive-msg depends on {:?}", msg.1);
+    // The records of a run know no candle or rapier either.
+    let bad = uses("rotorhive-records", &["candle", "rapier", "rotorhive-model", "rotorhive-sim"]);
+    assert!(bad.is_empty(), "rotorhive-records depends on {bad:?}");
     let bad = uses("rotorhive-transport", &["candle", "rapier", "rotorhive-sim", "rotorhive-model"]);
     assert!(bad.is_empty(), "rotorhive-transport depends on {bad:?}");
     // Zenoh stays in the link crate; the link knows no model, simulator or role.

@@ -38,201 +38,271 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, e: usize) -> Result<()> {
     if e >= cfg.sim.envs {
         bail!("--env {e} is out of range: the config has {} environments", cfg.sim.envs);
     }
-    let n = cfg.sim.agents;
-    let envs = cfg.sim.envs;
-    let mut net = QNet::new(cfg.seed, &rotorhive_model::device(cfg.actor.device.as_str())?)?;
-    net.set_threads(cfg.actor.threads);
     let mut obs_rx = hub.receiver::<f32, ObsHeader>(&Channel::obs(e, cfg.obs_messages_per_step()))?;
-    let mut act_tx = hub.sender::<u8, ActionHeader>(&Channel::actions(e), n, STALL_TIMEOUT)?;
-    let steps_n = cfg.learner.n_step;
-    // An episode's end can release up to n transitions of one agent.
-    let mut trans_tx = hub.sender::<u16, TransitionHeader>(&Channel::transitions(envs), steps_n * n * PACKED_LEN, STALL_TIMEOUT)?;
-    let mut w_rx = hub.receiver::<f32, WeightsHeader>(&Channel::weights(envs))?;
-    let mut ep_tx = hub.sender::<f32, EpisodeHeader>(&episodes_channel(envs), 3 * n, STALL_TIMEOUT)?;
-    let mut tel = Counters::new(hub, RoleKind::Actor, e, roles_of(cfg))?;
-    let mut rng = Pcg64Mcg::seed_from_u64(cfg.seed ^ (0xac70 + (cfg.cluster.env_offset + e) as u64));
-
-    let mut version = 0u64;
-    // The update count of the weights in use (0: the initial ones, which
-    // the learner's first publication also carries).
-    let mut weights_updates = 0u64;
-    let schedule = cfg.deterministic.then(|| Schedule::new(cfg));
-    if schedule.is_some() {
-        // A message sent before its receiver exists is lost without a
-        // trace: a deterministic run's first round waits for the replay and
-        // the supervisor to be there.
-        while trans_tx.receivers() == 0 || ep_tx.receivers() == 0 {
-            if hub.shutdown_requested() {
-                return Ok(());
-            }
-            std::thread::sleep(POLL / 10);
-        }
+    let mut a = Actor::new(cfg, hub, e)?;
+    let mut gather = Gather::new(a.n);
+    if a.schedule.is_some() && !a.wait_for_receivers() {
+        return Ok(());
     }
-    let mut nstep = NStep::new(steps_n, cfg.learner.gamma as f32, n);
-    let mut prev_actions = vec![0u8; n];
-    let mut have_prev = false;
-    let mut expected_step = 0u64;
-    let mut returns = vec![0.0f32; n];
-    let mut lengths = vec![0u32; n];
-    let mut episodes = 0u64;
-    let mut seq = 0u64;
-    let mut transitions = 0u64;
-    let mut finished: Vec<f32> = Vec::with_capacity(3 * n);
-    let mut actions = vec![0u8; n];
-    let mut gather = Gather::new(n);
-    loop {
-        if hub.shutdown_requested() {
-            break;
-        }
+    while !hub.shutdown_requested() {
         let t = Instant::now();
-        take_weights(&mut w_rx, &net, &mut version, &mut weights_updates)?;
-        tel.sample.weight_version = version;
-        tel.stage(2, t);
+        take_weights(&mut a.w_rx, &a.net, &mut a.version, &mut a.weights_updates)?;
+        a.tel.sample.weight_version = a.version;
+        a.tel.stage(2, t);
         let t = Instant::now();
         let msg = obs_rx.recv_timeout(POLL).context("waiting for observations")?;
-        tel.stage(3, t);
-        tel.tick(false);
+        a.tel.stage(3, t);
+        a.tel.tick(false);
         let Some(msg) = msg else { continue };
         let h = *msg.user_header();
+        let n = a.n;
         if h.total as usize != n || h.first as usize + h.agents as usize > n || msg.payload().len() != rotorhive_msg::obs_batch_len(h.agents as usize) {
             bail!("observation batch from sim {e} has agents {}..{} of {}, the config says {n}", h.first, h.first + h.agents, h.total);
         }
-        if schedule.is_some_and(|s| h.step > s.rounds()) {
+        if a.schedule.is_some_and(|s| h.step > s.rounds()) {
             // A deterministic run's budget is spent: nothing more to act on.
             continue;
         }
-        if have_prev && h.step + 1 == expected_step {
+        if a.have_prev && h.step + 1 == a.expected_step {
             // The sim published this step again: our actions were not seen.
             // Answer with the same actions (once) and record nothing twice.
-            drop(msg);
             if h.first == 0 {
-                send_actions(&mut act_tx, e, h.step, &prev_actions, &mut tel.sample.lost);
+                send_actions(&mut a.act_tx, e, h.step, &a.prev_actions, &mut a.tel.sample.lost);
             }
             continue;
         }
         // Non-batched mode: one message per agent, gathered into the layout
         // of a whole batch before anything else happens.
-        let mut whole = None;
-        if h.agents as usize == n {
-            whole = Some(msg);
+        let whole = if h.agents as usize == n {
+            Some(msg)
         } else {
             let complete = gather.add(&h, msg.payload());
             drop(msg);
             if !complete {
                 continue;
             }
-        }
-        let p: &[f32] = match &whole {
-            Some(m) => m.payload(),
-            None => gather.batch(),
+            None
         };
-        if h.step != expected_step {
-            // The sim restarted (step 0) or a batch was lost: start afresh.
-            tel.sample.lost += 1;
-            have_prev = false;
-            nstep.clear();
+        let p: &[f32] = whole.as_ref().map_or(gather.batch(), |m| m.payload());
+        if !a.on_step(&h, p)? {
+            break;
         }
-        expected_step = h.step + 1;
-        let (obs, rest) = p.split_at(n * OBS_LEN);
-        let (rewards, dones) = rest.split_at(n);
-
-        if let Some(s) = &schedule {
-            // The weights this step must act with, published once the
-            // learner has made exactly those updates.
-            let need = s.updates_for_step(h.step);
-            while weights_updates != need {
-                if weights_updates > need {
-                    bail!("actor {e}: weights of update {weights_updates} arrived before step {} needed those of update {need}", h.step);
-                }
-                if hub.shutdown_requested() {
-                    tel.tick(true);
-                    return Ok(());
-                }
-                if !take_weights(&mut w_rx, &net, &mut version, &mut weights_updates)? {
-                    std::thread::sleep(std::time::Duration::from_micros(200));
-                }
-                tel.sample.weight_version = version;
-            }
-        }
-        let t = Instant::now();
-        let eps = epsilon(cfg, transitions * cfg.envs_total() as u64);
-        let greedy = net.greedy(obs)?;
-        for i in 0..n {
-            actions[i] = if rng.random::<f64>() < eps { rng.random_range(0..2u8) } else { greedy[i] };
-        }
-        tel.stage(0, t);
-        // The actions leave first; then this step's transitions (round
-        // `h.step` of a deterministic run, which must follow the acting).
-        send_actions(&mut act_tx, e, h.step, &actions, &mut tel.sample.lost);
-        let t = Instant::now();
-        if have_prev {
-            // Every environment of the run, on every host, acts at about
-            // this actor's pace.
-            let global = transitions * cfg.envs_total() as u64;
-            let eps_now = epsilon(cfg, global);
-            // n-step transitions leave once n rewards are known or the
-            // episode ended; they are packed in place in the loaned sample.
-            nstep.push(&prev_actions, rewards, dones);
-            let count = nstep.out.len();
-            // A deterministic run sends every round, empty or not: the
-            // replay inserts rounds whole.
-            if count > 0 || schedule.is_some() {
-                let sent = trans_tx.send_with(count * PACKED_LEN, |th, out| {
-                    *th = TransitionHeader { actor: e as u32, count: count as u32, seq, weight_version: version, episodes };
-                    for (o, t) in out.chunks_exact_mut(PACKED_LEN).zip(&nstep.out) {
-                        let next = &obs[t.agent * OBS_LEN..(t.agent + 1) * OBS_LEN];
-                        pack_transition(nstep.obs(t.slot, t.agent), next, t.action as f32, t.ret, if t.done { 1.0 } else { 0.0 }, o);
-                    }
-                });
-                match sent {
-                    Ok(()) => {
-                        seq += 1;
-                        transitions += count as u64;
-                    }
-                    Err(err) if schedule.is_some() => bail!("actor {e}: a deterministic run cannot lose transitions: {err}"),
-                    Err(err) => {
-                        tracing::warn!("actor {e}: {err}");
-                        tel.sample.lost += 1;
-                    }
-                }
-            }
-            finished.clear();
-            for i in 0..n {
-                returns[i] += rewards[i];
-                lengths[i] += 1;
-                if dones[i] != 0.0 {
-                    finished.extend_from_slice(&[returns[i], lengths[i] as f32, dones[i]]);
-                    returns[i] = 0.0;
-                    lengths[i] = 0;
-                    episodes += 1;
-                }
-            }
-            // A deterministic run reports every round, so that the
-            // supervisor can write episodes in (step, environment) order.
-            if !finished.is_empty() || schedule.is_some() {
-                let count = finished.len() / 3;
-                let sent = ep_tx.send_with(finished.len(), |eh, out| {
-                    *eh = EpisodeHeader { actor: e as u32, count: count as u32, transitions, epsilon_micro: (eps_now * 1e6) as u64, step: h.step };
-                    out.copy_from_slice(&finished);
-                });
-                if let (Err(err), Some(_)) = (sent, &schedule) {
-                    bail!("actor {e}: a deterministic run cannot lose episodes: {err}");
-                }
-            }
-            tel.sample.value_milli = (eps_now * 1000.0) as i64;
-        }
-        tel.stage(1, t);
-        nstep.store(obs);
-        drop(whole);
-        prev_actions.copy_from_slice(&actions);
-        have_prev = true;
-        tel.sample.work = transitions;
-        tel.sample.work2 = episodes;
     }
-    tel.tick(true);
+    a.tel.tick(true);
     Ok(())
 }
 
+/// An actor's state between steps: its network and ports, the n-step
+/// window, the previous actions and the episode counters.
+struct Actor<'a, S: Service> {
+    cfg: &'a Config,
+    hub: &'a rotorhive_transport::Hub<S>,
+    e: usize,
+    n: usize,
+    net: QNet,
+    act_tx: Sender<S, u8, ActionHeader>,
+    trans_tx: Sender<S, u16, TransitionHeader>,
+    w_rx: Receiver<S, f32, WeightsHeader>,
+    ep_tx: Sender<S, f32, EpisodeHeader>,
+    tel: Counters<S>,
+    rng: Pcg64Mcg,
+    version: u64,
+    /// The update count of the weights in use (0: the initial ones, which
+    /// the learner's first publication also carries).
+    weights_updates: u64,
+    schedule: Option<Schedule>,
+    nstep: NStep,
+    actions: Vec<u8>,
+    prev_actions: Vec<u8>,
+    have_prev: bool,
+    expected_step: u64,
+    returns: Vec<f32>,
+    lengths: Vec<u32>,
+    finished: Vec<f32>,
+    episodes: u64,
+    seq: u64,
+    transitions: u64,
+}
+
+impl<'a, S: Service> Actor<'a, S> {
+    fn new(cfg: &'a Config, hub: &'a rotorhive_transport::Hub<S>, e: usize) -> Result<Self> {
+        let (n, envs) = (cfg.sim.agents, cfg.sim.envs);
+        let mut net = QNet::new(cfg.seed, &rotorhive_model::device(cfg.actor.device.as_str())?)?;
+        net.set_threads(cfg.actor.threads);
+        let steps_n = cfg.learner.n_step;
+        Ok(Self {
+            act_tx: hub.sender::<u8, ActionHeader>(&Channel::actions(e), n, STALL_TIMEOUT)?,
+            // An episode's end can release up to n transitions of one agent.
+            trans_tx: hub.sender::<u16, TransitionHeader>(&Channel::transitions(envs), steps_n * n * PACKED_LEN, STALL_TIMEOUT)?,
+            w_rx: hub.receiver::<f32, WeightsHeader>(&Channel::weights(envs))?,
+            ep_tx: hub.sender::<f32, EpisodeHeader>(&episodes_channel(envs), 3 * n, STALL_TIMEOUT)?,
+            tel: Counters::new(hub, RoleKind::Actor, e, roles_of(cfg))?,
+            rng: Pcg64Mcg::seed_from_u64(cfg.seed ^ (0xac70 + (cfg.cluster.env_offset + e) as u64)),
+            schedule: cfg.deterministic.then(|| Schedule::new(cfg)),
+            nstep: NStep::new(steps_n, cfg.learner.gamma as f32, n),
+            actions: vec![0; n],
+            prev_actions: vec![0; n],
+            returns: vec![0.0; n],
+            lengths: vec![0; n],
+            finished: Vec::with_capacity(3 * n),
+            version: 0,
+            weights_updates: 0,
+            have_prev: false,
+            expected_step: 0,
+            episodes: 0,
+            seq: 0,
+            transitions: 0,
+            cfg,
+            hub,
+            e,
+            n,
+            net,
+        })
+    }
+
+    /// A message sent before its receiver exists is lost without a trace:
+    /// a deterministic run's first round waits for the replay and the
+    /// supervisor to be there. False when the run stopped meanwhile.
+    fn wait_for_receivers(&self) -> bool {
+        while self.trans_tx.receivers() == 0 || self.ep_tx.receivers() == 0 {
+            if self.hub.shutdown_requested() {
+                return false;
+            }
+            std::thread::sleep(POLL / 10);
+        }
+        true
+    }
+
+    /// Acts on one whole step's batch `p` (observations, rewards, dones),
+    /// then sends the transitions and episodes it completes. False when the
+    /// run stopped while a deterministic step waited for its weights.
+    fn on_step(&mut self, h: &ObsHeader, p: &[f32]) -> Result<bool> {
+        let n = self.n;
+        if h.step != self.expected_step {
+            // The sim restarted (step 0) or a batch was lost: start afresh.
+            self.tel.sample.lost += 1;
+            self.have_prev = false;
+            self.nstep.clear();
+        }
+        self.expected_step = h.step + 1;
+        let (obs, rest) = p.split_at(n * OBS_LEN);
+        let (rewards, dones) = rest.split_at(n);
+        if !self.wait_weights(h.step)? {
+            return Ok(false);
+        }
+        let t = Instant::now();
+        let eps = epsilon(self.cfg, self.transitions * self.cfg.envs_total() as u64);
+        let greedy = self.net.greedy(obs)?;
+        for (a, g) in self.actions.iter_mut().zip(greedy) {
+            *a = if self.rng.random::<f64>() < eps { self.rng.random_range(0..2u8) } else { g };
+        }
+        self.tel.stage(0, t);
+        // The actions leave first; then this step's transitions (round
+        // `h.step` of a deterministic run, which must follow the acting).
+        send_actions(&mut self.act_tx, self.e, h.step, &self.actions, &mut self.tel.sample.lost);
+        let t = Instant::now();
+        if self.have_prev {
+            // Every environment of the run, on every host, acts at about
+            // this actor's pace.
+            let eps_now = epsilon(self.cfg, self.transitions * self.cfg.envs_total() as u64);
+            self.send_transitions(obs, rewards, dones)?;
+            self.report_episodes(h.step, rewards, dones, eps_now)?;
+            self.tel.sample.value_milli = (eps_now * 1000.0) as i64;
+        }
+        self.tel.stage(1, t);
+        self.nstep.store(obs);
+        self.prev_actions.copy_from_slice(&self.actions);
+        self.have_prev = true;
+        self.tel.sample.work = self.transitions;
+        self.tel.sample.work2 = self.episodes;
+        Ok(true)
+    }
+
+    /// A deterministic run acts on `step` with the weights published once
+    /// the learner has made exactly the schedule's updates: waits for them.
+    /// False when the run stopped meanwhile.
+    fn wait_weights(&mut self, step: u64) -> Result<bool> {
+        let Some(s) = &self.schedule else { return Ok(true) };
+        let need = s.updates_for_step(step);
+        while self.weights_updates != need {
+            if self.weights_updates > need {
+                bail!("actor {}: weights of update {} arrived before step {step} needed those of update {need}", self.e, self.weights_updates);
+            }
+            if self.hub.shutdown_requested() {
+                return Ok(false);
+            }
+            if !take_weights(&mut self.w_rx, &self.net, &mut self.version, &mut self.weights_updates)? {
+                std::thread::sleep(std::time::Duration::from_micros(200));
+            }
+            self.tel.sample.weight_version = self.version;
+        }
+        Ok(true)
+    }
+
+    /// n-step transitions leave once n rewards are known or the episode
+    /// ended; they are packed in place in the loaned sample. A
+    /// deterministic run sends every round, empty or not: the replay
+    /// inserts rounds whole.
+    fn send_transitions(&mut self, obs: &[f32], rewards: &[f32], dones: &[f32]) -> Result<()> {
+        self.nstep.push(&self.prev_actions, rewards, dones);
+        let count = self.nstep.out.len();
+        if count == 0 && self.schedule.is_none() {
+            return Ok(());
+        }
+        let (e, nstep) = (self.e, &self.nstep);
+        let header = TransitionHeader { actor: e as u32, count: count as u32, seq: self.seq, weight_version: self.version, episodes: self.episodes };
+        let sent = self.trans_tx.send_with(count * PACKED_LEN, |th, out| {
+            *th = header;
+            for (o, t) in out.chunks_exact_mut(PACKED_LEN).zip(&nstep.out) {
+                let next = &obs[t.agent * OBS_LEN..(t.agent + 1) * OBS_LEN];
+                pack_transition(nstep.obs(t.slot, t.agent), next, t.action as f32, t.ret, if t.done { 1.0 } else { 0.0 }, o);
+            }
+        });
+        match sent {
+            Ok(()) => {
+                self.seq += 1;
+                self.transitions += count as u64;
+            }
+            Err(err) if self.schedule.is_some() => bail!("actor {e}: a deterministic run cannot lose transitions: {err}"),
+            Err(err) => {
+                tracing::warn!("actor {e}: {err}");
+                self.tel.sample.lost += 1;
+            }
+        }
+        Ok(())
+    }
+
+    /// Sends the episodes that ended at `step` to the supervisor. A
+    /// deterministic run reports every round, so that the supervisor can
+    /// write episodes in (step, environment) order.
+    fn report_episodes(&mut self, step: u64, rewards: &[f32], dones: &[f32], eps: f64) -> Result<()> {
+        self.finished.clear();
+        for i in 0..self.n {
+            self.returns[i] += rewards[i];
+            self.lengths[i] += 1;
+            if dones[i] != 0.0 {
+                self.finished.extend_from_slice(&[self.returns[i], self.lengths[i] as f32, dones[i]]);
+                self.returns[i] = 0.0;
+                self.lengths[i] = 0;
+                self.episodes += 1;
+            }
+        }
+        if self.finished.is_empty() && self.schedule.is_none() {
+            return Ok(());
+        }
+        let count = (self.finished.len() / 3) as u32;
+        let header = EpisodeHeader { actor: self.e as u32, count, transitions: self.transitions, epsilon_micro: (eps * 1e6) as u64, step };
+        let finished = &self.finished;
+        let sent = self.ep_tx.send_with(finished.len(), |eh, out| {
+            *eh = header;
+            out.copy_from_slice(finished);
+        });
+        if let (Err(err), Some(_)) = (sent, &self.schedule) {
+            bail!("actor {}: a deterministic run cannot lose episodes: {err}", self.e);
+        }
+        Ok(())
+    }
+}
 /// Loads the newest published weights when their version differs from
 /// `version` (any other version is newer: a restarted learner goes on from
 /// its saved update count, which never lies behind), recording their
@@ -252,19 +322,24 @@ fn take_weights<S: Service>(rx: &mut Receiver<S, f32, WeightsHeader>, net: &QNet
 /// first observation, the action taken there, the discounted return of up
 /// to n rewards, and whether the episode ended within them.
 #[derive(Debug, Clone, Copy)]
-struct Ready {
-    agent: usize,
-    slot: usize,
-    action: u8,
-    ret: f32,
-    done: bool,
+pub struct Ready {
+    /// The agent.
+    pub agent: usize,
+    /// Ring slot of the transition's first observation ([`NStep::obs`]).
+    pub slot: usize,
+    /// The action taken there.
+    pub action: u8,
+    /// Discounted return of up to n rewards.
+    pub ret: f32,
+    /// Whether the episode ended within them.
+    pub done: bool,
 }
 
 /// n-step returns (as in Ape-X): the last n observations of every agent in
 /// a ring of n + 1 batches, and per agent the (slot, action, reward) of the
 /// steps whose transitions have not left yet. The learner bootstraps with
 /// gamma^n.
-struct NStep {
+pub struct NStep {
     n: usize,
     gamma: f32,
     agents: usize,
@@ -272,27 +347,30 @@ struct NStep {
     /// Slot of the newest stored observation batch.
     slot: usize,
     queue: Vec<std::collections::VecDeque<(usize, u8, f32)>>,
-    out: Vec<Ready>,
+    /// The transitions the last [`NStep::push`] released.
+    pub out: Vec<Ready>,
 }
 
 impl NStep {
-    fn new(n: usize, gamma: f32, agents: usize) -> Self {
+    /// n-step returns with discount `gamma` for `agents` agents.
+    pub fn new(n: usize, gamma: f32, agents: usize) -> Self {
         Self { n, gamma, agents, ring: vec![0.0; (n + 1) * agents * OBS_LEN], slot: 0, queue: vec![Default::default(); agents], out: Vec::new() }
     }
 
     /// Forgets every pending step (the sim restarted).
-    fn clear(&mut self) {
+    pub fn clear(&mut self) {
         self.queue.iter_mut().for_each(|q| q.clear());
         self.out.clear();
     }
 
-    fn obs(&self, slot: usize, agent: usize) -> &[f32] {
+    /// The observation of `agent` stored in ring slot `slot`.
+    pub fn obs(&self, slot: usize, agent: usize) -> &[f32] {
         let at = (slot * self.agents + agent) * OBS_LEN;
         &self.ring[at..at + OBS_LEN]
     }
 
     /// Stores the observations the next actions are taken on.
-    fn store(&mut self, obs: &[f32]) {
+    pub fn store(&mut self, obs: &[f32]) {
         self.slot = (self.slot + 1) % (self.n + 1);
         let at = self.slot * self.agents * OBS_LEN;
         self.ring[at..at + self.agents * OBS_LEN].copy_from_slice(obs);
@@ -300,7 +378,7 @@ impl NStep {
 
     /// Records the outcome of the last actions and fills `out` with the
     /// transitions that can leave now.
-    fn push(&mut self, actions: &[u8], rewards: &[f32], dones: &[f32]) {
+    pub fn push(&mut self, actions: &[u8], rewards: &[f32], dones: &[f32]) {
         self.out.clear();
         for i in 0..self.agents {
             let q = &mut self.queue[i];

@@ -311,6 +311,14 @@ impl Default for LearnerSection {
     }
 }
 
+/// A key that must be a positive number.
+fn positive(key: &str, v: f64) -> Result<()> {
+    if !(v.is_finite() && v > 0.0) {
+        bail!("key `{key}` must be positive, got {v}");
+    }
+    Ok(())
+}
+
 impl Config {
     /// Reads a config file (or the defaults when `path` is `None`), applies
     /// `key=value` overrides and validates the result.
@@ -351,12 +359,13 @@ impl Config {
 
     /// Checks every value a role relies on.
     pub fn validate(&self) -> Result<()> {
-        fn positive(key: &str, v: f64) -> Result<()> {
-            if !(v.is_finite() && v > 0.0) {
-                bail!("key `{key}` must be positive, got {v}");
-            }
-            Ok(())
-        }
+        self.validate_run()?;
+        self.validate_sim()?;
+        self.validate_learning()
+    }
+
+    /// The run's own keys: budget, determinism, cluster, evaluation.
+    fn validate_run(&self) -> Result<()> {
         positive("max_seconds", self.max_seconds)?;
         if self.deterministic {
             if self.max_env_steps == 0 {
@@ -385,6 +394,11 @@ impl Config {
         if !(0.0..=1.0).contains(&e.target_success) {
             bail!("key `eval.target_success` must be a rate between 0 and 1, got {}", e.target_success);
         }
+        Ok(())
+    }
+
+    /// The simulator's keys.
+    fn validate_sim(&self) -> Result<()> {
         let s = &self.sim;
         positive("sim.envs", s.envs as f64)?;
         positive("sim.agents", s.agents as f64)?;
@@ -402,6 +416,11 @@ impl Config {
         if s.envs > 64 || s.agents > 4096 {
             bail!("keys `sim.envs` ({}) and `sim.agents` ({}) must be at most 64 and 4096", s.envs, s.agents);
         }
+        Ok(())
+    }
+
+    /// The actor's, replay's and learner's keys.
+    fn validate_learning(&self) -> Result<()> {
         let a = &self.actor;
         for (k, v) in [("actor.eps_start", a.eps_start), ("actor.eps_end", a.eps_end)] {
             if !(0.0..=1.0).contains(&v) {

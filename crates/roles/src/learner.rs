@@ -45,21 +45,38 @@ fn save_state_atomic(dqn: &Dqn, path: &Path) -> Result<()> {
     Ok(())
 }
 
+/// A learner with the config's network and optimiser; a restarted (or
+/// resumed) one goes on from its last saved state at `state_path`:
+/// weights, target, Adam moments and counters.
+fn restore(cfg: &crate::config::Config, state_path: &Path) -> Result<Dqn> {
+    let mut dqn = Dqn::new(dqn_config(cfg), cfg.seed, &rotorhive_model::device(cfg.learner.device.as_str())?)?;
+    dqn.set_threads(cfg.learner.threads);
+    if state_path.exists() {
+        dqn.load_state(state_path).with_context(|| format!("restoring the learner from {}", state_path.display()))?;
+        tracing::info!("learner restored from {} at update {}", state_path.display(), dqn.updates());
+    }
+    Ok(dqn)
+}
+
+/// Saves the newest weights and the whole learner state, counting the
+/// saves and their time in `saves`.
+fn checkpoint(dqn: &Dqn, ckpt_dir: &Path, state_path: &Path, saves: &mut (u32, Duration)) -> Result<()> {
+    let t = Instant::now();
+    save_atomic(&dqn.online, &ckpt_dir.join("latest.safetensors"))?;
+    save_state_atomic(dqn, state_path)?;
+    saves.0 += 1;
+    saves.1 += t.elapsed();
+    Ok(())
+}
+
 /// Runs the learner until the run stops.
 pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     let (cfg, hub) = (cx.cfg, cx.hub);
     let run_dir = cx.run_dir.map_or_else(|| PathBuf::from("."), Path::to_path_buf);
     let ckpt_dir = run_dir.join("checkpoints");
     std::fs::create_dir_all(&ckpt_dir).with_context(|| format!("cannot create {}", ckpt_dir.display()))?;
-    let mut dqn = Dqn::new(dqn_config(cfg), cfg.seed, &rotorhive_model::device(cfg.learner.device.as_str())?)?;
-    dqn.set_threads(cfg.learner.threads);
-    // A restarted (or resumed) learner goes on from its last saved state:
-    // weights, target, Adam moments and counters.
     let state_path = ckpt_dir.join("learner-state.safetensors");
-    if state_path.exists() {
-        dqn.load_state(&state_path).with_context(|| format!("restoring the learner from {}", state_path.display()))?;
-        tracing::info!("learner restored from {} at update {}", state_path.display(), dqn.updates());
-    }
+    let mut dqn = restore(cfg, &state_path)?;
     let mut rx = hub.receiver::<u16, MinibatchHeader>(&Channel::minibatches(cfg.replay.prefetch))?;
     // Minibatches arrive packed (16-bit depth); the network takes floats.
     let mut batch = Vec::new();
@@ -84,10 +101,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     let mut last_ckpt = Instant::now();
     let mut saves = (0u32, Duration::ZERO);
     let mut last_update = Instant::now();
-    // The published loss is the mean over the updates since the last
-    // telemetry sample: one minibatch's loss is too noisy to show a trend.
-    let (mut loss_sum, mut loss_n) = (0.0f64, 0u32);
-    let (mut lag_sum, mut lag_n) = (0.0f64, 0u32);
+    let mut gauges = Gauges::default();
     loop {
         if hub.shutdown_requested() {
             break;
@@ -96,48 +110,32 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
         let msg = rx.recv_timeout(POLL).context("waiting for minibatches")?;
         tel.stage(3, t);
         if tel.tick(false) {
-            (loss_sum, loss_n, lag_sum, lag_n) = (0.0, 0, 0.0, 0);
+            gauges = Gauges::default();
         }
         let Some(msg) = msg else { continue };
-        if min_period > Duration::ZERO {
-            let since = last_update.elapsed();
-            if since < min_period {
-                std::thread::sleep(min_period - since);
-            }
+        // The learner's half of the rate limit.
+        let since = last_update.elapsed();
+        if since < min_period {
+            std::thread::sleep(min_period - since);
         }
         last_update = Instant::now();
         unpack_batch(msg.payload(), &mut batch)?;
         let mb = *msg.user_header();
         drop(msg);
-        if mb.acted > 0 {
-            // Policy lag: this learner's version minus the mean version the
-            // minibatch's transitions were acted with.
-            lag_sum += version as f64 - mb.acted_version_sum as f64 / mb.acted as f64;
-            lag_n += 1;
-        }
         let loss = dqn.update(&batch).context("learner update")?;
         let tm = dqn.timing();
         tel.sample.stage_ns[0] += tm.forward_ns;
         tel.sample.stage_ns[1] += tm.backward_ns;
         tel.sample.stage_ns[2] += tm.optimiser_ns;
         tel.sample.work = dqn.updates();
-        loss_sum += loss as f64;
-        loss_n += 1;
-        tel.sample.value_milli = (loss_sum / loss_n as f64 * 1e6) as i64;
-        if lag_n > 0 {
-            tel.sample.policy_lag_milli = (lag_sum / lag_n as f64 * 1e3).clamp(0.0, u32::MAX as f64) as u32;
-        }
+        gauges.add(loss, &mb, version, &mut tel.sample);
         if dqn.updates() % cfg.learner.publish_every == 0 {
             publish(&dqn, &mut version)?;
             tel.sample.weight_version = version;
             tel.sample.work2 = version;
         }
         if last_ckpt.elapsed().as_secs_f64() >= cfg.learner.checkpoint_every_s {
-            let t = Instant::now();
-            save_atomic(&dqn.online, &ckpt_dir.join("latest.safetensors"))?;
-            save_state_atomic(&dqn, &state_path)?;
-            saves.0 += 1;
-            saves.1 += t.elapsed();
+            checkpoint(&dqn, &ckpt_dir, &state_path, &mut saves)?;
             last_ckpt = Instant::now();
         }
     }
@@ -149,6 +147,29 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     save_state_atomic(&dqn, &state_path)?;
     tel.tick(true);
     Ok(())
+}
+
+/// The learner's gauges in its telemetry, over the updates since the last
+/// sample (one minibatch's loss is too noisy to show a trend): the mean loss
+/// and the mean policy lag.
+#[derive(Default)]
+struct Gauges {
+    loss: (f64, u32),
+    lag: (f64, u32),
+}
+
+impl Gauges {
+    /// Adds an update's loss and its minibatch's policy lag: the learner's
+    /// weight version minus the mean version the transitions were acted
+    /// with (those restored from a snapshot have none).
+    fn add(&mut self, loss: f32, mb: &MinibatchHeader, version: u64, tel: &mut rotorhive_msg::Telemetry) {
+        self.loss = (self.loss.0 + loss as f64, self.loss.1 + 1);
+        tel.value_milli = (self.loss.0 / self.loss.1 as f64 * 1e6) as i64;
+        if mb.acted > 0 {
+            self.lag = (self.lag.0 + version as f64 - mb.acted_version_sum as f64 / mb.acted as f64, self.lag.1 + 1);
+            tel.policy_lag_milli = (self.lag.0 / self.lag.1 as f64 * 1e3).clamp(0.0, u32::MAX as f64) as u32;
+        }
+    }
 }
 
 /// Unpacks a minibatch of packed transitions into `out`, the learner's

@@ -19,18 +19,7 @@ use crate::{Counters, Ctx, roles_of};
 pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     let (cfg, hub) = (cx.cfg, cx.hub);
     let r = &cfg.replay;
-    // The memory is written through to RUN_DIR/replay.bin as it changes: a
-    // restarted (or resumed) replay starts with every transition it had.
-    let (mut mem, mut journal) = match cx.run_dir {
-        Some(d) if r.snapshot_every_s > 0.0 => {
-            let (m, j) = Journal::open(&d.join("replay.bin"), r.capacity, PACKED_LEN, cfg.seed ^ 0x5e1a).context("restoring the replay memory")?;
-            if !m.is_empty() {
-                tracing::info!("replay restored {} transitions from {}", m.len(), j.path().display());
-            }
-            (m, Some(j))
-        }
-        _ => (Replay::new(r.capacity, PACKED_LEN, cfg.seed ^ 0x5e1a), None),
-    };
+    let (mut mem, mut journal) = open_memory(cfg, cx.run_dir)?;
     let mut rx = hub.receiver::<u16, TransitionHeader>(&Channel::transitions(cfg.sim.envs))?;
     // Transitions are throughput, not latency: sleep at once when idle.
     rx.set_spin(Duration::ZERO);
@@ -99,6 +88,22 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     }
     tel.tick(true);
     Ok(())
+}
+
+/// The memory, written through to RUN_DIR/replay.bin as it changes: a
+/// restarted (or resumed) replay starts with every transition it had.
+fn open_memory(cfg: &crate::config::Config, run_dir: Option<&std::path::Path>) -> Result<(Replay, Option<Journal>)> {
+    let r = &cfg.replay;
+    Ok(match run_dir {
+        Some(d) if r.snapshot_every_s > 0.0 => {
+            let (m, j) = Journal::open(&d.join("replay.bin"), r.capacity, PACKED_LEN, cfg.seed ^ 0x5e1a).context("restoring the replay memory")?;
+            if !m.is_empty() {
+                tracing::info!("replay restored {} transitions from {}", m.len(), j.path().display());
+            }
+            (m, Some(j))
+        }
+        _ => (Replay::new(r.capacity, PACKED_LEN, cfg.seed ^ 0x5e1a), None),
+    })
 }
 
 /// The sample side of `replay.samples_per_insert` (the sims hold the insert
