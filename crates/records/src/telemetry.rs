@@ -140,7 +140,7 @@ mod tests {
             index: 0,
             pid: 42,
             cpu_pct: 99.5,
-            rss_mb: 310.25,
+            rss_mb: 310.44,
             machine_cpu_pct: 97.0,
             heartbeat: 12,
             work: 2400,
@@ -155,7 +155,7 @@ mod tests {
         let line = row.to_line();
         assert_eq!(line.trim_end().split(',').count(), HEADER.split(',').count());
         let back = TelemetryRow::parse(line.trim_end()).unwrap();
-        assert_eq!(back, TelemetryRow { rss_mb: 310.3, ..row.clone() });
+        assert_eq!(back, TelemetryRow { rss_mb: 310.4, ..row.clone() });
         let gpu = TelemetryRow { gpu: Some([50.0, 1024.0, 80.0]), policy_lag: None, cpu_pct: f64::NAN, ..row };
         let back = TelemetryRow::parse(gpu.to_line().trim_end()).unwrap();
         assert_eq!((back.gpu, back.policy_lag), (gpu.gpu, None));
