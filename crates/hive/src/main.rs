@@ -12,7 +12,7 @@ mod worker;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use clap::{Args, Parser, Subcommand};
+use clap::{Parser, Subcommand};
 use role_cmd::RoleArgs;
 use rotorhive_msg::RoleKind;
 
@@ -28,16 +28,6 @@ struct Cli {
     domain: Option<String>,
     #[command(subcommand)]
     command: Command,
-}
-
-/// A config file and overrides, shared by `train` and the roles.
-#[derive(Args, Debug, Clone)]
-pub struct ConfigArgs {
-    /// Config file (TOML); the built-in defaults when absent.
-    pub config: Option<PathBuf>,
-    /// Override a config key, e.g. `--set sim.agents=10` (repeatable).
-    #[arg(long = "set", value_name = "KEY=VALUE")]
-    pub set: Vec<String>,
 }
 
 #[derive(Subcommand, Debug)]

@@ -10,7 +10,15 @@ use rotorhive_msg::RoleKind;
 use rotorhive_roles::{Config, Ctx};
 use rotorhive_transport::{Hub, Ipc};
 
-use crate::ConfigArgs;
+/// A config file and overrides, shared by `train` and the roles.
+#[derive(Args, Debug, Clone)]
+pub struct ConfigArgs {
+    /// Config file (TOML); the built-in defaults when absent.
+    pub config: Option<PathBuf>,
+    /// Override a config key, e.g. `--set sim.agents=10` (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+}
 
 /// What every role needs to find its run.
 #[derive(Args, Debug, Clone)]

@@ -27,8 +27,9 @@ use rotorhive_roles::schedule::Schedule;
 use rotorhive_roles::{Config, episodes_channel, roles_of};
 use rotorhive_transport::{Channel, Hub, Ipc, Local, Receiver, cleanup_dead_nodes, services_of_run};
 
-use crate::ConfigArgs;
+use crate::role_cmd::ConfigArgs;
 use evaluator::Evaluator;
+pub use launcher::host_name;
 use launcher::{Members, lock_run_dir, timestamp};
 use monitor::Monitor;
 use records::{Counts, EpisodeOrder, Progress};
@@ -151,11 +152,6 @@ fn resolve_paths(cfg: &mut Config) -> Result<()> {
         cfg.eval_arenas()?;
     }
     Ok(())
-}
-
-/// This machine's name.
-pub fn host_name() -> String {
-    std::fs::read_to_string("/proc/sys/kernel/hostname").map(|s| s.trim().to_string()).ok().filter(|s| !s.is_empty()).unwrap_or_else(|| "localhost".into())
 }
 
 /// Listens on `ep` and waits for `cluster.workers` worker hosts; their

@@ -137,7 +137,7 @@ impl Monitor {
         let lost_here = self.latest.values().filter(|t| t.role == RoleKind::Replay as u32).map(|t| t.lost).sum::<u64>();
         let envs = cfg.sim.envs as u32;
         let mut out = vec![HostSummary {
-            name: super::host_name(),
+            name: super::launcher::host_name(),
             role: "head".into(),
             envs,
             agents: cfg.sim.agents as u32,
