@@ -131,8 +131,13 @@ pub(crate) fn adam(p: &mut [f32], g: &[f32], m: &mut [f32], v: &mut [f32], h: Ad
     }
 }
 
-/// [`adam`] on a candle variable in place (CPU), with the gradient and the
-/// moments kept by the caller.
+/// The `f32` slice of a contiguous CPU parameter, for the in-place ops.
+fn param_slice<'a>(ps: &'a mut CpuStorage, pl: &Layout, op: &str) -> candle_core::Result<&'a mut [f32]> {
+    let Some((start, end)) = pl.contiguous_offsets() else { bail!("{op} needs a contiguous parameter") };
+    let CpuStorage::F32(p) = ps else { bail!("{op} needs f32 parameters") };
+    Ok(&mut p[start..end])
+}
+
 /// Overwrites a parameter in place with `src` (one copy, where `Var::set`
 /// of a new tensor makes two).
 pub(crate) struct CopyIn<'a>(pub(crate) &'a [f32]);
@@ -143,16 +148,17 @@ impl InplaceOp1 for CopyIn<'_> {
     }
 
     fn cpu_fwd(&self, ps: &mut CpuStorage, pl: &Layout) -> candle_core::Result<()> {
-        let Some((start, end)) = pl.contiguous_offsets() else { bail!("copy-in needs a contiguous parameter") };
-        let CpuStorage::F32(p) = ps else { bail!("copy-in needs f32 parameters") };
-        if end - start != self.0.len() {
-            bail!("copy-in: parameter {}, source {}", end - start, self.0.len());
+        let p = param_slice(ps, pl, "copy-in")?;
+        if p.len() != self.0.len() {
+            bail!("copy-in: parameter {}, source {}", p.len(), self.0.len());
         }
-        p[start..end].copy_from_slice(self.0);
+        p.copy_from_slice(self.0);
         Ok(())
     }
 }
 
+/// [`adam`] on a candle variable in place (CPU), with the gradient and the
+/// moments kept by the caller.
 pub(crate) struct AdamStep<'a> {
     pub(crate) grad: &'a [f32],
     pub(crate) moments: Mutex<(&'a mut [f32], &'a mut [f32])>,
@@ -165,9 +171,7 @@ impl InplaceOp1 for AdamStep<'_> {
     }
 
     fn cpu_fwd(&self, ps: &mut CpuStorage, pl: &Layout) -> candle_core::Result<()> {
-        let Some((start, end)) = pl.contiguous_offsets() else { bail!("adam needs a contiguous parameter") };
-        let CpuStorage::F32(p) = ps else { bail!("adam needs f32 parameters") };
-        let p = &mut p[start..end];
+        let p = param_slice(ps, pl, "adam")?;
         let mut guard = self.moments.lock().map_err(|_| candle_core::Error::Msg("adam moments poisoned".into()))?;
         let (m, v) = &mut *guard;
         if self.grad.len() != p.len() || m.len() != p.len() || v.len() != p.len() {
