@@ -14,6 +14,7 @@
 //! | `hive bench replay --producers 2` | transitions inserted/s and minibatches sampled/s by the replay process |
 //! | `hive bench link` | transition batches between two hosts' links over Zenoh against raw TCP |
 //! | `hive bench table --config FILE` | the paper's agent table: `hive train` per cell |
+//! | `hive bench seeds --seeds 1-10 --arm A:k=v --arm B:k=v` | arms of a training config over seeds, interleaved, with bootstrap intervals |
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -28,6 +29,7 @@ mod ipc;
 mod learner;
 mod link;
 mod replay;
+pub mod seeds;
 mod table;
 
 #[derive(Subcommand, Debug)]
@@ -145,6 +147,11 @@ pub enum BenchCmd {
         #[arg(long)]
         batches: usize,
     },
+    /// An experiment over seeds: every seed of every arm (a config plus
+    /// overrides), interleaved, free-running to a wall budget; time to the
+    /// threshold, validation and test success, with bootstrap intervals and
+    /// the probability that one arm beats another.
+    Seeds(crate::seeds::SeedsArgs),
     /// The paper's Table II: training time, CPU and GPU use for 1, 25, 50 and
     /// 2×37 agents, batched and non-batched.
     Table {
@@ -189,6 +196,7 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
         BenchCmd::Replay { producers, seconds, json } => crate::replay::run(producers, seconds, json),
         BenchCmd::ReplayProducer { prefix, index, producers, batches } => crate::replay::producer(&prefix, index, producers, batches),
         BenchCmd::Table { config, out, json } => crate::table::run(&config, &out, json),
+        BenchCmd::Seeds(args) => crate::seeds::run(&args),
         BenchCmd::Learner { threads, batch, updates, compare, json } => crate::learner::bench(threads, batch, updates, compare, json),
     }
 }

@@ -23,7 +23,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use iceoryx2::service::Service;
-use rotorhive_msg::{EpisodeHeader, RoleKind, Telemetry, TransitionHeader, WeightsHeader};
+use rotorhive_msg::{EPISODE_FIELDS, EpisodeHeader, RoleKind, Telemetry, TransitionHeader, WeightsHeader};
 use rotorhive_transport::{Channel, Hub, TransportError};
 use zenoh::Wait;
 use zenoh::handlers::{FifoChannel, FifoChannelHandler, RingChannel};
@@ -420,7 +420,7 @@ fn head_loop<S: Service>(head: &Head, hub: &Hub<S>, envs: usize, roles: usize, s
     let total_envs = envs + head.hosts.iter().map(|h| h.envs as usize).sum::<usize>();
     let max_batch = rotorhive_msg::PACKED_LEN * 1024;
     let mut trans_tx = hub.sender::<u16, TransitionHeader>(&Channel::transitions(envs), max_batch, Duration::from_millis(200))?;
-    let mut ep_tx = hub.sender::<f32, EpisodeHeader>(&Channel::episodes(envs), 3 * 4096, Duration::from_millis(200))?;
+    let mut ep_tx = hub.sender::<f32, EpisodeHeader>(&Channel::episodes(envs), EPISODE_FIELDS * 4096, Duration::from_millis(200))?;
     let mut w_rx = hub.receiver::<f32, WeightsHeader>(&Channel::weights(envs))?;
     let mut tel = LinkTelemetry::new(hub, roles, 0)?;
     let mut next_seq: Vec<Option<u64>> = vec![None; total_envs];
@@ -497,7 +497,7 @@ fn head_loop<S: Service>(head: &Head, hub: &Hub<S>, envs: usize, roles: usize, s
             let Some(h) = smp.attachment().and_then(|a| wire::header_from::<EpisodeHeader>(&a.to_bytes())) else { continue };
             let bytes = smp.payload().to_bytes();
             let len = bytes.len() / 4;
-            if len != 3 * h.count as usize || len > 3 * 4096 {
+            if len != EPISODE_FIELDS * h.count as usize || len > EPISODE_FIELDS * 4096 {
                 stats.dropped.fetch_add(1, Ordering::Relaxed);
                 continue;
             }

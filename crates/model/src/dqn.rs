@@ -33,6 +33,35 @@ pub struct DqnConfig {
     /// Double DQN: the online network picks the next action, the target
     /// network values it.
     pub double: bool,
+    /// Rewards (n-step returns) are multiplied by this in the TD target.
+    pub reward_scale: f32,
+    /// The gradient's global L2 norm is clipped to this; 0 = no clipping.
+    pub max_grad_norm: f32,
+}
+
+/// What the last update saw, for the learner's diagnostics: sums over the
+/// minibatch's rows, in the network's units (scaled rewards).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct UpdateStats {
+    /// Rows of the minibatch.
+    pub rows: u32,
+    /// Sum over rows of max_a Q(s, a).
+    pub max_q_sum: f64,
+    /// Sum over rows of |Q(s, a) − y|.
+    pub abs_td_sum: f64,
+    /// Terminal transitions (done = 1).
+    pub terminal: u32,
+    /// The gradient's global L2 norm before clipping.
+    pub grad_norm: f64,
+}
+
+impl UpdateStats {
+    fn add(&mut self, o: &UpdateStats) {
+        self.rows += o.rows;
+        self.max_q_sum += o.max_q_sum;
+        self.abs_td_sum += o.abs_td_sum;
+        self.terminal += o.terminal;
+    }
 }
 
 /// Time spent in each part of the last update (ns).
@@ -103,6 +132,7 @@ struct Shard {
     loss: f32,
     forward_ns: u64,
     backward_ns: u64,
+    stats: UpdateStats,
 }
 
 /// A DQN learner: online network, target network and Adam.
@@ -120,12 +150,15 @@ pub struct Dqn {
     /// The generic path's gradients, flat in canonical order (the fused
     /// path sums its shards' into the first workspace).
     grads: Vec<f32>,
+    /// Updates skipped for a non-finite loss or gradient.
+    skipped: u64,
+    stats: UpdateStats,
 }
 
 /// The gradients [`Dqn::compute_gradients`] left, flat in canonical order.
-fn gradients_in<'a>(fused: bool, generic: &'a [f32], work: &'a mut [Mutex<Workspace>]) -> Result<&'a [f32]> {
+fn gradients_in<'a>(fused: bool, generic: &'a mut [f32], work: &'a mut [Mutex<Workspace>]) -> Result<&'a mut [f32]> {
     match (fused, work.first_mut()) {
-        (true, Some(ws)) => Ok(&ws.get_mut().map_err(poisoned)?.grads[..OFFSETS[10]]),
+        (true, Some(ws)) => Ok(&mut ws.get_mut().map_err(poisoned)?.grads[..OFFSETS[10]]),
         (true, None) => Err(ModelError::Device("no gradients computed yet".into())),
         (false, _) => Ok(generic),
     }
@@ -150,7 +183,19 @@ impl Dqn {
     pub fn new(cfg: DqnConfig, seed: u64, device: &candle_core::Device) -> Result<Self> {
         let online = QNet::new(seed, device)?;
         let target = QNet::new(seed, device)?;
-        Ok(Self { online, target, opt: Adam::new(&cfg), cfg, updates: 0, timing: UpdateTiming::default(), shards: 1, work: Vec::new(), grads: Vec::new() })
+        Ok(Self {
+            online,
+            target,
+            opt: Adam::new(&cfg),
+            cfg,
+            updates: 0,
+            timing: UpdateTiming::default(),
+            shards: 1,
+            work: Vec::new(),
+            grads: Vec::new(),
+            skipped: 0,
+            stats: UpdateStats::default(),
+        })
     }
 
     /// Uses the fused CPU path (default on the CPU) or the generic one.
@@ -177,6 +222,17 @@ impl Dqn {
         self.timing
     }
 
+    /// Updates skipped so far because their loss or gradient was not
+    /// finite (they count in [`Dqn::updates`] but changed nothing).
+    pub fn skipped(&self) -> u64 {
+        self.skipped
+    }
+
+    /// What the last update's minibatch showed (max-Q, TD error, terminals).
+    pub fn stats(&self) -> UpdateStats {
+        self.stats
+    }
+
     /// Copies the online weights into the target network.
     pub fn sync_target(&self) -> Result<()> {
         self.target.copy_from(&self.online)
@@ -188,7 +244,7 @@ impl Dqn {
     fn target_of(&self, t: &[f32], q_target: &[f32], q_online: &[f32]) -> f32 {
         let pick = if self.cfg.double { q_online } else { q_target };
         let (r, done) = (t[2 * OBS_LEN + 1], t[2 * OBS_LEN + 2]);
-        r + self.cfg.gamma * (1.0 - done) * q_target[argmax(pick)]
+        r * self.cfg.reward_scale + self.cfg.gamma * (1.0 - done) * q_target[argmax(pick)]
     }
 
     /// The Huber loss of `e` and its derivative.
@@ -246,6 +302,7 @@ impl Dqn {
             // Rows 0..n: Q(s); rows n..2n (double DQN): the online Q(s').
             let (q, q_target, dq) = ws.loss_view(n);
             let mut loss = 0.0;
+            let mut stats = UpdateStats { rows: n as u32, ..UpdateStats::default() };
             for (i, t) in part.chunks_exact(TRANSITION_LEN).enumerate() {
                 let qt = &q_target[i * ACTIONS..(i + 1) * ACTIONS];
                 let y = self.target_of(t, qt, if self.cfg.double { &q[(n + i) * ACTIONS..(n + i + 1) * ACTIONS] } else { qt });
@@ -253,10 +310,13 @@ impl Dqn {
                 let (l, g) = self.huber(q[at] - y);
                 loss += l;
                 dq[at] = g / denom as f32;
+                stats.max_q_sum += q[i * ACTIONS..(i + 1) * ACTIONS].iter().fold(f32::NEG_INFINITY, |m, v| m.max(*v)) as f64;
+                stats.abs_td_sum += (q[at] - y).abs() as f64;
+                stats.terminal += (t[2 * OBS_LEN + 2] != 0.0) as u32;
             }
             let t1 = Instant::now();
             ws.backward(w, n)?;
-            Ok(Shard { loss: loss / denom as f32, forward_ns: (t1 - t0).as_nanos() as u64, backward_ns: t1.elapsed().as_nanos() as u64 })
+            Ok(Shard { loss: loss / denom as f32, forward_ns: (t1 - t0).as_nanos() as u64, backward_ns: t1.elapsed().as_nanos() as u64, stats })
         })
     }
 
@@ -264,7 +324,7 @@ impl Dqn {
     /// floats) on the path in use, without updating anything.
     pub fn gradients(&mut self, batch: &[f32]) -> Result<(f32, Vec<f32>)> {
         let loss = self.compute_gradients(batch)?.loss;
-        Ok((loss, gradients_in(self.online.fused(), &self.grads, &mut self.work)?.to_vec()))
+        Ok((loss, gradients_in(self.online.fused(), &mut self.grads, &mut self.work)?.to_vec()))
     }
 
     /// Loss and gradients of a minibatch into `self.grads`: on the fused path
@@ -282,7 +342,11 @@ impl Dqn {
                 let g = store.get(v.as_tensor()).ok_or_else(|| ModelError::Device("a parameter got no gradient".into()))?;
                 self.grads.extend(g.flatten_all()?.to_vec1::<f32>()?);
             }
-            return Ok(Shard { loss: loss.to_scalar::<f32>()?, forward_ns: (t1 - t0).as_nanos() as u64, backward_ns: t1.elapsed().as_nanos() as u64 });
+            // The generic path (off the CPU) reports the row and terminal
+            // counts only.
+            let terminal = batch.chunks_exact(TRANSITION_LEN).filter(|t| t[2 * OBS_LEN + 2] != 0.0).count() as u32;
+            let stats = UpdateStats { rows: n as u32, terminal, ..UpdateStats::default() };
+            return Ok(Shard { loss: loss.to_scalar::<f32>()?, forward_ns: (t1 - t0).as_nanos() as u64, backward_ns: t1.elapsed().as_nanos() as u64, stats });
         }
         let shards = self.shards.min(n / 8).max(1);
         while self.work.len() < shards {
@@ -297,20 +361,42 @@ impl Dqn {
         let (head, tail) = self.work.split_at_mut(1);
         let sum = &mut head[0].get_mut().map_err(poisoned)?.grads[..OFFSETS[10]];
         for (r, ws) in results.zip(tail) {
-            total.loss += r?.loss;
+            let r = r?;
+            total.loss += r.loss;
+            total.stats.add(&r.stats);
             sum.iter_mut().zip(&ws.get_mut().map_err(poisoned)?.grads).for_each(|(a, b)| *a += b);
         }
         Ok(total)
     }
 
     /// One update on a minibatch of `n × TRANSITION_LEN` floats; returns the
-    /// loss.
+    /// loss. A loss or gradient that is not finite skips the step (the
+    /// weights and Adam's moments stay as they were), counts in
+    /// [`Dqn::skipped`] and returns the non-finite loss; the minibatch still
+    /// counts as an update, so the target schedule and a deterministic run's
+    /// weight versions go on. With `max_grad_norm` the gradient is scaled
+    /// down to that global L2 norm first.
     pub fn update(&mut self, batch: &[f32]) -> Result<f32> {
-        let total = self.compute_gradients(batch)?;
+        let mut total = self.compute_gradients(batch)?;
         let t2 = Instant::now();
-        let grads = gradients_in(self.online.fused(), &self.grads, &mut self.work)?;
-        self.opt.step(&self.online, grads)?;
+        let grads = gradients_in(self.online.fused(), &mut self.grads, &mut self.work)?;
+        let norm = grads.iter().map(|g| (*g as f64) * (*g as f64)).sum::<f64>().sqrt();
+        total.stats.grad_norm = norm;
+        self.stats = total.stats;
         self.updates += 1;
+        if !(total.loss.is_finite() && norm.is_finite()) {
+            self.skipped += 1;
+            if self.updates.is_multiple_of(self.cfg.target_update) {
+                self.sync_target()?;
+            }
+            return Ok(if total.loss.is_finite() { f32::NAN } else { total.loss });
+        }
+        let max = self.cfg.max_grad_norm as f64;
+        if max > 0.0 && norm > max {
+            let k = (max / norm) as f32;
+            grads.iter_mut().for_each(|g| *g *= k);
+        }
+        self.opt.step(&self.online, grads)?;
         if self.updates.is_multiple_of(self.cfg.target_update) {
             self.sync_target()?;
         }
@@ -383,6 +469,11 @@ impl Dqn {
     pub(crate) fn opt_step(&mut self, grads: &[f32]) -> Result<()> {
         self.opt.step(&self.online, grads)
     }
+
+    /// Adam's first moments, flat (tests check what clipping fed it).
+    pub(crate) fn first_moments(&self) -> Vec<f32> {
+        self.opt.m.concat()
+    }
 }
 
 #[cfg(test)]
@@ -391,7 +482,17 @@ mod schedule_tests {
 
     #[test]
     fn the_learning_rate_falls_linearly_then_holds() {
-        let cfg = DqnConfig { lr: 1e-3, lr_final: 2e-4, lr_decay_updates: 100, gamma: 0.9, target_update: 10, huber_delta: 1.0, double: true };
+        let cfg = DqnConfig {
+            lr: 1e-3,
+            lr_final: 2e-4,
+            lr_decay_updates: 100,
+            gamma: 0.9,
+            target_update: 10,
+            huber_delta: 1.0,
+            double: true,
+            reward_scale: 1.0,
+            max_grad_norm: 0.0,
+        };
         let adam = Adam::new(&cfg);
         let close = |a: f32, b: f32| (a - b).abs() < 1e-9;
         assert!(close(adam.lr_at(1), 1e-3));

@@ -27,7 +27,7 @@ use std::sync::{Arc, Mutex};
 
 pub use candle_core::Device;
 use candle_core::{DType, Tensor, Var};
-pub use dqn::{Dqn, DqnConfig, UpdateTiming};
+pub use dqn::{Dqn, DqnConfig, UpdateStats, UpdateTiming};
 use kernels::{Rows, Weights, Workspace};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;

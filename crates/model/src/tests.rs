@@ -25,7 +25,17 @@ fn transitions(n: usize, seed: u64) -> Vec<f32> {
 }
 
 fn cfg(double: bool) -> DqnConfig {
-    DqnConfig { lr: 1e-3, lr_final: 1e-3, lr_decay_updates: 0, gamma: 0.9, target_update: 1000, huber_delta: 10.0, double }
+    DqnConfig {
+        lr: 1e-3,
+        lr_final: 1e-3,
+        lr_decay_updates: 0,
+        gamma: 0.9,
+        target_update: 1000,
+        huber_delta: 10.0,
+        double,
+        reward_scale: 1.0,
+        max_grad_norm: 0.0,
+    }
 }
 
 /// Gradients through candle's autograd over stock ops (the reference), flat.
@@ -248,9 +258,22 @@ fn flat_weights_and_checkpoints_round_trip() {
 #[test]
 fn updates_reduce_the_loss_on_a_fixed_batch() {
     let dev = Device::Cpu;
-    let mut dqn =
-        Dqn::new(DqnConfig { lr: 1e-3, lr_final: 1e-3, lr_decay_updates: 0, gamma: 0.0, target_update: 10_000, huber_delta: 1.0, double: false }, 1, &dev)
-            .unwrap();
+    let mut dqn = Dqn::new(
+        DqnConfig {
+            lr: 1e-3,
+            lr_final: 1e-3,
+            lr_decay_updates: 0,
+            gamma: 0.0,
+            target_update: 10_000,
+            huber_delta: 1.0,
+            double: false,
+            reward_scale: 1.0,
+            max_grad_norm: 0.0,
+        },
+        1,
+        &dev,
+    )
+    .unwrap();
     let n = 32;
     let mut data = random(n * TRANSITION_LEN, 11, 0.0, 1.0);
     for i in 0..n {
@@ -264,4 +287,71 @@ fn updates_reduce_the_loss_on_a_fixed_batch() {
     }
     assert!(last < first * 0.2, "loss went from {first} to {last}");
     assert_eq!(dqn.updates(), 61);
+}
+
+#[test]
+fn a_non_finite_loss_skips_the_update_and_changes_nothing() {
+    let dev = Device::Cpu;
+    let mut dqn = Dqn::new(cfg(true), 3, &dev).unwrap();
+    let good = transitions(32, 5);
+    dqn.update(&good).unwrap();
+    let before = dqn.online.to_flat().unwrap();
+    let mut bad = good.clone();
+    bad[7 * TRANSITION_LEN + 2 * OBS_LEN + 1] = f32::NAN;
+    let loss = dqn.update(&bad).unwrap();
+    assert!(!loss.is_finite());
+    assert_eq!((dqn.skipped(), dqn.updates()), (1, 2));
+    assert_eq!(dqn.online.to_flat().unwrap(), before, "a skipped update must not move the weights");
+    // An infinite observation gives non-finite gradients too.
+    bad = good.clone();
+    bad[3] = f32::INFINITY;
+    dqn.update(&bad).unwrap();
+    assert_eq!(dqn.skipped(), 2);
+    assert_eq!(dqn.online.to_flat().unwrap(), before);
+    // Training goes on afterwards.
+    assert!(dqn.update(&good).unwrap().is_finite());
+    assert_ne!(dqn.online.to_flat().unwrap(), before);
+    assert!(dqn.online.to_flat().unwrap().iter().all(|v| v.is_finite()));
+}
+
+#[test]
+fn the_reward_scale_scales_the_td_target() {
+    // gamma 0: the target is the scaled reward alone, so the loss's
+    // gradient on Q(s, a) is Q − scale·r and the stats see it.
+    let dev = Device::Cpu;
+    let batch = transitions(16, 9);
+    let stats_with = |scale: f32| {
+        let mut d = Dqn::new(DqnConfig { gamma: 0.0, huber_delta: 1e6, reward_scale: scale, ..cfg(false) }, 4, &dev).unwrap();
+        d.update(&batch).unwrap();
+        d.stats()
+    };
+    let (one, small) = (stats_with(1.0), stats_with(0.01));
+    // The rewards are +3 and −100: |Q − r| is about the reward's size at
+    // scale 1 and a hundred times smaller at 0.01.
+    assert!(one.abs_td_sum / 16.0 > 20.0, "{one:?}");
+    assert!(small.abs_td_sum / 16.0 < 1.0, "{small:?}");
+    assert_eq!((one.rows, one.terminal), (16, 6));
+    assert_eq!(one.max_q_sum, small.max_q_sum, "the same network sees the same Q-values");
+}
+
+#[test]
+fn clipping_bounds_the_step_by_the_gradient_norm() {
+    // With Adam the first step's size does not depend on the gradient's
+    // scale, so compare what clipping feeds Adam: the moments. Two learners
+    // on the same batch, one clipped to a tiny norm: the clipped one's
+    // first moment is the unclipped one's times max/norm.
+    let dev = Device::Cpu;
+    let batch = transitions(32, 12);
+    let mut free = Dqn::new(cfg(true), 6, &dev).unwrap();
+    let mut clipped = Dqn::new(DqnConfig { max_grad_norm: 1e-3, ..cfg(true) }, 6, &dev).unwrap();
+    free.update(&batch).unwrap();
+    clipped.update(&batch).unwrap();
+    let norm = free.stats().grad_norm;
+    assert!(norm > 1e-3, "{norm}");
+    assert_eq!(clipped.stats().grad_norm, norm, "the norm is reported before clipping");
+    let k = (1e-3 / norm) as f32;
+    let (mf, mc) = (free.first_moments(), clipped.first_moments());
+    for (a, b) in mf.iter().zip(&mc) {
+        assert!((a * k - b).abs() <= 1e-6 * a.abs().max(1e-3), "{a}·{k} vs {b}");
+    }
 }

@@ -242,8 +242,13 @@ pub struct WeightsHeader {
     pub len: u64,
 }
 
+/// Floats per finished episode in an episodes message: return, steps,
+/// [`DoneKind`] code, and the exploration rate the agent acted with.
+pub const EPISODE_FIELDS: usize = 4;
+
 /// Header of an episodes message, actor → supervisor. Payload: `[f32]`
-/// triples (return, steps, [`DoneKind`] code), one per finished episode.
+/// records of [`EPISODE_FIELDS`] (return, steps, [`DoneKind`] code,
+/// epsilon), one per finished episode.
 #[derive(Debug, Clone, Copy, Default)]
 #[cfg_attr(feature = "zero-copy", derive(ZeroCopySend), type_name("rotorhive::EpisodeHeader"))]
 #[repr(C)]
@@ -254,7 +259,8 @@ pub struct EpisodeHeader {
     pub count: u32,
     /// Transitions this actor has produced.
     pub transitions: u64,
-    /// Exploration rate in use ×1e6.
+    /// The actor's largest exploration rate in use ×1e6 (each agent's own
+    /// is in its episode record).
     pub epsilon_micro: u64,
     /// The observation step the episodes ended on (a deterministic run's
     /// round).
@@ -338,6 +344,31 @@ pub struct Telemetry {
     pub value_milli: i64,
     /// Cumulative nanoseconds per stage.
     pub stage_ns: [u64; STAGES],
+    /// Learning diagnostics (learner) or the exploration spread (actor).
+    pub learning: Learning,
+}
+
+/// What a telemetry sample says about learning, so that a collapse can be
+/// seen as it starts. The learner fills the means over its updates since
+/// the previous sample; an actor fills the smallest and largest epsilon of
+/// its agents; the other roles leave it zero.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[cfg_attr(feature = "zero-copy", derive(ZeroCopySend), type_name("rotorhive::Learning"))]
+#[repr(C)]
+pub struct Learning {
+    /// Learner: mean over the minibatches' rows of max_a Q(s, a), in reward
+    /// units (divided by `learner.reward_scale`).
+    pub mean_max_q: f32,
+    /// Learner: mean absolute TD error, in reward units.
+    pub mean_abs_td: f32,
+    /// Learner: share of terminal transitions in the minibatches.
+    pub terminal_share: f32,
+    /// Learner: updates skipped so far for a non-finite loss or gradient.
+    pub skipped_updates: u32,
+    /// Actor: the smallest epsilon of its agents.
+    pub eps_min: f32,
+    /// Actor: the largest epsilon of its agents.
+    pub eps_max: f32,
 }
 
 /// Names of the four stage timers of a role, in `stage_ns` order.
@@ -369,6 +400,7 @@ pub fn layout_fingerprint() -> u64 {
         NUM_ACTIONS,
         STAGES,
         DoneKind::Timeout as usize,
+        EPISODE_FIELDS,
     ];
     // FNV-1a over the little-endian values.
     let mut h = 0xcbf2_9ce4_8422_2325u64;
@@ -390,7 +422,8 @@ mod tests {
         assert_eq!(std::mem::size_of::<TransitionHeader>(), 32);
         assert_eq!(std::mem::size_of::<MinibatchHeader>(), 40);
         assert_eq!(std::mem::size_of::<WeightsHeader>(), 24);
-        assert_eq!(std::mem::size_of::<Telemetry>(), 96);
+        assert_eq!(std::mem::size_of::<Telemetry>(), 120);
+        assert_eq!(std::mem::size_of::<Learning>(), 24);
     }
 
     #[test]

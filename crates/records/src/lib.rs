@@ -4,12 +4,15 @@
 //! - [`summary::Summary`]: `summary.json`, the run's result;
 //! - [`telemetry::TelemetryRow`]: a row of `telemetry.csv`;
 //! - [`profile`]: where a run's time went, from its telemetry;
-//! - [`plot`]: the run's curves as PNG files.
+//! - [`plot`]: the run's curves as PNG files;
+//! - [`rolling::Rolling`]: the convergence clock (rolling mean of episodes).
 
 pub mod plot;
 pub mod profile;
+pub mod rolling;
 pub mod summary;
 pub mod telemetry;
 
+pub use rolling::Rolling;
 pub use summary::{HostSummary, Summary};
 pub use telemetry::TelemetryRow;

@@ -26,15 +26,18 @@ pub fn plot_err<E: std::fmt::Display>(e: E) -> anyhow::Error {
     anyhow::anyhow!("drawing failed: {e}")
 }
 
-/// Draws rolling episode reward against wall time, with the threshold.
-pub fn reward_plot(points: &[(f64, f64)], threshold: f64, out: &Path) -> Result<()> {
+/// Draws rolling episode reward against wall time, with the threshold, and
+/// below it the greedy validation success of each evaluation (the kept
+/// result marked), so that a policy that got worse after its peak shows.
+pub fn reward_plot(points: &[(f64, f64)], threshold: f64, validation: &[(f64, f64)], result_at: Option<f64>, out: &Path) -> Result<()> {
     font();
-    let root = BitMapBackend::new(out, (800, 480)).into_drawing_area();
+    let root = BitMapBackend::new(out, (800, 640)).into_drawing_area();
     root.fill(&WHITE).map_err(plot_err)?;
-    let tmax = points.last().map(|p| p.0).unwrap_or(1.0).max(1.0);
+    let (top, bottom) = root.split_vertically(400);
+    let tmax = points.iter().chain(validation).map(|p| p.0).fold(1.0f64, f64::max);
     let lo = points.iter().map(|p| p.1).fold(-110.0f64, f64::min);
     let hi = points.iter().map(|p| p.1).fold(threshold + 50.0, f64::max);
-    let mut chart = ChartBuilder::on(&root)
+    let mut chart = ChartBuilder::on(&top)
         .caption("rolling episode reward", ("sans-serif", 20))
         .margin(12)
         .x_label_area_size(35)
@@ -44,6 +47,54 @@ pub fn reward_plot(points: &[(f64, f64)], threshold: f64, out: &Path) -> Result<
     chart.configure_mesh().x_desc("wall time (s)").y_desc("reward").draw().map_err(plot_err)?;
     chart.draw_series(LineSeries::new(points.iter().copied(), BLUE.stroke_width(2))).map_err(plot_err)?;
     chart.draw_series(LineSeries::new([(0.0, threshold), (tmax, threshold)], RED.mix(0.6))).map_err(plot_err)?;
+    let mut val = ChartBuilder::on(&bottom)
+        .caption("greedy validation success (%); ring: the run's result", ("sans-serif", 16))
+        .margin(12)
+        .x_label_area_size(35)
+        .y_label_area_size(45)
+        .build_cartesian_2d(0f64..tmax, 0f64..100f64)
+        .map_err(plot_err)?;
+    val.configure_mesh().x_desc("wall time (s)").y_desc("%").draw().map_err(plot_err)?;
+    let pct = || validation.iter().map(|(t, s)| (*t, s * 100.0));
+    val.draw_series(LineSeries::new(pct(), GREEN.stroke_width(2))).map_err(plot_err)?;
+    val.draw_series(pct().map(|p| Circle::new(p, 3, GREEN.filled()))).map_err(plot_err)?;
+    if let Some(p) = result_at.and_then(|t| pct().find(|p| p.0 == t)) {
+        val.draw_series([Circle::new(p, 7, RED.stroke_width(2))]).map_err(plot_err)?;
+    }
+    root.present().map_err(plot_err)?;
+    Ok(())
+}
+
+/// One arm's curve over seeds: (x, middle, low, high), e.g. the IQM with
+/// the 25th and 75th percentiles.
+pub type Band = (String, Vec<(f64, f64, f64, f64)>);
+
+/// Curves with shaded bands, one per arm (`hive bench seeds`).
+pub fn band_plot(title: &str, x_desc: &str, y_desc: &str, bands: &[Band], y_range: (f64, f64), out: &Path) -> Result<()> {
+    font();
+    let root = BitMapBackend::new(out, (800, 480)).into_drawing_area();
+    root.fill(&WHITE).map_err(plot_err)?;
+    let xmax = bands.iter().flat_map(|b| b.1.iter().map(|p| p.0)).fold(1.0f64, f64::max);
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 20))
+        .margin(12)
+        .x_label_area_size(35)
+        .y_label_area_size(55)
+        .build_cartesian_2d(0f64..xmax, y_range.0..y_range.1)
+        .map_err(plot_err)?;
+    chart.configure_mesh().x_desc(x_desc).y_desc(y_desc).draw().map_err(plot_err)?;
+    let colors = [BLUE, RED, GREEN, MAGENTA, CYAN, BLACK];
+    for (i, (name, pts)) in bands.iter().enumerate() {
+        let c = colors[i % colors.len()];
+        let area: Vec<(f64, f64)> = pts.iter().map(|p| (p.0, p.3)).chain(pts.iter().rev().map(|p| (p.0, p.2))).collect();
+        chart.draw_series([Polygon::new(area, c.mix(0.15).filled())]).map_err(plot_err)?;
+        chart
+            .draw_series(LineSeries::new(pts.iter().map(|p| (p.0, p.1)), c.stroke_width(2)))
+            .map_err(plot_err)?
+            .label(name.as_str())
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
+    }
+    chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).draw().map_err(plot_err)?;
     root.present().map_err(plot_err)?;
     Ok(())
 }

@@ -54,6 +54,13 @@ pub struct Profile {
     pub supervisor_cpu: Option<f64>,
     /// Mean policy lag of the learner's minibatches (weight versions).
     pub policy_lag: Option<f64>,
+    /// The learner's diagnostics over the run: (wall s, mean max-Q, mean
+    /// |TD error|, terminal share) per telemetry row.
+    pub learning: Vec<(f64, f64, f64, f64)>,
+    /// Updates the learner skipped for a non-finite loss or gradient.
+    pub skipped_updates: u32,
+    /// The smallest and largest epsilon of every actor at the end.
+    pub epsilon_spread: Option<(f64, f64)>,
 }
 
 impl Profile {
@@ -76,6 +83,18 @@ pub fn analyse(run_dir: &Path) -> Result<Profile> {
     let mut machine = Vec::new();
     let supervisor_cpu = rows.get(&("supervisor".to_string(), 0)).map(|r| mean(r.iter().map(|x| x.cpu_pct)));
     let policy_lag = rows.get(&("learner".to_string(), 0)).map(|r| mean(r.iter().filter_map(|x| x.policy_lag))).filter(|v| v.is_finite());
+    let learner_rows = rows.get(&("learner".to_string(), 0)).map(Vec::as_slice).unwrap_or(&[]);
+    let learning: Vec<(f64, f64, f64, f64)> = learner_rows
+        .iter()
+        .filter_map(|x| x.learning.map(|l| (x.wall_s, l.mean_max_q as f64, l.mean_abs_td as f64, l.terminal_share as f64)))
+        .filter(|l| l.1 != 0.0)
+        .collect();
+    let skipped_updates = learner_rows.iter().filter_map(|x| x.learning).map(|l| l.skipped_updates).max().unwrap_or(0);
+    let ends = rows.iter().filter(|((role, _), _)| role == "actor").filter_map(|(_, r)| r.last()?.learning);
+    let epsilon_spread = ends.fold(None, |acc: Option<(f64, f64)>, l| {
+        let (lo, hi) = (l.eps_min as f64, l.eps_max as f64);
+        Some(acc.map_or((lo, hi), |(a, b)| (a.min(lo), b.max(hi))))
+    });
     for ((role, index), r) in &rows {
         let Some(kind) = role_kind(role) else { continue };
         let names = stage_names(kind);
@@ -105,7 +124,7 @@ pub fn analyse(run_dir: &Path) -> Result<Profile> {
         let (stage, busy) = r.stages.iter().filter(|(n, _)| *n != "transport_wait" && *n != "idle").fold(("", -1.0), |a, b| if b.1 > a.1 { *b } else { a });
         Bottleneck { role: r.name.clone(), stage, busy, wait: r.wait }
     });
-    Ok(Profile { roles, machine_cpu: mean(machine.into_iter()), bottleneck, supervisor_cpu, policy_lag })
+    Ok(Profile { roles, machine_cpu: mean(machine.into_iter()), bottleneck, supervisor_cpu, policy_lag, learning, skipped_updates, epsilon_spread })
 }
 
 /// The report as Markdown text.
@@ -132,6 +151,7 @@ pub fn report(run_dir: &Path) -> Result<String> {
     if let Some(lag) = p.policy_lag {
         writeln!(out, "Policy lag: the learner trained on transitions acted {lag:.1} weight versions behind its own, on average.")?;
     }
+    learning_section(&mut out, &p)?;
     writeln!(out, "Machine CPU: {:.0} % on average over {} cores.", p.machine_cpu, std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1))?;
     if let Some(b) = &p.bottleneck {
         writeln!(
@@ -147,6 +167,31 @@ pub fn report(run_dir: &Path) -> Result<String> {
         }
     }
     Ok(out)
+}
+
+/// The learning diagnostics: where the learner's values and errors went
+/// over the run (a collapse shows as max-Q drifting up while the TD error
+/// grows), the terminal share of its minibatches and the exploration spread.
+fn learning_section(out: &mut String, p: &Profile) -> Result<()> {
+    if !p.learning.is_empty() {
+        writeln!(out, "\nLearning (learner telemetry; values in reward units):\n")?;
+        writeln!(out, "| wall (s) | mean max-Q | mean abs TD error | terminal share of minibatches |")?;
+        writeln!(out, "|---|---|---|---|")?;
+        // About eight rows spread over the run, the last one included.
+        let step = p.learning.len().div_ceil(8).max(1);
+        let last = p.learning.len() - 1;
+        for (_, (t, q, td, term)) in p.learning.iter().enumerate().filter(|(i, _)| i % step == 0 || *i == last) {
+            writeln!(out, "| {t:.0} | {q:.2} | {td:.3} | {:.2} % |", term * 100.0)?;
+        }
+        writeln!(out)?;
+    }
+    if p.skipped_updates > 0 {
+        writeln!(out, "Skipped updates (non-finite loss or gradient): {}.", p.skipped_updates)?;
+    }
+    if let Some((lo, hi)) = p.epsilon_spread {
+        writeln!(out, "Exploration at the end: epsilon from {lo:.4} to {hi:.3} across the agents.")?;
+    }
+    Ok(())
 }
 
 fn mean(it: impl Iterator<Item = f64>) -> f64 {

@@ -92,6 +92,23 @@ pub struct Summary {
     pub best_eval_at_s: Option<f64>,
     /// At which learner update.
     pub best_eval_updates: Option<u64>,
+    /// When a greedy validation (screening) first reached
+    /// `eval.target_success` (wall s); null if never.
+    #[serde(default)]
+    pub time_to_target_success_s: Option<f64>,
+    /// The result's validation success: its confirmation on fresh spawns
+    /// (`eval.confirm_episodes`), or its screening when confirmation is off.
+    #[serde(default)]
+    pub result_validation_success: Option<f64>,
+    /// Episodes behind `result_validation_success`.
+    #[serde(default)]
+    pub result_validation_episodes: Option<usize>,
+    /// The last validation's (screening) success, to compare with the best.
+    #[serde(default)]
+    pub final_validation_success: Option<f64>,
+    /// Updates skipped for a non-finite loss or gradient.
+    #[serde(default)]
+    pub skipped_updates: u64,
     /// Stopped by a signal.
     pub interrupted: bool,
     /// Continued from an earlier run (`--resume`).
@@ -163,6 +180,11 @@ mod tests {
             best_eval_mean_reward: Some(250.0),
             best_eval_at_s: Some(55.0),
             best_eval_updates: Some(11_000),
+            time_to_target_success_s: Some(55.0),
+            result_validation_success: Some(0.93),
+            result_validation_episodes: Some(300),
+            final_validation_success: Some(0.85),
+            skipped_updates: 0,
             interrupted: false,
             resumed: false,
             failure: None,
@@ -173,7 +195,19 @@ mod tests {
         s.write(&dir).unwrap();
         assert_eq!(Summary::read(&dir).unwrap(), s);
         let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
-        for key in ["converged", "time_to_threshold_s", "agents_total", "gpu_util_mean_pct", "checkpoint", "policy_lag_mean", "hosts"] {
+        for key in [
+            "converged",
+            "time_to_threshold_s",
+            "agents_total",
+            "gpu_util_mean_pct",
+            "checkpoint",
+            "policy_lag_mean",
+            "hosts",
+            "time_to_target_success_s",
+            "result_validation_success",
+            "result_validation_episodes",
+            "skipped_updates",
+        ] {
             assert!(v.get(key).is_some(), "no key {key}");
         }
         assert!(v["gpu_util_mean_pct"].is_null());

@@ -5,12 +5,13 @@
 use std::path::Path;
 
 use anyhow::{Context, Result, bail};
+pub use rotorhive_msg::Learning;
 
 /// The file's header: the column names in order.
-pub const HEADER: &str = "wall_s,role,index,pid,cpu_pct,rss_mb,machine_cpu_pct,heartbeat,work,work2,weight_version,lost,stage0_ms,stage1_ms,stage2_ms,stage3_ms,gpu_util_pct,gpu_mem_mb,gpu_power_w,value,policy_lag";
+pub const HEADER: &str = "wall_s,role,index,pid,cpu_pct,rss_mb,machine_cpu_pct,heartbeat,work,work2,weight_version,lost,stage0_ms,stage1_ms,stage2_ms,stage3_ms,gpu_util_pct,gpu_mem_mb,gpu_power_w,value,policy_lag,max_q,td_abs,terminal_share,skipped_updates,eps_min,eps_max";
 
 /// Columns of [`HEADER`].
-const COLUMNS: usize = 21;
+const COLUMNS: usize = 27;
 
 /// One row of `telemetry.csv`.
 #[derive(Debug, Clone, PartialEq)]
@@ -47,6 +48,10 @@ pub struct TelemetryRow {
     pub value: String,
     /// Learner rows: mean policy lag of its recent minibatches (versions).
     pub policy_lag: Option<f64>,
+    /// Learner and actor rows: the learning diagnostics (mean max-Q, mean
+    /// |TD error|, terminal share, skipped updates; the actor's epsilon
+    /// spread), empty for the other roles.
+    pub learning: Option<Learning>,
 }
 
 impl TelemetryRow {
@@ -55,8 +60,11 @@ impl TelemetryRow {
         let opt = |v: Option<f64>, digits: usize| v.map_or(String::new(), |v| format!("{v:.digits$}"));
         let gpu = self.gpu.map_or(",,".to_string(), |g| format!("{:.1},{:.1},{:.1}", g[0], g[1], g[2]));
         let s = &self.stage_ms;
+        let learning = self.learning.map_or(",,,,,".to_string(), |l| {
+            format!("{:.3},{:.3},{:.4},{},{:.5},{:.5}", l.mean_max_q, l.mean_abs_td, l.terminal_share, l.skipped_updates, l.eps_min, l.eps_max)
+        });
         format!(
-            "{:.3},{},{},{},{:.1},{:.1},{:.1},{},{},{},{},{},{:.1},{:.1},{:.1},{:.1},{gpu},{},{}\n",
+            "{:.3},{},{},{},{:.1},{:.1},{:.1},{},{},{},{},{},{:.1},{:.1},{:.1},{:.1},{gpu},{},{},{learning}\n",
             self.wall_s,
             self.role,
             self.index,
@@ -92,6 +100,17 @@ impl TelemetryRow {
             (Some(u), Some(m), Some(p)) => Some([u, m, p]),
             _ => None,
         };
+        let learning = match opt(21)? {
+            None => None,
+            Some(q) => Some(Learning {
+                mean_max_q: q as f32,
+                mean_abs_td: float(22)? as f32,
+                terminal_share: float(23)? as f32,
+                skipped_updates: int(24)? as u32,
+                eps_min: float(25)? as f32,
+                eps_max: float(26)? as f32,
+            }),
+        };
         Ok(Self {
             wall_s: float(0)?,
             role: f[1].to_string(),
@@ -109,6 +128,7 @@ impl TelemetryRow {
             gpu,
             value: f[19].to_string(),
             policy_lag: opt(20)?,
+            learning,
         })
     }
 }
@@ -151,17 +171,20 @@ mod tests {
             gpu: None,
             value: "0.012345".into(),
             policy_lag: Some(3.25),
+            learning: Some(Learning { mean_max_q: 2.5, mean_abs_td: 0.25, terminal_share: 0.0625, skipped_updates: 3, eps_min: 0.0, eps_max: 0.0 }),
         };
         let line = row.to_line();
         assert_eq!(line.trim_end().split(',').count(), HEADER.split(',').count());
         let back = TelemetryRow::parse(line.trim_end()).unwrap();
         assert_eq!(back, TelemetryRow { rss_mb: 310.4, ..row.clone() });
-        let gpu = TelemetryRow { gpu: Some([50.0, 1024.0, 80.0]), policy_lag: None, cpu_pct: f64::NAN, ..row };
+        let gpu = TelemetryRow { gpu: Some([50.0, 1024.0, 80.0]), policy_lag: None, cpu_pct: f64::NAN, ..row.clone() };
         let back = TelemetryRow::parse(gpu.to_line().trim_end()).unwrap();
         assert_eq!((back.gpu, back.policy_lag), (gpu.gpu, None));
+        let plain = TelemetryRow { learning: None, ..row.clone() };
+        assert_eq!(TelemetryRow::parse(plain.to_line().trim_end()).unwrap().learning, None);
         assert!(back.cpu_pct.is_nan());
         let e = TelemetryRow::parse(&line.trim_end().replace(",2400,", ",many,")).unwrap_err().to_string();
         assert!(e.contains("`work`"), "{e}");
-        assert!(TelemetryRow::parse("1,2,3").unwrap_err().to_string().contains("21 fields"));
+        assert!(TelemetryRow::parse("1,2,3").unwrap_err().to_string().contains("27 fields"));
     }
 }

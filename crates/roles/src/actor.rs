@@ -9,7 +9,7 @@ use anyhow::{Context, Result, bail};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use rotorhive_model::QNet;
-use rotorhive_msg::{ActionHeader, OBS_LEN, ObsHeader, PACKED_LEN, RoleKind, TransitionHeader, WeightsHeader, pack_transition};
+use rotorhive_msg::{ActionHeader, EPISODE_FIELDS, OBS_LEN, ObsHeader, PACKED_LEN, RoleKind, TransitionHeader, WeightsHeader, pack_transition};
 use rotorhive_transport::Channel;
 
 use iceoryx2::service::Service;
@@ -30,6 +30,33 @@ pub fn epsilon(cfg: &Config, transitions: u64) -> f64 {
     }
     let frac = ((transitions - start) as f64 / a.eps_decay.max(1) as f64).min(1.0);
     a.eps_start + (a.eps_end - a.eps_start) * frac
+}
+
+/// Ape-X's exploration rate of agent `i` of `n` (every host's agents):
+/// base^(1 + alpha·i/(n−1)), from `base` for the first to
+/// base^(1 + alpha) for the last.
+pub fn per_actor_epsilon(base: f64, alpha: f64, i: usize, n: usize) -> f64 {
+    let frac = if n > 1 { i.min(n - 1) as f64 / (n - 1) as f64 } else { 0.0 };
+    base.powf(1.0 + alpha * frac)
+}
+
+/// The exploration rate of each agent of environment `e` (`out`, one per
+/// agent) after `transitions` (across all actors): the config's one
+/// schedule, or (per-actor) `eps_start` until the replay holds `min_fill`
+/// and then each agent's own fixed Ape-X rate, indexed over the run's
+/// agents in environment order.
+pub fn agent_epsilons(cfg: &Config, e: usize, transitions: u64, out: &mut [f64]) {
+    let a = &cfg.actor;
+    match a.exploration {
+        crate::Exploration::Decay => out.fill(epsilon(cfg, transitions)),
+        crate::Exploration::PerActor if transitions <= cfg.replay.min_fill as u64 => out.fill(a.eps_start),
+        crate::Exploration::PerActor => {
+            let first = (cfg.cluster.env_offset + e) * cfg.sim.agents;
+            for (i, o) in out.iter_mut().enumerate() {
+                *o = per_actor_epsilon(a.per_actor_base, a.per_actor_alpha, first + i, cfg.agents_total());
+            }
+        }
+    }
 }
 
 /// Runs the actor of environment `e` until the run stops.
@@ -118,6 +145,8 @@ struct Actor<'a, S: Service> {
     expected_step: u64,
     returns: Vec<f32>,
     lengths: Vec<u32>,
+    /// Each agent's exploration rate for the current step.
+    eps: Vec<f64>,
     finished: Vec<f32>,
     episodes: u64,
     seq: u64,
@@ -135,7 +164,7 @@ impl<'a, S: Service> Actor<'a, S> {
             // An episode's end can release up to n transitions of one agent.
             trans_tx: hub.sender::<u16, TransitionHeader>(&Channel::transitions(envs), steps_n * n * PACKED_LEN, STALL_TIMEOUT)?,
             w_rx: hub.receiver::<f32, WeightsHeader>(&Channel::weights(envs))?,
-            ep_tx: hub.sender::<f32, EpisodeHeader>(&episodes_channel(envs), 3 * n, STALL_TIMEOUT)?,
+            ep_tx: hub.sender::<f32, EpisodeHeader>(&episodes_channel(envs), EPISODE_FIELDS * n, STALL_TIMEOUT)?,
             tel: Counters::new(hub, RoleKind::Actor, e, roles_of(cfg))?,
             rng: Pcg64Mcg::seed_from_u64(cfg.seed ^ (0xac70 + (cfg.cluster.env_offset + e) as u64)),
             schedule: cfg.deterministic.then(|| Schedule::new(cfg)),
@@ -144,7 +173,8 @@ impl<'a, S: Service> Actor<'a, S> {
             prev_actions: vec![0; n],
             returns: vec![0.0; n],
             lengths: vec![0; n],
-            finished: Vec::with_capacity(3 * n),
+            finished: Vec::with_capacity(EPISODE_FIELDS * n),
+            eps: vec![cfg.actor.eps_start; n],
             version: 0,
             weights_updates: 0,
             have_prev: false,
@@ -191,10 +221,11 @@ impl<'a, S: Service> Actor<'a, S> {
             return Ok(false);
         }
         let t = Instant::now();
-        let eps = epsilon(self.cfg, self.transitions * self.cfg.envs_total() as u64);
+        // The episodes that end at this step were acted with the rates of
+        // the steps before it: the rates are set after they are reported.
         let greedy = self.net.greedy(obs)?;
-        for (a, g) in self.actions.iter_mut().zip(greedy) {
-            *a = if self.rng.random::<f64>() < eps { self.rng.random_range(0..2u8) } else { g };
+        for ((a, g), eps) in self.actions.iter_mut().zip(greedy).zip(&self.eps) {
+            *a = if self.rng.random::<f64>() < *eps { self.rng.random_range(0..2u8) } else { g };
         }
         self.tel.stage(0, t);
         // The actions leave first; then this step's transitions (round
@@ -202,13 +233,15 @@ impl<'a, S: Service> Actor<'a, S> {
         send_actions(&mut self.act_tx, self.e, h.step, &self.actions, &mut self.tel.sample.lost);
         let t = Instant::now();
         if self.have_prev {
-            // Every environment of the run, on every host, acts at about
-            // this actor's pace.
-            let eps_now = epsilon(self.cfg, self.transitions * self.cfg.envs_total() as u64);
             self.send_transitions(obs, rewards, dones)?;
-            self.report_episodes(h.step, rewards, dones, eps_now)?;
-            self.tel.sample.value_milli = (eps_now * 1000.0) as i64;
+            self.report_episodes(h.step, rewards, dones)?;
         }
+        // Every environment of the run, on every host, acts at about this
+        // actor's pace.
+        agent_epsilons(self.cfg, self.e, self.transitions * self.cfg.envs_total() as u64, &mut self.eps);
+        let (lo, hi) = self.eps.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), v| (lo.min(*v), hi.max(*v)));
+        self.tel.sample.value_milli = (hi * 1000.0) as i64;
+        (self.tel.sample.learning.eps_min, self.tel.sample.learning.eps_max) = (lo as f32, hi as f32);
         self.tel.stage(1, t);
         self.nstep.store(obs);
         self.prev_actions.copy_from_slice(&self.actions);
@@ -275,13 +308,14 @@ impl<'a, S: Service> Actor<'a, S> {
     /// Sends the episodes that ended at `step` to the supervisor. A
     /// deterministic run reports every round, so that the supervisor can
     /// write episodes in (step, environment) order.
-    fn report_episodes(&mut self, step: u64, rewards: &[f32], dones: &[f32], eps: f64) -> Result<()> {
+    fn report_episodes(&mut self, step: u64, rewards: &[f32], dones: &[f32]) -> Result<()> {
         self.finished.clear();
+        let eps = self.eps.iter().fold(0.0f64, |m, v| m.max(*v));
         for i in 0..self.n {
             self.returns[i] += rewards[i];
             self.lengths[i] += 1;
             if dones[i] != 0.0 {
-                self.finished.extend_from_slice(&[self.returns[i], self.lengths[i] as f32, dones[i]]);
+                self.finished.extend_from_slice(&[self.returns[i], self.lengths[i] as f32, dones[i], self.eps[i] as f32]);
                 self.returns[i] = 0.0;
                 self.lengths[i] = 0;
                 self.episodes += 1;
@@ -290,7 +324,7 @@ impl<'a, S: Service> Actor<'a, S> {
         if self.finished.is_empty() && self.schedule.is_none() {
             return Ok(());
         }
-        let count = (self.finished.len() / 3) as u32;
+        let count = (self.finished.len() / EPISODE_FIELDS) as u32;
         let header = EpisodeHeader { actor: self.e as u32, count, transitions: self.transitions, epsilon_micro: (eps * 1e6) as u64, step };
         let finished = &self.finished;
         let sent = self.ep_tx.send_with(finished.len(), |eh, out| {
@@ -455,6 +489,36 @@ fn send_actions<S: Service>(tx: &mut Sender<S, u8, ActionHeader>, e: usize, step
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn per_actor_epsilons_follow_ape_x() {
+        // Ape-X's N = 50: from 0.4 down to 0.4^8, the median about 0.016.
+        let e: Vec<f64> = (0..50).map(|i| per_actor_epsilon(0.4, 7.0, i, 50)).collect();
+        assert!((e[0] - 0.4).abs() < 1e-12 && (e[49] - 0.4f64.powi(8)).abs() < 1e-12);
+        assert!(e.windows(2).all(|w| w[1] < w[0]));
+        let mut cfg = Config::default();
+        cfg.actor.exploration = crate::Exploration::PerActor;
+        cfg.sim.envs = 2;
+        cfg.sim.agents = 25;
+        let mut out = vec![0.0; 25];
+        // Before min_fill every agent explores at eps_start.
+        agent_epsilons(&cfg, 1, 10, &mut out);
+        assert!(out.iter().all(|v| *v == 1.0));
+        // Then environment 1's agents are the run's agents 25..50.
+        agent_epsilons(&cfg, 1, 1_000_000, &mut out);
+        assert_eq!(out, e[25..]);
+        // A worker's environments come after the head's.
+        cfg.cluster.env_offset = 1;
+        cfg.sim.envs = 1;
+        cfg.cluster.envs_elsewhere = 1;
+        cfg.cluster.agents_elsewhere = 25;
+        agent_epsilons(&cfg, 0, 1_000_000, &mut out);
+        assert_eq!(out, e[25..]);
+        // The one schedule gives every agent the same rate.
+        cfg.actor.exploration = crate::Exploration::Decay;
+        agent_epsilons(&cfg, 0, 1_000_000, &mut out);
+        assert!(out.iter().all(|v| (*v - cfg.actor.eps_end).abs() < 1e-12), "{out:?}");
+    }
 
     #[test]
     fn n_step_returns_and_episode_ends() {

@@ -40,6 +40,21 @@ impl DeviceName {
     }
 }
 
+/// `actor.exploration`: how each agent's epsilon is chosen.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Exploration {
+    /// One epsilon for every agent: `eps_start` until the replay holds
+    /// `min_fill`, then linear to `eps_end` over `eps_decay` transitions.
+    Decay,
+    /// Ape-X: agent i of the run's N agents (every host's) explores with
+    /// epsilon_i = base^(1 + alpha·i/(N−1)) once the replay holds
+    /// `min_fill` (`eps_start` before), so some keep exploring and others
+    /// exploit. The rolling reward then counts the episodes of agents at or
+    /// below `eps_end` only, the old schedule's floor.
+    PerActor,
+}
+
 /// The whole configuration of a run.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -59,6 +74,9 @@ pub struct Config {
     /// Budget in agent-steps (every host's agents); 0 = none. Required by a
     /// deterministic run.
     pub max_env_steps: u64,
+    /// Stop at convergence (the threshold, then a good enough evaluation);
+    /// false runs to the budget (`hive bench seeds` compares arms so).
+    pub early_stop: bool,
     /// Simulator settings.
     pub sim: SimSection,
     /// Actor settings.
@@ -120,11 +138,17 @@ pub struct EvalSection {
     pub target_success: f64,
     /// ... or for at most this many seconds.
     pub after_threshold_s: f64,
+    /// Episodes on fresh spawns that confirm a candidate for the run's
+    /// result: an evaluation that may beat the best so far is flown again
+    /// on new spawns, and only that independent score is compared, kept and
+    /// checked against `target_success` (no winner's curse from the maximum
+    /// of noisy scores). 0: the screening score decides.
+    pub confirm_episodes: usize,
 }
 
 impl Default for EvalSection {
     fn default() -> Self {
-        Self { every_s: 15.0, episodes: 100, arena: String::new(), validation_arenas: 10, target_success: 0.9, after_threshold_s: 240.0 }
+        Self { every_s: 15.0, episodes: 100, arena: String::new(), validation_arenas: 10, target_success: 0.9, after_threshold_s: 240.0, confirm_episodes: 300 }
     }
 }
 
@@ -171,6 +195,13 @@ pub struct ActorSection {
     /// Transitions (across all actors) over which epsilon decays linearly,
     /// counted from the moment the replay memory is full.
     pub eps_decay: u64,
+    /// One decaying epsilon, or Ape-X's fixed epsilon per agent.
+    pub exploration: Exploration,
+    /// Ape-X's base (0.4): the least greedy agent's epsilon.
+    pub per_actor_base: f64,
+    /// Ape-X's exponent spread (7): the greediest agent's epsilon is
+    /// base^(1 + alpha).
+    pub per_actor_alpha: f64,
     /// Threads for inference.
     pub threads: usize,
     /// Device for inference: "cpu", or "cuda" in a build with `--features cuda`.
@@ -227,6 +258,13 @@ pub struct LearnerSection {
     pub threads: usize,
     /// Huber loss threshold.
     pub huber_delta: f64,
+    /// Rewards (n-step returns) are multiplied by this in the TD target, so
+    /// that Q-values and TD errors sit in the Huber loss's quadratic range;
+    /// episode returns, the threshold and every record stay unscaled.
+    pub reward_scale: f64,
+    /// The gradient's global L2 norm is clipped to this before Adam's step
+    /// (Ape-X: 40); 0 turns clipping off.
+    pub max_grad_norm: f64,
     /// Double DQN targets (the online network picks the next action).
     pub double_dqn: bool,
     /// Steps per transition return (n-step, as in Ape-X): the actors sum n
@@ -250,6 +288,7 @@ impl Default for Config {
             rolling_window: 50,
             deterministic: false,
             max_env_steps: 0,
+            early_stop: true,
             sim: SimSection::default(),
             actor: ActorSection::default(),
             replay: ReplaySection::default(),
@@ -281,7 +320,16 @@ impl Default for SimSection {
 
 impl Default for ActorSection {
     fn default() -> Self {
-        Self { eps_start: 1.0, eps_end: 0.1, eps_decay: 300_000, threads: 1, device: DeviceName::Cpu }
+        Self {
+            eps_start: 1.0,
+            eps_end: 0.1,
+            eps_decay: 300_000,
+            exploration: Exploration::Decay,
+            per_actor_base: 0.4,
+            per_actor_alpha: 7.0,
+            threads: 1,
+            device: DeviceName::Cpu,
+        }
     }
 }
 
@@ -304,6 +352,8 @@ impl Default for LearnerSection {
             checkpoint_every_s: 1.0,
             threads: 1,
             huber_delta: 1.0,
+            reward_scale: 1.0,
+            max_grad_norm: 0.0,
             double_dqn: true,
             n_step: 1,
             device: DeviceName::Cpu,
@@ -428,6 +478,12 @@ impl Config {
             }
         }
         positive("actor.threads", a.threads as f64)?;
+        if !(a.per_actor_base > 0.0 && a.per_actor_base <= 1.0) {
+            bail!("key `actor.per_actor_base` must lie in (0, 1], got {}", a.per_actor_base);
+        }
+        if !(a.per_actor_alpha.is_finite() && a.per_actor_alpha >= 0.0) {
+            bail!("key `actor.per_actor_alpha` must be 0 or positive, got {}", a.per_actor_alpha);
+        }
         if !(1..=16).contains(&self.learner.n_step) {
             bail!("key `learner.n_step` must be between 1 and 16, got {}", self.learner.n_step);
         }
@@ -461,6 +517,10 @@ impl Config {
         positive("learner.checkpoint_every_s", l.checkpoint_every_s)?;
         positive("learner.threads", l.threads as f64)?;
         positive("learner.huber_delta", l.huber_delta)?;
+        positive("learner.reward_scale", l.reward_scale)?;
+        if !(l.max_grad_norm.is_finite() && l.max_grad_norm >= 0.0) {
+            bail!("key `learner.max_grad_norm` must be 0 (off) or positive, got {}", l.max_grad_norm);
+        }
         if !(l.max_rate_hz.is_finite() && l.max_rate_hz >= 0.0) {
             bail!("key `learner.max_rate_hz` must be 0 (unlimited) or positive, got {}", l.max_rate_hz);
         }

@@ -26,6 +26,8 @@ pub fn dqn_config(cfg: &Config) -> DqnConfig {
         target_update: l.target_update,
         huber_delta: l.huber_delta as f32,
         double: l.double_dqn,
+        reward_scale: l.reward_scale as f32,
+        max_grad_norm: l.max_grad_norm as f32,
     }
 }
 
@@ -85,15 +87,24 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     // Versions go on increasing across restarts.
     let mut version = dqn.updates();
     let mut publish = |dqn: &Dqn, version: &mut u64| -> Result<()> {
-        *version += 1;
-        let v = *version;
+        let v = *version + 1;
         let updates = dqn.updates();
         let net = &dqn.online;
-        // A failed write publishes nothing (no zero weights under a new version).
-        w_tx.try_send_with(num_params(), |h, p| {
+        // A failed write publishes nothing (no zero weights under a new
+        // version), and neither do weights that are not all finite: the
+        // actors keep acting with the last good ones.
+        let sent = w_tx.try_send_with(num_params(), |h, p| {
             *h = WeightsHeader { version: v, updates, len: num_params() as u64 };
-            net.write_flat(p)
-        })??;
+            net.write_flat(p)?;
+            match p.iter().position(|x| !x.is_finite()) {
+                Some(i) => Err(anyhow::anyhow!("parameter {i} is {}", p[i])),
+                None => Ok(()),
+            }
+        })?;
+        match sent {
+            Ok(()) => *version = v,
+            Err(e) => tracing::warn!("learner: weights of update {updates} not published: {e:#}"),
+        }
         Ok(())
     };
     publish(&dqn, &mut version)?;
@@ -129,6 +140,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
         tel.sample.stage_ns[2] += tm.optimiser_ns;
         tel.sample.work = dqn.updates();
         gauges.add(loss, &mb, version, &mut tel.sample);
+        gauges.learn(&dqn, cfg.learner.reward_scale, &mut tel.sample);
         if dqn.updates() % cfg.learner.publish_every == 0 {
             publish(&dqn, &mut version)?;
             tel.sample.weight_version = version;
@@ -156,6 +168,11 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
 struct Gauges {
     loss: (f64, u32),
     lag: (f64, u32),
+    /// Sums of the updates' max-Q, |TD| and terminals, and their rows.
+    max_q: f64,
+    td: f64,
+    terminal: u64,
+    rows: u64,
 }
 
 impl Gauges {
@@ -163,12 +180,32 @@ impl Gauges {
     /// weight version minus the mean version the transitions were acted
     /// with (those restored from a snapshot have none).
     fn add(&mut self, loss: f32, mb: &MinibatchHeader, version: u64, tel: &mut rotorhive_msg::Telemetry) {
-        self.loss = (self.loss.0 + loss as f64, self.loss.1 + 1);
-        tel.value_milli = (self.loss.0 / self.loss.1 as f64 * 1e6) as i64;
+        if loss.is_finite() {
+            self.loss = (self.loss.0 + loss as f64, self.loss.1 + 1);
+            tel.value_milli = (self.loss.0 / self.loss.1 as f64 * 1e6) as i64;
+        }
         if mb.acted > 0 {
             self.lag = (self.lag.0 + version as f64 - mb.acted_version_sum as f64 / mb.acted as f64, self.lag.1 + 1);
             tel.policy_lag_milli = (self.lag.0 / self.lag.1 as f64 * 1e3).clamp(0.0, u32::MAX as f64) as u32;
         }
+    }
+}
+
+impl Gauges {
+    /// Adds the last update's learning diagnostics (in reward units: the
+    /// network's values divided by `reward_scale`).
+    fn learn(&mut self, dqn: &Dqn, reward_scale: f64, tel: &mut rotorhive_msg::Telemetry) {
+        let st = dqn.stats();
+        tel.learning.skipped_updates = dqn.skipped().min(u32::MAX as u64) as u32;
+        if !(st.max_q_sum.is_finite() && st.abs_td_sum.is_finite()) || st.rows == 0 {
+            return;
+        }
+        (self.max_q, self.td) = (self.max_q + st.max_q_sum, self.td + st.abs_td_sum);
+        (self.terminal, self.rows) = (self.terminal + st.terminal as u64, self.rows + st.rows as u64);
+        let rows = self.rows as f64;
+        tel.learning.mean_max_q = (self.max_q / rows / reward_scale) as f32;
+        tel.learning.mean_abs_td = (self.td / rows / reward_scale) as f32;
+        tel.learning.terminal_share = (self.terminal as f64 / rows) as f32;
     }
 }
 

@@ -9,6 +9,7 @@
 
 pub mod actor;
 pub mod config;
+pub mod eval;
 pub mod learner;
 pub mod replay;
 pub mod schedule;
@@ -26,7 +27,7 @@ pub use rotorhive_msg::EpisodeHeader;
 use rotorhive_msg::{RoleKind, STAGES, Telemetry};
 use rotorhive_transport::{Channel, Hub, Local, Sender};
 
-pub use config::{Config, DeviceName, ObservationMode};
+pub use config::{Config, DeviceName, Exploration, ObservationMode};
 
 /// What a role runs in: its run's hub (the node and the service-name
 /// prefix), the run's resolved config and its directory. A role stops when

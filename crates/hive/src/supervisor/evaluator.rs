@@ -1,6 +1,13 @@
 //! The evaluator: greedy flights of the newest published weights beside
 //! training, on a thread of the supervisor with its own iceoryx2 node; the
 //! best weights are the run's result (`checkpoints/best.safetensors`).
+//!
+//! Choosing the best of many noisy scores picks, on average, a score
+//! that is too high (the winner's curse: the true rate of a policy that
+//! scored 90 % once is often lower). So every evaluation is a screening on
+//! the same spawns (comparable over the run), and one that may beat the
+//! best so far is confirmed on `eval.confirm_episodes` fresh spawns; only
+//! confirmed scores, independent of the choice, are compared and kept.
 
 use std::fs::File;
 use std::io::Write;
@@ -23,15 +30,32 @@ use rotorhive_transport::{Channel, Hub};
 pub(super) struct EvalPoint {
     pub(super) wall: f64,
     pub(super) updates: u64,
+    /// The screening: success rate and mean reward on the fixed spawns.
     pub(super) success: f64,
     pub(super) mean_reward: f64,
+    /// The confirmation on fresh spawns (success, mean reward), when the
+    /// screening made these weights a candidate.
+    pub(super) confirmed: Option<(f64, f64)>,
 }
 
-/// The best evaluation: highest success rate, then highest mean reward (the
-/// earliest of equals, as the evaluator keeps it).
-fn best_of(evals: &[EvalPoint]) -> Option<EvalPoint> {
-    evals.iter().copied().reduce(|a, b| if (b.success, b.mean_reward) > (a.success, a.mean_reward) { b } else { a })
+impl EvalPoint {
+    /// The score the run's result is chosen by: the confirmation where
+    /// confirmations are made, else the screening.
+    pub(super) fn score(&self, confirming: bool) -> Option<(f64, f64)> {
+        if confirming { self.confirmed } else { Some((self.success, self.mean_reward)) }
+    }
 }
+
+/// The best evaluation by score: highest success rate, then highest mean
+/// reward (the earliest of equals, as the evaluator keeps it).
+fn best_of(evals: &[EvalPoint], confirming: bool) -> Option<EvalPoint> {
+    evals.iter().copied().filter(|e| e.score(confirming).is_some()).reduce(|a, b| if b.score(confirming) > a.score(confirming) { b } else { a })
+}
+
+/// How far below the best confirmed success a screening may fall and still
+/// be confirmed: about two standard errors of a 100-episode screening near
+/// 90 %, so that a better policy that screened unluckily is not passed over.
+const CANDIDATE_SLACK: f64 = 0.06;
 
 /// Flies the newest published weights greedily every `eval.every_s` seconds
 /// (or when asked through `now`), on its own iceoryx2 node, and keeps the
@@ -54,8 +78,9 @@ fn fly<S: Service>(
     let every = Duration::from_secs_f64(cfg.eval.every_s);
     let mut next = Instant::now() + every;
     let mut best: Option<(f64, f64)> = None;
+    let mut confirmations = 0u64;
     let mut csv = File::create(run_dir.join("evals.csv"))?;
-    writeln!(csv, "wall_s,updates,version,episodes,success_rate,mean_reward,best")?;
+    writeln!(csv, "wall_s,updates,version,episodes,success_rate,mean_reward,best,confirmed_episodes,confirmed_success_rate,confirmed_mean_reward")?;
     let ckpt_dir = run_dir.join("checkpoints");
     std::fs::create_dir_all(&ckpt_dir)?;
     while !stop.load(Ordering::Relaxed) {
@@ -74,17 +99,29 @@ fn fly<S: Service>(
         drop(m);
         let st = crate::eval::fly_greedy(&net, cfg.sim_config(), &arenas, cfg.eval.episodes, cfg.seed.wrapping_add(7777))?;
         let (success, mean_reward) = (st.success_rate(), st.mean_reward);
-        let better = best.is_none_or(|b| (success, mean_reward) > b);
+        let k = cfg.eval.confirm_episodes;
+        let confirmed = if k > 0 && best.is_none_or(|b| success + CANDIDATE_SLACK >= b.0) {
+            // Fresh spawns for every confirmation.
+            confirmations += 1;
+            let c = crate::eval::fly_greedy(&net, cfg.sim_config(), &arenas, k, cfg.seed.wrapping_add(1_000_003 * confirmations))?;
+            Some((c.success_rate(), c.mean_reward))
+        } else {
+            None
+        };
+        let score = if k > 0 { confirmed } else { Some((success, mean_reward)) };
+        let better = score.is_some_and(|s| best.is_none_or(|b| s > b));
         if better {
-            best = Some((success, mean_reward));
+            best = score;
             let path = ckpt_dir.join("best.safetensors");
             let tmp = ckpt_dir.join("best.safetensors.tmp");
             net.save(&tmp)?;
             std::fs::rename(&tmp, &path).with_context(|| format!("cannot write {}", path.display()))?;
         }
         let wall = start.elapsed().as_secs_f64();
-        writeln!(csv, "{wall:.3},{},{},{},{success:.4},{mean_reward:.2},{}", h.updates, h.version, st.episodes, better as u8)?;
-        let _ = out.send(EvalPoint { wall, updates: h.updates, success, mean_reward });
+        let conf = confirmed.map_or(",,".to_string(), |(s, r)| format!("{k},{s:.4},{r:.2}"));
+        writeln!(csv, "{wall:.3},{},{},{},{success:.4},{mean_reward:.2},{},{conf}", h.updates, h.version, st.episodes, better as u8)?;
+        csv.flush()?;
+        let _ = out.send(EvalPoint { wall, updates: h.updates, success, mean_reward, confirmed });
         next = Instant::now() + every;
     }
     Ok(())
@@ -96,7 +133,9 @@ pub(super) struct Evaluator {
     stop: Arc<AtomicBool>,
     now: mpsc::Sender<()>,
     rx: mpsc::Receiver<EvalPoint>,
-    evals: Vec<EvalPoint>,
+    /// Every evaluation reported so far.
+    pub(super) evals: Vec<EvalPoint>,
+    confirming: bool,
 }
 
 impl Evaluator {
@@ -110,7 +149,7 @@ impl Evaluator {
             let (p, c, d, st) = (prefix.to_string(), cfg.clone(), run_dir.to_path_buf(), stop.clone());
             thread = Some(std::thread::Builder::new().name("eval".into()).spawn(move || fly::<S>(p, c, d, start, st, now_rx, tx))?);
         }
-        Ok(Self { thread, stop, now, rx, evals: Vec::new() })
+        Ok(Self { thread, stop, now, rx, evals: Vec::new(), confirming: cfg.eval.confirm_episodes > 0 })
     }
 
     /// Whether evaluations are made at all.
@@ -133,9 +172,19 @@ impl Evaluator {
         self.evals.len()
     }
 
-    /// The best evaluation so far.
+    /// The best evaluation so far: the run's result.
     pub(super) fn best(&self) -> Option<EvalPoint> {
-        best_of(&self.evals)
+        best_of(&self.evals, self.confirming)
+    }
+
+    /// The result's score (confirmed where confirmations are made).
+    pub(super) fn best_score(&self) -> Option<(f64, f64)> {
+        self.best().and_then(|b| b.score(self.confirming))
+    }
+
+    /// When a screening first reached `target` success.
+    pub(super) fn first_at(&self, target: f64) -> Option<f64> {
+        self.evals.iter().find(|e| e.success >= target).map(|e| e.wall)
     }
 
     /// Whether the thread ended before it was asked to (an error).

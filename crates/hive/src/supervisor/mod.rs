@@ -329,7 +329,10 @@ impl Supervisor<'_> {
             return true;
         }
         let Some(t) = self.progress.time_to_threshold else { return false };
-        let good = self.evaluator.best().is_some_and(|b| b.success >= self.cfg.eval.target_success);
+        if !self.cfg.early_stop {
+            return false;
+        }
+        let good = self.evaluator.best_score().is_some_and(|b| b.0 >= self.cfg.eval.target_success);
         !self.evaluator.on() || good || self.wall() - t >= self.cfg.eval.after_threshold_s
     }
 
@@ -477,6 +480,11 @@ impl Supervisor<'_> {
             best_eval_mean_reward: best.map(|b| b.mean_reward),
             best_eval_at_s: best.map(|b| b.wall),
             best_eval_updates: best.map(|b| b.updates),
+            time_to_target_success_s: self.evaluator.first_at(cfg.eval.target_success),
+            result_validation_success: self.evaluator.best_score().map(|s| s.0),
+            result_validation_episodes: best.map(|_| if cfg.eval.confirm_episodes > 0 { cfg.eval.confirm_episodes } else { cfg.eval.episodes }),
+            final_validation_success: self.evaluator.evals.last().map(|e| e.success),
+            skipped_updates: m.latest.get(&(RoleKind::Learner as u32, 0)).map_or(0, |t| t.learning.skipped_updates as u64),
             interrupted: ending.interrupted,
             resumed: self.a.resume.is_some(),
             failure: ending.failure.clone(),
@@ -494,7 +502,9 @@ impl Supervisor<'_> {
             tracing::warn!("utilisation.png not written: {e:#}");
         }
         let curve: Vec<(f64, f64)> = self.progress.curve.points.iter().copied().filter(|p| p.1.is_finite()).collect();
-        if let Err(e) = rotorhive_records::plot::reward_plot(&curve, self.cfg.threshold, &self.run_dir.join("reward.png")) {
+        let validation: Vec<(f64, f64)> = self.evaluator.evals.iter().map(|e| (e.wall, e.success)).collect();
+        let result_at = self.evaluator.best().map(|b| b.wall);
+        if let Err(e) = rotorhive_records::plot::reward_plot(&curve, self.cfg.threshold, &validation, result_at, &self.run_dir.join("reward.png")) {
             tracing::warn!("reward.png not written: {e:#}");
         }
     }

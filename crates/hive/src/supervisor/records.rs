@@ -4,13 +4,14 @@
 //! plots are drawn from. `summary.json` is written at the end through
 //! `rotorhive_records::Summary`.
 
-use std::collections::{BTreeMap, VecDeque};
+use std::collections::BTreeMap;
 use std::fs::File;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
-use rotorhive_msg::{DoneKind, EpisodeHeader};
+use rotorhive_msg::{DoneKind, EPISODE_FIELDS, EpisodeHeader};
+use rotorhive_records::Rolling;
 use rotorhive_roles::Config;
 
 /// A CSV table of the run directory; a failed write (a full disk, a
@@ -126,10 +127,7 @@ impl Mean {
 /// reward curve.
 pub(super) struct Progress {
     metrics: Table,
-    window: usize,
-    threshold: f64,
-    recent: VecDeque<f32>,
-    successes: VecDeque<bool>,
+    rolling: Rolling,
     /// Episodes finished.
     pub(super) episodes: u64,
     /// The exploration rate the actors last reported.
@@ -138,6 +136,14 @@ pub(super) struct Progress {
     pub(super) curve: Series,
     /// When the rolling reward first reached the threshold.
     pub(super) time_to_threshold: Option<f64>,
+}
+
+/// The exploration rate at or below which an episode counts in the rolling
+/// window: with Ape-X's per-agent rates, the old schedule's floor
+/// (`actor.eps_end`), so that "time to 300" keeps its meaning; with the one
+/// schedule, every episode.
+pub(super) fn rolling_floor(cfg: &Config) -> Option<f32> {
+    (cfg.actor.exploration == rotorhive_roles::Exploration::PerActor).then_some(cfg.actor.eps_end as f32)
 }
 
 /// The counters an episode row carries: agent-steps, learner updates and
@@ -152,13 +158,9 @@ impl Progress {
         if resumed {
             writeln!(metrics, "resume,0,,,,,,,")?;
         }
-        let window = cfg.rolling_window;
         Ok(Self {
             metrics,
-            window,
-            threshold: cfg.threshold,
-            recent: VecDeque::with_capacity(window),
-            successes: VecDeque::with_capacity(window),
+            rolling: Rolling::new(cfg.rolling_window, cfg.threshold, rolling_floor(cfg)),
             episodes: 0,
             epsilon: cfg.actor.eps_start,
             curve: Series::default(),
@@ -168,35 +170,28 @@ impl Progress {
 
     /// Mean return of the rolling window (NaN before any episode).
     pub(super) fn rolling(&self) -> f64 {
-        if self.recent.is_empty() { f64::NAN } else { self.recent.iter().map(|v| *v as f64).sum::<f64>() / self.recent.len() as f64 }
+        self.rolling.mean()
     }
 
     /// Share of the rolling window's episodes that reached the goal.
     pub(super) fn success_rate(&self) -> Option<f64> {
-        (!self.successes.is_empty()).then(|| self.successes.iter().filter(|s| **s).count() as f64 / self.successes.len() as f64)
+        self.rolling.success_rate()
     }
 
-    /// Records one episodes message (`(return, length, done)` triples);
-    /// true when the rolling reward has just reached the threshold.
+    /// Records one episodes message (records of `EPISODE_FIELDS`: return,
+    /// length, done, the agent's epsilon); true when the rolling reward has
+    /// just reached the threshold. The `epsilon` column is the episode's own.
     pub(super) fn record(&mut self, h: &EpisodeHeader, payload: &[f32], counts: Counts, wall: f64) -> Result<bool> {
         self.epsilon = h.epsilon_micro as f64 / 1e6;
         let (env_steps, updates, replay_size) = counts;
         let mut crossed = false;
-        for e in payload.chunks_exact(3) {
+        for e in payload.chunks_exact(EPISODE_FIELDS) {
             self.episodes += 1;
-            if self.recent.len() == self.window {
-                self.recent.pop_front();
-                self.successes.pop_front();
-            }
-            self.recent.push_back(e[0]);
-            self.successes.push_back(e[2] == DoneKind::Goal as u8 as f32);
+            crossed |= self.rolling.push(wall, e[0], e[2] == DoneKind::Goal as u8 as f32, e[3]);
             let roll = self.rolling();
-            writeln!(self.metrics, "episode,{wall:.3},{env_steps},{},{},{roll:.3},{:.4},{updates},{replay_size}", self.episodes, e[0], self.epsilon)?;
-            if self.recent.len() == self.window && roll >= self.threshold && self.time_to_threshold.is_none() {
-                self.time_to_threshold = Some(wall);
-                crossed = true;
-            }
+            writeln!(self.metrics, "episode,{wall:.3},{env_steps},{},{},{roll:.3},{:.4},{updates},{replay_size}", self.episodes, e[0], e[3])?;
         }
+        self.time_to_threshold = self.rolling.crossed_at;
         Ok(crossed)
     }
 
@@ -280,11 +275,11 @@ mod tests {
     fn a_deterministic_run_writes_episodes_by_step_then_environment() {
         let h = |actor: u32, step: u64| EpisodeHeader { actor, count: 1, transitions: 0, epsilon_micro: 0, step };
         let mut o = EpisodeOrder::new(2, true);
-        o.push(h(1, 3), &[1.0, 1.0, 1.0]);
-        o.push(h(1, 4), &[2.0, 1.0, 1.0]);
+        o.push(h(1, 3), &[1.0, 1.0, 1.0, 0.1]);
+        o.push(h(1, 4), &[2.0, 1.0, 1.0, 0.1]);
         // Environment 0 has reported nothing yet: nothing can be written.
         assert!(o.ready().is_empty());
-        o.push(h(0, 3), &[3.0, 1.0, 1.0]);
+        o.push(h(0, 3), &[3.0, 1.0, 1.0, 0.1]);
         let got: Vec<(u32, u64)> = o.ready().iter().map(|(h, _)| (h.actor, h.step)).collect();
         assert_eq!(got, vec![(0, 3), (1, 3)]);
         assert_eq!(o.through(), 3);

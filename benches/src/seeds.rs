@@ -1,0 +1,649 @@
+//! `hive bench seeds`: an experiment over seeds. Runs every seed of every
+//! arm (a config plus `--set` overrides) one at a time, interleaved
+//! (A B, then B A, ...) so that the machine's drift hits every arm alike,
+//! each free-running to a fixed wall budget without early stop (or
+//! deterministic to a step budget), then scores each run from its records:
+//! time to the threshold (recomputed from `metrics.csv` with the clock of
+//! `hive train`, censored at the budget), time to the first greedy
+//! validation at `eval.target_success`, best, final and result validation
+//! success, and the result's success on the test arena over fresh episodes.
+//! Per arm it reports k/N converged, the median and the IQM of the times
+//! with percentile-bootstrap intervals, and for every pair of arms the
+//! probability that a run of one beats a run of the other (rliable's
+//! probability of improvement) with its interval.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use anyhow::{Context, Result, bail};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64Mcg;
+use serde::Deserialize;
+use serde_json::json;
+
+use rotorhive_records::{Rolling, Summary};
+use rotorhive_roles::{Config, Exploration};
+
+/// The command line of `hive bench seeds`.
+#[derive(clap::Args, Debug)]
+pub struct SeedsArgs {
+    /// Config of every arm (default: the built-in defaults).
+    pub config: Option<PathBuf>,
+    /// Seeds: a range `1-10` or a list `1,4,7`.
+    #[arg(long, default_value = "1-5")]
+    pub seeds: String,
+    /// An arm: `NAME:key=value,key=value` (no `--arm`: one arm, the config
+    /// as it is). Values that contain commas go in an arms file.
+    #[arg(long = "arm")]
+    pub arms: Vec<String>,
+    /// Arms from a TOML file: `[[arm]]` tables with `name` and `set = [...]`.
+    #[arg(long)]
+    pub arms_file: Option<PathBuf>,
+    /// `key=value` for every arm.
+    #[arg(long = "set")]
+    pub set: Vec<String>,
+    /// Wall budget per run (s).
+    #[arg(long, default_value_t = 180.0)]
+    pub budget_s: f64,
+    /// Deterministic runs of this many agent-steps instead of free-running
+    /// ones on the wall budget (0: free-running).
+    #[arg(long, default_value_t = 0)]
+    pub deterministic_steps: u64,
+    /// Test-arena episodes that score each run's result.
+    #[arg(long, default_value_t = 500)]
+    pub test_episodes: usize,
+    /// The test arena (never trained on).
+    #[arg(long, default_value = "configs/arenas/test.toml")]
+    pub test_arena: PathBuf,
+    /// Bootstrap resamples of every interval.
+    #[arg(long, default_value_t = 5000)]
+    pub resamples: usize,
+    /// Directory of the runs and the report.
+    #[arg(long, default_value = "runs/seeds")]
+    pub out: PathBuf,
+    /// Print one JSON object as the last line.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// One arm: a name and its overrides.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Arm {
+    /// Its name in the report.
+    pub name: String,
+    /// `key=value` overrides.
+    #[serde(default)]
+    pub set: Vec<String>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ArmsFile {
+    arm: Vec<Arm>,
+}
+
+/// Parses `1-10` or `1,4,7`.
+pub fn parse_seeds(s: &str) -> Result<Vec<u64>> {
+    let bad = || anyhow::anyhow!("--seeds {s:?}: expected a range like 1-10 or a list like 1,4,7");
+    let seeds: Vec<u64> = match s.split_once('-') {
+        Some((a, b)) => {
+            let (a, b): (u64, u64) = (a.trim().parse().map_err(|_| bad())?, b.trim().parse().map_err(|_| bad())?);
+            if a > b {
+                return Err(bad());
+            }
+            (a..=b).collect()
+        }
+        None => s.split(',').map(|v| v.trim().parse().map_err(|_| bad())).collect::<Result<_>>()?,
+    };
+    if seeds.is_empty() {
+        return Err(bad());
+    }
+    Ok(seeds)
+}
+
+/// Parses `NAME:key=value,key=value` (or a bare `NAME`).
+pub fn parse_arm(s: &str) -> Result<Arm> {
+    let (name, sets) = s.split_once(':').unwrap_or((s, ""));
+    if name.trim().is_empty() {
+        bail!("--arm {s:?}: the arm needs a name (NAME:key=value,...)");
+    }
+    let set: Vec<String> = sets.split(',').map(str::trim).filter(|v| !v.is_empty()).map(String::from).collect();
+    if let Some(v) = set.iter().find(|v| !v.contains('=')) {
+        bail!("--arm {s:?}: {v:?} is not key=value");
+    }
+    Ok(Arm { name: name.trim().to_string(), set })
+}
+
+/// The arms of the command line and the arms file (one unnamed arm if none).
+fn arms_of(a: &SeedsArgs) -> Result<Vec<Arm>> {
+    let mut arms: Vec<Arm> = a.arms.iter().map(|s| parse_arm(s)).collect::<Result<_>>()?;
+    if let Some(f) = &a.arms_file {
+        let text = std::fs::read_to_string(f).with_context(|| format!("arms file {}", f.display()))?;
+        let file: ArmsFile = toml::from_str(&text).map_err(|e| anyhow::anyhow!("arms file {}: {}", f.display(), e.to_string().trim_end()))?;
+        arms.extend(file.arm);
+    }
+    if arms.is_empty() {
+        arms.push(Arm { name: "config".into(), set: vec![] });
+    }
+    for (i, a) in arms.iter().enumerate() {
+        if arms[..i].iter().any(|b| b.name == a.name) {
+            bail!("two arms are named {:?}", a.name);
+        }
+    }
+    Ok(arms)
+}
+
+/// What one run gave.
+#[derive(Debug, Clone, Default)]
+pub struct RunResult {
+    arm: String,
+    seed: u64,
+    dir: PathBuf,
+    /// Time to threshold, recomputed from `metrics.csv`.
+    time_s: Option<f64>,
+    /// The same time, censored at the run's wall time when not reached.
+    time_censored_s: f64,
+    time_to_target_s: Option<f64>,
+    best_validation: Option<f64>,
+    final_validation: Option<f64>,
+    result_validation: Option<f64>,
+    test_success: Option<f64>,
+    env_steps_per_s: f64,
+    updates_per_s: f64,
+    skipped_updates: u64,
+    failure: Option<String>,
+    /// Rolling reward and validation success against wall time.
+    curve: Vec<(f64, f64)>,
+    validation: Vec<(f64, f64)>,
+}
+
+/// (wall s, value) points of a run.
+pub type Curve = Vec<(f64, f64)>;
+
+/// Time to threshold from a run's `metrics.csv`, with the clock `hive
+/// train` uses (its config's window, threshold and exploration floor),
+/// and the rolling-reward curve of its `tick` rows.
+pub fn threshold_time(run_dir: &Path) -> Result<(Option<f64>, Curve)> {
+    let cfg = Config::load(Some(&run_dir.join("config.toml")), &[])?;
+    let floor = (cfg.actor.exploration == Exploration::PerActor).then_some(cfg.actor.eps_end as f32);
+    let mut rolling = Rolling::new(cfg.rolling_window, cfg.threshold, floor);
+    let path = run_dir.join("metrics.csv");
+    let text = std::fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))?;
+    let mut curve = Vec::new();
+    for line in text.lines().skip(1) {
+        let f: Vec<&str> = line.split(',').collect();
+        let num = |k: usize| f.get(k).and_then(|v| v.parse::<f64>().ok());
+        match (f[0], num(1)) {
+            ("episode", Some(wall)) => {
+                let (Some(r), Some(eps)) = (num(4), num(6)) else { bail!("{}: a bad episode row: {line}", path.display()) };
+                rolling.push(wall, r as f32, false, eps as f32);
+            }
+            ("tick", Some(wall)) => {
+                if let Some(r) = num(5).filter(|r| r.is_finite()) {
+                    curve.push((wall, r));
+                }
+            }
+            _ => {}
+        }
+    }
+    Ok((rolling.crossed_at, curve))
+}
+
+/// (wall, screening success) of each evaluation in `evals.csv`.
+fn validation_curve(run_dir: &Path) -> Vec<(f64, f64)> {
+    std::fs::read_to_string(run_dir.join("evals.csv"))
+        .unwrap_or_default()
+        .lines()
+        .skip(1)
+        .filter_map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            Some((f.first()?.parse().ok()?, f.get(4)?.parse().ok()?))
+        })
+        .collect()
+}
+
+/// The success rate of a run's result on the test arena over `episodes`
+/// fresh episodes, flown with the run's own simulator settings.
+fn test_success(run_dir: &Path, checkpoint: &Path, arena: &Path, episodes: usize) -> Result<f64> {
+    let cfg = Config::load(Some(&run_dir.join("config.toml")), &[])?;
+    let net = rotorhive_model::QNet::new(0, &rotorhive_model::Device::Cpu)?;
+    net.load(checkpoint)?;
+    let arena = rotorhive_sim::Arena::load(arena)?;
+    let sim = rotorhive_sim::SimConfig { renderer: rotorhive_sim::RendererKind::Cpu, ..cfg.sim_config() };
+    Ok(rotorhive_roles::eval::fly_greedy(&net, sim, std::slice::from_ref(&arena), episodes, 12345)?.success_rate())
+}
+
+/// Runs one seed of one arm and scores it.
+fn run_one(a: &SeedsArgs, exe: &Path, arm: &Arm, seed: u64, dir: &Path) -> Result<RunResult> {
+    let _ = std::fs::remove_dir_all(dir);
+    let mut cmd = Command::new(exe);
+    cmd.arg("train");
+    if let Some(c) = &a.config {
+        cmd.arg(c);
+    }
+    let budget = if a.deterministic_steps > 0 { a.budget_s.max(3600.0) } else { a.budget_s };
+    cmd.arg("--quiet").arg("--run-dir").arg(dir).arg("--max-seconds").arg(budget.to_string());
+    let mut sets = vec![format!("seed={seed}"), "early_stop=false".to_string()];
+    if a.deterministic_steps > 0 {
+        sets.extend(["deterministic=true".to_string(), format!("max_env_steps={}", a.deterministic_steps)]);
+    }
+    for s in sets.iter().chain(&a.set).chain(&arm.set) {
+        cmd.arg("--set").arg(s);
+    }
+    cmd.stdout(std::process::Stdio::null());
+    let status = cmd.status().with_context(|| format!("arm {} seed {seed}: cannot start hive train", arm.name))?;
+    let summary = Summary::read(dir).with_context(|| format!("arm {} seed {seed}: hive train exited with {status}", arm.name))?;
+    let (time_s, curve) = threshold_time(dir)?;
+    let test = match &summary.checkpoint {
+        Some(c) if a.test_episodes > 0 => Some(test_success(dir, Path::new(c), &a.test_arena, a.test_episodes)?),
+        _ => None,
+    };
+    let validation = validation_curve(dir);
+    // The replay memory's file (hundreds of MB per run) is not part of the
+    // result: an experiment of tens of runs would fill the disk.
+    let _ = std::fs::remove_file(dir.join("replay.bin"));
+    Ok(RunResult {
+        arm: arm.name.clone(),
+        seed,
+        dir: dir.to_path_buf(),
+        time_s,
+        time_censored_s: time_s.unwrap_or(if a.deterministic_steps > 0 { summary.wall_s } else { a.budget_s }),
+        time_to_target_s: summary.time_to_target_success_s,
+        best_validation: validation.iter().map(|p| p.1).reduce(f64::max),
+        final_validation: summary.final_validation_success,
+        result_validation: summary.result_validation_success,
+        test_success: test,
+        env_steps_per_s: summary.env_steps_per_s,
+        updates_per_s: summary.updates_per_s,
+        skipped_updates: summary.skipped_updates,
+        failure: summary.failure.clone().or_else(|| (!status.success()).then(|| format!("hive train exited with {status}"))),
+        curve,
+        validation,
+    })
+}
+
+/// The median of `v` (NaN when empty).
+pub fn median(v: &[f64]) -> f64 {
+    let mut s = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    match s.len() {
+        0 => f64::NAN,
+        n if n % 2 == 1 => s[n / 2],
+        n => (s[n / 2 - 1] + s[n / 2]) / 2.0,
+    }
+}
+
+/// The interquartile mean (rliable's IQM, scipy's `trim_mean(v, 0.25)`):
+/// the mean of what is left after cutting a quarter of the values, rounded
+/// down, from each end.
+pub fn iqm(v: &[f64]) -> f64 {
+    let mut s = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    let cut = s.len() / 4;
+    let mid = &s[cut..s.len() - cut];
+    if mid.is_empty() { f64::NAN } else { mid.iter().sum::<f64>() / mid.len() as f64 }
+}
+
+/// The probability that a draw of `b` is lower (better) than a draw of `a`,
+/// ties counted half: the Mann-Whitney U over `a.len() · b.len()`.
+pub fn prob_lower(a: &[f64], b: &[f64]) -> f64 {
+    let mut wins = 0.0;
+    for x in a {
+        for y in b {
+            wins += if y < x {
+                1.0
+            } else if y == x {
+                0.5
+            } else {
+                0.0
+            };
+        }
+    }
+    wins / (a.len() * b.len()).max(1) as f64
+}
+
+/// A 95 % percentile-bootstrap interval of `stat` over resamples (with
+/// replacement) of each sample in `samples`.
+pub fn bootstrap(samples: &[&[f64]], resamples: usize, rng: &mut Pcg64Mcg, stat: impl Fn(&[Vec<f64>]) -> f64) -> [f64; 2] {
+    let mut values: Vec<f64> = (0..resamples)
+        .map(|_| {
+            let drawn: Vec<Vec<f64>> = samples.iter().map(|s| (0..s.len()).map(|_| s[rng.random_range(0..s.len())]).collect()).collect();
+            stat(&drawn)
+        })
+        .filter(|v| v.is_finite())
+        .collect();
+    values.sort_by(f64::total_cmp);
+    if values.is_empty() {
+        return [f64::NAN, f64::NAN];
+    }
+    let at = |q: f64| values[((q * (values.len() - 1) as f64).round() as usize).min(values.len() - 1)];
+    [at(0.025), at(0.975)]
+}
+
+/// (x, IQM, 25th, 75th percentile) over runs on a grid of `step` seconds,
+/// each run's value at x being its newest point at or before x.
+fn band(curves: &[&Vec<(f64, f64)>], step: f64, end: f64) -> Vec<(f64, f64, f64, f64)> {
+    let mut out = Vec::new();
+    let mut x = step;
+    while x <= end + 1e-9 {
+        let vals: Vec<f64> = curves.iter().filter_map(|c| c.iter().rev().find(|p| p.0 <= x).map(|p| p.1)).collect();
+        if !vals.is_empty() {
+            let mut s = vals.clone();
+            s.sort_by(f64::total_cmp);
+            let q = |f: f64| s[((f * (s.len() - 1) as f64).round() as usize).min(s.len() - 1)];
+            out.push((x, iqm(&vals), q(0.25), q(0.75)));
+        }
+        x += step;
+    }
+    out
+}
+
+fn opt(v: Option<f64>, digits: usize) -> String {
+    v.map_or("—".into(), |v| format!("{v:.digits$}"))
+}
+
+fn pct(v: Option<f64>) -> String {
+    v.map_or("—".into(), |v| format!("{:.1}", v * 100.0))
+}
+
+/// The report of a finished experiment: per-arm statistics as JSON.
+fn arm_stats(name: &str, runs: &[&RunResult], resamples: usize, rng: &mut Pcg64Mcg) -> serde_json::Value {
+    let times: Vec<f64> = runs.iter().map(|r| r.time_censored_s).collect();
+    let targets: Vec<f64> = runs.iter().filter_map(|r| r.time_to_target_s).collect();
+    let tests: Vec<f64> = runs.iter().filter_map(|r| r.test_success).collect();
+    let collapse: Vec<f64> = runs.iter().filter_map(|r| Some(r.best_validation? - r.final_validation?)).collect();
+    json!({
+        "name": name,
+        "runs": runs.len(),
+        "converged": runs.iter().filter(|r| r.time_s.is_some()).count(),
+        "seeds": runs.iter().map(|r| r.seed).collect::<Vec<_>>(),
+        "times_s": runs.iter().map(|r| r.time_s).collect::<Vec<_>>(),
+        "median_time_s": median(&times),
+        "median_time_ci": bootstrap(&[&times], resamples, rng, |d| median(&d[0])),
+        "iqm_time_s": iqm(&times),
+        "iqm_time_ci": bootstrap(&[&times], resamples, rng, |d| iqm(&d[0])),
+        "reached_target": targets.len(),
+        "median_time_to_target_s": if targets.len() == runs.len() { json!(median(&targets)) } else { json!(null) },
+        "times_to_target_s": runs.iter().map(|r| r.time_to_target_s).collect::<Vec<_>>(),
+        "test_success": runs.iter().map(|r| r.test_success).collect::<Vec<_>>(),
+        "test_success_min": tests.iter().copied().reduce(f64::min),
+        "test_success_iqm": iqm(&tests),
+        "result_validation": runs.iter().map(|r| r.result_validation).collect::<Vec<_>>(),
+        "best_validation": runs.iter().map(|r| r.best_validation).collect::<Vec<_>>(),
+        "final_validation": runs.iter().map(|r| r.final_validation).collect::<Vec<_>>(),
+        "collapse_max": collapse.iter().copied().reduce(f64::max),
+        "env_steps_per_s": median(&runs.iter().map(|r| r.env_steps_per_s).collect::<Vec<_>>()),
+        "updates_per_s": median(&runs.iter().map(|r| r.updates_per_s).collect::<Vec<_>>()),
+        "skipped_updates": runs.iter().map(|r| r.skipped_updates).sum::<u64>(),
+        "failures": runs.iter().filter(|r| r.failure.is_some()).count(),
+    })
+}
+
+/// Runs the experiment and writes `seeds.md`, `seeds.csv`, `seeds.png`.
+pub fn run(a: &SeedsArgs) -> Result<()> {
+    let seeds = parse_seeds(&a.seeds)?;
+    let arms = arms_of(a)?;
+    if !(a.budget_s.is_finite() && a.budget_s > 0.0) {
+        bail!("--budget-s must be positive, got {}", a.budget_s);
+    }
+    // Every arm's config must load before hours of runs start.
+    for arm in &arms {
+        let sets: Vec<String> = a.set.iter().chain(&arm.set).cloned().collect();
+        Config::load(a.config.as_deref(), &sets).with_context(|| format!("arm {}", arm.name))?;
+    }
+    rotorhive_sim::Arena::load(&a.test_arena)?;
+    std::fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
+    let exe = std::env::current_exe()?;
+    let total = seeds.len() * arms.len();
+    let mut results = Vec::new();
+    let mut k = 0;
+    for (j, &seed) in seeds.iter().enumerate() {
+        // A B, B A, A B, ...: each arm runs first as often as last.
+        let order: Vec<&Arm> = if j % 2 == 0 { arms.iter().collect() } else { arms.iter().rev().collect() };
+        for arm in order {
+            k += 1;
+            eprintln!(
+                "[{k}/{total}] arm {} seed {seed}: {}",
+                arm.name,
+                if a.deterministic_steps > 0 { format!("{} agent-steps", a.deterministic_steps) } else { format!("{:.0} s", a.budget_s) }
+            );
+            let dir = a.out.join(format!("{}-seed{seed}", arm.name));
+            let r = run_one(a, &exe, arm, seed, &dir)?;
+            eprintln!(
+                "      time to threshold {} s, to target {} s, validation best/final/result {}/{}/{} %, test {} %, {:.0} agent-steps/s{}",
+                opt(r.time_s, 1),
+                opt(r.time_to_target_s, 1),
+                pct(r.best_validation),
+                pct(r.final_validation),
+                pct(r.result_validation),
+                pct(r.test_success),
+                r.env_steps_per_s,
+                r.failure.as_ref().map_or(String::new(), |f| format!(" (failed: {f})"))
+            );
+            results.push(r);
+        }
+    }
+    report(a, &arms, &results)
+}
+
+/// Statistics, tables, curves and the JSON line of finished runs.
+fn report(a: &SeedsArgs, arms: &[Arm], results: &[RunResult]) -> Result<()> {
+    let mut rng = Pcg64Mcg::seed_from_u64(0x5eed5);
+    let by_arm: Vec<Vec<&RunResult>> = arms.iter().map(|arm| results.iter().filter(|r| r.arm == arm.name).collect()).collect();
+    let stats: Vec<serde_json::Value> = arms.iter().zip(&by_arm).map(|(arm, runs)| arm_stats(&arm.name, runs, a.resamples, &mut rng)).collect();
+    let mut pairs = Vec::new();
+    for i in 0..arms.len() {
+        for j in 0..arms.len() {
+            if i == j {
+                continue;
+            }
+            let ta: Vec<f64> = by_arm[i].iter().map(|r| r.time_censored_s).collect();
+            let tb: Vec<f64> = by_arm[j].iter().map(|r| r.time_censored_s).collect();
+            let ci = bootstrap(&[&ta, &tb], a.resamples, &mut rng, |d| prob_lower(&d[0], &d[1]));
+            pairs.push(json!({ "a": arms[i].name, "b": arms[j].name, "p": prob_lower(&ta, &tb), "ci": ci }));
+        }
+    }
+    write_csv(&a.out.join("seeds.csv"), results)?;
+    write_md(a, &stats, &pairs, results)?;
+    let end = if a.deterministic_steps > 0 { results.iter().flat_map(|r| r.curve.last().map(|p| p.0)).fold(1.0, f64::max) } else { a.budget_s };
+    let step = (end / 90.0).max(1.0);
+    let bands: Vec<rotorhive_records::plot::Band> =
+        arms.iter().zip(&by_arm).map(|(arm, runs)| (arm.name.clone(), band(&runs.iter().map(|r| &r.curve).collect::<Vec<_>>(), step, end))).collect();
+    let title = "rolling episode reward: IQM over seeds, band 25-75 %";
+    if let Err(e) = rotorhive_records::plot::band_plot(title, "wall time (s)", "reward", &bands, (-110.0, 460.0), &a.out.join("seeds.png")) {
+        eprintln!("seeds.png not written: {e:#}");
+    }
+    let vbands: Vec<rotorhive_records::plot::Band> = arms
+        .iter()
+        .zip(&by_arm)
+        .map(|(arm, runs)| {
+            let curves: Vec<Vec<(f64, f64)>> = runs.iter().map(|r| r.validation.iter().map(|p| (p.0, p.1 * 100.0)).collect()).collect();
+            (arm.name.clone(), band(&curves.iter().collect::<Vec<_>>(), step, end))
+        })
+        .collect();
+    let title = "greedy validation success (%): IQM over seeds, band 25-75 %";
+    if let Err(e) = rotorhive_records::plot::band_plot(title, "wall time (s)", "%", &vbands, (0.0, 100.0), &a.out.join("seeds-validation.png")) {
+        eprintln!("seeds-validation.png not written: {e:#}");
+    }
+    print!("{}", std::fs::read_to_string(a.out.join("seeds.md"))?);
+    if a.json {
+        println!(
+            "{}",
+            json!({ "bench": "seeds", "budget_s": a.budget_s, "deterministic_steps": a.deterministic_steps, "test_episodes": a.test_episodes, "arms": stats, "prob_improvement": pairs, "out": a.out.display().to_string() })
+        );
+    }
+    Ok(())
+}
+
+fn write_csv(path: &Path, results: &[RunResult]) -> Result<()> {
+    let mut csv = String::from(
+        "arm,seed,converged,time_to_threshold_s,time_censored_s,time_to_target_s,best_validation,final_validation,result_validation,test_success,env_steps_per_s,updates_per_s,skipped_updates,failure,run_dir\n",
+    );
+    let o = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:.4}"));
+    for r in results {
+        writeln!(
+            csv,
+            "{},{},{},{},{:.3},{},{},{},{},{},{:.1},{:.1},{},{},{}",
+            r.arm,
+            r.seed,
+            r.time_s.is_some(),
+            o(r.time_s),
+            r.time_censored_s,
+            o(r.time_to_target_s),
+            o(r.best_validation),
+            o(r.final_validation),
+            o(r.result_validation),
+            o(r.test_success),
+            r.env_steps_per_s,
+            r.updates_per_s,
+            r.skipped_updates,
+            r.failure.as_deref().unwrap_or("").replace(',', ";"),
+            r.dir.display()
+        )?;
+    }
+    std::fs::write(path, csv).with_context(|| format!("cannot write {}", path.display()))
+}
+
+fn write_md(a: &SeedsArgs, stats: &[serde_json::Value], pairs: &[serde_json::Value], results: &[RunResult]) -> Result<()> {
+    let f = |v: &serde_json::Value| v.as_f64().map_or("—".to_string(), |x| format!("{x:.1}"));
+    let ci = |v: &serde_json::Value| format!("[{}, {}]", f(&v[0]), f(&v[1]));
+    let p = |v: &serde_json::Value| v.as_f64().map_or("—".to_string(), |x| format!("{:.1}", x * 100.0));
+    let mut md = String::from("# Seeds\n\n");
+    let how = if a.deterministic_steps > 0 {
+        format!("deterministic, {} agent-steps", a.deterministic_steps)
+    } else {
+        format!("free-running, {:.0} s wall budget, no early stop", a.budget_s)
+    };
+    writeln!(
+        md,
+        "Runs: {how}; interleaved A B / B A by seed; unconverged runs count at the budget. Test success: the run's result on `{}` over {} episodes. Intervals: 95 % percentile bootstrap ({} resamples).\n",
+        a.test_arena.display(),
+        a.test_episodes,
+        a.resamples
+    )?;
+    writeln!(
+        md,
+        "| arm | converged | median time to threshold (s) | IQM (s) [95 % CI] | reached target | median time to target (s) | test success min / IQM (%) | max collapse (best − final validation, points) | agent-steps/s | updates/s |"
+    )?;
+    writeln!(md, "|---|---|---|---|---|---|---|---|---|---|")?;
+    for s in stats {
+        writeln!(
+            md,
+            "| {} | {}/{} | {} {} | {} {} | {}/{} | {} | {} / {} | {} | {} | {} |",
+            s["name"].as_str().unwrap_or("?"),
+            s["converged"],
+            s["runs"],
+            f(&s["median_time_s"]),
+            ci(&s["median_time_ci"]),
+            f(&s["iqm_time_s"]),
+            ci(&s["iqm_time_ci"]),
+            s["reached_target"],
+            s["runs"],
+            f(&s["median_time_to_target_s"]),
+            p(&s["test_success_min"]),
+            p(&s["test_success_iqm"]),
+            p(&s["collapse_max"]),
+            f(&s["env_steps_per_s"]),
+            f(&s["updates_per_s"]),
+        )?;
+    }
+    if !pairs.is_empty() {
+        writeln!(
+            md,
+            "\nProbability that a run of b reaches the threshold sooner than a run of a (rliable's probability of improvement; 0.5 = no difference):\n"
+        )?;
+        writeln!(md, "| a | b | P(b sooner) | 95 % CI |")?;
+        writeln!(md, "|---|---|---|---|")?;
+        for q in pairs {
+            writeln!(
+                md,
+                "| {} | {} | {:.2} | [{:.2}, {:.2}] |",
+                q["a"].as_str().unwrap_or("?"),
+                q["b"].as_str().unwrap_or("?"),
+                q["p"].as_f64().unwrap_or(f64::NAN),
+                q["ci"][0].as_f64().unwrap_or(f64::NAN),
+                q["ci"][1].as_f64().unwrap_or(f64::NAN)
+            )?;
+        }
+    }
+    writeln!(md, "\n| arm | seed | time to threshold (s) | time to target (s) | validation best / final / result (%) | test (%) | agent-steps/s |")?;
+    writeln!(md, "|---|---|---|---|---|---|---|")?;
+    for r in results {
+        writeln!(
+            md,
+            "| {} | {} | {} | {} | {} / {} / {} | {} | {:.0} |",
+            r.arm,
+            r.seed,
+            opt(r.time_s, 1),
+            opt(r.time_to_target_s, 1),
+            pct(r.best_validation),
+            pct(r.final_validation),
+            pct(r.result_validation),
+            pct(r.test_success),
+            r.env_steps_per_s
+        )?;
+    }
+    let path = a.out.join("seeds.md");
+    std::fs::write(&path, md).with_context(|| format!("cannot write {}", path.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn seeds_and_arms_parse_and_bad_ones_are_named() {
+        assert_eq!(parse_seeds("1-4").unwrap(), vec![1, 2, 3, 4]);
+        assert_eq!(parse_seeds("3,1,9").unwrap(), vec![3, 1, 9]);
+        assert!(parse_seeds("4-1").is_err() && parse_seeds("x").is_err());
+        let arm = parse_arm("fast:learner.n_step=3, learner.gamma=0.95").unwrap();
+        assert_eq!((arm.name.as_str(), arm.set), ("fast", vec!["learner.n_step=3".to_string(), "learner.gamma=0.95".to_string()]));
+        assert!(parse_arm("old").unwrap().set.is_empty());
+        assert!(parse_arm(":a=1").unwrap_err().to_string().contains("name"));
+        assert!(parse_arm("x:nonsense").unwrap_err().to_string().contains("key=value"));
+    }
+
+    #[test]
+    fn iqm_median_and_the_probability_of_improvement() {
+        // scipy.stats.trim_mean([1..8], 0.25) = mean(3, 4, 5, 6) = 4.5.
+        assert_eq!(iqm(&[8.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0]), 4.5);
+        // Fewer than four values: nothing is cut.
+        assert_eq!(iqm(&[1.0, 2.0, 9.0]), 4.0);
+        assert_eq!(median(&[3.0, 1.0, 2.0, 10.0]), 2.5);
+        // b is faster in 3 of 4 pairs and ties in none.
+        assert_eq!(prob_lower(&[10.0, 20.0], &[5.0, 15.0]), 0.75);
+        assert_eq!(prob_lower(&[1.0], &[1.0]), 0.5);
+        let mut rng = Pcg64Mcg::seed_from_u64(1);
+        let a: Vec<f64> = (0..20).map(|i| 100.0 + i as f64).collect();
+        let b: Vec<f64> = (0..20).map(|i| 50.0 + i as f64).collect();
+        let [lo, hi] = bootstrap(&[&a, &b], 500, &mut rng, |d| prob_lower(&d[0], &d[1]));
+        assert!(lo > 0.9 && hi <= 1.0, "[{lo}, {hi}]");
+        let [lo, hi] = bootstrap(&[&a], 500, &mut rng, |d| iqm(&d[0]));
+        assert!(lo < iqm(&a) && iqm(&a) < hi, "[{lo}, {hi}]");
+    }
+
+    #[test]
+    fn the_threshold_time_is_recomputed_with_the_runs_own_clock() {
+        let dir = std::env::temp_dir().join(format!("rotorhive-seeds-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut cfg = Config { rolling_window: 2, ..Config::default() };
+        cfg.actor.exploration = Exploration::PerActor;
+        std::fs::write(dir.join("config.toml"), cfg.to_toml()).unwrap();
+        let rows = "kind,wall_s,env_steps,episodes,episode_reward,rolling_reward,epsilon,updates,replay_size\n\
+            episode,1.0,0,1,444,444,0.05,0,0\n\
+            tick,1.5,0,1,,444,0.05,0,0\n\
+            episode,2.0,0,2,-100,172,0.4,0,0\n\
+            episode,3.0,0,3,400,422,0.01,0,0\n";
+        std::fs::write(dir.join("metrics.csv"), rows).unwrap();
+        // The exploring agent's collision does not count: the window of the
+        // two greedy episodes is full at 3 s.
+        let (t, curve) = threshold_time(&dir).unwrap();
+        assert_eq!((t, curve), (Some(3.0), vec![(1.5, 444.0)]));
+        cfg.actor.exploration = Exploration::Decay;
+        std::fs::write(dir.join("config.toml"), cfg.to_toml()).unwrap();
+        assert_eq!(threshold_time(&dir).unwrap().0, None, "with one schedule every episode counts");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
