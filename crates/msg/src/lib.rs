@@ -243,7 +243,8 @@ pub struct WeightsHeader {
 }
 
 /// Floats per finished episode in an episodes message: return, steps,
-/// [`DoneKind`] code, and the exploration rate the agent acted with.
+/// [`DoneKind`] code, and the highest exploration rate the agent acted with
+/// in the episode.
 pub const EPISODE_FIELDS: usize = 4;
 
 /// Header of an episodes message, actor → supervisor. Payload: `[f32]`

@@ -147,6 +147,11 @@ struct Actor<'a, S: Service> {
     lengths: Vec<u32>,
     /// Each agent's exploration rate for the current step.
     eps: Vec<f64>,
+    /// Each agent's highest exploration rate in its current episode, and
+    /// in the episode it finished last: an episode counts in the rolling
+    /// reward's floor only if every action of it was that greedy.
+    episode_eps: Vec<f64>,
+    ended_eps: Vec<f64>,
     finished: Vec<f32>,
     episodes: u64,
     seq: u64,
@@ -175,6 +180,8 @@ impl<'a, S: Service> Actor<'a, S> {
             lengths: vec![0; n],
             finished: Vec::with_capacity(EPISODE_FIELDS * n),
             eps: vec![cfg.actor.eps_start; n],
+            episode_eps: vec![0.0; n],
+            ended_eps: vec![0.0; n],
             version: 0,
             weights_updates: 0,
             have_prev: false,
@@ -224,8 +231,16 @@ impl<'a, S: Service> Actor<'a, S> {
         // The episodes that end at this step were acted with the rates of
         // the steps before it: the rates are set after they are reported.
         let greedy = self.net.greedy(obs)?;
-        for ((a, g), eps) in self.actions.iter_mut().zip(greedy).zip(&self.eps) {
-            *a = if self.rng.random::<f64>() < *eps { self.rng.random_range(0..2u8) } else { g };
+        for (i, g) in greedy.into_iter().enumerate() {
+            let eps = self.eps[i];
+            self.actions[i] = if self.rng.random::<f64>() < eps { self.rng.random_range(0..2u8) } else { g };
+            // An agent whose episode ended acts on its next episode's first
+            // observation (same-step reset).
+            if dones[i] != 0.0 {
+                self.ended_eps[i] = self.episode_eps[i];
+                self.episode_eps[i] = 0.0;
+            }
+            self.episode_eps[i] = self.episode_eps[i].max(eps);
         }
         self.tel.stage(0, t);
         // The actions leave first; then this step's transitions (round
@@ -315,7 +330,7 @@ impl<'a, S: Service> Actor<'a, S> {
             self.returns[i] += rewards[i];
             self.lengths[i] += 1;
             if dones[i] != 0.0 {
-                self.finished.extend_from_slice(&[self.returns[i], self.lengths[i] as f32, dones[i], self.eps[i] as f32]);
+                self.finished.extend_from_slice(&[self.returns[i], self.lengths[i] as f32, dones[i], self.ended_eps[i] as f32]);
                 self.returns[i] = 0.0;
                 self.lengths[i] = 0;
                 self.episodes += 1;
