@@ -1,14 +1,19 @@
 //! `hive bench replay`: the replay role as its own process, fed by P
 //! producer processes over shared memory and drained by this process acting
 //! as the learner. Three phases: inserts alone (the memory fills before any
-//! sampling starts), minibatch sampling alone, and both at once.
+//! sampling starts), minibatch sampling alone, and both at once; for each
+//! variant of the replay's settings (the insert limiter off and on, the
+//! journal on and off). The top-level figures are the replay as the default
+//! config runs it (uniform sampling, its journal) with the limiter off,
+//! which would otherwise hold sampling to the insert rate.
 
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use rotorhive_msg::{MinibatchHeader, OBS_LEN, PACKED_LEN, Telemetry, TransitionHeader, pack_transition};
+use rotorhive_msg::{MinibatchHeader, OBS_LEN, PACKED_LEN, PICK_WORDS, Pick, PriorityHeader, Telemetry, TransitionHeader, pack_transition};
+use rotorhive_roles::replay::minibatch_len;
 use rotorhive_transport::{Channel, Hub, Ipc, services_of_run};
 use serde_json::json;
 
@@ -90,10 +95,71 @@ fn join_producers(children: Vec<Child>) -> Result<f64> {
     Ok(worst)
 }
 
+/// A setting of the replay to measure.
+struct Variant {
+    name: &'static str,
+    samples_per_insert: f64,
+    journal: bool,
+    /// Prioritized sampling, with this process sending a priority back for
+    /// every row of every minibatch, as the learner does.
+    prioritized: bool,
+}
+
 pub fn run(producers: usize, seconds: f64, json_out: bool) -> Result<()> {
     if producers == 0 || !(seconds.is_finite() && seconds > 0.0) {
         bail!("--producers and --seconds must be positive");
     }
+    // The first row is the default config's replay: its sampling and journal.
+    let default_prioritized = rotorhive_roles::Config::default().replay.prioritized;
+    let mut variants = vec![
+        Variant { name: "uniform, journal on, limiter off", samples_per_insert: 0.0, journal: true, prioritized: false },
+        Variant { name: "prioritized + feedback, journal on, limiter off", samples_per_insert: 0.0, journal: true, prioritized: true },
+        Variant { name: "uniform, journal off, limiter off", samples_per_insert: 0.0, journal: false, prioritized: false },
+        Variant { name: "prioritized + feedback, journal off, limiter off", samples_per_insert: 0.0, journal: false, prioritized: true },
+        Variant { name: "uniform, journal on, limiter on (samples_per_insert = 1)", samples_per_insert: 1.0, journal: true, prioritized: false },
+        Variant { name: "prioritized + feedback, journal on, limiter on", samples_per_insert: 1.0, journal: true, prioritized: true },
+    ];
+    if default_prioritized {
+        variants.swap(0, 1);
+    }
+    let mut rows = Vec::new();
+    println!("{:<58} {:>16} {:>16} {:>22} {:>22}", "variant", "inserts/s alone", "samples/s alone", "inserts/s (together)", "samples/s (together)");
+    for v in &variants {
+        let r = measure(producers, seconds, v)?;
+        println!(
+            "{:<58} {:>16.0} {:>16.0} {:>22.0} {:>22.0}",
+            v.name,
+            r["inserts_per_s"].as_f64().unwrap_or(f64::NAN),
+            r["samples_per_s"].as_f64().unwrap_or(f64::NAN),
+            r["together_inserts_per_s"].as_f64().unwrap_or(f64::NAN),
+            r["together_samples_per_s"].as_f64().unwrap_or(f64::NAN)
+        );
+        rows.push(r);
+    }
+    println!(
+        "{producers} producers; packed transitions of {PACKED_LEN} u16 words ({:.1} KiB: 16-bit depth), {PER_MSG} per message; minibatches of 32; the first row is the default config's replay; cpprb (in-process, Python) on this machine: 538,000 inserts/s, 15,500 samples/s",
+        PACKED_LEN as f64 * 2.0 / 1024.0
+    );
+    let top = &rows[0];
+    let out = json!({
+        "bench": "replay",
+        "producers": producers,
+        "inserts_per_s": top["inserts_per_s"],
+        "samples_per_s": top["samples_per_s"],
+        "together_inserts_per_s": top["together_inserts_per_s"],
+        "together_samples_per_s": top["together_samples_per_s"],
+        "transition_bytes": PACKED_LEN * 2,
+        "batch": 32,
+        "rows": rows,
+    });
+    if json_out {
+        println!("{out}");
+    }
+    Ok(())
+}
+
+/// Runs one replay process with the setting `v` through the three phases.
+fn measure(producers: usize, seconds: f64, v: &Variant) -> Result<serde_json::Value> {
     let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.subsec_nanos()).unwrap_or(0);
     let prefix = format!("bench-replay-{}-{nanos:x}", std::process::id());
     let dir = std::env::temp_dir().join(&prefix);
@@ -101,11 +167,33 @@ pub fn run(producers: usize, seconds: f64, json_out: bool) -> Result<()> {
     // Phase 1 fills the memory exactly: no sampling can start before it is full.
     let per_producer = 600usize;
     let capacity = producers * per_producer * PER_MSG;
-    let cfg = format!("[sim]\nenvs = {producers}\n[replay]\ncapacity = {capacity}\nmin_fill = {capacity}\nbatch = 32\nprefetch = 4\n");
+    let cfg = format!(
+        "[sim]\nenvs = {producers}\n[replay]\ncapacity = {capacity}\nmin_fill = {capacity}\nbatch = 32\nprefetch = 4\nsamples_per_insert = {:?}\nsnapshot_every_s = {}\nprioritized = {}\n",
+        v.samples_per_insert,
+        if v.journal { "60.0" } else { "0.0" },
+        v.prioritized
+    );
     let cfg_path = dir.join("config.toml");
     std::fs::write(&cfg_path, cfg)?;
     let hub = Hub::<Ipc>::new(&prefix, "bench-learner")?;
     let mut rx = hub.receiver::<u16, MinibatchHeader>(&Channel::minibatches(4))?;
+    let mut prio_tx =
+        if v.prioritized { Some(hub.sender::<u16, PriorityHeader>(&Channel::priorities(4), 32 * PICK_WORDS, Duration::from_millis(50))?) } else { None };
+    // What the learner does with a minibatch here: read its picks and send
+    // each row a new priority (a made-up |TD error| that varies by row).
+    let mut feed_back = move |m: &rotorhive_transport::Msg<Ipc, u16, MinibatchHeader>| -> Result<()> {
+        let Some(tx) = &mut prio_tx else { return Ok(()) };
+        let tail = &m.payload()[32 * PACKED_LEN..];
+        let seq = m.user_header().seq;
+        tx.send_with(32 * PICK_WORDS, |h, out| {
+            *h = PriorityHeader { count: 32, reserved: 0, seq };
+            for (w, o) in tail.chunks_exact(PICK_WORDS).zip(out.chunks_exact_mut(PICK_WORDS)) {
+                let p = Pick::unpack(w);
+                Pick { value: (p.row % 97) as f32 * 0.01, ..p }.pack(o);
+            }
+        })?;
+        Ok(())
+    };
     let mut tel = hub.receiver::<u8, Telemetry>(&Channel::telemetry(2 * producers + 2))?;
     let exe = std::env::current_exe()?;
     let replay = Command::new(&exe)
@@ -140,14 +228,15 @@ pub fn run(producers: usize, seconds: f64, json_out: bool) -> Result<()> {
             bail!("the replay inserted {inserted} of {capacity} transitions sent");
         }
         // Phase 2: sampling alone (the memory is full now).
-        let sample = |rx: &mut rotorhive_transport::Receiver<Ipc, u16, MinibatchHeader>, secs: f64| -> Result<(u64, f64)> {
+        let mut sample = |rx: &mut rotorhive_transport::Receiver<Ipc, u16, MinibatchHeader>, secs: f64| -> Result<(u64, f64)> {
             let t = Instant::now();
             let mut n = 0u64;
             while t.elapsed().as_secs_f64() < secs {
                 if let Some(m) = rx.recv_timeout(Duration::from_millis(500))? {
-                    if m.payload().len() != 32 * PACKED_LEN {
+                    if m.payload().len() != minibatch_len(32) {
                         bail!("minibatch of the wrong size");
                     }
+                    feed_back(&m)?;
                     n += 1;
                 }
             }
@@ -161,31 +250,42 @@ pub fn run(producers: usize, seconds: f64, json_out: bool) -> Result<()> {
         let t = Instant::now();
         let mut got = 0u64;
         while !kids.iter_mut().all(|c| matches!(c.try_wait(), Ok(Some(_)))) {
-            if rx.recv_timeout(Duration::from_millis(100))?.is_some() {
+            if let Some(m) = rx.recv_timeout(Duration::from_millis(100))? {
+                feed_back(&m)?;
                 got += 1;
             }
         }
         let mixed_secs = t.elapsed().as_secs_f64();
         join_producers(kids)?;
         let mixed_inserts = (batches * PER_MSG * producers) as f64 / mixed_secs;
+        // The replay applied the priorities sent back (its own count).
+        let mut priority_updates = 0u64;
+        let t = Instant::now();
+        while t.elapsed() < Duration::from_millis(1500) {
+            if let Some(m) = tel.recv_timeout(Duration::from_millis(100))?
+                && m.user_header().role == rotorhive_msg::RoleKind::Replay as u32
+            {
+                priority_updates = priority_updates.max(m.user_header().learning.priority_updates as u64);
+            }
+        }
+        if v.prioritized && priority_updates == 0 {
+            bail!("the replay applied none of the priorities sent back");
+        }
         let mixed_samples = got as f64 / mixed_secs;
-        println!("{:>10} {:>16} {:>16} {:>22} {:>22}", "producers", "inserts/s alone", "samples/s alone", "inserts/s (together)", "samples/s (together)");
-        println!("{producers:>10} {inserts_per_s:>16.0} {samples_per_s:>16.0} {mixed_inserts:>22.0} {mixed_samples:>22.0}");
-        println!(
-            "packed transitions of {PACKED_LEN} u16 words ({:.1} KiB: 16-bit depth), {PER_MSG} per message; minibatches of 32; cpprb (in-process, Python) on this machine: 538,000 inserts/s, 15,500 samples/s",
-            PACKED_LEN as f64 * 2.0 / 1024.0
-        );
         Ok(json!({
-            "producers": producers,
+            "name": v.name,
+            "samples_per_insert": v.samples_per_insert,
+            "journal": v.journal,
+            "prioritized": v.prioritized,
+            "priority_updates": priority_updates,
             "inserts_per_s": inserts_per_s,
             "samples_per_s": samples_per_s,
             "together_inserts_per_s": mixed_inserts,
             "together_samples_per_s": mixed_samples,
-            "transition_bytes": PACKED_LEN * 2,
-            "batch": 32,
         }))
     })();
     drop(procs);
+    drop(feed_back);
     drop(rx);
     drop(tel);
     drop(hub);
@@ -195,8 +295,5 @@ pub fn run(producers: usize, seconds: f64, json_out: bool) -> Result<()> {
     if !left.is_empty() {
         bail!("shared memory left behind: {left:?}");
     }
-    if json_out {
-        println!("{out}");
-    }
-    Ok(())
+    Ok(out)
 }

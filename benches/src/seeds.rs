@@ -234,8 +234,24 @@ fn run_one(a: &SeedsArgs, exe: &Path, arm: &Arm, seed: u64, dir: &Path) -> Resul
     }
     cmd.stdout(std::process::Stdio::null());
     let status = cmd.status().with_context(|| format!("arm {} seed {seed}: cannot start hive train", arm.name))?;
-    let summary = Summary::read(dir).with_context(|| format!("arm {} seed {seed}: hive train exited with {status}", arm.name))?;
-    let (time_s, curve) = threshold_time(dir)?;
+    // A run that failed counts as unconverged at the budget (and is named
+    // in the report); the experiment goes on.
+    let failed = |why: String| RunResult {
+        arm: arm.name.clone(),
+        seed,
+        dir: dir.to_path_buf(),
+        time_censored_s: a.budget_s,
+        failure: Some(why),
+        ..RunResult::default()
+    };
+    let summary = match Summary::read(dir) {
+        Ok(s) => s,
+        Err(e) => return Ok(failed(format!("hive train exited with {status}: {e:#}"))),
+    };
+    let (time_s, curve) = match threshold_time(dir) {
+        Ok(t) => t,
+        Err(e) => return Ok(failed(format!("{e:#}"))),
+    };
     let test = match &summary.checkpoint {
         Some(c) if a.test_episodes > 0 => Some(test_success(dir, Path::new(c), &a.test_arena, a.test_episodes)?),
         _ => None,

@@ -61,9 +61,22 @@ fn one_batched_environment_repeats_exactly_in_processes_and_in_serial_mode() {
 }
 
 /// Two environments of non-batched observations (the actor's gather),
-/// 3-step returns: the replay inserts rounds environment by environment.
+/// 3-step returns, Ape-X's per-agent epsilons and prioritized replay: the
+/// replay inserts rounds environment by environment and applies the
+/// learner's priorities in minibatch order, each before the minibatch
+/// `prefetch` later is sampled.
 #[test]
-fn two_non_batched_environments_with_n_step_repeat_exactly() {
-    let sets = ["max_env_steps=4800", "sim.envs=2", "sim.agents=4", "sim.observation_mode=\"non-batched\"", "learner.n_step=3", "replay.min_fill=320"];
+fn two_non_batched_environments_with_n_step_and_prioritized_replay_repeat_exactly() {
+    let sets = [
+        "max_env_steps=4800",
+        "sim.envs=2",
+        "sim.agents=4",
+        "sim.observation_mode=\"non-batched\"",
+        "learner.n_step=3",
+        "replay.min_fill=320",
+        "replay.prioritized=true",
+        "actor.exploration=\"per-actor\"",
+        "learner.reward_scale=0.01",
+    ];
     assert_reproducible("det-two", &sets, 1 + (4800 - 320) / 32, false);
 }

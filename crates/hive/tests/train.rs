@@ -95,6 +95,18 @@ fn short_multi_process_training_run() {
     assert!(own.len() >= 10 && own.iter().all(|c| c.is_finite()), "supervisor rows: {own:?}");
     let profile = std::fs::read_to_string(dir.join("profile.md")).unwrap();
     assert!(profile.contains("| supervisor (monitor, evaluator, link) |"), "{profile}");
+    // The learning diagnostics: the learner's rows carry mean max-Q, mean
+    // |TD error| and the terminal share; the actor's its epsilon spread;
+    // the profile shows them.
+    let learner_rows: Vec<&Vec<String>> = tel.iter().filter(|r| r[1] == "learner" && r[8] != "0").collect();
+    assert!(learner_rows.iter().any(|r| r[22].parse::<f64>().is_ok_and(|td| td > 0.0)), "no TD error in the learner's rows");
+    assert!(learner_rows.iter().all(|r| r[21].parse::<f64>().is_ok_and(f64::is_finite) && r[24] == "0"), "learner diagnostics");
+    assert!(tel.iter().filter(|r| r[1] == "actor").all(|r| r[25].parse::<f64>().is_ok() && r[26].parse::<f64>().is_ok()), "actor epsilon spread");
+    assert!(profile.contains("mean max-Q") && profile.contains("Exploration at the end"), "{profile}");
+    for key in ["time_to_target_success_s", "result_validation_success", "result_validation_episodes", "skipped_updates"] {
+        assert!(summary.get(key).is_some(), "summary.json lacks {key}: {summary}");
+    }
+    assert_eq!(summary["skipped_updates"].as_u64(), Some(0), "{summary}");
     if !std::path::Path::new("/dev/nvidiactl").exists() {
         assert!(summary["gpu_util_mean_pct"].is_null() && summary["gpu_power_mean_w"].is_null(), "{summary}");
         assert!(tel.iter().all(|r| r[16].is_empty() && r[17].is_empty() && r[18].is_empty()), "GPU columns filled without a GPU");
@@ -149,6 +161,13 @@ fn bad_input_is_refused_clearly() {
     fails_with(&["train", "--resume", dir.to_str().unwrap()], &["--resume", "learner state"]);
     fails_with(&["train", "--set", "sim.renderer=\"vulkan\""], &["sim.renderer"]);
     fails_with(&["train", "--set", "eval.target_success=2"], &["eval.target_success"]);
+    fails_with(&["train", "--set", "actor.exploration=\"greedy\""], &["actor.exploration"]);
+    fails_with(&["train", "--set", "actor.per_actor_base=1.5"], &["actor.per_actor_base"]);
+    fails_with(&["train", "--set", "learner.reward_scale=0"], &["learner.reward_scale"]);
+    fails_with(&["train", "--set", "learner.max_grad_norm=-1"], &["learner.max_grad_norm"]);
+    fails_with(&["bench", "seeds", "--seeds", "5-1"], &["--seeds"]);
+    fails_with(&["bench", "seeds", "--arm", "a:nonsense"], &["key=value"]);
+    fails_with(&["bench", "seeds", "--arm", "a:sim.agnets=3"], &["arm a", "agnets"]);
     fails_with(&["train", "--set", "sim.generated_lanes=-1"], &["generated_lanes"]);
     fails_with(&["profile", dir.to_str().unwrap()], &["telemetry.csv"]);
     let out = hive().args(["fly-to-the-moon"]).output().unwrap();

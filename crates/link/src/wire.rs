@@ -191,7 +191,7 @@ mod tests {
         assert_eq!(std::mem::size_of::<TransitionHeader>(), 4 + 4 + 8 + 8 + 8);
         assert_eq!(std::mem::size_of::<EpisodeHeader>(), 4 + 4 + 8 + 8 + 8);
         assert_eq!(std::mem::size_of::<WeightsHeader>(), 8 + 8 + 8);
-        assert_eq!(std::mem::size_of::<Telemetry>(), 4 * 4 + 6 * 8 + 4 * 8 + 6 * 4);
+        assert_eq!(std::mem::size_of::<Telemetry>(), 4 * 4 + 6 * 8 + 4 * 8 + 8 * 4);
     }
 
     #[test]

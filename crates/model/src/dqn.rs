@@ -153,6 +153,8 @@ pub struct Dqn {
     /// Updates skipped for a non-finite loss or gradient.
     skipped: u64,
     stats: UpdateStats,
+    /// Per row of the last update: the absolute TD error.
+    td: Vec<f32>,
 }
 
 /// The gradients [`Dqn::compute_gradients`] left, flat in canonical order.
@@ -195,6 +197,7 @@ impl Dqn {
             grads: Vec::new(),
             skipped: 0,
             stats: UpdateStats::default(),
+            td: Vec::new(),
         })
     }
 
@@ -233,6 +236,12 @@ impl Dqn {
         self.stats
     }
 
+    /// The absolute TD error of every row of the last update, in the
+    /// network's units (prioritized replay's new priorities).
+    pub fn td_abs(&self) -> &[f32] {
+        &self.td
+    }
+
     /// Copies the online weights into the target network.
     pub fn sync_target(&self) -> Result<()> {
         self.target.copy_from(&self.online)
@@ -259,11 +268,12 @@ impl Dqn {
     /// the fused path is tested against, and the path off the CPU.
     pub fn loss(&self, batch: &[f32]) -> Result<Tensor> {
         let n = rows_of(batch)?;
-        self.loss_generic(batch, n)
+        Ok(self.loss_generic(batch, n, None)?.0)
     }
 
-    /// [`Dqn::loss`] of a checked minibatch of `n` rows.
-    fn loss_generic(&self, batch: &[f32], n: usize) -> Result<Tensor> {
+    /// [`Dqn::loss`] of a checked minibatch of `n` rows, each row's Huber
+    /// loss multiplied by its importance weight; also each row's |TD error|.
+    fn loss_generic(&self, batch: &[f32], n: usize, weights: Option<&[f32]>) -> Result<(Tensor, Vec<f32>)> {
         let dev = self.online.device();
         let column = |from: usize, len: usize| -> Vec<f32> { batch.chunks_exact(TRANSITION_LEN).flat_map(|t| t[from..from + len].to_vec()).collect() };
         let s2 = Tensor::from_vec(column(OBS_LEN, OBS_LEN), (n, OBS_LEN), dev)?;
@@ -279,17 +289,21 @@ impl Dqn {
         let a = Tensor::from_vec(actions, (n, 1), dev)?;
         let y = Tensor::from_vec(y, (n, 1), dev)?;
         let abs = (q.gather(&a, D::Minus1)? - y)?.abs()?;
+        let td = abs.detach().flatten_all()?.to_vec1::<f32>()?;
         let d = self.cfg.huber_delta as f64;
         let c = abs.clamp(0.0, d)?;
-        let loss = ((c.sqr()? * 0.5)? + ((abs - &c)? * d)?)?;
-        Ok(loss.sum_all()?.affine(1.0 / n as f64, 0.0)?)
+        let mut loss = ((c.sqr()? * 0.5)? + ((abs - &c)? * d)?)?;
+        if let Some(w) = weights {
+            loss = (loss * Tensor::from_slice(w, (n, 1), dev)?)?;
+        }
+        Ok((loss.sum_all()?.affine(1.0 / n as f64, 0.0)?, td))
     }
 
     /// Loss and gradients (into `ws.grads`) of the rows of `part`, a shard
     /// of a minibatch of `denom` rows, on the fused path: the target network
     /// on `s'`, the online network on `s` (and `s'` in the same batch for
     /// double DQN), the loss's gradient on the taken actions, backward.
-    fn shard_fused(&self, part: &[f32], denom: usize, ws: &mut Workspace) -> Result<Shard> {
+    fn shard_fused(&self, part: &[f32], weights: Option<&[f32]>, denom: usize, ws: &mut Workspace) -> Result<Shard> {
         let t0 = Instant::now();
         let n = part.len() / TRANSITION_LEN;
         let s = Rows { data: part, stride: TRANSITION_LEN, offset: 0, n };
@@ -300,6 +314,8 @@ impl Dqn {
             let both = [s, s2];
             ws.forward(w, if self.cfg.double { &both } else { &both[..1] })?;
             // Rows 0..n: Q(s); rows n..2n (double DQN): the online Q(s').
+            let mut td = std::mem::take(&mut ws.td);
+            td.clear();
             let (q, q_target, dq) = ws.loss_view(n);
             let mut loss = 0.0;
             let mut stats = UpdateStats { rows: n as u32, ..UpdateStats::default() };
@@ -308,12 +324,15 @@ impl Dqn {
                 let y = self.target_of(t, qt, if self.cfg.double { &q[(n + i) * ACTIONS..(n + i + 1) * ACTIONS] } else { qt });
                 let at = i * ACTIONS + t[2 * OBS_LEN] as usize;
                 let (l, g) = self.huber(q[at] - y);
-                loss += l;
-                dq[at] = g / denom as f32;
+                let w = weights.map_or(1.0, |w| w[i]);
+                loss += l * w;
+                dq[at] = g * w / denom as f32;
                 stats.max_q_sum += q[i * ACTIONS..(i + 1) * ACTIONS].iter().fold(f32::NEG_INFINITY, |m, v| m.max(*v)) as f64;
                 stats.abs_td_sum += (q[at] - y).abs() as f64;
                 stats.terminal += (t[2 * OBS_LEN + 2] != 0.0) as u32;
+                td.push((q[at] - y).abs());
             }
+            ws.td = td;
             let t1 = Instant::now();
             ws.backward(w, n)?;
             Ok(Shard { loss: loss / denom as f32, forward_ns: (t1 - t0).as_nanos() as u64, backward_ns: t1.elapsed().as_nanos() as u64, stats })
@@ -323,18 +342,24 @@ impl Dqn {
     /// Loss and flat gradients of a whole minibatch (`n × TRANSITION_LEN`
     /// floats) on the path in use, without updating anything.
     pub fn gradients(&mut self, batch: &[f32]) -> Result<(f32, Vec<f32>)> {
-        let loss = self.compute_gradients(batch)?.loss;
+        let loss = self.compute_gradients(batch, None)?.loss;
         Ok((loss, gradients_in(self.online.fused(), &mut self.grads, &mut self.work)?.to_vec()))
     }
 
     /// Loss and gradients of a minibatch into `self.grads`: on the fused path
     /// with several threads, one shard per thread whose forward and backward
     /// passes run in parallel (each single-threaded), their gradients summed.
-    fn compute_gradients(&mut self, batch: &[f32]) -> Result<Shard> {
+    fn compute_gradients(&mut self, batch: &[f32], weights: Option<&[f32]>) -> Result<Shard> {
         let n = rows_of(batch)?;
+        if let Some(w) = weights
+            && w.len() != n
+        {
+            return Err(ModelError::Shape { what: "importance weights (one per row)", expected: n, got: w.len() });
+        }
         if !self.online.fused() {
             let t0 = Instant::now();
-            let loss = self.loss_generic(batch, n)?;
+            let (loss, td) = self.loss_generic(batch, n, weights)?;
+            self.td = td;
             let t1 = Instant::now();
             let store = loss.backward()?;
             self.grads.clear();
@@ -352,12 +377,18 @@ impl Dqn {
         while self.work.len() < shards {
             self.work.push(Mutex::new(Workspace::default()));
         }
-        let parts: Vec<&[f32]> = batch.chunks(n.div_ceil(shards) * TRANSITION_LEN).collect();
-        let results = crate::ops::sharded(parts.len(), |i| self.shard_fused(parts[i], n, &mut *self.work[i].lock().map_err(poisoned)?));
+        let rows_per = n.div_ceil(shards);
+        let parts: Vec<&[f32]> = batch.chunks(rows_per * TRANSITION_LEN).collect();
+        let part_weights = |i: usize| weights.map(|w| &w[i * rows_per..((i + 1) * rows_per).min(n)]);
+        let results = crate::ops::sharded(parts.len(), |i| self.shard_fused(parts[i], part_weights(i), n, &mut *self.work[i].lock().map_err(poisoned)?));
         // The other shards' gradients are added into the first's.
         let mut results = results.into_iter();
         let Some(first) = results.next() else { unreachable!("a non-empty batch has a shard") };
         let mut total = first?;
+        self.td.clear();
+        for ws in &mut self.work[..parts.len()] {
+            self.td.extend_from_slice(&ws.get_mut().map_err(poisoned)?.td);
+        }
         let (head, tail) = self.work.split_at_mut(1);
         let sum = &mut head[0].get_mut().map_err(poisoned)?.grads[..OFFSETS[10]];
         for (r, ws) in results.zip(tail) {
@@ -377,7 +408,14 @@ impl Dqn {
     /// weight versions go on. With `max_grad_norm` the gradient is scaled
     /// down to that global L2 norm first.
     pub fn update(&mut self, batch: &[f32]) -> Result<f32> {
-        let mut total = self.compute_gradients(batch)?;
+        self.update_weighted(batch, None)
+    }
+
+    /// [`Dqn::update`] with each row's loss multiplied by its importance
+    /// weight (prioritized replay); [`Dqn::td_abs`] then holds each row's
+    /// |TD error| for its new priority.
+    pub fn update_weighted(&mut self, batch: &[f32], weights: Option<&[f32]>) -> Result<f32> {
+        let mut total = self.compute_gradients(batch, weights)?;
         let t2 = Instant::now();
         let grads = gradients_in(self.online.fused(), &mut self.grads, &mut self.work)?;
         let norm = grads.iter().map(|g| (*g as f64) * (*g as f64)).sum::<f64>().sqrt();

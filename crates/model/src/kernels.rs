@@ -99,6 +99,8 @@ pub(crate) struct Workspace {
     da1: Vec<f32>,
     /// Gradients of the last backward pass, flat in canonical order.
     pub(crate) grads: Vec<f32>,
+    /// Per row of the last loss: the absolute TD error.
+    pub(crate) td: Vec<f32>,
 }
 
 /// The error of a workspace whose lock a panicking thread left poisoned.

@@ -355,3 +355,32 @@ fn clipping_bounds_the_step_by_the_gradient_norm() {
         assert!((a * k - b).abs() <= 1e-6 * a.abs().max(1e-3), "{a}·{k} vs {b}");
     }
 }
+
+#[test]
+fn importance_weights_scale_each_rows_gradient_on_both_paths() {
+    // Weights of 1 are the plain update; other weights give the gradient of
+    // the weighted mean loss, the same on the fused and the generic path;
+    // the per-row TD errors agree too.
+    let dev = Device::Cpu;
+    let batch = transitions(16, 21);
+    let w: Vec<f32> = (0..16).map(|i| 0.25 + (i % 4) as f32 * 0.25).collect();
+    let mut fused = Dqn::new(cfg(true), 8, &dev).unwrap();
+    let mut plain = Dqn::new(cfg(true), 8, &dev).unwrap();
+    let mut generic = Dqn::new(cfg(true), 8, &dev).unwrap();
+    generic.set_fused(false).unwrap();
+    fused.set_threads(2);
+    plain.set_threads(2);
+    let ones = vec![1.0; 16];
+    fused.update_weighted(&batch, Some(&ones)).unwrap();
+    plain.update(&batch).unwrap();
+    assert!(fused.online.to_flat().unwrap() == plain.online.to_flat().unwrap(), "weights of 1 must change nothing");
+    assert_eq!(fused.td_abs().len(), 16);
+    let (mut a, mut b) = (Dqn::new(cfg(true), 8, &dev).unwrap(), generic);
+    a.set_threads(2);
+    let la = a.update_weighted(&batch, Some(&w)).unwrap();
+    let lb = b.update_weighted(&batch, Some(&w)).unwrap();
+    assert!((la - lb).abs() <= 1e-4 * lb.abs().max(1.0), "{la} vs {lb}");
+    close(a.td_abs(), b.td_abs(), 1e-4, "td");
+    close(&a.first_moments(), &b.first_moments(), 1e-3, "weighted gradients");
+    assert!(a.update_weighted(&batch, Some(&w[..3])).unwrap_err().to_string().contains("importance weights"));
+}

@@ -206,8 +206,50 @@ pub struct TransitionHeader {
     pub episodes: u64,
 }
 
+/// `u16` words of one [`Pick`] in a message: the row (2 words), its stamp
+/// (2) and a value (an `f32`'s bits, 2).
+pub const PICK_WORDS: usize = 6;
+
+/// One sampled transition's place in the replay memory and a value: in a
+/// minibatch, its importance-sampling weight; in a priorities message, the
+/// learner's new priority (its absolute TD error). The stamp (the memory's
+/// insert count when the row was written) lets the replay ignore a
+/// priority for a row that has been overwritten since.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Pick {
+    /// Physical row of the replay memory.
+    pub row: u32,
+    /// The row's stamp when it was sampled.
+    pub stamp: u32,
+    /// Importance weight (minibatch) or priority (feedback).
+    pub value: f32,
+}
+
+impl Pick {
+    /// Writes the pick as [`PICK_WORDS`] little-endian words.
+    pub fn pack(&self, out: &mut [u16]) {
+        let v = self.value.to_bits();
+        out[..PICK_WORDS].copy_from_slice(&[
+            self.row as u16,
+            (self.row >> 16) as u16,
+            self.stamp as u16,
+            (self.stamp >> 16) as u16,
+            v as u16,
+            (v >> 16) as u16,
+        ]);
+    }
+
+    /// Reads a pick written by [`Pick::pack`].
+    pub fn unpack(w: &[u16]) -> Self {
+        let word = |k: usize| w[k] as u32 | (w[k + 1] as u32) << 16;
+        Self { row: word(0), stamp: word(2), value: f32::from_bits(word(4)) }
+    }
+}
+
 /// Header of a minibatch, replay → learner. Payload: `[u16]` of
-/// `batch × PACKED_LEN`, packed transitions as in a transition batch.
+/// `batch × PACKED_LEN` (packed transitions as in a transition batch), then
+/// `batch × PICK_WORDS`: each row's [`Pick`] with its importance weight
+/// (1 with uniform sampling).
 #[derive(Debug, Clone, Copy, Default)]
 #[cfg_attr(feature = "zero-copy", derive(ZeroCopySend), type_name("rotorhive::MinibatchHeader"))]
 #[repr(C)]
@@ -226,6 +268,21 @@ pub struct MinibatchHeader {
     /// Sum of the weight versions the `acted` transitions were acted with
     /// (the learner's policy lag is its version minus their mean).
     pub acted_version_sum: u64,
+}
+
+/// Header of a priorities message, learner → replay (prioritized replay).
+/// Payload: `[u16]` of `count × PICK_WORDS`, one [`Pick`] per row of
+/// minibatch `seq`, its value the row's new priority.
+#[derive(Debug, Clone, Copy, Default)]
+#[cfg_attr(feature = "zero-copy", derive(ZeroCopySend), type_name("rotorhive::PriorityHeader"))]
+#[repr(C)]
+pub struct PriorityHeader {
+    /// Picks in the message.
+    pub count: u32,
+    /// Zero (keeps the header free of padding).
+    pub reserved: u32,
+    /// Sequence number of the minibatch they answer.
+    pub seq: u64,
 }
 
 /// Header of a weights message, learner → actors. Payload: `[f32]`, the flat
@@ -370,6 +427,11 @@ pub struct Learning {
     pub eps_min: f32,
     /// Actor: the largest epsilon of its agents.
     pub eps_max: f32,
+    /// Replay: priority updates applied so far.
+    pub priority_updates: u32,
+    /// Replay: priority updates dropped so far because their row had been
+    /// overwritten since it was sampled (or was out of range).
+    pub stale_priorities: u32,
 }
 
 /// Names of the four stage timers of a role, in `stage_ns` order.
@@ -396,6 +458,8 @@ pub fn layout_fingerprint() -> u64 {
         size_of::<WeightsHeader>(),
         size_of::<EpisodeHeader>(),
         size_of::<Telemetry>(),
+        size_of::<PriorityHeader>(),
+        PICK_WORDS,
         OBS_LEN,
         PACKED_LEN,
         NUM_ACTIONS,
@@ -423,8 +487,9 @@ mod tests {
         assert_eq!(std::mem::size_of::<TransitionHeader>(), 32);
         assert_eq!(std::mem::size_of::<MinibatchHeader>(), 40);
         assert_eq!(std::mem::size_of::<WeightsHeader>(), 24);
-        assert_eq!(std::mem::size_of::<Telemetry>(), 120);
-        assert_eq!(std::mem::size_of::<Learning>(), 24);
+        assert_eq!(std::mem::size_of::<Telemetry>(), 128);
+        assert_eq!(std::mem::size_of::<Learning>(), 32);
+        assert_eq!(std::mem::size_of::<PriorityHeader>(), 16);
     }
 
     #[test]
@@ -446,6 +511,14 @@ mod tests {
         assert_eq!(&t[2 * OBS_LEN..], &[1.0, -100.0, 1.0]);
         assert_eq!((dequantize_depth(quantize_depth(0.0)), dequantize_depth(quantize_depth(1.0))), (0.0, 1.0));
         assert_eq!(quantize_depth(7.0), u16::MAX);
+    }
+
+    #[test]
+    fn picks_round_trip() {
+        let p = Pick { row: 0x0012_3456, stamp: u32::MAX - 5, value: -0.375 };
+        let mut w = [0u16; PICK_WORDS];
+        p.pack(&mut w);
+        assert_eq!(Pick::unpack(&w), p);
     }
 
     #[test]

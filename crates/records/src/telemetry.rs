@@ -8,10 +8,10 @@ use anyhow::{Context, Result, bail};
 pub use rotorhive_msg::Learning;
 
 /// The file's header: the column names in order.
-pub const HEADER: &str = "wall_s,role,index,pid,cpu_pct,rss_mb,machine_cpu_pct,heartbeat,work,work2,weight_version,lost,stage0_ms,stage1_ms,stage2_ms,stage3_ms,gpu_util_pct,gpu_mem_mb,gpu_power_w,value,policy_lag,max_q,td_abs,terminal_share,skipped_updates,eps_min,eps_max";
+pub const HEADER: &str = "wall_s,role,index,pid,cpu_pct,rss_mb,machine_cpu_pct,heartbeat,work,work2,weight_version,lost,stage0_ms,stage1_ms,stage2_ms,stage3_ms,gpu_util_pct,gpu_mem_mb,gpu_power_w,value,policy_lag,max_q,td_abs,terminal_share,skipped_updates,eps_min,eps_max,priority_updates,stale_priorities";
 
 /// Columns of [`HEADER`].
-const COLUMNS: usize = 27;
+const COLUMNS: usize = 29;
 
 /// One row of `telemetry.csv`.
 #[derive(Debug, Clone, PartialEq)]
@@ -48,9 +48,10 @@ pub struct TelemetryRow {
     pub value: String,
     /// Learner rows: mean policy lag of its recent minibatches (versions).
     pub policy_lag: Option<f64>,
-    /// Learner and actor rows: the learning diagnostics (mean max-Q, mean
-    /// |TD error|, terminal share, skipped updates; the actor's epsilon
-    /// spread), empty for the other roles.
+    /// Learner, actor and replay rows: the learning diagnostics (mean
+    /// max-Q, mean |TD error|, terminal share, skipped updates; the actor's
+    /// epsilon spread; the replay's priority updates applied and stale),
+    /// empty for the other roles.
     pub learning: Option<Learning>,
 }
 
@@ -60,8 +61,11 @@ impl TelemetryRow {
         let opt = |v: Option<f64>, digits: usize| v.map_or(String::new(), |v| format!("{v:.digits$}"));
         let gpu = self.gpu.map_or(",,".to_string(), |g| format!("{:.1},{:.1},{:.1}", g[0], g[1], g[2]));
         let s = &self.stage_ms;
-        let learning = self.learning.map_or(",,,,,".to_string(), |l| {
-            format!("{:.3},{:.3},{:.4},{},{:.5},{:.5}", l.mean_max_q, l.mean_abs_td, l.terminal_share, l.skipped_updates, l.eps_min, l.eps_max)
+        let learning = self.learning.map_or(",,,,,,,".to_string(), |l| {
+            format!(
+                "{:.3},{:.3},{:.4},{},{:.5},{:.5},{},{}",
+                l.mean_max_q, l.mean_abs_td, l.terminal_share, l.skipped_updates, l.eps_min, l.eps_max, l.priority_updates, l.stale_priorities
+            )
         });
         format!(
             "{:.3},{},{},{},{:.1},{:.1},{:.1},{},{},{},{},{},{:.1},{:.1},{:.1},{:.1},{gpu},{},{},{learning}\n",
@@ -109,6 +113,8 @@ impl TelemetryRow {
                 skipped_updates: int(24)? as u32,
                 eps_min: float(25)? as f32,
                 eps_max: float(26)? as f32,
+                priority_updates: int(27)? as u32,
+                stale_priorities: int(28)? as u32,
             }),
         };
         Ok(Self {
@@ -171,7 +177,14 @@ mod tests {
             gpu: None,
             value: "0.012345".into(),
             policy_lag: Some(3.25),
-            learning: Some(Learning { mean_max_q: 2.5, mean_abs_td: 0.25, terminal_share: 0.0625, skipped_updates: 3, eps_min: 0.0, eps_max: 0.0 }),
+            learning: Some(Learning {
+                mean_max_q: 2.5,
+                mean_abs_td: 0.25,
+                terminal_share: 0.0625,
+                skipped_updates: 3,
+                priority_updates: 7,
+                ..Learning::default()
+            }),
         };
         let line = row.to_line();
         assert_eq!(line.trim_end().split(',').count(), HEADER.split(',').count());
@@ -185,6 +198,6 @@ mod tests {
         assert!(back.cpu_pct.is_nan());
         let e = TelemetryRow::parse(&line.trim_end().replace(",2400,", ",many,")).unwrap_err().to_string();
         assert!(e.contains("`work`"), "{e}");
-        assert!(TelemetryRow::parse("1,2,3").unwrap_err().to_string().contains("27 fields"));
+        assert!(TelemetryRow::parse("1,2,3").unwrap_err().to_string().contains("29 fields"));
     }
 }

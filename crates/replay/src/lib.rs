@@ -1,5 +1,6 @@
-//! FIFO replay memory over flat transition storage, with uniform sampling of
-//! minibatches. Pure data structure: the `hive replay` role feeds it from the
+//! FIFO replay memory over flat transition storage, with uniform or
+//! prioritized (Ape-X, Schaul et al. 2016: proportional, a sum-tree)
+//! sampling of minibatches. Pure data structure: the `hive replay` role feeds it from the
 //! transport and serves minibatches from it. Rows are `u16` words (packed
 //! transitions: 16-bit depth, see `rotorhive_msg::PACKED_LEN`), so a
 //! transition costs half the bytes to insert, hold and sample.
@@ -11,7 +12,10 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
 mod journal;
+mod sumtree;
 pub use journal::Journal;
+pub use rotorhive_msg::Pick;
+pub use sumtree::SumTree;
 
 /// Snapshot header: rows of `u16` words.
 const MAGIC: &[u8; 8] = b"RHRPLU16";
@@ -66,6 +70,21 @@ pub struct Replay {
     inserted: u64,
     sampled: u64,
     rng: Pcg64Mcg,
+    /// Per row: the insert count when it was written (low 32 bits;
+    /// `u32::MAX`: restored, unknown), so a priority for a row overwritten
+    /// since it was sampled is recognised.
+    stamps: Vec<u32>,
+    prio: Option<Priorities>,
+}
+
+/// Prioritized replay's state: the rows' priorities^alpha in a sum-tree.
+#[derive(Debug, Clone)]
+struct Priorities {
+    tree: SumTree,
+    alpha: f64,
+    eps: f64,
+    /// The largest priority seen: new rows get it, so each is sampled soon.
+    max: f64,
 }
 
 impl Replay {
@@ -80,7 +99,51 @@ impl Replay {
             // so the allocator's zeroed pages are really touched.
             unsafe { std::ptr::write_volatile(page.as_mut_ptr(), 0) };
         }
-        Self { data, versions: vec![0; capacity], width, capacity, len: 0, head: 0, inserted: 0, sampled: 0, rng: Pcg64Mcg::seed_from_u64(seed) }
+        Self {
+            data,
+            versions: vec![0; capacity],
+            width,
+            capacity,
+            len: 0,
+            head: 0,
+            inserted: 0,
+            sampled: 0,
+            rng: Pcg64Mcg::seed_from_u64(seed),
+            stamps: vec![u32::MAX; capacity],
+            prio: None,
+        }
+    }
+
+    /// Samples in proportion to priority^`alpha` from now on (priority =
+    /// |TD error| + `eps`, set by [`Replay::set_priority`]); the rows held
+    /// now and every row inserted later start at the largest priority seen
+    /// (1 at first).
+    pub fn set_prioritized(&mut self, alpha: f64, eps: f64) {
+        let mut tree = SumTree::new(self.capacity);
+        for r in 0..self.len {
+            tree.set(r, 1.0);
+        }
+        self.prio = Some(Priorities { tree, alpha, eps, max: 1.0 });
+    }
+
+    /// Whether sampling is prioritized.
+    pub fn prioritized(&self) -> bool {
+        self.prio.is_some()
+    }
+
+    /// Sets the priority of the row a sample picked to `td_abs` + eps, unless
+    /// the row has been overwritten since (its stamp differs) or is out of
+    /// range; true when applied. Without prioritized sampling it does nothing.
+    pub fn set_priority(&mut self, pick: &Pick) -> bool {
+        let r = pick.row as usize;
+        let Some(p) = &mut self.prio else { return false };
+        if r >= self.len || self.stamps[r] != pick.stamp || !pick.value.is_finite() {
+            return false;
+        }
+        let v = pick.value.abs() as f64 + p.eps;
+        p.max = p.max.max(v);
+        p.tree.set(r, v.powf(p.alpha));
+        true
     }
 
     /// Transitions held.
@@ -121,6 +184,10 @@ impl Replay {
         for t in transitions.chunks_exact(self.width) {
             self.data[self.head * self.width..(self.head + 1) * self.width].copy_from_slice(t);
             self.versions[self.head] = version;
+            self.stamps[self.head] = self.inserted as u32;
+            if let Some(p) = &mut self.prio {
+                p.tree.set(self.head, p.max.powf(p.alpha));
+            }
             self.head = (self.head + 1) % self.capacity;
             self.len = (self.len + 1).min(self.capacity);
             self.inserted += 1;
@@ -213,19 +280,39 @@ impl Replay {
     }
 
     /// Fills `out` (a multiple of `width` words) with transitions drawn
-    /// uniformly with replacement, and returns the weight versions they were
-    /// acted with: their sum and how many were known. Panics when empty.
-    pub fn sample_into(&mut self, out: &mut [u16]) -> Acted {
+    /// with replacement, uniformly or (prioritized) in proportion to their
+    /// priorities, stratified over the batch as in Schaul et al.; `picks`
+    /// (one per row, or empty) gets each row's place and its importance
+    /// weight (N·P(i))^−beta over the batch's largest (1 with uniform
+    /// sampling). Returns the weight versions the rows were acted with:
+    /// their sum and how many were known. Panics when empty.
+    pub fn sample_into(&mut self, out: &mut [u16], picks: &mut [Pick], beta: f64) -> Acted {
         assert!(self.len > 0, "cannot sample an empty replay memory");
+        let rows = out.len() / self.width;
         let mut acted = Acted::default();
-        for o in out.chunks_exact_mut(self.width) {
-            let i = self.rng.random_range(0..self.len);
+        for (k, o) in out.chunks_exact_mut(self.width).enumerate() {
+            let (i, weight) = match &self.prio {
+                None => (self.rng.random_range(0..self.len), 1.0),
+                Some(p) => {
+                    let seg = p.tree.total() / rows as f64;
+                    let i = p.tree.find(seg * (k as f64 + self.rng.random::<f64>())).min(self.len - 1);
+                    let prob = p.tree.get(i) / p.tree.total();
+                    (i, (self.len as f64 * prob).powf(-beta))
+                }
+            };
+            if let Some(pk) = picks.get_mut(k) {
+                *pk = Pick { row: i as u32, stamp: self.stamps[i], value: weight as f32 };
+            }
             o.copy_from_slice(&self.data[i * self.width..(i + 1) * self.width]);
             if self.versions[i] > 0 {
                 acted.version_sum += self.versions[i] as u64;
                 acted.known += 1;
             }
             self.sampled += 1;
+        }
+        let max = picks.iter().map(|p| p.value).fold(0.0f32, f32::max);
+        if max > 0.0 && max.is_finite() {
+            picks.iter_mut().for_each(|p| p.value /= max);
         }
         acted
     }
@@ -251,7 +338,7 @@ mod tests {
         r.insert_acted(&[1, 1], 5);
         r.insert_acted(&[2], 7);
         let mut out = vec![0; 400];
-        let acted = r.sample_into(&mut out);
+        let acted = r.sample_into(&mut out, &mut [], 0.0);
         // Version 0 (unknown) rows are left out of the sum.
         let expect = out
             .iter()
@@ -274,7 +361,7 @@ mod tests {
         assert_eq!(r.inserted(), 4);
         let mut seen = std::collections::BTreeSet::new();
         let mut out = vec![0; 2 * 200];
-        r.sample_into(&mut out);
+        r.sample_into(&mut out, &mut [], 0.0);
         for t in out.chunks(2) {
             assert_eq!(t[0], t[1]);
             seen.insert(t[0] as i32);
@@ -317,11 +404,48 @@ mod tests {
     }
 
     #[test]
+    fn prioritized_sampling_follows_the_priorities_and_ignores_stale_ones() {
+        let mut r = Replay::new(4, 1, 3);
+        r.insert(&[0, 1, 2, 3]);
+        r.set_prioritized(1.0, 0.0);
+        let mut out = vec![0u16; 32];
+        let mut picks = vec![Pick::default(); 32];
+        r.sample_into(&mut out, &mut picks, 0.4);
+        // All at the same priority: every weight is 1, every pick names its row.
+        assert!(picks.iter().zip(&out).all(|(p, v)| p.value == 1.0 && p.row as u16 == *v), "{picks:?}");
+        // Row 3 gets priority 9, the others 1: it is drawn 9 times in 12.
+        let mut all = Pick { row: 0, stamp: r.stamps[0], value: 1.0 };
+        for row in 0..4 {
+            all.row = row;
+            all.stamp = r.stamps[row as usize];
+            all.value = if row == 3 { 9.0 } else { 1.0 };
+            assert!(r.set_priority(&all));
+        }
+        let mut out = vec![0u16; 12_000];
+        let mut picks = vec![Pick::default(); 12_000];
+        r.sample_into(&mut out, &mut picks, 1.0);
+        let threes = out.iter().filter(|v| **v == 3).count();
+        assert!((8_700..9_300).contains(&threes), "{threes} of 12,000");
+        // Importance weights (N·P)^−1 over the largest: 1 for the rare rows,
+        // 1/9 for the frequent one.
+        let w3 = picks.iter().find(|p| p.row == 3).unwrap().value;
+        let w0 = picks.iter().find(|p| p.row == 0).unwrap().value;
+        assert!((w0 - 1.0).abs() < 1e-6 && (w3 - 1.0 / 9.0).abs() < 1e-6, "{w0} {w3}");
+        // A priority for a row overwritten since it was sampled is dropped.
+        let stale = Pick { row: 0, stamp: r.stamps[0], value: 100.0 };
+        r.insert(&[7]);
+        assert!(!r.set_priority(&stale));
+        assert!(!r.set_priority(&Pick { row: 99, stamp: 0, value: 1.0 }));
+        // The new row came in at the largest priority seen (9).
+        assert_eq!(r.prio.as_ref().unwrap().tree.get(0), 9.0);
+    }
+
+    #[test]
     fn sampling_is_roughly_uniform() {
         let mut r = Replay::new(10, 1, 2);
         r.insert(&(0..10).collect::<Vec<_>>());
         let mut out = vec![0; 10_000];
-        r.sample_into(&mut out);
+        r.sample_into(&mut out, &mut [], 0.0);
         let mut counts = [0; 10];
         for v in out {
             counts[v as usize] += 1;

@@ -229,6 +229,17 @@ pub struct ReplaySection {
     /// and the file is synced to disk every this many seconds. 0 turns the
     /// file off.
     pub snapshot_every_s: f64,
+    /// Prioritized replay (Ape-X): rows are drawn in proportion to
+    /// (|TD error| + `priority_eps`)^`priority_alpha`, the learner sends each
+    /// minibatch's TD errors back, and each row's loss is weighted by
+    /// (N·P)^−`priority_beta` over the batch's largest. False: uniform.
+    pub prioritized: bool,
+    /// Prioritization exponent (Ape-X: 0.6; 0 is uniform).
+    pub priority_alpha: f64,
+    /// Importance-sampling exponent (Ape-X: 0.4; 1 corrects fully).
+    pub priority_beta: f64,
+    /// Added to every |TD error| so that no row's priority is zero.
+    pub priority_eps: f64,
 }
 
 /// `[learner]`.
@@ -335,7 +346,18 @@ impl Default for ActorSection {
 
 impl Default for ReplaySection {
     fn default() -> Self {
-        Self { capacity: 50_000, min_fill: 15_000, batch: 32, prefetch: 4, samples_per_insert: 1.0, snapshot_every_s: 60.0 }
+        Self {
+            capacity: 50_000,
+            min_fill: 15_000,
+            batch: 32,
+            prefetch: 4,
+            samples_per_insert: 1.0,
+            snapshot_every_s: 60.0,
+            prioritized: false,
+            priority_alpha: 0.6,
+            priority_beta: 0.4,
+            priority_eps: 1e-3,
+        }
     }
 }
 
@@ -503,6 +525,12 @@ impl Config {
         if r.batch > r.capacity {
             bail!("key `replay.batch` ({}) is larger than `replay.capacity` ({})", r.batch, r.capacity);
         }
+        for (k, v) in [("replay.priority_alpha", r.priority_alpha), ("replay.priority_beta", r.priority_beta)] {
+            if !(0.0..=1.0).contains(&v) {
+                bail!("key `{k}` must lie in [0, 1], got {v}");
+            }
+        }
+        positive("replay.priority_eps", r.priority_eps)?;
         if r.min_fill > r.capacity {
             bail!("key `replay.min_fill` ({}) is larger than `replay.capacity` ({})", r.min_fill, r.capacity);
         }

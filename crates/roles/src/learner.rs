@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use rotorhive_model::{Dqn, DqnConfig, QNet, num_params};
-use rotorhive_msg::{MinibatchHeader, PACKED_LEN, RoleKind, TRANSITION_LEN, WeightsHeader, unpack_transition};
+use rotorhive_msg::{MinibatchHeader, PACKED_LEN, PICK_WORDS, Pick, PriorityHeader, RoleKind, TRANSITION_LEN, WeightsHeader, unpack_transition};
 use rotorhive_transport::Channel;
 
 use iceoryx2::service::Service;
@@ -82,6 +82,15 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     let mut rx = hub.receiver::<u16, MinibatchHeader>(&Channel::minibatches(cfg.replay.prefetch))?;
     // Minibatches arrive packed (16-bit depth); the network takes floats.
     let mut batch = Vec::new();
+    let mut picks = Vec::new();
+    let mut weights = Vec::new();
+    // Prioritized replay: each minibatch's TD errors go back as priorities.
+    let prioritized = cfg.replay.prioritized;
+    let mut prio_tx = if prioritized {
+        Some(hub.sender::<u16, PriorityHeader>(&Channel::priorities(cfg.replay.prefetch), cfg.replay.batch * PICK_WORDS, STALL_TIMEOUT)?)
+    } else {
+        None
+    };
     let mut w_tx = hub.sender::<f32, WeightsHeader>(&Channel::weights(cfg.sim.envs), num_params(), STALL_TIMEOUT)?;
     let mut tel = Counters::new(hub, RoleKind::Learner, 0, roles_of(cfg))?;
     // Versions go on increasing across restarts.
@@ -130,10 +139,19 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
             std::thread::sleep(min_period - since);
         }
         last_update = Instant::now();
-        unpack_batch(msg.payload(), &mut batch)?;
         let mb = *msg.user_header();
+        unpack_batch(msg.payload(), mb.batch as usize, &mut batch, &mut picks)?;
         drop(msg);
-        let loss = dqn.update(&batch).context("learner update")?;
+        let loss = if prioritized {
+            weights.clear();
+            weights.extend(picks.iter().map(|p| p.value));
+            dqn.update_weighted(&batch, Some(&weights)).context("learner update")?
+        } else {
+            dqn.update(&batch).context("learner update")?
+        };
+        if let Some(tx) = &mut prio_tx {
+            send_priorities(tx, &mut picks, dqn.td_abs(), mb.seq, cfg.deterministic, &mut tel.sample.lost)?;
+        }
         let tm = dqn.timing();
         tel.sample.stage_ns[0] += tm.forward_ns;
         tel.sample.stage_ns[1] += tm.backward_ns;
@@ -209,15 +227,51 @@ impl Gauges {
     }
 }
 
-/// Unpacks a minibatch of packed transitions into `out`, the learner's
-/// float layout (`TRANSITION_LEN` per transition).
-fn unpack_batch(packed: &[u16], out: &mut Vec<f32>) -> Result<()> {
-    if packed.is_empty() || !packed.len().is_multiple_of(PACKED_LEN) {
-        anyhow::bail!("a minibatch of {} words is not a whole number of packed transitions ({PACKED_LEN} words each)", packed.len());
+/// Unpacks a minibatch of `rows` packed transitions and their picks into
+/// `out`, the learner's float layout (`TRANSITION_LEN` per transition), and
+/// `picks` (each row's place and importance weight).
+fn unpack_batch(packed: &[u16], rows: usize, out: &mut Vec<f32>, picks: &mut Vec<Pick>) -> Result<()> {
+    if rows == 0 || packed.len() != rows * (PACKED_LEN + PICK_WORDS) {
+        anyhow::bail!("a minibatch of {} words is not {rows} packed transitions and their picks ({} words each)", packed.len(), PACKED_LEN + PICK_WORDS);
     }
-    out.resize(packed.len() / PACKED_LEN * TRANSITION_LEN, 0.0);
-    for (p, o) in packed.chunks_exact(PACKED_LEN).zip(out.chunks_exact_mut(TRANSITION_LEN)) {
+    let (data, tail) = packed.split_at(rows * PACKED_LEN);
+    out.resize(rows * TRANSITION_LEN, 0.0);
+    for (p, o) in data.chunks_exact(PACKED_LEN).zip(out.chunks_exact_mut(TRANSITION_LEN)) {
         unpack_transition(p, o);
     }
+    picks.clear();
+    picks.extend(tail.chunks_exact(PICK_WORDS).map(Pick::unpack));
     Ok(())
+}
+
+/// Sends minibatch `seq`'s new priorities (each row's |TD error|) back to
+/// the replay. A deterministic run cannot lose them (the replay waits for
+/// them in order); otherwise a full queue costs only these priorities.
+fn send_priorities<S: Service>(
+    tx: &mut rotorhive_transport::Sender<S, u16, PriorityHeader>,
+    picks: &mut [Pick],
+    td: &[f32],
+    seq: u64,
+    deterministic: bool,
+    lost: &mut u64,
+) -> Result<()> {
+    for (p, t) in picks.iter_mut().zip(td) {
+        p.value = *t;
+    }
+    let n = picks.len().min(td.len());
+    let sent = tx.send_with(n * PICK_WORDS, |h, out| {
+        *h = PriorityHeader { count: n as u32, reserved: 0, seq };
+        for (p, w) in picks.iter().zip(out.chunks_exact_mut(PICK_WORDS)) {
+            p.pack(w);
+        }
+    });
+    match sent {
+        Ok(()) => Ok(()),
+        Err(e) if deterministic => Err(e).context("a deterministic run cannot lose priorities"),
+        Err(e) => {
+            tracing::warn!("learner: priorities of minibatch {seq} not sent: {e}");
+            *lost += 1;
+            Ok(())
+        }
+    }
 }

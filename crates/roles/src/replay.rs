@@ -6,8 +6,8 @@ use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use rotorhive_msg::{MinibatchHeader, PACKED_LEN, RoleKind, TransitionHeader};
-use rotorhive_replay::{Acted, Journal, Replay};
+use rotorhive_msg::{MinibatchHeader, PACKED_LEN, PICK_WORDS, PriorityHeader, RoleKind, TransitionHeader};
+use rotorhive_replay::{Acted, Journal, Pick, Replay};
 use rotorhive_transport::{Channel, TransportError};
 
 use iceoryx2::service::Service;
@@ -20,15 +20,19 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     let (cfg, hub) = (cx.cfg, cx.hub);
     let r = &cfg.replay;
     let (mut mem, mut journal) = open_memory(cfg, cx.run_dir)?;
+    if r.prioritized {
+        mem.set_prioritized(r.priority_alpha, r.priority_eps);
+    }
+    let mut prio = Feedback::new(hub, cfg)?;
     let mut rx = hub.receiver::<u16, TransitionHeader>(&Channel::transitions(cfg.sim.envs))?;
     // Transitions are throughput, not latency: sleep at once when idle.
     rx.set_spin(Duration::ZERO);
     // A full learner queue is normal (the learner is busy): the send gives up
     // after a millisecond and the replay goes back to inserting.
-    let mut tx = hub.sender::<u16, MinibatchHeader>(&Channel::minibatches(r.prefetch), r.batch * PACKED_LEN, Duration::from_millis(1))?;
+    let mut tx = hub.sender::<u16, MinibatchHeader>(&Channel::minibatches(r.prefetch), minibatch_len(r.batch), Duration::from_millis(1))?;
     let mut tel = Counters::new(hub, RoleKind::Replay, 0, roles_of(cfg))?;
     if cfg.deterministic {
-        return run_scheduled(cfg, hub, &mut mem, journal.as_mut(), &mut rx, &mut tx, &mut tel);
+        return run_scheduled(cfg, hub, &mut mem, journal.as_mut(), &mut rx, &mut tx, &mut tel, &mut prio);
     }
     // Actors of other hosts come through the link with indexes after ours.
     let mut next_seq = vec![None::<u64>; cfg.envs_total()];
@@ -36,10 +40,12 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     let mut backoff_until = Instant::now();
     let mut limit = SampleLimit::new(cfg);
     let mut last_sync = Instant::now();
+    let mut picks = vec![Pick::default(); r.batch];
     loop {
         if hub.shutdown_requested() {
             break;
         }
+        prio.apply_all(&mut mem, &mut tel.sample.learning)?;
         let mut got = false;
         let t = Instant::now();
         // A bounded number of batches per loop, so minibatches keep flowing
@@ -54,8 +60,8 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
         let mut sent = false;
         if ready && limit.allows(mb_seq, mem.inserted()) && Instant::now() >= backoff_until {
             let t = Instant::now();
-            let res = tx.send_with(r.batch * PACKED_LEN, |h, out| {
-                let acted = mem.sample_into(out);
+            let res = tx.send_with(minibatch_len(r.batch), |h, out| {
+                let acted = sample(&mut mem, out, &mut picks, r.priority_beta);
                 *h = minibatch_header(&mem, r.batch, mb_seq, acted);
             });
             tel.stage(1, t);
@@ -88,6 +94,82 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     }
     tel.tick(true);
     Ok(())
+}
+
+/// Words of a minibatch message of `batch` rows: the packed rows, then a
+/// [`Pick`] per row.
+pub fn minibatch_len(batch: usize) -> usize {
+    batch * (PACKED_LEN + PICK_WORDS)
+}
+
+/// Samples a minibatch into a message's payload: the rows, then each row's
+/// pick (its place and importance weight).
+fn sample(mem: &mut Replay, out: &mut [u16], picks: &mut [Pick], beta: f64) -> Acted {
+    let (rows, tail) = out.split_at_mut(picks.len() * PACKED_LEN);
+    let acted = mem.sample_into(rows, picks, beta);
+    for (p, w) in picks.iter().zip(tail.chunks_exact_mut(PICK_WORDS)) {
+        p.pack(w);
+    }
+    acted
+}
+
+/// Prioritized replay's feedback: the learner's new priorities, one
+/// message per minibatch. Free-running, they are applied as they come; a
+/// deterministic run applies them in minibatch order, exactly those of
+/// minibatches up to `prefetch` behind the one it samples next, so that
+/// what it samples does not depend on timing.
+struct Feedback<S: Service> {
+    rx: Option<rotorhive_transport::Receiver<S, u16, PriorityHeader>>,
+    /// Feedback that arrived ahead of its turn (deterministic runs).
+    held: std::collections::BTreeMap<u64, Vec<u16>>,
+    /// Minibatches whose feedback has been applied (deterministic runs).
+    applied: u64,
+    lag: u64,
+}
+
+impl<S: Service> Feedback<S> {
+    fn new(hub: &rotorhive_transport::Hub<S>, cfg: &crate::config::Config) -> Result<Self> {
+        let rx = if cfg.replay.prioritized { Some(hub.receiver::<u16, PriorityHeader>(&Channel::priorities(cfg.replay.prefetch))?) } else { None };
+        Ok(Self { rx, held: Default::default(), applied: 0, lag: cfg.replay.prefetch as u64 })
+    }
+
+    /// Applies every priority that has arrived (free-running).
+    fn apply_all(&mut self, mem: &mut Replay, counts: &mut rotorhive_msg::Learning) -> Result<()> {
+        let Some(rx) = &mut self.rx else { return Ok(()) };
+        while let Some(m) = rx.try_recv().context("receiving priorities")? {
+            apply(mem, m.payload(), counts);
+        }
+        Ok(())
+    }
+
+    /// A deterministic run, before it samples minibatch `next`: the
+    /// feedback of every minibatch before `next − prefetch`, applied in
+    /// order. False while some of it has not arrived yet.
+    fn ready_for(&mut self, next: u64, mem: &mut Replay, counts: &mut rotorhive_msg::Learning) -> Result<bool> {
+        let Some(rx) = &mut self.rx else { return Ok(true) };
+        while let Some(m) = rx.try_recv().context("receiving priorities")? {
+            self.held.insert(m.user_header().seq, m.payload().to_vec());
+        }
+        let need = next.saturating_sub(self.lag);
+        while self.applied < need {
+            let Some(words) = self.held.remove(&self.applied) else { return Ok(false) };
+            apply(mem, &words, counts);
+            self.applied += 1;
+        }
+        Ok(true)
+    }
+}
+
+/// Applies one priorities message, counting what was applied and what was
+/// stale (a row overwritten since, or a pick that is not a row).
+fn apply(mem: &mut Replay, words: &[u16], counts: &mut rotorhive_msg::Learning) {
+    for w in words.chunks_exact(PICK_WORDS) {
+        if mem.set_priority(&Pick::unpack(w)) {
+            counts.priority_updates += 1;
+        } else {
+            counts.stale_priorities += 1;
+        }
+    }
 }
 
 /// The memory, written through to RUN_DIR/replay.bin as it changes: a
@@ -142,6 +224,7 @@ impl SampleLimit {
 /// `minibatches_after(k)` minibatches have gone out, each sampled (from the
 /// seeded generator) before the next round goes in, and offered until the
 /// learner takes it.
+#[allow(clippy::too_many_arguments)]
 fn run_scheduled<S: Service>(
     cfg: &crate::config::Config,
     hub: &rotorhive_transport::Hub<S>,
@@ -150,6 +233,7 @@ fn run_scheduled<S: Service>(
     rx: &mut rotorhive_transport::Receiver<S, u16, TransitionHeader>,
     tx: &mut rotorhive_transport::Sender<S, u16, MinibatchHeader>,
     tel: &mut Counters<S>,
+    prio: &mut Feedback<S>,
 ) -> Result<()> {
     let schedule = Schedule::new(cfg);
     let batch = cfg.replay.batch;
@@ -157,7 +241,8 @@ fn run_scheduled<S: Service>(
     let mut next_seq = vec![None::<u64>; cfg.sim.envs];
     let (mut rounds, mut sent) = (0u64, 0u64);
     // The next minibatch, sampled once and offered until the learner takes it.
-    let (mut minibatch, mut drawn, mut acted) = (vec![0u16; batch * PACKED_LEN], false, Acted::default());
+    let (mut minibatch, mut drawn, mut acted) = (vec![0u16; minibatch_len(batch)], false, Acted::default());
+    let mut picks = vec![Pick::default(); batch];
     let mut last_sync = Instant::now();
     // A minibatch sent before the learner subscribes would be lost.
     while tx.receivers() == 0 && !hub.shutdown_requested() {
@@ -173,8 +258,11 @@ fn run_scheduled<S: Service>(
         tel.stage(0, t);
         // The minibatches owed after the rounds in, one at a time, then the
         // next round.
-        if !drawn && sent < schedule.minibatches_after(rounds) {
-            acted = mem.sample_into(&mut minibatch);
+        // A minibatch owed waits for its priorities (prioritized replay)
+        // before anything else: the next round goes in only after it.
+        let owed = sent < schedule.minibatches_after(rounds);
+        if !drawn && owed && prio.ready_for(sent, mem, &mut tel.sample.learning)? {
+            acted = sample(mem, &mut minibatch, &mut picks, cfg.replay.priority_beta);
             drawn = true;
         }
         if drawn {
@@ -193,7 +281,7 @@ fn run_scheduled<S: Service>(
                 Err(TransportError::Stalled { .. }) => {}
                 Err(e) => return Err(e).context("sending a minibatch"),
             }
-        } else if rounds < schedule.rounds() && pending.iter().all(|q| !q.is_empty()) {
+        } else if !owed && rounds < schedule.rounds() && pending.iter().all(|q| !q.is_empty()) {
             for q in &mut pending {
                 let (version, batch) = q.pop_front().unwrap_or_default();
                 store(mem, journal.as_deref_mut(), &batch, version)?;
@@ -234,14 +322,18 @@ fn enqueue<S: Service>(
     let Some(q) = pending.get_mut(h.actor as usize) else {
         anyhow::bail!("transitions from actor {} of a run with {envs} environments", h.actor);
     };
-    check(m, next_seq, lost);
-    q.push_back((h.weight_version, m.payload().to_vec()));
+    // A corrupt batch is refused; the round stays whole without it.
+    let clean = check(m, next_seq, lost);
+    q.push_back((h.weight_version, if clean { m.payload().to_vec() } else { Vec::new() }));
     Ok(())
 }
 
 /// Counts a gap in the batch's actor's sequence numbers (a restarted actor
-/// starts again at 0, which is not loss) and its corrupt transitions.
-fn check<S: Service>(m: &rotorhive_transport::Msg<S, u16, TransitionHeader>, next_seq: &mut [Option<u64>], lost: &mut u64) {
+/// starts again at 0, which is not loss) and its corrupt transitions; true
+/// when the batch is clean (a batch with any corrupt transition, or whose
+/// length is not whole transitions, is not stored: poison never reaches the
+/// learner).
+fn check<S: Service>(m: &rotorhive_transport::Msg<S, u16, TransitionHeader>, next_seq: &mut [Option<u64>], lost: &mut u64) -> bool {
     let h = m.user_header();
     if let Some(slot) = next_seq.get_mut(h.actor as usize) {
         if let Some(want) = *slot
@@ -251,15 +343,22 @@ fn check<S: Service>(m: &rotorhive_transport::Msg<S, u16, TransitionHeader>, nex
         }
         *slot = Some(h.seq + 1);
     }
-    *lost += corrupt(m.payload());
+    let bad = corrupt(m.payload());
+    *lost += bad;
+    let whole = m.payload().len().is_multiple_of(PACKED_LEN);
+    if !whole {
+        *lost += 1;
+    }
+    bad == 0 && whole
 }
 
 /// Transition batches taken per loop before the next minibatch is offered.
 const INGEST_PER_LOOP: usize = 4;
 
-/// Inserts one transition batch (and records it in the journal), counting
-/// sequence gaps of its actor (a restarted actor starts again at 0, which is
-/// not loss) and corrupt values.
+/// Inserts one clean transition batch (and records it in the journal),
+/// counting sequence gaps of its actor (a restarted actor starts again at 0,
+/// which is not loss) and corrupt values; a corrupt batch is counted and
+/// dropped.
 fn ingest<S: Service>(
     m: &rotorhive_transport::Msg<S, u16, TransitionHeader>,
     mem: &mut Replay,
@@ -267,7 +366,9 @@ fn ingest<S: Service>(
     next_seq: &mut [Option<u64>],
     lost: &mut u64,
 ) -> Result<()> {
-    check(m, next_seq, lost);
+    if !check(m, next_seq, lost) {
+        return Ok(());
+    }
     store(mem, journal, m.payload(), m.user_header().weight_version)
 }
 
@@ -285,6 +386,9 @@ fn sync_due(journal: Option<&Journal>, last_sync: &mut Instant, cfg: &crate::con
 /// Inserts a transition batch acted with weight version `version` and
 /// records it in the journal.
 fn store(mem: &mut Replay, journal: Option<&mut Journal>, batch: &[u16], version: u64) -> Result<()> {
+    if batch.is_empty() {
+        return Ok(());
+    }
     mem.insert_acted(batch, version);
     if let Some(j) = journal {
         j.record(mem, batch.len() / PACKED_LEN)?;

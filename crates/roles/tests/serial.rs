@@ -94,11 +94,12 @@ fn run_serial(name: &str, cfg: &Config, updates: u64, per_env: u64) -> Report {
 }
 
 #[test]
-fn two_environments_non_batched_n_step_with_the_rate_limit() {
+fn two_environments_non_batched_n_step_prioritized_with_the_rate_limit() {
     // Two sims and two actors, one message per agent (the actor's gather),
     // 3-step returns, and the rate limit on both sides: every transition is
     // sampled about once.
-    let cfg = config(&["sim.envs=2", "sim.observation_mode=\"non-batched\"", "learner.n_step=3", "replay.samples_per_insert=1.0"]);
+    // Prioritized replay too: the learner's TD errors come back as priorities.
+    let cfg = config(&["sim.envs=2", "sim.observation_mode=\"non-batched\"", "learner.n_step=3", "replay.samples_per_insert=1.0", "replay.prioritized=true"]);
     let r = run_serial("two-envs", &cfg, 60, 50);
     for e in 0..2 {
         let (sim, actor) = (r.get(RoleKind::Sim, e), r.get(RoleKind::Actor, e));
@@ -120,15 +121,30 @@ fn two_environments_non_batched_n_step_with_the_rate_limit() {
     let sampled = replay.work2 * cfg.replay.batch as u64;
     assert!(sampled <= replay.work - cfg.replay.min_fill as u64 + buffer, "sampled {sampled} of {} inserted", replay.work);
     assert!(r.episodes > 0, "no episodes reached the supervisor's channel");
+    // The priorities of (nearly) every minibatch row came back and were
+    // applied; the few stale ones are rows overwritten since.
+    let (applied, stale) = (replay.learning.priority_updates as u64, replay.learning.stale_priorities as u64);
+    assert!(applied + stale > 0 && applied >= (applied + stale) / 2, "priorities applied {applied}, stale {stale}");
+    assert!(applied + stale <= replay.work2 * cfg.replay.batch as u64, "more priorities than rows sampled");
 }
 
 #[test]
-fn one_environment_batched_without_the_rate_limit() {
-    let cfg = config(&["replay.samples_per_insert=0.0"]);
+fn one_environment_batched_without_the_rate_limit_with_ape_x_exploration() {
+    // Also Ape-X's per-agent epsilons, a reward scale and gradient clipping:
+    // the actor's telemetry shows the spread of its agents' rates, and the
+    // learner's its diagnostics.
+    let ape_x = ["actor.exploration=\"per-actor\"", "learner.reward_scale=0.01", "learner.max_grad_norm=10", "learner.n_step=3"];
+    let cfg = config(&[&["replay.samples_per_insert=0.0"][..], &ape_x].concat());
     let r = run_serial("batched", &cfg, 100, 4 * 50);
     let (sim, actor, replay) = (r.get(RoleKind::Sim, 0), r.get(RoleKind::Actor, 0), r.get(RoleKind::Replay, 0));
     assert!(sim.work >= 4 * 50, "sim agent-steps {}", sim.work);
     assert_eq!(actor.lost + replay.lost, 0);
     assert!(r.work(RoleKind::Learner) >= 100);
     assert!(replay.work2 >= 100 && r.episodes > 0, "minibatches {}, episodes {}", replay.work2, r.episodes);
+    // Four agents: 0.4, 0.4^(1+7/3), 0.4^(1+14/3), 0.4^8.
+    let l = actor.learning;
+    assert!((l.eps_max - 0.4).abs() < 1e-6 && (l.eps_min - 0.4f32.powi(8)).abs() < 1e-6, "{l:?}");
+    let d = r.get(RoleKind::Learner, 0).learning;
+    assert!(d.mean_abs_td > 0.0 && d.mean_abs_td.is_finite() && d.mean_max_q.is_finite(), "{d:?}");
+    assert!((0.0..=1.0).contains(&d.terminal_share) && d.skipped_updates == 0, "{d:?}");
 }

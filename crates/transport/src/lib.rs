@@ -134,6 +134,11 @@ impl Channel {
     pub fn minibatches(prefetch: usize) -> Self {
         Self { name: "minibatches".into(), publishers: 1, subscribers: 1, buffer: prefetch, overflow: false, history: 0 }
     }
+    /// Priorities from the learner back to the replay (prioritized replay):
+    /// one message per minibatch; room for every minibatch in flight.
+    pub fn priorities(prefetch: usize) -> Self {
+        Self { name: "priorities".into(), publishers: 1, subscribers: 1, buffer: 2 * prefetch + 8, overflow: false, history: 0 }
+    }
     /// Weights from the learner to every actor (and to every sim, which reads
     /// the update count for rate limiting): only the newest matters, and a
     /// late subscriber gets the last published version. On a worker host the

@@ -183,7 +183,7 @@ fn role_row(t: &Telemetry, wall: f64, machine: f64, gpu: Option<GpuReading>) -> 
         gpu: gpu.map(|g| [g.util_pct, g.mem_mb, g.power_w]),
         value: gauge(t),
         policy_lag: (role == Some(RoleKind::Learner) && t.policy_lag_milli > 0).then(|| t.policy_lag_milli as f64 / 1e3),
-        learning: matches!(role, Some(RoleKind::Learner | RoleKind::Actor)).then_some(t.learning),
+        learning: matches!(role, Some(RoleKind::Learner | RoleKind::Actor | RoleKind::Replay)).then_some(t.learning),
     }
 }
 
