@@ -38,13 +38,17 @@ fn measure(fused: bool, threads: usize, batch: usize, updates: usize) -> Result<
     for i in 0..batch {
         data[i * TRANSITION_LEN + 2 * OBS_LEN] = (i % 2) as f32;
     }
+    // The update as the default config trains: with prioritized replay,
+    // each row's loss weighted and its TD error kept for the feedback.
+    let weights: Vec<f32> = (0..batch).map(|i| 0.5 + (i % 4) as f32 * 0.125).collect();
+    let weighted = cfg.replay.prioritized.then_some(weights.as_slice());
     for _ in 0..5 {
-        dqn.update(&data)?;
+        dqn.update_weighted(&data, weighted)?;
     }
     let (mut f, mut b, mut o) = (0u64, 0u64, 0u64);
     let start = Instant::now();
     for _ in 0..updates {
-        dqn.update(&data)?;
+        dqn.update_weighted(&data, weighted)?;
         let t = dqn.timing();
         f += t.forward_ns;
         b += t.backward_ns;

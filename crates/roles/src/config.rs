@@ -334,7 +334,7 @@ impl Default for ActorSection {
         Self {
             eps_start: 1.0,
             eps_end: 0.1,
-            eps_decay: 300_000,
+            eps_decay: 150_000,
             exploration: Exploration::Decay,
             per_actor_base: 0.4,
             per_actor_alpha: 7.0,
@@ -374,10 +374,10 @@ impl Default for LearnerSection {
             checkpoint_every_s: 1.0,
             threads: 1,
             huber_delta: 1.0,
-            reward_scale: 1.0,
-            max_grad_norm: 0.0,
+            reward_scale: 0.01,
+            max_grad_norm: 10.0,
             double_dqn: true,
-            n_step: 1,
+            n_step: 3,
             device: DeviceName::Cpu,
         }
     }
