@@ -162,6 +162,21 @@ pub struct RunResult {
 /// (wall s, value) points of a run.
 pub type Curve = Vec<(f64, f64)>;
 
+impl RunResult {
+    /// The run's figures as shown: times to threshold and target (s), best,
+    /// final and result validation and test success (%).
+    fn cells(&self) -> [String; 6] {
+        [
+            opt(self.time_s, 1),
+            opt(self.time_to_target_s, 1),
+            pct(self.best_validation),
+            pct(self.final_validation),
+            pct(self.result_validation),
+            pct(self.test_success),
+        ]
+    }
+}
+
 /// Time to threshold from a run's `metrics.csv`, with the clock `hive
 /// train` uses (its config's window, threshold and exploration floor),
 /// and the rolling-reward curve of its `tick` rows.
@@ -427,14 +442,9 @@ pub fn run(a: &SeedsArgs) -> Result<()> {
             );
             let dir = a.out.join(format!("{}-seed{seed}", arm.name));
             let r = run_one(a, &exe, arm, seed, &dir)?;
+            let [t, g, best, last, result, test] = r.cells();
             eprintln!(
-                "      time to threshold {} s, to target {} s, validation best/final/result {}/{}/{} %, test {} %, {:.0} agent-steps/s{}",
-                opt(r.time_s, 1),
-                opt(r.time_to_target_s, 1),
-                pct(r.best_validation),
-                pct(r.final_validation),
-                pct(r.result_validation),
-                pct(r.test_success),
+                "      time to threshold {t} s, to target {g} s, validation best/final/result {best}/{last}/{result} %, test {test} %, {:.0} agent-steps/s{}",
                 r.env_steps_per_s,
                 r.failure.as_ref().map_or(String::new(), |f| format!(" (failed: {f})"))
             );
@@ -458,7 +468,12 @@ fn report(a: &SeedsArgs, arms: &[Arm], results: &[RunResult]) -> Result<()> {
             let ta: Vec<f64> = by_arm[i].iter().map(|r| r.time_censored_s).collect();
             let tb: Vec<f64> = by_arm[j].iter().map(|r| r.time_censored_s).collect();
             let ci = bootstrap(&[&ta, &tb], a.resamples, &mut rng, |d| prob_lower(&d[0], &d[1]));
-            pairs.push(json!({ "a": arms[i].name, "b": arms[j].name, "p": prob_lower(&ta, &tb), "ci": ci }));
+            // The same on time to the validation target (unreached: the budget).
+            let target = |runs: &[&RunResult]| -> Vec<f64> { runs.iter().map(|r| r.time_to_target_s.unwrap_or(a.budget_s)).collect() };
+            let (ga, gb) = (target(&by_arm[i]), target(&by_arm[j]));
+            let gci = bootstrap(&[&ga, &gb], a.resamples, &mut rng, |d| prob_lower(&d[0], &d[1]));
+            pairs
+                .push(json!({ "a": arms[i].name, "b": arms[j].name, "p": prob_lower(&ta, &tb), "ci": ci, "p_target": prob_lower(&ga, &gb), "ci_target": gci }));
         }
     }
     write_csv(&a.out.join("seeds.csv"), results)?;
@@ -570,36 +585,29 @@ fn write_md(a: &SeedsArgs, stats: &[serde_json::Value], pairs: &[serde_json::Val
             md,
             "\nProbability that a run of b reaches the threshold sooner than a run of a (rliable's probability of improvement; 0.5 = no difference):\n"
         )?;
-        writeln!(md, "| a | b | P(b sooner) | 95 % CI |")?;
-        writeln!(md, "|---|---|---|---|")?;
+        writeln!(md, "| a | b | P(b sooner to threshold) | 95 % CI | P(b sooner to validation target) | 95 % CI |")?;
+        writeln!(md, "|---|---|---|---|---|---|")?;
+        let n = |v: &serde_json::Value| v.as_f64().unwrap_or(f64::NAN);
         for q in pairs {
             writeln!(
                 md,
-                "| {} | {} | {:.2} | [{:.2}, {:.2}] |",
+                "| {} | {} | {:.2} | [{:.2}, {:.2}] | {:.2} | [{:.2}, {:.2}] |",
                 q["a"].as_str().unwrap_or("?"),
                 q["b"].as_str().unwrap_or("?"),
-                q["p"].as_f64().unwrap_or(f64::NAN),
-                q["ci"][0].as_f64().unwrap_or(f64::NAN),
-                q["ci"][1].as_f64().unwrap_or(f64::NAN)
+                n(&q["p"]),
+                n(&q["ci"][0]),
+                n(&q["ci"][1]),
+                n(&q["p_target"]),
+                n(&q["ci_target"][0]),
+                n(&q["ci_target"][1])
             )?;
         }
     }
     writeln!(md, "\n| arm | seed | time to threshold (s) | time to target (s) | validation best / final / result (%) | test (%) | agent-steps/s |")?;
     writeln!(md, "|---|---|---|---|---|---|---|")?;
     for r in results {
-        writeln!(
-            md,
-            "| {} | {} | {} | {} | {} / {} / {} | {} | {:.0} |",
-            r.arm,
-            r.seed,
-            opt(r.time_s, 1),
-            opt(r.time_to_target_s, 1),
-            pct(r.best_validation),
-            pct(r.final_validation),
-            pct(r.result_validation),
-            pct(r.test_success),
-            r.env_steps_per_s
-        )?;
+        let [t, g, best, last, result, test] = r.cells();
+        writeln!(md, "| {} | {} | {t} | {g} | {best} / {last} / {result} | {test} | {:.0} |", r.arm, r.seed, r.env_steps_per_s)?;
     }
     let path = a.out.join("seeds.md");
     std::fs::write(&path, md).with_context(|| format!("cannot write {}", path.display()))

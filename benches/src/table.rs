@@ -12,6 +12,8 @@ use anyhow::{Context, Result, bail};
 use serde::Deserialize;
 use serde_json::{Value, json};
 
+use crate::seeds::median;
+
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct TableConfig {
@@ -109,18 +111,6 @@ fn distinct<T: PartialEq>(it: impl IntoIterator<Item = T>) -> Vec<T> {
     out
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n == 0 {
-        f64::NAN
-    } else if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        (v[n / 2 - 1] + v[n / 2]) / 2.0
-    }
-}
-
 /// The cells of `rows` in order of first appearance, with the medians over
 /// their seeds; a run that missed the threshold counts as slower than any.
 fn cell_medians(rows: &[Value]) -> Vec<CellMedian> {
@@ -129,7 +119,7 @@ fn cell_medians(rows: &[Value]) -> Vec<CellMedian> {
         .map(|(mode, envs, agents)| {
             let of: Vec<&Value> = rows.iter().filter(|r| r["mode"] == mode && r["envs"] == envs && r["agents"] == agents).collect();
             let times: Vec<f64> = of.iter().map(|r| r["time_to_threshold_s"].as_f64().unwrap_or(f64::INFINITY)).collect();
-            let of_key = |k: &str| median(of.iter().filter_map(|r| r[k].as_f64()).collect());
+            let of_key = |k: &str| median(&of.iter().filter_map(|r| r[k].as_f64()).collect::<Vec<_>>());
             let named: Vec<&str> = of.iter().filter_map(|r| r["bottleneck"].as_str()).collect();
             let bottleneck = named.iter().max_by_key(|b| named.iter().filter(|x| x == b).count()).map(|b| b.to_string());
             CellMedian {
@@ -138,7 +128,7 @@ fn cell_medians(rows: &[Value]) -> Vec<CellMedian> {
                 agents,
                 runs: of.len(),
                 converged: times.iter().filter(|t| t.is_finite()).count(),
-                time: median(times),
+                time: median(&times),
                 steps_per_s: of_key("env_steps_per_s"),
                 updates_per_s: of_key("updates_per_s"),
                 bottleneck,

@@ -80,43 +80,12 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     let state_path = ckpt_dir.join("learner-state.safetensors");
     let mut dqn = restore(cfg, &state_path)?;
     let mut rx = hub.receiver::<u16, MinibatchHeader>(&Channel::minibatches(cfg.replay.prefetch))?;
-    // Minibatches arrive packed (16-bit depth); the network takes floats.
-    let mut batch = Vec::new();
-    let mut picks = Vec::new();
-    let mut weights = Vec::new();
-    // Prioritized replay: each minibatch's TD errors go back as priorities.
-    let prioritized = cfg.replay.prioritized;
-    let mut prio_tx = if prioritized {
-        Some(hub.sender::<u16, PriorityHeader>(&Channel::priorities(cfg.replay.prefetch), cfg.replay.batch * PICK_WORDS, STALL_TIMEOUT)?)
-    } else {
-        None
-    };
+    let mut mb_in = Minibatch::new(hub, cfg)?;
     let mut w_tx = hub.sender::<f32, WeightsHeader>(&Channel::weights(cfg.sim.envs), num_params(), STALL_TIMEOUT)?;
     let mut tel = Counters::new(hub, RoleKind::Learner, 0, roles_of(cfg))?;
     // Versions go on increasing across restarts.
     let mut version = dqn.updates();
-    let mut publish = |dqn: &Dqn, version: &mut u64| -> Result<()> {
-        let v = *version + 1;
-        let updates = dqn.updates();
-        let net = &dqn.online;
-        // A failed write publishes nothing (no zero weights under a new
-        // version), and neither do weights that are not all finite: the
-        // actors keep acting with the last good ones.
-        let sent = w_tx.try_send_with(num_params(), |h, p| {
-            *h = WeightsHeader { version: v, updates, len: num_params() as u64 };
-            net.write_flat(p)?;
-            match p.iter().position(|x| !x.is_finite()) {
-                Some(i) => Err(anyhow::anyhow!("parameter {i} is {}", p[i])),
-                None => Ok(()),
-            }
-        })?;
-        match sent {
-            Ok(()) => *version = v,
-            Err(e) => tracing::warn!("learner: weights of update {updates} not published: {e:#}"),
-        }
-        Ok(())
-    };
-    publish(&dqn, &mut version)?;
+    publish(&mut w_tx, &dqn, &mut version)?;
     let min_period = if cfg.learner.max_rate_hz > 0.0 { Duration::from_secs_f64(1.0 / cfg.learner.max_rate_hz) } else { Duration::ZERO };
     let mut last_ckpt = Instant::now();
     let mut saves = (0u32, Duration::ZERO);
@@ -140,18 +109,9 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
         }
         last_update = Instant::now();
         let mb = *msg.user_header();
-        unpack_batch(msg.payload(), mb.batch as usize, &mut batch, &mut picks)?;
+        unpack_batch(msg.payload(), mb.batch as usize, &mut mb_in.batch, &mut mb_in.picks)?;
         drop(msg);
-        let loss = if prioritized {
-            weights.clear();
-            weights.extend(picks.iter().map(|p| p.value));
-            dqn.update_weighted(&batch, Some(&weights)).context("learner update")?
-        } else {
-            dqn.update(&batch).context("learner update")?
-        };
-        if let Some(tx) = &mut prio_tx {
-            send_priorities(tx, &mut picks, dqn.td_abs(), mb.seq, cfg.deterministic, &mut tel.sample.lost)?;
-        }
+        let loss = mb_in.learn(&mut dqn, mb.seq, cfg.deterministic, &mut tel.sample.lost)?;
         let tm = dqn.timing();
         tel.sample.stage_ns[0] += tm.forward_ns;
         tel.sample.stage_ns[1] += tm.backward_ns;
@@ -160,7 +120,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
         gauges.add(loss, &mb, version, &mut tel.sample);
         gauges.learn(&dqn, cfg.learner.reward_scale, &mut tel.sample);
         if dqn.updates() % cfg.learner.publish_every == 0 {
-            publish(&dqn, &mut version)?;
+            publish(&mut w_tx, &dqn, &mut version)?;
             tel.sample.weight_version = version;
             tel.sample.work2 = version;
         }
@@ -177,6 +137,62 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     save_state_atomic(&dqn, &state_path)?;
     tel.tick(true);
     Ok(())
+}
+
+/// Publishes the online network as the next weight version. A failed write
+/// publishes nothing (no zero weights under a new version), and neither do
+/// weights that are not all finite: the actors keep acting with the last
+/// good ones, and the version is not spent.
+fn publish<S: Service>(w_tx: &mut rotorhive_transport::Sender<S, f32, WeightsHeader>, dqn: &Dqn, version: &mut u64) -> Result<()> {
+    let v = *version + 1;
+    let updates = dqn.updates();
+    let net = &dqn.online;
+    let sent = w_tx.try_send_with(num_params(), |h, p| {
+        *h = WeightsHeader { version: v, updates, len: num_params() as u64 };
+        net.write_flat(p)?;
+        match p.iter().position(|x| !x.is_finite()) {
+            Some(i) => Err(anyhow::anyhow!("parameter {i} is {}", p[i])),
+            None => Ok(()),
+        }
+    })?;
+    match sent {
+        Ok(()) => *version = v,
+        Err(e) => tracing::warn!("learner: weights of update {updates} not published: {e:#}"),
+    }
+    Ok(())
+}
+
+/// The minibatch in hand, in the network's layout, and (prioritized
+/// replay) the channel its TD errors go back on.
+struct Minibatch<S: Service> {
+    /// Transitions as floats (they arrive packed, with 16-bit depth).
+    batch: Vec<f32>,
+    /// Each row's place and importance weight.
+    picks: Vec<Pick>,
+    weights: Vec<f32>,
+    prio_tx: Option<rotorhive_transport::Sender<S, u16, PriorityHeader>>,
+}
+
+impl<S: Service> Minibatch<S> {
+    fn new(hub: &rotorhive_transport::Hub<S>, cfg: &Config) -> Result<Self> {
+        let prio_tx = if cfg.replay.prioritized {
+            Some(hub.sender::<u16, PriorityHeader>(&Channel::priorities(cfg.replay.prefetch), cfg.replay.batch * PICK_WORDS, STALL_TIMEOUT)?)
+        } else {
+            None
+        };
+        Ok(Self { batch: Vec::new(), picks: Vec::new(), weights: Vec::new(), prio_tx })
+    }
+
+    /// One update on the minibatch in hand (importance-weighted, with its
+    /// TD errors sent back as priorities, under prioritized replay); the loss.
+    fn learn(&mut self, dqn: &mut Dqn, seq: u64, deterministic: bool, lost: &mut u64) -> Result<f32> {
+        let Some(tx) = &mut self.prio_tx else { return dqn.update(&self.batch).context("learner update") };
+        self.weights.clear();
+        self.weights.extend(self.picks.iter().map(|p| p.value));
+        let loss = dqn.update_weighted(&self.batch, Some(&self.weights)).context("learner update")?;
+        send_priorities(tx, &mut self.picks, dqn.td_abs(), seq, deterministic, lost)?;
+        Ok(loss)
+    }
 }
 
 /// The learner's gauges in its telemetry, over the updates since the last

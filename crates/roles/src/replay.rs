@@ -256,10 +256,9 @@ fn run_scheduled<S: Service>(
             busy = true;
         }
         tel.stage(0, t);
-        // The minibatches owed after the rounds in, one at a time, then the
+        // The minibatches owed after the rounds in, one at a time (each
+        // waiting for its priorities under prioritized replay), then the
         // next round.
-        // A minibatch owed waits for its priorities (prioritized replay)
-        // before anything else: the next round goes in only after it.
         let owed = sent < schedule.minibatches_after(rounds);
         if !drawn && owed && prio.ready_for(sent, mem, &mut tel.sample.learning)? {
             acted = sample(mem, &mut minibatch, &mut picks, cfg.replay.priority_beta);
@@ -282,10 +281,7 @@ fn run_scheduled<S: Service>(
                 Err(e) => return Err(e).context("sending a minibatch"),
             }
         } else if !owed && rounds < schedule.rounds() && pending.iter().all(|q| !q.is_empty()) {
-            for q in &mut pending {
-                let (version, batch) = q.pop_front().unwrap_or_default();
-                store(mem, journal.as_deref_mut(), &batch, version)?;
-            }
+            insert_round(&mut pending, mem, journal.as_deref_mut())?;
             rounds += 1;
             busy = true;
         }
@@ -306,6 +302,16 @@ fn run_scheduled<S: Service>(
         j.sync()?;
     }
     tel.tick(true);
+    Ok(())
+}
+
+/// Inserts a deterministic run's next round: each environment's oldest
+/// pending batch, in environment order.
+fn insert_round(pending: &mut [VecDeque<(u64, Vec<u16>)>], mem: &mut Replay, mut journal: Option<&mut Journal>) -> Result<()> {
+    for q in pending {
+        let (version, batch) = q.pop_front().unwrap_or_default();
+        store(mem, journal.as_deref_mut(), &batch, version)?;
+    }
     Ok(())
 }
 
