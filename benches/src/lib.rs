@@ -115,6 +115,9 @@ pub enum BenchCmd {
         seconds: f64,
         #[arg(long)]
         batch: usize,
+        /// This side's TLS directory (a `tls/` endpoint).
+        #[arg(long)]
+        tls: Option<std::path::PathBuf>,
     },
     /// The far side of `bench ipc` (started by it).
     #[command(hide = true)]
@@ -192,7 +195,7 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
         BenchCmd::Ipc { iters, json } => crate::ipc::run(iters, json),
         BenchCmd::IpcPeer { prefix } => crate::ipc::peer(&prefix),
         BenchCmd::Link { seconds, batch, json } => crate::link::run(seconds, batch, json),
-        BenchCmd::LinkSide { side, endpoint, seconds, batch } => crate::link::side(&side, &endpoint, seconds, batch),
+        BenchCmd::LinkSide { side, endpoint, seconds, batch, tls } => crate::link::side(&side, &endpoint, seconds, batch, tls),
         BenchCmd::Replay { producers, seconds, json } => crate::replay::run(producers, seconds, json),
         BenchCmd::ReplayProducer { prefix, index, producers, batches } => crate::replay::producer(&prefix, index, producers, batches),
         BenchCmd::Table { config, out, json } => crate::table::run(&config, &out, json),

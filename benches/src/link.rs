@@ -52,48 +52,34 @@ pub fn run(seconds: f64, batch: usize, json_out: bool) -> Result<()> {
     if !(seconds.is_finite() && seconds > 0.0) || batch == 0 || batch > 1024 {
         bail!("--seconds must be positive and --batch between 1 and 1024");
     }
-    let port = std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();
-    let ep = format!("tcp/127.0.0.1:{port}");
-    let exe = std::env::current_exe()?;
-    let side = |name: &str, domain: String| -> Result<std::process::Child> {
-        Command::new(&exe)
-            .args(["--domain", &domain, "bench", "link-side", "--side", name, "--endpoint", &ep])
-            .args(["--seconds", &seconds.to_string(), "--batch", &batch.to_string()])
-            .stdout(Stdio::piped())
-            .spawn()
-            .with_context(|| format!("cannot start the {name} side"))
-    };
-    let head = side("head", "linkbench-head".to_string())?;
-    let worker = side("worker", "linkbench-worker".to_string())?;
-    let w = worker.wait_with_output()?;
-    let h = head.wait_with_output()?;
-    let last = |o: &std::process::Output| -> Result<serde_json::Value> {
-        let out = String::from_utf8_lossy(&o.stdout);
-        let line = out.lines().last().unwrap_or("");
-        serde_json::from_str(line).with_context(|| format!("a side of the link bench failed ({}): {out}", o.status))
-    };
-    let (hj, wj) = (last(&h)?, last(&w)?);
-    let got = hj["transitions"].as_u64().unwrap_or(0);
-    let secs = hj["seconds"].as_f64().unwrap_or(f64::NAN);
-    let lost = hj["lost"].as_u64().unwrap_or(0);
-    let link_rate = got as f64 / secs;
+    let plain = link_pair(seconds, batch, None)?;
+    // The same over mutual TLS, with certificates made for this run.
+    let certs = std::env::temp_dir().join(format!("rotorhive-bench-link-{}", std::process::id()));
+    rotorhive_link::certs::make(&certs, 1, &[])?;
+    let tls = link_pair(seconds, batch, Some(&certs));
+    let _ = std::fs::remove_dir_all(&certs);
+    let tls = tls?;
+    let (link_rate, lost, got, sent, ep) = (plain.rate, plain.lost, plain.got, plain.sent.clone(), plain.endpoint.clone());
     let (base_got, base_secs) = msgpack_tcp(seconds, batch)?;
     let base_rate = base_got as f64 / base_secs;
     let mb = |r: f64| r * (PACKED_LEN * 2) as f64 / 1e6;
     println!("{:<32} {:>14} {:>10} {:>8}", "path", "transitions/s", "MB/s", "lost");
     println!("{:<32} {:>14.0} {:>10.0} {:>8}", "link: shm → zenoh/TCP → shm", link_rate, mb(link_rate), lost);
+    println!("{:<32} {:>14.0} {:>10.0} {:>8}", "link: shm → zenoh/mTLS → shm", tls.rate, mb(tls.rate), tls.lost);
     println!("{:<32} {:>14.0} {:>10.0} {:>8}", "msgpack over TCP (baseline)", base_rate, mb(base_rate), "-");
     println!(
-        "ratio {:.1}×; batches of {batch} transitions ({} bytes each), {seconds} s per path; worker sent {} transitions",
+        "ratio {:.1}× the baseline, TLS {:.2}× plain; batches of {batch} transitions ({} bytes each), {seconds} s per path; worker sent {} transitions",
         link_rate / base_rate,
+        tls.rate / link_rate,
         PACKED_LEN * 2,
-        wj["sent"]
+        sent
     );
     if json_out {
         println!(
             "{}",
             json!({
-                "transitions_per_s": link_rate, "lost": lost, "received": got, "sent": wj["sent"],
+                "transitions_per_s": link_rate, "lost": lost, "received": got, "sent": sent,
+                "tls_transitions_per_s": tls.rate, "tls_lost": tls.lost, "tls_ratio": tls.rate / link_rate,
                 "baseline_transitions_per_s": base_rate, "ratio": link_rate / base_rate,
                 "batch": batch, "seconds": seconds, "bytes_per_transition": PACKED_LEN * 2, "endpoint": ep,
             })
@@ -102,13 +88,57 @@ pub fn run(seconds: f64, batch: usize, json_out: bool) -> Result<()> {
     Ok(())
 }
 
+/// What one pair of link sides measured.
+struct Pair {
+    rate: f64,
+    lost: u64,
+    got: u64,
+    sent: serde_json::Value,
+    endpoint: String,
+}
+
+/// A head side and a worker side in two domains, over plain TCP or (with a
+/// directory of `certs::make`) mutual TLS.
+fn link_pair(seconds: f64, batch: usize, tls: Option<&std::path::Path>) -> Result<Pair> {
+    let port = std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();
+    let ep = format!("{}/127.0.0.1:{port}", if tls.is_some() { "tls" } else { "tcp" });
+    let exe = std::env::current_exe()?;
+    let side = |name: &str, domain: String, dir: &str| -> Result<std::process::Child> {
+        let mut c = Command::new(&exe);
+        c.args(["--domain", &domain, "bench", "link-side", "--side", name, "--endpoint", &ep]).args([
+            "--seconds",
+            &seconds.to_string(),
+            "--batch",
+            &batch.to_string(),
+        ]);
+        if let Some(t) = tls {
+            c.arg("--tls").arg(t.join(dir));
+        }
+        c.stdout(Stdio::piped()).spawn().with_context(|| format!("cannot start the {name} side"))
+    };
+    let head = side("head", "linkbench-head".to_string(), "head")?;
+    let worker = side("worker", "linkbench-worker".to_string(), "worker-1")?;
+    let w = worker.wait_with_output()?;
+    let h = head.wait_with_output()?;
+    let last = |o: &std::process::Output| -> Result<serde_json::Value> {
+        let out = String::from_utf8_lossy(&o.stdout);
+        let line = out.lines().last().unwrap_or("");
+        serde_json::from_str(line).with_context(|| format!("a side of the link bench on {ep} failed ({}): {out}", o.status))
+    };
+    let (hj, wj) = (last(&h)?, last(&w)?);
+    let got = hj["transitions"].as_u64().unwrap_or(0);
+    let secs = hj["seconds"].as_f64().unwrap_or(f64::NAN);
+    Ok(Pair { rate: got as f64 / secs, lost: hj["lost"].as_u64().unwrap_or(0), got, sent: wj["sent"].clone(), endpoint: ep })
+}
+
 /// One side of the link benchmark, in its own domain (started by [`run`]).
-pub fn side(side: &str, ep: &str, seconds: f64, batch: usize) -> Result<()> {
+pub fn side(side: &str, ep: &str, seconds: f64, batch: usize, tls: Option<std::path::PathBuf>) -> Result<()> {
     let layout = rotorhive_link::layout(rotorhive_model::num_params());
+    let opts = rotorhive_link::LinkOptions { tls, zenoh_config: None };
     let stop = Arc::new(AtomicBool::new(false));
     match side {
         "head" => {
-            let mut head = rotorhive_link::Head::listen(ep, RUN, layout)?;
+            let mut head = rotorhive_link::Head::listen(ep, RUN, layout, &opts)?;
             head.gather(1, 1, batch, Duration::from_secs(30), rotorhive_transport::stop_requested)?;
             head.admit(|_| (String::new(), String::new()));
             let hub = Hub::<Ipc>::new(RUN, "bench-consumer")?;
@@ -128,7 +158,7 @@ pub fn side(side: &str, ep: &str, seconds: f64, batch: usize) -> Result<()> {
                     lost += h.seq.saturating_sub(want) * h.count as u64;
                 }
                 next = Some(h.seq + 1);
-                if m.payload().len() != h.count as usize * PACKED_LEN || m.payload()[PACKED_LEN - 1] != (h.seq as u16) {
+                if m.payload().len() != h.count as usize * PACKED_LEN || m.payload()[0] != (h.seq as u16) {
                     bail!("batch {} arrived damaged", h.seq);
                 }
                 first.get_or_insert_with(Instant::now);
@@ -147,7 +177,7 @@ pub fn side(side: &str, ep: &str, seconds: f64, batch: usize) -> Result<()> {
         }
         "worker" => {
             let hello = rotorhive_link::Hello { layout, envs: 1, agents: batch as u32, host: "bench-worker".into() };
-            let w = rotorhive_link::Worker::join(ep, &hello, Duration::from_secs(30), rotorhive_transport::stop_requested)?;
+            let w = rotorhive_link::Worker::join(ep, &hello, Duration::from_secs(30), &opts, rotorhive_transport::stop_requested)?;
             let hub = Hub::<Ipc>::new(RUN, "bench-link")?.with_stop(stop.clone());
             let (ready_tx, ready_rx) = std::sync::mpsc::channel::<()>();
             let producer = {
@@ -171,7 +201,8 @@ pub fn side(side: &str, ep: &str, seconds: f64, batch: usize) -> Result<()> {
                             // Written into the loan, as the baseline serializes its
                             // buffer; a marker proves each batch's identity.
                             p.copy_from_slice(&data);
-                            p[PACKED_LEN - 1] = seq as u16;
+                            // (in a depth word: the scalars are checked on the way).
+                            p[0] = seq as u16;
                         });
                         match r {
                             Ok(()) => seq += 1,
@@ -183,7 +214,7 @@ pub fn side(side: &str, ep: &str, seconds: f64, batch: usize) -> Result<()> {
                 })
             };
             let mut stats = rotorhive_link::WorkerStats::default();
-            let end = w.bridge(&hub, 1, 2, &mut stats, move || {
+            let end = w.bridge(&hub, 1, 2, rotorhive_model::num_params(), &mut stats, move || {
                 let _ = ready_tx.send(());
             });
             stop.store(true, Ordering::SeqCst);

@@ -65,6 +65,11 @@ pub struct SeedsArgs {
     /// Print one JSON object as the last line.
     #[arg(long)]
     pub json: bool,
+    /// Keep the runs of an interrupted experiment that finished (their
+    /// `summary.json` exists) and score them again instead of training them
+    /// again; give the same command line as before.
+    #[arg(long)]
+    pub resume: bool,
 }
 
 /// One arm: a name and its overrides.
@@ -232,6 +237,65 @@ fn test_success(run_dir: &Path, checkpoint: &Path, arena: &Path, episodes: usize
 
 /// Runs one seed of one arm and scores it.
 fn run_one(a: &SeedsArgs, exe: &Path, arm: &Arm, seed: u64, dir: &Path) -> Result<RunResult> {
+    let status = if a.resume && dir.join("summary.json").is_file() {
+        eprintln!("      finished before: scored again (--resume)");
+        None
+    } else {
+        Some(train(a, exe, arm, seed, dir)?)
+    };
+    let exited = |status: &Option<std::process::ExitStatus>| match status {
+        Some(s) => format!("hive train exited with {s}"),
+        None => "the run of an earlier experiment".to_string(),
+    };
+    // A run that failed counts as unconverged at the budget (and is named
+    // in the report); the experiment goes on.
+    let failed = |why: String| RunResult {
+        arm: arm.name.clone(),
+        seed,
+        dir: dir.to_path_buf(),
+        time_censored_s: a.budget_s,
+        failure: Some(why),
+        ..RunResult::default()
+    };
+    let summary = match Summary::read(dir) {
+        Ok(s) => s,
+        Err(e) => return Ok(failed(format!("{}: {e:#}", exited(&status)))),
+    };
+    let (time_s, curve) = match threshold_time(dir) {
+        Ok(t) => t,
+        Err(e) => return Ok(failed(format!("{e:#}"))),
+    };
+    let test = match &summary.checkpoint {
+        Some(c) if a.test_episodes > 0 => Some(test_success(dir, Path::new(c), &a.test_arena, a.test_episodes)?),
+        _ => None,
+    };
+    let validation = validation_curve(dir);
+    // The replay memory's file (hundreds of MB per run) is not part of the
+    // result: an experiment of tens of runs would fill the disk.
+    let _ = std::fs::remove_file(dir.join("replay.bin"));
+    let failure = summary.failure.clone().or_else(|| status.filter(|s| !s.success()).map(|s| format!("hive train exited with {s}")));
+    Ok(RunResult {
+        arm: arm.name.clone(),
+        seed,
+        dir: dir.to_path_buf(),
+        time_s,
+        time_censored_s: time_s.unwrap_or(if a.deterministic_steps > 0 { summary.wall_s } else { a.budget_s }),
+        time_to_target_s: summary.time_to_target_success_s,
+        best_validation: validation.iter().map(|p| p.1).reduce(f64::max),
+        final_validation: summary.final_validation_success,
+        result_validation: summary.result_validation_success,
+        test_success: test,
+        env_steps_per_s: summary.env_steps_per_s,
+        updates_per_s: summary.updates_per_s,
+        skipped_updates: summary.skipped_updates,
+        failure,
+        curve,
+        validation,
+    })
+}
+
+/// Trains one seed of one arm into `dir` (emptied first).
+fn train(a: &SeedsArgs, exe: &Path, arm: &Arm, seed: u64, dir: &Path) -> Result<std::process::ExitStatus> {
     let _ = std::fs::remove_dir_all(dir);
     let mut cmd = Command::new(exe);
     cmd.arg("train");
@@ -248,51 +312,7 @@ fn run_one(a: &SeedsArgs, exe: &Path, arm: &Arm, seed: u64, dir: &Path) -> Resul
         cmd.arg("--set").arg(s);
     }
     cmd.stdout(std::process::Stdio::null());
-    let status = cmd.status().with_context(|| format!("arm {} seed {seed}: cannot start hive train", arm.name))?;
-    // A run that failed counts as unconverged at the budget (and is named
-    // in the report); the experiment goes on.
-    let failed = |why: String| RunResult {
-        arm: arm.name.clone(),
-        seed,
-        dir: dir.to_path_buf(),
-        time_censored_s: a.budget_s,
-        failure: Some(why),
-        ..RunResult::default()
-    };
-    let summary = match Summary::read(dir) {
-        Ok(s) => s,
-        Err(e) => return Ok(failed(format!("hive train exited with {status}: {e:#}"))),
-    };
-    let (time_s, curve) = match threshold_time(dir) {
-        Ok(t) => t,
-        Err(e) => return Ok(failed(format!("{e:#}"))),
-    };
-    let test = match &summary.checkpoint {
-        Some(c) if a.test_episodes > 0 => Some(test_success(dir, Path::new(c), &a.test_arena, a.test_episodes)?),
-        _ => None,
-    };
-    let validation = validation_curve(dir);
-    // The replay memory's file (hundreds of MB per run) is not part of the
-    // result: an experiment of tens of runs would fill the disk.
-    let _ = std::fs::remove_file(dir.join("replay.bin"));
-    Ok(RunResult {
-        arm: arm.name.clone(),
-        seed,
-        dir: dir.to_path_buf(),
-        time_s,
-        time_censored_s: time_s.unwrap_or(if a.deterministic_steps > 0 { summary.wall_s } else { a.budget_s }),
-        time_to_target_s: summary.time_to_target_success_s,
-        best_validation: validation.iter().map(|p| p.1).reduce(f64::max),
-        final_validation: summary.final_validation_success,
-        result_validation: summary.result_validation_success,
-        test_success: test,
-        env_steps_per_s: summary.env_steps_per_s,
-        updates_per_s: summary.updates_per_s,
-        skipped_updates: summary.skipped_updates,
-        failure: summary.failure.clone().or_else(|| (!status.success()).then(|| format!("hive train exited with {status}"))),
-        curve,
-        validation,
-    })
+    cmd.status().with_context(|| format!("arm {} seed {seed}: cannot start hive train", arm.name))
 }
 
 /// The median of `v` (NaN when empty).

@@ -2,6 +2,7 @@
 //! (`sim`, `actor`, `replay`, `learner`), the main job (`train`), evaluation,
 //! pictures and system benchmarks.
 
+mod certs;
 mod draw;
 mod eval;
 mod gpu_monitor;
@@ -63,6 +64,9 @@ enum Command {
     /// Join a run on another host (`hive train --listen`): run its sims and
     /// actors here, and their link; ends when the head's run ends.
     Worker(worker::WorkerArgs),
+    /// Make the certificates of a run across hosts over mutual TLS: a CA and
+    /// one directory per host for its `--tls`.
+    Certs(certs::CertsArgs),
     /// Evaluate a checkpoint with the greedy policy.
     Eval(eval::EvalArgs),
     /// Where a run's time went: CPU and wall-time shares per role and stage,
@@ -123,6 +127,7 @@ fn main() -> ExitCode {
         Command::Replay { role } => role_cmd::run(&role, RoleKind::Replay, 0),
         Command::Learner { role } => role_cmd::run(&role, RoleKind::Learner, 0),
         Command::Worker(a) => worker::run(a),
+        Command::Certs(a) => certs::run(a),
         Command::Eval(a) => eval::run(a),
         Command::Bench(b) => rotorhive_bench::run(b),
         Command::RenderArena(a) => draw::render_arena(a),

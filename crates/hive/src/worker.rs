@@ -15,11 +15,63 @@ use rotorhive_link::{Hello, Worker, WorkerEnd, WorkerStats};
 use rotorhive_roles::{Config, env_role_names, roles_of};
 use rotorhive_transport::{Hub, Local};
 
+/// How a host's link is secured: `hive train --listen` and `hive worker`.
+#[derive(Args, Debug, Default)]
+pub struct LinkArgs {
+    /// Mutual TLS for tls/ endpoints: a directory with `ca.pem`, `cert.pem`
+    /// and `key.pem` (this host's, from `hive certs`).
+    #[arg(long, value_name = "DIR")]
+    pub tls: Option<PathBuf>,
+    /// A Zenoh configuration file (JSON5) laid over rotorhive's: its keys
+    /// win (access control, other TLS settings, buffer sizes).
+    #[arg(long, value_name = "FILE")]
+    pub zenoh_config: Option<PathBuf>,
+    /// Listen on a non-loopback address over plain TCP: anyone who reaches
+    /// the port can then read the weights and feed the run. Only on a
+    /// network you trust.
+    #[arg(long)]
+    pub insecure: bool,
+}
+
+impl LinkArgs {
+    /// The link's options.
+    pub fn options(&self) -> rotorhive_link::LinkOptions {
+        rotorhive_link::LinkOptions { tls: self.tls.clone(), zenoh_config: self.zenoh_config.clone() }
+    }
+
+    /// Checks an endpoint and its certificates before anything starts.
+    pub fn check(&self, ep: &str) -> Result<()> {
+        rotorhive_link::check_endpoint(ep)?;
+        match &self.tls {
+            Some(dir) => {
+                rotorhive_link::tls_files(dir)?;
+            }
+            None if rotorhive_link::is_tls(ep) && self.zenoh_config.is_none() => {
+                bail!("{ep} needs --tls DIR: the run's CA and this host's certificate and key (made by `hive certs`)")
+            }
+            None => {}
+        }
+        Ok(())
+    }
+
+    /// Refuses to listen unencrypted beyond this machine without `--insecure`.
+    pub fn check_listen(&self, ep: &str) -> Result<()> {
+        self.check(ep)?;
+        if !rotorhive_link::is_tls(ep) && !rotorhive_link::is_loopback(ep) && !self.insecure && self.zenoh_config.is_none() {
+            bail!(
+                "--listen {ep}: plain TCP beyond this machine lets anyone who reaches the port read the weights and feed the run; \
+                 use tls/ with --tls DIR (see `hive certs`), or add --insecure on a network you trust"
+            );
+        }
+        Ok(())
+    }
+}
+
 /// `hive worker` arguments.
 #[derive(Args, Debug)]
 pub struct WorkerArgs {
-    /// The head's endpoint, as it listens: tcp/ADDR:PORT.
-    #[arg(long, value_name = "tcp/ADDR:PORT")]
+    /// The head's endpoint, as it listens: tls/ADDR:PORT (or tcp/).
+    #[arg(long, value_name = "tls/ADDR:PORT")]
     pub connect: String,
     /// Environments (sims) on this host.
     #[arg(long, default_value_t = 1)]
@@ -38,6 +90,8 @@ pub struct WorkerArgs {
     /// How long to keep asking the head to join (s).
     #[arg(long, default_value_t = 60.0)]
     pub join_timeout: f64,
+    #[command(flatten)]
+    pub link: LinkArgs,
 }
 
 pub fn run(a: WorkerArgs) -> Result<()> {
@@ -47,14 +101,21 @@ pub fn run(a: WorkerArgs) -> Result<()> {
     if !(a.join_timeout.is_finite() && a.join_timeout > 0.0) {
         bail!("--join-timeout must be positive, got {}", a.join_timeout);
     }
-    rotorhive_link::check_endpoint(&a.connect)?;
+    a.link.check(&a.connect)?;
+    // Candle's pools stay single-threaded per role, as in role processes.
+    // SAFETY: no thread of this process has started yet (Zenoh's start in
+    // `Worker::join` below).
+    unsafe {
+        std::env::set_var("RAYON_NUM_THREADS", "1");
+        std::env::set_var("CANDLE_NUM_THREADS", "1");
+    }
     rotorhive_transport::handle_hangup();
     let name = a.name.clone().unwrap_or_else(|| match std::env::var(rotorhive_transport::DOMAIN_ENV) {
         Ok(d) if !d.is_empty() => format!("{}/{d}", crate::supervisor::host_name()),
         _ => crate::supervisor::host_name(),
     });
     let hello = Hello { layout: rotorhive_link::layout(rotorhive_model::num_params()), envs: a.envs, agents: a.agents.unwrap_or(0), host: name.clone() };
-    let link = Worker::join(&a.connect, &hello, Duration::from_secs_f64(a.join_timeout), rotorhive_transport::stop_requested)?;
+    let link = Worker::join(&a.connect, &hello, Duration::from_secs_f64(a.join_timeout), &a.link.options(), rotorhive_transport::stop_requested)?;
     let run_dir = a.run_dir.clone().unwrap_or_else(|| PathBuf::from("runs").join(format!("worker-{}", std::process::id())));
     std::fs::create_dir_all(&run_dir).with_context(|| format!("cannot create {}", run_dir.display()))?;
     let run_dir = run_dir.canonicalize()?;
@@ -68,12 +129,6 @@ pub fn run(a: WorkerArgs) -> Result<()> {
         link.env_offset,
         link.env_offset as usize + cfg.sim.envs
     );
-    // Candle's pools stay single-threaded per role, as in role processes.
-    // SAFETY: the only threads so far are zenoh's, which read neither.
-    unsafe {
-        std::env::set_var("RAYON_NUM_THREADS", "1");
-        std::env::set_var("CANDLE_NUM_THREADS", "1");
-    }
     let prefix = format!("worker-{}", std::process::id());
     let stop = Arc::new(AtomicBool::new(false));
     let mut stats = WorkerStats::default();
@@ -82,7 +137,7 @@ pub fn run(a: WorkerArgs) -> Result<()> {
         let (ready_tx, ready_rx) = std::sync::mpsc::channel();
         let bridge = s.spawn(|| -> Result<WorkerEnd> {
             let hub = Hub::<Local>::new(&prefix, "link")?.with_stop(stop.clone());
-            Ok(link.bridge(&hub, cfg.sim.envs, roles_of(&cfg), &mut stats, move || {
+            Ok(link.bridge(&hub, cfg.sim.envs, roles_of(&cfg), rotorhive_model::num_params(), &mut stats, move || {
                 let _ = ready_tx.send(());
             })?)
         });
@@ -105,8 +160,8 @@ pub fn run(a: WorkerArgs) -> Result<()> {
     stop.store(true, Ordering::SeqCst);
     let first = rotorhive_roles::join_threads(threads);
     println!(
-        "worker {name}: {} transitions in {} batches sent, weights version {} ({} received), {} messages dropped",
-        stats.transitions, stats.batches, stats.weight_version, stats.weights, stats.dropped
+        "worker {name}: {} transitions in {} batches sent, weights version {} ({} received, {} rejected), {} messages dropped",
+        stats.transitions, stats.batches, stats.weight_version, stats.weights, stats.rejected, stats.dropped
     );
     match end {
         Ok(WorkerEnd::RunEnded) => {

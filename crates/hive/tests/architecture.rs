@@ -154,7 +154,9 @@ fn domain_crates_stay_pure_and_the_transport_knows_no_domain() {
     let bad = uses("rotorhive-link", &["candle", "rapier", "rotorhive-sim", "rotorhive-model", "rotorhive-roles"]);
     assert!(bad.is_empty(), "rotorhive-link depends on {bad:?}");
     let zenoh = deps.iter().find(|(n, _)| n == "rotorhive-link").and_then(|(_, d)| d.iter().find(|(n, _)| n == "zenoh")).expect("the link imports zenoh");
-    assert_eq!(zenoh.1, vec!["transport_tcp".to_string()], "zenoh with its TCP transport only");
+    let mut features = zenoh.1.clone();
+    features.sort();
+    assert_eq!(features, vec!["transport_tcp".to_string(), "transport_tls".to_string()], "zenoh with its TCP and TLS transports only");
     // Python stays in the Python package's crate.
     for (krate, d) in &deps {
         if krate != "rotorhive-py" {

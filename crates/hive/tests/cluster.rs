@@ -1,8 +1,11 @@
 //! A run across hosts, faked on one machine with two shared-memory domains
-//! joined by real Zenoh sessions on TCP loopback (real processes, real
-//! shared memory, a real network path): the head trains from a worker's
-//! transitions with none lost; a worker of another build is refused; bad
-//! addresses and a missing head fail with a clear error instead of a hang.
+//! joined by real Zenoh sessions on loopback (real processes, real shared
+//! memory, a real network path): the head trains from a worker's
+//! transitions over mutual TLS with none lost, while a worker with a
+//! certificate of another CA and a plaintext one are kept out; a worker of
+//! another build is refused; bad addresses, missing certificates, a plain
+//! listener beyond loopback and a missing head fail with a clear error
+//! instead of a hang. (A stranger's forged traffic: crates/py/tests/test_stranger.py.)
 
 mod common;
 
@@ -45,15 +48,23 @@ fn text(o: &Output) -> String {
 }
 
 #[test]
-fn a_head_trains_from_a_worker_on_another_domain_without_loss() {
+fn a_head_trains_from_a_worker_on_another_domain_over_mutual_tls_without_loss() {
     let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
     let dir = tmp("head");
     let wdir = tmp("worker");
-    let ep = format!("tcp/127.0.0.1:{}", free_port());
+    let certs = tmp("certs");
+    let other = tmp("other-ca");
+    for (d, n) in [(&certs, "1"), (&other, "1")] {
+        let o = hive(&["certs", "--out", &d.display().to_string(), "--workers", n, "--force"]).output().unwrap();
+        assert!(o.status.success(), "{}", text(&o));
+    }
+    let tls = |d: &std::path::Path, host: &str| d.join(host).display().to_string();
+    let ep = format!("tls/127.0.0.1:{}", free_port());
     // Fixed domain names: each domain keeps one small management file in
     // /dev/shm, as the machine's shared domain does.
     let (hd, wd) = ("cluster-head".to_string(), "cluster-worker".to_string());
-    let mut head_args = vec!["--domain", &hd, "train", "configs/default.toml", "--listen", &ep, "--max-seconds", "25", "--run-dir"];
+    let head_tls = tls(&certs, "head");
+    let mut head_args = vec!["--domain", &hd, "train", "configs/default.toml", "--listen", &ep, "--tls", &head_tls, "--max-seconds", "25", "--run-dir"];
     let dir_s = dir.display().to_string();
     head_args.push(&dir_s);
     head_args.extend(small_run());
@@ -61,11 +72,25 @@ fn a_head_trains_from_a_worker_on_another_domain_without_loss() {
     let head = hive(&head_args).spawn().unwrap();
     // The worker may start before the head listens: it keeps asking.
     let wdir_s = wdir.display().to_string();
-    let worker = hive(&["--domain", &wd, "worker", "--connect", &ep, "--agents", "8", "--name", "second-host", "--run-dir", &wdir_s]).spawn().unwrap();
+    let worker_tls = tls(&certs, "worker-1");
+    let worker = hive(&["--domain", &wd, "worker", "--connect", &ep, "--tls", &worker_tls, "--agents", "8", "--name", "second-host", "--run-dir", &wdir_s])
+        .spawn()
+        .unwrap();
+    // Meanwhile: a certificate of another CA, and no TLS at all, get no
+    // session with the head (its slot is taken, but they never reach the
+    // join: the handshake fails first).
+    let plain_ep = ep.replace("tls/", "tcp/");
+    let other_tls = tls(&other, "worker-1");
+    for (args, name) in [(vec!["--connect", ep.as_str(), "--tls", &other_tls], "another CA"), (vec!["--connect", &plain_ep], "plaintext")] {
+        let mut all = vec!["--domain", "cluster-intruder", "worker", "--join-timeout", "4", "--name", "intruder"];
+        all.extend(args.iter().copied());
+        let o = hive(&all).output().unwrap();
+        assert!(!o.status.success(), "{name}: {}", text(&o));
+        assert!(String::from_utf8_lossy(&o.stderr).contains("no head answered"), "{name}: {}", text(&o));
+    }
     let w = worker.wait_with_output().unwrap();
     let h = head.wait_with_output().unwrap();
-    assert!(h.status.success(), "head: {}", text(&h));
-    assert!(w.status.success(), "worker: {}", text(&w));
+    assert!(h.status.success() && w.status.success(), "head: {}\nworker: {}", text(&h), text(&w));
     let wout = String::from_utf8_lossy(&w.stdout);
     assert!(wout.contains("the head ended the run"), "{wout}");
     // The weights the worker's actors act with rise with the head's learner.
@@ -79,6 +104,7 @@ fn a_head_trains_from_a_worker_on_another_domain_without_loss() {
     assert_eq!(s["agents_total"], 16);
     for host in hosts {
         assert_eq!(host["lost_transitions"], 0, "{s}");
+        assert_eq!(host["rejected_messages"], 0, "{s}");
         assert!(host["env_steps"].as_u64().unwrap() > 1000, "every host stepped: {s}");
     }
     assert_eq!(s["lost_messages"], 0, "{s}");
@@ -100,8 +126,9 @@ fn a_head_trains_from_a_worker_on_another_domain_without_loss() {
         .filter(|n| (n.starts_with(&format!("rh_{hd}_")) || n.starts_with(&format!("rh_{wd}_"))) && !n.ends_with("global_mgmt"))
         .collect();
     assert!(left.is_empty(), "{left:?}");
-    let _ = std::fs::remove_dir_all(&dir);
-    let _ = std::fs::remove_dir_all(&wdir);
+    for d in [&dir, &wdir, &certs, &other] {
+        let _ = std::fs::remove_dir_all(d);
+    }
 }
 
 #[test]
@@ -119,6 +146,8 @@ fn a_worker_of_another_layout_is_refused_and_the_head_gives_up_in_time() {
     assert!(!w.status.success());
     let err = String::from_utf8_lossy(&w.stderr);
     assert!(err.contains("message layout mismatch") && err.contains("same build"), "{err}");
+    // The refusal says nothing a stranger could use.
+    assert!(!err.chars().collect::<Vec<_>>().windows(16).any(|w| w.iter().all(|c| c.is_ascii_hexdigit())), "{err}");
     let h = head.wait_with_output().unwrap();
     assert!(!h.status.success(), "{}", text(&h));
     let err = String::from_utf8_lossy(&h.stderr);
@@ -146,6 +175,16 @@ fn bad_addresses_and_a_missing_head_fail_clearly() {
     assert!(waited < Duration::from_secs(15), "{waited:?}");
     check(&["train", "--set", "cluster.workers=1"], "needs --listen");
     check(&["train", "--listen", "localhost"], "expected tcp/HOST:PORT");
+    // Plain TCP beyond loopback needs --insecure; TLS needs its certificates.
+    let any = format!("tcp/0.0.0.0:{}", free_port());
+    check(&["train", "--listen", &any, "--set", "cluster.workers=1"], "--insecure");
+    check(&["train", "--listen", &format!("tls/127.0.0.1:{port}")], "needs --tls DIR");
+    check(&["worker", "--connect", &format!("tls/127.0.0.1:{port}"), "--tls", "/nonexistent"], "ca.pem is missing");
+    let certs = tmp("certs-twice");
+    let c = certs.display().to_string();
+    assert!(hive(&["certs", "--out", &c]).output().unwrap().status.success());
+    check(&["certs", "--out", &c], "already holds a CA");
+    let _ = std::fs::remove_dir_all(&certs);
     check(&["--domain", "no/slash", "train"], "use 1 to 32 letters");
     // A port another program holds.
     let busy = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
@@ -347,7 +386,7 @@ fn two_hosts_in_two_network_namespaces_with_their_own_shared_memory() {
     };
     let dir = tmp("netns");
     let dir_s = dir.display().to_string();
-    let mut args = vec!["train", "--listen", "tcp/10.78.0.1:7447", "--max-seconds", "20", "--run-dir", &dir_s];
+    let mut args = vec!["train", "--listen", "tcp/10.78.0.1:7447", "--insecure", "--max-seconds", "20", "--run-dir", &dir_s];
     args.extend(small_run());
     args.extend(["--set", "cluster.workers=1"]);
     let head = net.hive(&net.a, &args).spawn().unwrap();

@@ -16,8 +16,11 @@
 //! payloads cross as raw bytes ([`wire`]); both ends check the layout
 //! fingerprint at the join and refuse a mismatch.
 
+pub mod certs;
+pub mod check;
 pub mod wire;
 
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
@@ -36,9 +39,20 @@ pub use wire::{Hello, Welcome};
 /// Errors of the link, naming the endpoint or the peer.
 #[derive(Debug, thiserror::Error)]
 pub enum LinkError {
-    /// An endpoint that is not `tcp/HOST:PORT`.
-    #[error("endpoint {0:?}: expected tcp/HOST:PORT (for example tcp/192.168.1.10:7447)")]
+    /// An endpoint that is not `tcp/HOST:PORT` or `tls/HOST:PORT`.
+    #[error("endpoint {0:?}: expected tcp/HOST:PORT or tls/HOST:PORT (for example tls/192.168.1.10:7447)")]
     BadEndpoint(String),
+    /// A `tls/` endpoint without certificates, or certificates that are not there.
+    #[error("{0}")]
+    Tls(String),
+    /// A Zenoh configuration file that cannot be read.
+    #[error("zenoh config {path}: {message}")]
+    ZenohConfig {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
     /// Zenoh refused to open the session or a declaration.
     #[error("zenoh ({what}): {message}")]
     Zenoh {
@@ -92,16 +106,63 @@ fn zerr(what: impl Into<String>) -> impl FnOnce(zenoh::Error) -> LinkError {
     move |e| LinkError::Zenoh { what, message: e.to_string() }
 }
 
-/// Checks that `ep` is `tcp/HOST:PORT`.
-pub fn check_endpoint(ep: &str) -> Result<()> {
+/// Checks that `ep` is `tcp/HOST:PORT` or `tls/HOST:PORT`; its host.
+pub fn check_endpoint(ep: &str) -> Result<&str> {
     let bad = || LinkError::BadEndpoint(ep.to_string());
-    let rest = ep.strip_prefix("tcp/").ok_or_else(bad)?;
+    let rest = ep.strip_prefix("tcp/").or_else(|| ep.strip_prefix("tls/")).ok_or_else(bad)?;
     let (host, port) = rest.rsplit_once(':').ok_or_else(bad)?;
     if host.is_empty() || port.parse::<u16>().is_err() {
         return Err(bad());
     }
-    Ok(())
+    Ok(host)
 }
+
+/// Whether `ep` is encrypted and authenticated (mutual TLS).
+pub fn is_tls(ep: &str) -> bool {
+    ep.starts_with("tls/")
+}
+
+/// Whether `ep` can be reached from this machine only.
+pub fn is_loopback(ep: &str) -> bool {
+    match check_endpoint(ep) {
+        Ok(host) => {
+            let host = host.trim_start_matches('[').trim_end_matches(']');
+            host == "localhost" || host.parse::<std::net::IpAddr>().is_ok_and(|ip| ip.is_loopback())
+        }
+        Err(_) => false,
+    }
+}
+
+/// How a host's link is secured and configured.
+#[derive(Debug, Clone, Default)]
+pub struct LinkOptions {
+    /// A directory with `ca.pem`, `cert.pem` and `key.pem` (as `hive certs`
+    /// writes them): mutual TLS on `tls/` endpoints, each side checking the
+    /// other's certificate against the run's CA.
+    pub tls: Option<PathBuf>,
+    /// A Zenoh configuration file (JSON5) whose keys win over rotorhive's.
+    pub zenoh_config: Option<PathBuf>,
+}
+
+/// The files of a TLS directory, checked to exist.
+pub fn tls_files(dir: &Path) -> Result<[PathBuf; 3]> {
+    let files = ["ca.pem", "cert.pem", "key.pem"].map(|f| dir.join(f));
+    for f in &files {
+        if !f.is_file() {
+            return Err(LinkError::Tls(format!("--tls {}: {} is missing (make the run's certificates with `hive certs`)", dir.display(), f.display())));
+        }
+    }
+    Ok(files)
+}
+
+/// The largest message a host accepts: a full transition batch (1,024 ×
+/// 8,228 bytes) with room to spare; Zenoh's default is 1 GiB.
+pub const MAX_MESSAGE_BYTES: usize = 16 << 20;
+/// The largest episodes message (4,096 records) and telemetry sample the
+/// head accepts, by Zenoh's low-pass filter, so that its queues of them stay
+/// bounded in bytes.
+const MAX_EPISODES_BYTES: usize = check::MAX_EPISODES * EPISODE_FIELDS * 4 + 4096;
+const MAX_TELEMETRY_BYTES: usize = 4096;
 
 /// The layout this build sends: the message layout and the model's size.
 pub fn layout(num_params: usize) -> u64 {
@@ -109,11 +170,49 @@ pub fn layout(num_params: usize) -> u64 {
     rotorhive_msg::layout_fingerprint() ^ (num_params as u64).rotate_left(17) ^ salt
 }
 
+fn set(c: &mut zenoh::Config, k: &str, v: &str) -> Result<()> {
+    c.insert_json5(k, v).map_err(|e| LinkError::Zenoh { what: format!("config {k}"), message: e.to_string() })
+}
+
+/// Mutual TLS from a directory of `hive certs`: both ends present their
+/// certificate and check the other's against the run's CA.
+fn set_tls(c: &mut zenoh::Config, dir: &Path) -> Result<()> {
+    let [ca, cert, key] = tls_files(dir)?;
+    let q = |p: &Path| format!("{:?}", p.display().to_string());
+    set(c, "transport/link/tls/root_ca_certificate", &q(&ca))?;
+    for side in ["listen", "connect"] {
+        set(c, &format!("transport/link/tls/{side}_private_key"), &q(&key))?;
+        set(c, &format!("transport/link/tls/{side}_certificate"), &q(&cert))?;
+    }
+    set(c, "transport/link/tls/enable_mtls", "true")?;
+    set(c, "transport/link/tls/verify_name_on_connect", "true")
+}
+
+/// Lays the keys of a user's Zenoh configuration file over `c` (the file's
+/// keys win; objects merge key by key, anything else replaces).
+fn overlay(c: &mut zenoh::Config, path: &Path) -> Result<()> {
+    let bad = |message: String| LinkError::ZenohConfig { path: path.to_path_buf(), message };
+    // Zenoh's own reader first: it names an unknown key or a bad value.
+    zenoh::Config::from_file(path).map_err(|e| bad(e.to_string()))?;
+    let text = std::fs::read_to_string(path).map_err(|e| bad(e.to_string()))?;
+    let value: serde_json::Value = json5::from_str(&text).map_err(|e| bad(e.to_string()))?;
+    fn walk(c: &mut zenoh::Config, at: &str, v: &serde_json::Value) -> std::result::Result<(), String> {
+        match v {
+            serde_json::Value::Object(m) if !m.is_empty() => {
+                for (k, v) in m {
+                    walk(c, &if at.is_empty() { k.clone() } else { format!("{at}/{k}") }, v)?;
+                }
+                Ok(())
+            }
+            _ => c.insert_json5(at, &v.to_string()).map_err(|e| format!("{at}: {e}")),
+        }
+    }
+    walk(c, "", &value).map_err(bad)
+}
+
 /// Opens a peer session that listens on or connects to `endpoint`.
-fn open(listen: Option<&str>, connect: Option<&str>) -> Result<zenoh::Session> {
+fn open(listen: Option<&str>, connect: Option<&str>, opts: &LinkOptions) -> Result<zenoh::Session> {
     let mut c = zenoh::Config::default();
-    let set =
-        |c: &mut zenoh::Config, k: &str, v: &str| c.insert_json5(k, v).map_err(|e| LinkError::Zenoh { what: format!("config {k}"), message: e.to_string() });
     set(&mut c, "mode", r#""peer""#)?;
     set(&mut c, "scouting/multicast/enabled", "false")?;
     set(&mut c, "scouting/gossip/enabled", "false")?;
@@ -124,6 +223,25 @@ fn open(listen: Option<&str>, connect: Option<&str>) -> Result<zenoh::Session> {
     // A transition batch is hundreds of kilobytes: read the link in large
     // chunks (the default is one 64 KiB batch).
     set(&mut c, "transport/link/rx/buffer_size", "4194304")?;
+    // Bounded memory: no message above a full batch, and the head's queues
+    // of episodes and telemetry bounded in bytes by Zenoh's low-pass filter.
+    set(&mut c, "transport/link/rx/max_message_size", &MAX_MESSAGE_BYTES.to_string())?;
+    set(
+        &mut c,
+        "low_pass_filter",
+        &format!(
+            r#"[{{ messages: ["put"], flows: ["ingress"], key_exprs: ["rotorhive/*/host/*/episodes"], size_limit: {MAX_EPISODES_BYTES} }},
+                {{ messages: ["put"], flows: ["ingress"], key_exprs: ["rotorhive/*/host/*/telemetry", "rotorhive/*/end"], size_limit: {MAX_TELEMETRY_BYTES} }}]"#
+        ),
+    )?;
+    let ep = listen.or(connect).unwrap_or_default();
+    match &opts.tls {
+        Some(dir) => set_tls(&mut c, dir)?,
+        None if is_tls(ep) && opts.zenoh_config.is_none() => {
+            return Err(LinkError::Tls(format!("{ep} needs --tls DIR: the run's CA and this host's certificate and key (made by `hive certs`)")));
+        }
+        None => {}
+    }
     match (listen, connect) {
         (Some(l), _) => {
             check_endpoint(l)?;
@@ -137,6 +255,9 @@ fn open(listen: Option<&str>, connect: Option<&str>) -> Result<zenoh::Session> {
         }
         (None, None) => {}
     }
+    if let Some(f) = &opts.zenoh_config {
+        overlay(&mut c, f)?;
+    }
     let what = match (listen, connect) {
         (Some(l), _) => format!("listen on {l}"),
         (None, Some(k)) => format!("connect to {k}"),
@@ -147,6 +268,12 @@ fn open(listen: Option<&str>, connect: Option<&str>) -> Result<zenoh::Session> {
 
 fn key(run: &str, what: &str) -> String {
     format!("rotorhive/{run}/{what}")
+}
+
+/// The key a worker in `slot` puts `what` on: the head knows the sender by
+/// it (with mutual TLS and an access-control rule, only that host may).
+fn host_key(run: &str, slot: u32, what: &str) -> String {
+    format!("rotorhive/{run}/host/{slot}/{what}")
 }
 
 /// The key of the join queryable.
@@ -186,6 +313,31 @@ pub struct HeadStats {
     pub weights_sent: AtomicU64,
     /// Workers that joined again after the start.
     pub rejoins: AtomicU64,
+    /// Messages that failed a check ([`check`]) and were dropped, per
+    /// slot (0: keys that name no host of the run).
+    pub rejected: std::sync::Mutex<Vec<u64>>,
+}
+
+impl HeadStats {
+    /// Counts a dropped message from `slot`; logs the first few of each
+    /// host and then every thousandth.
+    fn reject(&self, slot: u32, what: &str, why: &check::Reject) {
+        let Ok(mut r) = self.rejected.lock() else { return };
+        if r.len() <= slot as usize {
+            r.resize(slot as usize + 1, 0);
+        }
+        r[slot as usize] += 1;
+        let n = r[slot as usize];
+        if n <= 5 || n % 1000 == 0 {
+            let from = if slot == 0 { "an unknown sender".to_string() } else { format!("worker {slot}") };
+            tracing::warn!("dropped {what} from {from}: {why} ({n} dropped from it so far)");
+        }
+    }
+
+    /// Messages dropped from `slot`.
+    pub fn rejected_from(&self, slot: u32) -> u64 {
+        self.rejected.lock().ok().and_then(|r| r.get(slot as usize).copied()).unwrap_or(0)
+    }
 }
 
 /// The head's end of the link: listens, admits workers, then bridges.
@@ -213,15 +365,19 @@ struct HeadSubscribers {
 
 impl Head {
     /// Listens on `endpoint` for the workers of run `run`.
-    pub fn listen(endpoint: &str, run: &str, layout: u64) -> Result<Self> {
-        let session = open(Some(endpoint), None)?;
+    pub fn listen(endpoint: &str, run: &str, layout: u64, opts: &LinkOptions) -> Result<Self> {
+        let session = open(Some(endpoint), None, opts)?;
         let queryable = session.declare_queryable(JOIN).with(FifoChannel::new(64)).wait().map_err(zerr("declare the join queryable"))?;
         let token = session.liveliness().declare_token(key(run, "head")).wait().map_err(zerr("declare the head's liveliness"))?;
         let decl = |what: &str| zerr(format!("declare {what}"));
         let subs = HeadSubscribers {
-            transitions: session.declare_subscriber(key(run, "transitions")).with(FifoChannel::new(4)).wait().map_err(decl("the transitions subscriber"))?,
-            episodes: session.declare_subscriber(key(run, "episodes")).with(FifoChannel::new(256)).wait().map_err(decl("the episodes subscriber"))?,
-            telemetry: session.declare_subscriber(key(run, "telemetry")).with(RingChannel::new(256)).wait().map_err(decl("the telemetry subscriber"))?,
+            transitions: session
+                .declare_subscriber(key(run, "host/*/transitions"))
+                .with(FifoChannel::new(4))
+                .wait()
+                .map_err(decl("the transitions subscriber"))?,
+            episodes: session.declare_subscriber(key(run, "host/*/episodes")).with(FifoChannel::new(256)).wait().map_err(decl("the episodes subscriber"))?,
+            telemetry: session.declare_subscriber(key(run, "host/*/telemetry")).with(RingChannel::new(256)).wait().map_err(decl("the telemetry subscriber"))?,
         };
         Ok(Self { subs, session, run: run.to_string(), layout, queryable, _token: token, hosts: Vec::new(), pending: Vec::new(), default_agents: 1 })
     }
@@ -280,10 +436,7 @@ impl Head {
             h.agents = self.default_agents;
         }
         if h.layout != self.layout {
-            return Err(format!(
-                "message layout mismatch: the worker's is {:016x}, the head's {:016x}; run the same build of hive on every host",
-                h.layout, self.layout
-            ));
+            return Err("message layout mismatch: this worker runs another build of hive (or another model); run the same build on every host".into());
         }
         if h.envs == 0 || h.agents == 0 {
             return Err(format!("a worker needs at least one environment and one agent, got {} × {}", h.envs, h.agents));
@@ -418,7 +571,7 @@ fn head_loop<S: Service>(head: &Head, hub: &Hub<S>, envs: usize, roles: usize, s
     let end_pub = s.declare_publisher(key(run, "end")).congestion_control(CongestionControl::Block).wait().map_err(decl("the end publisher"))?;
 
     let total_envs = envs + head.hosts.iter().map(|h| h.envs as usize).sum::<usize>();
-    let max_batch = rotorhive_msg::PACKED_LEN * 1024;
+    let max_batch = rotorhive_msg::PACKED_LEN * check::MAX_BATCH;
     let mut trans_tx = hub.sender::<u16, TransitionHeader>(&Channel::transitions(envs), max_batch, Duration::from_millis(200))?;
     let mut ep_tx = hub.sender::<f32, EpisodeHeader>(&Channel::episodes(envs), EPISODE_FIELDS * 4096, Duration::from_millis(200))?;
     let mut w_rx = hub.receiver::<f32, WeightsHeader>(&Channel::weights(envs))?;
@@ -449,37 +602,40 @@ fn head_loop<S: Service>(head: &Head, hub: &Hub<S>, envs: usize, roles: usize, s
         tel.stage(0, t);
         if let Some(smp) = got {
             let t = Instant::now();
-            let Some(h) = smp.attachment().and_then(|a| wire::header_from::<TransitionHeader>(&a.to_bytes())) else {
-                stats.dropped.fetch_add(1, Ordering::Relaxed);
-                continue;
-            };
             let payload = smp.payload();
+            let frags: Vec<&[u8]> = payload.slices().collect();
+            let checked = sender(hosts, &smp, run, "transitions")
+                .and_then(|host| check::transitions(host, smp.attachment().map(|a| a.to_bytes()).as_deref(), &frags).map_err(|r| (host.slot, r)));
+            let h = match checked {
+                Ok(h) => h,
+                Err((slot, why)) => {
+                    stats.reject(slot, "a transition batch", &why);
+                    continue;
+                }
+            };
             let words = payload.len() / 2;
-            if words != h.count as usize * rotorhive_msg::PACKED_LEN || words > max_batch {
-                stats.dropped.fetch_add(1, Ordering::Relaxed);
-                tracing::warn!("a transition batch of {} bytes does not hold the {} transitions its header says", payload.len(), h.count);
-                continue;
-            }
             if let Some(slot) = next_seq.get_mut(h.actor as usize) {
                 if let Some(want) = *slot
                     && h.seq > want
                 {
+                    let gap = h.seq - want;
                     tracing::warn!("head link: actor {} batches {want}..{} missing", h.actor, h.seq);
-                    stats.lost_batches.fetch_add(h.seq - want, Ordering::Relaxed);
-                    stats.lost_transitions.fetch_add((h.seq - want) * h.count as u64, Ordering::Relaxed);
-                    tel.sample.lost += h.seq - want;
+                    stats.lost_batches.fetch_add(gap, Ordering::Relaxed);
+                    stats.lost_transitions.fetch_add(gap.saturating_mul(h.count as u64), Ordering::Relaxed);
+                    tel.sample.lost = tel.sample.lost.saturating_add(gap);
                     if let Some(l) = stats.lost_by_env.lock().ok().as_mut().and_then(|v| v.get_mut(h.actor as usize)) {
-                        *l += (h.seq - want) * h.count as u64;
+                        *l = l.saturating_add(gap.saturating_mul(h.count as u64));
                     }
                 }
-                *slot = Some(h.seq + 1);
+                *slot = Some(h.seq.saturating_add(1));
             }
             let sent = send_retrying(&mut trans_tx, words, stop, |hdr, p| {
                 *hdr = h;
-                // Zenoh's fragments straight into the loaned sample.
+                // Zenoh's fragments straight into the loaned sample (their
+                // total is the sample's length: checked above).
                 let out = wire::payload_bytes_mut(p);
                 let mut at = 0;
-                for frag in payload.slices() {
+                for frag in &frags {
                     out[at..at + frag.len()].copy_from_slice(frag);
                     at += frag.len();
                 }
@@ -494,17 +650,20 @@ fn head_loop<S: Service>(head: &Head, hub: &Hub<S>, envs: usize, roles: usize, s
         }
         let t = Instant::now();
         while let Ok(Some(smp)) = ep_sub.try_recv() {
-            let Some(h) = smp.attachment().and_then(|a| wire::header_from::<EpisodeHeader>(&a.to_bytes())) else { continue };
-            let bytes = smp.payload().to_bytes();
-            let len = bytes.len() / 4;
-            if len != EPISODE_FIELDS * h.count as usize || len > EPISODE_FIELDS * 4096 {
-                stats.dropped.fetch_add(1, Ordering::Relaxed);
-                continue;
-            }
+            let checked = sender(hosts, &smp, run, "episodes").and_then(|host| {
+                check::episodes(host, smp.attachment().map(|a| a.to_bytes()).as_deref(), &smp.payload().to_bytes()).map_err(|r| (host.slot, r))
+            });
+            let (h, records) = match checked {
+                Ok(x) => x,
+                Err((slot, why)) => {
+                    stats.reject(slot, "episodes", &why);
+                    continue;
+                }
+            };
             if ep_tx
-                .send_with(len, |hdr, p| {
+                .send_with(records.len(), |hdr, p| {
                     *hdr = h;
-                    wire::payload_bytes_mut(p).copy_from_slice(&bytes);
+                    p.copy_from_slice(&records);
                 })
                 .is_err()
             {
@@ -512,8 +671,11 @@ fn head_loop<S: Service>(head: &Head, hub: &Hub<S>, envs: usize, roles: usize, s
             }
         }
         while let Ok(Some(smp)) = tel_sub.try_recv() {
-            if let Some(t) = smp.attachment().and_then(|a| wire::header_from::<Telemetry>(&a.to_bytes())) {
-                tel.forward(t);
+            let checked = sender(hosts, &smp, run, "telemetry")
+                .and_then(|host| check::telemetry(host, smp.attachment().map(|a| a.to_bytes()).as_deref(), smp.payload().len()).map_err(|r| (host.slot, r)));
+            match checked {
+                Ok(t) => tel.forward(t),
+                Err((slot, why)) => stats.reject(slot, "telemetry", &why),
             }
         }
         tel.stage(1, t);
@@ -550,6 +712,11 @@ fn head_loop<S: Service>(head: &Head, hub: &Hub<S>, envs: usize, roles: usize, s
     Ok(())
 }
 
+/// The joined host whose key `smp` came on, or slot 0 (no host of the run).
+fn sender<'h>(hosts: &'h [Host], smp: &zenoh::sample::Sample, run: &str, what: &str) -> std::result::Result<&'h Host, (u32, check::Reject)> {
+    check::slot_of(smp.key_expr().as_str(), run, what).and_then(|slot| hosts.iter().find(|h| h.slot == slot)).ok_or((0, check::Reject::UnknownSender))
+}
+
 /// How a worker's link ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum WorkerEnd {
@@ -572,6 +739,8 @@ pub struct WorkerStats {
     pub weight_version: u64,
     /// Episode or telemetry messages dropped.
     pub dropped: u64,
+    /// Weights from the head that failed their check and were dropped.
+    pub rejected: u64,
 }
 
 /// A worker's end of the link.
@@ -593,8 +762,8 @@ pub struct Worker {
 impl Worker {
     /// Connects to the head at `endpoint` and joins its run, asking again
     /// until `timeout` (the head may start later than the worker).
-    pub fn join(endpoint: &str, hello: &Hello, timeout: Duration, stop: impl Fn() -> bool) -> Result<Self> {
-        let session = open(None, Some(endpoint))?;
+    pub fn join(endpoint: &str, hello: &Hello, timeout: Duration, opts: &LinkOptions, stop: impl Fn() -> bool) -> Result<Self> {
+        let session = open(None, Some(endpoint), opts)?;
         let start = Instant::now();
         while start.elapsed() < timeout {
             if stop() {
@@ -633,14 +802,34 @@ impl Worker {
     /// `on_ready` runs once the link takes this host's batches and the head
     /// takes the link's: start the actors then, or their first batches go
     /// nowhere.
-    pub fn bridge<S: Service>(&self, hub: &Hub<S>, envs: usize, roles: usize, stats: &mut WorkerStats, on_ready: impl FnOnce()) -> Result<WorkerEnd> {
+    /// Weights that are not `num_params` finite floats are dropped.
+    pub fn bridge<S: Service>(
+        &self,
+        hub: &Hub<S>,
+        envs: usize,
+        roles: usize,
+        num_params: usize,
+        stats: &mut WorkerStats,
+        on_ready: impl FnOnce(),
+    ) -> Result<WorkerEnd> {
         let s = &self.session;
         let run = &self.run;
         let decl = |what: &str| zerr(format!("declare {what}"));
-        let trans_pub =
-            s.declare_publisher(key(run, "transitions")).congestion_control(CongestionControl::Block).wait().map_err(decl("the transitions publisher"))?;
-        let ep_pub = s.declare_publisher(key(run, "episodes")).congestion_control(CongestionControl::Drop).wait().map_err(decl("the episodes publisher"))?;
-        let tel_pub = s.declare_publisher(key(run, "telemetry")).congestion_control(CongestionControl::Drop).wait().map_err(decl("the telemetry publisher"))?;
+        let trans_pub = s
+            .declare_publisher(host_key(run, self.slot, "transitions"))
+            .congestion_control(CongestionControl::Block)
+            .wait()
+            .map_err(decl("the transitions publisher"))?;
+        let ep_pub = s
+            .declare_publisher(host_key(run, self.slot, "episodes"))
+            .congestion_control(CongestionControl::Drop)
+            .wait()
+            .map_err(decl("the episodes publisher"))?;
+        let tel_pub = s
+            .declare_publisher(host_key(run, self.slot, "telemetry"))
+            .congestion_control(CongestionControl::Drop)
+            .wait()
+            .map_err(decl("the telemetry publisher"))?;
         let w_sub = s.declare_subscriber(key(run, "weights")).with(RingChannel::new(1)).wait().map_err(decl("the weights subscriber"))?;
         let end_sub = s.declare_subscriber(key(run, "end")).with(FifoChannel::new(4)).wait().map_err(decl("the end subscriber"))?;
         let head_sub =
@@ -691,24 +880,26 @@ impl Worker {
             }
             // Weights in: the newest, republished on this host.
             let t = Instant::now();
-            if let Ok(Some(smp)) = w_sub.try_recv()
-                && let Some(h) = smp.attachment().and_then(|a| wire::header_from::<WeightsHeader>(&a.to_bytes()))
-            {
-                let bytes = smp.payload().to_bytes();
-                let len = bytes.len() / 4;
-                if len as u64 == h.len {
-                    if w_tx.is_none() {
-                        w_tx = Some(hub.sender::<f32, WeightsHeader>(&Channel::weights(envs), len, Duration::from_millis(200))?);
+            if let Ok(Some(smp)) = w_sub.try_recv() {
+                match check::weights(num_params, smp.attachment().map(|a| a.to_bytes()).as_deref(), &smp.payload().to_bytes()) {
+                    Ok((h, w)) => {
+                        if w_tx.is_none() {
+                            w_tx = Some(hub.sender::<f32, WeightsHeader>(&Channel::weights(envs), w.len(), Duration::from_millis(200))?);
+                        }
+                        if let Some(tx) = w_tx.as_mut() {
+                            tx.send_with(w.len(), |hdr, p| {
+                                *hdr = h;
+                                p.copy_from_slice(&w);
+                            })?;
+                        }
+                        stats.weights += 1;
+                        stats.weight_version = h.version;
+                        tel.sample.weight_version = h.version;
                     }
-                    if let Some(tx) = w_tx.as_mut() {
-                        tx.send_with(len, |hdr, p| {
-                            *hdr = h;
-                            wire::payload_bytes_mut(p).copy_from_slice(&bytes);
-                        })?;
+                    Err(why) => {
+                        stats.rejected += 1;
+                        tracing::warn!("dropped weights from the head: {why}");
                     }
-                    stats.weights += 1;
-                    stats.weight_version = h.version;
-                    tel.sample.weight_version = h.version;
                 }
             }
             tel.stage(2, t);

@@ -163,6 +163,29 @@ pub fn packed_scalar(p: &[u16], i: usize) -> f32 {
     f32::from_bits(w[0] as u32 | (w[1] as u32) << 16)
 }
 
+/// True when a packed transition's scalars (see [`packed_scalar`]) are not
+/// what an actor writes: an action or done flag other than 0 or 1, or a
+/// velocity or reward that is not finite. A torn or forged write shows here
+/// (16-bit depth has no invalid value to look for).
+pub fn scalars_corrupt(scalars: &[f32; PACKED_SCALARS]) -> bool {
+    let flag = |v: f32| v == 0.0 || v == 1.0;
+    !flag(scalars[2 * VEL_DIM]) || !flag(scalars[2 * VEL_DIM + 2]) || scalars.iter().any(|v| !v.is_finite())
+}
+
+/// Corrupt transitions (by [`scalars_corrupt`]) in a batch of packed ones.
+pub fn corrupt_transitions(batch: &[u16]) -> u64 {
+    batch
+        .chunks_exact(PACKED_LEN)
+        .filter(|t| {
+            let mut s = [0f32; PACKED_SCALARS];
+            for (k, v) in s.iter_mut().enumerate() {
+                *v = packed_scalar(t, k);
+            }
+            scalars_corrupt(&s)
+        })
+        .count() as u64
+}
+
 /// Unpacks one transition (`PACKED_LEN` words) into `out` (`TRANSITION_LEN`
 /// floats, the learner's layout).
 pub fn unpack_transition(p: &[u16], out: &mut [f32]) {
@@ -303,6 +326,20 @@ pub struct WeightsHeader {
 /// [`DoneKind`] code, and the highest exploration rate the agent acted with
 /// in the episode.
 pub const EPISODE_FIELDS: usize = 4;
+
+/// True when an episode record ([`EPISODE_FIELDS`] floats) is not what an
+/// actor writes: a return that is not finite, a step count that is not a
+/// whole number from 1 to 2^24, a done code other than collision, goal or
+/// timeout, or an exploration rate outside 0..=1.
+pub fn episode_corrupt(record: &[f32]) -> bool {
+    let [ret, steps, done, eps] = record else { return true };
+    !ret.is_finite()
+        || !(1.0..=16_777_216.0).contains(steps)
+        || steps.fract() != 0.0
+        || !matches!(*done as u8, 1..=3)
+        || done.fract() != 0.0
+        || !(0.0..=1.0).contains(eps)
+}
 
 /// Header of an episodes message, actor → supervisor. Payload: `[f32]`
 /// records of [`EPISODE_FIELDS`] (return, steps, [`DoneKind`] code,
@@ -490,6 +527,25 @@ mod tests {
         assert_eq!(std::mem::size_of::<Telemetry>(), 128);
         assert_eq!(std::mem::size_of::<Learning>(), 32);
         assert_eq!(std::mem::size_of::<PriorityHeader>(), 16);
+    }
+
+    #[test]
+    fn what_an_honest_actor_never_writes_is_corrupt() {
+        let obs = vec![0.5f32; OBS_LEN];
+        let mut batch = vec![0u16; 5 * PACKED_LEN];
+        for (t, (a, r, d)) in
+            batch.chunks_exact_mut(PACKED_LEN).zip([(1.0, 3.0, 0.0), (0.5, 3.0, 0.0), (0.0, f32::NAN, 1.0), (0.0, -100.0, 2.0), (0.0, -100.0, 1.0)])
+        {
+            pack_transition(&obs, &obs, a, r, d, t);
+        }
+        assert_eq!(corrupt_transitions(&batch[..PACKED_LEN]), 0);
+        assert_eq!(corrupt_transitions(&batch), 3);
+        assert!(!episode_corrupt(&[-100.0, 12.0, 1.0, 0.4]));
+        assert!(!episode_corrupt(&[450.0, 150.0, 3.0, 0.0]));
+        for bad in [[f32::NAN, 1.0, 1.0, 0.1], [1.0, 0.0, 1.0, 0.1], [1.0, 2.5, 1.0, 0.1], [1.0, 2.0, 0.0, 0.1], [1.0, 2.0, 4.0, 0.1], [1.0, 2.0, 1.0, -0.1]] {
+            assert!(episode_corrupt(&bad), "{bad:?}");
+        }
+        assert!(episode_corrupt(&[1.0, 2.0, 1.0]));
     }
 
     #[test]

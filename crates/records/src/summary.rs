@@ -22,6 +22,10 @@ pub struct HostSummary {
     pub env_steps: u64,
     /// Transitions lost on the way from it.
     pub lost_transitions: u64,
+    /// Messages from it that failed the head's checks and were dropped (on
+    /// the head's row: messages on keys that name no host of the run).
+    #[serde(default)]
+    pub rejected_messages: u64,
 }
 
 /// The result of one `hive train`.
@@ -160,7 +164,15 @@ mod tests {
             envs: 2,
             agents_per_env: 25,
             agents_total: 50,
-            hosts: vec![HostSummary { name: "here".into(), role: "head".into(), envs: 2, agents: 25, env_steps: 400_000, lost_transitions: 0 }],
+            hosts: vec![HostSummary {
+                name: "here".into(),
+                role: "head".into(),
+                envs: 2,
+                agents: 25,
+                env_steps: 400_000,
+                lost_transitions: 0,
+                rejected_messages: 0,
+            }],
             observation_mode: "batched".into(),
             renderer: "cpu".into(),
             env_steps_per_s: 6_666.7,

@@ -349,7 +349,7 @@ fn check<S: Service>(m: &rotorhive_transport::Msg<S, u16, TransitionHeader>, nex
         }
         *slot = Some(h.seq + 1);
     }
-    let bad = corrupt(m.payload());
+    let bad = rotorhive_msg::corrupt_transitions(m.payload());
     *lost += bad;
     let whole = m.payload().len().is_multiple_of(PACKED_LEN);
     if !whole {
@@ -414,37 +414,9 @@ fn minibatch_header(mem: &Replay, batch: usize, seq: u64, acted: Acted) -> Minib
     }
 }
 
-/// Counts transitions whose action or done flag is not 0 or 1, or whose
-/// velocities or reward are not finite: a torn or foreign write would show
-/// here (16-bit depth has no invalid value to look for).
-fn corrupt(batch: &[u16]) -> u64 {
-    use rotorhive_msg::{PACKED_SCALARS, packed_scalar};
-    batch
-        .chunks_exact(PACKED_LEN)
-        .filter(|t| {
-            let a = packed_scalar(t, PACKED_SCALARS - 3);
-            let d = packed_scalar(t, PACKED_SCALARS - 1);
-            !(a == 0.0 || a == 1.0) || !(d == 0.0 || d == 1.0) || (0..PACKED_SCALARS).any(|k| !packed_scalar(t, k).is_finite())
-        })
-        .count() as u64
-}
-
 #[cfg(test)]
 mod tests {
-    use super::{SampleLimit, corrupt};
-    use rotorhive_msg::{OBS_LEN, PACKED_LEN, pack_transition};
-
-    #[test]
-    fn corrupt_transitions_are_counted() {
-        let obs = vec![0.25f32; OBS_LEN];
-        let mut batch = vec![0u16; 4 * PACKED_LEN];
-        let rows: Vec<(f32, f32, f32)> = vec![(1.0, 3.0, 0.0), (0.5, 3.0, 0.0), (0.0, f32::NAN, 1.0), (0.0, -100.0, 2.0)];
-        for (t, (a, r, d)) in batch.chunks_exact_mut(PACKED_LEN).zip(rows) {
-            pack_transition(&obs, &obs, a, r, d, t);
-        }
-        assert_eq!(corrupt(&batch[..PACKED_LEN]), 0);
-        assert_eq!(corrupt(&batch), 3);
-    }
+    use super::SampleLimit;
 
     #[test]
     fn sampling_waits_for_inserts_past_the_buffer() {

@@ -308,14 +308,22 @@ impl<S: Service, T: Plain, H: Debug + ZeroCopySend + Default + 'static> Sender<S
     pub fn try_send_with<E>(&mut self, len: usize, fill: impl FnOnce(&mut H, &mut [T]) -> std::result::Result<(), E>) -> Result<std::result::Result<(), E>> {
         let io = |op, e: &dyn Debug, ch: &str| TransportError::Io { channel: ch.to_string(), op, message: format!("{e:?}") };
         let uninit = self.publisher.loan_slice_uninit(len).map_err(|e| io("loan", &e, &self.channel))?;
-        // SAFETY: the payload lies in a shared-memory segment mapped from a
-        // file descriptor: its bytes are initialised memory (zero-filled by
-        // the OS when created, later holding earlier samples), and `T: Plain`
-        // has no invalid bit pattern, so reading it as `[T]` before `fill`
-        // writes it is sound. Skipping iceoryx2's default-fill saves a write
-        // of the whole payload per message (code audit T1: 410 KB for a
-        // 50-agent observation batch).
-        let mut sample = unsafe { uninit.assume_init() };
+        let mut sample = if std::any::type_name::<S>() == std::any::type_name::<Ipc>() {
+            // SAFETY: with the `ipc` service the payload lies in a
+            // shared-memory segment mapped from a file descriptor: its bytes
+            // are initialised memory (zero-filled by the OS when created,
+            // later holding earlier samples), and `T: Plain` has no invalid
+            // bit pattern, so reading it as `[T]` before `fill` writes it is
+            // sound. Skipping iceoryx2's default-fill saves a write of the
+            // whole payload per message (code audit T1: 410 KB for a
+            // 50-agent observation batch).
+            unsafe { uninit.assume_init() }
+        } else {
+            // The `local` service's segments come from the heap, which
+            // promises no initialised bytes: fill first (serial mode and
+            // tests only).
+            uninit.write_from_fn(|_| T::default())
+        };
         {
             let (hdr, payload) = (sample.user_header_mut() as *mut H, sample.payload_mut());
             // SAFETY: the header and the payload are disjoint parts of the one

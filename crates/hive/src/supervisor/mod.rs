@@ -56,16 +56,21 @@ pub struct TrainArgs {
     #[arg(long, value_name = "RUN_DIR", conflicts_with = "run_dir")]
     pub resume: Option<PathBuf>,
     /// Head of a run across hosts: listen for workers (`hive worker
-    /// --connect`) on this endpoint, e.g. tcp/0.0.0.0:7447; `[cluster]
-    /// workers` says how many the run waits for.
-    #[arg(long, value_name = "tcp/ADDR:PORT")]
+    /// --connect`) on this endpoint, e.g. tls/0.0.0.0:7447 with --tls;
+    /// `[cluster] workers` says how many the run waits for.
+    #[arg(long, value_name = "tls/ADDR:PORT")]
     pub listen: Option<String>,
+    #[command(flatten)]
+    pub link: crate::worker::LinkArgs,
 }
 
 /// The head's link to its worker hosts, with the texts it hands them.
 type HeadLink = Option<(rotorhive_link::Head, (String, String))>;
 
 pub fn run(a: TrainArgs) -> Result<()> {
+    if let Some(ep) = &a.listen {
+        a.link.check_listen(ep)?;
+    }
     let mut cfg = resolve_config(&a)?;
     let run_dir = a.resume.clone().or_else(|| a.run_dir.clone()).unwrap_or_else(|| PathBuf::from("runs").join(timestamp()));
     std::fs::create_dir_all(&run_dir).with_context(|| format!("cannot create run directory {}", run_dir.display()))?;
@@ -79,7 +84,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
     // The head's environments come first in the run.
     cfg.cluster.env_offset = 0;
     let head = match &a.listen {
-        Some(ep) => Some(gather_workers(ep, &prefix, &mut cfg)?),
+        Some(ep) => Some(gather_workers(ep, &prefix, &mut cfg, &a.link.options())?),
         None if cfg.cluster.workers > 0 => bail!("key `cluster.workers` = {} needs --listen tcp/ADDR:PORT for the workers to join", cfg.cluster.workers),
         None => {
             cfg.cluster.envs_elsewhere = 0;
@@ -156,8 +161,8 @@ fn resolve_paths(cfg: &mut Config) -> Result<()> {
 
 /// Listens on `ep` and waits for `cluster.workers` worker hosts; their
 /// environments and agents go into `cfg.cluster`.
-fn gather_workers(ep: &str, prefix: &str, cfg: &mut Config) -> Result<rotorhive_link::Head> {
-    let mut head = rotorhive_link::Head::listen(ep, prefix, rotorhive_link::layout(rotorhive_model::num_params()))?;
+fn gather_workers(ep: &str, prefix: &str, cfg: &mut Config, opts: &rotorhive_link::LinkOptions) -> Result<rotorhive_link::Head> {
+    let mut head = rotorhive_link::Head::listen(ep, prefix, rotorhive_link::layout(rotorhive_model::num_params()), opts)?;
     let wanted = cfg.cluster.workers;
     if wanted > 0 {
         say(&format!("listening on {ep}: waiting for {wanted} worker host(s), at most {:.0} s", cfg.cluster.join_timeout_s));

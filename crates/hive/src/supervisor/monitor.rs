@@ -143,6 +143,7 @@ impl Monitor {
             agents: cfg.sim.agents as u32,
             env_steps: self.steps_of(0, envs),
             lost_transitions: lost_here,
+            rejected_messages: link.map_or(0, |(stats, _)| stats.rejected_from(0)),
         }];
         if let Some((stats, hosts)) = link {
             let lost = stats.lost_by_env.lock().map(|v| v.clone()).unwrap_or_default();
@@ -155,6 +156,7 @@ impl Monitor {
                     agents: h.agents,
                     env_steps: self.steps_of(a, b),
                     lost_transitions: lost.get(a as usize..b as usize).map_or(0, |l| l.iter().sum::<u64>()),
+                    rejected_messages: stats.rejected_from(h.slot),
                 });
             }
         }

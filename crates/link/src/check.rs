@@ -1,0 +1,328 @@
+//! Every message from another host is checked here before any of its bytes
+//! reach shared memory, the replay or the run's records: the header's exact
+//! size, the payload's exact length for the count the header gives, the
+//! sender's own environments (the slot in the key a worker publishes on,
+//! not merely an index in range), and the values themselves. A message that
+//! fails is dropped and counted against its host; nothing here panics,
+//! whatever the bytes (property-tested below).
+
+use rotorhive_msg::{
+    EPISODE_FIELDS, EpisodeHeader, PACKED_DEPTH, PACKED_LEN, PACKED_SCALARS, RoleKind, Telemetry, TransitionHeader, WeightsHeader, episode_corrupt,
+    scalars_corrupt,
+};
+
+use crate::Host;
+use crate::wire;
+
+/// The most transitions one batch may carry (an actor sends one batch per
+/// observation step of at most 1,024 agents).
+pub const MAX_BATCH: usize = 1024;
+/// The most episode records in one message.
+pub const MAX_EPISODES: usize = 4096;
+
+/// Why a message from another host was dropped.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Reject {
+    /// Its key names no host of the run.
+    UnknownSender,
+    /// No header, or a header of the wrong size.
+    Header,
+    /// A payload whose length is not what the header's count needs.
+    Length {
+        /// Bytes received.
+        got: usize,
+        /// Bytes the header's count needs.
+        want: usize,
+    },
+    /// A count of 0 or above the limit.
+    Count(u32),
+    /// An environment index outside the sender's own.
+    Actor(u32),
+    /// A role the sender does not run, or an instance it does not own.
+    Role {
+        /// Role code.
+        role: u32,
+        /// Instance index.
+        index: u32,
+    },
+    /// Values an honest sender never writes (non-finite, out of range).
+    Values(u64),
+}
+
+impl std::fmt::Display for Reject {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Reject::UnknownSender => write!(f, "a key that names no host of the run"),
+            Reject::Header => write!(f, "no header of the right size"),
+            Reject::Length { got, want } => write!(f, "{got} bytes where the header's count needs {want}"),
+            Reject::Count(n) => write!(f, "a count of {n}"),
+            Reject::Actor(a) => write!(f, "environment {a}, which is not the sender's"),
+            Reject::Role { role, index } => write!(f, "role code {role} index {index}, which the sender does not run"),
+            Reject::Values(n) => write!(f, "{n} records with non-finite or out-of-range values"),
+        }
+    }
+}
+
+/// The slot a worker's key names: `rotorhive/RUN/host/SLOT/WHAT`.
+pub fn slot_of(key: &str, run: &str, what: &str) -> Option<u32> {
+    let rest = key.strip_prefix("rotorhive/")?.strip_prefix(run)?.strip_prefix("/host/")?;
+    let (slot, tail) = rest.split_once('/')?;
+    if tail != what || slot.is_empty() || !slot.bytes().all(|b| b.is_ascii_digit()) {
+        return None;
+    }
+    slot.parse().ok()
+}
+
+fn owns(host: &Host, env: u32) -> bool {
+    env >= host.env_offset && (env - host.env_offset) < host.envs
+}
+
+/// A payload in the fragments Zenoh received it in, read at increasing
+/// offsets without gathering it into one buffer.
+struct Fragments<'a> {
+    frags: &'a [&'a [u8]],
+    /// Fragment the cursor is in and that fragment's first byte's offset.
+    at: usize,
+    start: usize,
+}
+
+impl<'a> Fragments<'a> {
+    fn new(frags: &'a [&'a [u8]]) -> Self {
+        Self { frags, at: 0, start: 0 }
+    }
+    /// Copies `out.len()` bytes from `offset` (never below an earlier one).
+    fn read(&mut self, mut offset: usize, out: &mut [u8]) -> bool {
+        let mut done = 0;
+        while done < out.len() {
+            let Some(f) = self.frags.get(self.at) else { return false };
+            if offset >= self.start + f.len() {
+                self.start += f.len();
+                self.at += 1;
+                continue;
+            }
+            let from = offset - self.start;
+            let n = (f.len() - from).min(out.len() - done);
+            out[done..done + n].copy_from_slice(&f[from..from + n]);
+            done += n;
+            offset += n;
+        }
+        true
+    }
+}
+
+/// Checks a transition batch from `host`: header, exact length, the
+/// sender's environment, and every transition's scalars (the depth words
+/// have no invalid value). The payload stays in its fragments.
+pub fn transitions(host: &Host, attachment: Option<&[u8]>, frags: &[&[u8]]) -> Result<TransitionHeader, Reject> {
+    let h: TransitionHeader = attachment.and_then(wire::header_from).ok_or(Reject::Header)?;
+    if h.count == 0 || h.count as usize > MAX_BATCH {
+        return Err(Reject::Count(h.count));
+    }
+    let got: usize = frags.iter().map(|f| f.len()).sum();
+    let want = h.count as usize * PACKED_LEN * 2;
+    if got != want {
+        return Err(Reject::Length { got, want });
+    }
+    if !owns(host, h.actor) {
+        return Err(Reject::Actor(h.actor));
+    }
+    let mut cur = Fragments::new(frags);
+    let mut raw = [0u8; PACKED_SCALARS * 4];
+    let mut bad = 0;
+    for i in 0..h.count as usize {
+        if !cur.read((i * PACKED_LEN + PACKED_DEPTH) * 2, &mut raw) {
+            return Err(Reject::Length { got, want });
+        }
+        let mut s = [0f32; PACKED_SCALARS];
+        for (v, b) in s.iter_mut().zip(raw.chunks_exact(4)) {
+            *v = f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+        }
+        bad += scalars_corrupt(&s) as u64;
+    }
+    if bad > 0 {
+        return Err(Reject::Values(bad));
+    }
+    Ok(h)
+}
+
+/// Reads little-endian `f32`s (the payload's own byte order).
+pub fn floats(bytes: &[u8]) -> Vec<f32> {
+    bytes.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect()
+}
+
+/// Checks an episodes message from `host`; its records as floats.
+pub fn episodes(host: &Host, attachment: Option<&[u8]>, payload: &[u8]) -> Result<(EpisodeHeader, Vec<f32>), Reject> {
+    let h: EpisodeHeader = attachment.and_then(wire::header_from).ok_or(Reject::Header)?;
+    if h.count == 0 || h.count as usize > MAX_EPISODES {
+        return Err(Reject::Count(h.count));
+    }
+    let want = h.count as usize * EPISODE_FIELDS * 4;
+    if payload.len() != want {
+        return Err(Reject::Length { got: payload.len(), want });
+    }
+    if !owns(host, h.actor) {
+        return Err(Reject::Actor(h.actor));
+    }
+    let records = floats(payload);
+    let bad = records.chunks_exact(EPISODE_FIELDS).filter(|r| episode_corrupt(r)).count() as u64;
+    if bad > 0 || h.epsilon_micro > 1_000_000 {
+        return Err(Reject::Values(bad.max(1)));
+    }
+    Ok((h, records))
+}
+
+/// Checks a telemetry sample from `host`: only its sims and actors (by
+/// environment) and its link (by slot), with finite diagnostics.
+pub fn telemetry(host: &Host, attachment: Option<&[u8]>, payload_len: usize) -> Result<Telemetry, Reject> {
+    let t: Telemetry = attachment.and_then(wire::header_from).ok_or(Reject::Header)?;
+    if payload_len != 0 {
+        return Err(Reject::Length { got: payload_len, want: 0 });
+    }
+    let mine = match RoleKind::from_code(t.role) {
+        Some(RoleKind::Sim | RoleKind::Actor) => owns(host, t.index),
+        Some(RoleKind::Link) => t.index == host.slot,
+        _ => false,
+    };
+    if !mine {
+        return Err(Reject::Role { role: t.role, index: t.index });
+    }
+    let l = &t.learning;
+    if ![l.mean_max_q, l.mean_abs_td, l.terminal_share, l.eps_min, l.eps_max].iter().all(|v| v.is_finite()) {
+        return Err(Reject::Values(1));
+    }
+    Ok(t)
+}
+
+/// Checks weights from the head: the size this build's model has and finite
+/// values (a head never publishes others).
+pub fn weights(num_params: usize, attachment: Option<&[u8]>, payload: &[u8]) -> Result<(WeightsHeader, Vec<f32>), Reject> {
+    let h: WeightsHeader = attachment.and_then(wire::header_from).ok_or(Reject::Header)?;
+    let want = num_params * 4;
+    if h.len != num_params as u64 || payload.len() != want {
+        return Err(Reject::Length { got: payload.len(), want });
+    }
+    let w = floats(payload);
+    let bad = w.iter().filter(|v| !v.is_finite()).count() as u64;
+    if bad > 0 {
+        return Err(Reject::Values(bad));
+    }
+    Ok((h, w))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+    use rotorhive_msg::{OBS_LEN, pack_transition};
+
+    fn host() -> Host {
+        Host { name: "w".into(), slot: 1, envs: 2, agents: 3, env_offset: 1 }
+    }
+
+    fn batch(actor: u32, rows: &[(f32, f32, f32)]) -> (Vec<u8>, Vec<u8>) {
+        let obs = vec![0.5f32; OBS_LEN];
+        let mut words = vec![0u16; rows.len() * PACKED_LEN];
+        for (t, &(a, r, d)) in words.chunks_exact_mut(PACKED_LEN).zip(rows) {
+            pack_transition(&obs, &obs, a, r, d, t);
+        }
+        let h = TransitionHeader { actor, count: rows.len() as u32, seq: 0, weight_version: 0, episodes: 0 };
+        (wire::header_bytes(&h).to_vec(), wire::payload_bytes(&words).to_vec())
+    }
+
+    #[test]
+    fn transitions_are_checked_for_length_sender_and_values_in_any_fragments() {
+        let good = [(1.0, 3.0, 0.0), (0.0, -100.0, 1.0)];
+        let (h, p) = batch(2, &good);
+        // Whole, and in fragments cut anywhere (also inside a scalar).
+        assert!(transitions(&host(), Some(&h), &[&p]).is_ok());
+        for cut in [1, 7, PACKED_DEPTH * 2 + 3, p.len() - 1] {
+            let (a, b) = p.split_at(cut);
+            assert!(transitions(&host(), Some(&h), &[a, b]).is_ok(), "cut at {cut}");
+        }
+        assert_eq!(transitions(&host(), Some(&h), &[&p[1..]]).unwrap_err(), Reject::Length { got: p.len() - 1, want: p.len() });
+        let odd = [&p[..], &[0u8][..]].concat();
+        assert!(matches!(transitions(&host(), Some(&h), &[&odd]), Err(Reject::Length { .. })));
+        assert_eq!(transitions(&host(), Some(&h[1..]), &[&p]).unwrap_err(), Reject::Header);
+        assert_eq!(transitions(&host(), None, &[&p]).unwrap_err(), Reject::Header);
+        // Environment 0 is the head's and 3 is past this host's two.
+        for actor in [0, 3, u32::MAX] {
+            let (h, p) = batch(actor, &good);
+            assert_eq!(transitions(&host(), Some(&h), &[&p]).unwrap_err(), Reject::Actor(actor));
+        }
+        let (h, p) = batch(1, &[(1.0, f32::NAN, 0.0), (2.0, 1.0, 0.0), (0.0, 1.0, 0.5)]);
+        let (a, b) = p.split_at(PACKED_DEPTH * 2 + 1);
+        assert_eq!(transitions(&host(), Some(&h), &[a, b]).unwrap_err(), Reject::Values(3));
+        let (h, _) = batch(1, &[]);
+        assert_eq!(transitions(&host(), Some(&h), &[]).unwrap_err(), Reject::Count(0));
+    }
+
+    #[test]
+    fn episodes_telemetry_and_weights_are_checked() {
+        let eh = |actor, count| EpisodeHeader { actor, count, transitions: 0, epsilon_micro: 100_000, step: 0 };
+        let rec = |r: [f32; 4]| r.iter().flat_map(|v| v.to_le_bytes()).collect::<Vec<u8>>();
+        let good = rec([450.0, 150.0, 2.0, 0.1]);
+        assert!(episodes(&host(), Some(wire::header_bytes(&eh(1, 1))), &good).is_ok());
+        assert_eq!(episodes(&host(), Some(wire::header_bytes(&eh(0, 1))), &good).unwrap_err(), Reject::Actor(0));
+        assert!(matches!(episodes(&host(), Some(wire::header_bytes(&eh(1, 2))), &good), Err(Reject::Length { .. })));
+        assert!(matches!(episodes(&host(), Some(wire::header_bytes(&eh(1, 1))), &good[..15]), Err(Reject::Length { .. })));
+        for bad in [[f32::INFINITY, 150.0, 2.0, 0.1], [1.0, 0.0, 2.0, 0.1], [1.0, 1.5, 2.0, 0.1], [1.0, 9.0, 0.0, 0.1], [1.0, 9.0, 2.0, 1.5]] {
+            assert_eq!(episodes(&host(), Some(wire::header_bytes(&eh(1, 1))), &rec(bad)).unwrap_err(), Reject::Values(1), "{bad:?}");
+        }
+        let t = |role: RoleKind, index| Telemetry { role: role as u32, index, ..Telemetry::default() };
+        assert!(telemetry(&host(), Some(wire::header_bytes(&t(RoleKind::Sim, 2))), 0).is_ok());
+        assert!(telemetry(&host(), Some(wire::header_bytes(&t(RoleKind::Link, 1))), 0).is_ok());
+        for (role, index) in [(RoleKind::Sim, 0), (RoleKind::Actor, 3), (RoleKind::Learner, 0), (RoleKind::Replay, 0), (RoleKind::Link, 2)] {
+            assert!(matches!(telemetry(&host(), Some(wire::header_bytes(&t(role, index))), 0), Err(Reject::Role { .. })), "{role:?} {index}");
+        }
+        let mut nan = t(RoleKind::Actor, 1);
+        nan.learning.eps_max = f32::NAN;
+        assert_eq!(telemetry(&host(), Some(wire::header_bytes(&nan)), 0).unwrap_err(), Reject::Values(1));
+        let wh = WeightsHeader { version: 1, len: 3, ..WeightsHeader::default() };
+        let w = rec([1.0, 2.0, 3.0, 0.0]);
+        assert!(weights(3, Some(wire::header_bytes(&wh)), &w[..12]).is_ok());
+        assert!(matches!(weights(4, Some(wire::header_bytes(&wh)), &w[..12]), Err(Reject::Length { .. })));
+        let w = rec([1.0, f32::NAN, 3.0, 0.0]);
+        assert_eq!(weights(3, Some(wire::header_bytes(&wh)), &w[..12]).unwrap_err(), Reject::Values(1));
+    }
+
+    #[test]
+    fn only_a_hosts_own_key_names_its_slot() {
+        assert_eq!(slot_of("rotorhive/run-1/host/2/transitions", "run-1", "transitions"), Some(2));
+        for k in [
+            "rotorhive/run-1/host/2/episodes",
+            "rotorhive/run-2/host/2/transitions",
+            "rotorhive/run-1/host/+2/transitions",
+            "rotorhive/run-1/host//transitions",
+        ] {
+            assert_eq!(slot_of(k, "run-1", "transitions"), None, "{k}");
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(2000))]
+        /// Arbitrary bytes never panic a decoder or a check.
+        #[test]
+        fn arbitrary_bytes_are_refused_or_read_never_a_panic(att in proptest::collection::vec(any::<u8>(), 0..200), p in proptest::collection::vec(any::<u8>(), 0..20_000), cut in 0usize..20_000) {
+            let cut = cut.min(p.len());
+            let (a, b) = p.split_at(cut);
+            let _ = transitions(&host(), Some(&att), &[a, b]);
+            let _ = episodes(&host(), Some(&att), &p);
+            let _ = telemetry(&host(), Some(&att), p.len());
+            let _ = weights(3, Some(&att), &p);
+            let _ = wire::Hello::decode(&p);
+            let _ = wire::Welcome::decode(&p);
+            let _ = slot_of(&String::from_utf8_lossy(&p), "r", "transitions");
+        }
+
+        /// A header that fits, with arbitrary counts, indexes and payloads.
+        #[test]
+        fn arbitrary_headers_with_arbitrary_payloads(actor in any::<u32>(), count in any::<u32>(), p in proptest::collection::vec(any::<u8>(), 0..40_000)) {
+            let h = TransitionHeader { actor, count, seq: 0, weight_version: 0, episodes: 0 };
+            let r = transitions(&host(), Some(wire::header_bytes(&h)), &[&p]);
+            prop_assert!(r.is_err() || p.len() == count as usize * PACKED_LEN * 2);
+            let e = EpisodeHeader { actor, count, transitions: 0, epsilon_micro: 0, step: 0 };
+            let r = episodes(&host(), Some(wire::header_bytes(&e)), &p);
+            prop_assert!(r.is_err() || p.len() == count as usize * EPISODE_FIELDS * 4);
+        }
+    }
+}

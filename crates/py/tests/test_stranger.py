@@ -1,0 +1,86 @@
+"""A stranger on a live head's port (Python's eclipse-zenoh, not rotorhive's
+link) sends malformed, NaN, out-of-range, forged and oversized messages
+while a head trains from a worker in another shared-memory domain: the run
+goes on and ends well, nothing of it reaches the replay or the records, and
+every message is counted against the host whose key it came on."""
+
+import json
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[3]
+HIVE = ROOT / "target" / "release" / "hive"
+
+
+def free_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.skipif(not HIVE.exists(), reason="needs target/release/hive (scripts/test builds it)")
+def test_a_stranger_cannot_crash_poison_or_stop_a_run(tmp_path):
+    pytest.importorskip("zenoh")
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    run_dir = tmp_path / "head"
+    small = ["--quiet", "--set", "sim.agents=8", "--set", "replay.min_fill=300", "--set", "replay.capacity=4000", "--set", "eval.every_s=0"]
+    head = subprocess.Popen(
+        [str(HIVE), "--domain", "stranger-head", "train", "configs/default.toml", "--listen", ep, "--max-seconds", "30", "--run-dir", str(run_dir)]
+        + small
+        + ["--set", "threshold=100000", "--set", "cluster.workers=1", "--set", "cluster.join_timeout_s=30"],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    worker = subprocess.Popen(
+        [str(HIVE), "--domain", "stranger-worker", "worker", "--connect", ep, "--agents", "8", "--name", "honest", "--run-dir", str(tmp_path / "worker")],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        s = subprocess.run(
+            [sys.executable, str(ROOT / "scripts" / "stranger.py"), "--connect", ep, "--rate", "300", "--seconds", "12"],
+            capture_output=True,
+            text=True,
+            timeout=90,
+        )
+        assert s.returncode == 0, s.stderr
+        sent = json.loads(s.stdout.strip().splitlines()[-1])
+        w_out, w_err = worker.communicate(timeout=90)
+        h_out, h_err = head.communicate(timeout=90)
+    finally:
+        for p in (head, worker):
+            if p.poll() is None:
+                p.kill()
+    assert head.returncode == 0, h_err
+    assert worker.returncode == 0, w_err
+    assert "panicked" not in h_err + w_err
+    assert "the head ended the run" in w_out
+    assert sent["slot"] > 1000 and sent["unknown"] > 100, sent
+
+    summary = json.loads((run_dir / "summary.json").read_text())
+    hosts = summary["hosts"]
+    assert [h["name"] for h in hosts][1] == "honest"
+    # Every message is counted once, against the host its key names (the
+    # head's row: keys of no host); the oversized ones never reach rotorhive.
+    assert hosts[1]["rejected_messages"] == sent["slot"], (hosts, sent)
+    assert hosts[0]["rejected_messages"] == sent["unknown"], (hosts, sent)
+    # Nothing forged was stored or trained on, nothing honest was lost, and
+    # the forged counters did not reach the records.
+    assert summary["skipped_updates"] == 0
+    assert summary["lost_messages"] == 0
+    for h in hosts:
+        assert h["lost_transitions"] == 0, hosts
+    assert summary["env_steps"] < 10**12, summary["env_steps"]
+    assert summary["time_to_threshold_s"] is None
+    assert summary["learner_updates"] > 50
+    assert hosts[1]["env_steps"] > 1000
+    assert os.path.exists(run_dir / "final.safetensors")
