@@ -53,12 +53,14 @@ pub fn run(seconds: f64, batch: usize, json_out: bool) -> Result<()> {
         bail!("--seconds must be positive and --batch between 1 and 1024");
     }
     let plain = link_pair(seconds, batch, None)?;
-    // The same over mutual TLS, with certificates made for this run.
+    // The same over mutual TLS on TCP and on QUIC, with certificates made
+    // for this run.
     let certs = std::env::temp_dir().join(format!("rotorhive-bench-link-{}", std::process::id()));
     rotorhive_link::certs::make(&certs, 1, &[])?;
-    let tls = link_pair(seconds, batch, Some(&certs));
+    let tls = link_pair(seconds, batch, Some((&certs, "tls")));
+    let quic = link_pair(seconds, batch, Some((&certs, "quic")));
     let _ = std::fs::remove_dir_all(&certs);
-    let tls = tls?;
+    let (tls, quic) = (tls?, quic?);
     let (link_rate, lost, got, sent, ep) = (plain.rate, plain.lost, plain.got, plain.sent.clone(), plain.endpoint.clone());
     let (base_got, base_secs) = msgpack_tcp(seconds, batch)?;
     let base_rate = base_got as f64 / base_secs;
@@ -66,11 +68,13 @@ pub fn run(seconds: f64, batch: usize, json_out: bool) -> Result<()> {
     println!("{:<32} {:>14} {:>10} {:>8}", "path", "transitions/s", "MB/s", "lost");
     println!("{:<32} {:>14.0} {:>10.0} {:>8}", "link: shm → zenoh/TCP → shm", link_rate, mb(link_rate), lost);
     println!("{:<32} {:>14.0} {:>10.0} {:>8}", "link: shm → zenoh/mTLS → shm", tls.rate, mb(tls.rate), tls.lost);
+    println!("{:<32} {:>14.0} {:>10.0} {:>8}", "link: shm → zenoh/QUIC → shm", quic.rate, mb(quic.rate), quic.lost);
     println!("{:<32} {:>14.0} {:>10.0} {:>8}", "msgpack over TCP (baseline)", base_rate, mb(base_rate), "-");
     println!(
-        "ratio {:.1}× the baseline, TLS {:.2}× plain; batches of {batch} transitions ({} bytes each), {seconds} s per path; worker sent {} transitions",
+        "ratio {:.1}× the baseline, TLS {:.2}× and QUIC {:.2}× plain; batches of {batch} transitions ({} bytes each), {seconds} s per path; worker sent {} transitions",
         link_rate / base_rate,
         tls.rate / link_rate,
+        quic.rate / link_rate,
         PACKED_LEN * 2,
         sent
     );
@@ -80,6 +84,7 @@ pub fn run(seconds: f64, batch: usize, json_out: bool) -> Result<()> {
             json!({
                 "transitions_per_s": link_rate, "lost": lost, "received": got, "sent": sent,
                 "tls_transitions_per_s": tls.rate, "tls_lost": tls.lost, "tls_ratio": tls.rate / link_rate,
+                "quic_transitions_per_s": quic.rate, "quic_lost": quic.lost, "quic_ratio": quic.rate / link_rate,
                 "baseline_transitions_per_s": base_rate, "ratio": link_rate / base_rate,
                 "batch": batch, "seconds": seconds, "bytes_per_transition": PACKED_LEN * 2, "endpoint": ep,
             })
@@ -99,9 +104,10 @@ struct Pair {
 
 /// A head side and a worker side in two domains, over plain TCP or (with a
 /// directory of `certs::make`) mutual TLS.
-fn link_pair(seconds: f64, batch: usize, tls: Option<&std::path::Path>) -> Result<Pair> {
+fn link_pair(seconds: f64, batch: usize, tls: Option<(&std::path::Path, &str)>) -> Result<Pair> {
     let port = std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();
-    let ep = format!("{}/127.0.0.1:{port}", if tls.is_some() { "tls" } else { "tcp" });
+    let kind = tls.map_or("tcp", |t| t.1);
+    let ep = format!("{kind}/127.0.0.1:{port}");
     let exe = std::env::current_exe()?;
     let side = |name: &str, domain: String, dir: &str| -> Result<std::process::Child> {
         let mut c = Command::new(&exe);
@@ -111,13 +117,15 @@ fn link_pair(seconds: f64, batch: usize, tls: Option<&std::path::Path>) -> Resul
             "--batch",
             &batch.to_string(),
         ]);
-        if let Some(t) = tls {
+        if let Some((t, _)) = tls {
             c.arg("--tls").arg(t.join(dir));
         }
         c.stdout(Stdio::piped()).spawn().with_context(|| format!("cannot start the {name} side"))
     };
-    let head = side("head", "linkbench-head".to_string(), "head")?;
-    let worker = side("worker", "linkbench-worker".to_string(), "worker-1")?;
+    // Each pair in domains of its own: the previous pair's processes may
+    // not have left theirs yet.
+    let head = side("head", format!("linkbench-{kind}-head"), "head")?;
+    let worker = side("worker", format!("linkbench-{kind}-worker"), "worker-1")?;
     let w = worker.wait_with_output()?;
     let h = head.wait_with_output()?;
     let last = |o: &std::process::Output| -> Result<serde_json::Value> {

@@ -18,7 +18,7 @@ use rotorhive_transport::{Hub, Local};
 /// How a host's link is secured: `hive train --listen` and `hive worker`.
 #[derive(Args, Debug, Default)]
 pub struct LinkArgs {
-    /// Mutual TLS for tls/ endpoints: a directory with `ca.pem`, `cert.pem`
+    /// Mutual TLS for quic/ and tls/ endpoints: a directory with `ca.pem`, `cert.pem`
     /// and `key.pem` (this host's, from `hive certs`).
     #[arg(long, value_name = "DIR")]
     pub tls: Option<PathBuf>,
@@ -60,7 +60,7 @@ impl LinkArgs {
         if !rotorhive_link::is_tls(ep) && !rotorhive_link::is_loopback(ep) && !self.insecure && self.zenoh_config.is_none() {
             bail!(
                 "--listen {ep}: plain TCP beyond this machine lets anyone who reaches the port read the weights and feed the run; \
-                 use tls/ with --tls DIR (see `hive certs`), or add --insecure on a network you trust"
+                 use quic/ with --tls DIR (see `hive certs`), or add --insecure on a network you trust"
             );
         }
         Ok(())
@@ -70,8 +70,8 @@ impl LinkArgs {
 /// `hive worker` arguments.
 #[derive(Args, Debug)]
 pub struct WorkerArgs {
-    /// The head's endpoint, as it listens: tls/ADDR:PORT (or tcp/).
-    #[arg(long, value_name = "tls/ADDR:PORT")]
+    /// The head's endpoint, as it listens: quic/ADDR:PORT (or tls/, tcp/).
+    #[arg(long, value_name = "quic/ADDR:PORT")]
     pub connect: String,
     /// Environments (sims) on this host.
     #[arg(long, default_value_t = 1)]

@@ -156,7 +156,7 @@ fn domain_crates_stay_pure_and_the_transport_knows_no_domain() {
     let zenoh = deps.iter().find(|(n, _)| n == "rotorhive-link").and_then(|(_, d)| d.iter().find(|(n, _)| n == "zenoh")).expect("the link imports zenoh");
     let mut features = zenoh.1.clone();
     features.sort();
-    assert_eq!(features, vec!["transport_tcp".to_string(), "transport_tls".to_string()], "zenoh with its TCP and TLS transports only");
+    assert_eq!(features, ["transport_quic", "transport_tcp", "transport_tls"].map(String::from).to_vec(), "zenoh with its TCP, TLS and QUIC transports only");
     // Python stays in the Python package's crate.
     for (krate, d) in &deps {
         if krate != "rotorhive-py" {

@@ -1,7 +1,7 @@
 //! A run across hosts, faked on one machine with two shared-memory domains
 //! joined by real Zenoh sessions on loopback (real processes, real shared
 //! memory, a real network path): the head trains from a worker's
-//! transitions over mutual TLS with none lost, while a worker with a
+//! transitions over mutual TLS (QUIC) with none lost, while a worker with a
 //! certificate of another CA and a plaintext one are kept out; a worker of
 //! another build is refused; bad addresses, missing certificates, a plain
 //! listener beyond loopback and a missing head fail with a clear error
@@ -59,7 +59,10 @@ fn a_head_trains_from_a_worker_on_another_domain_over_mutual_tls_without_loss() 
         assert!(o.status.success(), "{}", text(&o));
     }
     let tls = |d: &std::path::Path, host: &str| d.join(host).display().to_string();
-    let ep = format!("tls/127.0.0.1:{}", free_port());
+    // QUIC: mutual TLS 1.3 in zenoh's QUIC link; its TCP TLS link shares one
+    // rustls stream between a reading and a writing task (zenoh issue
+    // #2557) and drops the session under two-way load now and then.
+    let ep = format!("quic/127.0.0.1:{}", free_port());
     // Fixed domain names: each domain keeps one small management file in
     // /dev/shm, as the machine's shared domain does.
     let (hd, wd) = ("cluster-head".to_string(), "cluster-worker".to_string());
@@ -79,7 +82,7 @@ fn a_head_trains_from_a_worker_on_another_domain_over_mutual_tls_without_loss() 
     // Meanwhile: a certificate of another CA, and no TLS at all, get no
     // session with the head (its slot is taken, but they never reach the
     // join: the handshake fails first).
-    let plain_ep = ep.replace("tls/", "tcp/");
+    let plain_ep = ep.replace("quic/", "tcp/");
     let other_tls = tls(&other, "worker-1");
     for (args, name) in [(vec!["--connect", ep.as_str(), "--tls", &other_tls], "another CA"), (vec!["--connect", &plain_ep], "plaintext")] {
         let mut all = vec!["--domain", "cluster-intruder", "worker", "--join-timeout", "4", "--name", "intruder"];

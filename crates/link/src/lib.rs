@@ -39,8 +39,8 @@ pub use wire::{Hello, Welcome};
 /// Errors of the link, naming the endpoint or the peer.
 #[derive(Debug, thiserror::Error)]
 pub enum LinkError {
-    /// An endpoint that is not `tcp/HOST:PORT` or `tls/HOST:PORT`.
-    #[error("endpoint {0:?}: expected tcp/HOST:PORT or tls/HOST:PORT (for example tls/192.168.1.10:7447)")]
+    /// An endpoint that is not `tcp/`, `tls/` or `quic/HOST:PORT`.
+    #[error("endpoint {0:?}: expected tcp/HOST:PORT, tls/HOST:PORT or quic/HOST:PORT (for example quic/192.168.1.10:7447)")]
     BadEndpoint(String),
     /// A `tls/` endpoint without certificates, or certificates that are not there.
     #[error("{0}")]
@@ -109,7 +109,7 @@ fn zerr(what: impl Into<String>) -> impl FnOnce(zenoh::Error) -> LinkError {
 /// Checks that `ep` is `tcp/HOST:PORT` or `tls/HOST:PORT`; its host.
 pub fn check_endpoint(ep: &str) -> Result<&str> {
     let bad = || LinkError::BadEndpoint(ep.to_string());
-    let rest = ep.strip_prefix("tcp/").or_else(|| ep.strip_prefix("tls/")).ok_or_else(bad)?;
+    let rest = ep.strip_prefix("tcp/").or_else(|| ep.strip_prefix("tls/")).or_else(|| ep.strip_prefix("quic/")).ok_or_else(bad)?;
     let (host, port) = rest.rsplit_once(':').ok_or_else(bad)?;
     if host.is_empty() || port.parse::<u16>().is_err() {
         return Err(bad());
@@ -117,9 +117,10 @@ pub fn check_endpoint(ep: &str) -> Result<&str> {
     Ok(host)
 }
 
-/// Whether `ep` is encrypted and authenticated (mutual TLS).
+/// Whether `ep` is encrypted and authenticated (mutual TLS, over TCP or
+/// QUIC).
 pub fn is_tls(ep: &str) -> bool {
-    ep.starts_with("tls/")
+    ep.starts_with("tls/") || ep.starts_with("quic/")
 }
 
 /// Whether `ep` can be reached from this machine only.
@@ -868,10 +869,13 @@ impl Worker {
                 match l.kind() {
                     SampleKind::Put => head_seen = true,
                     SampleKind::Delete if head_seen => {
-                        // The end message may be right behind: look once more.
-                        std::thread::sleep(Duration::from_millis(300));
-                        if end_sub.try_recv().ok().flatten().is_some() {
-                            return Ok(WorkerEnd::RunEnded);
+                        // The end message may be right behind (over TLS on a
+                        // busy machine, up to a few hundred ms): look for 1 s.
+                        let t = Instant::now();
+                        while t.elapsed() < Duration::from_secs(1) {
+                            if end_sub.recv_timeout(Duration::from_millis(50)).ok().flatten().is_some() {
+                                return Ok(WorkerEnd::RunEnded);
+                            }
                         }
                         return Err(LinkError::LostHead);
                     }

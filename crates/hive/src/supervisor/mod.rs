@@ -56,9 +56,9 @@ pub struct TrainArgs {
     #[arg(long, value_name = "RUN_DIR", conflicts_with = "run_dir")]
     pub resume: Option<PathBuf>,
     /// Head of a run across hosts: listen for workers (`hive worker
-    /// --connect`) on this endpoint, e.g. tls/0.0.0.0:7447 with --tls;
+    /// --connect`) on this endpoint, e.g. quic/0.0.0.0:7447 with --tls;
     /// `[cluster] workers` says how many the run waits for.
-    #[arg(long, value_name = "tls/ADDR:PORT")]
+    #[arg(long, value_name = "quic/ADDR:PORT")]
     pub listen: Option<String>,
     #[command(flatten)]
     pub link: crate::worker::LinkArgs,
