@@ -100,6 +100,10 @@ pub enum BenchCmd {
         /// Transitions per batch (an actor's batch: one per agent).
         #[arg(long, default_value_t = 50)]
         batch: usize,
+        /// Also both links over mutual TLS, on TCP (`tls/`) and on QUIC
+        /// (`quic/`), with certificates made for the run.
+        #[arg(long)]
+        tls: bool,
         /// Print one JSON object as the last line.
         #[arg(long)]
         json: bool,
@@ -194,7 +198,7 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
         BenchCmd::Render { agents, renderer, steps, threads, arena, plot, json } => bench_render(&agents, &renderer, steps, threads, &arena, &plot, json),
         BenchCmd::Ipc { iters, json } => crate::ipc::run(iters, json),
         BenchCmd::IpcPeer { prefix } => crate::ipc::peer(&prefix),
-        BenchCmd::Link { seconds, batch, json } => crate::link::run(seconds, batch, json),
+        BenchCmd::Link { seconds, batch, tls, json } => crate::link::run(seconds, batch, tls, json),
         BenchCmd::LinkSide { side, endpoint, seconds, batch, tls } => crate::link::side(&side, &endpoint, seconds, batch, tls),
         BenchCmd::Replay { producers, seconds, json } => crate::replay::run(producers, seconds, json),
         BenchCmd::ReplayProducer { prefix, index, producers, batches } => crate::replay::producer(&prefix, index, producers, batches),

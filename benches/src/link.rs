@@ -48,47 +48,55 @@ fn sample_batch(batch: usize) -> Vec<u16> {
 }
 
 /// Runs the benchmark: the link between two domains, then msgpack over TCP.
-pub fn run(seconds: f64, batch: usize, json_out: bool) -> Result<()> {
+pub fn run(seconds: f64, batch: usize, with_tls: bool, json_out: bool) -> Result<()> {
     if !(seconds.is_finite() && seconds > 0.0) || batch == 0 || batch > 1024 {
         bail!("--seconds must be positive and --batch between 1 and 1024");
     }
     let plain = link_pair(seconds, batch, None)?;
     // The same over mutual TLS on TCP and on QUIC, with certificates made
     // for this run.
-    let certs = std::env::temp_dir().join(format!("rotorhive-bench-link-{}", std::process::id()));
-    rotorhive_link::certs::make(&certs, 1, &[])?;
-    let tls = link_pair(seconds, batch, Some((&certs, "tls")));
-    let quic = link_pair(seconds, batch, Some((&certs, "quic")));
-    let _ = std::fs::remove_dir_all(&certs);
-    let (tls, quic) = (tls?, quic?);
+    let secure = if with_tls {
+        let certs = std::env::temp_dir().join(format!("rotorhive-bench-link-{}", std::process::id()));
+        rotorhive_link::certs::make(&certs, 1, &[])?;
+        let tls = link_pair(seconds, batch, Some((&certs, "tls")));
+        let quic = link_pair(seconds, batch, Some((&certs, "quic")));
+        let _ = std::fs::remove_dir_all(&certs);
+        Some((tls?, quic?))
+    } else {
+        None
+    };
     let (link_rate, lost, got, sent, ep) = (plain.rate, plain.lost, plain.got, plain.sent.clone(), plain.endpoint.clone());
     let (base_got, base_secs) = msgpack_tcp(seconds, batch)?;
     let base_rate = base_got as f64 / base_secs;
     let mb = |r: f64| r * (PACKED_LEN * 2) as f64 / 1e6;
     println!("{:<32} {:>14} {:>10} {:>8}", "path", "transitions/s", "MB/s", "lost");
     println!("{:<32} {:>14.0} {:>10.0} {:>8}", "link: shm → zenoh/TCP → shm", link_rate, mb(link_rate), lost);
-    println!("{:<32} {:>14.0} {:>10.0} {:>8}", "link: shm → zenoh/mTLS → shm", tls.rate, mb(tls.rate), tls.lost);
-    println!("{:<32} {:>14.0} {:>10.0} {:>8}", "link: shm → zenoh/QUIC → shm", quic.rate, mb(quic.rate), quic.lost);
+    if let Some((tls, quic)) = &secure {
+        println!("{:<32} {:>14.0} {:>10.0} {:>8}", "link: shm → zenoh/mTLS → shm", tls.rate, mb(tls.rate), tls.lost);
+        println!("{:<32} {:>14.0} {:>10.0} {:>8}", "link: shm → zenoh/QUIC → shm", quic.rate, mb(quic.rate), quic.lost);
+    }
     println!("{:<32} {:>14.0} {:>10.0} {:>8}", "msgpack over TCP (baseline)", base_rate, mb(base_rate), "-");
     println!(
-        "ratio {:.1}× the baseline, TLS {:.2}× and QUIC {:.2}× plain; batches of {batch} transitions ({} bytes each), {seconds} s per path; worker sent {} transitions",
+        "ratio {:.1}× the baseline{}; batches of {batch} transitions ({} bytes each), {seconds} s per path; worker sent {} transitions",
         link_rate / base_rate,
-        tls.rate / link_rate,
-        quic.rate / link_rate,
+        secure.as_ref().map_or(String::new(), |(t, q)| format!(", TLS {:.2}× and QUIC {:.2}× plain", t.rate / link_rate, q.rate / link_rate)),
         PACKED_LEN * 2,
         sent
     );
     if json_out {
-        println!(
-            "{}",
-            json!({
-                "transitions_per_s": link_rate, "lost": lost, "received": got, "sent": sent,
-                "tls_transitions_per_s": tls.rate, "tls_lost": tls.lost, "tls_ratio": tls.rate / link_rate,
-                "quic_transitions_per_s": quic.rate, "quic_lost": quic.lost, "quic_ratio": quic.rate / link_rate,
-                "baseline_transitions_per_s": base_rate, "ratio": link_rate / base_rate,
-                "batch": batch, "seconds": seconds, "bytes_per_transition": PACKED_LEN * 2, "endpoint": ep,
-            })
-        );
+        let mut out = json!({
+            "transitions_per_s": link_rate, "lost": lost, "received": got, "sent": sent,
+            "baseline_transitions_per_s": base_rate, "ratio": link_rate / base_rate,
+            "batch": batch, "seconds": seconds, "bytes_per_transition": PACKED_LEN * 2, "endpoint": ep,
+        });
+        if let Some((tls, quic)) = &secure {
+            for (k, p) in [("tls", tls), ("quic", quic)] {
+                out[format!("{k}_transitions_per_s")] = json!(p.rate);
+                out[format!("{k}_lost")] = json!(p.lost);
+                out[format!("{k}_ratio")] = json!(p.rate / link_rate);
+            }
+        }
+        println!("{out}");
     }
     Ok(())
 }

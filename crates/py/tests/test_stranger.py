@@ -69,16 +69,18 @@ def test_a_stranger_cannot_crash_poison_or_stop_a_run(tmp_path):
     summary = json.loads((run_dir / "summary.json").read_text())
     hosts = summary["hosts"]
     assert [h["name"] for h in hosts][1] == "honest"
-    # Every message is counted once, against the host its key names (the
-    # head's row: keys of no host); the oversized ones never reach rotorhive.
+    # Every message is counted once, against the host its key names (a host
+    # named `unknown`: keys of no host); the oversized ones never reach rotorhive.
     assert hosts[1]["rejected_messages"] == sent["slot"], (hosts, sent)
-    assert hosts[0]["rejected_messages"] == sent["unknown"], (hosts, sent)
+    assert hosts[2]["name"] == "unknown" and hosts[2]["rejected_messages"] == sent["unknown"], (hosts, sent)
+    assert hosts[0]["rejected_messages"] == 0, hosts
     # Nothing forged was stored or trained on, nothing honest was lost, and
     # the forged counters did not reach the records.
     assert summary["skipped_updates"] == 0
     assert summary["lost_messages"] == 0
     for h in hosts:
         assert h["lost_transitions"] == 0, hosts
+    assert len(hosts) == 3, hosts
     assert summary["env_steps"] < 10**12, summary["env_steps"]
     assert summary["time_to_threshold_s"] is None
     assert summary["learner_updates"] > 50

@@ -22,8 +22,8 @@ pub struct HostSummary {
     pub env_steps: u64,
     /// Transitions lost on the way from it.
     pub lost_transitions: u64,
-    /// Messages from it that failed the head's checks and were dropped (on
-    /// the head's row: messages on keys that name no host of the run).
+    /// Messages from it that failed the head's checks and were dropped (a
+    /// host named `unknown`: messages on keys that name no host of the run).
     #[serde(default)]
     pub rejected_messages: u64,
 }

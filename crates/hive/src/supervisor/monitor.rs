@@ -143,7 +143,7 @@ impl Monitor {
             agents: cfg.sim.agents as u32,
             env_steps: self.steps_of(0, envs),
             lost_transitions: lost_here,
-            rejected_messages: link.map_or(0, |(stats, _)| stats.rejected_from(0)),
+            rejected_messages: 0,
         }];
         if let Some((stats, hosts)) = link {
             let lost = stats.lost_by_env.lock().map(|v| v.clone()).unwrap_or_default();
@@ -157,6 +157,19 @@ impl Monitor {
                     env_steps: self.steps_of(a, b),
                     lost_transitions: lost.get(a as usize..b as usize).map_or(0, |l| l.iter().sum::<u64>()),
                     rejected_messages: stats.rejected_from(h.slot),
+                });
+            }
+            // Messages on keys that name no host of the run.
+            let unknown = stats.rejected_from(0);
+            if unknown > 0 {
+                out.push(HostSummary {
+                    name: "unknown".into(),
+                    role: "unknown".into(),
+                    envs: 0,
+                    agents: 0,
+                    env_steps: 0,
+                    lost_transitions: 0,
+                    rejected_messages: unknown,
                 });
             }
         }
