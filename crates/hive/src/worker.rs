@@ -41,17 +41,7 @@ impl LinkArgs {
 
     /// Checks an endpoint and its certificates before anything starts.
     pub fn check(&self, ep: &str) -> Result<()> {
-        rotorhive_link::check_endpoint(ep)?;
-        match &self.tls {
-            Some(dir) => {
-                rotorhive_link::tls_files(dir)?;
-            }
-            None if rotorhive_link::is_tls(ep) && self.zenoh_config.is_none() => {
-                bail!("{ep} needs --tls DIR: the run's CA and this host's certificate and key (made by `hive certs`)")
-            }
-            None => {}
-        }
-        Ok(())
+        Ok(rotorhive_link::check_options(ep, &self.options())?)
     }
 
     /// Refuses to listen unencrypted beyond this machine without `--insecure`.

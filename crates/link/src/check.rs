@@ -145,13 +145,15 @@ pub fn transitions(host: &Host, attachment: Option<&[u8]>, frags: &[&[u8]]) -> R
     Ok(h)
 }
 
-/// Reads little-endian `f32`s (the payload's own byte order).
-pub fn floats(bytes: &[u8]) -> Vec<f32> {
-    bytes.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect()
+/// The little-endian `f32`s of `bytes` (the payload's own byte order),
+/// read where they lie.
+fn floats(bytes: &[u8]) -> impl Iterator<Item = f32> + '_ {
+    bytes.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
 }
 
-/// Checks an episodes message from `host`; its records as floats.
-pub fn episodes(host: &Host, attachment: Option<&[u8]>, payload: &[u8]) -> Result<(EpisodeHeader, Vec<f32>), Reject> {
+/// Checks an episodes message from `host`; its header. The payload's bytes
+/// are the records to pass on as they are.
+pub fn episodes(host: &Host, attachment: Option<&[u8]>, payload: &[u8]) -> Result<EpisodeHeader, Reject> {
     let h: EpisodeHeader = attachment.and_then(wire::header_from).ok_or(Reject::Header)?;
     if h.count == 0 || h.count as usize > MAX_EPISODES {
         return Err(Reject::Count(h.count));
@@ -163,12 +165,18 @@ pub fn episodes(host: &Host, attachment: Option<&[u8]>, payload: &[u8]) -> Resul
     if !owns(host, h.actor) {
         return Err(Reject::Actor(h.actor));
     }
-    let records = floats(payload);
-    let bad = records.chunks_exact(EPISODE_FIELDS).filter(|r| episode_corrupt(r)).count() as u64;
+    let bad = payload
+        .chunks_exact(EPISODE_FIELDS * 4)
+        .filter(|r| {
+            let mut rec = [0f32; EPISODE_FIELDS];
+            rec.iter_mut().zip(floats(r)).for_each(|(o, v)| *o = v);
+            episode_corrupt(&rec)
+        })
+        .count() as u64;
     if bad > 0 || h.epsilon_micro > 1_000_000 {
         return Err(Reject::Values(bad.max(1)));
     }
-    Ok((h, records))
+    Ok(h)
 }
 
 /// Checks a telemetry sample from `host`: only its sims and actors (by
@@ -194,19 +202,19 @@ pub fn telemetry(host: &Host, attachment: Option<&[u8]>, payload_len: usize) -> 
 }
 
 /// Checks weights from the head: the size this build's model has and finite
-/// values (a head never publishes others).
-pub fn weights(num_params: usize, attachment: Option<&[u8]>, payload: &[u8]) -> Result<(WeightsHeader, Vec<f32>), Reject> {
+/// values (a head never publishes others); its header. The payload's bytes
+/// are the weights to pass on as they are.
+pub fn weights(num_params: usize, attachment: Option<&[u8]>, payload: &[u8]) -> Result<WeightsHeader, Reject> {
     let h: WeightsHeader = attachment.and_then(wire::header_from).ok_or(Reject::Header)?;
     let want = num_params * 4;
     if h.len != num_params as u64 || payload.len() != want {
         return Err(Reject::Length { got: payload.len(), want });
     }
-    let w = floats(payload);
-    let bad = w.iter().filter(|v| !v.is_finite()).count() as u64;
+    let bad = floats(payload).filter(|v| !v.is_finite()).count() as u64;
     if bad > 0 {
         return Err(Reject::Values(bad));
     }
-    Ok((h, w))
+    Ok(h)
 }
 
 #[cfg(test)]

@@ -156,6 +156,23 @@ pub fn tls_files(dir: &Path) -> Result<[PathBuf; 3]> {
     Ok(files)
 }
 
+/// Checks an endpoint with the options it is opened with: its form, the
+/// `--tls` directory's files, and a certificate for an encrypted endpoint
+/// (unless a Zenoh configuration file brings its own).
+pub fn check_options(ep: &str, opts: &LinkOptions) -> Result<()> {
+    check_endpoint(ep)?;
+    match &opts.tls {
+        Some(dir) => {
+            tls_files(dir)?;
+        }
+        None if is_tls(ep) && opts.zenoh_config.is_none() => {
+            return Err(LinkError::Tls(format!("{ep} needs --tls DIR: the run's CA and this host's certificate and key (made by `hive certs`)")));
+        }
+        None => {}
+    }
+    Ok(())
+}
+
 /// The largest message a host accepts: a full transition batch (1,024 ×
 /// 8,228 bytes) with room to spare; Zenoh's default is 1 GiB.
 pub const MAX_MESSAGE_BYTES: usize = 16 << 20;
@@ -235,22 +252,18 @@ fn open(listen: Option<&str>, connect: Option<&str>, opts: &LinkOptions) -> Resu
                 {{ messages: ["put"], flows: ["ingress"], key_exprs: ["rotorhive/*/host/*/telemetry", "rotorhive/*/end"], size_limit: {MAX_TELEMETRY_BYTES} }}]"#
         ),
     )?;
-    let ep = listen.or(connect).unwrap_or_default();
-    match &opts.tls {
-        Some(dir) => set_tls(&mut c, dir)?,
-        None if is_tls(ep) && opts.zenoh_config.is_none() => {
-            return Err(LinkError::Tls(format!("{ep} needs --tls DIR: the run's CA and this host's certificate and key (made by `hive certs`)")));
-        }
-        None => {}
+    if let Some(ep) = listen.or(connect) {
+        check_options(ep, opts)?;
+    }
+    if let Some(dir) = &opts.tls {
+        set_tls(&mut c, dir)?;
     }
     match (listen, connect) {
         (Some(l), _) => {
-            check_endpoint(l)?;
             set(&mut c, "listen/endpoints", &format!(r#"["{l}"]"#))?;
             set(&mut c, "connect/endpoints", "[]")?;
         }
         (None, Some(k)) => {
-            check_endpoint(k)?;
             set(&mut c, "listen/endpoints", "[]")?;
             set(&mut c, "connect/endpoints", &format!(r#"["{k}"]"#))?;
         }
@@ -605,15 +618,7 @@ fn head_loop<S: Service>(head: &Head, hub: &Hub<S>, envs: usize, roles: usize, s
             let t = Instant::now();
             let payload = smp.payload();
             let frags: Vec<&[u8]> = payload.slices().collect();
-            let checked = sender(hosts, &smp, run, "transitions")
-                .and_then(|host| check::transitions(host, smp.attachment().map(|a| a.to_bytes()).as_deref(), &frags).map_err(|r| (host.slot, r)));
-            let h = match checked {
-                Ok(h) => h,
-                Err((slot, why)) => {
-                    stats.reject(slot, "a transition batch", &why);
-                    continue;
-                }
-            };
+            let Some(h) = accept(stats, hosts, &smp, run, "transitions", |host, att| check::transitions(host, att, &frags)) else { continue };
             let words = payload.len() / 2;
             if let Some(slot) = next_seq.get_mut(h.actor as usize) {
                 if let Some(want) = *slot
@@ -651,20 +656,12 @@ fn head_loop<S: Service>(head: &Head, hub: &Hub<S>, envs: usize, roles: usize, s
         }
         let t = Instant::now();
         while let Ok(Some(smp)) = ep_sub.try_recv() {
-            let checked = sender(hosts, &smp, run, "episodes").and_then(|host| {
-                check::episodes(host, smp.attachment().map(|a| a.to_bytes()).as_deref(), &smp.payload().to_bytes()).map_err(|r| (host.slot, r))
-            });
-            let (h, records) = match checked {
-                Ok(x) => x,
-                Err((slot, why)) => {
-                    stats.reject(slot, "episodes", &why);
-                    continue;
-                }
-            };
+            let bytes = smp.payload().to_bytes();
+            let Some(h) = accept(stats, hosts, &smp, run, "episodes", |host, att| check::episodes(host, att, &bytes)) else { continue };
             if ep_tx
-                .send_with(records.len(), |hdr, p| {
+                .send_with(bytes.len() / 4, |hdr, p| {
                     *hdr = h;
-                    p.copy_from_slice(&records);
+                    wire::payload_bytes_mut(p).copy_from_slice(&bytes);
                 })
                 .is_err()
             {
@@ -672,11 +669,8 @@ fn head_loop<S: Service>(head: &Head, hub: &Hub<S>, envs: usize, roles: usize, s
             }
         }
         while let Ok(Some(smp)) = tel_sub.try_recv() {
-            let checked = sender(hosts, &smp, run, "telemetry")
-                .and_then(|host| check::telemetry(host, smp.attachment().map(|a| a.to_bytes()).as_deref(), smp.payload().len()).map_err(|r| (host.slot, r)));
-            match checked {
-                Ok(t) => tel.forward(t),
-                Err((slot, why)) => stats.reject(slot, "telemetry", &why),
+            if let Some(t) = accept(stats, hosts, &smp, run, "telemetry", |host, att| check::telemetry(host, att, smp.payload().len())) {
+                tel.forward(t);
             }
         }
         tel.stage(1, t);
@@ -713,9 +707,23 @@ fn head_loop<S: Service>(head: &Head, hub: &Hub<S>, envs: usize, roles: usize, s
     Ok(())
 }
 
-/// The joined host whose key `smp` came on, or slot 0 (no host of the run).
-fn sender<'h>(hosts: &'h [Host], smp: &zenoh::sample::Sample, run: &str, what: &str) -> std::result::Result<&'h Host, (u32, check::Reject)> {
-    check::slot_of(smp.key_expr().as_str(), run, what).and_then(|slot| hosts.iter().find(|h| h.slot == slot)).ok_or((0, check::Reject::UnknownSender))
+/// A message `what` from another host, checked by `check` against the
+/// joined host its key names, with its attachment; one that fails (or
+/// whose key names no host: slot 0) is counted against its sender and `None`.
+fn accept<T>(
+    stats: &HeadStats,
+    hosts: &[Host],
+    smp: &zenoh::sample::Sample,
+    run: &str,
+    what: &str,
+    check: impl FnOnce(&Host, Option<&[u8]>) -> std::result::Result<T, check::Reject>,
+) -> Option<T> {
+    let Some(host) = check::slot_of(smp.key_expr().as_str(), run, what).and_then(|slot| hosts.iter().find(|h| h.slot == slot)) else {
+        stats.reject(0, what, &check::Reject::UnknownSender);
+        return None;
+    };
+    let att = smp.attachment().map(|a| a.to_bytes());
+    check(host, att.as_deref()).map_err(|why| stats.reject(host.slot, what, &why)).ok()
 }
 
 /// How a worker's link ended.
@@ -885,15 +893,16 @@ impl Worker {
             // Weights in: the newest, republished on this host.
             let t = Instant::now();
             if let Ok(Some(smp)) = w_sub.try_recv() {
-                match check::weights(num_params, smp.attachment().map(|a| a.to_bytes()).as_deref(), &smp.payload().to_bytes()) {
-                    Ok((h, w)) => {
+                let bytes = smp.payload().to_bytes();
+                match check::weights(num_params, smp.attachment().map(|a| a.to_bytes()).as_deref(), &bytes) {
+                    Ok(h) => {
                         if w_tx.is_none() {
-                            w_tx = Some(hub.sender::<f32, WeightsHeader>(&Channel::weights(envs), w.len(), Duration::from_millis(200))?);
+                            w_tx = Some(hub.sender::<f32, WeightsHeader>(&Channel::weights(envs), num_params, Duration::from_millis(200))?);
                         }
                         if let Some(tx) = w_tx.as_mut() {
-                            tx.send_with(w.len(), |hdr, p| {
+                            tx.send_with(num_params, |hdr, p| {
                                 *hdr = h;
-                                p.copy_from_slice(&w);
+                                wire::payload_bytes_mut(p).copy_from_slice(&bytes);
                             })?;
                         }
                         stats.weights += 1;
