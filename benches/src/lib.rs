@@ -23,7 +23,7 @@ use anyhow::{Result, bail};
 use clap::Subcommand;
 use serde_json::json;
 
-use rotorhive_sim::{Arena, RendererKind, SimConfig, VecEnv};
+use rotorhive_sim::{Arena, PhysicsKind, RendererKind, SimConfig, VecEnv};
 
 mod ipc;
 mod learner;
@@ -42,9 +42,13 @@ pub enum BenchCmd {
         /// Measured steps (after 3 warm-up steps).
         #[arg(long, default_value_t = 40)]
         steps: usize,
-        /// Rendering threads.
+        /// Rendering threads (the physics shares them).
         #[arg(long, default_value_t = 1)]
         threads: usize,
+        /// Flight computation: `direct`, `rapier`, or both as a comma list
+        /// (each agent count runs on each, side by side).
+        #[arg(long, default_value = "direct", value_delimiter = ',', value_parser = parse_physics)]
+        physics: Vec<PhysicsKind>,
         /// Arena file.
         #[arg(long, default_value = "configs/arenas/train.toml")]
         arena: PathBuf,
@@ -194,7 +198,7 @@ pub enum BenchCmd {
 
 pub fn run(cmd: BenchCmd) -> Result<()> {
     match cmd {
-        BenchCmd::Sim { agents, steps, threads, arena, json } => bench_sim(&agents, steps, threads, &arena, json),
+        BenchCmd::Sim { agents, steps, threads, physics, arena, json } => bench_sim(&agents, steps, threads, &physics, &arena, json),
         BenchCmd::Render { agents, renderer, steps, threads, arena, plot, json } => bench_render(&agents, &renderer, steps, threads, &arena, &plot, json),
         BenchCmd::Ipc { iters, json } => crate::ipc::run(iters, json),
         BenchCmd::IpcPeer { prefix } => crate::ipc::peer(&prefix),
@@ -208,15 +212,33 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
     }
 }
 
-fn bench_sim(agents: &[usize], steps: usize, threads: usize, arena: &std::path::Path, json: bool) -> Result<()> {
+fn parse_physics(s: &str) -> Result<PhysicsKind, String> {
+    match s {
+        "direct" => Ok(PhysicsKind::Direct),
+        "rapier" => Ok(PhysicsKind::Rapier),
+        other => Err(format!("unknown physics `{other}` (direct or rapier)")),
+    }
+}
+
+fn physics_name(p: PhysicsKind) -> &'static str {
+    match p {
+        PhysicsKind::Direct => "direct",
+        PhysicsKind::Rapier => "rapier",
+    }
+}
+
+fn bench_sim(agents: &[usize], steps: usize, threads: usize, physics: &[PhysicsKind], arena: &std::path::Path, json: bool) -> Result<()> {
     if agents.contains(&0) || steps == 0 || threads == 0 {
         bail!("--agents, --steps and --threads must be positive");
     }
     let arena = Arena::load(arena)?;
     let mut rows = Vec::new();
-    println!("{:>7} {:>16} {:>12} {:>11} {:>11} {:>11} {:>14}", "agents", "agent-steps/s", "step ms", "physics ms", "render ms", "reset ms", "render µs/agent");
-    for &n in agents {
-        let mut env = VecEnv::new(SimConfig { agents: n, render_threads: threads, ..SimConfig::default() }, arena.clone(), 1);
+    println!(
+        "{:>7} {:>8} {:>16} {:>12} {:>11} {:>11} {:>11} {:>15} {:>14}",
+        "agents", "physics", "agent-steps/s", "step ms", "physics ms", "render ms", "reset ms", "physics µs/agent", "render µs/agent"
+    );
+    for (&n, &kind) in agents.iter().flat_map(|n| physics.iter().map(move |p| (n, p))) {
+        let mut env = VecEnv::new(SimConfig { agents: n, render_threads: threads, physics: kind, ..SimConfig::default() }, arena.clone(), 1);
         // A fixed pseudo-random action pattern: agents crash and reset as in training.
         let actions = |t: usize| -> Vec<u8> { (0..n).map(|i| (((t * 31 + i * 17) >> 2) % 2) as u8).collect() };
         for t in 0..3 {
@@ -235,20 +257,24 @@ fn bench_sim(agents: &[usize], steps: usize, threads: usize, arena: &std::path::
         let per = |ns: u64| ns as f64 / 1e6 / steps as f64;
         let sps = (n * steps) as f64 / wall;
         println!(
-            "{:>7} {:>16.0} {:>12.3} {:>11.3} {:>11.3} {:>11.3} {:>14.2}",
+            "{:>7} {:>8} {:>16.0} {:>12.3} {:>11.3} {:>11.3} {:>11.3} {:>15.2} {:>14.2}",
             n,
+            physics_name(kind),
             sps,
             wall * 1e3 / steps as f64,
             per(phys),
             per(rend),
             per(reset),
+            per(phys) * 1e3 / n as f64,
             per(rend) * 1e3 / n as f64
         );
         rows.push(json!({
             "agents": n,
+            "physics": physics_name(kind),
             "agent_steps_per_s": sps,
             "step_ms": wall * 1e3 / steps as f64,
             "stage_ms": { "physics": per(phys), "render": per(rend), "reset": per(reset) },
+            "physics_us_per_agent": per(phys) * 1e3 / n as f64,
             "render_us_per_agent": per(rend) * 1e3 / n as f64,
         }));
     }

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use serde::{Deserialize, Serialize};
 
-use rotorhive_sim::{Arena, CameraSpec, GenParams, RendererKind, SimConfig};
+use rotorhive_sim::{Arena, CameraSpec, GenParams, PhysicsKind, RendererKind, SimConfig};
 
 /// `sim.observation_mode`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -174,6 +174,10 @@ pub struct SimSection {
     pub interactive: bool,
     /// Physics step (s).
     pub physics_dt: f32,
+    /// How flight is computed: `direct` (the equations of motion, collision
+    /// queries once per action) or `rapier` (a rigid-body pipeline, the
+    /// reference).
+    pub physics: PhysicsKind,
     /// Simulated seconds per action.
     pub action_period: f32,
     /// Steps before a timeout.
@@ -321,6 +325,7 @@ impl Default for SimSection {
             observation_mode: ObservationMode::Batched,
             interactive: false,
             physics_dt: 0.02,
+            physics: PhysicsKind::Direct,
             action_period: 1.0,
             max_steps: 400,
             depth_range: 20.0,
@@ -601,6 +606,7 @@ impl Config {
         SimConfig {
             agents: s.agents,
             physics_dt: s.physics_dt,
+            physics: s.physics,
             action_period: s.action_period,
             max_steps: s.max_steps,
             interactive: s.interactive,

@@ -91,10 +91,33 @@ fn rotors(arm: f32) -> ([Vector; 4], [f32; 4]) {
 /// Runs the cascade once: velocity setpoint (world frame, z ignored) and
 /// altitude setpoint in, rotor thrusts out.
 pub fn control(p: &QuadParams, g: &Gains, s: &DroneState, vel_sp: Vector, alt_sp: f32) -> RotorCommand {
-    const GRAVITY: f32 = 9.81;
+    let r = s.rotation;
+    let axes = [r * Vector::X, r * Vector::Y, r * Vector::Z];
+    let f = rotor_thrusts(p, g, s.position, s.velocity, axes, r.inverse() * s.angvel, vel_sp, alt_sp);
+    let (arms, spin) = rotors(p.arm);
+    let yaw = p.torque_coeff * (spin[0] * f[0] + spin[1] * f[1] + spin[2] * f[2] + spin[3] * f[3]);
+    RotorCommand { thrusts: f, arms_world: arms.map(|a| r * a), thrust_dir: axes[2], yaw_torque: axes[2] * yaw }
+}
+
+/// The cascade itself: position, velocity, the body axes in the world frame
+/// (`[bx, by, bz]`, the columns of the rotation) and the body-frame angular
+/// velocity in; the four rotor thrusts (N), clamped, out. [`control`] and the
+/// direct flight path (`flight.rs`) both run it.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+pub fn rotor_thrusts(
+    p: &QuadParams,
+    g: &Gains,
+    position: Vector,
+    velocity: Vector,
+    [bx, by, bz]: [Vector; 3],
+    w_body: Vector,
+    vel_sp: Vector,
+    alt_sp: f32,
+) -> [f32; 4] {
     // Velocity loop (altitude held by an outer position loop on z).
-    let vz_sp = (g.alt * (alt_sp - s.position.z)).clamp(-2.0, 2.0);
-    let mut acc = Vector::new(g.vel_xy * (vel_sp.x - s.velocity.x), g.vel_xy * (vel_sp.y - s.velocity.y), g.vel_z * (vz_sp - s.velocity.z));
+    let vz_sp = (g.alt * (alt_sp - position.z)).clamp(-2.0, 2.0);
+    let mut acc = Vector::new(g.vel_xy * (vel_sp.x - velocity.x), g.vel_xy * (vel_sp.y - velocity.y), g.vel_z * (vz_sp - velocity.z));
     let h = (acc.x * acc.x + acc.y * acc.y).sqrt();
     if h > g.max_acc_xy {
         acc.x *= g.max_acc_xy / h;
@@ -106,29 +129,32 @@ pub fn control(p: &QuadParams, g: &Gains, s: &DroneState, vel_sp: Vector, alt_sp
     let bz_d = force.normalize_or(Vector::Z);
     let by_d = bz_d.cross(Vector::X).normalize_or(Vector::Y);
     let bx_d = by_d.cross(bz_d);
-    let r = s.rotation;
-    let (bx, by, bz) = (r * Vector::X, r * Vector::Y, r * Vector::Z);
     let collective = force.dot(bz).max(0.0);
 
     // Attitude error e = ½ vee(R_dᵀR − RᵀR_d) in the body frame (Lee et al.);
     // with M = R_dᵀR, M_ij = bd_i · b_j.
     let e = Vector::new(0.5 * (bz_d.dot(by) - by_d.dot(bz)), 0.5 * (bx_d.dot(bz) - bz_d.dot(bx)), 0.5 * (by_d.dot(bx) - bx_d.dot(by)));
     let rate_sp = Vector::new(-g.att * e.x, -g.att * e.y, -g.att_yaw * e.z);
-    let w_body = r.inverse() * s.angvel;
     let j = Vector::from(p.inertia);
     let tau = j * ((rate_sp - w_body) * g.rate) + w_body.cross(j * w_body);
 
     // Mixer for the X frame (see `rotors`), then the rotors' limits.
     let l = p.arm / std::f32::consts::SQRT_2;
     let (t4, x4, y4, z4) = (collective / 4.0, tau.x / (4.0 * l), tau.y / (4.0 * l), tau.z / (4.0 * p.torque_coeff));
-    let mut f = [t4 + x4 - y4 + z4, t4 + x4 + y4 - z4, t4 - x4 + y4 + z4, t4 - x4 - y4 - z4];
-    for fi in &mut f {
-        *fi = fi.clamp(0.0, p.max_rotor_thrust);
-    }
-    let (arms, spin) = rotors(p.arm);
-    let yaw = p.torque_coeff * (spin[0] * f[0] + spin[1] * f[1] + spin[2] * f[2] + spin[3] * f[3]);
-    RotorCommand { thrusts: f, arms_world: arms.map(|a| r * a), thrust_dir: bz, yaw_torque: bz * yaw }
+    [t4 + x4 - y4 + z4, t4 + x4 + y4 - z4, t4 - x4 + y4 + z4, t4 - x4 - y4 - z4].map(|f| f.clamp(0.0, p.max_rotor_thrust))
 }
+
+/// What four rotor thrusts do to the body: the total thrust along body z (N)
+/// and the body-frame torque (N m) of the X frame (see `rotors`).
+#[inline]
+pub fn body_wrench(p: &QuadParams, f: [f32; 4]) -> (f32, Vector) {
+    let l = p.arm / std::f32::consts::SQRT_2;
+    let torque = Vector::new(l * (f[0] + f[1] - f[2] - f[3]), l * (f[1] + f[2] - f[0] - f[3]), p.torque_coeff * (f[0] - f[1] + f[2] - f[3]));
+    (f[0] + f[1] + f[2] + f[3], torque)
+}
+
+/// Gravity (m/s², along −z).
+pub const GRAVITY: f32 = 9.81;
 
 #[cfg(test)]
 mod tests {
@@ -152,5 +178,17 @@ mod tests {
         // Pitching forward (nose down) is a positive rotation about body y:
         // the rear rotors (1, 2) must push harder than the front ones.
         assert!(c.thrusts[1] + c.thrusts[2] > c.thrusts[0] + c.thrusts[3], "{:?}", c.thrusts);
+    }
+
+    #[test]
+    fn the_body_wrench_is_the_torque_of_the_rotor_forces_at_their_arms() {
+        let p = QuadParams::default();
+        let r = Rotation::from_euler(rapier3d::glamx::EulerRot::XYZ, 0.1, -0.2, 0.3);
+        let s = DroneState { position: Vector::new(1.0, 2.0, 2.5), velocity: Vector::new(0.5, -1.0, 0.1), rotation: r, angvel: Vector::new(0.2, -0.1, 0.3) };
+        let c = control(&p, &Gains::default(), &s, Vector::new(1.0, 2.0, 0.0), 2.0);
+        let world: Vector = c.thrusts.iter().zip(c.arms_world).map(|(f, a)| a.cross(c.thrust_dir * *f)).sum::<Vector>() + c.yaw_torque;
+        let (total, body) = body_wrench(&p, c.thrusts);
+        assert!((r * body - world).length() < 1e-5, "{:?} vs {:?}", r * body, world);
+        assert!((total - c.thrusts.iter().sum::<f32>()).abs() < 1e-6);
     }
 }

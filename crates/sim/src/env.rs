@@ -1,19 +1,23 @@
 //! The vectorised environment: N quadrotors in one arena, stepped together.
 //!
-//! One `step` applies every agent's action, runs the physics substeps of one
-//! action period with the cascaded controller, detects collisions through
-//! rapier's narrow phase, scores the step, resets finished agents on their own
-//! and renders all agents' depth images in one batched call.
+//! One `step` applies every agent's action, runs the physics steps of one
+//! action period with the cascaded controller (directly, `flight.rs`, or
+//! through a rapier pipeline, `rapier_flight.rs`), detects collisions, scores
+//! the step, resets finished agents on their own and renders all agents'
+//! depth images in one batched call.
 
+use std::sync::{Mutex, PoisonError};
 use std::time::Instant;
 
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
-use rapier3d::prelude::*;
+use rapier3d::math::Vector;
 
-use crate::arena::{Arena, ArenaError, Lanes, Obstacle, Spawn};
-use crate::dynamics::{DroneState, Gains, QuadParams, control};
+use crate::arena::{Arena, ArenaError, Lanes, Spawn};
+use crate::dynamics::{DroneState, Gains, QuadParams};
+use crate::flight::{Drone, Flight, Geometry};
 use crate::gpu::{GpuDepthRenderer, GpuError};
+use crate::rapier_flight::RapierFlight;
 use crate::render::{CameraPose, CameraSpec, DepthRenderer, Drones, Scene};
 
 /// Why an episode ended (mirrors `rotorhive_msg::DoneKind` codes).
@@ -58,6 +62,18 @@ pub enum RendererKind {
     Wgpu,
 }
 
+/// How the drones' flight is computed (named `direct` or `rapier` in configs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PhysicsKind {
+    /// The equations of motion integrated agent by agent, collisions queried
+    /// once per action against the arena's shapes (`flight.rs`).
+    #[default]
+    Direct,
+    /// A rapier rigid-body pipeline, one body per drone (the reference).
+    Rapier,
+}
+
 /// Why a multi-lane environment could not start.
 #[derive(Debug, thiserror::Error)]
 pub enum LanesError {
@@ -76,6 +92,8 @@ pub struct SimConfig {
     pub agents: usize,
     /// Physics step (s).
     pub physics_dt: f32,
+    /// How flight is computed.
+    pub physics: PhysicsKind,
     /// Simulated time per action (s).
     pub action_period: f32,
     /// Constant forward speed setpoint (m/s).
@@ -117,6 +135,7 @@ impl Default for SimConfig {
         Self {
             agents: 1,
             physics_dt: 0.02,
+            physics: PhysicsKind::Direct,
             action_period: 1.0,
             forward_speed: 1.0,
             lateral_step: 0.25,
@@ -153,7 +172,7 @@ pub struct Episode {
 /// Nanoseconds spent per stage in the last step.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct StepTiming {
-    /// Controller, rapier and collision checks.
+    /// Controller, dynamics and collision checks.
     pub physics_ns: u64,
     /// Depth rendering.
     pub render_ns: u64,
@@ -161,16 +180,26 @@ pub struct StepTiming {
     pub reset_ns: u64,
 }
 
-const GROUP_DRONE: Group = Group::GROUP_1;
-const GROUP_WORLD: Group = Group::GROUP_2;
+/// Agents per piece of physics work handed to a pool thread.
+const PHYSICS_CHUNK: usize = 32;
+
+/// The flight computation of an environment.
+#[derive(Debug)]
+enum Physics {
+    Direct(Geometry),
+    Rapier(Box<RapierFlight>),
+}
 
 /// N quadrotors in one arena.
 pub struct VecEnv {
     cfg: SimConfig,
     arena: Arena,
-    world: PhysicsWorld,
-    bodies: Vec<RigidBodyHandle>,
-    colliders: Vec<ColliderHandle>,
+    flight: Flight,
+    physics: Physics,
+    drones: Vec<Drone>,
+    /// Positions of every agent over the last action, `(substeps + 1)` each
+    /// (the direct path's collision query).
+    path: Vec<Vector>,
     scene: Scene,
     renderer: DepthRenderer,
     gpu: Option<GpuDepthRenderer>,
@@ -180,10 +209,8 @@ pub struct VecEnv {
     /// Agent index of every camera, for the GPU renderer.
     agent_ids: Vec<u32>,
     rng: Pcg64Mcg,
-    lateral_sp: Vec<f32>,
     steps: Vec<u32>,
     returns: Vec<f32>,
-    collided: Vec<bool>,
     /// Current depth frame per agent, `N × side²`.
     cur: Vec<f32>,
     /// Previous depth frame per agent.
@@ -227,53 +254,11 @@ impl VecEnv {
     fn with_lanes(cfg: SimConfig, lanes: Lanes, seed: u64) -> Result<Self, GpuError> {
         let Lanes { world: arena, offsets: lane_offsets, spawns: lane_spawns, bounds: lane_bounds } = lanes;
         assert!(cfg.agents > 0, "a VecEnv needs at least one agent");
-        let mut world = PhysicsWorld::new();
-        world.gravity = Vector::new(0.0, 0.0, -9.81);
-        world.integration_parameters.dt = cfg.physics_dt;
-        let fixed = InteractionGroups::new(GROUP_WORLD, Group::ALL, InteractionTestMode::And);
-        for o in &arena.obstacles {
-            let c = match *o {
-                Obstacle::Box { center, half_extents: h } => ColliderBuilder::cuboid(h[0], h[1], h[2]).translation(Vector::from(center)),
-                Obstacle::Cylinder { center, radius, half_height } => {
-                    // Rapier's cylinders stand along y; turn them upright.
-                    ColliderBuilder::cylinder(half_height, radius)
-                        .position(Pose::from_parts(Vector::from(center), Rotation::from_rotation_x(std::f32::consts::FRAC_PI_2)))
-                }
-            };
-            world.colliders.insert(c.collision_groups(fixed));
-        }
-        // Walls, floor and ceiling as thick slabs, so nothing tunnels through.
-        let (l, hw, h) = (arena.length, arena.width / 2.0, arena.height);
-        let slabs = [
-            (Vector::new(l / 2.0, hw + 0.5, h / 2.0), Vector::new(l / 2.0 + 5.0, 0.5, h / 2.0 + 1.0)),
-            (Vector::new(l / 2.0, -hw - 0.5, h / 2.0), Vector::new(l / 2.0 + 5.0, 0.5, h / 2.0 + 1.0)),
-            (Vector::new(l / 2.0, 0.0, -0.5), Vector::new(l / 2.0 + 5.0, hw + 1.0, 0.5)),
-            (Vector::new(l / 2.0, 0.0, h + 0.5), Vector::new(l / 2.0 + 5.0, hw + 1.0, 0.5)),
-        ];
-        for (c, e) in slabs {
-            world.colliders.insert(ColliderBuilder::cuboid(e.x, e.y, e.z).translation(c).collision_groups(fixed));
-        }
-        let filter = if cfg.interactive { GROUP_WORLD | GROUP_DRONE } else { GROUP_WORLD };
-        let groups = InteractionGroups::new(GROUP_DRONE, filter, InteractionTestMode::And);
-        let q = cfg.quad;
-        let mut bodies = Vec::with_capacity(cfg.agents);
-        let mut colliders = Vec::with_capacity(cfg.agents);
-        for _ in 0..cfg.agents {
-            let body = RigidBodyBuilder::dynamic()
-                .additional_mass_properties(MassProperties::new(Vector::ZERO, q.mass, Vector::from(q.inertia)))
-                .linear_damping(0.05)
-                .can_sleep(false);
-            // The drone's collider is a sensor: it reports contact without
-            // bouncing, since a contact ends the episode anyway.
-            let collider = ColliderBuilder::ball(cfg.drone_radius)
-                .density(0.0)
-                .sensor(true)
-                .active_collision_types(ActiveCollisionTypes::default() | ActiveCollisionTypes::DYNAMIC_DYNAMIC)
-                .collision_groups(groups);
-            let (b, c) = world.insert(body, collider);
-            bodies.push(b);
-            colliders.push(c);
-        }
+        let flight = Flight { quad: cfg.quad, gains: cfg.gains, dt: cfg.physics_dt, forward_speed: cfg.forward_speed, altitude: arena.spawn.z };
+        let physics = match cfg.physics {
+            PhysicsKind::Direct => Physics::Direct(Geometry::new(&arena)),
+            PhysicsKind::Rapier => Physics::Rapier(Box::new(RapierFlight::new(&arena, cfg.agents, &flight, cfg.drone_radius, cfg.interactive))),
+        };
         let n = cfg.agents;
         let px = cfg.camera.side * cfg.camera.side;
         let obs_len = 2 * px + 3;
@@ -291,14 +276,13 @@ impl VecEnv {
             agent_ids: (0..n as u32).collect(),
             scene,
             arena,
-            world,
-            bodies,
-            colliders,
+            flight,
+            physics,
+            drones: vec![Drone::at(Vector::ZERO, Vector::ZERO); n],
+            path: Vec::new(),
             rng: Pcg64Mcg::seed_from_u64(seed),
-            lateral_sp: vec![0.0; n],
             steps: vec![0; n],
             returns: vec![0.0; n],
-            collided: vec![false; n],
             cur: vec![0.0; n * px],
             prev: vec![0.0; n * px],
             obs: vec![0.0; n * obs_len],
@@ -379,54 +363,94 @@ impl VecEnv {
 
     /// Position of each drone (m).
     pub fn positions(&self) -> Vec<[f32; 3]> {
-        self.bodies.iter().map(|h| self.world.bodies[*h].translation().to_array()).collect()
+        self.drones.iter().map(|d| d.p.to_array()).collect()
     }
 
     /// Full state of one drone.
     pub fn state(&self, agent: usize) -> DroneState {
-        let b = &self.world.bodies[self.bodies[agent]];
-        DroneState { position: b.translation(), velocity: b.linvel(), rotation: *b.rotation(), angvel: b.angvel() }
+        let d = &self.drones[agent];
+        DroneState { position: d.p, velocity: d.v, rotation: d.q, angvel: d.angvel_world() }
     }
 
     /// Lateral velocity setpoint of an agent (m/s).
     pub fn lateral_setpoint(&self, agent: usize) -> f32 {
-        self.lateral_sp[agent]
+        self.drones[agent].lateral_sp
     }
 
     /// Places a drone at a pose with a velocity, for tests and tools.
     pub fn place(&mut self, agent: usize, position: [f32; 3], velocity: [f32; 3]) {
-        let b = &mut self.world.bodies[self.bodies[agent]];
-        b.set_position(Pose::from_parts(Vector::from(position), Rotation::IDENTITY), true);
-        b.set_linvel(Vector::from(velocity), true);
-        b.set_angvel(Vector::ZERO, true);
-        self.lateral_sp[agent] = velocity[1];
+        let d = &mut self.drones[agent];
+        *d = Drone { lateral_sp: velocity[1], ..Drone::at(Vector::from(position), Vector::from(velocity)) };
+        if let Physics::Rapier(r) = &mut self.physics {
+            r.load(agent, d);
+        }
     }
 
     /// Flies every agent with an explicit lateral velocity setpoint for
     /// `seconds` of simulated time, without scoring or resets (controller tests).
     pub fn fly(&mut self, lateral: &[f32], seconds: f32) {
-        self.lateral_sp.copy_from_slice(lateral);
-        let substeps = (seconds / self.cfg.physics_dt).round() as usize;
-        for _ in 0..substeps {
-            self.substep();
+        for (d, l) in self.drones.iter_mut().zip(lateral) {
+            d.lateral_sp = *l;
         }
+        let steps = (seconds / self.cfg.physics_dt).round() as usize;
+        self.advance(steps, false);
     }
 
-    fn substep(&mut self) {
-        let cfg = &self.cfg;
-        for (i, h) in self.bodies.iter().enumerate() {
-            let b = &mut self.world.bodies[*h];
-            let s = DroneState { position: b.translation(), velocity: b.linvel(), rotation: *b.rotation(), angvel: b.angvel() };
-            let sp = Vector::new(cfg.forward_speed, self.lateral_sp[i], 0.0);
-            let cmd = control(&cfg.quad, &cfg.gains, &s, sp, self.arena.spawn.z);
-            b.reset_forces(false);
-            b.reset_torques(false);
-            for (f, arm) in cmd.thrusts.iter().zip(cmd.arms_world) {
-                b.add_force_at_point(cmd.thrust_dir * *f, s.position + arm, false);
+    /// Runs `steps` physics steps of every agent and, with `detect`, marks
+    /// those that touched something.
+    fn advance(&mut self, steps: usize, detect: bool) {
+        match &mut self.physics {
+            Physics::Rapier(r) => {
+                for _ in 0..steps {
+                    r.step(&self.flight, &mut self.drones);
+                    if detect && self.cfg.interactive {
+                        let n = self.drones.len();
+                        let p: Vec<Vector> = self.drones.iter().map(|d| d.p).collect();
+                        mark_touching(&mut self.drones, self.cfg.drone_radius, |i| p[i], n);
+                    }
+                }
             }
-            b.add_torque(cmd.yaw_torque, false);
+            Physics::Direct(geometry) => {
+                let stride = steps + 1;
+                self.path.resize(self.drones.len() * stride, Vector::ZERO);
+                let (flight, radius) = (self.flight, self.cfg.drone_radius);
+                let geometry = &*geometry;
+                let work = |drones: &mut [Drone], path: &mut [Vector]| {
+                    for (d, path) in drones.iter_mut().zip(path.chunks_exact_mut(stride)) {
+                        path[0] = d.p;
+                        for p in &mut path[1..] {
+                            flight.step(d);
+                            *p = d.p;
+                        }
+                        if detect && !d.collided && geometry.path_hits(path, radius) {
+                            d.collided = true;
+                        }
+                    }
+                };
+                // The physics shares the render threads: pieces of agents
+                // handed out as threads come free.
+                let pool = self.renderer.pool();
+                if pool.threads() == 1 || self.drones.len() <= PHYSICS_CHUNK {
+                    work(&mut self.drones, &mut self.path);
+                } else {
+                    let queue = Mutex::new(self.drones.chunks_mut(PHYSICS_CHUNK).zip(self.path.chunks_mut(PHYSICS_CHUNK * stride)));
+                    pool.run(&|_| {
+                        loop {
+                            let next = queue.lock().unwrap_or_else(PoisonError::into_inner).next();
+                            let Some((drones, path)) = next else { break };
+                            work(drones, path);
+                        }
+                    });
+                }
+                if detect && self.cfg.interactive {
+                    let n = self.drones.len();
+                    for k in 1..stride {
+                        let path = &self.path;
+                        mark_touching(&mut self.drones, radius, |i| path[i * stride + k], n);
+                    }
+                }
+            }
         }
-        self.world.step();
     }
 
     /// Advances every agent by one action period.
@@ -443,16 +467,13 @@ impl VecEnv {
         assert_eq!(actions.len(), self.cfg.agents, "one action per agent");
         let t0 = Instant::now();
         let cfg = &self.cfg;
-        for (sp, a) in self.lateral_sp.iter_mut().zip(actions) {
+        for (d, a) in self.drones.iter_mut().zip(actions) {
             let delta = if *a == 0 { -cfg.lateral_step } else { cfg.lateral_step };
-            *sp = (*sp + delta).clamp(-cfg.max_lateral_speed, cfg.max_lateral_speed);
+            d.lateral_sp = (d.lateral_sp + delta).clamp(-cfg.max_lateral_speed, cfg.max_lateral_speed);
+            d.collided = false;
         }
-        self.collided.fill(false);
         let substeps = ((cfg.action_period / cfg.physics_dt).round() as usize).max(1);
-        for _ in 0..substeps {
-            self.substep();
-            self.detect_collisions();
-        }
+        self.advance(substeps, true);
         let t1 = Instant::now();
 
         self.finished.clear();
@@ -467,8 +488,8 @@ impl VecEnv {
                 continue;
             }
             self.steps[i] += 1;
-            let x = self.world.bodies[self.bodies[i]].translation().x;
-            let (reward, done) = if self.collided[i] {
+            let x = self.drones[i].p.x;
+            let (reward, done) = if self.drones[i].collided {
                 (self.cfg.reward_collision, Done::Collision)
             } else if x >= self.arena.length {
                 (self.cfg.reward_step, Done::Goal)
@@ -507,41 +528,14 @@ impl VecEnv {
         Ok(())
     }
 
-    fn detect_collisions(&mut self) {
-        let np = &self.world.narrow_phase;
-        for (i, c) in self.colliders.iter().enumerate() {
-            if !self.collided[i] && np.intersection_pairs_with(*c).any(|(_, _, hit)| hit) {
-                self.collided[i] = true;
-            }
-        }
-        // Sensors do not report touching each other, so interactive drones are
-        // checked against each other directly.
-        if self.cfg.interactive {
-            let p = self.positions();
-            let d2 = (2.0 * self.cfg.drone_radius).powi(2);
-            for i in 0..p.len() {
-                for j in i + 1..p.len() {
-                    let d = Vector::from(p[i]) - Vector::from(p[j]);
-                    if d.length_squared() < d2 {
-                        self.collided[i] = true;
-                        self.collided[j] = true;
-                    }
-                }
-            }
-        }
-    }
-
     fn reset_agent(&mut self, i: usize) {
         let lane = if self.lane_offsets.len() > 1 { self.rng.random_range(0..self.lane_offsets.len()) } else { 0 };
         let s = &self.lane_spawns[lane];
         let y = self.lane_offsets[lane] + if s.y[1] > s.y[0] { self.rng.random_range(s.y[0]..s.y[1]) } else { s.y[0] };
-        let b = &mut self.world.bodies[self.bodies[i]];
-        b.set_position(Pose::from_parts(Vector::new(s.x, y, s.z), Rotation::IDENTITY), true);
-        b.set_linvel(Vector::new(self.cfg.forward_speed, 0.0, 0.0), true);
-        b.set_angvel(Vector::ZERO, true);
-        b.reset_forces(false);
-        b.reset_torques(false);
-        self.lateral_sp[i] = 0.0;
+        self.drones[i] = Drone::at(Vector::new(s.x, y, s.z), Vector::new(self.cfg.forward_speed, 0.0, 0.0));
+        if let Physics::Rapier(r) = &mut self.physics {
+            r.load(i, &self.drones[i]);
+        }
         self.steps[i] = 0;
         self.returns[i] = 0.0;
     }
@@ -656,13 +650,13 @@ impl VecEnv {
     }
 
     fn camera(&self, agent: usize) -> CameraPose {
-        let b = &self.world.bodies[self.bodies[agent]];
-        CameraPose { position: b.translation(), rotation: *b.rotation() }
+        let d = &self.drones[agent];
+        CameraPose { position: d.p, rotation: d.q }
     }
 
     fn body_velocity(&self, agent: usize) -> [f32; 3] {
-        let b = &self.world.bodies[self.bodies[agent]];
-        (b.rotation().inverse() * b.linvel()).to_array()
+        let d = &self.drones[agent];
+        (d.q.inverse() * d.v).to_array()
     }
 
     /// Draws future spawns from a generator seeded with `seed` (Gymnasium's
@@ -677,5 +671,19 @@ impl VecEnv {
     /// saving a copy per step.
     pub fn drop_observation_buffer(&mut self) {
         self.obs = Vec::new();
+    }
+}
+
+/// Marks every two drones closer than twice `radius` as collided (drones'
+/// sensors do not report touching each other); `position(i)` is drone `i`'s.
+fn mark_touching(drones: &mut [Drone], radius: f32, position: impl Fn(usize) -> Vector, n: usize) {
+    let d2 = (2.0 * radius).powi(2);
+    for i in 0..n {
+        for j in i + 1..n {
+            if (position(i) - position(j)).length_squared() < d2 {
+                drones[i].collided = true;
+                drones[j].collided = true;
+            }
+        }
     }
 }

@@ -207,6 +207,11 @@ impl DepthRenderer {
         Self { spec, pool, scratch }
     }
 
+    /// The render threads, which the physics shares.
+    pub(crate) fn pool(&self) -> &Pool {
+        &self.pool
+    }
+
     /// Camera intrinsics.
     pub fn spec(&self) -> CameraSpec {
         self.spec
