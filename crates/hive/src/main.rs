@@ -5,7 +5,9 @@
 mod certs;
 mod draw;
 mod eval;
+mod export;
 mod gpu_monitor;
+mod play;
 mod role_cmd;
 mod supervisor;
 mod worker;
@@ -69,6 +71,12 @@ enum Command {
     Certs(certs::CertsArgs),
     /// Evaluate a checkpoint with the greedy policy.
     Eval(eval::EvalArgs),
+    /// Watch a checkpoint's greedy policy fly: an animated GIF of the arena
+    /// from above and one drone's depth frames, Q-values and actions.
+    Play(play::PlayArgs),
+    /// Write a checkpoint as an ONNX model (inputs `depth` and `velocity`,
+    /// output `q`).
+    Export(export::ExportArgs),
     /// Where a run's time went: CPU and wall-time shares per role and stage,
     /// and the bottleneck (also written to RUN_DIR/profile.md).
     Profile {
@@ -129,6 +137,8 @@ fn main() -> ExitCode {
         Command::Worker(a) => worker::run(a),
         Command::Certs(a) => certs::run(a),
         Command::Eval(a) => eval::run(a),
+        Command::Play(a) => play::run(a),
+        Command::Export(a) => export::run(a),
         Command::Bench(b) => rotorhive_bench::run(b),
         Command::RenderArena(a) => draw::render_arena(a),
         Command::ShowDepth(a) => draw::show_depth(a),

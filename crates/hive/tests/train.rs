@@ -119,6 +119,31 @@ fn short_multi_process_training_run() {
     let v: serde_json::Value = serde_json::from_str(&last).unwrap();
     assert_eq!(v["episodes"].as_u64(), Some(5));
     assert!(dir.join("reward.png").exists() && dir.join("config.toml").exists() && dir.join("metrics.csv").exists());
+    // It flies in a video: an animated GIF with a frame per action step, and
+    // a still frame as a PNG.
+    let (gif, still) = (dir.join("play.gif"), dir.join("play.png"));
+    let out = hive()
+        .args(["play", "--checkpoint", &ckpt, "--agents", "4", "--out", gif.to_str().unwrap(), "--still", still.to_str().unwrap(), "--json"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let last = String::from_utf8_lossy(&out.stdout).lines().last().unwrap().to_string();
+    let v: serde_json::Value = serde_json::from_str(&last).unwrap();
+    let frames = v["frames"].as_u64().unwrap();
+    assert!(frames >= 2, "{v}");
+    assert_eq!(v["episodes"].as_u64(), Some(4));
+    let mut decoder = gif::DecodeOptions::new().read_info(std::fs::File::open(&gif).unwrap()).unwrap();
+    let (mut decoded, mut first) = (0u64, None::<Vec<u8>>);
+    let mut changed = false;
+    while let Some(f) = decoder.read_next_frame().unwrap() {
+        assert_eq!((f.width, f.height), (640, 240));
+        changed |= first.as_ref().is_some_and(|p| *p != f.buffer.to_vec());
+        first.get_or_insert_with(|| f.buffer.to_vec());
+        decoded += 1;
+    }
+    assert_eq!(decoded, frames);
+    assert!(changed, "the frames show the flight going on");
+    assert!(std::fs::read(&still).unwrap().starts_with(b"\x89PNG"));
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -158,6 +183,10 @@ fn bad_input_is_refused_clearly() {
     let trunc = dir.join("w.safetensors");
     std::fs::write(&trunc, b"\x10\x00\x00\x00\x00\x00\x00\x00{\"a\":").unwrap();
     fails_with(&["eval", "--checkpoint", trunc.to_str().unwrap()], &["w.safetensors"]);
+    fails_with(&["play", "--checkpoint", trunc.to_str().unwrap(), "--out", "x.gif"], &["w.safetensors"]);
+    fails_with(&["play", "--checkpoint", "c.safetensors", "--out", "x.mp4"], &["x.mp4", ".gif"]);
+    fails_with(&["export", "--checkpoint", trunc.to_str().unwrap(), "--out", "x.onnx"], &["w.safetensors"]);
+    fails_with(&["export", "--checkpoint", "c.safetensors", "--out", "x.txt"], &["x.txt", ".onnx"]);
     fails_with(&["train", "--resume", dir.to_str().unwrap()], &["--resume", "learner state"]);
     fails_with(&["train", "--set", "sim.renderer=\"vulkan\""], &["sim.renderer"]);
     fails_with(&["train", "--set", "eval.target_success=2"], &["eval.target_success"]);

@@ -19,6 +19,7 @@
 
 mod dqn;
 mod kernels;
+mod onnx;
 mod ops;
 
 use std::collections::HashMap;
@@ -374,20 +375,95 @@ impl QNet {
         Ok(())
     }
 
-    /// Saves the weights as safetensors.
+    /// Saves the weights as safetensors, with the layout's description in
+    /// the header (see [`checkpoint_metadata`]).
     pub fn save(&self, path: &Path) -> Result<()> {
-        candle_core::safetensors::save(&self.named(), path)?;
-        Ok(())
+        self.save_with(path, &[])
+    }
+
+    /// [`QNet::save`] with more header entries (the learner adds the hash
+    /// of its run's config).
+    pub fn save_with(&self, path: &Path, extra: &[(&str, String)]) -> Result<()> {
+        let mut meta = checkpoint_metadata();
+        meta.extend(extra.iter().map(|(k, v)| (k.to_string(), v.clone())));
+        let named = self.named();
+        let cpu: Vec<(String, Tensor)> = named.into_iter().map(|(k, t)| Ok((k, t.to_device(&Device::Cpu)?.contiguous()?))).collect::<Result<_>>()?;
+        let bad = |message: String| ModelError::Checkpoint { file: path.display().to_string(), message };
+        let mut bytes = safetensors::serialize(cpu, Some(meta)).map_err(|e| bad(format!("cannot write: {e}")))?;
+        sort_header(&mut bytes);
+        std::fs::write(path, bytes).map_err(|e| bad(format!("cannot write: {e}")))
+    }
+
+    /// Writes the network as an ONNX model (see `onnx.rs`): inputs `depth`
+    /// `(B, 2, 32, 32)` and `velocity` `(B, 3)`, output `q` `(B, 2)`; the
+    /// checkpoint's header entries (and `extra`) as metadata properties.
+    pub fn to_onnx(&self, path: &Path, extra: &[(&str, String)]) -> Result<()> {
+        let mut meta: Vec<(String, String)> = checkpoint_metadata().into_iter().collect();
+        meta.extend(extra.iter().map(|(k, v)| (k.to_string(), v.clone())));
+        meta.sort();
+        let bytes = onnx::model(&self.named(), &meta)?;
+        std::fs::write(path, bytes).map_err(|e| ModelError::Checkpoint { file: path.display().to_string(), message: format!("cannot write: {e}") })
     }
 
     /// Loads weights saved by [`QNet::save`], with a clear error for a missing,
-    /// truncated or mismatched file.
+    /// truncated or mismatched file, or one written in another layout.
     pub fn load(&self, path: &Path) -> Result<()> {
         let file = path.display().to_string();
         let bytes = std::fs::read(path).map_err(|e| ModelError::Checkpoint { file: file.clone(), message: format!("cannot read: {e}") })?;
+        check_layout(&bytes, &file)?;
         let tensors = candle_core::safetensors::load_buffer(&bytes, &self.device)
             .map_err(|e| ModelError::Checkpoint { file: file.clone(), message: format!("not a valid safetensors file: {e}") })?;
         self.load_named(&tensors, &file)
+    }
+}
+
+/// The checkpoint layout this build writes and reads: the tensors' names
+/// and shapes, conv2's weights as (out, kh, kw, in) and fc1's pooled
+/// features channels-last. A change of any of them changes it.
+pub const CHECKPOINT_LAYOUT: &str = "rotorhive-qnet/1";
+
+/// What a checkpoint's safetensors header says of the network: `layout`
+/// ([`CHECKPOINT_LAYOUT`]), `observation`, `obs_len` and `actions`.
+pub fn checkpoint_metadata() -> HashMap<String, String> {
+    HashMap::from([
+        ("layout".to_string(), CHECKPOINT_LAYOUT.to_string()),
+        ("observation".to_string(), format!("depth {FRAMES}x{SIDE}x{SIDE} in [0, 1], then velocity {VEL} (m/s, body frame)")),
+        ("obs_len".to_string(), OBS_LEN.to_string()),
+        ("actions".to_string(), ACTIONS.to_string()),
+    ])
+}
+
+/// Rewrites a safetensors file's JSON header with its keys sorted, so that
+/// the same weights give the same bytes (the crate writes the metadata map
+/// in `HashMap` order, which differs from process to process; deterministic
+/// runs are compared byte for byte). The header keeps its length: the same
+/// entries, written compactly by the same serializer.
+fn sort_header(bytes: &mut [u8]) {
+    let Some(len) = bytes.get(..8).map(|b| u64::from_le_bytes(b.try_into().expect("eight bytes")) as usize) else { return };
+    let Some(header) = bytes.get(8..8 + len) else { return };
+    let Ok(value) = serde_json::from_slice::<serde_json::Value>(header) else { return };
+    let Ok(sorted) = serde_json::to_vec(&value) else { return };
+    let text = String::from_utf8_lossy(header);
+    if sorted.len() == text.trim_end().len() {
+        bytes[8..8 + sorted.len()].copy_from_slice(&sorted);
+    }
+}
+
+/// Refuses a checkpoint whose header describes another network, naming
+/// each difference; a header without these entries (a checkpoint of an
+/// earlier build) is left to the name and shape checks.
+fn check_layout(bytes: &[u8], file: &str) -> Result<()> {
+    let Ok((_, header)) = safetensors::SafeTensors::read_metadata(bytes) else { return Ok(()) };
+    let Some(theirs) = header.metadata() else { return Ok(()) };
+    let ours = checkpoint_metadata();
+    let diffs: Vec<String> = ["layout", "obs_len", "actions"]
+        .iter()
+        .filter_map(|k| theirs.get(*k).filter(|v| Some(*v) != ours.get(*k)).map(|v| format!("{k} {v} (this build: {})", ours[*k])))
+        .collect();
+    if diffs.is_empty() {
+        Ok(())
+    } else {
+        Err(ModelError::Checkpoint { file: file.into(), message: format!("written for another network: {}", diffs.join(", ")) })
     }
 }
 

@@ -252,6 +252,28 @@ fn flat_weights_and_checkpoints_round_trip() {
     candle_core::safetensors::save(&other, &path).unwrap();
     let e = c.load(&path).unwrap_err().to_string();
     assert!(e.contains("shape") || e.contains("missing"), "{e}");
+
+    // The header describes the network; one written for another is refused
+    // with the difference named.
+    a.save_with(&path, &[("config_crc32c", "1234abcd".into())]).unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    let (_, header) = safetensors::SafeTensors::read_metadata(&bytes).unwrap();
+    let meta = header.metadata().clone().unwrap();
+    assert_eq!(meta["layout"], CHECKPOINT_LAYOUT);
+    assert_eq!(meta["obs_len"], OBS_LEN.to_string());
+    assert_eq!(meta["config_crc32c"], "1234abcd");
+    // The same weights, the same bytes (the header's maps are written sorted).
+    for _ in 0..5 {
+        a.save_with(&path, &[("config_crc32c", "1234abcd".into())]).unwrap();
+        assert_eq!(std::fs::read(&path).unwrap(), bytes);
+    }
+    let mut foreign = checkpoint_metadata();
+    foreign.insert("layout".into(), "rotorhive-qnet/0".into());
+    foreign.insert("actions".into(), "3".into());
+    let tensors: Vec<(String, Tensor)> = a.named().into_iter().collect();
+    safetensors::serialize_to_file(tensors, Some(foreign), &path).unwrap();
+    let e = c.load(&path).unwrap_err().to_string();
+    assert!(e.contains("layout rotorhive-qnet/0") && e.contains("actions 3 (this build: 2)"), "{e}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -24,6 +24,7 @@ use rand_pcg::Pcg64Mcg;
 use rotorhive_model::{Device, OBS_LEN, PARAMS, QNet};
 use rotorhive_roles::Config;
 use rotorhive_roles::config::SimSection;
+use rotorhive_sim::view::{self, Canvas, Focus, Tracks};
 use rotorhive_sim::{Arena, Autoreset, GenParams, GpuError, VecEnv};
 
 /// The shipped training arena: the default of `arena`, as in `hive train`.
@@ -95,6 +96,9 @@ fn check_actions(actions: &[u8], agents: usize) -> PyResult<()> {
 struct Sim {
     env: VecEnv,
     lanes: usize,
+    /// Every drone's path this episode and its last action, for `render`.
+    tracks: Tracks,
+    last_actions: Vec<u8>,
 }
 
 #[pymethods]
@@ -106,7 +110,8 @@ impl Sim {
         let (mut env, lanes) = build_env(agents, seed, arena.as_deref(), arena_seed, &overrides)?;
         env.drop_observation_buffer();
         env.set_autoreset(Autoreset::Disabled);
-        Ok(Self { env, lanes })
+        let tracks = Tracks::new(&env);
+        Ok(Self { last_actions: Vec::new(), tracks, env, lanes })
     }
 
     #[getter]
@@ -184,9 +189,12 @@ impl Sim {
         for (what, len) in [("rewards", r.len()), ("dones", k.len()), ("ep_return", er.len()), ("ep_length", el.len())] {
             check_len(what, len, n)?;
         }
-        let env = &mut self.env;
+        let (env, tracks) = (&mut self.env, &mut self.tracks);
+        self.last_actions.clear();
+        self.last_actions.extend_from_slice(a);
         py.detach(|| -> PyResult<()> {
             env.try_step(a).map_err(render_error)?;
+            tracks.record(env, false);
             write_obs(env, d, v)?;
             r.copy_from_slice(env.rewards());
             for (k, done) in k.iter_mut().zip(env.dones()) {
@@ -217,11 +225,29 @@ impl Sim {
         };
         check_len("reset_mask", mask.len(), n)?;
         let (d, v) = (depth.as_slice_mut()?, velocity.as_slice_mut()?);
-        let env = &mut self.env;
+        let (env, tracks) = (&mut self.env, &mut self.tracks);
         py.detach(|| -> PyResult<()> {
             env.reset_agents(&mask).map_err(render_error)?;
+            tracks.restart(env, &mask);
             write_obs(env, d, v)
         })
+    }
+
+    /// A picture of the arena from above around drone `agent` with every
+    /// drone's path this episode, beside that drone's two depth frames and
+    /// its last action: `(240, 640, 3)` `uint8` (Gymnasium's `rgb_array`).
+    #[pyo3(signature = (agent=0))]
+    fn render<'py>(&self, py: Python<'py>, agent: usize) -> PyResult<Bound<'py, PyArray3<u8>>> {
+        if agent >= self.env.agents() {
+            return Err(value_error(format!("agent {agent} is out of range: there are {}", self.env.agents())));
+        }
+        let len = self.env.obs_len();
+        let mut row = vec![0.0; len];
+        self.env.write_observations(agent, &mut row);
+        let mut canvas = Canvas::default();
+        let focus = Focus { agent, depth: &row[..len - 3], q: None, action: self.last_actions.get(agent).copied() };
+        view::draw(&self.env, &self.tracks, focus, &mut canvas);
+        Ok(Array3::from_shape_vec((view::HEIGHT, view::WIDTH, 3), canvas.rgb()).expect("an RGB picture").into_pyarray(py))
     }
 
     /// Writes every agent's current observation.
@@ -371,6 +397,12 @@ impl QNetwork {
     /// Saves the weights as a rotorhive checkpoint.
     fn save(&self, path: PathBuf) -> PyResult<()> {
         self.net.save(&path).map_err(model_error)
+    }
+
+    /// Writes the network as an ONNX model: inputs `depth` `(B, 2, 32, 32)`
+    /// and `velocity` `(B, 3)`, output `q` `(B, 2)` (as `hive export`).
+    fn to_onnx(&self, path: PathBuf) -> PyResult<()> {
+        self.net.to_onnx(&path, &[]).map_err(model_error)
     }
 
     /// Q-values `(B, 2)` of flat observations `(B, 2051)`: the previous and

@@ -77,6 +77,8 @@ pub struct Config {
     /// Stop at convergence (the threshold, then a good enough evaluation);
     /// false runs to the budget (`hive bench seeds` compares arms so).
     pub early_stop: bool,
+    /// TensorBoard event files in `RUN_DIR/tb/` (scalars once a second).
+    pub tensorboard: bool,
     /// Simulator settings.
     pub sim: SimSection,
     /// Actor settings.
@@ -304,6 +306,7 @@ impl Default for Config {
             deterministic: false,
             max_env_steps: 0,
             early_stop: true,
+            tensorboard: true,
             sim: SimSection::default(),
             actor: ActorSection::default(),
             replay: ReplaySection::default(),
@@ -621,6 +624,12 @@ impl Config {
     /// The resolved config as TOML.
     pub fn to_toml(&self) -> String {
         toml::to_string(self).expect("a config always serialises")
+    }
+
+    /// What a checkpoint's header says of the run that wrote it: the CRC-32C
+    /// of the resolved config (`config.toml` of the run directory).
+    pub fn checkpoint_tags(&self) -> Vec<(&'static str, String)> {
+        vec![("config_crc32c", format!("{:08x}", crc32c::crc32c(self.to_toml().as_bytes())))]
     }
 }
 

@@ -32,9 +32,9 @@ pub fn dqn_config(cfg: &Config) -> DqnConfig {
 }
 
 /// Writes a checkpoint atomically (temporary file, then rename).
-fn save_atomic(net: &QNet, path: &Path) -> Result<()> {
+fn save_atomic(net: &QNet, path: &Path, tags: &[(&str, String)]) -> Result<()> {
     let tmp = path.with_extension("tmp");
-    net.save(&tmp)?;
+    net.save_with(&tmp, tags)?;
     std::fs::rename(&tmp, path).with_context(|| format!("cannot write checkpoint {}", path.display()))?;
     Ok(())
 }
@@ -62,9 +62,9 @@ fn restore(cfg: &crate::config::Config, state_path: &Path) -> Result<Dqn> {
 
 /// Saves the newest weights and the whole learner state, counting the
 /// saves and their time in `saves`.
-fn checkpoint(dqn: &Dqn, ckpt_dir: &Path, state_path: &Path, saves: &mut (u32, Duration)) -> Result<()> {
+fn checkpoint(dqn: &Dqn, ckpt_dir: &Path, state_path: &Path, tags: &[(&str, String)], saves: &mut (u32, Duration)) -> Result<()> {
     let t = Instant::now();
-    save_atomic(&dqn.online, &ckpt_dir.join("latest.safetensors"))?;
+    save_atomic(&dqn.online, &ckpt_dir.join("latest.safetensors"), tags)?;
     save_state_atomic(dqn, state_path)?;
     saves.0 += 1;
     saves.1 += t.elapsed();
@@ -125,7 +125,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
             tel.sample.work2 = version;
         }
         if last_ckpt.elapsed().as_secs_f64() >= cfg.learner.checkpoint_every_s {
-            checkpoint(&dqn, &ckpt_dir, &state_path, &mut saves)?;
+            checkpoint(&dqn, &ckpt_dir, &state_path, &cfg.checkpoint_tags(), &mut saves)?;
             last_ckpt = Instant::now();
         }
     }
@@ -133,7 +133,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
         // What a checkpoint costs the learner (it saves every `checkpoint_every_s`).
         tracing::info!("learner: {} checkpoints, {:.2} ms each on average", saves.0, saves.1.as_secs_f64() * 1e3 / saves.0 as f64);
     }
-    save_atomic(&dqn.online, &run_dir.join("final.safetensors"))?;
+    save_atomic(&dqn.online, &run_dir.join("final.safetensors"), &cfg.checkpoint_tags())?;
     save_state_atomic(&dqn, &state_path)?;
     tel.tick(true);
     Ok(())

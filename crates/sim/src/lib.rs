@@ -12,6 +12,7 @@ pub mod gpu;
 mod pool;
 mod rapier_flight;
 pub mod render;
+pub mod view;
 
 pub use arena::{Arena, ArenaError, GenParams, Lanes, Obstacle, Spawn};
 pub use env::{Autoreset, Done, Episode, LanesError, PhysicsKind, RendererKind, SimConfig, StepTiming, VecEnv};

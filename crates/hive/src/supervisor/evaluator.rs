@@ -114,7 +114,7 @@ fn fly<S: Service>(
             best = score;
             let path = ckpt_dir.join("best.safetensors");
             let tmp = ckpt_dir.join("best.safetensors.tmp");
-            net.save(&tmp)?;
+            net.save_with(&tmp, &cfg.checkpoint_tags())?;
             std::fs::rename(&tmp, &path).with_context(|| format!("cannot write {}", path.display()))?;
         }
         let wall = start.elapsed().as_secs_f64();

@@ -6,6 +6,7 @@
 //! signal), stops the roles and writes `summary.json`, `metrics.csv`,
 //! `telemetry.csv`, `evals.csv`, the plots and `profile.md`.
 
+mod board;
 mod evaluator;
 mod launcher;
 mod monitor;
@@ -28,6 +29,7 @@ use rotorhive_roles::{Config, episodes_channel, roles_of};
 use rotorhive_transport::{Channel, Hub, Ipc, Local, Receiver, cleanup_dead_nodes, services_of_run};
 
 use crate::role_cmd::ConfigArgs;
+use board::Board;
 use evaluator::Evaluator;
 pub use launcher::host_name;
 use launcher::{Members, lock_run_dir, timestamp};
@@ -216,6 +218,7 @@ struct Supervisor<'a> {
     progress: Progress,
     monitor: Monitor,
     evaluator: Evaluator,
+    board: Option<Board>,
     schedule: Option<Schedule>,
     order: EpisodeOrder,
     bar: ProgressBar,
@@ -246,6 +249,7 @@ fn supervise<S: Service>(a: &TrainArgs, cfg: Config, run_dir: &Path, cfg_path: &
         progress: Progress::open(run_dir, &cfg, resumed)?,
         monitor: Monitor::open(run_dir, resumed)?,
         evaluator: Evaluator::start::<S>(&cfg, &prefix, run_dir, start)?,
+        board: if cfg.tensorboard { Some(Board::open(run_dir, &launcher::host_name())?) } else { None },
         schedule: cfg.deterministic.then(|| Schedule::new(&cfg)),
         order: EpisodeOrder::new(cfg.sim.envs, cfg.deterministic),
         a,
@@ -369,6 +373,9 @@ impl Supervisor<'_> {
         let reading = self.monitor.sample(wall, self.members.pids(), self.members.processes())?;
         let counts = self.monitor.counts();
         self.progress.tick(wall, counts)?;
+        if let Some(b) = &mut self.board {
+            b.tick(wall, counts, &self.progress, &reading.rows, &self.evaluator.evals)?;
+        }
         let (steps, updates, _) = counts;
         // Across hosts: each host's share of the agent-steps.
         let hosts = self.link.as_ref().map_or(String::new(), |l| {

@@ -44,6 +44,8 @@ pub(super) struct Monitor {
 pub(super) struct Reading {
     pub(super) machine_cpu: f64,
     pub(super) gpu: Option<GpuReading>,
+    /// The rows written to `telemetry.csv`.
+    pub(super) rows: Vec<TelemetryRow>,
 }
 
 impl Monitor {
@@ -128,7 +130,7 @@ impl Monitor {
             write!(self.table, "{}", row.to_line())?;
         }
         self.peak_rss_mb = self.peak_rss_mb.max(rss_total);
-        Ok(Reading { machine_cpu: machine, gpu })
+        Ok(Reading { machine_cpu: machine, gpu, rows })
     }
 
     /// `summary.json`'s `hosts`: this host, then every worker host, with the

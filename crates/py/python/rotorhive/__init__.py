@@ -11,8 +11,10 @@ fields from depth images, as Gymnasium environments.
 ``rotorhive/Navigate-v0`` is a native vector environment (N drones of one
 simulator, stepped in Rust with the GIL released); ``rotorhive/NavigateSingle-v0``
 is one drone. `rotorhive.net` loads `hive train` checkpoints (numpy, PyTorch),
-`rotorhive.sb3` adapts the vector environment to Stable-Baselines3 and
-`python -m rotorhive.bench` measures agent-steps per second.
+`rotorhive.sb3` adapts the vector environment to Stable-Baselines3,
+`rotorhive.export` writes a checkpoint as ONNX, and
+`python -m rotorhive.bench` measures agent-steps per second. Both
+environments take ``render_mode="rgb_array"`` (Gymnasium's ``RecordVideo``).
 """
 
 import gymnasium as _gym

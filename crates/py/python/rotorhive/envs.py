@@ -76,6 +76,16 @@ def _arena(arena: Any) -> str | None:
     return os.fspath(arena)
 
 
+# Frames per second of a video of the environment: one action is one
+# simulated second; four a second shows a 150-step episode in under 40 s.
+RENDER_FPS = 4
+
+
+def _check_render_mode(render_mode: str | None) -> None:
+    if render_mode not in (None, "rgb_array"):
+        raise ValueError(f"render_mode {render_mode!r} is not supported: only 'rgb_array' (or None)")
+
+
 def _spaces(side: int) -> spaces.Dict:
     return spaces.Dict(
         {
@@ -114,7 +124,7 @@ class NavigateVectorEnv(VectorEnv):
     see `DONE_NAMES`), ``episode_return`` and ``episode_length``.
     """
 
-    metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}
+    metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": ["rgb_array"], "render_fps": RENDER_FPS}
 
     def __init__(
         self,
@@ -132,8 +142,7 @@ class NavigateVectorEnv(VectorEnv):
         seed = _check_int("seed", seed, 0)
         if arena_seed is not None:
             arena_seed = _check_int("arena_seed", arena_seed, 0)
-        if render_mode is not None:
-            raise ValueError(f"render_mode {render_mode!r} is not supported: the observations are the depth images")
+        _check_render_mode(render_mode)
         try:
             self.autoreset_mode = AutoresetMode(autoreset_mode)
         except ValueError:
@@ -147,7 +156,7 @@ class NavigateVectorEnv(VectorEnv):
         self.metadata = {**type(self).metadata, "autoreset_mode": self.autoreset_mode}
         self.num_envs = n
         self.copy = bool(copy)
-        self.render_mode = None
+        self.render_mode = render_mode
         self.single_observation_space = _spaces(self._sim.side)
         self.single_action_space = spaces.Discrete(2)
         self.observation_space = batch_space(self.single_observation_space, n)
@@ -260,6 +269,15 @@ class NavigateVectorEnv(VectorEnv):
             self._ended = ended
         return self._obs(), rewards, terminated, truncated, infos
 
+    def render(self) -> np.ndarray | None:
+        """With ``render_mode="rgb_array"``: one picture of all the drones
+        (the arena from above around agent 0, every drone's path this
+        episode) beside agent 0's two depth frames and its last action,
+        ``(240, 640, 3)`` ``uint8``; otherwise None."""
+        if self.render_mode != "rgb_array":
+            return None
+        return self._sim.render(0)
+
     def close_extras(self, **kwargs: Any) -> None:
         self._sim = None
 
@@ -270,16 +288,15 @@ class NavigateEnv(gym.Env):
     (but `num_envs`, `autoreset_mode` and `copy`); after an episode ends,
     call `reset()`."""
 
-    metadata = {"render_modes": []}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": RENDER_FPS}
 
     def __init__(self, *, seed: int = 0, arena: Any = None, arena_seed: int | None = None, render_mode: str | None = None, **sim: Any) -> None:
         seed = _check_int("seed", seed, 0)
         if arena_seed is not None:
             arena_seed = _check_int("arena_seed", arena_seed, 0)
-        if render_mode is not None:
-            raise ValueError(f"render_mode {render_mode!r} is not supported: the observations are the depth images")
+        _check_render_mode(render_mode)
         self._sim = _rotorhive.Sim(1, seed, _arena(arena), arena_seed, _overrides("rotorhive/NavigateSingle-v0", sim))
-        self.render_mode = None
+        self.render_mode = render_mode
         self.observation_space = _spaces(self._sim.side)
         self.action_space = spaces.Discrete(2)
         self._b = _Buffers(1, self._sim.side)
@@ -316,3 +333,11 @@ class NavigateEnv(gym.Env):
         if terminated or truncated:
             info = {"success": done == GOAL, "done": done, "episode_return": float(b.ep_return[0]), "episode_length": int(b.ep_length[0])}
         return self._obs(), float(b.rewards[0]), terminated, truncated, info
+
+    def render(self) -> np.ndarray | None:
+        """With ``render_mode="rgb_array"``: the arena from above around the
+        drone with its path this episode, beside its two depth frames and
+        its last action, ``(240, 640, 3)`` ``uint8``; otherwise None."""
+        if self.render_mode != "rgb_array":
+            return None
+        return self._sim.render(0)

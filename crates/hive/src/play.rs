@@ -1,0 +1,136 @@
+//! `hive play`: a video of a checkpoint's greedy policy flying, as an
+//! animated GIF: the arena from above with every drone's path, and beside
+//! it the depth frames one drone sees with its Q-values and chosen action
+//! (`rotorhive_sim::view`), frame by frame.
+
+use std::borrow::Cow;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use rotorhive_model::{Device, QNet};
+use rotorhive_sim::view::{self, Canvas, Focus, Tracks};
+use rotorhive_sim::{Arena, Autoreset, SimConfig, VecEnv};
+
+#[derive(Args, Debug)]
+pub struct PlayArgs {
+    /// Weights (safetensors) written by `hive train`.
+    #[arg(long)]
+    pub checkpoint: PathBuf,
+    /// Arena to fly in.
+    #[arg(long, default_value = "configs/arenas/test.toml")]
+    pub arena: PathBuf,
+    /// Drones flying at once.
+    #[arg(long, default_value_t = 8)]
+    pub agents: usize,
+    /// Episodes per drone, one after another in the same video.
+    #[arg(long, default_value_t = 1)]
+    pub episodes: usize,
+    /// Seed of the spawn positions.
+    #[arg(long, default_value_t = 12345)]
+    pub seed: u64,
+    /// The drone whose view is shown (the next one still flying once it ends).
+    #[arg(long, default_value_t = 0)]
+    pub focus: usize,
+    /// Frames (actions) per second of the video.
+    #[arg(long, default_value_t = 8)]
+    pub fps: u16,
+    /// Output file (.gif).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Also write one frame as a PNG: the frame of action step 20 of the
+    /// first episode (or its last, if shorter).
+    #[arg(long)]
+    pub still: Option<PathBuf>,
+    /// Print one JSON object as the last line.
+    #[arg(long)]
+    pub json: bool,
+}
+
+pub fn run(a: PlayArgs) -> Result<()> {
+    if a.agents == 0 || a.episodes == 0 || a.fps == 0 || a.fps > 100 {
+        bail!("--agents and --episodes must be positive, --fps in 1..=100");
+    }
+    if a.focus >= a.agents {
+        bail!("--focus {} names no drone (there are {})", a.focus, a.agents);
+    }
+    if a.out.extension().and_then(|e| e.to_str()) != Some("gif") {
+        bail!("--out {}: only .gif videos are written", a.out.display());
+    }
+    let net = QNet::new(0, &Device::Cpu)?;
+    net.load(&a.checkpoint)?;
+    let arena = Arena::load(&a.arena)?;
+    let start = Instant::now();
+    let file = std::fs::File::create(&a.out).with_context(|| format!("cannot write {}", a.out.display()))?;
+    let mut gif = gif::Encoder::new(std::io::BufWriter::new(file), view::WIDTH as u16, view::HEIGHT as u16, &view::palette())?;
+    gif.set_repeat(gif::Repeat::Infinite)?;
+    let delay = (100 / a.fps).max(1);
+    let (mut frames, mut goals, mut crashes) = (0usize, 0usize, 0usize);
+    let mut still_written = false;
+    for round in 0..a.episodes {
+        let mut env = VecEnv::new(SimConfig { agents: a.agents, ..SimConfig::default() }, arena.clone(), a.seed + round as u64);
+        env.set_autoreset(Autoreset::Disabled);
+        let mut tracks = Tracks::new(&env);
+        let obs_len = env.obs_len();
+        let mut canvas = Canvas::default();
+        let mut focus = a.focus;
+        for _ in 0..=env.config().max_steps {
+            let q = net.q_values(env.observations())?;
+            let actions: Vec<u8> = q.chunks_exact(2).map(|q| u8::from(q[1] > q[0])).collect();
+            let depth = &env.observations()[focus * obs_len..focus * obs_len + obs_len - 3];
+            let focus_q = [q[2 * focus], q[2 * focus + 1]];
+            view::draw(&env, &tracks, Focus { agent: focus, depth, q: Some(focus_q), action: Some(actions[focus]) }, &mut canvas);
+            write_frame(&mut gif, &canvas, delay)?;
+            frames += 1;
+            if let Some(p) = a.still.as_ref().filter(|_| round == 0 && !still_written && (frames == STILL_FRAME || tracks.all_ended())) {
+                write_png(&canvas, p)?;
+                still_written = true;
+            }
+            if tracks.all_ended() {
+                break;
+            }
+            env.step(&actions);
+            for e in env.finished() {
+                match e.done {
+                    rotorhive_sim::Done::Goal => goals += 1,
+                    rotorhive_sim::Done::Collision => crashes += 1,
+                    _ => {}
+                }
+            }
+            tracks.record(&env, true);
+            if let Some(next) = (0..a.agents).map(|k| (focus + k) % a.agents).find(|i| !tracks.ended(*i)) {
+                focus = next;
+            }
+        }
+    }
+    drop(gif);
+    let bytes = std::fs::metadata(&a.out).map(|m| m.len()).unwrap_or(0);
+    let secs = start.elapsed().as_secs_f64();
+    let episodes = a.agents * a.episodes;
+    println!(
+        "{}: {frames} frames of {episodes} episodes ({goals} reached the end, {crashes} collided) in {secs:.1} s, {:.1} MB",
+        a.out.display(),
+        bytes as f64 / 1e6
+    );
+    if a.json {
+        println!(
+            "{}",
+            serde_json::json!({ "out": a.out.display().to_string(), "frames": frames, "episodes": episodes, "goals": goals, "collisions": crashes, "seconds": secs, "bytes": bytes })
+        );
+    }
+    Ok(())
+}
+
+/// The frame `--still` writes.
+const STILL_FRAME: usize = 21;
+
+fn write_png(canvas: &Canvas, path: &std::path::Path) -> Result<()> {
+    let img = image::RgbImage::from_raw(view::WIDTH as u32, view::HEIGHT as u32, canvas.rgb()).context("a picture of the right size")?;
+    img.save(path).with_context(|| format!("cannot write {}", path.display()))
+}
+
+fn write_frame<W: std::io::Write>(gif: &mut gif::Encoder<W>, canvas: &Canvas, delay: u16) -> Result<()> {
+    let frame = gif::Frame { width: view::WIDTH as u16, height: view::HEIGHT as u16, delay, buffer: Cow::Borrowed(&canvas.px), ..gif::Frame::default() };
+    gif.write_frame(&frame).context("cannot encode the video")
+}

@@ -1,0 +1,190 @@
+//! The network as an ONNX model (`hive export`, `QNetwork.to_onnx`), for
+//! any runtime that reads ONNX (onnxruntime, TensorRT, OpenVINO, a browser).
+//!
+//! Inputs `depth` `(B, 2, 32, 32)` and `velocity` `(B, 3)`, output `q`
+//! `(B, 2)`: conv 6×6/2 → ReLU → conv 3×3 → ReLU → max-pool 2 → flatten;
+//! velocity → Gemm → ReLU; concatenated → Gemm → ReLU → Gemm. The weights go
+//! in ONNX's (PyTorch's) layout: conv2's `(out, kh, kw, in)` becomes
+//! `(out, in, kh, kw)` and fc1's pooled columns `(y, x, c)` become
+//! `(c, y, x)`, as `rotorhive.net.torch_layout` does.
+//!
+//! The protobuf is written by hand (a few message types, no crate needed:
+//! the `onnx` crates on crates.io carry whole generated schemas and a
+//! protobuf runtime for what is here about a hundred lines); onnxruntime
+//! and `onnx.checker` read it back in the Python tests.
+
+use std::collections::HashMap;
+
+use candle_core::Tensor;
+
+use crate::{C1, C2, FEAT, FRAMES, HP, K1, K2, PARAMS, Result, S1, SIDE, VEL};
+
+/// The IR version written (ONNX 1.14 and later read it).
+const IR_VERSION: u64 = 9;
+/// The operator set (every operator used exists since 13).
+const OPSET: u64 = 17;
+
+/// The ONNX model of weights given by name (as [`crate::QNet::named`]),
+/// with `metadata` as its metadata properties.
+pub(crate) fn model(named: &HashMap<String, Tensor>, metadata: &[(String, String)]) -> Result<Vec<u8>> {
+    let mut weights: HashMap<&str, Vec<f32>> = HashMap::new();
+    for (name, _) in PARAMS {
+        weights.insert(name, named[name].flatten_all()?.to_vec1::<f32>()?);
+    }
+    let conv2 = &weights["conv2.weight"];
+    let conv2: Vec<f32> = (0..C2 * C1 * K2 * K2)
+        .map(|i| {
+            let (o, rest) = (i / (C1 * K2 * K2), i % (C1 * K2 * K2));
+            let (c, ky, kx) = (rest / (K2 * K2), rest % (K2 * K2) / K2, rest % K2);
+            conv2[((o * K2 + ky) * K2 + kx) * C1 + c]
+        })
+        .collect();
+    let fc1 = &weights["fc1.weight"];
+    let cols = FEAT + crate::VEL_H;
+    let fc1: Vec<f32> = (0..crate::HID * cols)
+        .map(|i| {
+            let (r, j) = (i / cols, i % cols);
+            if j >= FEAT {
+                return fc1[r * cols + j];
+            }
+            let (c, y, x) = (j / (HP * HP), j % (HP * HP) / HP, j % HP);
+            fc1[r * cols + (y * HP + x) * C2 + c]
+        })
+        .collect();
+    let init = |name: &str, dims: &[usize], data: &[f32]| tensor(name, dims, data);
+    let mut graph = Vec::new();
+    for n in [
+        node("Conv", &["depth", "conv1.weight", "conv1.bias"], "c1", &[("kernel_shape", &[K1, K1]), ("strides", &[S1, S1])], None),
+        node("Relu", &["c1"], "r1", &[], None),
+        node("Conv", &["r1", "conv2.weight", "conv2.bias"], "c2", &[("kernel_shape", &[K2, K2])], None),
+        node("Relu", &["c2"], "r2", &[], None),
+        node("MaxPool", &["r2"], "p", &[("kernel_shape", &[2, 2]), ("strides", &[2, 2])], None),
+        node("Flatten", &["p"], "features", &[], Some(("axis", 1))),
+        node("Gemm", &["velocity", "vel.weight", "vel.bias"], "v1", &[], Some(("transB", 1))),
+        node("Relu", &["v1"], "v", &[], None),
+        node("Concat", &["features", "v"], "joined", &[], Some(("axis", 1))),
+        node("Gemm", &["joined", "fc1.weight", "fc1.bias"], "h1", &[], Some(("transB", 1))),
+        node("Relu", &["h1"], "h", &[], None),
+        node("Gemm", &["h", "fc2.weight", "fc2.bias"], "q", &[], Some(("transB", 1))),
+    ] {
+        bytes(&mut graph, 1, &n);
+    }
+    bytes(&mut graph, 2, b"rotorhive_qnet");
+    for t in [
+        init("conv1.weight", &[C1, FRAMES, K1, K1], &weights["conv1.weight"]),
+        init("conv1.bias", &[C1], &weights["conv1.bias"]),
+        init("conv2.weight", &[C2, C1, K2, K2], &conv2),
+        init("conv2.bias", &[C2], &weights["conv2.bias"]),
+        init("vel.weight", &[crate::VEL_H, VEL], &weights["vel.weight"]),
+        init("vel.bias", &[crate::VEL_H], &weights["vel.bias"]),
+        init("fc1.weight", &[crate::HID, cols], &fc1),
+        init("fc1.bias", &[crate::HID], &weights["fc1.bias"]),
+        init("fc2.weight", &[crate::ACTIONS, crate::HID], &weights["fc2.weight"]),
+        init("fc2.bias", &[crate::ACTIONS], &weights["fc2.bias"]),
+    ] {
+        bytes(&mut graph, 5, &t);
+    }
+    bytes(&mut graph, 11, &value_info("depth", &[None, Some(FRAMES), Some(SIDE), Some(SIDE)]));
+    bytes(&mut graph, 11, &value_info("velocity", &[None, Some(VEL)]));
+    bytes(&mut graph, 12, &value_info("q", &[None, Some(crate::ACTIONS)]));
+
+    let mut m = Vec::new();
+    int(&mut m, 1, IR_VERSION);
+    bytes(&mut m, 2, b"rotorhive");
+    bytes(&mut m, 7, &graph);
+    let mut opset = Vec::new();
+    bytes(&mut opset, 1, b"");
+    int(&mut opset, 2, OPSET);
+    bytes(&mut m, 8, &opset);
+    for (k, v) in metadata {
+        let mut entry = Vec::new();
+        bytes(&mut entry, 1, k.as_bytes());
+        bytes(&mut entry, 2, v.as_bytes());
+        bytes(&mut m, 14, &entry);
+    }
+    Ok(m)
+}
+
+/// A `NodeProto`: inputs, one output, the operator, `ints` attributes and
+/// at most one `int` attribute.
+fn node(op: &str, inputs: &[&str], output: &str, ints: &[(&str, &[usize])], one: Option<(&str, i64)>) -> Vec<u8> {
+    let mut n = Vec::new();
+    for i in inputs {
+        bytes(&mut n, 1, i.as_bytes());
+    }
+    bytes(&mut n, 2, output.as_bytes());
+    bytes(&mut n, 3, output.as_bytes());
+    bytes(&mut n, 4, op.as_bytes());
+    for (name, values) in ints {
+        let mut a = Vec::new();
+        bytes(&mut a, 1, name.as_bytes());
+        for v in *values {
+            int(&mut a, 8, *v as u64);
+        }
+        int(&mut a, 20, 7); // AttributeType INTS
+        bytes(&mut n, 5, &a);
+    }
+    if let Some((name, v)) = one {
+        let mut a = Vec::new();
+        bytes(&mut a, 1, name.as_bytes());
+        int(&mut a, 3, v as u64);
+        int(&mut a, 20, 2); // AttributeType INT
+        bytes(&mut n, 5, &a);
+    }
+    n
+}
+
+/// A float `TensorProto` with its data as raw little-endian bytes.
+fn tensor(name: &str, dims: &[usize], data: &[f32]) -> Vec<u8> {
+    debug_assert_eq!(dims.iter().product::<usize>(), data.len());
+    let mut t = Vec::new();
+    for d in dims {
+        int(&mut t, 1, *d as u64);
+    }
+    int(&mut t, 2, 1); // FLOAT
+    bytes(&mut t, 8, name.as_bytes());
+    let raw: Vec<u8> = data.iter().flat_map(|x| x.to_le_bytes()).collect();
+    bytes(&mut t, 9, &raw);
+    t
+}
+
+/// A float tensor's `ValueInfoProto`; `None` is the batch dimension.
+fn value_info(name: &str, dims: &[Option<usize>]) -> Vec<u8> {
+    let mut shape = Vec::new();
+    for d in dims {
+        let mut dim = Vec::new();
+        match d {
+            Some(v) => int(&mut dim, 1, *v as u64),
+            None => bytes(&mut dim, 2, b"batch"),
+        }
+        bytes(&mut shape, 1, &dim);
+    }
+    let mut tensor_type = Vec::new();
+    int(&mut tensor_type, 1, 1); // FLOAT
+    bytes(&mut tensor_type, 2, &shape);
+    let mut ty = Vec::new();
+    bytes(&mut ty, 1, &tensor_type);
+    let mut v = Vec::new();
+    bytes(&mut v, 1, name.as_bytes());
+    bytes(&mut v, 2, &ty);
+    v
+}
+
+fn bytes(out: &mut Vec<u8>, field: u32, data: &[u8]) {
+    varint(out, u64::from(field << 3 | 2));
+    varint(out, data.len() as u64);
+    out.extend_from_slice(data);
+}
+
+fn int(out: &mut Vec<u8>, field: u32, v: u64) {
+    varint(out, u64::from(field << 3));
+    varint(out, v);
+}
+
+fn varint(out: &mut Vec<u8>, mut v: u64) {
+    while v >= 0x80 {
+        out.push((v as u8 & 0x7f) | 0x80);
+        v >>= 7;
+    }
+    out.push(v as u8);
+}

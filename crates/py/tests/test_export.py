@@ -1,0 +1,78 @@
+"""The ONNX export gives the Rust network's Q-values in onnxruntime."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import rotorhive
+from rotorhive.export import export_onnx
+from rotorhive.net import flat_observations
+
+
+def observations(n):
+    env = rotorhive.NavigateVectorEnv(n, seed=5)
+    obs, _ = env.reset(seed=5)
+    depth, vel = [obs["depth"]], [obs["velocity"]]
+    for t in range(3):
+        obs, *_ = env.step(np.arange(n) % 2 if t % 2 else 1 - np.arange(n) % 2)
+        depth.append(obs["depth"])
+        vel.append(obs["velocity"])
+    return np.concatenate(depth)[:100], np.concatenate(vel)[:100]
+
+
+@pytest.fixture
+def checkpoint(tmp_path):
+    # A network whose weights are not the initial ones: random but fixed.
+    net = rotorhive.QNetwork(seed=11)
+    path = tmp_path / "w.safetensors"
+    net.save(str(path))
+    return path
+
+
+def test_onnxruntime_gives_the_rust_q_values(checkpoint, tmp_path):
+    import onnx
+    import onnxruntime as ort
+
+    out = export_onnx(checkpoint, tmp_path / "policy.onnx")
+    model = onnx.load(out)
+    onnx.checker.check_model(model, full_check=True)
+    meta = {p.key: p.value for p in model.metadata_props}
+    assert meta["layout"].startswith("rotorhive-qnet/") and meta["actions"] == "2" and meta["obs_len"] == "2051"
+    depth, vel = observations(25)
+    assert depth.shape == (100, 2, 32, 32)
+    want = rotorhive.QNetwork.load(str(checkpoint)).q_values(flat_observations(depth, vel))
+    sess = ort.InferenceSession(out, providers=["CPUExecutionProvider"])
+    got = sess.run(["q"], {"depth": depth.astype(np.float32), "velocity": vel.astype(np.float32)})[0]
+    assert got.shape == (100, 2)
+    assert np.abs(got - want).max() <= 1e-4, np.abs(got - want).max()
+    assert (got.argmax(1) == want.argmax(1)).mean() > 0.99
+
+
+def test_the_command_refuses_a_bad_checkpoint(tmp_path):
+    bad = tmp_path / "bad.safetensors"
+    bad.write_bytes(b"not a checkpoint")
+    p = subprocess.run([sys.executable, "-m", "rotorhive.export", "--checkpoint", str(bad), "--out", str(tmp_path / "x.onnx")], capture_output=True, text=True)
+    assert p.returncode != 0
+    assert "bad.safetensors" in p.stderr
+    assert not (tmp_path / "x.onnx").exists()
+
+
+HIVE = __import__("pathlib").Path(__file__).resolve().parents[3] / "target" / "release" / "hive"
+
+
+@pytest.mark.skipif(not HIVE.exists(), reason="needs target/release/hive (scripts/test builds it)")
+def test_hive_export_writes_the_same_model(checkpoint, tmp_path):
+    out = tmp_path / "cli.onnx"
+    p = subprocess.run([str(HIVE), "export", "--checkpoint", str(checkpoint), "--out", str(out)], capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    assert out.read_bytes() != b""
+    import onnxruntime as ort
+
+    depth, vel = observations(10)
+    want = rotorhive.QNetwork.load(str(checkpoint)).q_values(flat_observations(depth, vel))
+    got = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"]).run(["q"], {"depth": depth, "velocity": vel})[0]
+    assert np.abs(got - want).max() <= 1e-4
+    bad = subprocess.run([str(HIVE), "export", "--checkpoint", str(tmp_path / "none.safetensors"), "--out", str(tmp_path / "n.onnx")], capture_output=True, text=True)
+    assert bad.returncode != 0 and "none.safetensors" in bad.stderr
