@@ -222,7 +222,13 @@ fn a_stopped_run_resumes() {
         "--set",
         "learner.checkpoint_every_s=3",
         "--set",
-        "eval.every_s=0",
+        "eval.every_s=3",
+        "--set",
+        "eval.episodes=10",
+        "--set",
+        "eval.confirm_episodes=10",
+        "--set",
+        "eval.validation_arenas=1",
     ];
     let out = hive().args(["train", "configs/default.toml", "--quiet", "--max-seconds", "20", "--run-dir"]).arg(&dir).args(small).output().unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
@@ -231,6 +237,8 @@ fn a_stopped_run_resumes() {
     assert!(updates > 20, "{first}");
     assert!(dir.join("checkpoints/learner-state.safetensors").exists());
     assert!(dir.join("replay.bin").exists(), "no replay snapshot at the end of the run");
+    let evals_before = csv_rows(&dir.join("evals.csv"));
+    assert!(evals_before.len() >= 3, "{evals_before:?}");
     let out = hive().args(["train", "--quiet", "--max-seconds", "10", "--resume"]).arg(&dir).output().unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let second: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
@@ -242,5 +250,23 @@ fn a_stopped_run_resumes() {
     assert_eq!(second["leftover_services"].as_array().map(Vec::len), Some(0));
     let metrics = std::fs::read_to_string(dir.join("metrics.csv")).unwrap();
     assert!(metrics.contains("\nresume,"), "metrics.csv was not appended to");
+    // evals.csv keeps the first run's rows and adds the new ones, and a row
+    // is marked best (its weights written to best.safetensors) only when
+    // its confirmed score beats every earlier one, the first run's included.
+    let evals = csv_rows(&dir.join("evals.csv"));
+    assert_eq!(evals[..evals_before.len()], evals_before[..]);
+    assert!(evals.len() > evals_before.len(), "the resumed run evaluated nothing: {evals:?}");
+    let score = |r: &Vec<String>| r[8].parse::<f64>().ok().map(|s| (s, r[9].parse::<f64>().unwrap()));
+    let mut best: Option<(f64, f64)> = None;
+    for r in &evals {
+        // (Compared as printed: ties at the printed precision may go either way.)
+        let (marked, s) = (r[6] == "1", score(r));
+        if marked {
+            assert!(s.is_some_and(|s| best.is_none_or(|b| s >= b)), "row {r:?} marked best below the best {best:?}");
+            best = s;
+        } else {
+            assert!(s.is_none_or(|s| best.is_some_and(|b| s <= b)), "row {r:?} beats the best {best:?} unmarked");
+        }
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -9,7 +9,6 @@
 //! best so far is confirmed on `eval.confirm_episodes` fresh spawns; only
 //! confirmed scores, independent of the choice, are compared and kept.
 
-use std::fs::File;
 use std::io::Write;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -48,6 +47,33 @@ impl EvalPoint {
 
 /// The best evaluation by score: highest success rate, then highest mean
 /// reward (the earliest of equals, as the evaluator keeps it).
+/// The header of `evals.csv`.
+const EVALS_HEADER: &str = "wall_s,updates,version,episodes,success_rate,mean_reward,best,confirmed_episodes,confirmed_success_rate,confirmed_mean_reward";
+
+/// The evaluations of `evals.csv` (none when it does not exist); a row that
+/// does not parse names the file and the line.
+fn read_evals(path: &std::path::Path) -> Result<Vec<EvalPoint>> {
+    let text = match std::fs::read_to_string(path) {
+        Ok(t) => t,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
+        Err(e) => return Err(e).with_context(|| format!("cannot read {}", path.display())),
+    };
+    let mut out = Vec::new();
+    for (i, line) in text.lines().enumerate().skip(1).filter(|(_, l)| !l.trim().is_empty()) {
+        let f: Vec<&str> = line.split(',').collect();
+        let num = |k: usize| f.get(k).and_then(|v| v.parse::<f64>().ok());
+        let parsed = (|| {
+            let confirmed = match (num(8), num(9)) {
+                (Some(s), Some(r)) => Some((s, r)),
+                _ => None,
+            };
+            Some(EvalPoint { wall: num(0)?, updates: f.get(1)?.parse().ok()?, success: num(4)?, mean_reward: num(5)?, confirmed })
+        })();
+        out.push(parsed.with_context(|| format!("{} line {}: not an evaluation row: {line}", path.display(), i + 1))?);
+    }
+    Ok(out)
+}
+
 fn best_of(evals: &[EvalPoint], confirming: bool) -> Option<EvalPoint> {
     evals.iter().copied().filter(|e| e.score(confirming).is_some()).reduce(|a, b| if b.score(confirming) > a.score(confirming) { b } else { a })
 }
@@ -61,6 +87,7 @@ const CANDIDATE_SLACK: f64 = 0.06;
 /// (or when asked through `now`), on its own iceoryx2 node, and keeps the
 /// best weights as `checkpoints/best.safetensors`. Every evaluation uses the
 /// same spawn positions, so they compare.
+#[allow(clippy::too_many_arguments)]
 fn fly<S: Service>(
     prefix: String,
     cfg: Config,
@@ -69,6 +96,7 @@ fn fly<S: Service>(
     stop: Arc<AtomicBool>,
     now: mpsc::Receiver<()>,
     out: mpsc::Sender<EvalPoint>,
+    (resumed, prior_best): (bool, Option<(f64, f64)>),
 ) -> Result<()> {
     let hub = Hub::<S>::new(&prefix, "eval")?;
     let mut rx = hub.receiver::<f32, WeightsHeader>(&Channel::weights(cfg.sim.envs))?;
@@ -77,10 +105,16 @@ fn fly<S: Service>(
     let arenas = cfg.eval_arenas()?;
     let every = Duration::from_secs_f64(cfg.eval.every_s);
     let mut next = Instant::now() + every;
-    let mut best: Option<(f64, f64)> = None;
+    // A resumed run goes on from its best score (so `best.safetensors` only
+    // ever improves) and appends to its table.
+    let mut best: Option<(f64, f64)> = prior_best;
     let mut confirmations = 0u64;
-    let mut csv = File::create(run_dir.join("evals.csv"))?;
-    writeln!(csv, "wall_s,updates,version,episodes,success_rate,mean_reward,best,confirmed_episodes,confirmed_success_rate,confirmed_mean_reward")?;
+    let path = run_dir.join("evals.csv");
+    let append = resumed && path.exists();
+    let mut csv = std::fs::OpenOptions::new().create(true).append(append).write(true).truncate(!append).open(&path)?;
+    if !append {
+        writeln!(csv, "{EVALS_HEADER}")?;
+    }
     let ckpt_dir = run_dir.join("checkpoints");
     std::fs::create_dir_all(&ckpt_dir)?;
     while !stop.load(Ordering::Relaxed) {
@@ -140,16 +174,22 @@ pub(super) struct Evaluator {
 
 impl Evaluator {
     /// Starts evaluating every `eval.every_s` seconds (no thread when 0).
-    pub(super) fn start<S: Service>(cfg: &Config, prefix: &str, run_dir: &std::path::Path, start: Instant) -> Result<Self> {
+    /// A resumed run reads its earlier evaluations back from `evals.csv`:
+    /// they count for the result, and a new evaluation becomes
+    /// `best.safetensors` only if it beats them.
+    pub(super) fn start<S: Service>(cfg: &Config, prefix: &str, run_dir: &std::path::Path, start: Instant, resumed: bool) -> Result<Self> {
         let stop = Arc::new(AtomicBool::new(false));
         let (now, now_rx) = mpsc::channel();
         let (tx, rx) = mpsc::channel();
+        let confirming = cfg.eval.confirm_episodes > 0;
+        let evals = if resumed { read_evals(&run_dir.join("evals.csv"))? } else { Vec::new() };
+        let prior_best = best_of(&evals, confirming).and_then(|b| b.score(confirming));
         let mut thread = None;
         if cfg.eval.every_s > 0.0 {
             let (p, c, d, st) = (prefix.to_string(), cfg.clone(), run_dir.to_path_buf(), stop.clone());
-            thread = Some(std::thread::Builder::new().name("eval".into()).spawn(move || fly::<S>(p, c, d, start, st, now_rx, tx))?);
+            thread = Some(std::thread::Builder::new().name("eval".into()).spawn(move || fly::<S>(p, c, d, start, st, now_rx, tx, (resumed, prior_best)))?);
         }
-        Ok(Self { thread, stop, now, rx, evals: Vec::new(), confirming: cfg.eval.confirm_episodes > 0 })
+        Ok(Self { thread, stop, now, rx, evals, confirming })
     }
 
     /// Whether evaluations are made at all.

@@ -248,7 +248,7 @@ fn supervise<S: Service>(a: &TrainArgs, cfg: Config, run_dir: &Path, cfg_path: &
     let mut s = Supervisor {
         progress: Progress::open(run_dir, &cfg, resumed)?,
         monitor: Monitor::open(run_dir, resumed)?,
-        evaluator: Evaluator::start::<S>(&cfg, &prefix, run_dir, start)?,
+        evaluator: Evaluator::start::<S>(&cfg, &prefix, run_dir, start, resumed)?,
         board: if cfg.tensorboard { Some(Board::open(run_dir, &launcher::host_name())?) } else { None },
         schedule: cfg.deterministic.then(|| Schedule::new(&cfg)),
         order: EpisodeOrder::new(cfg.sim.envs, cfg.deterministic),
