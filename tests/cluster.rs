@@ -49,6 +49,9 @@ fn text(o: &Output) -> String {
 
 #[test]
 fn a_head_trains_from_a_worker_on_another_domain_over_mutual_tls_without_loss() {
+    if common::skip_slow("a_head_trains_from_a_worker_on_another_domain_over_mutual_tls_without_loss") {
+        return;
+    }
     let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
     let dir = tmp("head");
     let wdir = tmp("worker");
@@ -136,6 +139,9 @@ fn a_head_trains_from_a_worker_on_another_domain_over_mutual_tls_without_loss() 
 
 #[test]
 fn a_worker_of_another_layout_is_refused_and_the_head_gives_up_in_time() {
+    if common::skip_slow("a_worker_of_another_layout_is_refused_and_the_head_gives_up_in_time") {
+        return;
+    }
     let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
     let dir = tmp("mismatch");
     let ep = format!("tcp/127.0.0.1:{}", free_port());
@@ -224,6 +230,9 @@ fn wait_line(rx: &std::sync::mpsc::Receiver<(Instant, String)>, want: &str, with
 
 #[test]
 fn a_killed_worker_comes_back_and_a_killed_head_is_noticed() {
+    if common::skip_slow("a_killed_worker_comes_back_and_a_killed_head_is_noticed") {
+        return;
+    }
     let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
     let dir = tmp("restart");
     let ep = format!("tcp/127.0.0.1:{}", free_port());
@@ -265,6 +274,9 @@ fn a_killed_worker_comes_back_and_a_killed_head_is_noticed() {
 
 #[test]
 fn a_head_held_busy_slows_the_worker_without_loss() {
+    if common::skip_slow("a_head_held_busy_slows_the_worker_without_loss") {
+        return;
+    }
     let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
     let dir = tmp("busy-head");
     let ep = format!("tcp/127.0.0.1:{}", free_port());
@@ -374,6 +386,9 @@ impl Drop for NetPair {
 
 #[test]
 fn two_hosts_in_two_network_namespaces_with_their_own_shared_memory() {
+    if common::skip_slow("two_hosts_in_two_network_namespaces_with_their_own_shared_memory") {
+        return;
+    }
     let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
     // SAFETY: geteuid has no preconditions.
     if unsafe { libc::geteuid() } != 0 {

@@ -57,6 +57,9 @@ fn assert_reproducible(name: &str, sets: &[&str], updates: u64, serial: bool) {
 /// the second run in serial mode (every role a thread, iceoryx2 `local`).
 #[test]
 fn one_batched_environment_repeats_exactly_in_processes_and_in_serial_mode() {
+    if common::skip_slow("one_batched_environment_repeats_exactly_in_processes_and_in_serial_mode") {
+        return;
+    }
     assert_reproducible("det-one", &["max_env_steps=3000", "sim.agents=4", "replay.min_fill=200"], 88, true);
 }
 
@@ -67,6 +70,9 @@ fn one_batched_environment_repeats_exactly_in_processes_and_in_serial_mode() {
 /// `prefetch` later is sampled.
 #[test]
 fn two_non_batched_environments_with_n_step_and_prioritized_replay_repeat_exactly() {
+    if common::skip_slow("two_non_batched_environments_with_n_step_and_prioritized_replay_repeat_exactly") {
+        return;
+    }
     let sets = [
         "max_env_steps=4800",
         "sim.envs=2",

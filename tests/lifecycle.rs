@@ -119,6 +119,9 @@ fn kill_learner_after_checkpoint(dir: &Path, after: Duration) -> f64 {
 
 #[test]
 fn sighup_stops_cleanly_a_live_run_directory_is_refused_and_a_killed_learner_loses_little() {
+    if common::skip_slow("sighup_stops_cleanly_a_live_run_directory_is_refused_and_a_killed_learner_loses_little") {
+        return;
+    }
     let _turn = TURN.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
     let dir = tmp("lifecycle");
     let run = start_run(&dir);
@@ -165,6 +168,9 @@ fn sighup_stops_cleanly_a_live_run_directory_is_refused_and_a_killed_learner_los
 
 #[test]
 fn no_role_outlives_a_killed_supervisor_by_two_seconds() {
+    if common::skip_slow("no_role_outlives_a_killed_supervisor_by_two_seconds") {
+        return;
+    }
     let _turn = TURN.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
     let dir = tmp("orphans");
     let run = start_run(&dir);

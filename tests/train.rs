@@ -24,6 +24,9 @@ static TRAINING: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
 #[test]
 fn short_multi_process_training_run() {
+    if common::skip_slow("short_multi_process_training_run") {
+        return;
+    }
     let _turn = TRAINING.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
     let dir = tmp("train");
     let out = hive()
@@ -210,6 +213,9 @@ fn bad_input_is_refused_clearly() {
 /// the replay from its snapshot.
 #[test]
 fn a_stopped_run_resumes() {
+    if common::skip_slow("a_stopped_run_resumes") {
+        return;
+    }
     let _turn = TRAINING.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
     let dir = tmp("resume");
     let small = [
