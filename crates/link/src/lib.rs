@@ -323,10 +323,6 @@ pub struct HeadStats {
     pub lost_by_env: std::sync::Mutex<Vec<u64>>,
     /// Episode or telemetry messages that could not be delivered.
     pub dropped: AtomicU64,
-    /// Weight versions sent.
-    pub weights_sent: AtomicU64,
-    /// Workers that joined again after the start.
-    pub rejoins: AtomicU64,
     /// Messages that failed a check ([`check`]) and were dropped, per
     /// slot (0: keys that name no host of the run).
     pub rejected: std::sync::Mutex<Vec<u64>>,
@@ -605,7 +601,6 @@ fn head_loop<S: Service>(head: &Head, hub: &Hub<S>, envs: usize, roles: usize, s
                 version = h.version;
                 let bytes = wire::payload_bytes(w.payload()).to_vec();
                 w_pub.put(bytes).attachment(wire::header_bytes(&h).to_vec()).wait().map_err(zerr("send weights"))?;
-                stats.weights_sent.fetch_add(1, Ordering::Relaxed);
                 tel.sample.weight_version = version;
             }
         }
@@ -687,7 +682,6 @@ fn head_loop<S: Service>(head: &Head, hub: &Hub<S>, envs: usize, roles: usize, s
                                 *s = None;
                             }
                         }
-                        stats.rejoins.fetch_add(1, Ordering::Relaxed);
                         tracing::info!("worker {} joined again", x.name);
                     }
                     Some(x) => {
@@ -755,7 +749,6 @@ pub struct WorkerStats {
 /// A worker's end of the link.
 pub struct Worker {
     session: zenoh::Session,
-    endpoint: String,
     /// The head's answer.
     pub slot: u32,
     /// Index of this host's first environment in the run.
@@ -788,7 +781,7 @@ impl Worker {
                 };
                 match Welcome::decode(&bytes) {
                     Some(Welcome::Joined { slot, env_offset, run, config, arena }) => {
-                        return Ok(Self { session, endpoint: endpoint.into(), slot, env_offset, run, config, arena });
+                        return Ok(Self { session, slot, env_offset, run, config, arena });
                     }
                     Some(Welcome::Refused(why)) => return Err(LinkError::Refused { endpoint: endpoint.into(), why }),
                     None => return Err(LinkError::Refused { endpoint: endpoint.into(), why: "an answer that is not a rotorhive welcome".into() }),
@@ -798,11 +791,6 @@ impl Worker {
             std::thread::sleep(Duration::from_millis(200));
         }
         Err(LinkError::NoHead { endpoint: endpoint.into(), secs: timeout.as_secs_f64() })
-    }
-
-    /// The head's endpoint.
-    pub fn endpoint(&self) -> &str {
-        &self.endpoint
     }
 
     /// Bridges this host's sims and actors (run `prefix` over service `S`,

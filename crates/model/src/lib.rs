@@ -33,16 +33,6 @@ use kernels::{Rows, Weights, Workspace};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
-/// The device the `cuda` feature asks for (GPU 0), or the CPU.
-pub fn default_device() -> Result<Device> {
-    #[cfg(feature = "cuda")]
-    {
-        return Ok(Device::new_cuda(0)?);
-    }
-    #[cfg(not(feature = "cuda"))]
-    Ok(Device::Cpu)
-}
-
 /// A device by name: `cpu`, or `cuda` (only in a build with the `cuda` feature).
 pub fn device(name: &str) -> Result<Device> {
     match name {

@@ -372,11 +372,6 @@ impl VecEnv {
         DroneState { position: d.p, velocity: d.v, rotation: d.q, angvel: d.angvel_world() }
     }
 
-    /// Lateral velocity setpoint of an agent (m/s).
-    pub fn lateral_setpoint(&self, agent: usize) -> f32 {
-        self.drones[agent].lateral_sp
-    }
-
     /// Places a drone at a pose with a velocity, for tests and tools.
     pub fn place(&mut self, agent: usize, position: [f32; 3], velocity: [f32; 3]) {
         let d = &mut self.drones[agent];

@@ -65,7 +65,6 @@ impl Shape {
 #[derive(Debug, Clone)]
 pub struct Scene {
     pub(crate) shapes: Vec<Shape>,
-    cell: f32,
     nx: usize,
     ny: usize,
     x0: f32,
@@ -118,7 +117,7 @@ impl Scene {
                 }
             }
         }
-        Self { shapes, cell: CELL, nx, ny, x0, y0, cells, half_width: hw, height: arena.height, x_extent: (0.0, arena.length), lanes: Vec::new() }
+        Self { shapes, nx, ny, x0, y0, cells, half_width: hw, height: arena.height, x_extent: (0.0, arena.length), lanes: Vec::new() }
     }
 
     /// Tells the scene where its lanes lie along y (see
@@ -158,11 +157,6 @@ impl Scene {
     /// True when the scene has no obstacles.
     pub fn is_empty(&self) -> bool {
         self.shapes.is_empty()
-    }
-
-    /// Side of a grid cell (metres).
-    pub fn cell_size(&self) -> f32 {
-        self.cell
     }
 }
 

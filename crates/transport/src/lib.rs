@@ -276,7 +276,7 @@ impl<S: Service> Hub<S> {
         let open_err = |op, e: &dyn Debug| TransportError::Open { channel: ch.name.clone(), op, message: format!("{e:?}") };
         let subscriber = ps.subscriber_builder().create().map_err(|e| open_err("create subscriber", &e))?;
         let listener = ev.listener_builder().create().map_err(|e| open_err("create listener", &e))?;
-        Ok(Receiver { subscriber, listener, channel: ch.name.clone(), received: 0, spin: spin() })
+        Ok(Receiver { subscriber, listener, channel: ch.name.clone(), spin: spin() })
     }
 }
 
@@ -361,11 +361,6 @@ impl<S: Service, T: Plain, H: Debug + ZeroCopySend + Default + 'static> Sender<S
         use iceoryx2::service::port_factory::PortFactory as _;
         self.service.dynamic_config().number_of_subscribers()
     }
-
-    /// Sends that gave up on a full receiver so far.
-    pub fn stalls(&self) -> u64 {
-        self.stalls.load(Ordering::Relaxed)
-    }
 }
 
 /// The receiving side of a channel.
@@ -373,7 +368,6 @@ pub struct Receiver<S: Service, T: Debug + ZeroCopySend + 'static, H: Debug + Ze
     subscriber: Subscriber<S, [T], H>,
     listener: Listener<S>,
     channel: String,
-    received: u64,
     spin: Duration,
 }
 
@@ -411,11 +405,7 @@ pub type Msg<S, T, H> = Sample<S, [T], H>;
 impl<S: Service, T: Debug + ZeroCopySend + Default + Copy + 'static, H: Debug + ZeroCopySend + Default + 'static> Receiver<S, T, H> {
     /// The next message, if one is waiting.
     pub fn try_recv(&mut self) -> Result<Option<Msg<S, T, H>>> {
-        let s = self.subscriber.receive().map_err(|e| TransportError::Io { channel: self.channel.clone(), op: "receive", message: format!("{e:?}") })?;
-        if s.is_some() {
-            self.received += 1;
-        }
-        Ok(s)
+        self.subscriber.receive().map_err(|e| TransportError::Io { channel: self.channel.clone(), op: "receive", message: format!("{e:?}") })
     }
 
     /// The next message, sleeping on the channel's event for at most
@@ -467,11 +457,6 @@ impl<S: Service, T: Debug + ZeroCopySend + Default + Copy + 'static, H: Debug + 
             last = Some(s);
         }
         Ok(last)
-    }
-
-    /// Messages received.
-    pub fn received(&self) -> u64 {
-        self.received
     }
 }
 
