@@ -231,6 +231,27 @@ fn lines_of(child: &mut std::process::Child) -> std::sync::mpsc::Receiver<(Insta
     rx
 }
 
+/// The child processes of `pid`, with their command lines.
+fn children_of(pid: u32) -> Vec<(i32, String)> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir("/proc").unwrap().flatten() {
+        let Ok(p) = e.file_name().to_string_lossy().parse::<i32>() else { continue };
+        let Ok(stat) = std::fs::read_to_string(format!("/proc/{p}/stat")) else { continue };
+        // The parent's pid is the second field after the command's ")".
+        let ppid = stat.rsplit_once(')').and_then(|(_, rest)| rest.split_whitespace().nth(1)).and_then(|v| v.parse::<u32>().ok());
+        if ppid == Some(pid) {
+            let cmd = std::fs::read(format!("/proc/{p}/cmdline")).unwrap_or_default();
+            out.push((p, String::from_utf8_lossy(&cmd).replace('\0', " ")));
+        }
+    }
+    out
+}
+
+/// Whether process `pid` still runs (a zombie does not).
+fn alive(pid: i32) -> bool {
+    std::fs::read_to_string(format!("/proc/{pid}/stat")).is_ok_and(|s| s.rsplit_once(')').and_then(|(_, r)| r.split_whitespace().next()) != Some("Z"))
+}
+
 fn wait_line(rx: &std::sync::mpsc::Receiver<(Instant, String)>, want: &str, within: Duration) -> Option<Instant> {
     let end = Instant::now() + within;
     while let Some(left) = end.checked_duration_since(Instant::now()) {
@@ -261,12 +282,38 @@ fn a_killed_worker_comes_back_and_a_killed_head_is_noticed() {
     let mut first = worker("cluster-worker");
     let first_lines = lines_of(&mut first);
     assert!(wait_line(&first_lines, "joined the run", Duration::from_secs(30)).is_some());
-    std::thread::sleep(Duration::from_secs(6));
+    std::thread::sleep(Duration::from_secs(4));
+    // The worker's roles are processes of its own: an actor killed with
+    // SIGKILL is started again by the worker.
+    let roles = children_of(first.id());
+    assert_eq!(roles.len(), 2, "a sim and an actor: {roles:?}");
+    let actor = roles.iter().find(|(_, cmd)| cmd.contains("actor")).unwrap_or_else(|| panic!("{roles:?}")).0;
+    // SAFETY: a plain signal to a process of this test's run.
+    unsafe { libc::kill(actor, libc::SIGKILL) };
+    let end = Instant::now() + Duration::from_secs(5);
+    let again = loop {
+        let now = children_of(first.id());
+        if let Some((pid, _)) = now.iter().find(|(p, cmd)| cmd.contains("actor") && *p != actor) {
+            break *pid;
+        }
+        assert!(Instant::now() < end, "the killed actor was not restarted: {now:?}");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    std::thread::sleep(Duration::from_secs(3));
+    let roles = children_of(first.id());
+    assert!(roles.iter().any(|(p, _)| *p == again), "the restarted actor died: {roles:?}");
+    // The worker itself killed: its roles stop within 2 s.
     first.kill().unwrap();
+    let killed = Instant::now();
     first.wait().unwrap();
-    // The same host comes back: it gets its old place within 5 s.
+    while roles.iter().any(|(p, _)| alive(*p)) {
+        assert!(killed.elapsed() < Duration::from_secs(2), "roles of the killed worker still run: {roles:?}");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    // The same host comes back in the same domain (cleaning what the
+    // killed one left): it gets its old place within 5 s.
     let started = Instant::now();
-    let mut second = worker("cluster-worker2");
+    let mut second = worker("cluster-worker");
     let second_lines = lines_of(&mut second);
     let joined = wait_line(&second_lines, "joined the run", Duration::from_secs(20)).expect("the restarted worker joined");
     assert!(joined.duration_since(started) < Duration::from_secs(5), "{:?}", joined.duration_since(started));

@@ -1,8 +1,9 @@
 //! `hive worker`: a host that lends its cores to a run on another host. It
 //! joins the head (`hive train --listen`), takes the run's resolved config
-//! and arena from it, runs E sims × N agents with their actors as threads
-//! over this host's shared memory, and its link carries their transitions
-//! to the head and the head's weights back.
+//! and arena from it, runs E sims × N agents with their actors as processes
+//! over this host's shared memory (started, logged and restarted by the
+//! head's launcher), and its link, in this process, carries their
+//! transitions to the head and the head's weights back.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -13,7 +14,9 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use rotorhive_link::{Hello, Worker, WorkerEnd, WorkerStats};
 use rotorhive_roles::{Config, env_role_names, roles_of};
-use rotorhive_transport::{Hub, Local};
+use rotorhive_transport::{Hub, Ipc};
+
+use crate::supervisor::Members;
 
 /// How a host's link is secured: `hive train --listen` and `hive worker`.
 #[derive(Args, Debug, Default)]
@@ -92,14 +95,13 @@ pub fn run(a: WorkerArgs) -> Result<()> {
         bail!("--join-timeout must be positive, got {}", a.join_timeout);
     }
     a.link.check(&a.connect)?;
-    // Candle's pools stay single-threaded per role, as in role processes.
-    // SAFETY: no thread of this process has started yet (Zenoh's start in
-    // `Worker::join` below).
-    unsafe {
-        std::env::set_var("RAYON_NUM_THREADS", "1");
-        std::env::set_var("CANDLE_NUM_THREADS", "1");
-    }
     rotorhive_transport::handle_hangup();
+    // What a killed worker of this domain left in shared memory (its roles
+    // stopped within 2 s of it, but their nodes may remain).
+    let cleaned = rotorhive_transport::cleanup_dead_nodes();
+    if cleaned > 0 {
+        tracing::info!("cleaned {cleaned} dead node(s) left in this domain");
+    }
     let name = a.name.clone().unwrap_or_else(|| match std::env::var(rotorhive_transport::DOMAIN_ENV) {
         Ok(d) if !d.is_empty() => format!("{}/{d}", crate::supervisor::host_name()),
         _ => crate::supervisor::host_name(),
@@ -109,7 +111,7 @@ pub fn run(a: WorkerArgs) -> Result<()> {
     let run_dir = a.run_dir.clone().unwrap_or_else(|| PathBuf::from("runs").join(format!("worker-{}", std::process::id())));
     std::fs::create_dir_all(&run_dir).with_context(|| format!("cannot create {}", run_dir.display()))?;
     let run_dir = run_dir.canonicalize()?;
-    let cfg = worker_config(&link, &run_dir, a.envs as usize, a.agents)?;
+    let (cfg, cfg_path) = worker_config(&link, &run_dir, a.envs as usize, a.agents)?;
     println!(
         "joined the run at {} as worker {} ({name}): {} × {} agents, environments {}..{}",
         a.connect,
@@ -122,53 +124,71 @@ pub fn run(a: WorkerArgs) -> Result<()> {
     let prefix = format!("worker-{}", std::process::id());
     let stop = Arc::new(AtomicBool::new(false));
     let mut stats = WorkerStats::default();
-    let mut threads = Vec::new();
-    let end = std::thread::scope(|s| {
+    let mut restarts = 0u32;
+    let end = std::thread::scope(|s| -> Result<WorkerEnd> {
         let (ready_tx, ready_rx) = std::sync::mpsc::channel();
         let bridge = s.spawn(|| -> Result<WorkerEnd> {
-            let hub = Hub::<Local>::new(&prefix, "link")?.with_stop(stop.clone());
+            let hub = Hub::<Ipc>::new(&prefix, "link")?.with_stop(stop.clone());
             Ok(link.bridge(&hub, cfg.sim.envs, roles_of(&cfg), rotorhive_model::num_params(), &mut stats, move || {
                 let _ = ready_tx.send(());
             })?)
         });
-        // The sims and actors start once the link takes their batches.
+        // The sims and actors start, as processes of this host's domain
+        // launched and restarted as the head's roles are, once the link
+        // takes their batches. Dropping `members` stops them.
+        let mut members = None;
         if ready_rx.recv().is_ok() {
-            threads = rotorhive_roles::spawn_threads(&cfg, &prefix, &run_dir, &stop, env_role_names(&cfg))?;
+            match Members::start(&cfg, false, &prefix, &run_dir, &cfg_path, env_role_names(&cfg)) {
+                Ok(m) => members = Some(m),
+                Err(e) => {
+                    stop.store(true, Ordering::SeqCst);
+                    let _ = bridge.join();
+                    return Err(e);
+                }
+            }
         }
-        // A role thread ends only with an error (or the stop): watch them.
         while !bridge.is_finished() {
-            if let Some((name, _)) = threads.iter().find(|(_, h)| h.is_finished()) {
-                let name = name.clone();
-                stop.store(true, Ordering::SeqCst);
-                let _ = bridge.join();
-                return Err(anyhow::anyhow!("role {name} stopped"));
+            if let Some(m) = members.as_mut() {
+                let shutting_down = || stop.load(Ordering::SeqCst) || rotorhive_transport::stop_requested();
+                let gave_up = m.check(&shutting_down, &mut |what| {
+                    restarts += 1;
+                    eprintln!("worker {name}: {what}");
+                    Ok(())
+                });
+                let why = match gave_up {
+                    Ok(None) => None,
+                    Ok(Some(why)) => Some(anyhow::anyhow!(why)),
+                    Err(e) => Some(e),
+                };
+                if let Some(why) = why {
+                    stop.store(true, Ordering::SeqCst);
+                    let _ = bridge.join();
+                    return Err(why);
+                }
             }
             std::thread::sleep(Duration::from_millis(50));
         }
+        if let Some(m) = members.as_mut() {
+            m.stop();
+        }
         bridge.join().map_err(|_| anyhow::anyhow!("the link panicked"))?
     });
-    stop.store(true, Ordering::SeqCst);
-    let first = rotorhive_roles::join_threads(threads);
     println!(
-        "worker {name}: {} transitions in {} batches sent, weights version {} ({} received, {} rejected), {} messages dropped",
+        "worker {name}: {} transitions in {} batches sent, weights version {} ({} received, {} rejected), {} messages dropped, {restarts} role restarts",
         stats.transitions, stats.batches, stats.weight_version, stats.weights, stats.rejected, stats.dropped
     );
-    match end {
-        Ok(WorkerEnd::RunEnded) => {
+    match end? {
+        WorkerEnd::RunEnded => {
             println!("the head ended the run");
             Ok(())
         }
-        Ok(WorkerEnd::Stopped) => Ok(()),
-        Err(e) => Err(match first {
-            Some(f) => e.context(f),
-            None => e,
-        }),
+        WorkerEnd::Stopped => Ok(()),
     }
 }
 
 /// This host's config: the head's, with this host's environments and
 /// agents, its own seeds, and the arena it was sent.
-fn worker_config(link: &Worker, run_dir: &std::path::Path, envs: usize, agents: Option<u32>) -> Result<Config> {
+fn worker_config(link: &Worker, run_dir: &std::path::Path, envs: usize, agents: Option<u32>) -> Result<(Config, PathBuf)> {
     let head_cfg = run_dir.join("head-config.toml");
     std::fs::write(&head_cfg, &link.config).with_context(|| format!("cannot write {}", head_cfg.display()))?;
     let arena = run_dir.join("arena.toml");
@@ -186,6 +206,7 @@ fn worker_config(link: &Worker, run_dir: &std::path::Path, envs: usize, agents: 
         format!("cluster.agents_elsewhere={}", head.agents_total() - envs * agents),
     ];
     let cfg = Config::load(Some(&head_cfg), &sets).context("this worker's config")?;
-    std::fs::write(run_dir.join("config.toml"), cfg.to_toml())?;
-    Ok(cfg)
+    let path = run_dir.join("config.toml");
+    std::fs::write(&path, cfg.to_toml()).with_context(|| format!("cannot write {}", path.display()))?;
+    Ok((cfg, path))
 }

@@ -17,7 +17,7 @@ use rotorhive_roles::Config;
 use rotorhive_transport::cleanup_dead_nodes;
 use sysinfo::Pid;
 
-pub(super) struct Role {
+pub(crate) struct Role {
     name: String,
     args: Vec<String>,
     child: Child,
@@ -26,7 +26,7 @@ pub(super) struct Role {
 }
 
 /// How a role process is started (again).
-pub(super) struct Launcher {
+pub(crate) struct Launcher {
     exe: PathBuf,
     cfg_path: PathBuf,
     prefix: String,
@@ -98,7 +98,7 @@ const RESTART_WINDOW: Duration = Duration::from_secs(60);
 
 /// The children of a run; stopping them is also done on drop, so an early
 /// error never leaves processes (or their shared memory) behind.
-pub(super) struct Children {
+pub(crate) struct Children {
     roles: Vec<Role>,
 }
 
@@ -192,27 +192,28 @@ fn last_error(log: &Path) -> Option<String> {
     text.lines().rev().find(|l| l.contains("error")).map(|l| l.trim().to_string())
 }
 
-/// The roles of a run: child processes (restarted when they die), or, in
-/// serial mode, threads of this process.
-pub(super) enum Members {
+/// The roles of a run (or of a worker host): child processes (restarted
+/// when they die), or, in serial mode, threads of this process.
+pub(crate) enum Members {
     Processes { launcher: Launcher, children: Children },
     Threads { stop: Arc<AtomicBool>, threads: Vec<(String, std::thread::JoinHandle<Result<()>>)> },
 }
 
 impl Members {
-    /// Starts every role of the run: threads over `local` in serial mode,
-    /// else one `hive` process per role, logging to `run_dir/logs`.
-    pub(super) fn start(cfg: &Config, serial: bool, prefix: &str, run_dir: &Path, cfg_path: &Path) -> Result<Self> {
+    /// Starts `roles` (all of a run's, or a worker host's sims and actors):
+    /// threads over `local` in serial mode, else one `hive` process per
+    /// role reading `cfg_path`, logging to `run_dir/logs`.
+    pub(crate) fn start(cfg: &Config, serial: bool, prefix: &str, run_dir: &Path, cfg_path: &Path, roles: Vec<(String, RoleKind, usize)>) -> Result<Self> {
         let logs = run_dir.join("logs");
         std::fs::create_dir_all(&logs).with_context(|| format!("cannot create {}", logs.display()))?;
         if serial {
             let stop = Arc::new(AtomicBool::new(false));
-            return Ok(Members::Threads { threads: rotorhive_roles::spawn_serial(cfg, prefix, run_dir, &stop)?, stop });
+            return Ok(Members::Threads { threads: rotorhive_roles::spawn_threads(cfg, prefix, run_dir, &stop, roles)?, stop });
         }
         let exe = std::env::current_exe().context("cannot find the hive executable")?;
         let launcher = Launcher { exe, cfg_path: cfg_path.to_path_buf(), prefix: prefix.to_string(), run_dir: run_dir.to_path_buf(), logs };
         let mut children = Children { roles: Vec::new() };
-        for (name, role, index) in rotorhive_roles::role_names(cfg) {
+        for (name, role, index) in roles {
             let mut args = vec![role.name().to_string()];
             if matches!(role, RoleKind::Sim | RoleKind::Actor) {
                 args.extend(["--env".to_string(), index.to_string()]);
@@ -224,12 +225,12 @@ impl Members {
     }
 
     /// Whether the roles run as processes of their own.
-    pub(super) fn processes(&self) -> bool {
+    pub(crate) fn processes(&self) -> bool {
         matches!(self, Members::Processes { .. })
     }
 
     /// The processes whose CPU and memory are the roles'.
-    pub(super) fn pids(&self) -> Vec<Pid> {
+    pub(crate) fn pids(&self) -> Vec<Pid> {
         match self {
             Members::Processes { children, .. } => children.roles.iter().map(|r| Pid::from_u32(r.child.id())).collect(),
             Members::Threads { .. } => vec![Pid::from_u32(std::process::id())],
@@ -240,7 +241,7 @@ impl Members {
     /// started again (the learner from its last saved state), and
     /// `restarted` hears of it; one that keeps dying, or a role thread that
     /// ended, stops the run: the reason is returned.
-    pub(super) fn check(&mut self, shutting_down: &dyn Fn() -> bool, restarted: &mut dyn FnMut(String) -> Result<()>) -> Result<Option<String>> {
+    pub(crate) fn check(&mut self, shutting_down: &dyn Fn() -> bool, restarted: &mut dyn FnMut(String) -> Result<()>) -> Result<Option<String>> {
         let (launcher, children) = match self {
             // A role thread ends only with an error (or a stop).
             Members::Threads { threads, .. } => return Ok(threads.iter().find(|(_, h)| h.is_finished()).map(|(name, _)| format!("role {name} stopped"))),
@@ -276,7 +277,7 @@ impl Members {
     }
 
     /// Stops every role; in serial mode returns the first role's error.
-    pub(super) fn stop(&mut self) -> Option<String> {
+    pub(crate) fn stop(&mut self) -> Option<String> {
         match self {
             Members::Processes { children, .. } => {
                 children.stop();

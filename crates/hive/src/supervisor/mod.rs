@@ -31,8 +31,9 @@ use rotorhive_transport::{Channel, Hub, Ipc, Local, Receiver, cleanup_dead_nodes
 use crate::role_cmd::ConfigArgs;
 use board::Board;
 use evaluator::Evaluator;
+pub(crate) use launcher::Members;
 pub use launcher::host_name;
-use launcher::{Members, lock_run_dir, timestamp};
+use launcher::{lock_run_dir, timestamp};
 use monitor::Monitor;
 use records::{Counts, EpisodeOrder, Progress};
 
@@ -232,7 +233,7 @@ fn supervise<S: Service>(a: &TrainArgs, cfg: Config, run_dir: &Path, cfg_path: &
     let episodes_rx = hub.receiver::<f32, EpisodeHeader>(&episodes_channel(cfg.sim.envs))?;
     let telemetry_rx = hub.receiver::<u8, Telemetry>(&Channel::telemetry(roles_of(&cfg)))?;
     let mut ports = Ports { hub, episodes_rx, telemetry_rx };
-    let members = Members::start(&cfg, a.serial, &prefix, run_dir, cfg_path)?;
+    let members = Members::start(&cfg, a.serial, &prefix, run_dir, cfg_path, rotorhive_roles::role_names(&cfg))?;
     let link = match link {
         Some((head, text)) => {
             Some(head.bridge::<S>(prefix.clone(), cfg.sim.envs, roles_of(&cfg), Arc::new(AtomicBool::new(false)), Box::new(move |_| text.clone()))?)
