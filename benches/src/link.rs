@@ -150,7 +150,8 @@ fn link_pair(seconds: f64, batch: usize, tls: Option<(&std::path::Path, &str)>) 
 /// One side of the link benchmark, in its own domain (started by [`run`]).
 pub fn side(side: &str, ep: &str, seconds: f64, batch: usize, tls: Option<std::path::PathBuf>) -> Result<()> {
     let layout = rotorhive_link::layout(rotorhive_model::num_params());
-    let opts = rotorhive_link::LinkOptions { tls, zenoh_config: None };
+    // The run's access control as `hive train` and `hive worker` set it.
+    let opts = if side == "head" { rotorhive_link::LinkOptions::for_head(tls, None, 1) } else { rotorhive_link::LinkOptions::for_worker(tls, None) };
     let stop = Arc::new(AtomicBool::new(false));
     match side {
         "head" => {

@@ -37,9 +37,21 @@ pub struct LinkArgs {
 }
 
 impl LinkArgs {
-    /// The link's options.
+    /// The link's options (no access control: for checks).
     pub fn options(&self) -> rotorhive_link::LinkOptions {
-        rotorhive_link::LinkOptions { tls: self.tls.clone(), zenoh_config: self.zenoh_config.clone() }
+        rotorhive_link::LinkOptions { tls: self.tls.clone(), zenoh_config: self.zenoh_config.clone(), peers: Vec::new() }
+    }
+
+    /// The head's link options: with TLS, only its `workers` workers'
+    /// certificates (`hive certs`'s names) may take part.
+    pub fn head_options(&self, workers: usize) -> rotorhive_link::LinkOptions {
+        rotorhive_link::LinkOptions::for_head(self.tls.clone(), self.zenoh_config.clone(), workers)
+    }
+
+    /// A worker's link options: with TLS, only the head's certificate may
+    /// take part.
+    pub fn worker_options(&self) -> rotorhive_link::LinkOptions {
+        rotorhive_link::LinkOptions::for_worker(self.tls.clone(), self.zenoh_config.clone())
     }
 
     /// Checks an endpoint and its certificates before anything starts.
@@ -107,7 +119,7 @@ pub fn run(a: WorkerArgs) -> Result<()> {
         _ => crate::supervisor::host_name(),
     });
     let hello = Hello { layout: rotorhive_link::layout(rotorhive_model::num_params()), envs: a.envs, agents: a.agents.unwrap_or(0), host: name.clone() };
-    let link = Worker::join(&a.connect, &hello, Duration::from_secs_f64(a.join_timeout), &a.link.options(), rotorhive_transport::stop_requested)?;
+    let link = Worker::join(&a.connect, &hello, Duration::from_secs_f64(a.join_timeout), &a.link.worker_options(), rotorhive_transport::stop_requested)?;
     let run_dir = a.run_dir.clone().unwrap_or_else(|| PathBuf::from("runs").join(format!("worker-{}", std::process::id())));
     std::fs::create_dir_all(&run_dir).with_context(|| format!("cannot create {}", run_dir.display()))?;
     let run_dir = run_dir.canonicalize()?;

@@ -143,6 +143,26 @@ pub struct LinkOptions {
     pub tls: Option<PathBuf>,
     /// A Zenoh configuration file (JSON5) whose keys win over rotorhive's.
     pub zenoh_config: Option<PathBuf>,
+    /// With `tls`: the certificate common names of the hosts this one may
+    /// talk to (the head: its workers'; a worker: the head's). Zenoh's
+    /// access control then denies every message on the run's keys to and
+    /// from any other peer, even one holding a certificate of the run's CA.
+    /// Empty: no access control.
+    pub peers: Vec<String>,
+}
+
+impl LinkOptions {
+    /// The head's options: `tls` and `zenoh_config`, talking to the
+    /// certificates of `hive certs`'s workers 1..=`workers`.
+    pub fn for_head(tls: Option<PathBuf>, zenoh_config: Option<PathBuf>, workers: usize) -> Self {
+        Self { tls, zenoh_config, peers: (1..=workers).map(|i| certs::common_name(&format!("worker-{i}"))).collect() }
+    }
+
+    /// A worker's options: `tls` and `zenoh_config`, talking to the head's
+    /// certificate only.
+    pub fn for_worker(tls: Option<PathBuf>, zenoh_config: Option<PathBuf>) -> Self {
+        Self { tls, zenoh_config, peers: vec![certs::common_name("head")] }
+    }
 }
 
 /// The files of a TLS directory, checked to exist.
@@ -206,6 +226,24 @@ fn set_tls(c: &mut zenoh::Config, dir: &Path) -> Result<()> {
     set(c, "transport/link/tls/verify_name_on_connect", "true")
 }
 
+/// Zenoh's access control (JSON5) for a host that talks to the peers whose
+/// certificates have the common names `peers`: everything on the run's
+/// keys (`rotorhive/**`: the join, transitions, episodes, telemetry,
+/// weights, the end, liveliness), both ways, with them; nothing with
+/// anyone else.
+fn access_control(peers: &[String]) -> String {
+    let names: Vec<String> = peers.iter().map(|p| format!("{p:?}")).collect();
+    format!(
+        r#"{{ enabled: true, default_permission: "deny",
+             rules: [{{ id: "run", key_exprs: ["rotorhive/**"], flows: ["ingress", "egress"], permission: "allow",
+                        messages: ["put", "delete", "declare_subscriber", "query", "declare_queryable", "reply",
+                                   "liveliness_token", "declare_liveliness_subscriber", "liveliness_query"] }}],
+             subjects: [{{ id: "peers", cert_common_names: [{}] }}],
+             policies: [{{ rules: ["run"], subjects: ["peers"] }}] }}"#,
+        names.join(", ")
+    )
+}
+
 /// Lays the keys of a user's Zenoh configuration file over `c` (the file's
 /// keys win; objects merge key by key, anything else replaces).
 fn overlay(c: &mut zenoh::Config, path: &Path) -> Result<()> {
@@ -257,6 +295,9 @@ fn open(listen: Option<&str>, connect: Option<&str>, opts: &LinkOptions) -> Resu
     }
     if let Some(dir) = &opts.tls {
         set_tls(&mut c, dir)?;
+        if !opts.peers.is_empty() {
+            set(&mut c, "access_control", &access_control(&opts.peers))?;
+        }
     }
     match (listen, connect) {
         (Some(l), _) => {

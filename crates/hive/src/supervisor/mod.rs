@@ -87,7 +87,10 @@ pub fn run(a: TrainArgs) -> Result<()> {
     // The head's environments come first in the run.
     cfg.cluster.env_offset = 0;
     let head = match &a.listen {
-        Some(ep) => Some(gather_workers(ep, &prefix, &mut cfg, &a.link.options())?),
+        Some(ep) => {
+            let opts = a.link.head_options(cfg.cluster.workers);
+            Some(gather_workers(ep, &prefix, &mut cfg, &opts)?)
+        }
         None if cfg.cluster.workers > 0 => bail!("key `cluster.workers` = {} needs --listen tcp/ADDR:PORT for the workers to join", cfg.cluster.workers),
         None => {
             cfg.cluster.envs_elsewhere = 0;
