@@ -326,6 +326,17 @@ fn a_killed_worker_comes_back_and_a_killed_head_is_noticed() {
     let joined = wait_line(&second_lines, "joined the run", Duration::from_secs(20)).expect("the restarted worker joined");
     assert!(joined.duration_since(started) < Duration::from_secs(5), "{:?}", joined.duration_since(started));
     assert!(head.try_wait().unwrap().is_none(), "the head stopped when its worker died");
+    // Another process under the same name, without the join token the
+    // first one kept in its run directory, does not take the place.
+    let thief_dir = tmp("thief");
+    let thief_dir_s = thief_dir.display().to_string();
+    let o =
+        hive(&["--domain", "cluster-intruder", "worker", "--connect", &ep, "--agents", "8", "--name", "w", "--run-dir", &thief_dir_s, "--join-timeout", "10"])
+            .output()
+            .unwrap();
+    assert!(!o.status.success(), "{}", text(&o));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("with its join token"), "{}", text(&o));
+    let _ = std::fs::remove_dir_all(&thief_dir);
     std::thread::sleep(Duration::from_secs(6));
     // Now the head dies without ending the run: the worker notices.
     head.kill().unwrap();

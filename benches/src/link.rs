@@ -193,7 +193,7 @@ pub fn side(side: &str, ep: &str, seconds: f64, batch: usize, tls: Option<std::p
             println!("{}", json!({"transitions": got, "seconds": secs, "lost": lost}));
         }
         "worker" => {
-            let hello = rotorhive_link::Hello { layout, envs: 1, agents: batch as u32, host: "bench-worker".into() };
+            let hello = rotorhive_link::Hello { layout, envs: 1, agents: batch as u32, host: "bench-worker".into(), token: "bench".into() };
             let w = rotorhive_link::Worker::join(ep, &hello, Duration::from_secs(30), &opts, rotorhive_transport::stop_requested)?;
             let hub = Hub::<Ipc>::new(RUN, "bench-link")?.with_stop(stop.clone());
             let (ready_tx, ready_rx) = std::sync::mpsc::channel::<()>();

@@ -88,8 +88,8 @@ pub struct WorkerArgs {
     /// with the domain when one is given).
     #[arg(long)]
     pub name: Option<String>,
-    /// Where the worker keeps the config and arena it was sent (default
-    /// `runs/worker-<pid>`).
+    /// Where the worker keeps its join token, the config and arena it was
+    /// sent and its roles' logs (default `runs/worker-<name>`).
     #[arg(long)]
     pub run_dir: Option<PathBuf>,
     /// How long to keep asking the head to join (s).
@@ -118,11 +118,15 @@ pub fn run(a: WorkerArgs) -> Result<()> {
         Ok(d) if !d.is_empty() => format!("{}/{d}", crate::supervisor::host_name()),
         _ => crate::supervisor::host_name(),
     });
-    let hello = Hello { layout: rotorhive_link::layout(rotorhive_model::num_params()), envs: a.envs, agents: a.agents.unwrap_or(0), host: name.clone() };
-    let link = Worker::join(&a.connect, &hello, Duration::from_secs_f64(a.join_timeout), &a.link.worker_options(), rotorhive_transport::stop_requested)?;
-    let run_dir = a.run_dir.clone().unwrap_or_else(|| PathBuf::from("runs").join(format!("worker-{}", std::process::id())));
+    // One directory per host name, so that a worker started again under
+    // its name finds its join token.
+    let safe: String = name.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '.' { c } else { '_' }).collect();
+    let run_dir = a.run_dir.clone().unwrap_or_else(|| PathBuf::from("runs").join(format!("worker-{safe}")));
     std::fs::create_dir_all(&run_dir).with_context(|| format!("cannot create {}", run_dir.display()))?;
     let run_dir = run_dir.canonicalize()?;
+    let token = join_token(&run_dir)?;
+    let hello = Hello { layout: rotorhive_link::layout(rotorhive_model::num_params()), envs: a.envs, agents: a.agents.unwrap_or(0), host: name.clone(), token };
+    let link = Worker::join(&a.connect, &hello, Duration::from_secs_f64(a.join_timeout), &a.link.worker_options(), rotorhive_transport::stop_requested)?;
     let (cfg, cfg_path) = worker_config(&link, &run_dir, a.envs as usize, a.agents)?;
     println!(
         "joined the run at {} as worker {} ({name}): {} × {} agents, environments {}..{}",
@@ -196,6 +200,25 @@ pub fn run(a: WorkerArgs) -> Result<()> {
         }
         WorkerEnd::Stopped => Ok(()),
     }
+}
+
+/// This host's join token: `RUN_DIR/join-token` (readable by its owner
+/// only), made from the OS's random source on first use. A head takes a
+/// host back under its name only with the token it first joined with.
+fn join_token(run_dir: &std::path::Path) -> Result<String> {
+    use std::os::unix::fs::OpenOptionsExt;
+    let path = run_dir.join("join-token");
+    match std::fs::read_to_string(&path) {
+        Ok(t) if !t.trim().is_empty() && t.trim().len() <= rotorhive_link::wire::MAX_TOKEN => return Ok(t.trim().to_string()),
+        Ok(_) => bail!("{}: not a join token (delete it to make a new one)", path.display()),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+        Err(e) => return Err(e).with_context(|| format!("cannot read {}", path.display())),
+    }
+    let token = format!("{:032x}", rand::random::<u128>());
+    let mut f =
+        std::fs::OpenOptions::new().write(true).create_new(true).mode(0o600).open(&path).with_context(|| format!("cannot create {}", path.display()))?;
+    std::io::Write::write_all(&mut f, token.as_bytes()).with_context(|| format!("cannot write {}", path.display()))?;
+    Ok(token)
 }
 
 /// This host's config: the head's, with this host's environments and

@@ -224,7 +224,7 @@ mod tests {
     use rotorhive_msg::{OBS_LEN, pack_transition};
 
     fn host() -> Host {
-        Host { name: "w".into(), slot: 1, envs: 2, agents: 3, env_offset: 1 }
+        Host { name: "w".into(), slot: 1, envs: 2, agents: 3, env_offset: 1, token: String::new() }
     }
 
     fn batch(actor: u32, rows: &[(f32, f32, f32)]) -> (Vec<u8>, Vec<u8>) {

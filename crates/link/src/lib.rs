@@ -347,6 +347,14 @@ pub struct Host {
     pub agents: u32,
     /// Its first environment's index in the run.
     pub env_offset: u32,
+    /// The join token it first joined with: it comes back only with it.
+    pub(crate) token: String,
+}
+
+/// Whether a join token matches the one a host first joined with (in time
+/// that does not depend on where they differ).
+fn same_token(a: &str, b: &str) -> bool {
+    a.len() == b.len() && a.bytes().zip(b.bytes()).fold(0u8, |d, (x, y)| d | (x ^ y)) == 0
 }
 
 /// Counters of the head's link, shared with the supervisor.
@@ -452,8 +460,12 @@ impl Head {
             match self.check(&q) {
                 Ok(h) => {
                     if let Some(i) = self.pending.iter().position(|(_, p)| p.host == h.host) {
-                        // The same host asking again (it retried): keep the newest.
-                        self.pending[i] = (q, h);
+                        if same_token(&self.pending[i].1.token, &h.token) {
+                            // The same host asking again (it retried): keep the newest.
+                            self.pending[i] = (q, h);
+                        } else {
+                            refuse(&q, &format!("host {} has already joined this run (another join token)", h.host));
+                        }
                     } else {
                         tracing::info!("worker {} joined: {} × {} agents", h.host, h.envs, h.agents);
                         self.pending.push((q, h));
@@ -465,7 +477,7 @@ impl Head {
         let mut env_offset = head_envs as u32;
         self.hosts.clear();
         for (i, (_, h)) in self.pending.iter().enumerate() {
-            self.hosts.push(Host { name: h.host.clone(), slot: i as u32 + 1, envs: h.envs, agents: h.agents, env_offset });
+            self.hosts.push(Host { name: h.host.clone(), slot: i as u32 + 1, envs: h.envs, agents: h.agents, env_offset, token: h.token.clone() });
             env_offset += h.envs;
         }
         Ok(self.hosts.clone())
@@ -491,6 +503,9 @@ impl Head {
         }
         if h.envs == 0 || h.agents == 0 {
             return Err(format!("a worker needs at least one environment and one agent, got {} × {}", h.envs, h.agents));
+        }
+        if h.token.is_empty() || h.token.len() > wire::MAX_TOKEN {
+            return Err(format!("a join token of 1 to {} bytes is needed, got {}", wire::MAX_TOKEN, h.token.len()));
         }
         Ok(h)
     }
@@ -714,6 +729,10 @@ fn head_loop<S: Service>(head: &Head, hub: &Hub<S>, envs: usize, roles: usize, s
         while let Ok(Some(q)) = head.queryable.try_recv() {
             match head.check(&q) {
                 Ok(h) => match hosts.iter().find(|x| x.name == h.host) {
+                    Some(x) if !same_token(&x.token, &h.token) => refuse(
+                        &q,
+                        &format!("host {} is in this run; only the worker that joined under that name (with its join token) may take its place back", x.name),
+                    ),
                     Some(x) if x.envs == h.envs && x.agents == h.agents => {
                         let (config, arena) = config_for(x);
                         reply(&q, &Welcome::Joined { slot: x.slot, env_offset: x.env_offset, run: run.clone(), config, arena });

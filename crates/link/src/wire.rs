@@ -60,7 +60,7 @@ pub fn payload_bytes_mut<T: Elem>(p: &mut [T]) -> &mut [u8] {
     unsafe { std::slice::from_raw_parts_mut(p.as_mut_ptr().cast::<u8>(), std::mem::size_of_val(p)) }
 }
 
-const HELLO: [u8; 4] = *b"RHJ1";
+const HELLO: [u8; 4] = *b"RHJ2";
 const WELCOME: [u8; 4] = *b"RHW1";
 
 /// A worker's request to join a run.
@@ -74,7 +74,14 @@ pub struct Hello {
     pub agents: u32,
     /// Its host name (a worker that comes back under the same name gets its old place).
     pub host: String,
+    /// The worker's secret for this name, kept in its run directory: a
+    /// host that comes back under a name of the run must present the
+    /// token it first joined with ([`MAX_TOKEN`] bytes at most).
+    pub token: String,
 }
+
+/// The longest join token a head accepts.
+pub const MAX_TOKEN: usize = 128;
 
 /// The head's answer.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -133,6 +140,7 @@ impl Hello {
         out.extend_from_slice(&self.envs.to_le_bytes());
         out.extend_from_slice(&self.agents.to_le_bytes());
         put_str(&mut out, &self.host);
+        put_str(&mut out, &self.token);
         out
     }
 
@@ -142,7 +150,7 @@ impl Hello {
         if r.take(4)? != HELLO {
             return None;
         }
-        Some(Self { layout: r.u64()?, envs: r.u32()?, agents: r.u32()?, host: r.str()? })
+        Some(Self { layout: r.u64()?, envs: r.u32()?, agents: r.u32()?, host: r.str()?, token: r.str()? })
     }
 }
 
@@ -200,7 +208,7 @@ mod tests {
         let back: TransitionHeader = header_from(header_bytes(&h)).unwrap();
         assert_eq!((back.actor, back.count, back.seq, back.weight_version, back.episodes), (3, 50, 77, 9, 1234));
         assert!(header_from::<TransitionHeader>(&header_bytes(&h)[1..]).is_none());
-        let hello = Hello { layout: 42, envs: 2, agents: 37, host: "b".into() };
+        let hello = Hello { layout: 42, envs: 2, agents: 37, host: "b".into(), token: "t".into() };
         assert_eq!(Hello::decode(&hello.encode()), Some(hello.clone()));
         assert!(Hello::decode(&hello.encode()[..10]).is_none());
         let w = Welcome::Joined { slot: 1, env_offset: 1, run: "r".into(), config: "seed = 1".into(), arena: "x".into() };
