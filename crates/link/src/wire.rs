@@ -3,61 +3,27 @@
 //! layout fingerprint), and the two control messages of a join. Nothing here
 //! goes through a general-purpose serializer.
 
-use rotorhive_msg::{EpisodeHeader, Telemetry, TransitionHeader, WeightsHeader};
+use bytemuck::Pod;
 
-/// A `#[repr(C)]` message header without implicit padding (every gap is a
-/// named field), so each of its bytes is initialised and any bytes of the
-/// right length are a valid value.
-///
-/// # Safety
-/// Only for such types (the sizes are checked by a test).
-pub unsafe trait Plain: Copy + Default + 'static {}
-
-// SAFETY: repr(C), fields u32/u64/i64 with explicit padding (`_pad`) only.
-unsafe impl Plain for TransitionHeader {}
-// SAFETY: as above.
-unsafe impl Plain for EpisodeHeader {}
-// SAFETY: as above.
-unsafe impl Plain for WeightsHeader {}
-// SAFETY: as above.
-unsafe impl Plain for Telemetry {}
-
-/// The bytes of a header.
-pub fn header_bytes<H: Plain>(h: &H) -> &[u8] {
-    // SAFETY: `H: Plain` has no uninitialised bytes; the slice covers exactly `h`.
-    unsafe { std::slice::from_raw_parts((h as *const H).cast::<u8>(), std::mem::size_of::<H>()) }
+/// The bytes of a header (a `bytemuck::Pod` type: `#[repr(C)]`, no padding,
+/// every bit pattern valid; the message headers derive it).
+pub fn header_bytes<H: Pod>(h: &H) -> &[u8] {
+    bytemuck::bytes_of(h)
 }
 
-/// A header from its bytes, if they are exactly its size.
-pub fn header_from<H: Plain>(b: &[u8]) -> Option<H> {
-    if b.len() != std::mem::size_of::<H>() {
-        return None;
-    }
-    // SAFETY: the length matches and every bit pattern is a valid `H`;
-    // the read does not assume alignment.
-    Some(unsafe { std::ptr::read_unaligned(b.as_ptr().cast::<H>()) })
+/// A header from its bytes, if they are exactly its size (any alignment).
+pub fn header_from<H: Pod>(b: &[u8]) -> Option<H> {
+    bytemuck::try_pod_read_unaligned(b).ok()
 }
-
-/// Plain payload elements: every bit pattern is a value.
-///
-/// # Safety
-/// Only for primitive integers and floats.
-pub unsafe trait Elem: Copy + 'static {}
-// SAFETY: a primitive integer.
-unsafe impl Elem for u16 {}
-// SAFETY: a primitive float.
-unsafe impl Elem for f32 {}
 
 /// A payload as bytes.
-pub fn payload_bytes<T: Elem>(p: &[T]) -> &[u8] {
-    // SAFETY: primitive elements without padding; same memory, byte view.
-    unsafe { std::slice::from_raw_parts(p.as_ptr().cast::<u8>(), std::mem::size_of_val(p)) }
+pub fn payload_bytes<T: Pod>(p: &[T]) -> &[u8] {
+    bytemuck::cast_slice(p)
 }
 
 /// A payload as bytes to write.
-pub fn payload_bytes_mut<T: Elem>(p: &mut [T]) -> &mut [u8] {
-    // SAFETY: as above; any bytes written form valid elements.
-    unsafe { std::slice::from_raw_parts_mut(p.as_mut_ptr().cast::<u8>(), std::mem::size_of_val(p)) }
+pub fn payload_bytes_mut<T: Pod>(p: &mut [T]) -> &mut [u8] {
+    bytemuck::cast_slice_mut(p)
 }
 
 const HELLO: [u8; 4] = *b"RHJ2";
@@ -192,6 +158,7 @@ impl Welcome {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use rotorhive_msg::{EpisodeHeader, Telemetry, TransitionHeader, WeightsHeader};
 
     #[test]
     fn headers_have_no_hidden_padding() {

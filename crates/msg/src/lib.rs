@@ -212,7 +212,9 @@ pub fn unpack_transition(p: &[u16], out: &mut [f32]) {
 ///
 /// Payload: `[u16]` of `count × PACKED_LEN`, each transition packed by
 /// [`pack_transition`].
-#[derive(Debug, Clone, Copy, Default)]
+// Pod: no padding and no invalid bit pattern (checked by the derive), so
+// the link sends and reads it as bytes.
+#[derive(Debug, Clone, Copy, Default, bytemuck::Pod, bytemuck::Zeroable)]
 #[cfg_attr(feature = "zero-copy", derive(ZeroCopySend), type_name("rotorhive::TransitionHeader"))]
 #[repr(C)]
 pub struct TransitionHeader {
@@ -310,7 +312,9 @@ pub struct PriorityHeader {
 
 /// Header of a weights message, learner → actors. Payload: `[f32]`, the flat
 /// parameters in the model's canonical order.
-#[derive(Debug, Clone, Copy, Default)]
+// Pod: no padding and no invalid bit pattern (checked by the derive), so
+// the link sends and reads it as bytes.
+#[derive(Debug, Clone, Copy, Default, bytemuck::Pod, bytemuck::Zeroable)]
 #[cfg_attr(feature = "zero-copy", derive(ZeroCopySend), type_name("rotorhive::WeightsHeader"))]
 #[repr(C)]
 pub struct WeightsHeader {
@@ -344,7 +348,9 @@ pub fn episode_corrupt(record: &[f32]) -> bool {
 /// Header of an episodes message, actor → supervisor. Payload: `[f32]`
 /// records of [`EPISODE_FIELDS`] (return, steps, [`DoneKind`] code,
 /// epsilon), one per finished episode.
-#[derive(Debug, Clone, Copy, Default)]
+// Pod: no padding and no invalid bit pattern (checked by the derive), so
+// the link sends and reads it as bytes.
+#[derive(Debug, Clone, Copy, Default, bytemuck::Pod, bytemuck::Zeroable)]
 #[cfg_attr(feature = "zero-copy", derive(ZeroCopySend), type_name("rotorhive::EpisodeHeader"))]
 #[repr(C)]
 pub struct EpisodeHeader {
@@ -411,7 +417,9 @@ pub const STAGES: usize = 4;
 /// Counters are cumulative since the role started; stage times are cumulative
 /// nanoseconds. What each counter and stage means depends on the role (see
 /// `stage_names`).
-#[derive(Debug, Clone, Copy, Default)]
+// Pod: no padding and no invalid bit pattern (checked by the derive), so
+// the link sends and reads it as bytes.
+#[derive(Debug, Clone, Copy, Default, bytemuck::Pod, bytemuck::Zeroable)]
 #[cfg_attr(feature = "zero-copy", derive(ZeroCopySend), type_name("rotorhive::Telemetry"))]
 #[repr(C)]
 pub struct Telemetry {
@@ -447,7 +455,7 @@ pub struct Telemetry {
 /// seen as it starts. The learner fills the means over its updates since
 /// the previous sample; an actor fills the smallest and largest epsilon of
 /// its agents; the other roles leave it zero.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 #[cfg_attr(feature = "zero-copy", derive(ZeroCopySend), type_name("rotorhive::Learning"))]
 #[repr(C)]
 pub struct Learning {

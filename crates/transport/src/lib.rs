@@ -75,23 +75,11 @@ pub enum TransportError {
 /// Result of this crate.
 pub type Result<T> = std::result::Result<T, TransportError>;
 
-/// Plain data that may travel as a payload element: `Copy`, no padding, and
-/// every bit pattern a valid value, so a loan can be handed out before it is
-/// written.
-///
-/// # Safety
-/// Implement only for types with no invalid bit patterns and no padding.
-pub unsafe trait Plain: Debug + ZeroCopySend + Default + Copy + 'static {}
-// SAFETY: integers and floats: every bit pattern is a value, no padding.
-unsafe impl Plain for u8 {}
-// SAFETY: as above.
-unsafe impl Plain for u16 {}
-// SAFETY: as above.
-unsafe impl Plain for u32 {}
-// SAFETY: as above.
-unsafe impl Plain for u64 {}
-// SAFETY: as above.
-unsafe impl Plain for f32 {}
+/// Plain data that may travel as a payload element: `bytemuck::Pod` (no
+/// padding, every bit pattern a valid value), so a loan can be handed out
+/// before it is written. Every such type is one.
+pub trait Plain: bytemuck::Pod + Debug + ZeroCopySend + Default {}
+impl<T: bytemuck::Pod + Debug + ZeroCopySend + Default> Plain for T {}
 
 /// Quality of service of one channel. Both sides derive the same spec from
 /// the same constructor, so their attributes always match.
