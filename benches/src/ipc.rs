@@ -139,6 +139,117 @@ fn stats(mut half_rtt_us: Vec<f64>, wall: f64) -> Stats {
     Stats { p50: percentile(&mut half_rtt_us, 0.5), p90: percentile(&mut half_rtt_us, 0.9), p99: percentile(&mut half_rtt_us, 0.99), per_s: n as f64 / wall }
 }
 
+/// Each kind of message through shared memory to the peer and back,
+/// `iters` times: (latency from the filled loan, latency with the copy in).
+fn shm_rows(
+    tx: &mut rotorhive_transport::Sender<Ipc, f32, ObsHeader>,
+    rx: &mut rotorhive_transport::Receiver<Ipc, u8, ActionHeader>,
+    sources: &[Vec<f32>],
+    iters: usize,
+) -> Result<Vec<(Stats, Stats)>> {
+    let mut shm = Vec::new();
+    for (k, (_, n)) in kinds().iter().enumerate() {
+        let src = &sources[k];
+        let (mut lat, mut lat_copy) = (Vec::with_capacity(iters), Vec::with_capacity(iters));
+        let warm = 20;
+        let mut t_all = Instant::now();
+        for i in 0..iters + warm {
+            if i == warm {
+                t_all = Instant::now();
+            }
+            let t = Instant::now();
+            let mut ready = t;
+            tx.send_with(*n, |h, p| {
+                *h = ObsHeader { env: 0, agents: k as u32, first: 0, total: 0, step: i as u64, physics_ns: 0, render_ns: 0 };
+                p.copy_from_slice(src);
+                ready = Instant::now();
+            })?;
+            let m = rx.recv_timeout(TIMEOUT)?.context("no acknowledgement from the peer")?;
+            if m.user_header().step != i as u64 || m.payload()[0] != 1 {
+                bail!("wrong acknowledgement");
+            }
+            if i >= warm {
+                lat.push(ready.elapsed().as_secs_f64() * 1e6 / 2.0);
+                lat_copy.push(t.elapsed().as_secs_f64() * 1e6 / 2.0);
+            }
+        }
+        let wall = t_all.elapsed().as_secs_f64();
+        shm.push((stats(lat, wall), stats(lat_copy, wall)));
+    }
+    Ok(shm)
+}
+
+/// Each kind of message serialized with msgpack over one TCP connection to
+/// the peer at `port` and acknowledged, `iters` times.
+fn tcp_rows(port: u16, sources: &[Vec<f32>], iters: usize) -> Result<Vec<Stats>> {
+    let mut s = TcpStream::connect(("127.0.0.1", port)).context("connecting to the peer")?;
+    s.set_nodelay(true)?;
+    let mut tcp = Vec::new();
+    let mut buf = Vec::new();
+    for (k, _) in kinds().iter().enumerate() {
+        let mut lat = Vec::with_capacity(iters);
+        let warm = 5;
+        let mut t_all = Instant::now();
+        for i in 0..iters + warm {
+            if i == warm {
+                t_all = Instant::now();
+            }
+            let t = Instant::now();
+            // The sender's data lives in its own buffers, as in the sim;
+            // it is serialized from there, not cloned first.
+            let msg = rmp_serde::to_vec(&RpcMsgRef { kind: k as u32, seq: i as u64, data: &sources[k] })?;
+            write_frame(&mut s, &msg)?;
+            if !read_frame(&mut s, &mut buf)? {
+                bail!("the TCP peer closed the connection");
+            }
+            let ack: RpcAck = rmp_serde::from_slice(&buf)?;
+            if ack.seq != i as u64 {
+                bail!("wrong TCP acknowledgement");
+            }
+            if i >= warm {
+                lat.push(t.elapsed().as_secs_f64() * 1e6 / 2.0);
+            }
+        }
+        tcp.push(stats(lat, t_all.elapsed().as_secs_f64()));
+    }
+    drop(s);
+    Ok(tcp)
+}
+
+/// Prints the table and returns its rows as JSON.
+fn print_rows(shm: &[(Stats, Stats)], tcp: &[Stats]) -> Vec<serde_json::Value> {
+    println!(
+        "{:>17} {:>8} {:>11} {:>11} {:>10} {:>16} {:>15} {:>15} {:>11} {:>7} {:>12}",
+        "message", "KiB", "shm p50 µs", "shm p99 µs", "shm msg/s", "+copy-in p50 µs", "msgpack p50 µs", "msgpack p99 µs", "msgpack/s", "ratio", "ratio +copy"
+    );
+    let mut rows = Vec::new();
+    for (k, (name, n)) in kinds().iter().enumerate() {
+        let ((a, c), b) = (&shm[k], &tcp[k]);
+        let (ratio, ratio_copy) = (b.p50 / a.p50, b.p50 / c.p50);
+        println!(
+            "{name:>17} {:>8.1} {:>11.1} {:>11.1} {:>10.0} {:>16.1} {:>15.1} {:>15.1} {:>11.0} {:>6.0}x {:>11.0}x",
+            *n as f64 * 4.0 / 1024.0,
+            a.p50,
+            a.p99,
+            a.per_s,
+            c.p50,
+            b.p50,
+            b.p99,
+            b.per_s,
+            ratio,
+            ratio_copy
+        );
+        rows.push(json!({
+            "name": name, "bytes": n * 4,
+            "shm_p50_us": a.p50, "shm_p90_us": a.p90, "shm_p99_us": a.p99, "shm_msgs_per_s": a.per_s,
+            "shm_copy_in_p50_us": c.p50, "shm_copy_in_p99_us": c.p99,
+            "baseline_p50_us": b.p50, "baseline_p90_us": b.p90, "baseline_p99_us": b.p99, "baseline_msgs_per_s": b.per_s,
+            "ratio": ratio, "ratio_with_copy_in": ratio_copy,
+        }));
+    }
+    rows
+}
+
 pub fn run(iters: usize, json_out: bool) -> Result<()> {
     if iters == 0 {
         bail!("--iters must be positive");
@@ -161,106 +272,10 @@ pub fn run(iters: usize, json_out: bool) -> Result<()> {
         BufReader::new(child.stdout.take().context("peer stdout")?).read_line(&mut line)?;
         let port: u16 = line.trim().parse().with_context(|| format!("peer printed {line:?} instead of a port"))?;
         let sources: Vec<Vec<f32>> = kinds().iter().map(|(_, n)| (0..*n).map(|i| (i % 97) as f32 * 0.01 + 0.5).collect()).collect();
-        let mut shm = Vec::new();
-        for (k, (_, n)) in kinds().iter().enumerate() {
-            let src = &sources[k];
-            let (mut lat, mut lat_copy) = (Vec::with_capacity(iters), Vec::with_capacity(iters));
-            let warm = 20;
-            let mut t_all = Instant::now();
-            for i in 0..iters + warm {
-                if i == warm {
-                    t_all = Instant::now();
-                }
-                let t = Instant::now();
-                let mut ready = t;
-                tx.send_with(*n, |h, p| {
-                    *h = ObsHeader { env: 0, agents: k as u32, first: 0, total: 0, step: i as u64, physics_ns: 0, render_ns: 0 };
-                    p.copy_from_slice(src);
-                    ready = Instant::now();
-                })?;
-                let m = rx.recv_timeout(TIMEOUT)?.context("no acknowledgement from the peer")?;
-                if m.user_header().step != i as u64 || m.payload()[0] != 1 {
-                    bail!("wrong acknowledgement");
-                }
-                if i >= warm {
-                    lat.push(ready.elapsed().as_secs_f64() * 1e6 / 2.0);
-                    lat_copy.push(t.elapsed().as_secs_f64() * 1e6 / 2.0);
-                }
-            }
-            let wall = t_all.elapsed().as_secs_f64();
-            shm.push((stats(lat, wall), stats(lat_copy, wall)));
-        }
+        let shm = shm_rows(&mut tx, &mut rx, &sources, iters)?;
         tx.send_with(1, |h, _| *h = ObsHeader { agents: u32::MAX, ..ObsHeader::default() })?;
-        let mut s = TcpStream::connect(("127.0.0.1", port)).context("connecting to the peer")?;
-        s.set_nodelay(true)?;
-        let mut tcp = Vec::new();
-        let mut buf = Vec::new();
-        for (k, _) in kinds().iter().enumerate() {
-            let mut lat = Vec::with_capacity(iters);
-            let warm = 5;
-            let mut t_all = Instant::now();
-            for i in 0..iters + warm {
-                if i == warm {
-                    t_all = Instant::now();
-                }
-                let t = Instant::now();
-                // The sender's data lives in its own buffers, as in the sim;
-                // it is serialized from there, not cloned first.
-                let msg = rmp_serde::to_vec(&RpcMsgRef { kind: k as u32, seq: i as u64, data: &sources[k] })?;
-                write_frame(&mut s, &msg)?;
-                if !read_frame(&mut s, &mut buf)? {
-                    bail!("the TCP peer closed the connection");
-                }
-                let ack: RpcAck = rmp_serde::from_slice(&buf)?;
-                if ack.seq != i as u64 {
-                    bail!("wrong TCP acknowledgement");
-                }
-                if i >= warm {
-                    lat.push(t.elapsed().as_secs_f64() * 1e6 / 2.0);
-                }
-            }
-            tcp.push(stats(lat, t_all.elapsed().as_secs_f64()));
-        }
-        drop(s);
-        println!(
-            "{:>17} {:>8} {:>11} {:>11} {:>10} {:>16} {:>15} {:>15} {:>11} {:>7} {:>12}",
-            "message",
-            "KiB",
-            "shm p50 µs",
-            "shm p99 µs",
-            "shm msg/s",
-            "+copy-in p50 µs",
-            "msgpack p50 µs",
-            "msgpack p99 µs",
-            "msgpack/s",
-            "ratio",
-            "ratio +copy"
-        );
-        let mut rows = Vec::new();
-        for (k, (name, n)) in kinds().iter().enumerate() {
-            let ((a, c), b) = (&shm[k], &tcp[k]);
-            let (ratio, ratio_copy) = (b.p50 / a.p50, b.p50 / c.p50);
-            println!(
-                "{name:>17} {:>8.1} {:>11.1} {:>11.1} {:>10.0} {:>16.1} {:>15.1} {:>15.1} {:>11.0} {:>6.0}x {:>11.0}x",
-                *n as f64 * 4.0 / 1024.0,
-                a.p50,
-                a.p99,
-                a.per_s,
-                c.p50,
-                b.p50,
-                b.p99,
-                b.per_s,
-                ratio,
-                ratio_copy
-            );
-            rows.push(json!({
-                "name": name, "bytes": n * 4,
-                "shm_p50_us": a.p50, "shm_p90_us": a.p90, "shm_p99_us": a.p99, "shm_msgs_per_s": a.per_s,
-                "shm_copy_in_p50_us": c.p50, "shm_copy_in_p99_us": c.p99,
-                "baseline_p50_us": b.p50, "baseline_p90_us": b.p90, "baseline_p99_us": b.p99, "baseline_msgs_per_s": b.per_s,
-                "ratio": ratio, "ratio_with_copy_in": ratio_copy,
-            }));
-        }
+        let tcp = tcp_rows(port, &sources, iters)?;
+        let rows = print_rows(&shm, &tcp);
         Ok(rows)
     })();
     let status = child.wait();

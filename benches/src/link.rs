@@ -172,96 +172,105 @@ fn link_pair(seconds: f64, batch: usize, tls: Option<(&std::path::Path, &str)>) 
 pub fn side(side: &str, ep: &str, seconds: f64, batch: usize, tls: Option<std::path::PathBuf>) -> Result<()> {
     let layout = rotorhive_link::layout(rotorhive_model::num_params());
     // The run's access control as `hive train` and `hive worker` set it.
-    let opts = if side == "head" { rotorhive_link::LinkOptions::for_head(tls, None, 1) } else { rotorhive_link::LinkOptions::for_worker(tls, None) };
-    let stop = Arc::new(AtomicBool::new(false));
     match side {
-        "head" => {
-            let mut head = rotorhive_link::Head::listen(ep, RUN, layout, &opts)?;
-            head.gather(1, 1, batch, Duration::from_secs(30), rotorhive_transport::stop_requested)?;
-            head.admit(|_| (String::new(), String::new()));
-            let hub = Hub::<Ipc>::new(RUN, "bench-consumer")?;
-            let mut rx = hub.receiver::<u16, TransitionHeader>(&Channel::transitions(1))?;
-            let mut link = head.bridge::<Ipc>(RUN.into(), 1, 2, stop.clone(), Box::new(|_| (String::new(), String::new())))?;
-            let (mut got, mut lost, mut next, mut first) = (0u64, 0u64, None::<u64>, None::<Instant>);
-            let deadline = Instant::now() + Duration::from_secs_f64(seconds) + Duration::from_secs(20);
-            while Instant::now() < deadline {
-                if first.is_some_and(|t| t.elapsed().as_secs_f64() >= seconds) {
-                    break;
-                }
-                let Some(m) = rx.recv_timeout(Duration::from_millis(100))? else { continue };
-                let h = *m.user_header();
-                if let Some(want) = next
-                    && h.seq != want
-                {
-                    lost += h.seq.saturating_sub(want) * h.count as u64;
-                }
-                next = Some(h.seq + 1);
-                if m.payload().len() != h.count as usize * PACKED_LEN || m.payload()[0] != (h.seq as u16) {
-                    bail!("batch {} arrived damaged", h.seq);
-                }
-                first.get_or_insert_with(Instant::now);
-                got += h.count as u64;
-            }
-            let secs = first.map_or(0.0, |t| t.elapsed().as_secs_f64());
-            link.stop()?;
-            let st = &link.stats;
-            tracing::info!(
-                "head link: {} batches in, {} lost between hosts, {} dropped",
-                st.batches.load(Ordering::Relaxed),
-                st.lost_batches.load(Ordering::Relaxed),
-                st.dropped.load(Ordering::Relaxed)
-            );
-            println!("{}", json!({"transitions": got, "seconds": secs, "lost": lost}));
-        }
-        "worker" => {
-            let hello = rotorhive_link::Hello { layout, envs: 1, agents: batch as u32, host: "bench-worker".into(), token: "bench".into() };
-            let w = rotorhive_link::Worker::join(ep, &hello, Duration::from_secs(30), &opts, rotorhive_transport::stop_requested)?;
-            let hub = Hub::<Ipc>::new(RUN, "bench-link")?.with_stop(stop.clone());
-            let (ready_tx, ready_rx) = std::sync::mpsc::channel::<()>();
-            let producer = {
-                let stop = stop.clone();
-                let data = sample_batch(batch);
-                std::thread::spawn(move || -> Result<u64> {
-                    // Start once the link takes batches.
-                    let _ = ready_rx.recv();
-                    let hub = Hub::<Ipc>::new(RUN, "bench-producer")?;
-                    let mut tx = hub.sender::<u16, TransitionHeader>(&Channel::transitions(1), batch * PACKED_LEN, rotorhive_roles::STALL_TIMEOUT)?;
-                    // A burst sent within ~100 ms of a publisher's creation lost
-                    // batches 8..N to the subscriber created before it in about
-                    // one run in four (iceoryx2 0.10, not yet understood; the
-                    // link's sequence check reports it): let the new publisher
-                    // settle first, as an actor does while its sim starts.
-                    std::thread::sleep(Duration::from_millis(500));
-                    let mut seq = 0u64;
-                    while !stop.load(Ordering::Relaxed) {
-                        let r = tx.send_with(batch * PACKED_LEN, |h, p| {
-                            *h = TransitionHeader { actor: 0, count: batch as u32, seq, weight_version: 0, episodes: 0 };
-                            // Written into the loan, as the baseline serializes its
-                            // buffer; a marker proves each batch's identity.
-                            p.copy_from_slice(&data);
-                            // (in a depth word: the scalars are checked on the way).
-                            p[0] = seq as u16;
-                        });
-                        match r {
-                            Ok(()) => seq += 1,
-                            Err(rotorhive_transport::TransportError::Stalled { .. }) => {}
-                            Err(e) => return Err(e.into()),
-                        }
-                    }
-                    Ok(seq * batch as u64)
-                })
-            };
-            let mut stats = rotorhive_link::WorkerStats::default();
-            let end = w.bridge(&hub, 1, 2, rotorhive_model::num_params(), &mut stats, move || {
-                let _ = ready_tx.send(());
-            });
-            stop.store(true, Ordering::SeqCst);
-            let produced = producer.join().map_err(|_| anyhow::anyhow!("producer panicked"))??;
-            end?;
-            println!("{}", json!({"sent": stats.transitions, "produced": produced}));
-        }
+        "head" => head_side(ep, seconds, batch, layout, &rotorhive_link::LinkOptions::for_head(tls, None, 1)),
+        "worker" => worker_side(ep, batch, layout, &rotorhive_link::LinkOptions::for_worker(tls, None)),
         other => bail!("--side {other}: head or worker"),
     }
+}
+
+/// The head side: its link brings the worker's batches into shared memory,
+/// where a consumer counts them for `seconds` from the first.
+fn head_side(ep: &str, seconds: f64, batch: usize, layout: u64, opts: &rotorhive_link::LinkOptions) -> Result<()> {
+    let stop = Arc::new(AtomicBool::new(false));
+    let mut head = rotorhive_link::Head::listen(ep, RUN, layout, opts)?;
+    head.gather(1, 1, batch, Duration::from_secs(30), rotorhive_transport::stop_requested)?;
+    head.admit(|_| (String::new(), String::new()));
+    let hub = Hub::<Ipc>::new(RUN, "bench-consumer")?;
+    let mut rx = hub.receiver::<u16, TransitionHeader>(&Channel::transitions(1))?;
+    let mut link = head.bridge::<Ipc>(RUN.into(), 1, 2, stop.clone(), Box::new(|_| (String::new(), String::new())))?;
+    let (mut got, mut lost, mut next, mut first) = (0u64, 0u64, None::<u64>, None::<Instant>);
+    let deadline = Instant::now() + Duration::from_secs_f64(seconds) + Duration::from_secs(20);
+    while Instant::now() < deadline {
+        if first.is_some_and(|t| t.elapsed().as_secs_f64() >= seconds) {
+            break;
+        }
+        let Some(m) = rx.recv_timeout(Duration::from_millis(100))? else { continue };
+        let h = *m.user_header();
+        if let Some(want) = next
+            && h.seq != want
+        {
+            lost += h.seq.saturating_sub(want) * h.count as u64;
+        }
+        next = Some(h.seq + 1);
+        if m.payload().len() != h.count as usize * PACKED_LEN || m.payload()[0] != (h.seq as u16) {
+            bail!("batch {} arrived damaged", h.seq);
+        }
+        first.get_or_insert_with(Instant::now);
+        got += h.count as u64;
+    }
+    let secs = first.map_or(0.0, |t| t.elapsed().as_secs_f64());
+    link.stop()?;
+    let st = &link.stats;
+    tracing::info!(
+        "head link: {} batches in, {} lost between hosts, {} dropped",
+        st.batches.load(Ordering::Relaxed),
+        st.lost_batches.load(Ordering::Relaxed),
+        st.dropped.load(Ordering::Relaxed)
+    );
+    println!("{}", json!({"transitions": got, "seconds": secs, "lost": lost}));
+    Ok(())
+}
+
+/// The worker side: a producer sends the same batch (with its sequence
+/// number as a marker) as fast as the link takes it.
+fn worker_side(ep: &str, batch: usize, layout: u64, opts: &rotorhive_link::LinkOptions) -> Result<()> {
+    let stop = Arc::new(AtomicBool::new(false));
+    let hello = rotorhive_link::Hello { layout, envs: 1, agents: batch as u32, host: "bench-worker".into(), token: "bench".into() };
+    let w = rotorhive_link::Worker::join(ep, &hello, Duration::from_secs(30), opts, rotorhive_transport::stop_requested)?;
+    let hub = Hub::<Ipc>::new(RUN, "bench-link")?.with_stop(stop.clone());
+    let (ready_tx, ready_rx) = std::sync::mpsc::channel::<()>();
+    let producer = {
+        let stop = stop.clone();
+        let data = sample_batch(batch);
+        std::thread::spawn(move || -> Result<u64> {
+            // Start once the link takes batches.
+            let _ = ready_rx.recv();
+            let hub = Hub::<Ipc>::new(RUN, "bench-producer")?;
+            let mut tx = hub.sender::<u16, TransitionHeader>(&Channel::transitions(1), batch * PACKED_LEN, rotorhive_roles::STALL_TIMEOUT)?;
+            // A burst sent within ~100 ms of a publisher's creation lost
+            // batches 8..N to the subscriber created before it in about
+            // one run in four (iceoryx2 0.10, not yet understood; the
+            // link's sequence check reports it): let the new publisher
+            // settle first, as an actor does while its sim starts.
+            std::thread::sleep(Duration::from_millis(500));
+            let mut seq = 0u64;
+            while !stop.load(Ordering::Relaxed) {
+                let r = tx.send_with(batch * PACKED_LEN, |h, p| {
+                    *h = TransitionHeader { actor: 0, count: batch as u32, seq, weight_version: 0, episodes: 0 };
+                    // Written into the loan, as the baseline serializes its
+                    // buffer; a marker proves each batch's identity.
+                    p.copy_from_slice(&data);
+                    // (in a depth word: the scalars are checked on the way).
+                    p[0] = seq as u16;
+                });
+                match r {
+                    Ok(()) => seq += 1,
+                    Err(rotorhive_transport::TransportError::Stalled { .. }) => {}
+                    Err(e) => return Err(e.into()),
+                }
+            }
+            Ok(seq * batch as u64)
+        })
+    };
+    let mut stats = rotorhive_link::WorkerStats::default();
+    let end = w.bridge(&hub, 1, 2, rotorhive_model::num_params(), &mut stats, move || {
+        let _ = ready_tx.send(());
+    });
+    stop.store(true, Ordering::SeqCst);
+    let produced = producer.join().map_err(|_| anyhow::anyhow!("producer panicked"))??;
+    end?;
+    println!("{}", json!({"sent": stats.transitions, "produced": produced}));
     Ok(())
 }
 

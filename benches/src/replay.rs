@@ -172,14 +172,7 @@ fn measure(producers: usize, seconds: f64, v: &Variant) -> Result<serde_json::Va
     // Phase 1 fills the memory exactly: no sampling can start before it is full.
     let per_producer = 600usize;
     let capacity = producers * per_producer * PER_MSG;
-    let cfg = format!(
-        "[sim]\nenvs = {producers}\n[replay]\ncapacity = {capacity}\nmin_fill = {capacity}\nbatch = 32\nprefetch = 4\nsamples_per_insert = {:?}\nsnapshot_every_s = {}\nprioritized = {}\n",
-        v.samples_per_insert,
-        if v.journal { "60.0" } else { "0.0" },
-        v.prioritized
-    );
-    let cfg_path = dir.join("config.toml");
-    std::fs::write(&cfg_path, cfg)?;
+    let cfg_path = replay_config(&dir, producers, capacity, v)?;
     let hub = Hub::<Ipc>::new(&prefix, "bench-learner")?;
     let mut rx = hub.receiver::<u16, MinibatchHeader>(&Channel::minibatches(4))?;
     let mut prio_tx =
@@ -200,82 +193,18 @@ fn measure(producers: usize, seconds: f64, v: &Variant) -> Result<serde_json::Va
         Ok(())
     };
     let mut tel = hub.receiver::<u8, Telemetry>(&Channel::telemetry(2 * producers + 2))?;
-    let exe = std::env::current_exe()?;
-    let replay = Command::new(&exe)
-        .arg("replay")
-        .arg(&cfg_path)
-        .args(["--prefix", &prefix, "--run-dir"])
-        .arg(&dir)
-        .stdout(Stdio::null())
-        .spawn()
-        .context("starting the replay role")?;
-    let procs = Procs(vec![replay]);
+    let procs = Procs(vec![start_replay(&cfg_path, &prefix, &dir)?]);
     let result = (|| -> Result<serde_json::Value> {
-        // The replay is ready once it reports (after allocating its memory).
-        let t = Instant::now();
-        while tel.recv_timeout(Duration::from_millis(100))?.is_none() {
-            if t.elapsed() > Duration::from_secs(30) {
-                bail!("the replay process did not start");
-            }
-        }
-        // Phase 1: inserts alone.
-        let wall = join_producers(spawn_producers(&prefix, producers, per_producer)?)?;
-        let inserts_per_s = capacity as f64 / wall;
-        // Every transition sent arrived: the replay's own count says so (its
-        // telemetry comes once a second, and minibatches nobody reads would
-        // hold it up: they are taken and dropped meanwhile).
-        let t = Instant::now();
-        let mut inserted = 0;
-        while inserted < capacity as u64 && t.elapsed() < Duration::from_secs(30) {
-            if let Some(m) = tel.recv_timeout(Duration::from_millis(50))? {
-                inserted = inserted.max(m.user_header().work);
-            }
-            while rx.try_recv()?.is_some() {}
-        }
-        if inserted != capacity as u64 {
-            bail!("the replay inserted {inserted} of {capacity} transitions sent");
-        }
+        let inserts_per_s = fill(&prefix, producers, per_producer, &mut tel, &mut rx)?;
         // Phase 2: sampling alone (the memory is full now).
-        let mut sample = |rx: &mut rotorhive_transport::Receiver<Ipc, u16, MinibatchHeader>, secs: f64| -> Result<(u64, f64)> {
-            let t = Instant::now();
-            let mut n = 0u64;
-            while t.elapsed().as_secs_f64() < secs {
-                if let Some(m) = rx.recv_timeout(Duration::from_millis(500))? {
-                    if m.payload().len() != minibatch_len(32) {
-                        bail!("minibatch of the wrong size");
-                    }
-                    feed_back(&m)?;
-                    n += 1;
-                }
-            }
-            Ok((n, t.elapsed().as_secs_f64()))
-        };
-        let (n, secs) = sample(&mut rx, seconds)?;
+        let (n, secs) = sample_for(&mut rx, seconds, &mut feed_back)?;
         let samples_per_s = n as f64 / secs;
         // Phase 3: both at once (producers keep sending while we sample).
         let batches = ((inserts_per_s * seconds) / (PER_MSG * producers) as f64).max(10.0) as usize;
-        let mut kids = spawn_producers(&prefix, producers, batches)?;
-        let t = Instant::now();
-        let mut got = 0u64;
-        while !kids.iter_mut().all(|c| matches!(c.try_wait(), Ok(Some(_)))) {
-            if let Some(m) = rx.recv_timeout(Duration::from_millis(100))? {
-                feed_back(&m)?;
-                got += 1;
-            }
-        }
-        let mixed_secs = t.elapsed().as_secs_f64();
-        join_producers(kids)?;
+        let (got, mixed_secs) = together(&prefix, producers, batches, &mut rx, &mut feed_back)?;
         let mixed_inserts = (batches * PER_MSG * producers) as f64 / mixed_secs;
         // The replay applied the priorities sent back (its own count).
-        let mut priority_updates = 0u64;
-        let t = Instant::now();
-        while t.elapsed() < Duration::from_millis(1500) {
-            if let Some(m) = tel.recv_timeout(Duration::from_millis(100))?
-                && m.user_header().role == rotorhive_msg::RoleKind::Replay as u32
-            {
-                priority_updates = priority_updates.max(m.user_header().learning.priority_updates as u64);
-            }
-        }
+        let priority_updates = priority_updates(&mut tel)?;
         if v.prioritized && priority_updates == 0 {
             bail!("the replay applied none of the priorities sent back");
         }
@@ -304,4 +233,125 @@ fn measure(producers: usize, seconds: f64, v: &Variant) -> Result<serde_json::Va
         bail!("shared memory left behind: {left:?}");
     }
     Ok(out)
+}
+
+/// What the bench's learner does with a minibatch.
+type FeedBack<'a> = dyn FnMut(&rotorhive_transport::Msg<Ipc, u16, MinibatchHeader>) -> Result<()> + 'a;
+
+/// Phase 2: minibatches taken for `secs` (the memory full, no inserts);
+/// returns how many and the seconds it took.
+fn sample_for(rx: &mut rotorhive_transport::Receiver<Ipc, u16, MinibatchHeader>, secs: f64, feed_back: &mut FeedBack<'_>) -> Result<(u64, f64)> {
+    let t = Instant::now();
+    let mut n = 0u64;
+    while t.elapsed().as_secs_f64() < secs {
+        if let Some(m) = rx.recv_timeout(Duration::from_millis(500))? {
+            if m.payload().len() != minibatch_len(32) {
+                bail!("minibatch of the wrong size");
+            }
+            feed_back(&m)?;
+            n += 1;
+        }
+    }
+    Ok((n, t.elapsed().as_secs_f64()))
+}
+
+/// Phase 3: minibatches taken while `producers` send `batches` batches
+/// each; returns how many and the seconds the producers took.
+fn together(
+    prefix: &str,
+    producers: usize,
+    batches: usize,
+    rx: &mut rotorhive_transport::Receiver<Ipc, u16, MinibatchHeader>,
+    feed_back: &mut FeedBack<'_>,
+) -> Result<(u64, f64)> {
+    let mut kids = spawn_producers(prefix, producers, batches)?;
+    let t = Instant::now();
+    let mut got = 0u64;
+    while !kids.iter_mut().all(|c| matches!(c.try_wait(), Ok(Some(_)))) {
+        if let Some(m) = rx.recv_timeout(Duration::from_millis(100))? {
+            feed_back(&m)?;
+            got += 1;
+        }
+    }
+    let secs = t.elapsed().as_secs_f64();
+    join_producers(kids)?;
+    Ok((got, secs))
+}
+
+/// The replay's config for `producers` producers filling `capacity`.
+fn replay_config(dir: &std::path::Path, producers: usize, capacity: usize, v: &Variant) -> Result<std::path::PathBuf> {
+    let cfg = format!(
+        "[sim]\nenvs = {producers}\n[replay]\ncapacity = {capacity}\nmin_fill = {capacity}\nbatch = 32\nprefetch = 4\nsamples_per_insert = {:?}\nsnapshot_every_s = {}\nprioritized = {}\n",
+        v.samples_per_insert,
+        if v.journal { "60.0" } else { "0.0" },
+        v.prioritized
+    );
+    let cfg_path = dir.join("config.toml");
+    std::fs::write(&cfg_path, cfg)?;
+    Ok(cfg_path)
+}
+
+/// The replay role as a process of run `prefix`.
+fn start_replay(cfg_path: &std::path::Path, prefix: &str, dir: &std::path::Path) -> Result<std::process::Child> {
+    Command::new(std::env::current_exe()?)
+        .arg("replay")
+        .arg(cfg_path)
+        .args(["--prefix", prefix, "--run-dir"])
+        .arg(dir)
+        .stdout(Stdio::null())
+        .spawn()
+        .context("starting the replay role")
+}
+
+/// Phase 1: once the replay reports, `producers` fill its memory
+/// (`per_producer` batches each) and it confirms every transition; returns
+/// the inserts per second.
+fn fill(
+    prefix: &str,
+    producers: usize,
+    per_producer: usize,
+    tel: &mut rotorhive_transport::Receiver<Ipc, u8, Telemetry>,
+    rx: &mut rotorhive_transport::Receiver<Ipc, u16, MinibatchHeader>,
+) -> Result<f64> {
+    let capacity = producers * per_producer * PER_MSG;
+    // The replay is ready once it reports (after allocating its memory).
+    let t = Instant::now();
+    while tel.recv_timeout(Duration::from_millis(100))?.is_none() {
+        if t.elapsed() > Duration::from_secs(30) {
+            bail!("the replay process did not start");
+        }
+    }
+    // Phase 1: inserts alone.
+    let wall = join_producers(spawn_producers(prefix, producers, per_producer)?)?;
+    let inserts_per_s = capacity as f64 / wall;
+    // Every transition sent arrived: the replay's own count says so (its
+    // telemetry comes once a second, and minibatches nobody reads would
+    // hold it up: they are taken and dropped meanwhile).
+    let t = Instant::now();
+    let mut inserted = 0;
+    while inserted < capacity as u64 && t.elapsed() < Duration::from_secs(30) {
+        if let Some(m) = tel.recv_timeout(Duration::from_millis(50))? {
+            inserted = inserted.max(m.user_header().work);
+        }
+        while rx.try_recv()?.is_some() {}
+    }
+    if inserted != capacity as u64 {
+        bail!("the replay inserted {inserted} of {capacity} transitions sent");
+    }
+    Ok(inserts_per_s)
+}
+
+/// The priority updates the replay reports having applied (its telemetry
+/// over 1.5 s).
+fn priority_updates(tel: &mut rotorhive_transport::Receiver<Ipc, u8, Telemetry>) -> Result<u64> {
+    let mut priority_updates = 0u64;
+    let t = Instant::now();
+    while t.elapsed() < Duration::from_millis(1500) {
+        if let Some(m) = tel.recv_timeout(Duration::from_millis(100))?
+            && m.user_header().role == rotorhive_msg::RoleKind::Replay as u32
+        {
+            priority_updates = priority_updates.max(m.user_header().learning.priority_updates as u64);
+        }
+    }
+    Ok(priority_updates)
 }

@@ -220,91 +220,92 @@ fn trend(md: &mut String, cells: &[CellMedian], budget_s: f64) -> Result<()> {
     Ok(())
 }
 
-pub fn run(config: &Path, out: &Path, json_out: bool) -> Result<()> {
-    let tc = load(config)?;
-    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    let exe = std::env::current_exe()?;
-    let mut rows = Vec::new();
-    let mut curves = Vec::new();
-    let total = tc.modes.len() * tc.cells.len() * tc.seeds.len();
-    let mut k = 0;
-    for mode in &tc.modes {
-        for &[envs, agents] in &tc.cells {
-            for &seed in &tc.seeds {
-                k += 1;
-                let name = format!("{mode}-{envs}x{agents}-seed{seed}");
-                let dir = out.join(&name);
-                let _ = std::fs::remove_dir_all(&dir);
-                eprintln!("[{k}/{total}] {name}: up to {:.0} s", tc.budget_s);
-                let hosts = if tc.split_hosts { envs } else { 1 };
-                let mut cmd = Command::new(&exe);
-                let endpoint = format!("tcp/127.0.0.1:{}", std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port());
-                if hosts > 1 {
-                    cmd.args(["--domain", "table-host0"]);
-                }
-                cmd.arg("train").arg(&tc.config).arg("--quiet").arg("--run-dir").arg(&dir).arg("--max-seconds").arg(tc.budget_s.to_string());
-                let mut sets = vec![
-                    format!("sim.envs={}", if hosts > 1 { 1 } else { envs }),
-                    format!("sim.agents={agents}"),
-                    format!("sim.observation_mode=\"{mode}\""),
-                    format!("seed={seed}"),
-                ];
-                if tc.deterministic_env_steps > 0 {
-                    sets.extend(["deterministic=true".to_string(), format!("max_env_steps={}", tc.deterministic_env_steps)]);
-                }
-                if hosts > 1 {
-                    cmd.args(["--listen", &endpoint]);
-                    sets.push(format!("cluster.workers={}", hosts - 1));
-                }
-                for s in tc.set.iter().cloned().chain(sets) {
-                    cmd.arg("--set").arg(s);
-                }
-                let mut head = cmd.spawn().with_context(|| format!("cell {name}: cannot start hive train"))?;
-                let mut workers = Vec::new();
-                for h in 1..hosts {
-                    let mut w = Command::new(&exe);
-                    w.args(["--domain", &format!("table-host{h}"), "worker", "--connect", &endpoint]);
-                    w.args(["--agents", &agents.to_string(), "--name", &format!("host{h}"), "--run-dir"]).arg(dir.join(format!("worker-{h}")));
-                    w.stdout(std::process::Stdio::null());
-                    workers.push(w.spawn().with_context(|| format!("cell {name}: cannot start hive worker"))?);
-                }
-                let status = head.wait()?;
-                for mut w in workers {
-                    let _ = w.wait();
-                }
-                // The cell's result, read through the typed summary `hive train` writes.
-                let summary = match rotorhive_records::Summary::read(&dir) {
-                    Ok(s) => serde_json::to_value(&s)?,
-                    Err(e) => json!({ "failure": format!("hive train exited with {status}: {e:#}") }),
-                };
-                let curve: Vec<(f64, f64)> = std::fs::read_to_string(dir.join("metrics.csv"))
-                    .unwrap_or_default()
-                    .lines()
-                    .filter(|l| l.starts_with("tick,"))
-                    .filter_map(|l| {
-                        let f: Vec<&str> = l.split(',').collect();
-                        Some((f.get(1)?.parse().ok()?, f.get(5)?.parse().ok()?))
-                    })
-                    .filter(|p: &(f64, f64)| p.1.is_finite())
-                    .collect();
-                curves.push((format!("{mode} {envs}x{agents} s{seed}"), curve));
-                // The paper's finding per cell: which role set the pace.
-                let (bottleneck, busy) = match rotorhive_records::profile::analyse(&dir) {
-                    Ok(p) => p.bottleneck.map_or((Value::Null, Value::Null), |b| (json!(format!("{} {}", b.role, b.stage)), json!(b.busy * 100.0))),
-                    Err(_) => (Value::Null, Value::Null),
-                };
-                rows.push(json!({
-                    "mode": mode, "envs": envs, "agents": agents, "agents_total": envs * agents, "seed": seed, "hosts": hosts,
-                    "converged": summary["converged"], "time_to_threshold_s": summary["time_to_threshold_s"],
-                    "wall_s": summary["wall_s"], "env_steps_per_s": summary["env_steps_per_s"], "updates_per_s": summary["updates_per_s"],
-                    "cpu_util_mean_pct": summary["cpu_util_mean_pct"], "gpu_util_mean_pct": summary["gpu_util_mean_pct"], "gpu_power_mean_w": summary["gpu_power_mean_w"],
-                    "bottleneck": bottleneck, "bottleneck_busy_pct": busy,
-                    "rolling_reward": summary["rolling_reward"], "peak_rss_mb": summary["peak_rss_mb"], "failure": summary["failure"],
-                    "run_dir": dir.display().to_string(),
-                }));
-            }
-        }
+/// Runs one cell (`mode`, `envs` × `agents`, `seed`; number `of.0` of
+/// `of.1`) with its worker hosts if split: its row and its reward curve.
+#[allow(clippy::type_complexity)]
+fn run_cell(
+    tc: &TableConfig,
+    out: &Path,
+    exe: &Path,
+    mode: &str,
+    [envs, agents]: [usize; 2],
+    seed: u64,
+    of: (usize, usize),
+) -> Result<(Value, (String, Vec<(f64, f64)>))> {
+    let name = format!("{mode}-{envs}x{agents}-seed{seed}");
+    let dir = out.join(&name);
+    let _ = std::fs::remove_dir_all(&dir);
+    eprintln!("[{}/{}] {name}: up to {:.0} s", of.0, of.1, tc.budget_s);
+    let hosts = if tc.split_hosts { envs } else { 1 };
+    let mut cmd = Command::new(exe);
+    let endpoint = format!("tcp/127.0.0.1:{}", std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port());
+    if hosts > 1 {
+        cmd.args(["--domain", "table-host0"]);
     }
+    cmd.arg("train").arg(&tc.config).arg("--quiet").arg("--run-dir").arg(&dir).arg("--max-seconds").arg(tc.budget_s.to_string());
+    let mut sets = vec![
+        format!("sim.envs={}", if hosts > 1 { 1 } else { envs }),
+        format!("sim.agents={agents}"),
+        format!("sim.observation_mode=\"{mode}\""),
+        format!("seed={seed}"),
+    ];
+    if tc.deterministic_env_steps > 0 {
+        sets.extend(["deterministic=true".to_string(), format!("max_env_steps={}", tc.deterministic_env_steps)]);
+    }
+    if hosts > 1 {
+        cmd.args(["--listen", &endpoint]);
+        sets.push(format!("cluster.workers={}", hosts - 1));
+    }
+    for s in tc.set.iter().cloned().chain(sets) {
+        cmd.arg("--set").arg(s);
+    }
+    let mut head = cmd.spawn().with_context(|| format!("cell {name}: cannot start hive train"))?;
+    let mut workers = Vec::new();
+    for h in 1..hosts {
+        let mut w = Command::new(exe);
+        w.args(["--domain", &format!("table-host{h}"), "worker", "--connect", &endpoint]);
+        w.args(["--agents", &agents.to_string(), "--name", &format!("host{h}"), "--run-dir"]).arg(dir.join(format!("worker-{h}")));
+        w.stdout(std::process::Stdio::null());
+        workers.push(w.spawn().with_context(|| format!("cell {name}: cannot start hive worker"))?);
+    }
+    let status = head.wait()?;
+    for mut w in workers {
+        let _ = w.wait();
+    }
+    // The cell's result, read through the typed summary `hive train` writes.
+    let summary = match rotorhive_records::Summary::read(&dir) {
+        Ok(s) => serde_json::to_value(&s)?,
+        Err(e) => json!({ "failure": format!("hive train exited with {status}: {e:#}") }),
+    };
+    let curve: Vec<(f64, f64)> = std::fs::read_to_string(dir.join("metrics.csv"))
+        .unwrap_or_default()
+        .lines()
+        .filter(|l| l.starts_with("tick,"))
+        .filter_map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            Some((f.get(1)?.parse().ok()?, f.get(5)?.parse().ok()?))
+        })
+        .filter(|p: &(f64, f64)| p.1.is_finite())
+        .collect();
+    // The paper's finding per cell: which role set the pace.
+    let (bottleneck, busy) = match rotorhive_records::profile::analyse(&dir) {
+        Ok(p) => p.bottleneck.map_or((Value::Null, Value::Null), |b| (json!(format!("{} {}", b.role, b.stage)), json!(b.busy * 100.0))),
+        Err(_) => (Value::Null, Value::Null),
+    };
+    let row = json!({
+        "mode": mode, "envs": envs, "agents": agents, "agents_total": envs * agents, "seed": seed, "hosts": hosts,
+        "converged": summary["converged"], "time_to_threshold_s": summary["time_to_threshold_s"],
+        "wall_s": summary["wall_s"], "env_steps_per_s": summary["env_steps_per_s"], "updates_per_s": summary["updates_per_s"],
+        "cpu_util_mean_pct": summary["cpu_util_mean_pct"], "gpu_util_mean_pct": summary["gpu_util_mean_pct"], "gpu_power_mean_w": summary["gpu_power_mean_w"],
+        "bottleneck": bottleneck, "bottleneck_busy_pct": busy,
+        "rolling_reward": summary["rolling_reward"], "peak_rss_mb": summary["peak_rss_mb"], "failure": summary["failure"],
+        "run_dir": dir.display().to_string(),
+    });
+    Ok((row, (format!("{mode} {envs}x{agents} s{seed}"), curve)))
+}
+
+/// The table as markdown (its header and one line per cell) and as CSV.
+fn table_text(tc: &TableConfig, rows: &[Value]) -> Result<(String, String)> {
     let mut md = String::new();
     writeln!(md, "# Agent-count table (the paper's Table II) on this machine\n")?;
     if tc.deterministic_env_steps > 0 {
@@ -327,7 +328,7 @@ pub fn run(config: &Path, out: &Path, json_out: bool) -> Result<()> {
     let mut csv = String::from(
         "mode,envs,agents,agents_total,seed,converged,time_to_threshold_s,wall_s,env_steps_per_s,updates_per_s,cpu_util_mean_pct,bottleneck,bottleneck_busy_pct,gpu_util_mean_pct,gpu_power_mean_w,paper_time,paper_cpu_pct,paper_gpu_pct,paper_gpu_w\n",
     );
-    for r in &rows {
+    for r in rows {
         let (mode, envs, agents) = (r["mode"].as_str().unwrap_or(""), r["envs"].as_u64().unwrap_or(0) as usize, r["agents"].as_u64().unwrap_or(0) as usize);
         let p = paper(mode, envs, agents);
         let time = match r["time_to_threshold_s"].as_f64() {
@@ -373,6 +374,28 @@ pub fn run(config: &Path, out: &Path, json_out: bool) -> Result<()> {
             pc(|p| p.3.to_string()),
         )?;
     }
+    Ok((md, csv))
+}
+
+pub fn run(config: &Path, out: &Path, json_out: bool) -> Result<()> {
+    let tc = load(config)?;
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let exe = std::env::current_exe()?;
+    let mut rows = Vec::new();
+    let mut curves = Vec::new();
+    let total = tc.modes.len() * tc.cells.len() * tc.seeds.len();
+    let mut k = 0;
+    for mode in &tc.modes {
+        for &[envs, agents] in &tc.cells {
+            for &seed in &tc.seeds {
+                k += 1;
+                let (row, curve) = run_cell(&tc, out, &exe, mode, [envs, agents], seed, (k, total))?;
+                rows.push(row);
+                curves.push(curve);
+            }
+        }
+    }
+    let (mut md, csv) = table_text(&tc, &rows)?;
     let cells = cell_medians(&rows);
     if tc.seeds.len() > 1 {
         medians(&mut md, &cells, tc.budget_s)?;

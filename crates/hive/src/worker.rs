@@ -5,7 +5,7 @@
 //! head's launcher), and its link, in this process, carries their
 //! transitions to the head and the head's weights back.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
@@ -137,58 +137,9 @@ pub fn run(a: WorkerArgs) -> Result<()> {
         link.env_offset,
         link.env_offset as usize + cfg.sim.envs
     );
-    let prefix = format!("worker-{}", std::process::id());
-    let stop = Arc::new(AtomicBool::new(false));
     let mut stats = WorkerStats::default();
     let mut restarts = 0u32;
-    let end = std::thread::scope(|s| -> Result<WorkerEnd> {
-        let (ready_tx, ready_rx) = std::sync::mpsc::channel();
-        let bridge = s.spawn(|| -> Result<WorkerEnd> {
-            let hub = Hub::<Ipc>::new(&prefix, "link")?.with_stop(stop.clone());
-            Ok(link.bridge(&hub, cfg.sim.envs, roles_of(&cfg), rotorhive_model::num_params(), &mut stats, move || {
-                let _ = ready_tx.send(());
-            })?)
-        });
-        // The sims and actors start, as processes of this host's domain
-        // launched and restarted as the head's roles are, once the link
-        // takes their batches. Dropping `members` stops them.
-        let mut members = None;
-        if ready_rx.recv().is_ok() {
-            match Members::start(&cfg, false, &prefix, &run_dir, &cfg_path, env_role_names(&cfg)) {
-                Ok(m) => members = Some(m),
-                Err(e) => {
-                    stop.store(true, Ordering::SeqCst);
-                    let _ = bridge.join();
-                    return Err(e);
-                }
-            }
-        }
-        while !bridge.is_finished() {
-            if let Some(m) = members.as_mut() {
-                let shutting_down = || stop.load(Ordering::SeqCst) || rotorhive_transport::stop_requested();
-                let gave_up = m.check(&shutting_down, &mut |what| {
-                    restarts += 1;
-                    eprintln!("worker {name}: {what}");
-                    Ok(())
-                });
-                let why = match gave_up {
-                    Ok(None) => None,
-                    Ok(Some(why)) => Some(anyhow::anyhow!(why)),
-                    Err(e) => Some(e),
-                };
-                if let Some(why) = why {
-                    stop.store(true, Ordering::SeqCst);
-                    let _ = bridge.join();
-                    return Err(why);
-                }
-            }
-            std::thread::sleep(Duration::from_millis(50));
-        }
-        if let Some(m) = members.as_mut() {
-            m.stop();
-        }
-        bridge.join().map_err(|_| anyhow::anyhow!("the link panicked"))?
-    });
+    let end = serve(&link, &cfg, &cfg_path, &run_dir, &name, &mut stats, &mut restarts);
     println!(
         "worker {name}: {} transitions in {} batches sent, weights version {} ({} received, {} rejected), {} messages dropped, {restarts} role restarts",
         stats.transitions, stats.batches, stats.weight_version, stats.weights, stats.rejected, stats.dropped
@@ -200,6 +151,53 @@ pub fn run(a: WorkerArgs) -> Result<()> {
         }
         WorkerEnd::Stopped => Ok(()),
     }
+}
+
+/// Runs the link (a thread of this process) and, once it takes their
+/// batches, this host's sims and actors as processes of its domain,
+/// launched and restarted as the head's roles are; until the link ends
+/// (the head's end, a stop, a lost head) or a role keeps dying.
+fn serve(link: &Worker, cfg: &Config, cfg_path: &Path, run_dir: &Path, name: &str, stats: &mut WorkerStats, restarts: &mut u32) -> Result<WorkerEnd> {
+    let prefix = format!("worker-{}", std::process::id());
+    let stop = Arc::new(AtomicBool::new(false));
+    std::thread::scope(|s| -> Result<WorkerEnd> {
+        let (ready_tx, ready_rx) = std::sync::mpsc::channel();
+        let bridge = s.spawn(|| -> Result<WorkerEnd> {
+            let hub = Hub::<Ipc>::new(&prefix, "link")?.with_stop(stop.clone());
+            Ok(link.bridge(&hub, cfg.sim.envs, roles_of(cfg), rotorhive_model::num_params(), stats, move || {
+                let _ = ready_tx.send(());
+            })?)
+        });
+        let give_up = |why: anyhow::Error| {
+            stop.store(true, Ordering::SeqCst);
+            why
+        };
+        // Dropping `members` stops them.
+        let mut members = match ready_rx.recv() {
+            Ok(()) => Some(Members::start(cfg, false, &prefix, run_dir, cfg_path, env_role_names(cfg)).map_err(give_up)?),
+            Err(_) => None,
+        };
+        while !bridge.is_finished() {
+            if let Some(m) = members.as_mut() {
+                let shutting_down = || stop.load(Ordering::SeqCst) || rotorhive_transport::stop_requested();
+                let gave_up = m.check(&shutting_down, &mut |what| {
+                    *restarts += 1;
+                    eprintln!("worker {name}: {what}");
+                    Ok(())
+                });
+                match gave_up {
+                    Ok(None) => {}
+                    Ok(Some(why)) => return Err(give_up(anyhow::anyhow!(why))),
+                    Err(e) => return Err(give_up(e)),
+                }
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        if let Some(m) = members.as_mut() {
+            m.stop();
+        }
+        bridge.join().map_err(|_| anyhow::anyhow!("the link panicked"))?
+    })
 }
 
 /// This host's join token: `RUN_DIR/join-token` (readable by its owner

@@ -630,86 +630,136 @@ where
 
 fn head_loop<S: Service>(head: &Head, hub: &Hub<S>, envs: usize, roles: usize, stop: &AtomicBool, stats: &HeadStats, config_for: ConfigFor) -> Result<()> {
     let s = &head.session;
-    let run = &head.run;
     let decl = |what: &str| zerr(format!("declare {what}"));
-    let (trans_sub, ep_sub, tel_sub) = (&head.subs.transitions, &head.subs.episodes, &head.subs.telemetry);
-    let w_pub = s.declare_publisher(key(run, "weights")).congestion_control(CongestionControl::Block).wait().map_err(decl("the weights publisher"))?;
-    let end_pub = s.declare_publisher(key(run, "end")).congestion_control(CongestionControl::Block).wait().map_err(decl("the end publisher"))?;
-
+    let publisher = |what: &str| s.declare_publisher(key(&head.run, what)).congestion_control(CongestionControl::Block).wait().map_err(decl(what));
+    let end_pub = publisher("end")?;
     let total_envs = envs + head.hosts.iter().map(|h| h.envs as usize).sum::<usize>();
     let max_batch = rotorhive_msg::PACKED_LEN * check::MAX_BATCH;
-    let mut trans_tx = hub.sender::<u16, TransitionHeader>(&Channel::transitions(envs), max_batch, Duration::from_millis(200))?;
-    let mut ep_tx = hub.sender::<f32, EpisodeHeader>(&Channel::episodes(envs), EPISODE_FIELDS * 4096, Duration::from_millis(200))?;
-    let mut w_rx = hub.receiver::<f32, WeightsHeader>(&Channel::weights(envs))?;
-    let mut tel = LinkTelemetry::new(hub, roles, 0)?;
-    let mut next_seq: Vec<Option<u64>> = vec![None; total_envs];
     if let Ok(mut l) = stats.lost_by_env.lock() {
         *l = vec![0; total_envs];
     }
-    let mut version = 0u64;
-    let hosts = &head.hosts;
+    let mut b = HeadBridge {
+        head,
+        stats,
+        stop,
+        w_pub: publisher("weights")?,
+        trans_tx: hub.sender(&Channel::transitions(envs), max_batch, Duration::from_millis(200))?,
+        ep_tx: hub.sender(&Channel::episodes(envs), EPISODE_FIELDS * 4096, Duration::from_millis(200))?,
+        w_rx: hub.receiver(&Channel::weights(envs))?,
+        tel: LinkTelemetry::new(hub, roles, 0)?,
+        next_seq: vec![None; total_envs],
+        version: 0,
+    };
     while !stop.load(Ordering::SeqCst) && !hub.shutdown_requested() {
-        // Weights out: the newest version, once per host (zenoh fans out).
-        let t = Instant::now();
-        if let Some(w) = w_rx.latest()? {
-            let h = *w.user_header();
-            if h.version != version {
-                version = h.version;
-                let bytes = wire::payload_bytes(w.payload()).to_vec();
-                w_pub.put(bytes).attachment(wire::header_bytes(&h).to_vec()).wait().map_err(zerr("send weights"))?;
-                tel.sample.weight_version = version;
-            }
-        }
-        tel.stage(2, t);
+        b.weights_out()?;
         // Transitions in, loss-free: the FIFO is bounded and the send waits.
         let t = Instant::now();
-        let got = trans_sub.recv_timeout(Duration::from_millis(5)).ok().flatten();
-        tel.stage(0, t);
+        let got = head.subs.transitions.recv_timeout(Duration::from_millis(5)).ok().flatten();
+        b.tel.stage(0, t);
         if let Some(smp) = got {
-            let t = Instant::now();
-            let payload = smp.payload();
-            let frags: Vec<&[u8]> = payload.slices().collect();
-            let Some(h) = accept(stats, hosts, &smp, run, "transitions", |host, att| check::transitions(host, att, &frags)) else { continue };
-            let words = payload.len() / 2;
-            if let Some(slot) = next_seq.get_mut(h.actor as usize) {
-                if let Some(want) = *slot
-                    && h.seq > want
-                {
-                    let gap = h.seq - want;
-                    tracing::warn!("head link: actor {} batches {want}..{} missing", h.actor, h.seq);
-                    stats.lost_batches.fetch_add(gap, Ordering::Relaxed);
-                    stats.lost_transitions.fetch_add(gap.saturating_mul(h.count as u64), Ordering::Relaxed);
-                    tel.sample.lost = tel.sample.lost.saturating_add(gap);
-                    if let Some(l) = stats.lost_by_env.lock().ok().as_mut().and_then(|v| v.get_mut(h.actor as usize)) {
-                        *l = l.saturating_add(gap.saturating_mul(h.count as u64));
-                    }
-                }
-                *slot = Some(h.seq.saturating_add(1));
-            }
-            let sent = send_retrying(&mut trans_tx, words, stop, |hdr, p| {
-                *hdr = h;
-                // Zenoh's fragments straight into the loaned sample (their
-                // total is the sample's length: checked above).
-                let out = wire::payload_bytes_mut(p);
-                let mut at = 0;
-                for frag in &frags {
-                    out[at..at + frag.len()].copy_from_slice(frag);
-                    at += frag.len();
-                }
-            })?;
-            if sent {
-                stats.batches.fetch_add(1, Ordering::Relaxed);
-                stats.transitions.fetch_add(h.count as u64, Ordering::Relaxed);
-                tel.sample.work += h.count as u64;
-                tel.sample.work2 += payload.len() as u64;
-            }
-            tel.stage(3, t);
+            b.transitions_in(&smp)?;
         }
+        b.episodes_and_telemetry_in();
+        b.rejoins(&config_for);
+        b.tel.tick();
+    }
+    // The run's end, so the workers exit 0 instead of reporting a lost head.
+    let _ = end_pub.put(b"end".to_vec()).wait();
+    // Let the message leave before the session closes.
+    std::thread::sleep(Duration::from_millis(200));
+    Ok(())
+}
+
+/// The head's link at work: what it sends and receives on the head's
+/// shared memory, and what it keeps between rounds.
+struct HeadBridge<'a, S: Service> {
+    head: &'a Head,
+    stats: &'a HeadStats,
+    stop: &'a AtomicBool,
+    w_pub: zenoh::pubsub::Publisher<'static>,
+    trans_tx: rotorhive_transport::Sender<S, u16, TransitionHeader>,
+    ep_tx: rotorhive_transport::Sender<S, f32, EpisodeHeader>,
+    w_rx: rotorhive_transport::Receiver<S, f32, WeightsHeader>,
+    tel: LinkTelemetry<S>,
+    /// The next batch expected from each actor of the run.
+    next_seq: Vec<Option<u64>>,
+    /// The newest weight version sent.
+    version: u64,
+}
+
+impl<S: Service> HeadBridge<'_, S> {
+    /// Weights out: the newest version, once per host (zenoh fans out).
+    fn weights_out(&mut self) -> Result<()> {
         let t = Instant::now();
-        while let Ok(Some(smp)) = ep_sub.try_recv() {
+        if let Some(w) = self.w_rx.latest()? {
+            let h = *w.user_header();
+            if h.version != self.version {
+                self.version = h.version;
+                let bytes = wire::payload_bytes(w.payload()).to_vec();
+                self.w_pub.put(bytes).attachment(wire::header_bytes(&h).to_vec()).wait().map_err(zerr("send weights"))?;
+                self.tel.sample.weight_version = self.version;
+            }
+        }
+        self.tel.stage(2, t);
+        Ok(())
+    }
+
+    /// One transition batch from a worker: checked, its sequence gap
+    /// counted, then into the replay's channel (the send retried while the
+    /// replay is full).
+    fn transitions_in(&mut self, smp: &zenoh::sample::Sample) -> Result<()> {
+        let (stats, hosts, run) = (self.stats, &self.head.hosts, &self.head.run);
+        let t = Instant::now();
+        let payload = smp.payload();
+        let frags: Vec<&[u8]> = payload.slices().collect();
+        let Some(h) = accept(stats, hosts, smp, run, "transitions", |host, att| check::transitions(host, att, &frags)) else { return Ok(()) };
+        let words = payload.len() / 2;
+        if let Some(slot) = self.next_seq.get_mut(h.actor as usize) {
+            if let Some(want) = *slot
+                && h.seq > want
+            {
+                let gap = h.seq - want;
+                tracing::warn!("head link: actor {} batches {want}..{} missing", h.actor, h.seq);
+                stats.lost_batches.fetch_add(gap, Ordering::Relaxed);
+                stats.lost_transitions.fetch_add(gap.saturating_mul(h.count as u64), Ordering::Relaxed);
+                self.tel.sample.lost = self.tel.sample.lost.saturating_add(gap);
+                if let Some(l) = stats.lost_by_env.lock().ok().as_mut().and_then(|v| v.get_mut(h.actor as usize)) {
+                    *l = l.saturating_add(gap.saturating_mul(h.count as u64));
+                }
+            }
+            *slot = Some(h.seq.saturating_add(1));
+        }
+        let sent = send_retrying(&mut self.trans_tx, words, self.stop, |hdr, p| {
+            *hdr = h;
+            // Zenoh's fragments straight into the loaned sample (their
+            // total is the sample's length: checked above).
+            let out = wire::payload_bytes_mut(p);
+            let mut at = 0;
+            for frag in &frags {
+                out[at..at + frag.len()].copy_from_slice(frag);
+                at += frag.len();
+            }
+        })?;
+        if sent {
+            stats.batches.fetch_add(1, Ordering::Relaxed);
+            stats.transitions.fetch_add(h.count as u64, Ordering::Relaxed);
+            self.tel.sample.work += h.count as u64;
+            self.tel.sample.work2 += payload.len() as u64;
+        }
+        self.tel.stage(3, t);
+        Ok(())
+    }
+
+    /// The workers' episodes and telemetry, checked, into the head's
+    /// records (episodes that find the channel full are counted dropped).
+    fn episodes_and_telemetry_in(&mut self) {
+        let (stats, hosts, run) = (self.stats, &self.head.hosts, &self.head.run);
+        let t = Instant::now();
+        while let Ok(Some(smp)) = self.head.subs.episodes.try_recv() {
             let bytes = smp.payload().to_bytes();
             let Some(h) = accept(stats, hosts, &smp, run, "episodes", |host, att| check::episodes(host, att, &bytes)) else { continue };
-            if ep_tx
+            if self
+                .ep_tx
                 .send_with(bytes.len() / 4, |hdr, p| {
                     *hdr = h;
                     wire::payload_bytes_mut(p).copy_from_slice(&bytes);
@@ -719,16 +769,21 @@ fn head_loop<S: Service>(head: &Head, hub: &Hub<S>, envs: usize, roles: usize, s
                 stats.dropped.fetch_add(1, Ordering::Relaxed);
             }
         }
-        while let Ok(Some(smp)) = tel_sub.try_recv() {
+        while let Ok(Some(smp)) = self.head.subs.telemetry.try_recv() {
             if let Some(t) = accept(stats, hosts, &smp, run, "telemetry", |host, att| check::telemetry(host, att, smp.payload().len())) {
-                tel.forward(t);
+                self.tel.forward(t);
             }
         }
-        tel.stage(1, t);
-        // A worker that comes back (restarted) gets its old place.
+        self.tel.stage(1, t);
+    }
+
+    /// A worker that comes back (restarted) with its join token gets its
+    /// old place; anyone else is refused.
+    fn rejoins(&mut self, config_for: &ConfigFor) {
+        let (head, run) = (self.head, &self.head.run);
         while let Ok(Some(q)) = head.queryable.try_recv() {
             match head.check(&q) {
-                Ok(h) => match hosts.iter().find(|x| x.name == h.host) {
+                Ok(h) => match head.hosts.iter().find(|x| x.name == h.host) {
                     Some(x) if !same_token(&x.token, &h.token) => refuse(
                         &q,
                         &format!("host {} is in this run; only the worker that joined under that name (with its join token) may take its place back", x.name),
@@ -738,7 +793,7 @@ fn head_loop<S: Service>(head: &Head, hub: &Hub<S>, envs: usize, roles: usize, s
                         reply(&q, &Welcome::Joined { slot: x.slot, env_offset: x.env_offset, run: run.clone(), config, arena });
                         // Its actors start their sequences afresh.
                         for e in x.env_offset as usize..(x.env_offset + x.envs) as usize {
-                            if let Some(s) = next_seq.get_mut(e) {
+                            if let Some(s) = self.next_seq.get_mut(e) {
                                 *s = None;
                             }
                         }
@@ -752,13 +807,7 @@ fn head_loop<S: Service>(head: &Head, hub: &Hub<S>, envs: usize, roles: usize, s
                 Err(why) => refuse(&q, &why),
             }
         }
-        tel.tick();
     }
-    // The run's end, so the workers exit 0 instead of reporting a lost head.
-    let _ = end_pub.put(b"end".to_vec()).wait();
-    // Let the message leave before the session closes.
-    std::thread::sleep(Duration::from_millis(200));
-    Ok(())
 }
 
 /// A message `what` from another host, checked by `check` against the
@@ -872,36 +921,37 @@ impl Worker {
         let s = &self.session;
         let run = &self.run;
         let decl = |what: &str| zerr(format!("declare {what}"));
-        let trans_pub = s
-            .declare_publisher(host_key(run, self.slot, "transitions"))
-            .congestion_control(CongestionControl::Block)
-            .wait()
-            .map_err(decl("the transitions publisher"))?;
-        let ep_pub = s
-            .declare_publisher(host_key(run, self.slot, "episodes"))
-            .congestion_control(CongestionControl::Drop)
-            .wait()
-            .map_err(decl("the episodes publisher"))?;
-        let tel_pub = s
-            .declare_publisher(host_key(run, self.slot, "telemetry"))
-            .congestion_control(CongestionControl::Drop)
-            .wait()
-            .map_err(decl("the telemetry publisher"))?;
-        let w_sub = s.declare_subscriber(key(run, "weights")).with(RingChannel::new(1)).wait().map_err(decl("the weights subscriber"))?;
-        let end_sub = s.declare_subscriber(key(run, "end")).with(FifoChannel::new(4)).wait().map_err(decl("the end subscriber"))?;
-        let head_sub =
-            s.liveliness().declare_subscriber(key(run, "head")).history(true).with(FifoChannel::new(16)).wait().map_err(decl("the head's liveliness"))?;
+        let publisher = |what: &str, cc| s.declare_publisher(host_key(run, self.slot, what)).congestion_control(cc).wait().map_err(decl(what));
+        let mut b = WorkerBridge {
+            trans_pub: publisher("transitions", CongestionControl::Block)?,
+            ep_pub: publisher("episodes", CongestionControl::Drop)?,
+            tel_pub: publisher("telemetry", CongestionControl::Drop)?,
+            w_sub: s.declare_subscriber(key(run, "weights")).with(RingChannel::new(1)).wait().map_err(decl("the weights subscriber"))?,
+            end_sub: s.declare_subscriber(key(run, "end")).with(FifoChannel::new(4)).wait().map_err(decl("the end subscriber"))?,
+            head_sub: s
+                .liveliness()
+                .declare_subscriber(key(run, "head"))
+                .history(true)
+                .with(FifoChannel::new(16))
+                .wait()
+                .map_err(decl("the head's liveliness"))?,
+            trans_rx: hub.receiver(&Channel::transitions(envs))?,
+            ep_rx: hub.receiver(&Channel::episodes(envs))?,
+            tel_rx: hub.receiver(&Channel::telemetry(roles))?,
+            w_tx: None,
+            tel: LinkTelemetry::new(hub, roles, 0)?,
+            wseq: std::collections::HashMap::new(),
+            head_seen: false,
+            off: self.env_offset,
+            slot: self.slot,
+            envs,
+            num_params,
+        };
         let _token = s.liveliness().declare_token(key(run, &format!("host/{}", self.slot))).wait().map_err(decl("this host's liveliness"))?;
-        let off = self.env_offset;
-        let mut trans_rx = hub.receiver::<u16, TransitionHeader>(&Channel::transitions(envs))?;
-        let mut ep_rx = hub.receiver::<f32, EpisodeHeader>(&Channel::episodes(envs))?;
-        let mut tel_rx = hub.receiver::<u8, Telemetry>(&Channel::telemetry(roles))?;
-        let mut w_tx: Option<rotorhive_transport::Sender<S, f32, WeightsHeader>> = None;
-        let mut tel = LinkTelemetry::new(hub, roles, 0)?;
         // Zenoh drops what no subscriber matches: send nothing before the
         // head's transitions subscriber is known here.
         let t = Instant::now();
-        while !trans_pub.matching_status().wait().map_err(zerr("matching status"))?.matching() {
+        while !b.trans_pub.matching_status().wait().map_err(zerr("matching status"))?.matching() {
             if t.elapsed() > Duration::from_secs(20) {
                 return Err(LinkError::LostHead);
             }
@@ -910,108 +960,152 @@ impl Worker {
             }
             std::thread::sleep(Duration::from_millis(10));
         }
-
         on_ready();
-        let mut wseq = std::collections::HashMap::new();
-        let mut head_seen = false;
         loop {
             if hub.shutdown_requested() {
                 return Ok(WorkerEnd::Stopped);
             }
-            if end_sub.try_recv().ok().flatten().is_some() {
-                return Ok(WorkerEnd::RunEnded);
+            if let Some(end) = b.head_end() {
+                return end;
             }
-            while let Ok(Some(l)) = head_sub.try_recv() {
-                match l.kind() {
-                    SampleKind::Put => head_seen = true,
-                    SampleKind::Delete if head_seen => {
-                        // The end message may be right behind (over TLS on a
-                        // busy machine, up to a few hundred ms): look for 1 s.
-                        let t = Instant::now();
-                        while t.elapsed() < Duration::from_secs(1) {
-                            if end_sub.recv_timeout(Duration::from_millis(50)).ok().flatten().is_some() {
-                                return Ok(WorkerEnd::RunEnded);
-                            }
-                        }
-                        return Err(LinkError::LostHead);
-                    }
-                    SampleKind::Delete => {}
-                }
-            }
-            // Weights in: the newest, republished on this host.
-            let t = Instant::now();
-            if let Ok(Some(smp)) = w_sub.try_recv() {
-                let bytes = smp.payload().to_bytes();
-                match check::weights(num_params, smp.attachment().map(|a| a.to_bytes()).as_deref(), &bytes) {
-                    Ok(h) => {
-                        if w_tx.is_none() {
-                            w_tx = Some(hub.sender::<f32, WeightsHeader>(&Channel::weights(envs), num_params, Duration::from_millis(200))?);
-                        }
-                        if let Some(tx) = w_tx.as_mut() {
-                            tx.send_with(num_params, |hdr, p| {
-                                *hdr = h;
-                                wire::payload_bytes_mut(p).copy_from_slice(&bytes);
-                            })?;
-                        }
-                        stats.weights += 1;
-                        stats.weight_version = h.version;
-                        tel.sample.weight_version = h.version;
-                    }
-                    Err(why) => {
-                        stats.rejected += 1;
-                        tracing::warn!("dropped weights from the head: {why}");
-                    }
-                }
-            }
-            tel.stage(2, t);
-            // Transitions out: blocking put, so a busy head slows the actors.
-            let t = Instant::now();
-            let m = trans_rx.recv_timeout(Duration::from_millis(5))?;
-            tel.stage(0, t);
-            if let Some(m) = m {
-                let t = Instant::now();
-                let mut h = *m.user_header();
-                if let Some(w) = wseq.get(&h.actor)
-                    && *w != h.seq
-                {
-                    tracing::warn!("worker link: actor {} batches {w}..{} missing in shared memory", h.actor, h.seq);
-                }
-                wseq.insert(h.actor, h.seq + 1);
-                h.actor += off;
-                trans_pub
-                    .put(wire::payload_bytes(m.payload()).to_vec())
-                    .attachment(wire::header_bytes(&h).to_vec())
-                    .wait()
-                    .map_err(zerr("send transitions"))?;
-                stats.batches += 1;
-                stats.transitions += h.count as u64;
-                tel.sample.work += h.count as u64;
-                tel.sample.work2 += std::mem::size_of_val(m.payload()) as u64;
-                tel.stage(3, t);
-            }
-            let t = Instant::now();
-            while let Some(m) = ep_rx.try_recv()? {
-                let mut h = *m.user_header();
-                h.actor += off;
-                if ep_pub.put(wire::payload_bytes(m.payload()).to_vec()).attachment(wire::header_bytes(&h).to_vec()).wait().is_err() {
-                    stats.dropped += 1;
-                }
-            }
-            while let Some(m) = tel_rx.try_recv()? {
-                let mut t = *m.user_header();
-                if t.role == RoleKind::Link as u32 {
-                    t.index = self.slot;
-                } else {
-                    t.index += off;
-                }
-                // A process id means nothing on the head's host.
-                t.pid = 0;
-                if tel_pub.put(Vec::new()).attachment(wire::header_bytes(&t).to_vec()).wait().is_err() {
-                    stats.dropped += 1;
-                }
-            }
-            tel.stage(1, t);
-            tel.tick();
+            b.weights_in(hub, stats)?;
+            b.transitions_out(stats)?;
+            b.episodes_and_telemetry_out(stats)?;
+            b.tel.tick();
         }
+    }
+}
+
+/// A worker's link at work: its Zenoh publishers and subscribers, its
+/// host's shared-memory channels, and what it keeps between rounds.
+struct WorkerBridge<S: Service> {
+    trans_pub: zenoh::pubsub::Publisher<'static>,
+    ep_pub: zenoh::pubsub::Publisher<'static>,
+    tel_pub: zenoh::pubsub::Publisher<'static>,
+    w_sub: zenoh::pubsub::Subscriber<zenoh::handlers::RingChannelHandler<zenoh::sample::Sample>>,
+    end_sub: Fifo,
+    head_sub: Fifo,
+    trans_rx: rotorhive_transport::Receiver<S, u16, TransitionHeader>,
+    ep_rx: rotorhive_transport::Receiver<S, f32, EpisodeHeader>,
+    tel_rx: rotorhive_transport::Receiver<S, u8, Telemetry>,
+    w_tx: Option<rotorhive_transport::Sender<S, f32, WeightsHeader>>,
+    tel: LinkTelemetry<S>,
+    /// The next batch expected from each actor of this host.
+    wseq: std::collections::HashMap<u32, u64>,
+    head_seen: bool,
+    off: u32,
+    slot: u32,
+    envs: usize,
+    num_params: usize,
+}
+
+impl<S: Service> WorkerBridge<S> {
+    /// The run's end, or the head lost (its liveliness token gone without
+    /// the end message right behind it); none while the head is there.
+    fn head_end(&mut self) -> Option<Result<WorkerEnd>> {
+        if self.end_sub.try_recv().ok().flatten().is_some() {
+            return Some(Ok(WorkerEnd::RunEnded));
+        }
+        while let Ok(Some(l)) = self.head_sub.try_recv() {
+            match l.kind() {
+                SampleKind::Put => self.head_seen = true,
+                SampleKind::Delete if self.head_seen => {
+                    // The end message may be right behind (over TLS on a
+                    // busy machine, up to a few hundred ms): look for 1 s.
+                    let t = Instant::now();
+                    while t.elapsed() < Duration::from_secs(1) {
+                        if self.end_sub.recv_timeout(Duration::from_millis(50)).ok().flatten().is_some() {
+                            return Some(Ok(WorkerEnd::RunEnded));
+                        }
+                    }
+                    return Some(Err(LinkError::LostHead));
+                }
+                SampleKind::Delete => {}
+            }
+        }
+        None
+    }
+
+    /// The newest weights in, checked, republished on this host.
+    fn weights_in(&mut self, hub: &Hub<S>, stats: &mut WorkerStats) -> Result<()> {
+        let t = Instant::now();
+        if let Ok(Some(smp)) = self.w_sub.try_recv() {
+            let bytes = smp.payload().to_bytes();
+            match check::weights(self.num_params, smp.attachment().map(|a| a.to_bytes()).as_deref(), &bytes) {
+                Ok(h) => {
+                    if self.w_tx.is_none() {
+                        self.w_tx = Some(hub.sender::<f32, WeightsHeader>(&Channel::weights(self.envs), self.num_params, Duration::from_millis(200))?);
+                    }
+                    if let Some(tx) = self.w_tx.as_mut() {
+                        tx.send_with(self.num_params, |hdr, p| {
+                            *hdr = h;
+                            wire::payload_bytes_mut(p).copy_from_slice(&bytes);
+                        })?;
+                    }
+                    stats.weights += 1;
+                    stats.weight_version = h.version;
+                    self.tel.sample.weight_version = h.version;
+                }
+                Err(why) => {
+                    stats.rejected += 1;
+                    tracing::warn!("dropped weights from the head: {why}");
+                }
+            }
+        }
+        self.tel.stage(2, t);
+        Ok(())
+    }
+
+    /// One transition batch out, if there is one: a blocking put, so a busy
+    /// head slows the actors.
+    fn transitions_out(&mut self, stats: &mut WorkerStats) -> Result<()> {
+        let t = Instant::now();
+        let m = self.trans_rx.recv_timeout(Duration::from_millis(5))?;
+        self.tel.stage(0, t);
+        let Some(m) = m else { return Ok(()) };
+        let t = Instant::now();
+        let mut h = *m.user_header();
+        if let Some(w) = self.wseq.get(&h.actor)
+            && *w != h.seq
+        {
+            tracing::warn!("worker link: actor {} batches {w}..{} missing in shared memory", h.actor, h.seq);
+        }
+        self.wseq.insert(h.actor, h.seq + 1);
+        h.actor += self.off;
+        self.trans_pub.put(wire::payload_bytes(m.payload()).to_vec()).attachment(wire::header_bytes(&h).to_vec()).wait().map_err(zerr("send transitions"))?;
+        stats.batches += 1;
+        stats.transitions += h.count as u64;
+        self.tel.sample.work += h.count as u64;
+        self.tel.sample.work2 += std::mem::size_of_val(m.payload()) as u64;
+        self.tel.stage(3, t);
+        Ok(())
+    }
+
+    /// Episodes and telemetry out (they may drop under load: counted), with
+    /// this host's environment offset and slot.
+    fn episodes_and_telemetry_out(&mut self, stats: &mut WorkerStats) -> Result<()> {
+        let t = Instant::now();
+        while let Some(m) = self.ep_rx.try_recv()? {
+            let mut h = *m.user_header();
+            h.actor += self.off;
+            if self.ep_pub.put(wire::payload_bytes(m.payload()).to_vec()).attachment(wire::header_bytes(&h).to_vec()).wait().is_err() {
+                stats.dropped += 1;
+            }
+        }
+        while let Some(m) = self.tel_rx.try_recv()? {
+            let mut t = *m.user_header();
+            if t.role == RoleKind::Link as u32 {
+                t.index = self.slot;
+            } else {
+                t.index += self.off;
+            }
+            // A process id means nothing on the head's host.
+            t.pid = 0;
+            if self.tel_pub.put(Vec::new()).attachment(wire::header_bytes(&t).to_vec()).wait().is_err() {
+                stats.dropped += 1;
+            }
+        }
+        self.tel.stage(1, t);
+        Ok(())
     }
 }

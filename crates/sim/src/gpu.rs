@@ -140,86 +140,100 @@ impl std::fmt::Debug for GpuDepthRenderer {
     }
 }
 
+/// The first adapter wgpu finds (a GPU, or lavapipe on the CPU), its device
+/// and queue, and its name.
+fn open_device() -> Result<(wgpu::Device, wgpu::Queue, String), GpuError> {
+    let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+    let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+        power_preference: wgpu::PowerPreference::HighPerformance,
+        force_fallback_adapter: false,
+        compatible_surface: None,
+        ..Default::default()
+    }))
+    .map_err(|e| GpuError::NoAdapter(e.to_string()))?;
+    let info = adapter.get_info();
+    let adapter_name = format!("{} ({:?}, {})", info.name, info.backend, info.driver);
+    let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+        label: Some("rotorhive depth"),
+        required_features: wgpu::Features::empty(),
+        required_limits: adapter.limits(),
+        ..Default::default()
+    }))
+    .map_err(|e| GpuError::Device(e.to_string()))?;
+    Ok((device, queue, adapter_name))
+}
+
+/// The bind group layout and the two render pipelines (scene, with back
+/// faces culled, and drones) of the depth shader.
+fn pipelines(device: &wgpu::Device) -> (wgpu::BindGroupLayout, wgpu::RenderPipeline, wgpu::RenderPipeline) {
+    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor { label: Some("depth"), source: wgpu::ShaderSource::Wgsl(SHADER.into()) });
+    let storage = |binding| wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::VERTEX,
+        ty: wgpu::BindingType::Buffer { ty: wgpu::BufferBindingType::Storage { read_only: true }, has_dynamic_offset: false, min_binding_size: None },
+        count: None,
+    };
+    let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+        label: Some("depth"),
+        entries: &[
+            storage(0),
+            wgpu::BindGroupLayoutEntry {
+                binding: 1,
+                visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
+                ty: wgpu::BindingType::Buffer { ty: wgpu::BufferBindingType::Uniform, has_dynamic_offset: false, min_binding_size: None },
+                count: None,
+            },
+            storage(2),
+        ],
+    });
+    let pipeline_layout =
+        device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor { label: Some("depth"), bind_group_layouts: &[Some(&layout)], immediate_size: 0 });
+    let pipeline = |entry: &str, cull_mode: Option<wgpu::Face>| {
+        device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some(entry),
+            layout: Some(&pipeline_layout),
+            vertex: wgpu::VertexState {
+                module: &module,
+                entry_point: Some(entry),
+                compilation_options: Default::default(),
+                buffers: &[Some(wgpu::VertexBufferLayout {
+                    array_stride: 12,
+                    step_mode: wgpu::VertexStepMode::Vertex,
+                    attributes: &wgpu::vertex_attr_array![0 => Float32x3],
+                })],
+            },
+            primitive: wgpu::PrimitiveState { cull_mode, ..Default::default() },
+            depth_stencil: Some(wgpu::DepthStencilState {
+                format: wgpu::TextureFormat::Depth32Float,
+                depth_write_enabled: Some(true),
+                depth_compare: Some(wgpu::CompareFunction::Less),
+                stencil: Default::default(),
+                bias: Default::default(),
+            }),
+            multisample: Default::default(),
+            fragment: Some(wgpu::FragmentState {
+                module: &module,
+                entry_point: Some("fs"),
+                compilation_options: Default::default(),
+                targets: &[Some(wgpu::ColorTargetState { format: wgpu::TextureFormat::R32Float, blend: None, write_mask: wgpu::ColorWrites::ALL })],
+            }),
+            multiview_mask: None,
+            cache: None,
+        })
+    };
+    // Scene triangles face the cameras (see `orient`): the back faces of
+    // obstacles are dropped before they are rasterised.
+    let scene_pipeline = pipeline("vs_scene", Some(wgpu::Face::Back));
+    let drone_pipeline = pipeline("vs_drone", None);
+    (layout, scene_pipeline, drone_pipeline)
+}
+
 impl GpuDepthRenderer {
     /// Opens the first adapter wgpu finds (a GPU, or lavapipe on the CPU)
     /// and uploads the scene.
     pub fn new(spec: CameraSpec, scene: &Scene) -> Result<Self, GpuError> {
-        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
-        let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
-            power_preference: wgpu::PowerPreference::HighPerformance,
-            force_fallback_adapter: false,
-            compatible_surface: None,
-            ..Default::default()
-        }))
-        .map_err(|e| GpuError::NoAdapter(e.to_string()))?;
-        let info = adapter.get_info();
-        let adapter_name = format!("{} ({:?}, {})", info.name, info.backend, info.driver);
-        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
-            label: Some("rotorhive depth"),
-            required_features: wgpu::Features::empty(),
-            required_limits: adapter.limits(),
-            ..Default::default()
-        }))
-        .map_err(|e| GpuError::Device(e.to_string()))?;
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor { label: Some("depth"), source: wgpu::ShaderSource::Wgsl(SHADER.into()) });
-        let storage = |binding| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::VERTEX,
-            ty: wgpu::BindingType::Buffer { ty: wgpu::BufferBindingType::Storage { read_only: true }, has_dynamic_offset: false, min_binding_size: None },
-            count: None,
-        };
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("depth"),
-            entries: &[
-                storage(0),
-                wgpu::BindGroupLayoutEntry {
-                    binding: 1,
-                    visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
-                    ty: wgpu::BindingType::Buffer { ty: wgpu::BufferBindingType::Uniform, has_dynamic_offset: false, min_binding_size: None },
-                    count: None,
-                },
-                storage(2),
-            ],
-        });
-        let pipeline_layout =
-            device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor { label: Some("depth"), bind_group_layouts: &[Some(&layout)], immediate_size: 0 });
-        let pipeline = |entry: &str, cull_mode: Option<wgpu::Face>| {
-            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-                label: Some(entry),
-                layout: Some(&pipeline_layout),
-                vertex: wgpu::VertexState {
-                    module: &module,
-                    entry_point: Some(entry),
-                    compilation_options: Default::default(),
-                    buffers: &[Some(wgpu::VertexBufferLayout {
-                        array_stride: 12,
-                        step_mode: wgpu::VertexStepMode::Vertex,
-                        attributes: &wgpu::vertex_attr_array![0 => Float32x3],
-                    })],
-                },
-                primitive: wgpu::PrimitiveState { cull_mode, ..Default::default() },
-                depth_stencil: Some(wgpu::DepthStencilState {
-                    format: wgpu::TextureFormat::Depth32Float,
-                    depth_write_enabled: Some(true),
-                    depth_compare: Some(wgpu::CompareFunction::Less),
-                    stencil: Default::default(),
-                    bias: Default::default(),
-                }),
-                multisample: Default::default(),
-                fragment: Some(wgpu::FragmentState {
-                    module: &module,
-                    entry_point: Some("fs"),
-                    compilation_options: Default::default(),
-                    targets: &[Some(wgpu::ColorTargetState { format: wgpu::TextureFormat::R32Float, blend: None, write_mask: wgpu::ColorWrites::ALL })],
-                }),
-                multiview_mask: None,
-                cache: None,
-            })
-        };
-        // Scene triangles face the cameras (see `orient`): the back faces of
-        // obstacles are dropped before they are rasterised.
-        let scene_pipeline = pipeline("vs_scene", Some(wgpu::Face::Back));
-        let drone_pipeline = pipeline("vs_drone", None);
+        let (device, queue, adapter_name) = open_device()?;
+        let (layout, scene_pipeline, drone_pipeline) = pipelines(&device);
         let layout_cull = SceneLayout::new(scene, spec.range);
         let sphere = sphere_triangles();
         let vbuf = |label, v: &[[f32; 3]]| {
@@ -328,29 +342,8 @@ impl GpuDepthRenderer {
             return Ok(());
         }
         let n = cameras.len() as u32;
-        let nd = drones.map_or(0, |d| d.positions.len() as u32);
-        self.staging.clear();
-        self.staging.extend(cameras.iter().zip(agents).map(|(c, &agent)| {
-            let v = |a: Vector| [a.x, a.y, a.z, 0.0];
-            GpuCamera {
-                origin: c.position.to_array(),
-                agent,
-                fwd: v(c.rotation * Vector::X),
-                right: v(-(c.rotation * Vector::Y)),
-                up: v(c.rotation * Vector::Z),
-            }
-        }));
-        let tan = (self.spec.fov_deg.to_radians() / 2.0).tan();
-        let params =
-            Params { inv_tan: 1.0 / tan, near: NEAR, far: self.spec.range, drones: nd.max(1), radius: drones.map_or(0.0, |d| d.radius), _pad: [0.0; 3] };
-        self.ensure_frame(n, nd);
+        let nd = self.upload(cameras, agents, drones, n);
         let f = self.frame.as_ref().expect("frame");
-        self.queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
-        self.queue.write_buffer(&f.cams, 0, bytemuck::cast_slice(&self.staging));
-        if let Some(d) = drones {
-            let pos: Vec<[f32; 4]> = d.positions.iter().map(|p| [p.x, p.y, p.z, 0.0]).collect();
-            self.queue.write_buffer(&f.drones, 0, bytemuck::cast_slice(&pos));
-        }
         let rows = n.div_ceil(COLS);
         let s = side as u32;
         let mut enc = self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("depth") });
@@ -408,6 +401,46 @@ impl GpuDepthRenderer {
         );
         self.queue.submit([enc.finish()]);
         self.submissions += 1;
+        self.read_back(rows, out)
+    }
+
+    /// Writes the cameras, the shader's parameters and the drones'
+    /// positions into the frame's buffers (made or grown for `n` cameras
+    /// first); returns the number of drones drawn.
+    fn upload(&mut self, cameras: &[CameraPose], agents: &[u32], drones: Option<Drones<'_>>, n: u32) -> u32 {
+        let nd = drones.map_or(0, |d| d.positions.len() as u32);
+        self.staging.clear();
+        self.staging.extend(cameras.iter().zip(agents).map(|(c, &agent)| {
+            let v = |a: Vector| [a.x, a.y, a.z, 0.0];
+            GpuCamera {
+                origin: c.position.to_array(),
+                agent,
+                fwd: v(c.rotation * Vector::X),
+                right: v(-(c.rotation * Vector::Y)),
+                up: v(c.rotation * Vector::Z),
+            }
+        }));
+        let tan = (self.spec.fov_deg.to_radians() / 2.0).tan();
+        let params =
+            Params { inv_tan: 1.0 / tan, near: NEAR, far: self.spec.range, drones: nd.max(1), radius: drones.map_or(0.0, |d| d.radius), _pad: [0.0; 3] };
+        self.ensure_frame(n, nd);
+        let f = self.frame.as_ref().expect("frame");
+        self.queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
+        self.queue.write_buffer(&f.cams, 0, bytemuck::cast_slice(&self.staging));
+        if let Some(d) = drones {
+            let pos: Vec<[f32; 4]> = d.positions.iter().map(|p| [p.x, p.y, p.z, 0.0]).collect();
+            self.queue.write_buffer(&f.drones, 0, bytemuck::cast_slice(&pos));
+        }
+        nd
+    }
+
+    /// Waits for the frame's depth tiles (`rows` rows of tiles) and copies
+    /// each camera's image into `out`.
+    fn read_back(&self, rows: u32, out: &mut [f32]) -> Result<(), GpuError> {
+        let f = self.frame.as_ref().expect("frame");
+        let side = self.spec.side;
+        let (px, s) = (side * side, side as u32);
+        let row_bytes = COLS * s * 4;
         let used = u64::from(row_bytes * rows * s);
         let slice = f.readback.slice(..used);
         let (tx, rx) = mpsc::channel();
