@@ -189,7 +189,8 @@ fn head_side(ep: &str, seconds: f64, batch: usize, layout: u64, opts: &rotorhive
     let hub = Hub::<Ipc>::new(RUN, "bench-consumer")?;
     let mut rx = hub.receiver::<u16, TransitionHeader>(&Channel::transitions(1))?;
     let mut link = head.bridge::<Ipc>(RUN.into(), 1, 2, stop.clone(), Box::new(|_| (String::new(), String::new())))?;
-    let (mut got, mut lost, mut next, mut first) = (0u64, 0u64, None::<u64>, None::<Instant>);
+    let (mut got, mut lost, mut first) = (0u64, 0u64, None::<Instant>);
+    let mut seen = rotorhive_msg::SeqTracker::new(1);
     let deadline = Instant::now() + Duration::from_secs_f64(seconds) + Duration::from_secs(20);
     while Instant::now() < deadline {
         if first.is_some_and(|t| t.elapsed().as_secs_f64() >= seconds) {
@@ -197,12 +198,7 @@ fn head_side(ep: &str, seconds: f64, batch: usize, layout: u64, opts: &rotorhive
         }
         let Some(m) = rx.recv_timeout(Duration::from_millis(100))? else { continue };
         let h = *m.user_header();
-        if let Some(want) = next
-            && h.seq != want
-        {
-            lost += h.seq.saturating_sub(want) * h.count as u64;
-        }
-        next = Some(h.seq + 1);
+        lost += seen.observe(h.actor as usize, h.seq) * h.count as u64;
         if m.payload().len() != h.count as usize * PACKED_LEN || m.payload()[0] != (h.seq as u16) {
             bail!("batch {} arrived damaged", h.seq);
         }

@@ -26,7 +26,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use iceoryx2::service::Service;
-use rotorhive_msg::{EPISODE_FIELDS, EpisodeHeader, RoleKind, Telemetry, TransitionHeader, WeightsHeader};
+use rotorhive_msg::{EPISODE_FIELDS, EpisodeHeader, RoleKind, SeqTracker, Telemetry, TransitionHeader, WeightsHeader};
 use rotorhive_transport::{Channel, Hub, TransportError};
 use zenoh::Wait;
 use zenoh::handlers::{FifoChannel, FifoChannelHandler, RingChannel};
@@ -647,7 +647,7 @@ fn head_loop<S: Service>(head: &Head, hub: &Hub<S>, envs: usize, roles: usize, s
         ep_tx: hub.sender(&Channel::episodes(envs), EPISODE_FIELDS * 4096, Duration::from_millis(200))?,
         w_rx: hub.receiver(&Channel::weights(envs))?,
         tel: LinkTelemetry::new(hub, roles, 0)?,
-        next_seq: vec![None; total_envs],
+        next_seq: SeqTracker::new(total_envs),
         version: 0,
     };
     while !stop.load(Ordering::SeqCst) && !hub.shutdown_requested() {
@@ -681,8 +681,8 @@ struct HeadBridge<'a, S: Service> {
     ep_tx: rotorhive_transport::Sender<S, f32, EpisodeHeader>,
     w_rx: rotorhive_transport::Receiver<S, f32, WeightsHeader>,
     tel: LinkTelemetry<S>,
-    /// The next batch expected from each actor of the run.
-    next_seq: Vec<Option<u64>>,
+    /// The batches seen from each actor of the run.
+    next_seq: SeqTracker,
     /// The newest weight version sent.
     version: u64,
 }
@@ -714,20 +714,15 @@ impl<S: Service> HeadBridge<'_, S> {
         let frags: Vec<&[u8]> = payload.slices().collect();
         let Some(h) = accept(stats, hosts, smp, run, "transitions", |host, att| check::transitions(host, att, &frags)) else { return Ok(()) };
         let words = payload.len() / 2;
-        if let Some(slot) = self.next_seq.get_mut(h.actor as usize) {
-            if let Some(want) = *slot
-                && h.seq > want
-            {
-                let gap = h.seq - want;
-                tracing::warn!("head link: actor {} batches {want}..{} missing", h.actor, h.seq);
-                stats.lost_batches.fetch_add(gap, Ordering::Relaxed);
-                stats.lost_transitions.fetch_add(gap.saturating_mul(h.count as u64), Ordering::Relaxed);
-                self.tel.sample.lost = self.tel.sample.lost.saturating_add(gap);
-                if let Some(l) = stats.lost_by_env.lock().ok().as_mut().and_then(|v| v.get_mut(h.actor as usize)) {
-                    *l = l.saturating_add(gap.saturating_mul(h.count as u64));
-                }
+        let gap = self.next_seq.observe(h.actor as usize, h.seq);
+        if gap > 0 {
+            tracing::warn!("head link: actor {} batches {}..{} missing", h.actor, h.seq - gap, h.seq);
+            stats.lost_batches.fetch_add(gap, Ordering::Relaxed);
+            stats.lost_transitions.fetch_add(gap.saturating_mul(h.count as u64), Ordering::Relaxed);
+            self.tel.sample.lost = self.tel.sample.lost.saturating_add(gap);
+            if let Some(l) = stats.lost_by_env.lock().ok().as_mut().and_then(|v| v.get_mut(h.actor as usize)) {
+                *l = l.saturating_add(gap.saturating_mul(h.count as u64));
             }
-            *slot = Some(h.seq.saturating_add(1));
         }
         let sent = send_retrying(&mut self.trans_tx, words, self.stop, |hdr, p| {
             *hdr = h;
@@ -793,9 +788,7 @@ impl<S: Service> HeadBridge<'_, S> {
                         reply(&q, &Welcome::Joined { slot: x.slot, env_offset: x.env_offset, run: run.clone(), config, arena });
                         // Its actors start their sequences afresh.
                         for e in x.env_offset as usize..(x.env_offset + x.envs) as usize {
-                            if let Some(s) = self.next_seq.get_mut(e) {
-                                *s = None;
-                            }
+                            self.next_seq.reset(e);
                         }
                         tracing::info!("worker {} joined again", x.name);
                     }
@@ -940,7 +933,7 @@ impl Worker {
             tel_rx: hub.receiver(&Channel::telemetry(roles))?,
             w_tx: None,
             tel: LinkTelemetry::new(hub, roles, 0)?,
-            wseq: std::collections::HashMap::new(),
+            wseq: SeqTracker::new(envs),
             head_seen: false,
             off: self.env_offset,
             slot: self.slot,
@@ -990,8 +983,8 @@ struct WorkerBridge<S: Service> {
     tel_rx: rotorhive_transport::Receiver<S, u8, Telemetry>,
     w_tx: Option<rotorhive_transport::Sender<S, f32, WeightsHeader>>,
     tel: LinkTelemetry<S>,
-    /// The next batch expected from each actor of this host.
-    wseq: std::collections::HashMap<u32, u64>,
+    /// The batches seen from each actor of this host.
+    wseq: SeqTracker,
     head_seen: bool,
     off: u32,
     slot: u32,
@@ -1065,12 +1058,10 @@ impl<S: Service> WorkerBridge<S> {
         let Some(m) = m else { return Ok(()) };
         let t = Instant::now();
         let mut h = *m.user_header();
-        if let Some(w) = self.wseq.get(&h.actor)
-            && *w != h.seq
-        {
-            tracing::warn!("worker link: actor {} batches {w}..{} missing in shared memory", h.actor, h.seq);
+        let gap = self.wseq.observe(h.actor as usize, h.seq);
+        if gap > 0 {
+            tracing::warn!("worker link: actor {} batches {}..{} missing in shared memory", h.actor, h.seq - gap, h.seq);
         }
-        self.wseq.insert(h.actor, h.seq + 1);
         h.actor += self.off;
         self.trans_pub.put(wire::payload_bytes(m.payload()).to_vec()).attachment(wire::header_bytes(&h).to_vec()).wait().map_err(zerr("send transitions"))?;
         stats.batches += 1;

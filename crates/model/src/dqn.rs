@@ -455,10 +455,8 @@ impl Dqn {
         }
         map.insert("adam_t".into(), Tensor::new(&[self.opt.t as i64], &dev)?);
         map.insert("updates".into(), Tensor::new(&[self.updates as i64], &dev)?);
-        let tmp = path.with_extension("tmp");
-        candle_core::safetensors::save(&map, &tmp)?;
-        std::fs::rename(&tmp, path).map_err(|e| ModelError::Checkpoint { file: path.display().to_string(), message: format!("cannot write: {e}") })?;
-        Ok(())
+        let bad = |e: std::io::Error| ModelError::Checkpoint { file: path.display().to_string(), message: format!("cannot write: {e}") };
+        rotorhive_msg::durable::atomic_write(path, |tmp| Ok(candle_core::safetensors::save(&map, tmp)?), bad)
     }
 
     /// Restores a state written by [`Dqn::save_state`], checking every tensor.

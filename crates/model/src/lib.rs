@@ -381,7 +381,11 @@ impl QNet {
         let bad = |message: String| ModelError::Checkpoint { file: path.display().to_string(), message };
         let mut bytes = safetensors::serialize(cpu, Some(meta)).map_err(|e| bad(format!("cannot write: {e}")))?;
         sort_header(&mut bytes);
-        std::fs::write(path, bytes).map_err(|e| bad(format!("cannot write: {e}")))
+        rotorhive_msg::durable::atomic_write(
+            path,
+            |tmp| std::fs::write(tmp, &bytes).map_err(|e| bad(format!("cannot write: {e}"))),
+            |e| bad(format!("cannot write: {e}")),
+        )
     }
 
     /// Writes the network as an ONNX model (see `onnx.rs`): inputs `depth`

@@ -124,17 +124,12 @@ pub struct Summary {
 }
 
 impl Summary {
-    /// Writes `RUN_DIR/summary.json` through a temporary file, so a full
-    /// disk leaves no half-written summary.
+    /// Writes `RUN_DIR/summary.json` atomically (`rotorhive_msg::durable`),
+    /// so a crash or a full disk leaves no half-written summary.
     pub fn write(&self, run_dir: &Path) -> Result<()> {
         let path = run_dir.join("summary.json");
-        let tmp = run_dir.join("summary.json.tmp");
         let text = serde_json::to_string_pretty(self)? + "\n";
-        let written = std::fs::write(&tmp, text).and_then(|_| std::fs::rename(&tmp, &path));
-        if written.is_err() {
-            let _ = std::fs::remove_file(&tmp);
-        }
-        written.with_context(|| format!("cannot write {}", path.display()))
+        rotorhive_msg::durable::atomic_write(&path, |tmp| std::fs::write(tmp, &text), |e| e).with_context(|| format!("cannot write {}", path.display()))
     }
 
     /// Reads `RUN_DIR/summary.json`; the error names the file.

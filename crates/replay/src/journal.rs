@@ -102,7 +102,7 @@ impl Journal {
             write_words(&j.file, HEADER, &mem.data[..mem.len.max(mem.head) * mem.width]).map_err(io)?;
         }
         j.write_header(mem)?;
-        std::fs::rename(&tmp, path).map_err(io)?;
+        rotorhive_msg::durable::commit(&tmp, path).map_err(io)?;
         Ok(j)
     }
 

@@ -228,7 +228,7 @@ impl Replay {
             return Ok(false);
         }
         s.out.flush().map_err(io)?;
-        std::fs::rename(&s.tmp, &s.path).map_err(io)?;
+        rotorhive_msg::durable::commit(&s.tmp, &s.path).map_err(io)?;
         Ok(true)
     }
 

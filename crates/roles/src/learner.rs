@@ -31,20 +31,15 @@ pub fn dqn_config(cfg: &Config) -> DqnConfig {
     }
 }
 
-/// Writes a checkpoint atomically (temporary file, then rename).
+/// Writes a checkpoint (atomically: `QNet::save_with` goes through
+/// `rotorhive_msg::durable`).
 fn save_atomic(net: &QNet, path: &Path, tags: &[(&str, String)]) -> Result<()> {
-    let tmp = path.with_extension("tmp");
-    net.save_with(&tmp, tags)?;
-    std::fs::rename(&tmp, path).with_context(|| format!("cannot write checkpoint {}", path.display()))?;
-    Ok(())
+    net.save_with(path, tags).with_context(|| format!("cannot write checkpoint {}", path.display()))
 }
 
-/// Writes the learner's whole state atomically.
+/// Writes the learner's whole state (atomically, as `Dqn::save_state` does).
 fn save_state_atomic(dqn: &Dqn, path: &Path) -> Result<()> {
-    let tmp = path.with_extension("tmp");
-    dqn.save_state(&tmp)?;
-    std::fs::rename(&tmp, path).with_context(|| format!("cannot write learner state {}", path.display()))?;
-    Ok(())
+    dqn.save_state(path).with_context(|| format!("cannot write learner state {}", path.display()))
 }
 
 /// A learner with the config's network and optimiser; a restarted (or

@@ -6,7 +6,7 @@ use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use rotorhive_msg::{MinibatchHeader, PACKED_LEN, PICK_WORDS, PriorityHeader, RoleKind, TransitionHeader};
+use rotorhive_msg::{MinibatchHeader, PACKED_LEN, PICK_WORDS, PriorityHeader, RoleKind, SeqTracker, TransitionHeader};
 use rotorhive_replay::{Acted, Journal, Pick, Replay};
 use rotorhive_transport::{Channel, TransportError};
 
@@ -35,7 +35,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
         return run_scheduled(cfg, hub, &mut mem, journal.as_mut(), &mut rx, &mut tx, &mut tel, &mut prio);
     }
     // Actors of other hosts come through the link with indexes after ours.
-    let mut next_seq = vec![None::<u64>; cfg.envs_total()];
+    let mut next_seq = SeqTracker::new(cfg.envs_total());
     let mut mb_seq = 0u64;
     let mut backoff_until = Instant::now();
     let mut limit = SampleLimit::new(cfg);
@@ -238,7 +238,7 @@ fn run_scheduled<S: Service>(
     let schedule = Schedule::new(cfg);
     let batch = cfg.replay.batch;
     let mut pending: Vec<VecDeque<(u64, Vec<u16>)>> = vec![VecDeque::new(); cfg.sim.envs];
-    let mut next_seq = vec![None::<u64>; cfg.sim.envs];
+    let mut next_seq = SeqTracker::new(cfg.sim.envs);
     let (mut rounds, mut sent) = (0u64, 0u64);
     // The next minibatch, sampled once and offered until the learner takes it.
     let (mut minibatch, mut drawn, mut acted) = (vec![0u16; minibatch_len(batch)], false, Acted::default());
@@ -320,7 +320,7 @@ fn insert_round(pending: &mut [VecDeque<(u64, Vec<u16>)>], mem: &mut Replay, mut
 fn enqueue<S: Service>(
     m: &rotorhive_transport::Msg<S, u16, TransitionHeader>,
     pending: &mut [VecDeque<(u64, Vec<u16>)>],
-    next_seq: &mut [Option<u64>],
+    next_seq: &mut SeqTracker,
     lost: &mut u64,
 ) -> Result<()> {
     let h = *m.user_header();
@@ -339,16 +339,9 @@ fn enqueue<S: Service>(
 /// when the batch is clean (a batch with any corrupt transition, or whose
 /// length is not whole transitions, is not stored: poison never reaches the
 /// learner).
-fn check<S: Service>(m: &rotorhive_transport::Msg<S, u16, TransitionHeader>, next_seq: &mut [Option<u64>], lost: &mut u64) -> bool {
+fn check<S: Service>(m: &rotorhive_transport::Msg<S, u16, TransitionHeader>, next_seq: &mut SeqTracker, lost: &mut u64) -> bool {
     let h = m.user_header();
-    if let Some(slot) = next_seq.get_mut(h.actor as usize) {
-        if let Some(want) = *slot
-            && h.seq > want
-        {
-            *lost += h.seq - want;
-        }
-        *slot = Some(h.seq + 1);
-    }
+    *lost += next_seq.observe(h.actor as usize, h.seq);
     let bad = rotorhive_msg::corrupt_transitions(m.payload());
     *lost += bad;
     let whole = m.payload().len().is_multiple_of(PACKED_LEN);
@@ -369,7 +362,7 @@ fn ingest<S: Service>(
     m: &rotorhive_transport::Msg<S, u16, TransitionHeader>,
     mem: &mut Replay,
     journal: Option<&mut Journal>,
-    next_seq: &mut [Option<u64>],
+    next_seq: &mut SeqTracker,
     lost: &mut u64,
 ) -> Result<()> {
     if !check(m, next_seq, lost) {

@@ -146,10 +146,8 @@ fn fly<S: Service>(
         let better = score.is_some_and(|s| best.is_none_or(|b| s > b));
         if better {
             best = score;
-            let path = ckpt_dir.join("best.safetensors");
-            let tmp = ckpt_dir.join("best.safetensors.tmp");
-            net.save_with(&tmp, &cfg.checkpoint_tags())?;
-            std::fs::rename(&tmp, &path).with_context(|| format!("cannot write {}", path.display()))?;
+            // Atomically: `QNet::save_with` goes through `rotorhive_msg::durable`.
+            net.save_with(&ckpt_dir.join("best.safetensors"), &cfg.checkpoint_tags())?;
         }
         let wall = start.elapsed().as_secs_f64();
         let conf = confirmed.map_or(",,".to_string(), |(s, r)| format!("{k},{s:.4},{r:.2}"));
