@@ -2,10 +2,11 @@
 //! joined by real Zenoh sessions on loopback (real processes, real shared
 //! memory, a real network path): the head trains from a worker's
 //! transitions over mutual TLS (QUIC), any loss counted and rare, while a worker with a
-//! certificate of another CA and a plaintext one are kept out; a worker of
-//! another build is refused; bad addresses, missing certificates, a plain
-//! listener beyond loopback and a missing head fail with a clear error
-//! instead of a hang. (A stranger's forged traffic: crates/py/tests/test_stranger.py.)
+//! certificate of another CA and a plaintext one are kept out; bad
+//! addresses, missing certificates, a plain listener beyond loopback and a
+//! missing head fail with a clear error instead of a hang. (A stranger's
+//! forged traffic and a join of another build, refused:
+//! crates/py/tests/test_stranger.py.)
 
 mod common;
 
@@ -158,34 +159,6 @@ fn a_head_trains_from_a_worker_on_another_domain_over_mutual_tls_without_loss() 
     for d in [&dir, &wdir, &certs, &other] {
         let _ = std::fs::remove_dir_all(d);
     }
-}
-
-#[test]
-fn a_worker_of_another_layout_is_refused_and_the_head_gives_up_in_time() {
-    if common::skip_slow("a_worker_of_another_layout_is_refused_and_the_head_gives_up_in_time") {
-        return;
-    }
-    let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
-    let dir = tmp("mismatch");
-    let ep = format!("tcp/127.0.0.1:{}", free_port());
-    let dir_s = dir.display().to_string();
-    let mut args = vec!["--domain", "mismatch", "train", "--listen", &ep, "--run-dir", &dir_s];
-    args.extend(small_run());
-    args.extend(["--set", "cluster.workers=1", "--set", "cluster.join_timeout_s=6"]);
-    let t = Instant::now();
-    let head = hive(&args).spawn().unwrap();
-    let w = hive(&["worker", "--connect", &ep, "--join-timeout", "20"]).env("ROTORHIVE_LAYOUT_SALT", "7").output().unwrap();
-    assert!(!w.status.success());
-    let err = String::from_utf8_lossy(&w.stderr);
-    assert!(err.contains("message layout mismatch") && err.contains("same build"), "{err}");
-    // The refusal says nothing a stranger could use.
-    assert!(!err.chars().collect::<Vec<_>>().windows(16).any(|w| w.iter().all(|c| c.is_ascii_hexdigit())), "{err}");
-    let h = head.wait_with_output().unwrap();
-    assert!(!h.status.success(), "{}", text(&h));
-    let err = String::from_utf8_lossy(&h.stderr);
-    assert!(err.contains("only 0 of 1 worker hosts joined within 6 s"), "{err}");
-    assert!(t.elapsed() < Duration::from_secs(30), "{:?}", t.elapsed());
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]

@@ -6,9 +6,12 @@ every message is counted against the host whose key it came on."""
 
 import json
 import os
+import re
 import socket
+import struct
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -86,3 +89,59 @@ def test_a_stranger_cannot_crash_poison_or_stop_a_run(tmp_path):
     assert summary["learner_updates"] > 50
     assert hosts[1]["env_steps"] > 1000
     assert os.path.exists(run_dir / "final.safetensors")
+
+
+def hello(layout, host="odd", token="t"):
+    """A worker's join request (`link/src/wire.rs`: `RHJ2`, layout, envs,
+    agents, host, token)."""
+    s = lambda v: struct.pack("<I", len(v)) + v.encode()  # noqa: E731
+    return b"RHJ2" + struct.pack("<QII", layout, 1, 8) + s(host) + s(token)
+
+
+@pytest.mark.skipif(not HIVE.exists(), reason="needs target/release/hive (scripts/test builds it)")
+def test_a_join_of_another_layout_is_refused_and_the_head_gives_up_in_time(tmp_path):
+    """A join request of another build (another message layout) is refused
+    with a reason that does not give the head's layout away, and a head
+    whose worker never joins gives up when `cluster.join_timeout_s` ends."""
+    zenoh = pytest.importorskip("zenoh")
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    run_dir = tmp_path / "head"
+    started = time.monotonic()
+    head = subprocess.Popen(
+        [str(HIVE), "--domain", "stranger-mismatch", "train", "configs/default.toml", "--listen", ep, "--run-dir", str(run_dir)]
+        + ["--quiet", "--set", "sim.agents=8", "--set", "eval.every_s=0", "--set", "cluster.workers=1", "--set", "cluster.join_timeout_s=6"],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        conf = zenoh.Config()
+        conf.insert_json5("mode", '"peer"')
+        conf.insert_json5("connect/endpoints", json.dumps([ep]))
+        conf.insert_json5("listen/endpoints", "[]")
+        conf.insert_json5("scouting/multicast/enabled", "false")
+        conf.insert_json5("scouting/gossip/enabled", "false")
+        answer = None
+        with zenoh.open(conf) as session:
+            # The head may not listen yet: ask until it answers.
+            while answer is None and time.monotonic() - started < 20:
+                for r in session.get("rotorhive/join", payload=hello(0x0123_4567_89AB_CDEF), timeout=1.0):
+                    if r.ok is not None:
+                        answer = r.ok.payload.to_bytes()
+                time.sleep(0.2)
+        h_out, h_err = head.communicate(timeout=60)
+    finally:
+        if head.poll() is None:
+            head.kill()
+    assert answer is not None, "the head never answered the join"
+    # `RHW1`, 1 (refused), then the reason.
+    assert answer[:8] == b"RHW1" + struct.pack("<I", 1), answer[:8]
+    (n,) = struct.unpack("<I", answer[8:12])
+    why = answer[12 : 12 + n].decode()
+    assert "message layout mismatch" in why and "same build" in why, why
+    assert not re.search(r"[0-9a-fA-F]{16}", why), why
+    assert head.returncode != 0, h_err
+    assert "only 0 of 1 worker hosts joined within 6 s" in h_err, h_err
+    assert "panicked" not in h_err
+    assert time.monotonic() - started < 30

@@ -16,5 +16,61 @@ pub mod telemetry;
 pub mod tensorboard;
 
 pub use rolling::Rolling;
+
+/// What can go wrong reading or writing a run's records; each names the
+/// file.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordsError {
+    /// A file could not be read or written.
+    #[error("cannot {action} {file}: {source}")]
+    Io {
+        /// "read" or "write".
+        action: &'static str,
+        /// The file.
+        file: String,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// `summary.json` is not a summary of this build.
+    #[error("{file} is not a summary of this build: {source}")]
+    Summary {
+        /// The file.
+        file: String,
+        /// Where it differs.
+        source: serde_json::Error,
+    },
+    /// A line of `telemetry.csv` that is not a telemetry row.
+    #[error("{file}: line {line}: {message}")]
+    Telemetry {
+        /// The file.
+        file: String,
+        /// Its line, from 1.
+        line: usize,
+        /// What is wrong (the column named).
+        message: String,
+    },
+    /// A run directory without telemetry.
+    #[error("{0}: no telemetry rows")]
+    NoTelemetry(String),
+    /// Plotters failed to draw.
+    #[error("drawing failed: {0}")]
+    Plot(String),
+    /// A summary could not be encoded as JSON.
+    #[error("cannot encode the summary: {0}")]
+    Encode(#[from] serde_json::Error),
+    /// Writing a report into a string failed.
+    #[error("cannot format the report: {0}")]
+    Format(#[from] std::fmt::Error),
+}
+
+/// Result of this crate.
+pub type Result<T> = std::result::Result<T, RecordsError>;
+
+impl RecordsError {
+    /// An I/O error of `action` ("read", "write") on `file`.
+    pub fn io<'a>(action: &'static str, file: &'a std::path::Path) -> impl FnOnce(std::io::Error) -> Self + 'a {
+        move |source| RecordsError::Io { action, file: file.display().to_string(), source }
+    }
+}
 pub use summary::{HostSummary, Summary};
 pub use telemetry::TelemetryRow;

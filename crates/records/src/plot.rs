@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use anyhow::Result;
+use crate::{RecordsError, Result};
 use plotters::prelude::*;
 
 /// The face every plot's text is drawn with, built into the binary: plots
@@ -22,8 +22,8 @@ pub fn font() {
 }
 
 /// A plotters error as this crate's error.
-pub fn plot_err<E: std::fmt::Display>(e: E) -> anyhow::Error {
-    anyhow::anyhow!("drawing failed: {e}")
+pub fn plot_err<E: std::fmt::Display>(e: E) -> RecordsError {
+    RecordsError::Plot(e.to_string())
 }
 
 /// Draws rolling episode reward against wall time, with the threshold, and

@@ -8,7 +8,7 @@ use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::Path;
 
-use anyhow::{Context, Result, bail};
+use crate::{RecordsError, Result};
 use rotorhive_msg::{RoleKind, stage_names};
 
 use crate::telemetry::TelemetryRow;
@@ -77,7 +77,7 @@ pub fn analyse(run_dir: &Path) -> Result<Profile> {
         rows.entry((row.role.clone(), row.index)).or_default().push(row);
     }
     if rows.is_empty() {
-        bail!("{}: no telemetry rows", run_dir.join("telemetry.csv").display());
+        return Err(RecordsError::NoTelemetry(run_dir.join("telemetry.csv").display().to_string()));
     }
     let mut roles = Vec::new();
     let mut machine = Vec::new();
@@ -203,6 +203,7 @@ fn mean(it: impl Iterator<Item = f64>) -> f64 {
 pub fn run(run_dir: &Path) -> Result<()> {
     let r = report(run_dir)?;
     print!("{r}");
-    std::fs::write(run_dir.join("profile.md"), &r).with_context(|| format!("cannot write {}", run_dir.join("profile.md").display()))?;
+    let path = run_dir.join("profile.md");
+    std::fs::write(&path, &r).map_err(RecordsError::io("write", &path))?;
     Ok(())
 }

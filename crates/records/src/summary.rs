@@ -4,7 +4,7 @@
 
 use std::path::Path;
 
-use anyhow::{Context, Result};
+use crate::{RecordsError, Result};
 use serde::{Deserialize, Serialize};
 
 /// One host of a run (`summary.json`'s `hosts`).
@@ -129,14 +129,14 @@ impl Summary {
     pub fn write(&self, run_dir: &Path) -> Result<()> {
         let path = run_dir.join("summary.json");
         let text = serde_json::to_string_pretty(self)? + "\n";
-        rotorhive_msg::durable::atomic_write(&path, |tmp| std::fs::write(tmp, &text), |e| e).with_context(|| format!("cannot write {}", path.display()))
+        rotorhive_msg::durable::atomic_write(&path, |tmp| std::fs::write(tmp, &text), |e| e).map_err(RecordsError::io("write", &path))
     }
 
     /// Reads `RUN_DIR/summary.json`; the error names the file.
     pub fn read(run_dir: &Path) -> Result<Self> {
         let path = run_dir.join("summary.json");
-        let text = std::fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))?;
-        serde_json::from_str(&text).with_context(|| format!("{} is not a summary of this build", path.display()))
+        let text = std::fs::read_to_string(&path).map_err(RecordsError::io("read", &path))?;
+        serde_json::from_str(&text).map_err(|source| RecordsError::Summary { file: path.display().to_string(), source })
     }
 }
 

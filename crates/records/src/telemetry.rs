@@ -4,7 +4,7 @@
 
 use std::path::Path;
 
-use anyhow::{Context, Result, bail};
+use crate::{RecordsError, Result};
 pub use rotorhive_msg::Learning;
 
 /// The file's header: the column names in order.
@@ -91,14 +91,14 @@ impl TelemetryRow {
     }
 
     /// Parses one line; the error names the column.
-    pub fn parse(line: &str) -> Result<Self> {
+    pub fn parse(line: &str) -> std::result::Result<Self, String> {
         let f: Vec<&str> = line.split(',').collect();
         if f.len() != COLUMNS {
-            bail!("expected {COLUMNS} fields, found {}", f.len());
+            return Err(format!("expected {COLUMNS} fields, found {}", f.len()));
         }
         let name = |k: usize| HEADER.split(',').nth(k).unwrap_or("?");
-        let float = |k: usize| f[k].parse::<f64>().with_context(|| format!("column `{}` is not a number: {:?}", name(k), f[k]));
-        let int = |k: usize| f[k].parse::<u64>().with_context(|| format!("column `{}` is not a count: {:?}", name(k), f[k]));
+        let float = |k: usize| f[k].parse::<f64>().map_err(|_| format!("column `{}` is not a number: {:?}", name(k), f[k]));
+        let int = |k: usize| f[k].parse::<u64>().map_err(|_| format!("column `{}` is not a count: {:?}", name(k), f[k]));
         let opt = |k: usize| if f[k].is_empty() { Ok(None) } else { float(k).map(Some) };
         let gpu = match (opt(16)?, opt(17)?, opt(18)?) {
             (Some(u), Some(m), Some(p)) => Some([u, m, p]),
@@ -143,13 +143,13 @@ impl TelemetryRow {
 /// header per part; they are skipped).
 pub fn read(run_dir: &Path) -> Result<Vec<TelemetryRow>> {
     let path = run_dir.join("telemetry.csv");
-    let text = std::fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))?;
+    let text = std::fs::read_to_string(&path).map_err(RecordsError::io("read", &path))?;
     let mut rows = Vec::new();
     for (i, line) in text.lines().enumerate() {
         if line == HEADER || line.is_empty() {
             continue;
         }
-        rows.push(TelemetryRow::parse(line).with_context(|| format!("{}: line {}", path.display(), i + 1))?);
+        rows.push(TelemetryRow::parse(line).map_err(|message| RecordsError::Telemetry { file: path.display().to_string(), line: i + 1, message })?);
     }
     Ok(rows)
 }
