@@ -183,4 +183,12 @@ fn domain_crates_stay_pure_and_the_transport_knows_no_domain() {
     // Only the binary parses command lines: the roles take a context.
     let bad = uses("rotorhive-roles", &["clap"]);
     assert!(bad.is_empty(), "rotorhive-roles depends on {bad:?}");
+    // Errors by layer: the libraries return their own thiserror types;
+    // anyhow is the binary's (and the Python package's, which turns errors
+    // into Python exceptions at its edge).
+    for (krate, d) in &deps {
+        if !["hive", "rotorhive-py"].contains(&krate.as_str()) {
+            assert!(!d.iter().any(|(n, _)| n == "anyhow"), "the library {krate} depends on anyhow: give it a thiserror type");
+        }
+    }
 }

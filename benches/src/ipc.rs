@@ -19,7 +19,7 @@ use std::net::{TcpListener, TcpStream};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use anyhow::{Context, Result, bail};
+use crate::error::{Doing, Result, failed, usage};
 use rotorhive_msg::{ActionHeader, OBS_LEN, ObsHeader, PACKED_LEN, obs_batch_len};
 use rotorhive_transport::{Channel, Hub, Ipc, services_of_run};
 use serde::{Deserialize, Serialize};
@@ -89,12 +89,12 @@ pub fn peer(prefix: &str) -> Result<()> {
     let hub = Hub::<Ipc>::new(prefix, "bench-peer")?;
     let mut rx = hub.receiver::<f32, ObsHeader>(&request_channel())?;
     let mut tx = hub.sender::<u8, ActionHeader>(&ack_channel(), 1, TIMEOUT)?;
-    let listener = TcpListener::bind("127.0.0.1:0").context("binding a loopback port")?;
+    let listener = TcpListener::bind("127.0.0.1:0").doing("binding a loopback port")?;
     println!("{}", listener.local_addr()?.port());
     std::io::stdout().flush()?;
     // Shared memory first, until the parent sends the end marker.
     loop {
-        let Some(m) = rx.recv_timeout(TIMEOUT)? else { bail!("no message from the benchmark for {TIMEOUT:?}") };
+        let Some(m) = rx.recv_timeout(TIMEOUT)? else { failed!("no message from the benchmark for {TIMEOUT:?}") };
         let h = *m.user_header();
         if h.agents == u32::MAX {
             break;
@@ -112,9 +112,9 @@ pub fn peer(prefix: &str) -> Result<()> {
     s.set_nodelay(true)?;
     let mut buf = Vec::new();
     while read_frame(&mut s, &mut buf)? {
-        let m: RpcMsg = rmp_serde::from_slice(&buf).context("decoding msgpack")?;
+        let m: RpcMsg = rmp_serde::from_slice(&buf).doing("decoding msgpack")?;
         if m.kind as usize >= kinds().len() || m.data.is_empty() {
-            bail!("msgpack message {} of unknown kind {} or empty", m.seq, m.kind);
+            failed!("msgpack message {} of unknown kind {} or empty", m.seq, m.kind);
         }
         let ack = rmp_serde::to_vec(&RpcAck { seq: m.seq, checksum: m.data[0] + m.data[m.data.len() - 1] })?;
         write_frame(&mut s, &ack)?;
@@ -164,9 +164,9 @@ fn shm_rows(
                 p.copy_from_slice(src);
                 ready = Instant::now();
             })?;
-            let m = rx.recv_timeout(TIMEOUT)?.context("no acknowledgement from the peer")?;
+            let m = rx.recv_timeout(TIMEOUT)?.doing("no acknowledgement from the peer")?;
             if m.user_header().step != i as u64 || m.payload()[0] != 1 {
-                bail!("wrong acknowledgement");
+                failed!("wrong acknowledgement");
             }
             if i >= warm {
                 lat.push(ready.elapsed().as_secs_f64() * 1e6 / 2.0);
@@ -182,7 +182,7 @@ fn shm_rows(
 /// Each kind of message serialized with msgpack over one TCP connection to
 /// the peer at `port` and acknowledged, `iters` times.
 fn tcp_rows(port: u16, sources: &[Vec<f32>], iters: usize) -> Result<Vec<Stats>> {
-    let mut s = TcpStream::connect(("127.0.0.1", port)).context("connecting to the peer")?;
+    let mut s = TcpStream::connect(("127.0.0.1", port)).doing("connecting to the peer")?;
     s.set_nodelay(true)?;
     let mut tcp = Vec::new();
     let mut buf = Vec::new();
@@ -200,11 +200,11 @@ fn tcp_rows(port: u16, sources: &[Vec<f32>], iters: usize) -> Result<Vec<Stats>>
             let msg = rmp_serde::to_vec(&RpcMsgRef { kind: k as u32, seq: i as u64, data: &sources[k] })?;
             write_frame(&mut s, &msg)?;
             if !read_frame(&mut s, &mut buf)? {
-                bail!("the TCP peer closed the connection");
+                failed!("the TCP peer closed the connection");
             }
             let ack: RpcAck = rmp_serde::from_slice(&buf)?;
             if ack.seq != i as u64 {
-                bail!("wrong TCP acknowledgement");
+                failed!("wrong TCP acknowledgement");
             }
             if i >= warm {
                 lat.push(t.elapsed().as_secs_f64() * 1e6 / 2.0);
@@ -252,7 +252,7 @@ fn print_rows(shm: &[(Stats, Stats)], tcp: &[Stats]) -> Vec<serde_json::Value> {
 
 pub fn run(iters: usize, json_out: bool) -> Result<()> {
     if iters == 0 {
-        bail!("--iters must be positive");
+        usage!("--iters must be positive");
     }
     let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.subsec_nanos()).unwrap_or(0);
     let prefix = format!("bench-ipc-{}-{nanos:x}", std::process::id());
@@ -266,11 +266,11 @@ pub fn run(iters: usize, json_out: bool) -> Result<()> {
         .stdout(Stdio::piped())
         .stderr(Stdio::inherit())
         .spawn()
-        .context("starting the peer process")?;
+        .doing("starting the peer process")?;
     let result = (|| -> Result<Vec<serde_json::Value>> {
         let mut line = String::new();
-        BufReader::new(child.stdout.take().context("peer stdout")?).read_line(&mut line)?;
-        let port: u16 = line.trim().parse().with_context(|| format!("peer printed {line:?} instead of a port"))?;
+        BufReader::new(child.stdout.take().doing("peer stdout")?).read_line(&mut line)?;
+        let port: u16 = line.trim().parse().doing_with(|| format!("peer printed {line:?} instead of a port"))?;
         let sources: Vec<Vec<f32>> = kinds().iter().map(|(_, n)| (0..*n).map(|i| (i % 97) as f32 * 0.01 + 0.5).collect()).collect();
         let shm = shm_rows(&mut tx, &mut rx, &sources, iters)?;
         tx.send_with(1, |h, _| *h = ObsHeader { agents: u32::MAX, ..ObsHeader::default() })?;
@@ -286,7 +286,7 @@ pub fn run(iters: usize, json_out: bool) -> Result<()> {
     status?;
     let left = services_of_run::<Ipc>(&prefix);
     if !left.is_empty() {
-        bail!("shared memory left behind: {left:?}");
+        failed!("shared memory left behind: {left:?}");
     }
     println!(
         "latency = half the round trip (message + 1-byte acknowledgement), from the message being ready where its producer writes it: shm from the filled loan (rotorhive's roles write their messages in place), msgpack from the sender's buffer (serializing included); +copy-in: shm from a finished buffer copied into the loan; the \"empty\" row is the transport's own share (a 4-byte payload); {iters} messages per row"

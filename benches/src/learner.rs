@@ -3,7 +3,7 @@
 
 use std::time::Instant;
 
-use anyhow::{Result, bail};
+use crate::error::{Result, usage};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use rotorhive_model::{Device, Dqn, DqnConfig};
@@ -81,7 +81,7 @@ fn measure(fused: bool, threads: usize, batch: usize, updates: usize) -> Result<
 /// `compare`, the generic path of stock candle ops measured in the same run.
 pub fn bench(threads: usize, batch: usize, updates: usize, compare: bool, json: bool) -> Result<()> {
     if threads == 0 || batch == 0 || updates == 0 {
-        bail!("--threads, --batch and --updates must be positive");
+        usage!("--threads, --batch and --updates must be positive");
     }
     // The fused path shards over `threads` threads itself; candle's
     // elementwise pool must stay single-threaded (it serialises concurrent

@@ -19,12 +19,13 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use anyhow::{Result, bail};
+use crate::error::{BenchError, Result, failed, usage};
 use clap::Subcommand;
 use serde_json::json;
 
 use rotorhive_sim::{Arena, PhysicsKind, RendererKind, SimConfig, VecEnv};
 
+pub mod error;
 mod ipc;
 mod learner;
 mod link;
@@ -212,7 +213,7 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
     }
 }
 
-fn parse_physics(s: &str) -> Result<PhysicsKind, String> {
+fn parse_physics(s: &str) -> std::result::Result<PhysicsKind, String> {
     match s {
         "direct" => Ok(PhysicsKind::Direct),
         "rapier" => Ok(PhysicsKind::Rapier),
@@ -229,7 +230,7 @@ fn physics_name(p: PhysicsKind) -> &'static str {
 
 fn bench_sim(agents: &[usize], steps: usize, threads: usize, physics: &[PhysicsKind], arena: &std::path::Path, json: bool) -> Result<()> {
     if agents.contains(&0) || steps == 0 || threads == 0 {
-        bail!("--agents, --steps and --threads must be positive");
+        usage!("--agents, --steps and --threads must be positive");
     }
     let arena = Arena::load(arena)?;
     let mut rows = Vec::new();
@@ -291,12 +292,12 @@ fn bench_sim(agents: &[usize], steps: usize, threads: usize, physics: &[PhysicsK
 /// synchronisation per step) and non-batched (one of each per agent).
 fn bench_render(agents: &[usize], renderer: &str, steps: usize, threads: usize, arena: &std::path::Path, plot: &std::path::Path, json: bool) -> Result<()> {
     if agents.contains(&0) || steps == 0 {
-        bail!("--agents and --steps must be positive");
+        usage!("--agents and --steps must be positive");
     }
     let kind = match renderer {
         "cpu" => RendererKind::Cpu,
         "wgpu" => RendererKind::Wgpu,
-        other => bail!("--renderer must be cpu or wgpu, got {other:?}"),
+        other => usage!("--renderer must be cpu or wgpu, got {other:?}"),
     };
     let arena = Arena::load(arena)?;
     let threads = if threads == 0 { std::thread::available_parallelism().map_or(1, |n| n.get()) } else { threads };
@@ -395,7 +396,7 @@ impl ObsHop {
             }
             Ok(())
         });
-        ready.recv_timeout(std::time::Duration::from_secs(10)).map_err(|_| anyhow::anyhow!("the gathering thread of bench render did not start"))?;
+        ready.recv_timeout(std::time::Duration::from_secs(10)).map_err(|_| BenchError::Failed("the gathering thread of bench render did not start".into()))?;
         Ok(Self { _hub: hub, tx, gathered, stop, thread: Some(thread) })
     }
 
@@ -407,9 +408,9 @@ impl ObsHop {
         let got = self
             .gathered
             .recv_timeout(std::time::Duration::from_secs(10))
-            .map_err(|_| anyhow::anyhow!("step {step}'s observations were not gathered within 10 s"))?;
+            .map_err(|_| BenchError::Failed(format!("step {step}'s observations were not gathered within 10 s")))?;
         if got != step {
-            bail!("gathered step {got}, expected {step}");
+            failed!("gathered step {got}, expected {step}");
         }
         Ok(t.elapsed().as_nanos() as u64)
     }
@@ -418,7 +419,7 @@ impl ObsHop {
         self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
         match self.thread.take().map(std::thread::JoinHandle::join) {
             Some(Ok(r)) => r,
-            Some(Err(_)) => bail!("the gathering thread of bench render panicked"),
+            Some(Err(_)) => failed!("the gathering thread of bench render panicked"),
             None => Ok(()),
         }
     }

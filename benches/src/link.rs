@@ -13,7 +13,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use anyhow::{Context, Result, bail};
+use crate::error::{BenchError, Doing, Result, failed, usage};
 use rotorhive_msg::{PACKED_LEN, TransitionHeader};
 use rotorhive_transport::{Channel, Hub, Ipc};
 use serde::{Deserialize, Serialize};
@@ -50,7 +50,7 @@ fn sample_batch(batch: usize) -> Vec<u16> {
 /// Runs the benchmark: the link between two domains, then msgpack over TCP.
 pub fn run(seconds: f64, batch: usize, with_tls: bool, json_out: bool) -> Result<()> {
     if !(seconds.is_finite() && seconds > 0.0) || batch == 0 || batch > 1024 {
-        bail!("--seconds must be positive and --batch between 1 and 1024");
+        usage!("--seconds must be positive and --batch between 1 and 1024");
     }
     let plain = link_pair(seconds, batch, None)?;
     // The same over mutual TLS on TCP and on QUIC, with certificates made
@@ -149,7 +149,7 @@ fn link_pair(seconds: f64, batch: usize, tls: Option<(&std::path::Path, &str)>) 
         if let Some((t, _)) = tls {
             c.arg("--tls").arg(t.join(dir));
         }
-        c.stdout(Stdio::piped()).spawn().with_context(|| format!("cannot start the {name} side"))
+        c.stdout(Stdio::piped()).spawn().doing_with(|| format!("cannot start the {name} side"))
     };
     // Each pair in domains of its own: the previous pair's processes may
     // not have left theirs yet.
@@ -160,7 +160,7 @@ fn link_pair(seconds: f64, batch: usize, tls: Option<(&std::path::Path, &str)>) 
     let last = |o: &std::process::Output| -> Result<serde_json::Value> {
         let out = String::from_utf8_lossy(&o.stdout);
         let line = out.lines().last().unwrap_or("");
-        serde_json::from_str(line).with_context(|| format!("a side of the link bench on {ep} failed ({}): {out}", o.status))
+        serde_json::from_str(line).doing_with(|| format!("a side of the link bench on {ep} failed ({}): {out}", o.status))
     };
     let (hj, wj) = (last(&h)?, last(&w)?);
     let got = hj["transitions"].as_u64().unwrap_or(0);
@@ -175,7 +175,7 @@ pub fn side(side: &str, ep: &str, seconds: f64, batch: usize, tls: Option<std::p
     match side {
         "head" => head_side(ep, seconds, batch, layout, &rotorhive_link::LinkOptions::for_head(tls, None, 1)),
         "worker" => worker_side(ep, batch, layout, &rotorhive_link::LinkOptions::for_worker(tls, None)),
-        other => bail!("--side {other}: head or worker"),
+        other => usage!("--side {other}: head or worker"),
     }
 }
 
@@ -200,7 +200,7 @@ fn head_side(ep: &str, seconds: f64, batch: usize, layout: u64, opts: &rotorhive
         let h = *m.user_header();
         lost += seen.observe(h.actor as usize, h.seq) * h.count as u64;
         if m.payload().len() != h.count as usize * PACKED_LEN || m.payload()[0] != (h.seq as u16) {
-            bail!("batch {} arrived damaged", h.seq);
+            failed!("batch {} arrived damaged", h.seq);
         }
         first.get_or_insert_with(Instant::now);
         got += h.count as u64;
@@ -264,7 +264,7 @@ fn worker_side(ep: &str, batch: usize, layout: u64, opts: &rotorhive_link::LinkO
         let _ = ready_tx.send(());
     });
     stop.store(true, Ordering::SeqCst);
-    let produced = producer.join().map_err(|_| anyhow::anyhow!("producer panicked"))??;
+    let produced = producer.join().map_err(|_| BenchError::Failed("producer panicked".into()))??;
     end?;
     println!("{}", json!({"sent": stats.transitions, "produced": produced}));
     Ok(())
@@ -288,7 +288,7 @@ fn msgpack_tcp(seconds: f64, batch: usize) -> Result<(u64, f64)> {
         let (mut s, _) = listener.accept()?;
         let (mut got, mut first, mut buf) = (0u64, None::<Instant>, Vec::new());
         while read_frame(&mut s, &mut buf)? {
-            let b: Batch = rmp_serde::from_slice(&buf).context("decoding msgpack")?;
+            let b: Batch = rmp_serde::from_slice(&buf).doing("decoding msgpack")?;
             first.get_or_insert_with(Instant::now);
             got += b.count as u64;
             if first.is_some_and(|t| t.elapsed().as_secs_f64() >= seconds) {
@@ -311,5 +311,5 @@ fn msgpack_tcp(seconds: f64, batch: usize) -> Result<(u64, f64)> {
         }
     }
     drop(s);
-    receiver.join().map_err(|_| anyhow::anyhow!("baseline receiver panicked"))?
+    receiver.join().map_err(|_| BenchError::Failed("baseline receiver panicked".into()))?
 }

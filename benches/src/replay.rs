@@ -11,7 +11,7 @@ use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use anyhow::{Context, Result, bail};
+use crate::error::{Doing, Result, failed, usage};
 use rotorhive_msg::{MinibatchHeader, OBS_LEN, PACKED_LEN, PICK_WORDS, Pick, PriorityHeader, Telemetry, TransitionHeader, pack_transition};
 use rotorhive_roles::replay::minibatch_len;
 use rotorhive_transport::{Channel, Hub, Ipc, services_of_run};
@@ -80,7 +80,7 @@ fn spawn_producers(prefix: &str, producers: usize, batches: usize) -> Result<Vec
                 ])
                 .stdout(Stdio::piped())
                 .spawn()
-                .context("starting a producer")
+                .doing("starting a producer")
         })
         .collect()
 }
@@ -90,12 +90,12 @@ fn join_producers(children: Vec<Child>) -> Result<f64> {
     let mut worst = 0.0f64;
     for mut c in children {
         let mut line = String::new();
-        BufReader::new(c.stdout.take().context("producer stdout")?).read_line(&mut line)?;
+        BufReader::new(c.stdout.take().doing("producer stdout")?).read_line(&mut line)?;
         let status = c.wait()?;
         if !status.success() {
-            bail!("a producer failed ({status})");
+            failed!("a producer failed ({status})");
         }
-        worst = worst.max(line.trim().parse::<f64>().with_context(|| format!("producer printed {line:?}"))?);
+        worst = worst.max(line.trim().parse::<f64>().doing_with(|| format!("producer printed {line:?}"))?);
     }
     Ok(worst)
 }
@@ -112,7 +112,7 @@ struct Variant {
 
 pub fn run(producers: usize, seconds: f64, json_out: bool) -> Result<()> {
     if producers == 0 || !(seconds.is_finite() && seconds > 0.0) {
-        bail!("--producers and --seconds must be positive");
+        usage!("--producers and --seconds must be positive");
     }
     // The first row is the default config's replay: its sampling and journal.
     let default_prioritized = rotorhive_roles::Config::default().replay.prioritized;
@@ -206,7 +206,7 @@ fn measure(producers: usize, seconds: f64, v: &Variant) -> Result<serde_json::Va
         // The replay applied the priorities sent back (its own count).
         let priority_updates = priority_updates(&mut tel)?;
         if v.prioritized && priority_updates == 0 {
-            bail!("the replay applied none of the priorities sent back");
+            failed!("the replay applied none of the priorities sent back");
         }
         let mixed_samples = got as f64 / mixed_secs;
         Ok(json!({
@@ -230,7 +230,7 @@ fn measure(producers: usize, seconds: f64, v: &Variant) -> Result<serde_json::Va
     let out = result?;
     let left = services_of_run::<Ipc>(&prefix);
     if !left.is_empty() {
-        bail!("shared memory left behind: {left:?}");
+        failed!("shared memory left behind: {left:?}");
     }
     Ok(out)
 }
@@ -246,7 +246,7 @@ fn sample_for(rx: &mut rotorhive_transport::Receiver<Ipc, u16, MinibatchHeader>,
     while t.elapsed().as_secs_f64() < secs {
         if let Some(m) = rx.recv_timeout(Duration::from_millis(500))? {
             if m.payload().len() != minibatch_len(32) {
-                bail!("minibatch of the wrong size");
+                failed!("minibatch of the wrong size");
             }
             feed_back(&m)?;
             n += 1;
@@ -300,7 +300,7 @@ fn start_replay(cfg_path: &std::path::Path, prefix: &str, dir: &std::path::Path)
         .arg(dir)
         .stdout(Stdio::null())
         .spawn()
-        .context("starting the replay role")
+        .doing("starting the replay role")
 }
 
 /// Phase 1: once the replay reports, `producers` fill its memory
@@ -318,7 +318,7 @@ fn fill(
     let t = Instant::now();
     while tel.recv_timeout(Duration::from_millis(100))?.is_none() {
         if t.elapsed() > Duration::from_secs(30) {
-            bail!("the replay process did not start");
+            failed!("the replay process did not start");
         }
     }
     // Phase 1: inserts alone.
@@ -336,7 +336,7 @@ fn fill(
         while rx.try_recv()?.is_some() {}
     }
     if inserted != capacity as u64 {
-        bail!("the replay inserted {inserted} of {capacity} transitions sent");
+        failed!("the replay inserted {inserted} of {capacity} transitions sent");
     }
     Ok(inserts_per_s)
 }

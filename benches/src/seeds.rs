@@ -16,7 +16,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use anyhow::{Context, Result, bail};
+use crate::error::{BenchError, Doing, Result, failed, usage};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use serde::Deserialize;
@@ -91,7 +91,7 @@ struct ArmsFile {
 
 /// Parses `1-10` or `1,4,7`.
 pub fn parse_seeds(s: &str) -> Result<Vec<u64>> {
-    let bad = || anyhow::anyhow!("--seeds {s:?}: expected a range like 1-10 or a list like 1,4,7");
+    let bad = || BenchError::Usage(format!("--seeds {s:?}: expected a range like 1-10 or a list like 1,4,7"));
     let seeds: Vec<u64> = match s.split_once('-') {
         Some((a, b)) => {
             let (a, b): (u64, u64) = (a.trim().parse().map_err(|_| bad())?, b.trim().parse().map_err(|_| bad())?);
@@ -112,11 +112,11 @@ pub fn parse_seeds(s: &str) -> Result<Vec<u64>> {
 pub fn parse_arm(s: &str) -> Result<Arm> {
     let (name, sets) = s.split_once(':').unwrap_or((s, ""));
     if name.trim().is_empty() {
-        bail!("--arm {s:?}: the arm needs a name (NAME:key=value,...)");
+        usage!("--arm {s:?}: the arm needs a name (NAME:key=value,...)");
     }
     let set: Vec<String> = sets.split(',').map(str::trim).filter(|v| !v.is_empty()).map(String::from).collect();
     if let Some(v) = set.iter().find(|v| !v.contains('=')) {
-        bail!("--arm {s:?}: {v:?} is not key=value");
+        usage!("--arm {s:?}: {v:?} is not key=value");
     }
     Ok(Arm { name: name.trim().to_string(), set })
 }
@@ -125,8 +125,8 @@ pub fn parse_arm(s: &str) -> Result<Arm> {
 fn arms_of(a: &SeedsArgs) -> Result<Vec<Arm>> {
     let mut arms: Vec<Arm> = a.arms.iter().map(|s| parse_arm(s)).collect::<Result<_>>()?;
     if let Some(f) = &a.arms_file {
-        let text = std::fs::read_to_string(f).with_context(|| format!("arms file {}", f.display()))?;
-        let file: ArmsFile = toml::from_str(&text).map_err(|e| anyhow::anyhow!("arms file {}: {}", f.display(), e.to_string().trim_end()))?;
+        let text = std::fs::read_to_string(f).doing_with(|| format!("arms file {}", f.display()))?;
+        let file: ArmsFile = toml::from_str(&text).map_err(|e| BenchError::Usage(format!("arms file {}: {}", f.display(), e.to_string().trim_end())))?;
         arms.extend(file.arm);
     }
     if arms.is_empty() {
@@ -134,7 +134,7 @@ fn arms_of(a: &SeedsArgs) -> Result<Vec<Arm>> {
     }
     for (i, a) in arms.iter().enumerate() {
         if arms[..i].iter().any(|b| b.name == a.name) {
-            bail!("two arms are named {:?}", a.name);
+            usage!("two arms are named {:?}", a.name);
         }
     }
     Ok(arms)
@@ -190,14 +190,14 @@ pub fn threshold_time(run_dir: &Path) -> Result<(Option<f64>, Curve)> {
     let floor = (cfg.actor.exploration == Exploration::PerActor).then_some(cfg.actor.eps_end as f32);
     let mut rolling = Rolling::new(cfg.rolling_window, cfg.threshold, floor);
     let path = run_dir.join("metrics.csv");
-    let text = std::fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))?;
+    let text = std::fs::read_to_string(&path).doing_with(|| format!("cannot read {}", path.display()))?;
     let mut curve = Vec::new();
     for line in text.lines().skip(1) {
         let f: Vec<&str> = line.split(',').collect();
         let num = |k: usize| f.get(k).and_then(|v| v.parse::<f64>().ok());
         match (f[0], num(1)) {
             ("episode", Some(wall)) => {
-                let (Some(r), Some(eps)) = (num(4), num(6)) else { bail!("{}: a bad episode row: {line}", path.display()) };
+                let (Some(r), Some(eps)) = (num(4), num(6)) else { failed!("{}: a bad episode row: {line}", path.display()) };
                 rolling.push(wall, r as f32, false, eps as f32);
             }
             ("tick", Some(wall)) => {
@@ -312,7 +312,7 @@ fn train(a: &SeedsArgs, exe: &Path, arm: &Arm, seed: u64, dir: &Path) -> Result<
         cmd.arg("--set").arg(s);
     }
     cmd.stdout(std::process::Stdio::null());
-    cmd.status().with_context(|| format!("arm {} seed {seed}: cannot start hive train", arm.name))
+    cmd.status().doing_with(|| format!("arm {} seed {seed}: cannot start hive train", arm.name))
 }
 
 /// The median of `v` (NaN when empty).
@@ -437,15 +437,15 @@ pub fn run(a: &SeedsArgs) -> Result<()> {
     let seeds = parse_seeds(&a.seeds)?;
     let arms = arms_of(a)?;
     if !(a.budget_s.is_finite() && a.budget_s > 0.0) {
-        bail!("--budget-s must be positive, got {}", a.budget_s);
+        usage!("--budget-s must be positive, got {}", a.budget_s);
     }
     // Every arm's config must load before hours of runs start.
     for arm in &arms {
         let sets: Vec<String> = a.set.iter().chain(&arm.set).cloned().collect();
-        Config::load(a.config.as_deref(), &sets).with_context(|| format!("arm {}", arm.name))?;
+        Config::load(a.config.as_deref(), &sets).doing_with(|| format!("arm {}", arm.name))?;
     }
     rotorhive_sim::Arena::load(&a.test_arena)?;
-    std::fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
+    std::fs::create_dir_all(&a.out).doing_with(|| format!("cannot create {}", a.out.display()))?;
     let exe = std::env::current_exe()?;
     let total = seeds.len() * arms.len();
     let mut results = Vec::new();
@@ -554,7 +554,7 @@ fn write_csv(path: &Path, results: &[RunResult]) -> Result<()> {
             r.dir.display()
         )?;
     }
-    std::fs::write(path, csv).with_context(|| format!("cannot write {}", path.display()))
+    std::fs::write(path, csv).doing_with(|| format!("cannot write {}", path.display()))
 }
 
 fn write_md(a: &SeedsArgs, stats: &[serde_json::Value], pairs: &[serde_json::Value], results: &[RunResult]) -> Result<()> {
@@ -630,7 +630,7 @@ fn write_md(a: &SeedsArgs, stats: &[serde_json::Value], pairs: &[serde_json::Val
         writeln!(md, "| {} | {} | {t} | {g} | {best} / {last} / {result} | {test} | {:.0} |", r.arm, r.seed, r.env_steps_per_s)?;
     }
     let path = a.out.join("seeds.md");
-    std::fs::write(&path, md).with_context(|| format!("cannot write {}", path.display()))
+    std::fs::write(&path, md).doing_with(|| format!("cannot write {}", path.display()))
 }
 
 #[cfg(test)]

@@ -8,7 +8,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use anyhow::{Context, Result, bail};
+use crate::error::{BenchError, Doing, Result, usage};
 use serde::Deserialize;
 use serde_json::{Value, json};
 
@@ -52,22 +52,22 @@ fn paper(mode: &str, envs: usize, agents: usize) -> Option<(&'static str, u32, u
 }
 
 fn load(path: &Path) -> Result<TableConfig> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("table config {}: cannot read", path.display()))?;
-    let c: TableConfig = toml::from_str(&text).map_err(|e| anyhow::anyhow!("table config {}: {}", path.display(), e.to_string().trim_end()))?;
+    let text = std::fs::read_to_string(path).doing_with(|| format!("table config {}: cannot read", path.display()))?;
+    let c: TableConfig = toml::from_str(&text).map_err(|e| BenchError::Usage(format!("table config {}: {}", path.display(), e.to_string().trim_end())))?;
     if !(c.budget_s.is_finite() && c.budget_s > 0.0) {
-        bail!("table config {}: key `budget_s` must be positive, got {}", path.display(), c.budget_s);
+        usage!("table config {}: key `budget_s` must be positive, got {}", path.display(), c.budget_s);
     }
     if c.seeds.is_empty() || c.cells.is_empty() || c.modes.is_empty() {
-        bail!("table config {}: keys `seeds`, `cells` and `modes` must not be empty", path.display());
+        usage!("table config {}: keys `seeds`, `cells` and `modes` must not be empty", path.display());
     }
     if let Some(m) = c.modes.iter().find(|m| !["batched", "non-batched"].contains(&m.as_str())) {
-        bail!("table config {}: key `modes`: {m:?} is neither \"batched\" nor \"non-batched\"", path.display());
+        usage!("table config {}: key `modes`: {m:?} is neither \"batched\" nor \"non-batched\"", path.display());
     }
     if c.deterministic_env_steps > 0 && c.split_hosts {
-        bail!("table config {}: `deterministic_env_steps` cannot be combined with `split_hosts` (deterministic runs are one host's)", path.display());
+        usage!("table config {}: `deterministic_env_steps` cannot be combined with `split_hosts` (deterministic runs are one host's)", path.display());
     }
     if let Some(cell) = c.cells.iter().find(|c| c[0] == 0 || c[1] == 0) {
-        bail!("table config {}: key `cells`: {cell:?} has zero environments or agents", path.display());
+        usage!("table config {}: key `cells`: {cell:?} has zero environments or agents", path.display());
     }
     Ok(c)
 }
@@ -259,14 +259,14 @@ fn run_cell(
     for s in tc.set.iter().cloned().chain(sets) {
         cmd.arg("--set").arg(s);
     }
-    let mut head = cmd.spawn().with_context(|| format!("cell {name}: cannot start hive train"))?;
+    let mut head = cmd.spawn().doing_with(|| format!("cell {name}: cannot start hive train"))?;
     let mut workers = Vec::new();
     for h in 1..hosts {
         let mut w = Command::new(exe);
         w.args(["--domain", &format!("table-host{h}"), "worker", "--connect", &endpoint]);
         w.args(["--agents", &agents.to_string(), "--name", &format!("host{h}"), "--run-dir"]).arg(dir.join(format!("worker-{h}")));
         w.stdout(std::process::Stdio::null());
-        workers.push(w.spawn().with_context(|| format!("cell {name}: cannot start hive worker"))?);
+        workers.push(w.spawn().doing_with(|| format!("cell {name}: cannot start hive worker"))?);
     }
     let status = head.wait()?;
     for mut w in workers {
@@ -379,7 +379,7 @@ fn table_text(tc: &TableConfig, rows: &[Value]) -> Result<(String, String)> {
 
 pub fn run(config: &Path, out: &Path, json_out: bool) -> Result<()> {
     let tc = load(config)?;
-    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    std::fs::create_dir_all(out).doing_with(|| format!("cannot create {}", out.display()))?;
     let exe = std::env::current_exe()?;
     let mut rows = Vec::new();
     let mut curves = Vec::new();

@@ -139,7 +139,7 @@ fn main() -> ExitCode {
         Command::Eval(a) => eval::run(a),
         Command::Play(a) => play::run(a),
         Command::Export(a) => export::run(a),
-        Command::Bench(b) => rotorhive_bench::run(b),
+        Command::Bench(b) => rotorhive_bench::run(b).map_err(Into::into),
         Command::RenderArena(a) => draw::render_arena(a),
         Command::ShowDepth(a) => draw::show_depth(a),
         Command::GenArena(a) => draw::gen_arena(a),

@@ -45,7 +45,7 @@ pub fn run(args: &RoleArgs, role: RoleKind, index: usize) -> Result<()> {
     rotorhive_transport::handle_hangup();
     let hub = Hub::<Ipc>::new(&args.prefix, &node).with_context(|| format!("role {node}"))?;
     watch_supervisor(&args.prefix, &node)?;
-    rotorhive_roles::run_role(Ctx { hub: &hub, cfg: &cfg, run_dir: args.run_dir.as_deref() }, role, index)
+    Ok(rotorhive_roles::run_role(Ctx { hub: &hub, cfg: &cfg, run_dir: args.run_dir.as_deref() }, role, index)?)
 }
 
 /// The environment variable through which `hive train` tells its roles its

@@ -57,7 +57,7 @@ fn build_env(agents: usize, seed: u64, arena: Option<&str>, arena_seed: Option<u
     let cfg = Config::load(None, &ov).map_err(|e| value_error(format!("{e:#}").replace("config defaults (configs/default.toml): ", "")))?;
     let arenas = cfg.lanes_around(base_arena(arena, arena_seed)?, 0);
     let lanes = arenas.len();
-    let env = VecEnv::try_new_lanes(cfg.sim_config(), &arenas, cfg.seed.wrapping_mul(1000))
+    let env = VecEnv::try_new_lanes(cfg.sim_config(), &arenas, rotorhive_roles::seeds::sim(cfg.seed, 0))
         .map_err(|e| PyRuntimeError::new_err(format!("the simulator could not start: {e}")))?;
     Ok((env, lanes))
 }

@@ -8,6 +8,7 @@
 //! - [`rolling::Rolling`]: the convergence clock (rolling mean of episodes);
 //! - [`tensorboard::EventWriter`]: the run's scalars for TensorBoard.
 
+pub mod kinds;
 pub mod plot;
 pub mod profile;
 pub mod rolling;
@@ -72,5 +73,6 @@ impl RecordsError {
         move |source| RecordsError::Io { action, file: file.display().to_string(), source }
     }
 }
+pub use kinds::{HostRole, Member, ObservationMode, Renderer};
 pub use summary::{HostSummary, Summary};
 pub use telemetry::TelemetryRow;

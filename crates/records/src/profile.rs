@@ -11,11 +11,8 @@ use std::path::Path;
 use crate::{RecordsError, Result};
 use rotorhive_msg::{RoleKind, stage_names};
 
+use crate::Member;
 use crate::telemetry::TelemetryRow;
-
-fn role_kind(name: &str) -> Option<RoleKind> {
-    [RoleKind::Sim, RoleKind::Actor, RoleKind::Replay, RoleKind::Learner, RoleKind::Link].into_iter().find(|r| r.name() == name)
-}
 
 /// One role's figures over a run.
 pub struct RoleProfile {
@@ -72,31 +69,31 @@ impl Profile {
 
 /// Reads a run's `telemetry.csv`.
 pub fn analyse(run_dir: &Path) -> Result<Profile> {
-    let mut rows: BTreeMap<(String, u32), Vec<TelemetryRow>> = BTreeMap::new();
+    let mut rows: BTreeMap<(Member, u32), Vec<TelemetryRow>> = BTreeMap::new();
     for row in crate::telemetry::read(run_dir)? {
-        rows.entry((row.role.clone(), row.index)).or_default().push(row);
+        rows.entry((row.role, row.index)).or_default().push(row);
     }
     if rows.is_empty() {
         return Err(RecordsError::NoTelemetry(run_dir.join("telemetry.csv").display().to_string()));
     }
     let mut roles = Vec::new();
     let mut machine = Vec::new();
-    let supervisor_cpu = rows.get(&("supervisor".to_string(), 0)).map(|r| mean(r.iter().map(|x| x.cpu_pct)));
-    let policy_lag = rows.get(&("learner".to_string(), 0)).map(|r| mean(r.iter().filter_map(|x| x.policy_lag))).filter(|v| v.is_finite());
-    let learner_rows = rows.get(&("learner".to_string(), 0)).map(Vec::as_slice).unwrap_or(&[]);
+    let supervisor_cpu = rows.get(&(Member::Supervisor, 0)).map(|r| mean(r.iter().map(|x| x.cpu_pct)));
+    let policy_lag = rows.get(&(Member::Learner, 0)).map(|r| mean(r.iter().filter_map(|x| x.policy_lag))).filter(|v| v.is_finite());
+    let learner_rows = rows.get(&(Member::Learner, 0)).map(Vec::as_slice).unwrap_or(&[]);
     let learning: Vec<(f64, f64, f64, f64)> = learner_rows
         .iter()
         .filter_map(|x| x.learning.map(|l| (x.wall_s, l.mean_max_q as f64, l.mean_abs_td as f64, l.terminal_share as f64)))
         .filter(|l| l.1 != 0.0)
         .collect();
     let skipped_updates = learner_rows.iter().filter_map(|x| x.learning).map(|l| l.skipped_updates).max().unwrap_or(0);
-    let ends = rows.iter().filter(|((role, _), _)| role == "actor").filter_map(|(_, r)| r.last()?.learning);
+    let ends = rows.iter().filter(|((role, _), _)| *role == Member::Actor).filter_map(|(_, r)| r.last()?.learning);
     let epsilon_spread = ends.fold(None, |acc: Option<(f64, f64)>, l| {
         let (lo, hi) = (l.eps_min as f64, l.eps_max as f64);
         Some(acc.map_or((lo, hi), |(a, b)| (a.min(lo), b.max(hi))))
     });
     for ((role, index), r) in &rows {
-        let Some(kind) = role_kind(role) else { continue };
+        let Some(kind) = role.role() else { continue };
         let names = stage_names(kind);
         // Cumulative timings: the difference over the run, after the first second.
         let (first, last) = (&r[0], &r[r.len() - 1]);

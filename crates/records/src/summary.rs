@@ -4,7 +4,7 @@
 
 use std::path::Path;
 
-use crate::{RecordsError, Result};
+use crate::{HostRole, ObservationMode, RecordsError, Renderer, Result};
 use serde::{Deserialize, Serialize};
 
 /// One host of a run (`summary.json`'s `hosts`).
@@ -12,8 +12,8 @@ use serde::{Deserialize, Serialize};
 pub struct HostSummary {
     /// The machine's name.
     pub name: String,
-    /// `head` or `worker`.
-    pub role: String,
+    /// `head`, `worker`, or `unknown` (keys that name no host).
+    pub role: HostRole,
     /// Environments it ran.
     pub envs: u32,
     /// Agents per environment.
@@ -58,9 +58,9 @@ pub struct Summary {
     /// Every host of the run, this one first.
     pub hosts: Vec<HostSummary>,
     /// `batched` or `non-batched`.
-    pub observation_mode: String,
+    pub observation_mode: ObservationMode,
     /// `cpu` or `wgpu`.
-    pub renderer: String,
+    pub renderer: Renderer,
     /// Agent-steps per wall second.
     pub env_steps_per_s: f64,
     /// Learner updates per wall second.
@@ -161,15 +161,15 @@ mod tests {
             agents_total: 50,
             hosts: vec![HostSummary {
                 name: "here".into(),
-                role: "head".into(),
+                role: HostRole::Head,
                 envs: 2,
                 agents: 25,
                 env_steps: 400_000,
                 lost_transitions: 0,
                 rejected_messages: 0,
             }],
-            observation_mode: "batched".into(),
-            renderer: "cpu".into(),
+            observation_mode: ObservationMode::Batched,
+            renderer: Renderer::Cpu,
             env_steps_per_s: 6_666.7,
             updates_per_s: 200.0,
             cpu_util_mean_pct: Some(97.0),

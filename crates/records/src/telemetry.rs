@@ -4,7 +4,7 @@
 
 use std::path::Path;
 
-use crate::{RecordsError, Result};
+use crate::{Member, RecordsError, Result};
 pub use rotorhive_msg::Learning;
 
 /// The file's header: the column names in order.
@@ -18,8 +18,8 @@ const COLUMNS: usize = 29;
 pub struct TelemetryRow {
     /// Seconds since the run started.
     pub wall_s: f64,
-    /// `sim`, `actor`, `replay`, `learner`, `link` or `supervisor`.
-    pub role: String,
+    /// The role, or the supervisor.
+    pub role: Member,
     /// Instance index (environment for sims and actors).
     pub index: u32,
     /// Process id.
@@ -56,6 +56,15 @@ pub struct TelemetryRow {
 }
 
 impl TelemetryRow {
+    /// The member's name in plots and logs: `supervisor`, or the role and
+    /// its index (`sim-0`, `learner-0`).
+    pub fn member_name(&self) -> String {
+        match self.role {
+            Member::Supervisor => self.role.to_string(),
+            role => format!("{role}-{}", self.index),
+        }
+    }
+
     /// The row as a line of the file (with its newline).
     pub fn to_line(&self) -> String {
         let opt = |v: Option<f64>, digits: usize| v.map_or(String::new(), |v| format!("{v:.digits$}"));
@@ -119,7 +128,7 @@ impl TelemetryRow {
         };
         Ok(Self {
             wall_s: float(0)?,
-            role: f[1].to_string(),
+            role: Member::parse(f[1]).ok_or_else(|| format!("column `role` names no role: {:?}", f[1]))?,
             index: int(2)? as u32,
             pid: int(3)? as u32,
             cpu_pct: float(4)?,
@@ -162,7 +171,7 @@ mod tests {
     fn a_row_round_trips_and_a_bad_one_names_its_column() {
         let row = TelemetryRow {
             wall_s: 12.5,
-            role: "learner".into(),
+            role: Member::Learner,
             index: 0,
             pid: 42,
             cpu_pct: 99.5,

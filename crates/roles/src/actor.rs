@@ -5,7 +5,7 @@
 
 use std::time::Instant;
 
-use anyhow::{Context, Result, bail};
+use crate::error::{Doing, Result, config_err, protocol_err};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use rotorhive_model::QNet;
@@ -63,7 +63,7 @@ pub fn agent_epsilons(cfg: &Config, e: usize, transitions: u64, out: &mut [f64])
 pub fn run<S: Service>(cx: Ctx<'_, S>, e: usize) -> Result<()> {
     let (cfg, hub) = (cx.cfg, cx.hub);
     if e >= cfg.sim.envs {
-        bail!("--env {e} is out of range: the config has {} environments", cfg.sim.envs);
+        config_err!("--env {e} is out of range: the config has {} environments", cfg.sim.envs);
     }
     let mut obs_rx = hub.receiver::<f32, ObsHeader>(&Channel::obs(e, cfg.obs_messages_per_step()))?;
     let mut a = Actor::new(cfg, hub, e)?;
@@ -77,14 +77,14 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, e: usize) -> Result<()> {
         a.tel.sample.weight_version = a.version;
         a.tel.stage(2, t);
         let t = Instant::now();
-        let msg = obs_rx.recv_timeout(POLL).context("waiting for observations")?;
+        let msg = obs_rx.recv_timeout(POLL).doing("waiting for observations")?;
         a.tel.stage(3, t);
         a.tel.tick(false);
         let Some(msg) = msg else { continue };
         let h = *msg.user_header();
         let n = a.n;
         if h.total as usize != n || h.first as usize + h.agents as usize > n || msg.payload().len() != rotorhive_msg::obs_batch_len(h.agents as usize) {
-            bail!("observation batch from sim {e} has agents {}..{} of {}, the config says {n}", h.first, h.first + h.agents, h.total);
+            protocol_err!("observation batch from sim {e} has agents {}..{} of {}, the config says {n}", h.first, h.first + h.agents, h.total);
         }
         if a.schedule.is_some_and(|s| h.step > s.rounds()) {
             // A deterministic run's budget is spent: nothing more to act on.
@@ -161,7 +161,7 @@ struct Actor<'a, S: Service> {
 impl<'a, S: Service> Actor<'a, S> {
     fn new(cfg: &'a Config, hub: &'a rotorhive_transport::Hub<S>, e: usize) -> Result<Self> {
         let (n, envs) = (cfg.sim.agents, cfg.sim.envs);
-        let mut net = QNet::new(cfg.seed, &rotorhive_model::device(cfg.actor.device.as_str())?)?;
+        let mut net = QNet::new(crate::seeds::network(cfg.seed), &rotorhive_model::device(cfg.actor.device.as_str())?)?;
         net.set_threads(cfg.actor.threads);
         let steps_n = cfg.learner.n_step;
         Ok(Self {
@@ -171,7 +171,7 @@ impl<'a, S: Service> Actor<'a, S> {
             w_rx: hub.receiver::<f32, WeightsHeader>(&Channel::weights(envs))?,
             ep_tx: hub.sender::<f32, EpisodeHeader>(&episodes_channel(envs), EPISODE_FIELDS * n, STALL_TIMEOUT)?,
             tel: Counters::new(hub, RoleKind::Actor, e, roles_of(cfg))?,
-            rng: Pcg64Mcg::seed_from_u64(cfg.seed ^ (0xac70 + (cfg.cluster.env_offset + e) as u64)),
+            rng: Pcg64Mcg::seed_from_u64(crate::seeds::actor(cfg.seed, cfg.cluster.env_offset + e)),
             schedule: cfg.deterministic.then(|| Schedule::new(cfg)),
             nstep: NStep::new(steps_n, cfg.learner.gamma as f32, n),
             actions: vec![0; n],
@@ -274,7 +274,7 @@ impl<'a, S: Service> Actor<'a, S> {
         let need = s.updates_for_step(step);
         while self.weights_updates != need {
             if self.weights_updates > need {
-                bail!("actor {}: weights of update {} arrived before step {step} needed those of update {need}", self.e, self.weights_updates);
+                protocol_err!("actor {}: weights of update {} arrived before step {step} needed those of update {need}", self.e, self.weights_updates);
             }
             if self.hub.shutdown_requested() {
                 return Ok(false);
@@ -311,7 +311,7 @@ impl<'a, S: Service> Actor<'a, S> {
                 self.seq += 1;
                 self.transitions += count as u64;
             }
-            Err(err) if self.schedule.is_some() => bail!("actor {e}: a deterministic run cannot lose transitions: {err}"),
+            Err(err) if self.schedule.is_some() => protocol_err!("actor {e}: a deterministic run cannot lose transitions: {err}"),
             Err(err) => {
                 tracing::warn!("actor {e}: {err}");
                 self.tel.sample.lost += 1;
@@ -347,7 +347,7 @@ impl<'a, S: Service> Actor<'a, S> {
             out.copy_from_slice(finished);
         });
         if let (Err(err), Some(_)) = (sent, &self.schedule) {
-            bail!("actor {}: a deterministic run cannot lose episodes: {err}", self.e);
+            protocol_err!("actor {}: a deterministic run cannot lose episodes: {err}", self.e);
         }
         Ok(())
     }
@@ -357,12 +357,12 @@ impl<'a, S: Service> Actor<'a, S> {
 /// its saved update count, which never lies behind), recording their
 /// version and update count; true when it did.
 fn take_weights<S: Service>(rx: &mut Receiver<S, f32, WeightsHeader>, net: &QNet, version: &mut u64, updates: &mut u64) -> Result<bool> {
-    let Some(w) = rx.latest().context("reading weights")? else { return Ok(false) };
+    let Some(w) = rx.latest().doing("reading weights")? else { return Ok(false) };
     let h = *w.user_header();
     if h.version == *version {
         return Ok(false);
     }
-    net.load_flat(w.payload()).context("loading published weights")?;
+    net.load_flat(w.payload()).doing("loading published weights")?;
     (*version, *updates) = (h.version, h.updates);
     Ok(true)
 }

@@ -5,7 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result, bail};
+use crate::error::{Doing, Result, RoleError, config_err};
 use serde::{Deserialize, Serialize};
 
 use rotorhive_sim::{Arena, CameraSpec, GenParams, PhysicsKind, RendererKind, SimConfig};
@@ -394,7 +394,7 @@ impl Default for LearnerSection {
 /// A key that must be a positive number.
 fn positive(key: &str, v: f64) -> Result<()> {
     if !(v.is_finite() && v > 0.0) {
-        bail!("key `{key}` must be positive, got {v}");
+        config_err!("key `{key}` must be positive, got {v}");
     }
     Ok(())
 }
@@ -424,16 +424,17 @@ impl Config {
 
     pub fn load(path: Option<&Path>, overrides: &[String]) -> Result<Self> {
         let (text, source) = match path {
-            Some(p) => (std::fs::read_to_string(p).with_context(|| format!("config {}: cannot read", p.display()))?, p.display().to_string()),
+            Some(p) => (std::fs::read_to_string(p).doing_with(|| format!("config {}: cannot read", p.display()))?, p.display().to_string()),
             // The defaults are `configs/default.toml`, built in.
             None => (DEFAULT_TOML.to_string(), "defaults (configs/default.toml)".to_string()),
         };
-        let mut table: toml::Table = toml::from_str(&text).map_err(|e| anyhow::anyhow!("config {source}: {}", e.to_string().trim_end()))?;
+        let mut table: toml::Table = toml::from_str(&text).map_err(|e| RoleError::Config(format!("config {source}: {}", e.to_string().trim_end())))?;
         for o in overrides {
             apply_override(&mut table, o)?;
         }
-        let cfg: Config = Config::deserialize(toml::Value::Table(table)).map_err(|e| anyhow::anyhow!("config {source}: {}", e.to_string().trim_end()))?;
-        cfg.validate().with_context(|| format!("config {source}"))?;
+        let cfg: Config =
+            Config::deserialize(toml::Value::Table(table)).map_err(|e| RoleError::Config(format!("config {source}: {}", e.to_string().trim_end())))?;
+        cfg.validate().doing_with(|| format!("config {source}"))?;
         Ok(cfg)
     }
 
@@ -449,16 +450,16 @@ impl Config {
         positive("max_seconds", self.max_seconds)?;
         if self.deterministic {
             if self.max_env_steps == 0 {
-                bail!("key `deterministic` needs a budget: set `max_env_steps` (agent-steps) above 0");
+                config_err!("key `deterministic` needs a budget: set `max_env_steps` (agent-steps) above 0");
             }
             if self.replay.samples_per_insert <= 0.0 {
-                bail!("key `deterministic` needs `replay.samples_per_insert` above 0 (the schedule follows it)");
+                config_err!("key `deterministic` needs `replay.samples_per_insert` above 0 (the schedule follows it)");
             }
             if self.learner.max_rate_hz != 0.0 {
-                bail!("key `deterministic` needs `learner.max_rate_hz = 0` (the schedule sets the pace)");
+                config_err!("key `deterministic` needs `learner.max_rate_hz = 0` (the schedule sets the pace)");
             }
             if self.cluster.workers > 0 || self.cluster.envs_elsewhere > 0 {
-                bail!("key `deterministic` is not supported across hosts yet (`cluster.workers` is {})", self.cluster.workers);
+                config_err!("key `deterministic` is not supported across hosts yet (`cluster.workers` is {})", self.cluster.workers);
             }
         }
         positive("cluster.join_timeout_s", self.cluster.join_timeout_s)?;
@@ -466,13 +467,13 @@ impl Config {
         let e = &self.eval;
         for (k, v) in [("eval.every_s", e.every_s), ("eval.after_threshold_s", e.after_threshold_s)] {
             if !(v.is_finite() && v >= 0.0) {
-                bail!("key `{k}` must be 0 or positive, got {v}");
+                config_err!("key `{k}` must be 0 or positive, got {v}");
             }
         }
         positive("eval.episodes", e.episodes as f64)?;
         positive("eval.validation_arenas", e.validation_arenas as f64)?;
         if !(0.0..=1.0).contains(&e.target_success) {
-            bail!("key `eval.target_success` must be a rate between 0 and 1, got {}", e.target_success);
+            config_err!("key `eval.target_success` must be a rate between 0 and 1, got {}", e.target_success);
         }
         Ok(())
     }
@@ -488,13 +489,13 @@ impl Config {
         positive("sim.depth_range", s.depth_range as f64)?;
         positive("sim.render_threads", s.render_threads as f64)?;
         if s.physics_dt > s.action_period {
-            bail!("key `sim.physics_dt` ({}) must not exceed `sim.action_period` ({})", s.physics_dt, s.action_period);
+            config_err!("key `sim.physics_dt` ({}) must not exceed `sim.action_period` ({})", s.physics_dt, s.action_period);
         }
         if s.generated_lanes > 256 {
-            bail!("key `sim.generated_lanes` must be at most 256, got {}", s.generated_lanes);
+            config_err!("key `sim.generated_lanes` must be at most 256, got {}", s.generated_lanes);
         }
         if s.envs > 64 || s.agents > 4096 {
-            bail!("keys `sim.envs` ({}) and `sim.agents` ({}) must be at most 64 and 4096", s.envs, s.agents);
+            config_err!("keys `sim.envs` ({}) and `sim.agents` ({}) must be at most 64 and 4096", s.envs, s.agents);
         }
         Ok(())
     }
@@ -504,49 +505,49 @@ impl Config {
         let a = &self.actor;
         for (k, v) in [("actor.eps_start", a.eps_start), ("actor.eps_end", a.eps_end)] {
             if !(0.0..=1.0).contains(&v) {
-                bail!("key `{k}` must lie in [0, 1], got {v}");
+                config_err!("key `{k}` must lie in [0, 1], got {v}");
             }
         }
         positive("actor.threads", a.threads as f64)?;
         if !(a.per_actor_base > 0.0 && a.per_actor_base <= 1.0) {
-            bail!("key `actor.per_actor_base` must lie in (0, 1], got {}", a.per_actor_base);
+            config_err!("key `actor.per_actor_base` must lie in (0, 1], got {}", a.per_actor_base);
         }
         if !(a.per_actor_alpha.is_finite() && a.per_actor_alpha >= 0.0) {
-            bail!("key `actor.per_actor_alpha` must be 0 or positive, got {}", a.per_actor_alpha);
+            config_err!("key `actor.per_actor_alpha` must be 0 or positive, got {}", a.per_actor_alpha);
         }
         if !(1..=16).contains(&self.learner.n_step) {
-            bail!("key `learner.n_step` must be between 1 and 16, got {}", self.learner.n_step);
+            config_err!("key `learner.n_step` must be between 1 and 16, got {}", self.learner.n_step);
         }
         if !(self.replay.snapshot_every_s.is_finite() && self.replay.snapshot_every_s >= 0.0) {
-            bail!("key `replay.snapshot_every_s` must be 0 (off) or positive, got {}", self.replay.snapshot_every_s);
+            config_err!("key `replay.snapshot_every_s` must be 0 (off) or positive, got {}", self.replay.snapshot_every_s);
         }
         if !(self.replay.samples_per_insert.is_finite() && self.replay.samples_per_insert >= 0.0) {
-            bail!("key `replay.samples_per_insert` must be 0 (off) or positive, got {}", self.replay.samples_per_insert);
+            config_err!("key `replay.samples_per_insert` must be 0 (off) or positive, got {}", self.replay.samples_per_insert);
         }
         for (k, v) in [("actor.device", &a.device), ("learner.device", &self.learner.device)] {
-            rotorhive_model::device(v.as_str()).with_context(|| format!("key `{k}`"))?;
+            rotorhive_model::device(v.as_str()).doing_with(|| format!("key `{k}`"))?;
         }
         let r = &self.replay;
         positive("replay.capacity", r.capacity as f64)?;
         positive("replay.batch", r.batch as f64)?;
         positive("replay.prefetch", r.prefetch as f64)?;
         if r.batch > r.capacity {
-            bail!("key `replay.batch` ({}) is larger than `replay.capacity` ({})", r.batch, r.capacity);
+            config_err!("key `replay.batch` ({}) is larger than `replay.capacity` ({})", r.batch, r.capacity);
         }
         for (k, v) in [("replay.priority_alpha", r.priority_alpha), ("replay.priority_beta", r.priority_beta)] {
             if !(0.0..=1.0).contains(&v) {
-                bail!("key `{k}` must lie in [0, 1], got {v}");
+                config_err!("key `{k}` must lie in [0, 1], got {v}");
             }
         }
         positive("replay.priority_eps", r.priority_eps)?;
         if r.min_fill > r.capacity {
-            bail!("key `replay.min_fill` ({}) is larger than `replay.capacity` ({})", r.min_fill, r.capacity);
+            config_err!("key `replay.min_fill` ({}) is larger than `replay.capacity` ({})", r.min_fill, r.capacity);
         }
         let l = &self.learner;
         positive("learner.lr", l.lr)?;
         positive("learner.lr_final", l.lr_final)?;
         if !(0.0..1.0).contains(&l.gamma) {
-            bail!("key `learner.gamma` must lie in [0, 1), got {}", l.gamma);
+            config_err!("key `learner.gamma` must lie in [0, 1), got {}", l.gamma);
         }
         positive("learner.target_update", l.target_update as f64)?;
         positive("learner.publish_every", l.publish_every as f64)?;
@@ -555,10 +556,10 @@ impl Config {
         positive("learner.huber_delta", l.huber_delta)?;
         positive("learner.reward_scale", l.reward_scale)?;
         if !(l.max_grad_norm.is_finite() && l.max_grad_norm >= 0.0) {
-            bail!("key `learner.max_grad_norm` must be 0 (off) or positive, got {}", l.max_grad_norm);
+            config_err!("key `learner.max_grad_norm` must be 0 (off) or positive, got {}", l.max_grad_norm);
         }
         if !(l.max_rate_hz.is_finite() && l.max_rate_hz >= 0.0) {
-            bail!("key `learner.max_rate_hz` must be 0 (unlimited) or positive, got {}", l.max_rate_hz);
+            config_err!("key `learner.max_rate_hz` must be 0 (unlimited) or positive, got {}", l.max_rate_hz);
         }
         Ok(())
     }
@@ -586,7 +587,7 @@ impl Config {
         let p = gen_params_like(&base);
         let mut v = vec![base];
         for k in 0..self.sim.generated_lanes {
-            let seed = 1_000_000 + self.seed.wrapping_mul(100_000) + (env as u64) * 1000 + k as u64;
+            let seed = crate::seeds::lane(self.seed, env, k);
             v.push(Arena::generate(&format!("lane-{k}"), seed, &p));
         }
         v
@@ -600,7 +601,7 @@ impl Config {
             return Ok(vec![Arena::load(Path::new(&self.eval.arena))?]);
         }
         let p = self.gen_params()?;
-        Ok((0..self.eval.validation_arenas).map(|k| Arena::generate(&format!("validation-{k}"), 4242 + k as u64, &p)).collect())
+        Ok((0..self.eval.validation_arenas).map(|k| Arena::generate(&format!("validation-{k}"), crate::seeds::validation_arena(k), &p)).collect())
     }
 
     /// The simulator settings for one environment.
@@ -642,7 +643,7 @@ fn gen_params_like(a: &Arena) -> GenParams {
 
 fn apply_override(table: &mut toml::Table, o: &str) -> Result<()> {
     let Some((key, raw)) = o.split_once('=') else {
-        bail!("override {o:?} is not of the form key=value");
+        config_err!("override {o:?} is not of the form key=value");
     };
     let key = key.trim();
     let value: toml::Value = match toml::from_str::<toml::Table>(&format!("v = {raw}")) {
@@ -651,7 +652,7 @@ fn apply_override(table: &mut toml::Table, o: &str) -> Result<()> {
     };
     let parts: Vec<&str> = key.split('.').collect();
     if parts.iter().any(|p| p.is_empty()) {
-        bail!("override {o:?}: empty key part");
+        config_err!("override {o:?}: empty key part");
     }
     let mut t = table;
     for p in &parts[..parts.len() - 1] {
@@ -659,7 +660,7 @@ fn apply_override(table: &mut toml::Table, o: &str) -> Result<()> {
             .entry(p.to_string())
             .or_insert_with(|| toml::Value::Table(toml::Table::new()))
             .as_table_mut()
-            .with_context(|| format!("override {o:?}: `{p}` is not a section"))?;
+            .ok_or_else(|| RoleError::Config(format!("override {o:?}: `{p}` is not a section")))?;
     }
     t.insert(parts[parts.len() - 1].to_string(), value);
     Ok(())

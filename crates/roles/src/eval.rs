@@ -2,7 +2,7 @@
 //! episodes, the success rate and mean reward. Used by `hive eval`, by the
 //! evaluator beside training and by `hive bench seeds`.
 
-use anyhow::Result;
+use crate::error::Result;
 use rotorhive_model::QNet;
 use rotorhive_sim::{Arena, Done, SimConfig, VecEnv};
 

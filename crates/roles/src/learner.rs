@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use anyhow::{Context, Result};
+use crate::error::{Doing, Result, RoleError, protocol_err};
 use rotorhive_model::{Dqn, DqnConfig, QNet, num_params};
 use rotorhive_msg::{MinibatchHeader, PACKED_LEN, PICK_WORDS, Pick, PriorityHeader, RoleKind, TRANSITION_LEN, WeightsHeader, unpack_transition};
 use rotorhive_transport::Channel;
@@ -34,22 +34,22 @@ pub fn dqn_config(cfg: &Config) -> DqnConfig {
 /// Writes a checkpoint (atomically: `QNet::save_with` goes through
 /// `rotorhive_msg::durable`).
 fn save_atomic(net: &QNet, path: &Path, tags: &[(&str, String)]) -> Result<()> {
-    net.save_with(path, tags).with_context(|| format!("cannot write checkpoint {}", path.display()))
+    net.save_with(path, tags).doing_with(|| format!("cannot write checkpoint {}", path.display()))
 }
 
 /// Writes the learner's whole state (atomically, as `Dqn::save_state` does).
 fn save_state_atomic(dqn: &Dqn, path: &Path) -> Result<()> {
-    dqn.save_state(path).with_context(|| format!("cannot write learner state {}", path.display()))
+    dqn.save_state(path).doing_with(|| format!("cannot write learner state {}", path.display()))
 }
 
 /// A learner with the config's network and optimiser; a restarted (or
 /// resumed) one goes on from its last saved state at `state_path`:
 /// weights, target, Adam moments and counters.
 fn restore(cfg: &crate::config::Config, state_path: &Path) -> Result<Dqn> {
-    let mut dqn = Dqn::new(dqn_config(cfg), cfg.seed, &rotorhive_model::device(cfg.learner.device.as_str())?)?;
+    let mut dqn = Dqn::new(dqn_config(cfg), crate::seeds::network(cfg.seed), &rotorhive_model::device(cfg.learner.device.as_str())?)?;
     dqn.set_threads(cfg.learner.threads);
     if state_path.exists() {
-        dqn.load_state(state_path).with_context(|| format!("restoring the learner from {}", state_path.display()))?;
+        dqn.load_state(state_path).doing_with(|| format!("restoring the learner from {}", state_path.display()))?;
         tracing::info!("learner restored from {} at update {}", state_path.display(), dqn.updates());
     }
     Ok(dqn)
@@ -71,7 +71,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     let (cfg, hub) = (cx.cfg, cx.hub);
     let run_dir = cx.run_dir.map_or_else(|| PathBuf::from("."), Path::to_path_buf);
     let ckpt_dir = run_dir.join("checkpoints");
-    std::fs::create_dir_all(&ckpt_dir).with_context(|| format!("cannot create {}", ckpt_dir.display()))?;
+    std::fs::create_dir_all(&ckpt_dir).doing_with(|| format!("cannot create {}", ckpt_dir.display()))?;
     let state_path = ckpt_dir.join("learner-state.safetensors");
     let mut dqn = restore(cfg, &state_path)?;
     let mut rx = hub.receiver::<u16, MinibatchHeader>(&Channel::minibatches(cfg.replay.prefetch))?;
@@ -91,7 +91,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
             break;
         }
         let t = Instant::now();
-        let msg = rx.recv_timeout(POLL).context("waiting for minibatches")?;
+        let msg = rx.recv_timeout(POLL).doing("waiting for minibatches")?;
         tel.stage(3, t);
         if tel.tick(false) {
             gauges = Gauges::default();
@@ -146,7 +146,7 @@ fn publish<S: Service>(w_tx: &mut rotorhive_transport::Sender<S, f32, WeightsHea
         *h = WeightsHeader { version: v, updates, len: num_params() as u64 };
         net.write_flat(p)?;
         match p.iter().position(|x| !x.is_finite()) {
-            Some(i) => Err(anyhow::anyhow!("parameter {i} is {}", p[i])),
+            Some(i) => Err(RoleError::Protocol(format!("parameter {i} is {}", p[i]))),
             None => Ok(()),
         }
     })?;
@@ -181,10 +181,10 @@ impl<S: Service> Minibatch<S> {
     /// One update on the minibatch in hand (importance-weighted, with its
     /// TD errors sent back as priorities, under prioritized replay); the loss.
     fn learn(&mut self, dqn: &mut Dqn, seq: u64, deterministic: bool, lost: &mut u64) -> Result<f32> {
-        let Some(tx) = &mut self.prio_tx else { return dqn.update(&self.batch).context("learner update") };
+        let Some(tx) = &mut self.prio_tx else { return dqn.update(&self.batch).doing("learner update") };
         self.weights.clear();
         self.weights.extend(self.picks.iter().map(|p| p.value));
-        let loss = dqn.update_weighted(&self.batch, Some(&self.weights)).context("learner update")?;
+        let loss = dqn.update_weighted(&self.batch, Some(&self.weights)).doing("learner update")?;
         send_priorities(tx, &mut self.picks, dqn.td_abs(), seq, deterministic, lost)?;
         Ok(loss)
     }
@@ -243,7 +243,7 @@ impl Gauges {
 /// `picks` (each row's place and importance weight).
 fn unpack_batch(packed: &[u16], rows: usize, out: &mut Vec<f32>, picks: &mut Vec<Pick>) -> Result<()> {
     if rows == 0 || packed.len() != rows * (PACKED_LEN + PICK_WORDS) {
-        anyhow::bail!("a minibatch of {} words is not {rows} packed transitions and their picks ({} words each)", packed.len(), PACKED_LEN + PICK_WORDS);
+        protocol_err!("a minibatch of {} words is not {rows} packed transitions and their picks ({} words each)", packed.len(), PACKED_LEN + PICK_WORDS);
     }
     let (data, tail) = packed.split_at(rows * PACKED_LEN);
     out.resize(rows * TRANSITION_LEN, 0.0);
@@ -278,7 +278,7 @@ fn send_priorities<S: Service>(
     });
     match sent {
         Ok(()) => Ok(()),
-        Err(e) if deterministic => Err(e).context("a deterministic run cannot lose priorities"),
+        Err(e) if deterministic => Err(e).doing("a deterministic run cannot lose priorities"),
         Err(e) => {
             tracing::warn!("learner: priorities of minibatch {seq} not sent: {e}");
             *lost += 1;

@@ -9,10 +9,12 @@
 
 pub mod actor;
 pub mod config;
+pub mod error;
 pub mod eval;
 pub mod learner;
 pub mod replay;
 pub mod schedule;
+pub mod seeds;
 pub mod sim;
 
 use std::path::{Path, PathBuf};
@@ -21,7 +23,7 @@ use std::sync::atomic::AtomicBool;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use anyhow::{Context, Result};
+use crate::error::{Doing, Result, protocol_err};
 use iceoryx2::service::Service;
 pub use rotorhive_msg::EpisodeHeader;
 use rotorhive_msg::{RoleKind, STAGES, Telemetry};
@@ -84,7 +86,7 @@ pub fn run_role<S: Service>(cx: Ctx<'_, S>, role: RoleKind, index: usize) -> Res
         RoleKind::Actor => actor::run(cx, index),
         RoleKind::Replay => replay::run(cx),
         RoleKind::Learner => learner::run(cx),
-        RoleKind::Link => anyhow::bail!("the link is not a role of its own: it runs inside `hive train --listen` and `hive worker`"),
+        RoleKind::Link => protocol_err!("the link is not a role of its own: it runs inside `hive train --listen` and `hive worker`"),
     }
 }
 
@@ -116,10 +118,10 @@ pub fn spawn_threads(
         let h = std::thread::Builder::new()
             .name(name.clone())
             .spawn(move || {
-                let hub = Hub::<Local>::new(&prefix, &node).with_context(|| format!("role {node}"))?.with_stop(stop);
-                run_role(Ctx { hub: &hub, cfg: &cfg, run_dir: Some(&dir) }, role, index).with_context(|| format!("role {node}"))
+                let hub = Hub::<Local>::new(&prefix, &node).doing_with(|| format!("role {node}"))?.with_stop(stop);
+                run_role(Ctx { hub: &hub, cfg: &cfg, run_dir: Some(&dir) }, role, index).doing_with(|| format!("role {node}"))
             })
-            .with_context(|| format!("cannot start the {name} thread"))?;
+            .doing_with(|| format!("cannot start the {name} thread"))?;
         out.push((name, h));
     }
     Ok(out)

@@ -5,7 +5,7 @@
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
-use anyhow::{Context, Result};
+use crate::error::{Doing, Result, protocol_err};
 use rotorhive_msg::{MinibatchHeader, PACKED_LEN, PICK_WORDS, PriorityHeader, RoleKind, SeqTracker, TransitionHeader};
 use rotorhive_replay::{Acted, Journal, Pick, Replay};
 use rotorhive_transport::{Channel, TransportError};
@@ -51,7 +51,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
         // A bounded number of batches per loop, so minibatches keep flowing
         // to the learner even while producers flood the memory.
         for _ in 0..INGEST_PER_LOOP {
-            let Some(m) = rx.try_recv().context("receiving transitions")? else { break };
+            let Some(m) = rx.try_recv().doing("receiving transitions")? else { break };
             ingest(&m, &mut mem, journal.as_mut(), &mut next_seq, &mut tel.sample.lost)?;
             got = true;
         }
@@ -71,7 +71,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
                     sent = true;
                 }
                 Err(TransportError::Stalled { .. }) => backoff_until = Instant::now() + Duration::from_millis(2),
-                Err(e) => return Err(e).context("sending a minibatch"),
+                Err(e) => return Err(e).doing("sending a minibatch"),
             }
         }
         sync_due(journal.as_ref(), &mut last_sync, cfg)?;
@@ -83,7 +83,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
             let t = Instant::now();
             // Nothing to do: sleep on the transitions channel.
             let wait = if ready { Duration::from_millis(2) } else { crate::POLL };
-            if let Some(m) = rx.recv_timeout(wait).context("waiting for transitions")? {
+            if let Some(m) = rx.recv_timeout(wait).doing("waiting for transitions")? {
                 ingest(&m, &mut mem, journal.as_mut(), &mut next_seq, &mut tel.sample.lost)?;
             }
             tel.stage(2, t);
@@ -136,7 +136,7 @@ impl<S: Service> Feedback<S> {
     /// Applies every priority that has arrived (free-running).
     fn apply_all(&mut self, mem: &mut Replay, counts: &mut rotorhive_msg::Learning) -> Result<()> {
         let Some(rx) = &mut self.rx else { return Ok(()) };
-        while let Some(m) = rx.try_recv().context("receiving priorities")? {
+        while let Some(m) = rx.try_recv().doing("receiving priorities")? {
             apply(mem, m.payload(), counts);
         }
         Ok(())
@@ -147,7 +147,7 @@ impl<S: Service> Feedback<S> {
     /// order. False while some of it has not arrived yet.
     fn ready_for(&mut self, next: u64, mem: &mut Replay, counts: &mut rotorhive_msg::Learning) -> Result<bool> {
         let Some(rx) = &mut self.rx else { return Ok(true) };
-        while let Some(m) = rx.try_recv().context("receiving priorities")? {
+        while let Some(m) = rx.try_recv().doing("receiving priorities")? {
             self.held.insert(m.user_header().seq, m.payload().to_vec());
         }
         let need = next.saturating_sub(self.lag);
@@ -178,13 +178,13 @@ fn open_memory(cfg: &crate::config::Config, run_dir: Option<&std::path::Path>) -
     let r = &cfg.replay;
     Ok(match run_dir {
         Some(d) if r.snapshot_every_s > 0.0 => {
-            let (m, j) = Journal::open(&d.join("replay.bin"), r.capacity, PACKED_LEN, cfg.seed ^ 0x5e1a).context("restoring the replay memory")?;
+            let (m, j) = Journal::open(&d.join("replay.bin"), r.capacity, PACKED_LEN, crate::seeds::replay(cfg.seed)).doing("restoring the replay memory")?;
             if !m.is_empty() {
                 tracing::info!("replay restored {} transitions from {}", m.len(), j.path().display());
             }
             (m, Some(j))
         }
-        _ => (Replay::new(r.capacity, PACKED_LEN, cfg.seed ^ 0x5e1a), None),
+        _ => (Replay::new(r.capacity, PACKED_LEN, crate::seeds::replay(cfg.seed)), None),
     })
 }
 
@@ -251,7 +251,7 @@ fn run_scheduled<S: Service>(
     while !hub.shutdown_requested() {
         let t = Instant::now();
         let mut busy = false;
-        while let Some(m) = rx.try_recv().context("receiving transitions")? {
+        while let Some(m) = rx.try_recv().doing("receiving transitions")? {
             enqueue(&m, &mut pending, &mut next_seq, &mut tel.sample.lost)?;
             busy = true;
         }
@@ -278,7 +278,7 @@ fn run_scheduled<S: Service>(
                     busy = true;
                 }
                 Err(TransportError::Stalled { .. }) => {}
-                Err(e) => return Err(e).context("sending a minibatch"),
+                Err(e) => return Err(e).doing("sending a minibatch"),
             }
         } else if !owed && rounds < schedule.rounds() && pending.iter().all(|q| !q.is_empty()) {
             insert_round(&mut pending, mem, journal.as_deref_mut())?;
@@ -292,7 +292,7 @@ fn run_scheduled<S: Service>(
         tel.tick(false);
         if !busy {
             let t = Instant::now();
-            if let Some(m) = rx.recv_timeout(Duration::from_millis(1)).context("waiting for transitions")? {
+            if let Some(m) = rx.recv_timeout(Duration::from_millis(1)).doing("waiting for transitions")? {
                 enqueue(&m, &mut pending, &mut next_seq, &mut tel.sample.lost)?;
             }
             tel.stage(2, t);
@@ -326,7 +326,7 @@ fn enqueue<S: Service>(
     let h = *m.user_header();
     let envs = pending.len();
     let Some(q) = pending.get_mut(h.actor as usize) else {
-        anyhow::bail!("transitions from actor {} of a run with {envs} environments", h.actor);
+        protocol_err!("transitions from actor {} of a run with {envs} environments", h.actor);
     };
     // A corrupt batch is refused; the round stays whole without it.
     let clean = check(m, next_seq, lost);

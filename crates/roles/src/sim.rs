@@ -3,7 +3,7 @@
 
 use std::time::Instant;
 
-use anyhow::{Context, Result, bail};
+use crate::error::{Doing, Result, config_err};
 use rotorhive_msg::{ActionHeader, OBS_LEN, ObsHeader, RoleKind, WeightsHeader, obs_batch_len};
 use rotorhive_sim::VecEnv;
 use rotorhive_transport::Channel;
@@ -20,12 +20,12 @@ const RESEND: std::time::Duration = std::time::Duration::from_millis(1000);
 pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
     let (cfg, hub) = (cx.cfg, cx.hub);
     if env_index >= cfg.sim.envs {
-        bail!("--env {env_index} is out of range: the config has {} environments", cfg.sim.envs);
+        config_err!("--env {env_index} is out of range: the config has {} environments", cfg.sim.envs);
     }
     let arenas = cfg.lane_arenas(env_index)?;
     let n = cfg.sim.agents;
-    let mut env = VecEnv::try_new_lanes(cfg.sim_config(), &arenas, cfg.seed.wrapping_mul(1000).wrapping_add((cfg.cluster.env_offset + env_index) as u64))
-        .context("starting the simulator")?;
+    let mut env =
+        VecEnv::try_new_lanes(cfg.sim_config(), &arenas, crate::seeds::sim(cfg.seed, cfg.cluster.env_offset + env_index)).doing("starting the simulator")?;
     let batched = cfg.batched();
     assert_eq!(env.obs_len(), OBS_LEN, "simulator and message layouts disagree");
     // Observations are assembled straight into the loaned sample (send_obs).
@@ -58,7 +58,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
             }
         }
         let t = Instant::now();
-        let msg = act_rx.recv_timeout(POLL).context("waiting for actions")?;
+        let msg = act_rx.recv_timeout(POLL).doing("waiting for actions")?;
         tel.stage(3, t);
         tel.tick(false);
         let Some(msg) = msg else {
@@ -75,7 +75,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
             tel.sample.lost += 1;
             continue;
         }
-        env.try_step(msg.payload()).context("stepping the simulator")?;
+        env.try_step(msg.payload()).doing("stepping the simulator")?;
         drop(msg);
         step += 1;
         let tm = env.timing();
@@ -157,7 +157,7 @@ impl<S: Service> RateLimiter<S> {
         let Some(rx) = &mut self.weights else { return Ok(()) };
         let start = std::time::Instant::now();
         let mut progress = start;
-        let mut latest = rx.latest().context("reading the learner's update count")?.map(|m| m.user_header().updates);
+        let mut latest = rx.latest().doing("reading the learner's update count")?.map(|m| m.user_header().updates);
         loop {
             if let Some(u) = latest.take() {
                 if u > self.updates {
@@ -191,7 +191,7 @@ impl<S: Service> RateLimiter<S> {
             if inserted <= allowed || hub.shutdown_requested() {
                 return Ok(());
             }
-            latest = rx.recv_timeout(POLL).context("waiting for the learner")?.map(|m| m.user_header().updates);
+            latest = rx.recv_timeout(POLL).doing("waiting for the learner")?.map(|m| m.user_header().updates);
         }
     }
 }

@@ -8,8 +8,8 @@
 use std::path::Path;
 
 use anyhow::{Context, Result};
-use rotorhive_records::TelemetryRow;
 use rotorhive_records::tensorboard::EventWriter;
+use rotorhive_records::{Member, TelemetryRow};
 
 use super::evaluator::EvalPoint;
 use super::records::{Counts, Progress};
@@ -51,9 +51,8 @@ impl Board {
         }
         self.last = Some((wall, steps, updates));
         for r in rows {
-            let name = if r.role == "supervisor" { r.role.clone() } else { format!("{}-{}", r.role, r.index) };
-            v.push((format!("cpu/{name}"), r.cpu_pct));
-            if r.role == "learner" {
+            v.push((format!("cpu/{}", r.member_name()), r.cpu_pct));
+            if r.role == Member::Learner {
                 v.push(("train/loss".into(), r.value.parse().unwrap_or(f64::NAN)));
                 v.push(("train/policy_lag".into(), r.policy_lag.unwrap_or(f64::NAN)));
                 if let Some(l) = r.learning {

@@ -131,13 +131,13 @@ fn fly<S: Service>(
         let h = *m.user_header();
         net.load_flat(m.payload()).context("loading weights to evaluate")?;
         drop(m);
-        let st = crate::eval::fly_greedy(&net, cfg.sim_config(), &arenas, cfg.eval.episodes, cfg.seed.wrapping_add(7777))?;
+        let st = crate::eval::fly_greedy(&net, cfg.sim_config(), &arenas, cfg.eval.episodes, rotorhive_roles::seeds::validation(cfg.seed))?;
         let (success, mean_reward) = (st.success_rate(), st.mean_reward);
         let k = cfg.eval.confirm_episodes;
         let confirmed = if k > 0 && best.is_none_or(|b| success + CANDIDATE_SLACK >= b.0) {
             // Fresh spawns for every confirmation.
             confirmations += 1;
-            let c = crate::eval::fly_greedy(&net, cfg.sim_config(), &arenas, k, cfg.seed.wrapping_add(1_000_003 * confirmations))?;
+            let c = crate::eval::fly_greedy(&net, cfg.sim_config(), &arenas, k, rotorhive_roles::seeds::confirmation(cfg.seed, confirmations))?;
             Some((c.success_rate(), c.mean_reward))
         } else {
             None

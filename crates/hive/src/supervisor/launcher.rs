@@ -196,7 +196,7 @@ fn last_error(log: &Path) -> Option<String> {
 /// when they die), or, in serial mode, threads of this process.
 pub(crate) enum Members {
     Processes { launcher: Launcher, children: Children },
-    Threads { stop: Arc<AtomicBool>, threads: Vec<(String, std::thread::JoinHandle<Result<()>>)> },
+    Threads { stop: Arc<AtomicBool>, threads: Vec<(String, std::thread::JoinHandle<rotorhive_roles::error::Result<()>>)> },
 }
 
 impl Members {

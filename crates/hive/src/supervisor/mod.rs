@@ -189,11 +189,6 @@ fn say(line: &str) {
     let _ = writeln!(std::io::stdout(), "{line}");
 }
 
-/// A config enum's name as the config file spells it.
-fn config_name(v: serde_json::Result<serde_json::Value>) -> String {
-    v.ok().and_then(|v| v.as_str().map(str::to_string)).unwrap_or_default()
-}
-
 /// How the supervision loop ended.
 #[derive(Default)]
 struct Ending {
@@ -477,8 +472,14 @@ impl Supervisor<'_> {
             agents_per_env: cfg.sim.agents,
             agents_total: cfg.agents_total(),
             hosts,
-            observation_mode: config_name(serde_json::to_value(cfg.sim.observation_mode)),
-            renderer: config_name(serde_json::to_value(cfg.sim.renderer)),
+            observation_mode: match cfg.sim.observation_mode {
+                rotorhive_roles::ObservationMode::Batched => rotorhive_records::ObservationMode::Batched,
+                rotorhive_roles::ObservationMode::NonBatched => rotorhive_records::ObservationMode::NonBatched,
+            },
+            renderer: match cfg.sim.renderer {
+                rotorhive_sim::RendererKind::Cpu => rotorhive_records::Renderer::Cpu,
+                rotorhive_sim::RendererKind::Wgpu => rotorhive_records::Renderer::Wgpu,
+            },
             env_steps_per_s: env_steps as f64 / wall,
             updates_per_s: updates as f64 / wall,
             cpu_util_mean_pct: m.cpu.mean(),

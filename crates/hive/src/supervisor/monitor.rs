@@ -11,7 +11,7 @@ use std::sync::Arc;
 use anyhow::Result;
 use iceoryx2::service::Service;
 use rotorhive_msg::{RoleKind, Telemetry};
-use rotorhive_records::{HostSummary, TelemetryRow};
+use rotorhive_records::{HostRole, HostSummary, Member, TelemetryRow};
 use rotorhive_roles::Config;
 use rotorhive_transport::Receiver;
 use sysinfo::{Pid, ProcessesToUpdate, System};
@@ -113,7 +113,7 @@ impl Monitor {
         let cores = self.sys.cpus().len().max(1) as f64;
         let mut rows: Vec<TelemetryRow> = self.latest.values().map(|t| role_row(t, wall, machine, gpu)).collect();
         if processes {
-            rows.push(TelemetryRow { role: "supervisor".into(), pid: me.as_u32(), ..role_row(&Telemetry::default(), wall, machine, gpu) });
+            rows.push(TelemetryRow { role: Member::Supervisor, pid: me.as_u32(), ..role_row(&Telemetry::default(), wall, machine, gpu) });
         }
         let mut rss_total = 0.0;
         for row in &mut rows {
@@ -121,8 +121,7 @@ impl Monitor {
                 (row.cpu_pct, row.rss_mb) = (p.cpu_usage() as f64, p.memory() as f64 / 1e6);
                 rss_total += row.rss_mb;
                 // Per-process CPU is in % of one core; the plot shows % of the machine.
-                let name = if row.role == "supervisor" { row.role.clone() } else { format!("{}-{}", row.role, row.index) };
-                self.util.entry(name).or_default().push((wall, row.cpu_pct / cores));
+                self.util.entry(row.member_name()).or_default().push((wall, row.cpu_pct / cores));
             }
             if let Some(lag) = row.policy_lag {
                 self.policy_lag.add(lag);
@@ -140,7 +139,7 @@ impl Monitor {
         let envs = cfg.sim.envs as u32;
         let mut out = vec![HostSummary {
             name: super::launcher::host_name(),
-            role: "head".into(),
+            role: HostRole::Head,
             envs,
             agents: cfg.sim.agents as u32,
             env_steps: self.steps_of(0, envs),
@@ -153,7 +152,7 @@ impl Monitor {
                 let (a, b) = (h.env_offset, h.env_offset + h.envs);
                 out.push(HostSummary {
                     name: h.name.clone(),
-                    role: "worker".into(),
+                    role: HostRole::Worker,
                     envs: h.envs,
                     agents: h.agents,
                     env_steps: self.steps_of(a, b),
@@ -166,7 +165,7 @@ impl Monitor {
             if unknown > 0 {
                 out.push(HostSummary {
                     name: "unknown".into(),
-                    role: "unknown".into(),
+                    role: HostRole::Unknown,
                     envs: 0,
                     agents: 0,
                     env_steps: 0,
@@ -185,7 +184,9 @@ fn role_row(t: &Telemetry, wall: f64, machine: f64, gpu: Option<GpuReading>) -> 
     let role = RoleKind::from_code(t.role);
     TelemetryRow {
         wall_s: wall,
-        role: role.map(|r| r.name()).unwrap_or("?").to_string(),
+        // A code of no role cannot pass the transport's check; the
+        // supervisor row is its own.
+        role: role.map_or(Member::Supervisor, Member::from),
         index: t.index,
         pid: t.pid,
         cpu_pct: f64::NAN,

@@ -1,0 +1,99 @@
+//! Every random stream a run derives from its `seed`, in one place, each
+//! with a named salt, so that no two streams share a seed by accident and
+//! a reader sees at once which stream a number feeds. The formulas are the
+//! ones runs have always used: changing one changes every recorded result
+//! (and the seed harness's figures), so a change is a change of default.
+
+/// The network's initial weights (learner and actors alike: an actor's
+/// first weights equal the learner's before any are published).
+pub fn network(seed: u64) -> u64 {
+    seed
+}
+
+/// Simulator `env` (global environment index, across hosts): spawns,
+/// lane draws and resets.
+pub fn sim(seed: u64, env: usize) -> u64 {
+    seed.wrapping_mul(SIM_STRIDE).wrapping_add(env as u64)
+}
+
+/// Actor `env`'s exploration (epsilon draws and random actions).
+pub fn actor(seed: u64, env: usize) -> u64 {
+    seed ^ ACTOR_SALT.wrapping_add(env as u64)
+}
+
+/// The replay's sampling.
+pub fn replay(seed: u64) -> u64 {
+    seed ^ REPLAY_SALT
+}
+
+/// Generated training lane `lane` of environment `env`: seeds no shipped
+/// arena uses.
+pub fn lane(seed: u64, env: usize, lane: usize) -> u64 {
+    LANE_BASE.wrapping_add(seed.wrapping_mul(LANE_SEED_STRIDE)).wrapping_add(env as u64 * LANE_ENV_STRIDE).wrapping_add(lane as u64)
+}
+
+/// Generated validation arena `k`: the same for every seed, so that
+/// validations of different runs compare.
+pub fn validation_arena(k: usize) -> u64 {
+    VALIDATION_ARENA_BASE + k as u64
+}
+
+/// The spawns of the validations during training.
+pub fn validation(seed: u64) -> u64 {
+    seed.wrapping_add(VALIDATION_SALT)
+}
+
+/// The fresh spawns of confirmation number `n` (1, 2, …) of a candidate
+/// result.
+pub fn confirmation(seed: u64, n: u64) -> u64 {
+    seed.wrapping_add(CONFIRMATION_STRIDE.wrapping_mul(n))
+}
+
+/// Simulators of a run are `SIM_STRIDE` seeds apart per run seed.
+const SIM_STRIDE: u64 = 1000;
+/// Actors' exploration streams start here (xor).
+const ACTOR_SALT: u64 = 0xac70;
+/// The replay's sampling stream (xor).
+const REPLAY_SALT: u64 = 0x5e1a;
+/// Generated training lanes: above every shipped arena's seed.
+const LANE_BASE: u64 = 1_000_000;
+/// Lanes of two run seeds are this far apart.
+const LANE_SEED_STRIDE: u64 = 100_000;
+/// Lanes of two environments of a run are this far apart.
+const LANE_ENV_STRIDE: u64 = 1000;
+/// Generated validation arenas.
+const VALIDATION_ARENA_BASE: u64 = 4242;
+/// The validations' spawns.
+const VALIDATION_SALT: u64 = 7777;
+/// Confirmations' spawns, a prime apart.
+const CONFIRMATION_STRIDE: u64 = 1_000_003;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_streams_of_one_kind_never_share_a_seed() {
+        for seed in 0..50u64 {
+            // Spawn streams (simulators and greedy evaluations), arena
+            // generators and sampling streams: a clash within a kind would
+            // make two of them draw the same numbers.
+            let mut spawns = vec![validation(seed)];
+            spawns.extend((1..5).map(|n| confirmation(seed, n)));
+            let mut arenas: Vec<u64> = (0..16).map(validation_arena).collect();
+            let mut sampling = vec![replay(seed)];
+            for e in 0..64 {
+                spawns.push(sim(seed, e));
+                sampling.push(actor(seed, e));
+                arenas.extend((0..256).map(|k| lane(seed, e, k)));
+            }
+            for (kind, v) in [("spawn", spawns), ("arena", arenas), ("sampling", sampling)] {
+                let unique: std::collections::HashSet<_> = v.iter().collect();
+                assert_eq!(unique.len(), v.len(), "seed {seed}: two {kind} streams share a seed");
+            }
+        }
+        // The formulas runs have always used (recorded results depend on them).
+        assert_eq!((sim(3, 2), actor(3, 2), replay(3), lane(3, 2, 1)), (3002, 3 ^ 0xac72, 3 ^ 0x5e1a, 1_302_001));
+        assert_eq!((validation(3), confirmation(3, 2), validation_arena(1)), (7780, 2_000_009, 4243));
+    }
+}
