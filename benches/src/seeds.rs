@@ -22,6 +22,7 @@ use rand_pcg::Pcg64Mcg;
 use serde::Deserialize;
 use serde_json::json;
 
+use rotorhive_records::rows::{EvalRow, MetricsKind, MetricsRow};
 use rotorhive_records::{Rolling, Summary};
 use rotorhive_roles::{Config, Exploration};
 
@@ -189,23 +190,21 @@ pub fn threshold_time(run_dir: &Path) -> Result<(Option<f64>, Curve)> {
     let cfg = Config::load(Some(&run_dir.join("config.toml")), &[])?;
     let floor = (cfg.actor.exploration == Exploration::PerActor).then_some(cfg.actor.eps_end as f32);
     let mut rolling = Rolling::new(cfg.rolling_window, cfg.threshold, floor);
-    let path = run_dir.join("metrics.csv");
-    let text = std::fs::read_to_string(&path).doing_with(|| format!("cannot read {}", path.display()))?;
     let mut curve = Vec::new();
-    for line in text.lines().skip(1) {
-        let f: Vec<&str> = line.split(',').collect();
-        let num = |k: usize| f.get(k).and_then(|v| v.parse::<f64>().ok());
-        match (f[0], num(1)) {
-            ("episode", Some(wall)) => {
-                let (Some(r), Some(eps)) = (num(4), num(6)) else { failed!("{}: a bad episode row: {line}", path.display()) };
-                rolling.push(wall, r as f32, false, eps as f32);
+    for row in rotorhive_records::rows::read::<MetricsRow>(&run_dir.join("metrics.csv"))? {
+        match row.kind {
+            MetricsKind::Episode => {
+                let (Some(r), Some(eps)) = (row.episode_reward, row.epsilon) else {
+                    failed!("{}: an episode row without its return or epsilon at {} s", run_dir.join("metrics.csv").display(), row.wall_s)
+                };
+                rolling.push(row.wall_s, r, false, eps as f32);
             }
-            ("tick", Some(wall)) => {
-                if let Some(r) = num(5).filter(|r| r.is_finite()) {
-                    curve.push((wall, r));
+            MetricsKind::Tick => {
+                if let Some(r) = row.rolling_reward.filter(|r| r.is_finite()) {
+                    curve.push((row.wall_s, r));
                 }
             }
-            _ => {}
+            MetricsKind::Restart | MetricsKind::Resume => {}
         }
     }
     Ok((rolling.crossed_at, curve))
@@ -213,15 +212,8 @@ pub fn threshold_time(run_dir: &Path) -> Result<(Option<f64>, Curve)> {
 
 /// (wall, screening success) of each evaluation in `evals.csv`.
 fn validation_curve(run_dir: &Path) -> Vec<(f64, f64)> {
-    std::fs::read_to_string(run_dir.join("evals.csv"))
-        .unwrap_or_default()
-        .lines()
-        .skip(1)
-        .filter_map(|l| {
-            let f: Vec<&str> = l.split(',').collect();
-            Some((f.first()?.parse().ok()?, f.get(4)?.parse().ok()?))
-        })
-        .collect()
+    // A run that never evaluated, or whose table is damaged, has no curve.
+    rotorhive_records::rows::read::<EvalRow>(&run_dir.join("evals.csv")).unwrap_or_default().iter().map(|r| (r.wall_s, r.success_rate)).collect()
 }
 
 /// The success rate of a run's result on the test arena over `episodes`

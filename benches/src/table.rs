@@ -13,6 +13,7 @@ use serde::Deserialize;
 use serde_json::{Value, json};
 
 use crate::seeds::median;
+use rotorhive_records::rows::{MetricsKind, MetricsRow};
 
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -277,15 +278,12 @@ fn run_cell(
         Ok(s) => serde_json::to_value(&s)?,
         Err(e) => json!({ "failure": format!("hive train exited with {status}: {e:#}") }),
     };
-    let curve: Vec<(f64, f64)> = std::fs::read_to_string(dir.join("metrics.csv"))
+    let curve: Vec<(f64, f64)> = rotorhive_records::rows::read::<MetricsRow>(&dir.join("metrics.csv"))
         .unwrap_or_default()
-        .lines()
-        .filter(|l| l.starts_with("tick,"))
-        .filter_map(|l| {
-            let f: Vec<&str> = l.split(',').collect();
-            Some((f.get(1)?.parse().ok()?, f.get(5)?.parse().ok()?))
-        })
-        .filter(|p: &(f64, f64)| p.1.is_finite())
+        .into_iter()
+        .filter(|r| r.kind == MetricsKind::Tick)
+        .filter_map(|r| Some((r.wall_s, r.rolling_reward?)))
+        .filter(|p| p.1.is_finite())
         .collect();
     // The paper's finding per cell: which role set the pace.
     let (bottleneck, busy) = match rotorhive_records::profile::analyse(&dir) {

@@ -26,7 +26,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use iceoryx2::service::Service;
-use rotorhive_msg::{EPISODE_FIELDS, EpisodeHeader, RoleKind, SeqTracker, Telemetry, TransitionHeader, WeightsHeader};
+use rotorhive_msg::{EPISODE_FIELDS, EpisodeHeader, LinkStage, RoleKind, SeqTracker, Telemetry, TransitionHeader, WeightsHeader};
 use rotorhive_transport::{Channel, Hub, TransportError};
 use zenoh::Wait;
 use zenoh::handlers::{FifoChannel, FifoChannelHandler, RingChannel};
@@ -575,34 +575,14 @@ impl Drop for HeadLink {
     }
 }
 
-/// Telemetry of a link: stages `receive`, `forward`, `weights`, `send_wait`.
-struct LinkTelemetry<S: Service> {
-    tx: rotorhive_transport::Sender<S, u8, Telemetry>,
-    sample: Telemetry,
-    last: Instant,
-}
+/// Telemetry of a link: stages `receive`, `forward`, `weights`, `send_wait`
+/// ([`LinkStage`]), published by the transport's periodic publisher.
+type LinkTelemetry<S> = rotorhive_transport::Periodic<S, Telemetry>;
 
-impl<S: Service> LinkTelemetry<S> {
-    fn new(hub: &Hub<S>, roles: usize, index: usize) -> Result<Self> {
-        let tx = hub.sender::<u8, Telemetry>(&Channel::telemetry(roles), 1, Duration::from_millis(10))?;
-        let sample = Telemetry { role: RoleKind::Link as u32, index: index as u32, pid: std::process::id(), ..Telemetry::default() };
-        Ok(Self { tx, sample, last: Instant::now() })
-    }
-    /// Passes on another host's telemetry sample (it may be overwritten).
-    fn forward(&mut self, t: Telemetry) {
-        let _ = self.tx.send_with(1, |h, _| *h = t);
-    }
-    fn stage(&mut self, i: usize, since: Instant) {
-        self.sample.stage_ns[i] += since.elapsed().as_nanos() as u64;
-    }
-    fn tick(&mut self) {
-        if self.last.elapsed() >= Duration::from_secs(1) {
-            self.last = Instant::now();
-            self.sample.heartbeat += 1;
-            let s = self.sample;
-            let _ = self.tx.send_with(1, |h, _| *h = s);
-        }
-    }
+/// The link's telemetry in a run of `roles` roles.
+fn link_telemetry<S: Service>(hub: &Hub<S>, roles: usize, index: usize) -> Result<LinkTelemetry<S>> {
+    let sample = Telemetry { role: RoleKind::Link as u32, index: index as u32, pid: std::process::id(), ..Telemetry::default() };
+    Ok(rotorhive_transport::Periodic::new(hub, &Channel::telemetry(roles), sample)?)
 }
 
 /// Sends into shared memory, retrying while the receiver is full (bounded
@@ -645,7 +625,7 @@ fn head_loop<S: Service>(head: &Head, hub: &Hub<S>, envs: usize, roles: usize, s
         trans_tx: hub.sender(&Channel::transitions(envs), max_batch, Duration::from_millis(200))?,
         ep_tx: hub.sender(&Channel::episodes(envs), EPISODE_FIELDS * 4096, Duration::from_millis(200))?,
         w_rx: hub.receiver(&Channel::weights(envs))?,
-        tel: LinkTelemetry::new(hub, roles, 0)?,
+        tel: link_telemetry(hub, roles, 0)?,
         next_seq: SeqTracker::new(total_envs),
         version: 0,
     };
@@ -654,13 +634,13 @@ fn head_loop<S: Service>(head: &Head, hub: &Hub<S>, envs: usize, roles: usize, s
         // Transitions in, loss-free: the FIFO is bounded and the send waits.
         let t = Instant::now();
         let got = head.subs.transitions.recv_timeout(Duration::from_millis(5)).ok().flatten();
-        b.tel.stage(0, t);
+        b.tel.sample.time_stage(LinkStage::Receive, t);
         if let Some(smp) = got {
             b.transitions_in(&smp)?;
         }
         b.episodes_and_telemetry_in();
         b.rejoins(&config_for);
-        b.tel.tick();
+        b.tel.tick(false, Telemetry::beat);
     }
     // The run's end, so the workers exit 0 instead of reporting a lost head.
     let _ = end_pub.put(b"end".to_vec()).wait();
@@ -699,7 +679,7 @@ impl<S: Service> HeadBridge<'_, S> {
                 self.tel.sample.weight_version = self.version;
             }
         }
-        self.tel.stage(2, t);
+        self.tel.sample.time_stage(LinkStage::Weights, t);
         Ok(())
     }
 
@@ -740,7 +720,7 @@ impl<S: Service> HeadBridge<'_, S> {
             self.tel.sample.work += h.count as u64;
             self.tel.sample.work2 += payload.len() as u64;
         }
-        self.tel.stage(3, t);
+        self.tel.sample.time_stage(LinkStage::SendWait, t);
         Ok(())
     }
 
@@ -765,10 +745,10 @@ impl<S: Service> HeadBridge<'_, S> {
         }
         while let Ok(Some(smp)) = self.head.subs.telemetry.try_recv() {
             if let Some(t) = accept(stats, hosts, &smp, run, "telemetry", |host, att| check::telemetry(host, att, smp.payload().len())) {
-                self.tel.forward(t);
+                self.tel.send(t);
             }
         }
-        self.tel.stage(1, t);
+        self.tel.sample.time_stage(LinkStage::Forward, t);
     }
 
     /// A worker that comes back (restarted) with its join token gets its
@@ -931,7 +911,7 @@ impl Worker {
             ep_rx: hub.receiver(&Channel::episodes(envs))?,
             tel_rx: hub.receiver(&Channel::telemetry(roles))?,
             w_tx: None,
-            tel: LinkTelemetry::new(hub, roles, 0)?,
+            tel: link_telemetry(hub, roles, 0)?,
             wseq: SeqTracker::new(envs),
             head_seen: false,
             off: self.env_offset,
@@ -963,7 +943,7 @@ impl Worker {
             b.weights_in(hub, stats)?;
             b.transitions_out(stats)?;
             b.episodes_and_telemetry_out(stats)?;
-            b.tel.tick();
+            b.tel.tick(false, Telemetry::beat);
         }
     }
 }
@@ -1044,7 +1024,7 @@ impl<S: Service> WorkerBridge<S> {
                 }
             }
         }
-        self.tel.stage(2, t);
+        self.tel.sample.time_stage(LinkStage::Weights, t);
         Ok(())
     }
 
@@ -1053,7 +1033,7 @@ impl<S: Service> WorkerBridge<S> {
     fn transitions_out(&mut self, stats: &mut WorkerStats) -> Result<()> {
         let t = Instant::now();
         let m = self.trans_rx.recv_timeout(Duration::from_millis(5))?;
-        self.tel.stage(0, t);
+        self.tel.sample.time_stage(LinkStage::Receive, t);
         let Some(m) = m else { return Ok(()) };
         let t = Instant::now();
         let mut h = *m.user_header();
@@ -1067,7 +1047,7 @@ impl<S: Service> WorkerBridge<S> {
         stats.transitions += h.count as u64;
         self.tel.sample.work += h.count as u64;
         self.tel.sample.work2 += std::mem::size_of_val(m.payload()) as u64;
-        self.tel.stage(3, t);
+        self.tel.sample.time_stage(LinkStage::SendWait, t);
         Ok(())
     }
 
@@ -1095,7 +1075,7 @@ impl<S: Service> WorkerBridge<S> {
                 stats.dropped += 1;
             }
         }
-        self.tel.stage(1, t);
+        self.tel.sample.time_stage(LinkStage::Forward, t);
         Ok(())
     }
 }

@@ -481,14 +481,80 @@ pub struct Learning {
     pub stale_priorities: u32,
 }
 
+/// A stage timer of one role: its place in `Telemetry::stage_ns`.
+pub trait Stage: Copy {
+    /// The stage's index in `stage_ns`.
+    fn index(self) -> usize;
+}
+
+macro_rules! stages {
+    ($(#[$doc:meta])* $name:ident { $($v:ident = $word:literal),* $(,)? }) => {
+        $(#[$doc])*
+        #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+        pub enum $name {
+            $(
+                #[doc = concat!("`", $word, "`")]
+                $v,
+            )*
+        }
+        impl $name {
+            /// The stages' names, in `stage_ns` order.
+            pub const NAMES: [&'static str; STAGES] = [$($word),*];
+        }
+        impl Stage for $name {
+            fn index(self) -> usize {
+                self as usize
+            }
+        }
+    };
+}
+
+stages!(
+    /// A simulator's stages.
+    SimStage { Physics = "physics", Render = "render", Reset = "reset", TransportWait = "transport_wait" }
+);
+stages!(
+    /// An actor's stages.
+    ActorStage { Inference = "inference", Assemble = "assemble", Weights = "weights", TransportWait = "transport_wait" }
+);
+stages!(
+    /// The replay's stages.
+    ReplayStage { Insert = "insert", Sample = "sample", Idle = "idle", TransportWait = "transport_wait" }
+);
+stages!(
+    /// The learner's stages.
+    LearnerStage { Forward = "forward", Backward = "backward", Optimiser = "optimiser", TransportWait = "transport_wait" }
+);
+stages!(
+    /// A link's stages.
+    LinkStage { Receive = "receive", Forward = "forward", Weights = "weights", SendWait = "send_wait" }
+);
+
+impl Telemetry {
+    /// Adds `ns` nanoseconds to `stage`.
+    pub fn add_stage(&mut self, stage: impl Stage, ns: u64) {
+        self.stage_ns[stage.index()] += ns;
+    }
+
+    /// Adds the time since `since` to `stage`.
+    pub fn time_stage(&mut self, stage: impl Stage, since: std::time::Instant) {
+        self.add_stage(stage, since.elapsed().as_nanos() as u64);
+    }
+
+    /// Marks one more sample sent.
+    pub fn beat(&mut self) {
+        self.heartbeat += 1;
+    }
+}
+
 /// Names of the four stage timers of a role, in `stage_ns` order.
 pub fn stage_names(role: RoleKind) -> [&'static str; STAGES] {
     match role {
-        RoleKind::Sim => ["physics", "render", "reset", "transport_wait"],
-        RoleKind::Actor => ["inference", "assemble", "weights", "transport_wait"],
-        RoleKind::Replay => ["insert", "sample", "idle", "transport_wait"],
-        RoleKind::Learner => ["forward", "backward", "optimiser", "transport_wait"],
-        RoleKind::Link => ["receive", "forward", "weights", "send_wait"],
+        RoleKind::Sim => SimStage::NAMES,
+        RoleKind::Actor => ActorStage::NAMES,
+        RoleKind::Replay => ReplayStage::NAMES,
+        RoleKind::Learner => LearnerStage::NAMES,
+        RoleKind::Link => LinkStage::NAMES,
     }
 }
 

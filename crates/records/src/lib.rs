@@ -12,6 +12,7 @@ pub mod kinds;
 pub mod plot;
 pub mod profile;
 pub mod rolling;
+pub mod rows;
 pub mod summary;
 pub mod telemetry;
 pub mod tensorboard;
@@ -23,44 +24,45 @@ pub use rolling::Rolling;
 #[derive(Debug, thiserror::Error)]
 pub enum RecordsError {
     /// A file could not be read or written.
-    #[error("cannot {action} {file}: {source}")]
+    #[error("cannot {action} {file}: {err}")]
     Io {
         /// "read" or "write".
         action: &'static str,
         /// The file.
         file: String,
-        /// Why.
-        source: std::io::Error,
+        /// Why (part of the text, so that `{:#}` names it once).
+        err: std::io::Error,
     },
     /// `summary.json` is not a summary of this build.
-    #[error("{file} is not a summary of this build: {source}")]
+    #[error("{file} is not a summary of this build: {err}")]
     Summary {
         /// The file.
         file: String,
         /// Where it differs.
-        source: serde_json::Error,
-    },
-    /// A line of `telemetry.csv` that is not a telemetry row.
-    #[error("{file}: line {line}: {message}")]
-    Telemetry {
-        /// The file.
-        file: String,
-        /// Its line, from 1.
-        line: usize,
-        /// What is wrong (the column named).
-        message: String,
+        err: serde_json::Error,
     },
     /// A run directory without telemetry.
     #[error("{0}: no telemetry rows")]
     NoTelemetry(String),
+    /// A row of a CSV table that does not parse.
+    #[error("{file}: {message}")]
+    Table {
+        /// The file.
+        file: String,
+        /// Where and what (csv names the line and the column).
+        message: String,
+    },
+    /// A row could not be written as CSV.
+    #[error("cannot write a CSV row: {0}")]
+    Csv(String),
     /// Plotters failed to draw.
     #[error("drawing failed: {0}")]
     Plot(String),
     /// A summary could not be encoded as JSON.
     #[error("cannot encode the summary: {0}")]
-    Encode(#[from] serde_json::Error),
+    Encode(serde_json::Error),
     /// Writing a report into a string failed.
-    #[error("cannot format the report: {0}")]
+    #[error("cannot format the report")]
     Format(#[from] std::fmt::Error),
 }
 
@@ -70,7 +72,7 @@ pub type Result<T> = std::result::Result<T, RecordsError>;
 impl RecordsError {
     /// An I/O error of `action` ("read", "write") on `file`.
     pub fn io<'a>(action: &'static str, file: &'a std::path::Path) -> impl FnOnce(std::io::Error) -> Self + 'a {
-        move |source| RecordsError::Io { action, file: file.display().to_string(), source }
+        move |err| RecordsError::Io { action, file: file.display().to_string(), err }
     }
 }
 pub use kinds::{HostRole, Member, ObservationMode, Renderer};

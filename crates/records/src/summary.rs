@@ -128,7 +128,7 @@ impl Summary {
     /// so a crash or a full disk leaves no half-written summary.
     pub fn write(&self, run_dir: &Path) -> Result<()> {
         let path = run_dir.join("summary.json");
-        let text = serde_json::to_string_pretty(self)? + "\n";
+        let text = serde_json::to_string_pretty(self).map_err(RecordsError::Encode)? + "\n";
         rotorhive_msg::durable::atomic_write(&path, |tmp| std::fs::write(tmp, &text), |e| e).map_err(RecordsError::io("write", &path))
     }
 
@@ -136,7 +136,7 @@ impl Summary {
     pub fn read(run_dir: &Path) -> Result<Self> {
         let path = run_dir.join("summary.json");
         let text = std::fs::read_to_string(&path).map_err(RecordsError::io("read", &path))?;
-        serde_json::from_str(&text).map_err(|source| RecordsError::Summary { file: path.display().to_string(), source })
+        serde_json::from_str(&text).map_err(|err| RecordsError::Summary { file: path.display().to_string(), err })
     }
 }
 

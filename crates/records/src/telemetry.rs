@@ -4,14 +4,13 @@
 
 use std::path::Path;
 
+use crate::rows::round;
 use crate::{Member, RecordsError, Result};
 pub use rotorhive_msg::Learning;
+use serde::{Deserialize, Serialize};
 
 /// The file's header: the column names in order.
 pub const HEADER: &str = "wall_s,role,index,pid,cpu_pct,rss_mb,machine_cpu_pct,heartbeat,work,work2,weight_version,lost,stage0_ms,stage1_ms,stage2_ms,stage3_ms,gpu_util_pct,gpu_mem_mb,gpu_power_w,value,policy_lag,max_q,td_abs,terminal_share,skipped_updates,eps_min,eps_max,priority_updates,stale_priorities";
-
-/// Columns of [`HEADER`].
-const COLUMNS: usize = 29;
 
 /// One row of `telemetry.csv`.
 #[derive(Debug, Clone, PartialEq)]
@@ -65,102 +64,133 @@ impl TelemetryRow {
         }
     }
 
-    /// The row as a line of the file (with its newline).
-    pub fn to_line(&self) -> String {
-        let opt = |v: Option<f64>, digits: usize| v.map_or(String::new(), |v| format!("{v:.digits$}"));
-        let gpu = self.gpu.map_or(",,".to_string(), |g| format!("{:.1},{:.1},{:.1}", g[0], g[1], g[2]));
-        let s = &self.stage_ms;
-        let learning = self.learning.map_or(",,,,,,,".to_string(), |l| {
-            format!(
-                "{:.3},{:.3},{:.4},{},{:.5},{:.5},{},{}",
-                l.mean_max_q, l.mean_abs_td, l.terminal_share, l.skipped_updates, l.eps_min, l.eps_max, l.priority_updates, l.stale_priorities
-            )
-        });
-        format!(
-            "{:.3},{},{},{},{:.1},{:.1},{:.1},{},{},{},{},{},{:.1},{:.1},{:.1},{:.1},{gpu},{},{},{learning}\n",
-            self.wall_s,
-            self.role,
-            self.index,
-            self.pid,
-            self.cpu_pct,
-            self.rss_mb,
-            self.machine_cpu_pct,
-            self.heartbeat,
-            self.work,
-            self.work2,
-            self.weight_version,
-            self.lost,
-            s[0],
-            s[1],
-            s[2],
-            s[3],
-            self.value,
-            opt(self.policy_lag, 3),
-        )
+    /// The row as a line of the file (with its newline), through csv.
+    pub fn to_line(&self) -> Result<String> {
+        crate::rows::line(&Flat::from(self))
     }
+}
 
-    /// Parses one line; the error names the column.
-    pub fn parse(line: &str) -> std::result::Result<Self, String> {
-        let f: Vec<&str> = line.split(',').collect();
-        if f.len() != COLUMNS {
-            return Err(format!("expected {COLUMNS} fields, found {}", f.len()));
+/// A row as the file holds it: one column a field, each named as in
+/// [`HEADER`], rounded to what the file keeps.
+#[derive(Debug, Serialize, Deserialize)]
+struct Flat {
+    wall_s: f64,
+    role: Member,
+    index: u32,
+    pid: u32,
+    cpu_pct: f64,
+    rss_mb: f64,
+    machine_cpu_pct: f64,
+    heartbeat: u64,
+    work: u64,
+    work2: u64,
+    weight_version: u64,
+    lost: u64,
+    stage0_ms: f64,
+    stage1_ms: f64,
+    stage2_ms: f64,
+    stage3_ms: f64,
+    gpu_util_pct: Option<f64>,
+    gpu_mem_mb: Option<f64>,
+    gpu_power_w: Option<f64>,
+    value: String,
+    policy_lag: Option<f64>,
+    max_q: Option<f64>,
+    td_abs: Option<f64>,
+    terminal_share: Option<f64>,
+    skipped_updates: Option<u32>,
+    eps_min: Option<f64>,
+    eps_max: Option<f64>,
+    priority_updates: Option<u32>,
+    stale_priorities: Option<u32>,
+}
+
+impl From<&TelemetryRow> for Flat {
+    fn from(r: &TelemetryRow) -> Self {
+        let l = r.learning;
+        let lf = |f: fn(&Learning) -> f32, digits| l.map(|l| round(f(&l) as f64, digits));
+        let [s0, s1, s2, s3] = r.stage_ms.map(|v| round(v, 1));
+        Flat {
+            wall_s: round(r.wall_s, 3),
+            role: r.role,
+            index: r.index,
+            pid: r.pid,
+            cpu_pct: round(r.cpu_pct, 1),
+            rss_mb: round(r.rss_mb, 1),
+            machine_cpu_pct: round(r.machine_cpu_pct, 1),
+            heartbeat: r.heartbeat,
+            work: r.work,
+            work2: r.work2,
+            weight_version: r.weight_version,
+            lost: r.lost,
+            stage0_ms: s0,
+            stage1_ms: s1,
+            stage2_ms: s2,
+            stage3_ms: s3,
+            gpu_util_pct: r.gpu.map(|g| round(g[0], 1)),
+            gpu_mem_mb: r.gpu.map(|g| round(g[1], 1)),
+            gpu_power_w: r.gpu.map(|g| round(g[2], 1)),
+            value: r.value.clone(),
+            policy_lag: r.policy_lag.map(|v| round(v, 3)),
+            max_q: lf(|l| l.mean_max_q, 3),
+            td_abs: lf(|l| l.mean_abs_td, 3),
+            terminal_share: lf(|l| l.terminal_share, 4),
+            skipped_updates: l.map(|l| l.skipped_updates),
+            eps_min: lf(|l| l.eps_min, 5),
+            eps_max: lf(|l| l.eps_max, 5),
+            priority_updates: l.map(|l| l.priority_updates),
+            stale_priorities: l.map(|l| l.stale_priorities),
         }
-        let name = |k: usize| HEADER.split(',').nth(k).unwrap_or("?");
-        let float = |k: usize| f[k].parse::<f64>().map_err(|_| format!("column `{}` is not a number: {:?}", name(k), f[k]));
-        let int = |k: usize| f[k].parse::<u64>().map_err(|_| format!("column `{}` is not a count: {:?}", name(k), f[k]));
-        let opt = |k: usize| if f[k].is_empty() { Ok(None) } else { float(k).map(Some) };
-        let gpu = match (opt(16)?, opt(17)?, opt(18)?) {
+    }
+}
+
+impl From<Flat> for TelemetryRow {
+    fn from(f: Flat) -> Self {
+        let gpu = match (f.gpu_util_pct, f.gpu_mem_mb, f.gpu_power_w) {
             (Some(u), Some(m), Some(p)) => Some([u, m, p]),
             _ => None,
         };
-        let learning = match opt(21)? {
-            None => None,
-            Some(q) => Some(Learning {
-                mean_max_q: q as f32,
-                mean_abs_td: float(22)? as f32,
-                terminal_share: float(23)? as f32,
-                skipped_updates: int(24)? as u32,
-                eps_min: float(25)? as f32,
-                eps_max: float(26)? as f32,
-                priority_updates: int(27)? as u32,
-                stale_priorities: int(28)? as u32,
-            }),
-        };
-        Ok(Self {
-            wall_s: float(0)?,
-            role: Member::parse(f[1]).ok_or_else(|| format!("column `role` names no role: {:?}", f[1]))?,
-            index: int(2)? as u32,
-            pid: int(3)? as u32,
-            cpu_pct: float(4)?,
-            rss_mb: float(5)?,
-            machine_cpu_pct: float(6)?,
-            heartbeat: int(7)?,
-            work: int(8)?,
-            work2: int(9)?,
-            weight_version: int(10)?,
-            lost: int(11)?,
-            stage_ms: [float(12)?, float(13)?, float(14)?, float(15)?],
+        let learning = f.max_q.map(|q| Learning {
+            mean_max_q: q as f32,
+            mean_abs_td: f.td_abs.unwrap_or(0.0) as f32,
+            terminal_share: f.terminal_share.unwrap_or(0.0) as f32,
+            skipped_updates: f.skipped_updates.unwrap_or(0),
+            eps_min: f.eps_min.unwrap_or(0.0) as f32,
+            eps_max: f.eps_max.unwrap_or(0.0) as f32,
+            priority_updates: f.priority_updates.unwrap_or(0),
+            stale_priorities: f.stale_priorities.unwrap_or(0),
+        });
+        TelemetryRow {
+            wall_s: f.wall_s,
+            role: f.role,
+            index: f.index,
+            pid: f.pid,
+            cpu_pct: f.cpu_pct,
+            rss_mb: f.rss_mb,
+            machine_cpu_pct: f.machine_cpu_pct,
+            heartbeat: f.heartbeat,
+            work: f.work,
+            work2: f.work2,
+            weight_version: f.weight_version,
+            lost: f.lost,
+            stage_ms: [f.stage0_ms, f.stage1_ms, f.stage2_ms, f.stage3_ms],
             gpu,
-            value: f[19].to_string(),
-            policy_lag: opt(20)?,
+            value: f.value,
+            policy_lag: f.policy_lag,
             learning,
-        })
+        }
     }
 }
 
 /// Every row of a run's `telemetry.csv` (a resumed run's file holds one
-/// header per part; they are skipped).
+/// header per part; they are skipped); a row that does not parse names the
+/// file, its line and the column.
 pub fn read(run_dir: &Path) -> Result<Vec<TelemetryRow>> {
     let path = run_dir.join("telemetry.csv");
-    let text = std::fs::read_to_string(&path).map_err(RecordsError::io("read", &path))?;
-    let mut rows = Vec::new();
-    for (i, line) in text.lines().enumerate() {
-        if line == HEADER || line.is_empty() {
-            continue;
-        }
-        rows.push(TelemetryRow::parse(line).map_err(|message| RecordsError::Telemetry { file: path.display().to_string(), line: i + 1, message })?);
+    if !path.exists() {
+        return Err(RecordsError::Io { action: "read", file: path.display().to_string(), err: std::io::ErrorKind::NotFound.into() });
     }
-    Ok(rows)
+    Ok(crate::rows::read::<Flat>(&path)?.into_iter().map(TelemetryRow::from).collect())
 }
 
 #[cfg(test)]
@@ -195,18 +225,25 @@ mod tests {
                 ..Learning::default()
             }),
         };
-        let line = row.to_line();
-        assert_eq!(line.trim_end().split(',').count(), HEADER.split(',').count());
-        let back = TelemetryRow::parse(line.trim_end()).unwrap();
-        assert_eq!(back, TelemetryRow { rss_mb: 310.4, ..row.clone() });
+        let dir = std::env::temp_dir().join(format!("rotorhive-telemetry-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
         let gpu = TelemetryRow { gpu: Some([50.0, 1024.0, 80.0]), policy_lag: None, cpu_pct: f64::NAN, ..row.clone() };
-        let back = TelemetryRow::parse(gpu.to_line().trim_end()).unwrap();
-        assert_eq!((back.gpu, back.policy_lag), (gpu.gpu, None));
-        let plain = TelemetryRow { learning: None, ..row.clone() };
-        assert_eq!(TelemetryRow::parse(plain.to_line().trim_end()).unwrap().learning, None);
-        assert!(back.cpu_pct.is_nan());
-        let e = TelemetryRow::parse(&line.trim_end().replace(",2400,", ",many,")).unwrap_err().to_string();
-        assert!(e.contains("`work`"), "{e}");
-        assert!(TelemetryRow::parse("1,2,3").unwrap_err().to_string().contains("29 fields"));
+        let plain = TelemetryRow { learning: None, role: Member::Supervisor, ..row.clone() };
+        let lines: Vec<String> = [&row, &gpu, &plain].iter().map(|r| r.to_line().unwrap()).collect();
+        assert_eq!(lines[0].trim_end().split(',').count(), HEADER.split(',').count());
+        // A resumed run's file: a second header inside.
+        std::fs::write(dir.join("telemetry.csv"), format!("{HEADER}\n{}{}{HEADER}\n{}", lines[0], lines[1], lines[2])).unwrap();
+        let back = read(&dir).unwrap();
+        assert_eq!(back.len(), 3);
+        assert_eq!(back[0], TelemetryRow { rss_mb: 310.4, ..row.clone() });
+        assert_eq!((back[1].gpu, back[1].policy_lag), (gpu.gpu, None));
+        assert!(back[1].cpu_pct.is_nan());
+        assert_eq!((back[2].learning, back[2].role), (None, Member::Supervisor));
+        std::fs::write(dir.join("telemetry.csv"), format!("{HEADER}\n{}", lines[0].replace(",2400,", ",many,"))).unwrap();
+        let e = read(&dir).unwrap_err().to_string();
+        assert!(e.contains("telemetry.csv") && e.contains("work"), "{e}");
+        std::fs::write(dir.join("telemetry.csv"), format!("{HEADER}\n1,2,3\n")).unwrap();
+        assert!(read(&dir).unwrap_err().to_string().contains("telemetry.csv"));
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }

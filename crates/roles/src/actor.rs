@@ -9,7 +9,9 @@ use crate::error::{Doing, Result, config_err, protocol_err};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use rotorhive_model::QNet;
-use rotorhive_msg::{ActionHeader, EPISODE_FIELDS, OBS_LEN, ObsHeader, PACKED_LEN, RoleKind, TransitionHeader, WeightsHeader, pack_transition};
+use rotorhive_msg::{
+    ActionHeader, ActorStage, EPISODE_FIELDS, OBS_LEN, ObsHeader, PACKED_LEN, RoleKind, Telemetry, TransitionHeader, WeightsHeader, pack_transition,
+};
 use rotorhive_transport::Channel;
 
 use iceoryx2::service::Service;
@@ -75,11 +77,11 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, e: usize) -> Result<()> {
         let t = Instant::now();
         take_weights(&mut a.w_rx, &a.net, &mut a.version, &mut a.weights_updates)?;
         a.tel.sample.weight_version = a.version;
-        a.tel.stage(2, t);
+        a.tel.sample.time_stage(ActorStage::Weights, t);
         let t = Instant::now();
         let msg = obs_rx.recv_timeout(POLL).doing("waiting for observations")?;
-        a.tel.stage(3, t);
-        a.tel.tick(false);
+        a.tel.sample.time_stage(ActorStage::TransportWait, t);
+        a.tel.tick(false, Telemetry::beat);
         let Some(msg) = msg else { continue };
         let h = *msg.user_header();
         let n = a.n;
@@ -115,7 +117,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, e: usize) -> Result<()> {
             break;
         }
     }
-    a.tel.tick(true);
+    a.tel.tick(true, Telemetry::beat);
     Ok(())
 }
 
@@ -170,7 +172,7 @@ impl<'a, S: Service> Actor<'a, S> {
             trans_tx: hub.sender::<u16, TransitionHeader>(&Channel::transitions(envs), steps_n * n * PACKED_LEN, STALL_TIMEOUT)?,
             w_rx: hub.receiver::<f32, WeightsHeader>(&Channel::weights(envs))?,
             ep_tx: hub.sender::<f32, EpisodeHeader>(&episodes_channel(envs), EPISODE_FIELDS * n, STALL_TIMEOUT)?,
-            tel: Counters::new(hub, RoleKind::Actor, e, roles_of(cfg))?,
+            tel: crate::counters(hub, RoleKind::Actor, e, roles_of(cfg))?,
             rng: Pcg64Mcg::seed_from_u64(crate::seeds::actor(cfg.seed, cfg.cluster.env_offset + e)),
             schedule: cfg.deterministic.then(|| Schedule::new(cfg)),
             nstep: NStep::new(steps_n, cfg.learner.gamma as f32, n),
@@ -242,7 +244,7 @@ impl<'a, S: Service> Actor<'a, S> {
             }
             self.episode_eps[i] = self.episode_eps[i].max(eps);
         }
-        self.tel.stage(0, t);
+        self.tel.sample.time_stage(ActorStage::Inference, t);
         // The actions leave first; then this step's transitions (round
         // `h.step` of a deterministic run, which must follow the acting).
         send_actions(&mut self.act_tx, self.e, h.step, &self.actions, &mut self.tel.sample.lost);
@@ -257,7 +259,7 @@ impl<'a, S: Service> Actor<'a, S> {
         let (lo, hi) = self.eps.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), v| (lo.min(*v), hi.max(*v)));
         self.tel.sample.value_milli = (hi * 1000.0) as i64;
         (self.tel.sample.learning.eps_min, self.tel.sample.learning.eps_max) = (lo as f32, hi as f32);
-        self.tel.stage(1, t);
+        self.tel.sample.time_stage(ActorStage::Assemble, t);
         self.nstep.store(obs);
         self.prev_actions.copy_from_slice(&self.actions);
         self.have_prev = true;

@@ -7,13 +7,15 @@ use std::time::{Duration, Instant};
 
 use crate::error::{Doing, Result, RoleError, protocol_err};
 use rotorhive_model::{Dqn, DqnConfig, QNet, num_params};
-use rotorhive_msg::{MinibatchHeader, PACKED_LEN, PICK_WORDS, Pick, PriorityHeader, RoleKind, TRANSITION_LEN, WeightsHeader, unpack_transition};
+use rotorhive_msg::{
+    LearnerStage, MinibatchHeader, PACKED_LEN, PICK_WORDS, Pick, PriorityHeader, RoleKind, TRANSITION_LEN, Telemetry, WeightsHeader, unpack_transition,
+};
 use rotorhive_transport::Channel;
 
 use iceoryx2::service::Service;
 
 use crate::config::Config;
-use crate::{Counters, Ctx, POLL, STALL_TIMEOUT, roles_of};
+use crate::{Ctx, POLL, STALL_TIMEOUT, roles_of};
 
 /// The DQN settings of a config's `[learner]`.
 pub fn dqn_config(cfg: &Config) -> DqnConfig {
@@ -77,7 +79,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     let mut rx = hub.receiver::<u16, MinibatchHeader>(&Channel::minibatches(cfg.replay.prefetch))?;
     let mut mb_in = Minibatch::new(hub, cfg)?;
     let mut w_tx = hub.sender::<f32, WeightsHeader>(&Channel::weights(cfg.sim.envs), num_params(), STALL_TIMEOUT)?;
-    let mut tel = Counters::new(hub, RoleKind::Learner, 0, roles_of(cfg))?;
+    let mut tel = crate::counters(hub, RoleKind::Learner, 0, roles_of(cfg))?;
     // Versions go on increasing across restarts.
     let mut version = dqn.updates();
     publish(&mut w_tx, &dqn, &mut version)?;
@@ -92,8 +94,8 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
         }
         let t = Instant::now();
         let msg = rx.recv_timeout(POLL).doing("waiting for minibatches")?;
-        tel.stage(3, t);
-        if tel.tick(false) {
+        tel.sample.time_stage(LearnerStage::TransportWait, t);
+        if tel.tick(false, Telemetry::beat) {
             gauges = Gauges::default();
         }
         let Some(msg) = msg else { continue };
@@ -108,9 +110,9 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
         drop(msg);
         let loss = mb_in.learn(&mut dqn, mb.seq, cfg.deterministic, &mut tel.sample.lost)?;
         let tm = dqn.timing();
-        tel.sample.stage_ns[0] += tm.forward_ns;
-        tel.sample.stage_ns[1] += tm.backward_ns;
-        tel.sample.stage_ns[2] += tm.optimiser_ns;
+        tel.sample.add_stage(LearnerStage::Forward, tm.forward_ns);
+        tel.sample.add_stage(LearnerStage::Backward, tm.backward_ns);
+        tel.sample.add_stage(LearnerStage::Optimiser, tm.optimiser_ns);
         tel.sample.work = dqn.updates();
         gauges.add(loss, &mb, version, &mut tel.sample);
         gauges.learn(&dqn, cfg.learner.reward_scale, &mut tel.sample);
@@ -130,7 +132,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     }
     save_atomic(&dqn.online, &run_dir.join("final.safetensors"), &cfg.checkpoint_tags())?;
     save_state_atomic(&dqn, &state_path)?;
-    tel.tick(true);
+    tel.tick(true, Telemetry::beat);
     Ok(())
 }
 

@@ -21,13 +21,13 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::thread::JoinHandle;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use crate::error::{Doing, Result, protocol_err};
 use iceoryx2::service::Service;
 pub use rotorhive_msg::EpisodeHeader;
-use rotorhive_msg::{RoleKind, STAGES, Telemetry};
-use rotorhive_transport::{Channel, Hub, Local, Sender};
+use rotorhive_msg::{RoleKind, Telemetry};
+use rotorhive_transport::{Channel, Hub, Local, Periodic};
 
 pub use config::{Config, DeviceName, Exploration, ObservationMode};
 
@@ -142,38 +142,12 @@ pub fn join_threads(threads: Vec<(String, JoinHandle<Result<()>>)>) -> Option<St
     first
 }
 
-/// A role's telemetry: counters and stage timers, published about once a second.
-pub struct Counters<S: Service> {
-    /// The sample being filled.
-    pub sample: Telemetry,
-    tx: Sender<S, u8, Telemetry>,
-    last: Instant,
-}
+/// A role's telemetry: its counters and stage timers ([`Telemetry`]),
+/// published about once a second by the transport's one periodic publisher.
+pub type Counters<S> = Periodic<S, Telemetry>;
 
-impl<S: Service> Counters<S> {
-    /// Counters of role `role` number `index` in a run of `roles` roles.
-    pub fn new(hub: &Hub<S>, role: RoleKind, index: usize, roles: usize) -> Result<Self> {
-        let tx = hub.sender::<u8, Telemetry>(&Channel::telemetry(roles), 1, Duration::from_millis(10))?;
-        let sample = Telemetry { role: role as u32, index: index as u32, pid: std::process::id(), ..Telemetry::default() };
-        Ok(Self { sample, tx, last: Instant::now() - Duration::from_secs(10) })
-    }
-
-    /// Adds the time since `since` to stage `i`.
-    pub fn stage(&mut self, i: usize, since: Instant) {
-        debug_assert!(i < STAGES);
-        self.sample.stage_ns[i] += since.elapsed().as_nanos() as u64;
-    }
-
-    /// Publishes when a second has passed since the last sample (or `force`).
-    pub fn tick(&mut self, force: bool) -> bool {
-        if !force && self.last.elapsed() < Duration::from_secs(1) {
-            return false;
-        }
-        self.last = Instant::now();
-        self.sample.heartbeat += 1;
-        let s = self.sample;
-        // Telemetry overflows rather than blocks; a failure here is not fatal.
-        let _ = self.tx.send_with(1, |h, _| *h = s);
-        true
-    }
+/// The counters of role `role` number `index` in a run of `roles` roles.
+pub fn counters<S: Service>(hub: &Hub<S>, role: RoleKind, index: usize, roles: usize) -> Result<Counters<S>> {
+    let sample = Telemetry { role: role as u32, index: index as u32, pid: std::process::id(), ..Telemetry::default() };
+    Ok(Periodic::new(hub, &Channel::telemetry(roles), sample)?)
 }

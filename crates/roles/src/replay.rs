@@ -6,7 +6,7 @@ use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
 use crate::error::{Doing, Result, protocol_err};
-use rotorhive_msg::{MinibatchHeader, PACKED_LEN, PICK_WORDS, PriorityHeader, RoleKind, SeqTracker, TransitionHeader};
+use rotorhive_msg::{MinibatchHeader, PACKED_LEN, PICK_WORDS, PriorityHeader, ReplayStage, RoleKind, SeqTracker, Telemetry, TransitionHeader};
 use rotorhive_replay::{Acted, Journal, Pick, Replay};
 use rotorhive_transport::{Channel, TransportError};
 
@@ -30,7 +30,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     // A full learner queue is normal (the learner is busy): the send gives up
     // after a millisecond and the replay goes back to inserting.
     let mut tx = hub.sender::<u16, MinibatchHeader>(&Channel::minibatches(r.prefetch), minibatch_len(r.batch), Duration::from_millis(1))?;
-    let mut tel = Counters::new(hub, RoleKind::Replay, 0, roles_of(cfg))?;
+    let mut tel = crate::counters(hub, RoleKind::Replay, 0, roles_of(cfg))?;
     if cfg.deterministic {
         return run_scheduled(cfg, hub, &mut mem, journal.as_mut(), &mut rx, &mut tx, &mut tel, &mut prio);
     }
@@ -55,7 +55,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
             ingest(&m, &mut mem, journal.as_mut(), &mut next_seq, &mut tel.sample.lost)?;
             got = true;
         }
-        tel.stage(0, t);
+        tel.sample.time_stage(ReplayStage::Insert, t);
         let ready = mem.len() >= r.min_fill.max(r.batch);
         let mut sent = false;
         if ready && limit.allows(mb_seq, mem.inserted()) && Instant::now() >= backoff_until {
@@ -64,7 +64,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
                 let acted = sample(&mut mem, out, &mut picks, r.priority_beta);
                 *h = minibatch_header(&mem, r.batch, mb_seq, acted);
             });
-            tel.stage(1, t);
+            tel.sample.time_stage(ReplayStage::Sample, t);
             match res {
                 Ok(()) => {
                     mb_seq += 1;
@@ -78,7 +78,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
         tel.sample.work = mem.inserted();
         tel.sample.work2 = mb_seq;
         tel.sample.value_milli = mem.len() as i64;
-        tel.tick(false);
+        tel.tick(false, Telemetry::beat);
         if !got && !sent {
             let t = Instant::now();
             // Nothing to do: sleep on the transitions channel.
@@ -86,13 +86,13 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
             if let Some(m) = rx.recv_timeout(wait).doing("waiting for transitions")? {
                 ingest(&m, &mut mem, journal.as_mut(), &mut next_seq, &mut tel.sample.lost)?;
             }
-            tel.stage(2, t);
+            tel.sample.time_stage(ReplayStage::Idle, t);
         }
     }
     if let Some(j) = &journal {
         j.sync()?;
     }
-    tel.tick(true);
+    tel.tick(true, Telemetry::beat);
     Ok(())
 }
 
@@ -255,7 +255,7 @@ fn run_scheduled<S: Service>(
             enqueue(&m, &mut pending, &mut next_seq, &mut tel.sample.lost)?;
             busy = true;
         }
-        tel.stage(0, t);
+        tel.sample.time_stage(ReplayStage::Insert, t);
         // The minibatches owed after the rounds in, one at a time (each
         // waiting for its priorities under prioritized replay), then the
         // next round.
@@ -270,7 +270,7 @@ fn run_scheduled<S: Service>(
                 o.copy_from_slice(&minibatch);
                 *h = minibatch_header(mem, batch, sent, acted);
             });
-            tel.stage(1, t);
+            tel.sample.time_stage(ReplayStage::Sample, t);
             match res {
                 Ok(()) => {
                     sent += 1;
@@ -289,19 +289,19 @@ fn run_scheduled<S: Service>(
         tel.sample.work = mem.inserted();
         tel.sample.work2 = sent;
         tel.sample.value_milli = mem.len() as i64;
-        tel.tick(false);
+        tel.tick(false, Telemetry::beat);
         if !busy {
             let t = Instant::now();
             if let Some(m) = rx.recv_timeout(Duration::from_millis(1)).doing("waiting for transitions")? {
                 enqueue(&m, &mut pending, &mut next_seq, &mut tel.sample.lost)?;
             }
-            tel.stage(2, t);
+            tel.sample.time_stage(ReplayStage::Idle, t);
         }
     }
     if let Some(j) = &journal {
         j.sync()?;
     }
-    tel.tick(true);
+    tel.tick(true, Telemetry::beat);
     Ok(())
 }
 

@@ -4,14 +4,14 @@
 use std::time::Instant;
 
 use crate::error::{Doing, Result, config_err};
-use rotorhive_msg::{ActionHeader, OBS_LEN, ObsHeader, RoleKind, WeightsHeader, obs_batch_len};
+use rotorhive_msg::{ActionHeader, OBS_LEN, ObsHeader, RoleKind, SimStage, Telemetry, WeightsHeader, obs_batch_len};
 use rotorhive_sim::VecEnv;
 use rotorhive_transport::Channel;
 
 use iceoryx2::service::Service;
 use rotorhive_transport::{Hub, Receiver, Sender};
 
-use crate::{Counters, Ctx, POLL, STALL_TIMEOUT, roles_of};
+use crate::{Ctx, POLL, STALL_TIMEOUT, roles_of};
 
 /// How long a sim waits for actions before publishing the same step again.
 const RESEND: std::time::Duration = std::time::Duration::from_millis(1000);
@@ -32,7 +32,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
     env.drop_observation_buffer();
     let mut obs_tx = hub.sender::<f32, ObsHeader>(&Channel::obs(env_index, cfg.obs_messages_per_step()), obs_batch_len(n), STALL_TIMEOUT)?;
     let mut act_rx = hub.receiver::<u8, ActionHeader>(&Channel::actions(env_index))?;
-    let mut tel = Counters::new(hub, RoleKind::Sim, env_index, roles_of(cfg))?;
+    let mut tel = crate::counters(hub, RoleKind::Sim, env_index, roles_of(cfg))?;
     let mut limiter = RateLimiter::new(hub, cfg)?;
     let mut step = 0u64;
     let mut timing = (0u64, 0u64);
@@ -52,15 +52,15 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
                     // The actor is gone or restarting: report, and try again.
                     tracing::warn!("sim {env_index}: {e}");
                     tel.sample.lost += 1;
-                    tel.tick(false);
+                    tel.tick(false, Telemetry::beat);
                     continue;
                 }
             }
         }
         let t = Instant::now();
         let msg = act_rx.recv_timeout(POLL).doing("waiting for actions")?;
-        tel.stage(3, t);
-        tel.tick(false);
+        tel.sample.time_stage(SimStage::TransportWait, t);
+        tel.tick(false, Telemetry::beat);
         let Some(msg) = msg else {
             // An actor that subscribed after our send (or restarted) never saw
             // this step: publish it again; the actor answers duplicates.
@@ -80,18 +80,18 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
         step += 1;
         let tm = env.timing();
         timing = (tm.physics_ns, tm.render_ns);
-        tel.sample.stage_ns[0] += tm.physics_ns;
-        tel.sample.stage_ns[1] += tm.render_ns;
-        tel.sample.stage_ns[2] += tm.reset_ns;
+        tel.sample.add_stage(SimStage::Physics, tm.physics_ns);
+        tel.sample.add_stage(SimStage::Render, tm.render_ns);
+        tel.sample.add_stage(SimStage::Reset, tm.reset_ns);
         tel.sample.work += n as u64;
         tel.sample.work2 += env.finished().len() as u64;
         need_send = true;
         let t = Instant::now();
         limiter.wait(hub, step)?;
         // Waiting on the rate limit is waiting on another process.
-        tel.stage(3, t);
+        tel.sample.time_stage(SimStage::TransportWait, t);
     }
-    tel.tick(true);
+    tel.tick(true, Telemetry::beat);
     Ok(())
 }
 

@@ -448,6 +448,42 @@ impl<S: Service, T: Debug + ZeroCopySend + Default + Copy + 'static, H: Debug + 
     }
 }
 
+/// A header published about once a second (every role's and link's
+/// telemetry): the one publisher of such samples. It overflows rather than
+/// blocks, so a slow reader never holds a role back.
+pub struct Periodic<S: Service, H: Debug + ZeroCopySend + 'static> {
+    /// The sample being filled.
+    pub sample: H,
+    tx: Sender<S, u8, H>,
+    last: Option<Instant>,
+}
+
+impl<S: Service, H: Debug + ZeroCopySend + Default + Copy + 'static> Periodic<S, H> {
+    /// Publishes `sample` on `ch`; the first [`Periodic::tick`] publishes at once.
+    pub fn new(hub: &Hub<S>, ch: &Channel, sample: H) -> Result<Self> {
+        let tx = hub.sender::<u8, H>(ch, 1, Duration::from_millis(10))?;
+        Ok(Self { sample, tx, last: None })
+    }
+
+    /// Publishes the sample when a second has passed since the last one (or
+    /// `force`), after `stamp` marks it (a heartbeat); says whether it did.
+    pub fn tick(&mut self, force: bool, stamp: impl FnOnce(&mut H)) -> bool {
+        if !force && self.last.is_some_and(|t| t.elapsed() < Duration::from_secs(1)) {
+            return false;
+        }
+        self.last = Some(Instant::now());
+        stamp(&mut self.sample);
+        self.send(self.sample);
+        true
+    }
+
+    /// Publishes another sample on the same channel now (a link passing on
+    /// another host's); a full channel drops it, which is not fatal.
+    pub fn send(&mut self, h: H) {
+        let _ = self.tx.send_with(1, |slot, _| *slot = h);
+    }
+}
+
 /// The environment variable that names this process's shared-memory domain
 /// (`hive --domain NAME` sets it, and role processes inherit it).
 pub const DOMAIN_ENV: &str = "ROTORHIVE_DOMAIN";

@@ -21,6 +21,7 @@ use anyhow::{Context, Result};
 use iceoryx2::service::Service;
 use rotorhive_model::{Device, QNet};
 use rotorhive_msg::WeightsHeader;
+use rotorhive_records::rows::{self, EvalRow};
 use rotorhive_roles::Config;
 use rotorhive_transport::{Channel, Hub};
 
@@ -38,6 +39,23 @@ pub(super) struct EvalPoint {
 }
 
 impl EvalPoint {
+    /// Its row of `evals.csv`: the weights' `version`, the screening's
+    /// `episodes`, whether it became the best, the confirmation's episodes.
+    fn row(&self, version: u64, episodes: usize, best: bool, confirm_episodes: usize) -> EvalRow {
+        EvalRow {
+            wall_s: rows::round(self.wall, 3),
+            updates: self.updates,
+            version,
+            episodes: episodes as u64,
+            success_rate: rows::round(self.success, 4),
+            mean_reward: rows::round(self.mean_reward, 2),
+            best: best as u8,
+            confirmed_episodes: self.confirmed.map(|_| confirm_episodes as u64),
+            confirmed_success_rate: self.confirmed.map(|c| rows::round(c.0, 4)),
+            confirmed_mean_reward: self.confirmed.map(|c| rows::round(c.1, 2)),
+        }
+    }
+
     /// The score the run's result is chosen by: the confirmation where
     /// confirmations are made, else the screening.
     pub(super) fn score(&self, confirming: bool) -> Option<(f64, f64)> {
@@ -47,31 +65,20 @@ impl EvalPoint {
 
 /// The best evaluation by score: highest success rate, then highest mean
 /// reward (the earliest of equals, as the evaluator keeps it).
-/// The header of `evals.csv`.
-const EVALS_HEADER: &str = "wall_s,updates,version,episodes,success_rate,mean_reward,best,confirmed_episodes,confirmed_success_rate,confirmed_mean_reward";
-
 /// The evaluations of `evals.csv` (none when it does not exist); a row that
-/// does not parse names the file and the line.
+/// does not parse names the file, the line and the column.
 fn read_evals(path: &std::path::Path) -> Result<Vec<EvalPoint>> {
-    let text = match std::fs::read_to_string(path) {
-        Ok(t) => t,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
-        Err(e) => return Err(e).with_context(|| format!("cannot read {}", path.display())),
-    };
-    let mut out = Vec::new();
-    for (i, line) in text.lines().enumerate().skip(1).filter(|(_, l)| !l.trim().is_empty()) {
-        let f: Vec<&str> = line.split(',').collect();
-        let num = |k: usize| f.get(k).and_then(|v| v.parse::<f64>().ok());
-        let parsed = (|| {
-            let confirmed = match (num(8), num(9)) {
-                (Some(s), Some(r)) => Some((s, r)),
-                _ => None,
-            };
-            Some(EvalPoint { wall: num(0)?, updates: f.get(1)?.parse().ok()?, success: num(4)?, mean_reward: num(5)?, confirmed })
-        })();
-        out.push(parsed.with_context(|| format!("{} line {}: not an evaluation row: {line}", path.display(), i + 1))?);
-    }
-    Ok(out)
+    let rows: Vec<EvalRow> = rotorhive_records::rows::read(path)?;
+    Ok(rows
+        .into_iter()
+        .map(|r| EvalPoint {
+            wall: r.wall_s,
+            updates: r.updates,
+            success: r.success_rate,
+            mean_reward: r.mean_reward,
+            confirmed: r.confirmed_success_rate.zip(r.confirmed_mean_reward),
+        })
+        .collect())
 }
 
 fn best_of(evals: &[EvalPoint], confirming: bool) -> Option<EvalPoint> {
@@ -113,7 +120,7 @@ fn fly<S: Service>(
     let append = resumed && path.exists();
     let mut csv = std::fs::OpenOptions::new().create(true).append(append).write(true).truncate(!append).open(&path)?;
     if !append {
-        writeln!(csv, "{EVALS_HEADER}")?;
+        writeln!(csv, "{}", rows::EVALS_HEADER)?;
     }
     let ckpt_dir = run_dir.join("checkpoints");
     std::fs::create_dir_all(&ckpt_dir)?;
@@ -150,10 +157,10 @@ fn fly<S: Service>(
             net.save_with(&ckpt_dir.join("best.safetensors"), &cfg.checkpoint_tags())?;
         }
         let wall = start.elapsed().as_secs_f64();
-        let conf = confirmed.map_or(",,".to_string(), |(s, r)| format!("{k},{s:.4},{r:.2}"));
-        writeln!(csv, "{wall:.3},{},{},{},{success:.4},{mean_reward:.2},{},{conf}", h.updates, h.version, st.episodes, better as u8)?;
+        let point = EvalPoint { wall, updates: h.updates, success, mean_reward, confirmed };
+        csv.write_all(rows::line(&point.row(h.version, st.episodes, better, k))?.as_bytes())?;
         csv.flush()?;
-        let _ = out.send(EvalPoint { wall, updates: h.updates, success, mean_reward, confirmed });
+        let _ = out.send(point);
         next = Instant::now() + every;
     }
     Ok(())

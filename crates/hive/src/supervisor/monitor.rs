@@ -126,7 +126,7 @@ impl Monitor {
             if let Some(lag) = row.policy_lag {
                 self.policy_lag.add(lag);
             }
-            write!(self.table, "{}", row.to_line())?;
+            write!(self.table, "{}", row.to_line()?)?;
         }
         self.peak_rss_mb = self.peak_rss_mb.max(rss_total);
         Ok(Reading { machine_cpu: machine, gpu, rows })

@@ -12,6 +12,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result};
 use rotorhive_msg::{DoneKind, EPISODE_FIELDS, EpisodeHeader};
 use rotorhive_records::Rolling;
+use rotorhive_records::rows::{self, METRICS_HEADER, MetricsKind, MetricsRow};
 use rotorhive_roles::Config;
 
 /// A CSV table of the run directory; a failed write (a full disk, a
@@ -59,6 +60,12 @@ impl Table {
         let row = line.to_string();
         self.written += row.len() as u64;
         self.file.write_all(row.as_bytes()).with_context(|| format!("cannot write {}", self.path.display()))
+    }
+
+    /// Writes one typed row (`rotorhive_records::rows`).
+    pub(super) fn row<R: serde::Serialize>(&mut self, row: &R) -> Result<()> {
+        let line = rows::line(row)?;
+        write!(self, "{line}")
     }
 
     fn rotate(&mut self) -> Result<()> {
@@ -153,10 +160,9 @@ pub(super) type Counts = (u64, u64, i64);
 impl Progress {
     /// Opens `metrics.csv` (appended to, with a `resume` row, when resumed).
     pub(super) fn open(run_dir: &Path, cfg: &Config, resumed: bool) -> Result<Self> {
-        let mut metrics =
-            Table::open(run_dir, "metrics.csv", "kind,wall_s,env_steps,episodes,episode_reward,rolling_reward,epsilon,updates,replay_size", resumed)?;
+        let mut metrics = Table::open(run_dir, "metrics.csv", METRICS_HEADER, resumed)?;
         if resumed {
-            writeln!(metrics, "resume,0,,,,,,,")?;
+            metrics.row(&MetricsRow::mark(MetricsKind::Resume, 0.0))?;
         }
         Ok(Self {
             metrics,
@@ -183,13 +189,16 @@ impl Progress {
     /// just reached the threshold. The `epsilon` column is the episode's own.
     pub(super) fn record(&mut self, h: &EpisodeHeader, payload: &[f32], counts: Counts, wall: f64) -> Result<bool> {
         self.epsilon = h.epsilon_micro as f64 / 1e6;
-        let (env_steps, updates, replay_size) = counts;
         let mut crossed = false;
         for e in payload.chunks_exact(EPISODE_FIELDS) {
             self.episodes += 1;
             crossed |= self.rolling.push(wall, e[0], e[2] == DoneKind::Goal as u8 as f32, e[3]);
-            let roll = self.rolling();
-            writeln!(self.metrics, "episode,{wall:.3},{env_steps},{},{},{roll:.3},{:.4},{updates},{replay_size}", self.episodes, e[0], e[3])?;
+            self.metrics.row(&MetricsRow {
+                kind: MetricsKind::Episode,
+                episode_reward: Some(e[0]),
+                epsilon: Some(rows::round(e[3] as f64, 4)),
+                ..self.counters(wall, counts)
+            })?;
         }
         self.time_to_threshold = self.rolling.crossed_at;
         Ok(crossed)
@@ -199,13 +208,28 @@ impl Progress {
     pub(super) fn tick(&mut self, wall: f64, counts: Counts) -> Result<()> {
         let roll = self.rolling();
         self.curve.push((wall, roll));
-        let (steps, updates, replay_size) = counts;
-        writeln!(self.metrics, "tick,{wall:.3},{steps},{},,{roll:.3},{:.4},{updates},{replay_size}", self.episodes, self.epsilon)
+        let counters = self.counters(wall, counts);
+        self.metrics.row(&counters)
+    }
+
+    /// A `tick` row of the run's counters now (an episode row starts from it).
+    fn counters(&self, wall: f64, (env_steps, updates, replay_size): Counts) -> MetricsRow {
+        MetricsRow {
+            kind: MetricsKind::Tick,
+            wall_s: rows::round(wall, 3),
+            env_steps: Some(env_steps),
+            episodes: Some(self.episodes),
+            episode_reward: None,
+            rolling_reward: Some(rows::round(self.rolling(), 3)),
+            epsilon: Some(rows::round(self.epsilon, 4)),
+            updates: Some(updates),
+            replay_size: Some(replay_size),
+        }
     }
 
     /// A `restart` row: a role died and was started again.
     pub(super) fn restart(&mut self, wall: f64) -> Result<()> {
-        writeln!(self.metrics, "restart,{wall:.3},,,,,,,")
+        self.metrics.row(&MetricsRow::mark(MetricsKind::Restart, wall))
     }
 }
 /// One episodes message: its header and its (return, length, done) triples.
