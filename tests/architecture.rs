@@ -14,6 +14,18 @@ fn every_crate_is_in_the_code_map() {
     }
     assert!(n >= 8);
     assert!(doc.contains("### `benches`"), "benches is missing from ARCHITECTURE.md's code map");
+    // And every module of every crate (`sumtree.rs` or `sumtree`), so that
+    // a new file cannot hide from the map.
+    let mut missing = Vec::new();
+    for dir in std::fs::read_dir(root.join("crates")).unwrap().map(|e| e.unwrap().path().join("src")).chain([root.join("benches/src")]) {
+        for f in sources(&dir) {
+            let stem = f.file_stem().unwrap().to_string_lossy().into_owned();
+            if !["lib", "main", "mod"].contains(&stem.as_str()) && !doc.contains(&format!("{stem}.rs")) && !doc.contains(&format!("`{stem}`")) {
+                missing.push(f.display().to_string());
+            }
+        }
+    }
+    assert!(missing.is_empty(), "modules missing from ARCHITECTURE.md's code map: {missing:?}");
 }
 
 /// Rust source files under `dir`, recursively.

@@ -33,13 +33,21 @@ use kernels::{Rows, Weights, Workspace};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
-/// A device by name: `cpu`, or `cuda` (only in a build with the `cuda` feature).
-pub fn device(name: &str) -> Result<Device> {
-    match name {
-        "cpu" => Ok(Device::Cpu),
-        "cuda" if cfg!(feature = "cuda") => Ok(Device::new_cuda(0)?),
-        "cuda" => Err(ModelError::Device("device \"cuda\" needs a build with `--features cuda`".into())),
-        other => Err(ModelError::Device(format!("unknown device {other:?} (expected \"cpu\" or \"cuda\")"))),
+/// Where a network runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DeviceKind {
+    /// The CPU.
+    Cpu,
+    /// GPU 0 through CUDA (only in a build with the `cuda` feature).
+    Cuda,
+}
+
+/// The candle device of `kind`; CUDA in a build without it is refused.
+pub fn device(kind: DeviceKind) -> Result<Device> {
+    match kind {
+        DeviceKind::Cpu => Ok(Device::Cpu),
+        DeviceKind::Cuda if cfg!(feature = "cuda") => Ok(Device::new_cuda(0)?),
+        DeviceKind::Cuda => Err(ModelError::Device("device \"cuda\" needs a build with `--features cuda`".into())),
     }
 }
 

@@ -163,7 +163,7 @@ struct Actor<'a, S: Service> {
 impl<'a, S: Service> Actor<'a, S> {
     fn new(cfg: &'a Config, hub: &'a rotorhive_transport::Hub<S>, e: usize) -> Result<Self> {
         let (n, envs) = (cfg.sim.agents, cfg.sim.envs);
-        let mut net = QNet::new(crate::seeds::network(cfg.seed), &rotorhive_model::device(cfg.actor.device.as_str())?)?;
+        let mut net = QNet::new(crate::seeds::network(cfg.seed), &rotorhive_model::device(cfg.actor.device.kind())?)?;
         net.set_threads(cfg.actor.threads);
         let steps_n = cfg.learner.n_step;
         Ok(Self {

@@ -31,11 +31,11 @@ pub enum DeviceName {
 }
 
 impl DeviceName {
-    /// The name the config uses (and `rotorhive_model::device` takes).
-    pub fn as_str(self) -> &'static str {
+    /// The model's device of this name.
+    pub fn kind(self) -> rotorhive_model::DeviceKind {
         match self {
-            Self::Cpu => "cpu",
-            Self::Cuda => "cuda",
+            Self::Cpu => rotorhive_model::DeviceKind::Cpu,
+            Self::Cuda => rotorhive_model::DeviceKind::Cuda,
         }
     }
 }
@@ -525,7 +525,7 @@ impl Config {
             config_err!("key `replay.samples_per_insert` must be 0 (off) or positive, got {}", self.replay.samples_per_insert);
         }
         for (k, v) in [("actor.device", &a.device), ("learner.device", &self.learner.device)] {
-            rotorhive_model::device(v.as_str()).doing_with(|| format!("key `{k}`"))?;
+            rotorhive_model::device(v.kind()).doing_with(|| format!("key `{k}`"))?;
         }
         let r = &self.replay;
         positive("replay.capacity", r.capacity as f64)?;

@@ -48,7 +48,7 @@ fn save_state_atomic(dqn: &Dqn, path: &Path) -> Result<()> {
 /// resumed) one goes on from its last saved state at `state_path`:
 /// weights, target, Adam moments and counters.
 fn restore(cfg: &crate::config::Config, state_path: &Path) -> Result<Dqn> {
-    let mut dqn = Dqn::new(dqn_config(cfg), crate::seeds::network(cfg.seed), &rotorhive_model::device(cfg.learner.device.as_str())?)?;
+    let mut dqn = Dqn::new(dqn_config(cfg), crate::seeds::network(cfg.seed), &rotorhive_model::device(cfg.learner.device.kind())?)?;
     dqn.set_threads(cfg.learner.threads);
     if state_path.exists() {
         dqn.load_state(state_path).doing_with(|| format!("restoring the learner from {}", state_path.display()))?;
