@@ -239,16 +239,16 @@ fn bench_sim(agents: &[usize], steps: usize, threads: usize, physics: &[PhysicsK
         "agents", "physics", "agent-steps/s", "step ms", "physics ms", "render ms", "reset ms", "physics µs/agent", "render µs/agent"
     );
     for (&n, &kind) in agents.iter().flat_map(|n| physics.iter().map(move |p| (n, p))) {
-        let mut env = VecEnv::new(SimConfig { agents: n, render_threads: threads, physics: kind, ..SimConfig::default() }, arena.clone(), 1);
+        let mut env = VecEnv::new(SimConfig { agents: n, render_threads: threads, physics: kind, ..SimConfig::default() }, arena.clone(), 1)?;
         // A fixed pseudo-random action pattern: agents crash and reset as in training.
         let actions = |t: usize| -> Vec<u8> { (0..n).map(|i| (((t * 31 + i * 17) >> 2) % 2) as u8).collect() };
         for t in 0..3 {
-            env.step(&actions(t));
+            env.step(&actions(t))?;
         }
         let (mut phys, mut rend, mut reset) = (0u64, 0u64, 0u64);
         let start = Instant::now();
         for t in 0..steps {
-            env.step(&actions(t + 3));
+            env.step(&actions(t + 3))?;
             let tm = env.timing();
             phys += tm.physics_ns;
             rend += tm.render_ns;
@@ -305,7 +305,7 @@ fn bench_render(agents: &[usize], renderer: &str, steps: usize, threads: usize, 
     // (render, render + transport) ms per step.
     let mut measure = |n: usize, batched: bool| -> Result<(f64, f64)> {
         let cfg = SimConfig { agents: n, renderer: kind, batched, render_threads: threads, ..SimConfig::default() };
-        let mut env = VecEnv::try_new(cfg, arena.clone(), 1)?;
+        let mut env = VecEnv::new(cfg, arena.clone(), 1)?;
         // As in `hive sim`: observations are assembled in the loaned sample.
         env.drop_observation_buffer();
         if let Some(g) = env.gpu() {
@@ -315,7 +315,7 @@ fn bench_render(agents: &[usize], renderer: &str, steps: usize, threads: usize, 
         let actions = |t: usize| -> Vec<u8> { (0..n).map(|i| (((t * 31 + i * 17) >> 2) % 2) as u8).collect() };
         let (mut render, mut total) = (0u64, 0u64);
         for t in 0..steps + 2 {
-            env.try_step(&actions(t))?;
+            env.step(&actions(t))?;
             let hop_ns = hop.carry(&env, t as u64, batched)?;
             if t >= 2 {
                 render += env.timing().render_ns;

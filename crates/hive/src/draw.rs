@@ -81,13 +81,13 @@ pub fn render_arena(a: RenderArenaArgs) -> Result<()> {
     let arena = Arena::load(&a.arena)?;
     let mut paths = Vec::new();
     if a.trajectories > 0 {
-        let mut env = VecEnv::new(SimConfig { agents: a.trajectories, ..SimConfig::default() }, arena.clone(), a.seed);
+        let mut env = VecEnv::new(SimConfig { agents: a.trajectories, ..SimConfig::default() }, arena.clone(), a.seed)?;
         let mut rng = Pcg64Mcg::seed_from_u64(a.seed);
         let mut cur: Vec<Vec<(f32, f32)>> = env.positions().iter().map(|p| vec![(p[0], p[1])]).collect();
         let mut alive = vec![true; a.trajectories];
         for _ in 0..arena.length as usize * 2 {
             let actions: Vec<u8> = (0..a.trajectories).map(|_| rng.random_range(0..2u8)).collect();
-            env.step(&actions);
+            env.step(&actions)?;
             let pos = env.positions();
             for (i, d) in env.dones().iter().enumerate() {
                 if !alive[i] {
@@ -158,9 +158,9 @@ fn draw_arena(arena: &Arena, paths: &[Vec<(f32, f32)>], out: &Path) -> Result<()
 
 pub fn show_depth(a: ShowDepthArgs) -> Result<()> {
     let arena = Arena::load(&a.arena)?;
-    let mut env = VecEnv::new(SimConfig::default(), arena, a.seed);
+    let mut env = VecEnv::new(SimConfig::default(), arena, a.seed)?;
     for t in 0..a.steps {
-        env.step(&[(t % 2) as u8]);
+        env.step(&[(t % 2) as u8])?;
     }
     let obs = env.observations();
     let scale = 8u32;

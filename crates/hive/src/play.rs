@@ -69,7 +69,7 @@ pub fn run(a: PlayArgs) -> Result<()> {
     let (mut frames, mut goals, mut crashes) = (0usize, 0usize, 0usize);
     let mut still_written = false;
     for round in 0..a.episodes {
-        let mut env = VecEnv::new(SimConfig { agents: a.agents, ..SimConfig::default() }, arena.clone(), a.seed + round as u64);
+        let mut env = VecEnv::new(SimConfig { agents: a.agents, ..SimConfig::default() }, arena.clone(), a.seed + round as u64)?;
         env.set_autoreset(Autoreset::Disabled);
         let mut tracks = Tracks::new(&env);
         let obs_len = env.obs_len();
@@ -90,7 +90,7 @@ pub fn run(a: PlayArgs) -> Result<()> {
             if tracks.all_ended() {
                 break;
             }
-            env.step(&actions);
+            env.step(&actions)?;
             for e in env.finished() {
                 match e.done {
                     rotorhive_sim::Done::Goal => goals += 1,

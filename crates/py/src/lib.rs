@@ -57,7 +57,7 @@ fn build_env(agents: usize, seed: u64, arena: Option<&str>, arena_seed: Option<u
     let cfg = Config::load(None, &ov).map_err(|e| value_error(format!("{e:#}").replace("config defaults (configs/default.toml): ", "")))?;
     let arenas = cfg.lanes_around(base_arena(arena, arena_seed)?, 0);
     let lanes = arenas.len();
-    let env = VecEnv::try_new_lanes(cfg.sim_config(), &arenas, rotorhive_roles::seeds::sim(cfg.seed, 0))
+    let env = VecEnv::new_lanes(cfg.sim_config(), &arenas, rotorhive_roles::seeds::sim(cfg.seed, 0))
         .map_err(|e| PyRuntimeError::new_err(format!("the simulator could not start: {e}")))?;
     Ok((env, lanes))
 }
@@ -193,7 +193,7 @@ impl Sim {
         self.last_actions.clear();
         self.last_actions.extend_from_slice(a);
         py.detach(|| -> PyResult<()> {
-            env.try_step(a).map_err(render_error)?;
+            env.step(a).map_err(render_error)?;
             tracks.record(env, false);
             write_obs(env, d, v)?;
             r.copy_from_slice(env.rewards());
@@ -313,7 +313,7 @@ fn rust_agent_steps_per_second(
         let mut steps = 0usize;
         while steps == 0 || t0.elapsed().as_secs_f64() < seconds {
             let k = steps % (rows.len() / agents);
-            env.try_step(&rows[k * agents..(k + 1) * agents]).map_err(render_error)?;
+            env.step(&rows[k * agents..(k + 1) * agents]).map_err(render_error)?;
             env.write_observations_split(&mut depth, &mut vel);
             steps += 1;
         }
@@ -347,7 +347,7 @@ fn reference_rollout<'py>(
     for s in 0..t {
         let a: Vec<u8> = acts.row(s).to_vec();
         check_actions(&a, n)?;
-        env.try_step(&a).map_err(render_error)?;
+        env.step(&a).map_err(render_error)?;
         obs.as_slice_mut().expect("contiguous")[(s + 1) * n * len..(s + 2) * n * len].copy_from_slice(env.observations());
         rewards.row_mut(s).as_slice_mut().expect("contiguous").copy_from_slice(env.rewards());
         for (k, d) in dones.row_mut(s).iter_mut().zip(env.dones()) {

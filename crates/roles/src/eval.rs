@@ -31,12 +31,12 @@ impl EvalStats {
 /// one drawn at random (the same ones for the same seed).
 pub fn fly_greedy(net: &QNet, sim: SimConfig, arenas: &[Arena], episodes: usize, seed: u64) -> Result<EvalStats> {
     let n = episodes;
-    let mut env = VecEnv::try_new_lanes(SimConfig { agents: n, ..sim }, arenas, seed)?;
+    let mut env = VecEnv::new_lanes(SimConfig { agents: n, ..sim }, arenas, seed)?;
     let mut result: Vec<Option<(f32, Done)>> = vec![None; n];
     let max_steps = env.config().max_steps;
     for _ in 0..max_steps + 1 {
         let actions = net.greedy(env.observations())?;
-        env.step(&actions);
+        env.step(&actions)?;
         for ep in env.finished() {
             result[ep.agent].get_or_insert((ep.reward, ep.done));
         }

@@ -25,7 +25,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
     let arenas = cfg.lane_arenas(env_index)?;
     let n = cfg.sim.agents;
     let mut env =
-        VecEnv::try_new_lanes(cfg.sim_config(), &arenas, crate::seeds::sim(cfg.seed, cfg.cluster.env_offset + env_index)).doing("starting the simulator")?;
+        VecEnv::new_lanes(cfg.sim_config(), &arenas, crate::seeds::sim(cfg.seed, cfg.cluster.env_offset + env_index)).doing("starting the simulator")?;
     let batched = cfg.batched();
     assert_eq!(env.obs_len(), OBS_LEN, "simulator and message layouts disagree");
     // Observations are assembled straight into the loaned sample (send_obs).
@@ -75,7 +75,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
             tel.sample.lost += 1;
             continue;
         }
-        env.try_step(msg.payload()).doing("stepping the simulator")?;
+        env.step(msg.payload()).doing("stepping the simulator")?;
         drop(msg);
         step += 1;
         let tm = env.timing();

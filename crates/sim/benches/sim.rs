@@ -17,13 +17,13 @@ fn bench(c: &mut Criterion) {
         let mut r = DepthRenderer::new(CameraSpec::default(), 1);
         let mut out = vec![0.0; n * 1024];
         c.bench_function(&format!("render {n} agents"), |b| b.iter(|| r.render(&scene, &cams, 0, None, &mut out)));
-        let mut env = VecEnv::new(SimConfig { agents: n, ..SimConfig::default() }, arena.clone(), 1);
+        let mut env = VecEnv::new(SimConfig { agents: n, ..SimConfig::default() }, arena.clone(), 1).unwrap();
         let mut t = 0u32;
         c.bench_function(&format!("env step {n} agents"), |b| {
             b.iter(|| {
                 t += 1;
                 let a: Vec<u8> = (0..n).map(|i| ((t as usize + i) % 2) as u8).collect();
-                env.step(&a)
+                env.step(&a).unwrap()
             })
         });
     }

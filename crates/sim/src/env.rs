@@ -229,16 +229,10 @@ pub struct VecEnv {
 }
 
 impl VecEnv {
-    /// Builds the world with the CPU renderer; panics if `cfg.renderer` is
-    /// wgpu and no adapter can be opened (use [`VecEnv::try_new`] there).
-    pub fn new(cfg: SimConfig, arena: Arena, seed: u64) -> Self {
-        Self::try_new(cfg, arena, seed).expect("the renderer could not start")
-    }
-
     /// Builds the world: obstacles, walls, floor and ceiling as fixed
     /// colliders, one drone per agent at a random spawn pose, and the
     /// renderer (the wgpu one can fail to find an adapter).
-    pub fn try_new(cfg: SimConfig, arena: Arena, seed: u64) -> Result<Self, GpuError> {
+    pub fn new(cfg: SimConfig, arena: Arena, seed: u64) -> Result<Self, GpuError> {
         let lanes = Lanes::new(std::slice::from_ref(&arena)).expect("one arena is always a lane");
         Self::with_lanes(cfg, lanes, seed)
     }
@@ -246,7 +240,7 @@ impl VecEnv {
     /// Several arenas side by side (see [`Lanes`]): every agent starts each
     /// episode in a lane drawn at random, so one environment trains on many
     /// obstacle layouts at once.
-    pub fn try_new_lanes(cfg: SimConfig, arenas: &[Arena], seed: u64) -> Result<Self, LanesError> {
+    pub fn new_lanes(cfg: SimConfig, arenas: &[Arena], seed: u64) -> Result<Self, LanesError> {
         let lanes = Lanes::new(arenas)?;
         Ok(Self::with_lanes(cfg, lanes, seed)?)
     }
@@ -451,14 +445,8 @@ impl VecEnv {
     /// Advances every agent by one action period.
     ///
     /// `actions[i]` is 0 (lateral setpoint −`lateral_step`) or 1
-    /// (+`lateral_step`). Panics if the wgpu renderer fails; see
-    /// [`VecEnv::try_step`].
-    pub fn step(&mut self, actions: &[u8]) {
-        self.try_step(actions).expect("rendering failed");
-    }
-
-    /// [`VecEnv::step`], with the wgpu renderer's failures returned.
-    pub fn try_step(&mut self, actions: &[u8]) -> Result<(), GpuError> {
+    /// (+`lateral_step`). Only the wgpu renderer can fail.
+    pub fn step(&mut self, actions: &[u8]) -> Result<(), GpuError> {
         assert_eq!(actions.len(), self.cfg.agents, "one action per agent");
         let t0 = Instant::now();
         let cfg = &self.cfg;

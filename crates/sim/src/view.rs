@@ -297,10 +297,10 @@ mod tests {
     #[test]
     fn a_picture_shows_obstacles_drones_paths_and_the_depth_frames() {
         let arena = Arena::load(std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../configs/arenas/train.toml"))).unwrap();
-        let mut env = VecEnv::new(SimConfig { agents: 3, ..SimConfig::default() }, arena, 2);
+        let mut env = VecEnv::new(SimConfig { agents: 3, ..SimConfig::default() }, arena, 2).unwrap();
         let mut tracks = Tracks::new(&env);
         for t in 0..4 {
-            env.step(&[0, 1, (t % 2) as u8]);
+            env.step(&[0, 1, (t % 2) as u8]).unwrap();
             tracks.record(&env, true);
         }
         let mut canvas = Canvas::default();

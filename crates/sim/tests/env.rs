@@ -19,7 +19,7 @@ fn arena_file(name: &str) -> PathBuf {
 
 #[test]
 fn hover_holds_altitude() {
-    let mut env = VecEnv::new(SimConfig { forward_speed: 0.0, ..cfg(1) }, open_arena(100.0, vec![]), 1);
+    let mut env = VecEnv::new(SimConfig { forward_speed: 0.0, ..cfg(1) }, open_arena(100.0, vec![]), 1).unwrap();
     env.place(0, [10.0, 0.0, 3.0], [0.0, 0.0, 0.0]);
     for _ in 0..10 {
         env.fly(&[0.0], 1.0);
@@ -32,7 +32,7 @@ fn hover_holds_altitude() {
 #[test]
 fn velocity_setpoint_is_tracked_within_ten_percent_after_two_seconds() {
     for (forward, lateral) in [(1.0f32, 0.0f32), (1.0, 1.0), (1.0, -0.75), (0.0, 2.0)] {
-        let mut env = VecEnv::new(SimConfig { forward_speed: forward, ..cfg(1) }, open_arena(200.0, vec![]), 1);
+        let mut env = VecEnv::new(SimConfig { forward_speed: forward, ..cfg(1) }, open_arena(200.0, vec![]), 1).unwrap();
         env.place(0, [10.0, 0.0, 3.0], [0.0, 0.0, 0.0]);
         env.fly(&[lateral], 2.0);
         let v = env.state(0).velocity;
@@ -47,13 +47,13 @@ fn velocity_setpoint_is_tracked_within_ten_percent_after_two_seconds() {
 fn flying_into_an_obstacle_is_a_collision_and_resets_only_that_agent() {
     // Agent 0 spawns right in front of a wall; agent 1 flies in open air beside it.
     let wall = Obstacle::Box { center: [5.0, -5.0, 4.0], half_extents: [0.5, 4.0, 4.0] };
-    let mut env = VecEnv::new(cfg(2), open_arena(100.0, vec![wall]), 3);
+    let mut env = VecEnv::new(cfg(2), open_arena(100.0, vec![wall]), 3).unwrap();
     env.place(0, [2.0, -5.0, 3.0], [1.0, 0.0, 0.0]);
     env.place(1, [2.0, 5.0, 3.0], [1.0, 0.0, 0.0]);
     let mut hit_at = None;
     for step in 0..6 {
         // Alternate actions keep the lateral setpoint near zero: straight flight.
-        env.step(&[(step % 2) as u8, (step % 2) as u8]);
+        env.step(&[(step % 2) as u8, (step % 2) as u8]).unwrap();
         if env.dones()[0] == Done::Collision {
             hit_at = Some(step);
             break;
@@ -83,7 +83,7 @@ fn flying_into_an_obstacle_is_a_collision_and_resets_only_that_agent() {
     env.write_observations(0, &mut all);
     assert_eq!(&all[..], obs);
     env.drop_observation_buffer();
-    env.step(&[0, 0]);
+    env.step(&[0, 0]).unwrap();
     assert!(env.observations().is_empty());
     env.write_observations(0, &mut all);
     assert_ne!(&all[len + 1024..len + 2048], &rows[1024..2048], "agent 1 flew on: its view changed");
@@ -93,7 +93,7 @@ fn flying_into_an_obstacle_is_a_collision_and_resets_only_that_agent() {
 fn agents_pass_through_and_do_not_see_each_other_unless_interactive() {
     // Two drones on crossing paths at the same spot.
     let run = |interactive: bool| {
-        let mut env = VecEnv::new(SimConfig { interactive, ..cfg(2) }, open_arena(100.0, vec![]), 5);
+        let mut env = VecEnv::new(SimConfig { interactive, ..cfg(2) }, open_arena(100.0, vec![]), 5).unwrap();
         env.place(0, [10.0, -1.5, 3.0], [1.0, 0.0, 0.0]);
         env.place(1, [10.0, 1.5, 3.0], [1.0, 0.0, 0.0]);
         let front_depth_of_1 = |env: &VecEnv| env.observations()[env.obs_len() + 1024..env.obs_len() + 2048].to_vec();
@@ -102,7 +102,7 @@ fn agents_pass_through_and_do_not_see_each_other_unless_interactive() {
         let mut clear_view = front_depth_of_1(&env);
         // Agent 0 steers right (+y), agent 1 left (−y), so they meet.
         for _ in 0..6 {
-            env.step(&[1, 0]);
+            env.step(&[1, 0]).unwrap();
             collided |= env.dones().contains(&Done::Collision);
             let view = front_depth_of_1(&env);
             saw_other |= view.iter().zip(&clear_view).any(|(a, b)| (a - b).abs() > 0.05);
@@ -118,19 +118,19 @@ fn agents_pass_through_and_do_not_see_each_other_unless_interactive() {
 
 #[test]
 fn non_interactive_depth_ignores_other_drones() {
-    let mut env = VecEnv::new(cfg(2), open_arena(100.0, vec![]), 5);
+    let mut env = VecEnv::new(cfg(2), open_arena(100.0, vec![]), 5).unwrap();
     env.place(0, [10.0, 0.0, 3.0], [1.0, 0.0, 0.0]);
     env.place(1, [13.0, 0.0, 3.0], [1.0, 0.0, 0.0]);
-    env.step(&[0, 1]);
-    let mut alone = VecEnv::new(cfg(1), open_arena(100.0, vec![]), 5);
+    env.step(&[0, 1]).unwrap();
+    let mut alone = VecEnv::new(cfg(1), open_arena(100.0, vec![]), 5).unwrap();
     alone.place(0, [10.0, 0.0, 3.0], [1.0, 0.0, 0.0]);
-    alone.step(&[0]);
+    alone.step(&[0]).unwrap();
     assert_eq!(&env.observations()[1024..2048], &alone.observations()[1024..2048]);
 
-    let mut inter = VecEnv::new(SimConfig { interactive: true, ..cfg(2) }, open_arena(100.0, vec![]), 5);
+    let mut inter = VecEnv::new(SimConfig { interactive: true, ..cfg(2) }, open_arena(100.0, vec![]), 5).unwrap();
     inter.place(0, [10.0, 0.0, 3.0], [1.0, 0.0, 0.0]);
     inter.place(1, [13.0, 0.0, 3.0], [1.0, 0.0, 0.0]);
-    inter.step(&[0, 1]);
+    inter.step(&[0, 1]).unwrap();
     let centre = inter.observations()[1024 + 15 * 32 + 15] * 20.0;
     assert!(centre < 4.0, "interactive drone 0 should see drone 1 about 3 m ahead, read {centre}");
 }
@@ -139,11 +139,11 @@ fn non_interactive_depth_ignores_other_drones() {
 fn same_seed_same_trajectory() {
     let arena = Arena::load(&arena_file("train.toml")).unwrap();
     let run = |seed: u64| {
-        let mut env = VecEnv::new(cfg(4), arena.clone(), seed);
+        let mut env = VecEnv::new(cfg(4), arena.clone(), seed).unwrap();
         let mut trace = Vec::new();
         for t in 0..30u32 {
             let actions: Vec<u8> = (0..4).map(|i| ((t * 7 + i * 3) % 5 < 2) as u8).collect();
-            env.step(&actions);
+            env.step(&actions).unwrap();
             trace.extend_from_slice(env.observations());
             trace.extend_from_slice(env.rewards());
         }
@@ -156,22 +156,22 @@ fn same_seed_same_trajectory() {
 
 #[test]
 fn timeout_ends_an_episode_with_its_penalty() {
-    let mut env = VecEnv::new(SimConfig { max_steps: 5, forward_speed: 0.0, ..cfg(1) }, open_arena(100.0, vec![]), 1);
+    let mut env = VecEnv::new(SimConfig { max_steps: 5, forward_speed: 0.0, ..cfg(1) }, open_arena(100.0, vec![]), 1).unwrap();
     for _ in 0..4 {
-        env.step(&[(env.total_steps() % 2) as u8]);
+        env.step(&[(env.total_steps() % 2) as u8]).unwrap();
         assert_eq!(env.dones()[0], Done::Running);
     }
-    env.step(&[0]);
+    env.step(&[0]).unwrap();
     assert_eq!(env.dones()[0], Done::Timeout);
     assert_eq!(env.finished()[0].reward, 4.0 * 3.0 - 10.0);
 }
 
 #[test]
 fn reaching_the_end_is_a_goal() {
-    let mut env = VecEnv::new(cfg(1), open_arena(8.0, vec![]), 1);
+    let mut env = VecEnv::new(cfg(1), open_arena(8.0, vec![]), 1).unwrap();
     let mut done = Done::Running;
     for t in 0..10 {
-        env.step(&[(t % 2) as u8]);
+        env.step(&[(t % 2) as u8]).unwrap();
         done = env.dones()[0];
         if done != Done::Running {
             break;
@@ -189,7 +189,7 @@ fn shipped_arenas_punish_trivial_policies() {
         let spawns: Vec<f32> = (0..9).map(|k| arena.spawn.y[0] + (arena.spawn.y[1] - arena.spawn.y[0]) * k as f32 / 8.0).collect();
         let n = spawns.len();
         for policy in ["straight", "always-left", "always-right"] {
-            let mut env = VecEnv::new(cfg(n), arena.clone(), 9);
+            let mut env = VecEnv::new(cfg(n), arena.clone(), 9).unwrap();
             for (i, y) in spawns.iter().enumerate() {
                 env.place(i, [arena.spawn.x, *y, arena.spawn.z], [1.0, 0.0, 0.0]);
             }
@@ -200,7 +200,7 @@ fn shipped_arenas_punish_trivial_policies() {
                     "always-left" => vec![1; n],
                     _ => vec![0; n],
                 };
-                env.step(&a);
+                env.step(&a).unwrap();
                 for ep in env.finished() {
                     ended[ep.agent].get_or_insert(ep.reward);
                 }
@@ -230,7 +230,7 @@ fn lanes_put_arenas_side_by_side_and_keep_them_apart() {
     assert!((lanes.offsets[1] - lanes.offsets[0] - 21.0).abs() < 1e-4, "{:?}", lanes.offsets);
     assert_eq!(lanes.world.obstacles.len(), 1 + 4, "one obstacle and two walls per lane");
     // Agents spawn in both lanes, each inside its lane.
-    let env = VecEnv::try_new_lanes(cfg(16), &[a.clone(), b], 3).unwrap();
+    let env = VecEnv::new_lanes(cfg(16), &[a.clone(), b], 3).unwrap();
     let mut used = [false; 2];
     for p in env.positions() {
         let k = lanes.offsets.iter().position(|o| (p[1] - o).abs() < 10.0).expect("agent outside every lane");
@@ -256,12 +256,12 @@ fn lanes_put_arenas_side_by_side_and_keep_them_apart() {
 #[test]
 fn without_autoreset_an_ended_agent_keeps_its_last_frames_until_it_is_reset() {
     let arena = open_arena(100.0, vec![Obstacle::Box { center: [30.0, 0.0, 4.0], half_extents: [0.5, 10.0, 4.0] }]);
-    let mut env = VecEnv::new(SimConfig { max_steps: 3, ..cfg(2) }, arena, 7);
+    let mut env = VecEnv::new(SimConfig { max_steps: 3, ..cfg(2) }, arena, 7).unwrap();
     env.set_autoreset(Autoreset::Disabled);
     let start = env.observations().to_vec();
     let spawn_x = env.positions()[0][0];
     for _ in 0..3 {
-        env.step(&[1, 0]);
+        env.step(&[1, 0]).unwrap();
     }
     assert_eq!(env.dones(), &[Done::Timeout, Done::Timeout]);
     assert_eq!(env.finished().len(), 2);
@@ -282,8 +282,8 @@ fn without_autoreset_an_ended_agent_keeps_its_last_frames_until_it_is_reset() {
     assert_eq!(&after[n..2 * n], &ended[n..2 * n], "agent 1's observation is unchanged");
     assert_eq!(&after[..px], &after[px..2 * px], "a reset agent's two frames are its first view");
     // Reseeding makes the spawns reproducible.
-    let mut a = VecEnv::new(SimConfig { max_steps: 3, ..cfg(2) }, open_arena(100.0, vec![]), 1);
-    let mut b = VecEnv::new(SimConfig { max_steps: 3, ..cfg(2) }, open_arena(100.0, vec![]), 2);
+    let mut a = VecEnv::new(SimConfig { max_steps: 3, ..cfg(2) }, open_arena(100.0, vec![]), 1).unwrap();
+    let mut b = VecEnv::new(SimConfig { max_steps: 3, ..cfg(2) }, open_arena(100.0, vec![]), 2).unwrap();
     for e in [&mut a, &mut b] {
         e.reseed(42);
         e.reset_agents(&[true, true]).unwrap();
@@ -297,15 +297,15 @@ fn resetting_ended_agents_by_hand_matches_autoreset_step_for_step() {
     // final observations, reset the ended agents) gives the same episodes and
     // observations as the training path's autoreset, for the same seed.
     let arena = Arena::load(&arena_file("train.toml")).unwrap();
-    let make = || VecEnv::new(SimConfig { max_steps: 30, ..cfg(6) }, arena.clone(), 11);
+    let make = || VecEnv::new(SimConfig { max_steps: 30, ..cfg(6) }, arena.clone(), 11).unwrap();
     let (mut auto, mut by_hand) = (make(), make());
     by_hand.set_autoreset(Autoreset::Disabled);
     let n = auto.obs_len();
     let mut ended = 0;
     for t in 0..80u32 {
         let actions: Vec<u8> = (0..6u32).map(|i| ((t * 7 + i * 3) % 5 < 2) as u8).collect();
-        auto.step(&actions);
-        by_hand.step(&actions);
+        auto.step(&actions).unwrap();
+        by_hand.step(&actions).unwrap();
         assert_eq!(auto.rewards(), by_hand.rewards(), "step {t}");
         assert_eq!(auto.dones(), by_hand.dones(), "step {t}");
         let mask: Vec<bool> = by_hand.dones().iter().map(|d| *d != Done::Running).collect();
@@ -325,9 +325,9 @@ fn resetting_ended_agents_by_hand_matches_autoreset_step_for_step() {
 #[test]
 fn split_observations_are_the_flat_rows_cut_in_two() {
     let arena = Arena::load(&arena_file("train.toml")).unwrap();
-    let mut env = VecEnv::new(cfg(3), arena, 5);
-    env.step(&[0, 1, 1]);
-    env.step(&[1, 1, 0]);
+    let mut env = VecEnv::new(cfg(3), arena, 5).unwrap();
+    env.step(&[0, 1, 1]).unwrap();
+    env.step(&[1, 1, 0]).unwrap();
     let (n, px) = (env.obs_len(), 32 * 32);
     let mut depth = vec![0.0; 3 * 2 * px];
     let mut vel = vec![0.0; 3 * 3];
@@ -343,18 +343,18 @@ fn split_observations_are_the_flat_rows_cut_in_two() {
 #[test]
 fn next_step_autoreset_starts_the_next_episode_one_step_later() {
     let arena = open_arena(100.0, vec![]);
-    let mut env = VecEnv::new(SimConfig { max_steps: 3, ..cfg(2) }, arena, 3);
+    let mut env = VecEnv::new(SimConfig { max_steps: 3, ..cfg(2) }, arena, 3).unwrap();
     env.set_autoreset(Autoreset::NextStep);
     let n = env.obs_len();
     let px = 32 * 32;
     for _ in 0..3 {
-        env.step(&[1, 0]);
+        env.step(&[1, 0]).unwrap();
     }
     assert_eq!(env.dones(), &[Done::Timeout, Done::Timeout]);
     // The ending step shows the episode's last view, not a fresh spawn's.
     let obs = env.observations();
     assert_ne!(&obs[..px], &obs[px..2 * px]);
-    env.step(&[1, 1]);
+    env.step(&[1, 1]).unwrap();
     assert_eq!(env.dones(), &[Done::Running, Done::Running]);
     assert_eq!(env.rewards(), &[0.0, 0.0]);
     assert!(env.finished().is_empty());
@@ -365,9 +365,9 @@ fn next_step_autoreset_starts_the_next_episode_one_step_later() {
         assert!((o[2 * px] - 1.0).abs() < 1e-6, "at the forward speed");
     }
     // And its next episode counts from there: three more steps end it.
-    env.step(&[1, 0]);
-    env.step(&[1, 0]);
+    env.step(&[1, 0]).unwrap();
+    env.step(&[1, 0]).unwrap();
     assert_eq!(env.dones(), &[Done::Running, Done::Running]);
-    env.step(&[1, 0]);
+    env.step(&[1, 0]).unwrap();
     assert_eq!(env.dones(), &[Done::Timeout, Done::Timeout]);
 }

@@ -23,7 +23,7 @@ fn direct_flight_follows_the_rapier_reference() {
     let agents = 12;
     let arena = open_arena(400.0, 400.0, vec![]);
     let make = |physics| {
-        let mut env = VecEnv::new(SimConfig { agents, physics, max_steps: 1000, ..SimConfig::default() }, arena.clone(), 5);
+        let mut env = VecEnv::new(SimConfig { agents, physics, max_steps: 1000, ..SimConfig::default() }, arena.clone(), 5).unwrap();
         env.set_autoreset(Autoreset::Disabled);
         for i in 0..agents {
             env.place(i, [2.0, i as f32 * 20.0 - 110.0, 3.0], [1.0, 0.0, 0.0]);
@@ -34,8 +34,8 @@ fn direct_flight_follows_the_rapier_reference() {
     let (mut worst_pos, mut worst_att, mut worst_vel) = (0.0f32, 0.0f32, 0.0f32);
     for t in 0..40 {
         let actions: Vec<u8> = (0..agents).map(|i| action(i, t)).collect();
-        direct.step(&actions);
-        rapier.step(&actions);
+        direct.step(&actions).unwrap();
+        rapier.step(&actions).unwrap();
         for i in 0..agents {
             let (a, b) = (direct.state(i), rapier.state(i));
             assert_eq!(direct.dones()[i], Done::Running, "agent {i} ended at step {t} in open air");
@@ -66,7 +66,7 @@ fn nothing_tunnels_through_the_thinnest_wall_at_the_highest_speed() {
     let along = Obstacle::Box { center: [100.0, 3.0, 4.0], half_extents: [95.0, THIN, 4.0] };
     let across = Obstacle::Box { center: [150.0, -6.0, 4.0], half_extents: [THIN, 3.0, 4.0] };
     let arena = open_arena(200.0, 30.0, vec![along, across]);
-    let mut env = VecEnv::new(cfg.clone(), arena.clone(), 9);
+    let mut env = VecEnv::new(cfg.clone(), arena.clone(), 9).unwrap();
     env.set_autoreset(Autoreset::Disabled);
     let v = cfg.max_lateral_speed;
     for i in 0..agents {
@@ -84,7 +84,7 @@ fn nothing_tunnels_through_the_thinnest_wall_at_the_highest_speed() {
         // +lateral_step holds the even agents at the top lateral speed; the
         // odd ones alternate and fly straight.
         let actions: Vec<u8> = (0..agents).map(|i| if i % 2 == 0 { 1 } else { (t % 2) as u8 }).collect();
-        env.step(&actions);
+        env.step(&actions).unwrap();
         for (i, d) in env.dones().iter().enumerate() {
             if *d != Done::Running && ended[i].is_none() {
                 ended[i] = Some((*d, t));
@@ -100,9 +100,9 @@ fn nothing_tunnels_through_the_thinnest_wall_at_the_highest_speed() {
         assert!(matches!(e, Some((Done::Collision, t)) if *t <= latest), "agent {i} ended as {e:?}");
     }
     // Without the walls, the same flights are not collisions.
-    let mut clear = VecEnv::new(cfg, open_arena(200.0, 30.0, vec![]), 9);
+    let mut clear = VecEnv::new(cfg, open_arena(200.0, 30.0, vec![]), 9).unwrap();
     for _ in 0..2 {
-        clear.step(&vec![1; agents]);
+        clear.step(&vec![1; agents]).unwrap();
         assert!(clear.dones().iter().all(|d| *d == Done::Running));
     }
 }
@@ -111,11 +111,11 @@ fn nothing_tunnels_through_the_thinnest_wall_at_the_highest_speed() {
 fn physics_on_the_shared_render_threads_flies_exactly_as_on_one() {
     let arena = Arena::load(std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../configs/arenas/train.toml"))).unwrap();
     let run = |threads| {
-        let mut env = VecEnv::new(SimConfig { agents: 150, render_threads: threads, ..SimConfig::default() }, arena.clone(), 4);
+        let mut env = VecEnv::new(SimConfig { agents: 150, render_threads: threads, ..SimConfig::default() }, arena.clone(), 4).unwrap();
         let mut ends = 0;
         for t in 0..30 {
             let actions: Vec<u8> = (0..150).map(|i| action(i, t)).collect();
-            env.step(&actions);
+            env.step(&actions).unwrap();
             ends += env.finished().len();
         }
         (env.positions(), env.observations().to_vec(), ends)
