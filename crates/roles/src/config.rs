@@ -10,15 +10,9 @@ use serde::{Deserialize, Serialize};
 
 use rotorhive_sim::{Arena, CameraSpec, GenParams, PhysicsKind, RendererKind, SimConfig};
 
-/// `sim.observation_mode`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum ObservationMode {
-    /// One message per step with every agent's observation.
-    Batched,
-    /// One message (and render call) per agent.
-    NonBatched,
-}
+/// `sim.observation_mode`: the records' enum, so that `summary.json` names
+/// the mode with the config's own word.
+pub use rotorhive_records::ObservationMode;
 
 /// `actor.device` and `learner.device`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

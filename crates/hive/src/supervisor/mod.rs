@@ -472,10 +472,7 @@ impl Supervisor<'_> {
             agents_per_env: cfg.sim.agents,
             agents_total: cfg.agents_total(),
             hosts,
-            observation_mode: match cfg.sim.observation_mode {
-                rotorhive_roles::ObservationMode::Batched => rotorhive_records::ObservationMode::Batched,
-                rotorhive_roles::ObservationMode::NonBatched => rotorhive_records::ObservationMode::NonBatched,
-            },
+            observation_mode: cfg.sim.observation_mode,
             renderer: match cfg.sim.renderer {
                 rotorhive_sim::RendererKind::Cpu => rotorhive_records::Renderer::Cpu,
                 rotorhive_sim::RendererKind::Wgpu => rotorhive_records::Renderer::Wgpu,
