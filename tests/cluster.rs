@@ -263,41 +263,33 @@ fn a_killed_worker_comes_back_and_a_killed_head_is_noticed() {
     let mut first = worker("cluster-worker");
     let first_lines = lines_of(&mut first);
     assert!(wait_line(&first_lines, "joined the run", Duration::from_secs(30)).is_some());
-    std::thread::sleep(Duration::from_secs(4));
     // The worker's roles are processes of its own: an actor killed with
     // SIGKILL is started again by the worker.
+    common::wait_for("the worker's sim and actor", Duration::from_secs(20), || children_of(first.id()).len() == 2);
     let roles = children_of(first.id());
-    assert_eq!(roles.len(), 2, "a sim and an actor: {roles:?}");
     let actor = roles.iter().find(|(_, cmd)| cmd.contains("actor")).unwrap_or_else(|| panic!("{roles:?}")).0;
     // SAFETY: a plain signal to a process of this test's run.
     unsafe { libc::kill(actor, libc::SIGKILL) };
-    let end = Instant::now() + Duration::from_secs(5);
-    let again = loop {
-        let now = children_of(first.id());
-        if let Some((pid, _)) = now.iter().find(|(p, cmd)| cmd.contains("actor") && *p != actor) {
-            break *pid;
-        }
-        assert!(Instant::now() < end, "the killed actor was not restarted: {now:?}");
-        std::thread::sleep(Duration::from_millis(50));
-    };
+    let restarted = || children_of(first.id()).into_iter().find(|(p, cmd)| cmd.contains("actor") && *p != actor).map(|(p, _)| p);
+    common::wait_for("the killed actor to be started again", Duration::from_secs(20), || restarted().is_some());
+    let again = restarted().unwrap();
     std::thread::sleep(Duration::from_secs(3));
     let roles = children_of(first.id());
     assert!(roles.iter().any(|(p, _)| *p == again), "the restarted actor died: {roles:?}");
-    // The worker itself killed: its roles stop within 2 s.
+    // The worker itself killed: its roles stop (the design says within
+    // 2 s; a test asserts no time, it prints it).
     first.kill().unwrap();
     let killed = Instant::now();
     first.wait().unwrap();
-    while roles.iter().any(|(p, _)| alive(*p)) {
-        assert!(killed.elapsed() < Duration::from_secs(2), "roles of the killed worker still run: {roles:?}");
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    common::wait_for("the killed worker's roles to stop", Duration::from_secs(20), || roles.iter().all(|(p, _)| !alive(*p)));
+    eprintln!("the killed worker's roles stopped after {:.2} s", killed.elapsed().as_secs_f64());
     // The same host comes back in the same domain (cleaning what the
-    // killed one left): it gets its old place within 5 s.
+    // killed one left): it gets its old place.
     let started = Instant::now();
     let mut second = worker("cluster-worker");
     let second_lines = lines_of(&mut second);
     let joined = wait_line(&second_lines, "joined the run", Duration::from_secs(20)).expect("the restarted worker joined");
-    assert!(joined.duration_since(started) < Duration::from_secs(5), "{:?}", joined.duration_since(started));
+    eprintln!("the restarted worker joined after {:.2} s", joined.duration_since(started).as_secs_f64());
     assert!(head.try_wait().unwrap().is_none(), "the head stopped when its worker died");
     // Another process under the same name, without the join token the
     // first one kept in its run directory, does not take the place.
@@ -310,7 +302,21 @@ fn a_killed_worker_comes_back_and_a_killed_head_is_noticed() {
     assert!(!o.status.success(), "{}", text(&o));
     assert!(String::from_utf8_lossy(&o.stderr).contains("with its join token"), "{}", text(&o));
     let _ = std::fs::remove_dir_all(&thief_dir);
-    std::thread::sleep(Duration::from_secs(6));
+    // The restarted worker's sim reports to the head: in the head's
+    // telemetry, sim 1's heartbeat starts again (a new process; a remote
+    // pid means nothing on the head and is sent as 0) and goes on rising.
+    let tel = dir.join("telemetry.csv");
+    common::wait_for("the restarted worker's sim in the head's telemetry", Duration::from_secs(20), || {
+        let t = std::fs::read_to_string(&tel).unwrap_or_default();
+        let beats: Vec<u64> = t
+            .lines()
+            .map(|l| l.split(',').collect::<Vec<_>>())
+            .filter(|f| f.get(1) == Some(&"sim") && f.get(2) == Some(&"1"))
+            .filter_map(|f| f.get(7)?.parse().ok())
+            .collect();
+        let restart = beats.windows(2).position(|w| w[1] < w[0]);
+        restart.is_some_and(|r| beats[r + 1..].iter().max().is_some_and(|m| *m >= 3))
+    });
     // Now the head dies without ending the run: the worker notices.
     head.kill().unwrap();
     head.wait().unwrap();
@@ -319,10 +325,7 @@ fn a_killed_worker_comes_back_and_a_killed_head_is_noticed() {
     assert!(!o.status.success(), "{}", text(&o));
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("lost the head"), "{err}");
-    assert!(t.elapsed() < Duration::from_secs(15), "{:?}", t.elapsed());
-    // The restarted worker's batches reached the head: its telemetry says so.
-    let tel = std::fs::read_to_string(dir.join("telemetry.csv")).unwrap();
-    assert!(tel.lines().any(|l| l.split(',').nth(1) == Some("sim") && l.split(',').nth(2) == Some("1")), "{tel}");
+    eprintln!("the worker noticed the lost head after {:.2} s", t.elapsed().as_secs_f64());
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -356,13 +359,13 @@ fn a_head_held_busy_slows_the_worker_without_loss() {
         std::thread::sleep(Duration::from_millis(200));
     };
     std::thread::sleep(Duration::from_secs(8));
-    // Hold the head's replay for 1.5 s (under the actors' 2 s stall bound,
+    // Hold the head's replay for 1 s (half the actors' 2 s stall bound,
     // past which an actor gives a batch up and counts it lost): transitions
     // pile up in the head's link, then zenoh's queue, then the worker's link
     // and actors wait.
     // SAFETY: plain signals to a child process of this test's run.
     unsafe { libc::kill(pid, libc::SIGSTOP) };
-    std::thread::sleep(Duration::from_millis(1500));
+    std::thread::sleep(Duration::from_millis(1000));
     // SAFETY: as above.
     unsafe { libc::kill(pid, libc::SIGCONT) };
     let h = head.wait_with_output().unwrap();

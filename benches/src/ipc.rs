@@ -103,7 +103,7 @@ pub fn peer(prefix: &str) -> Result<()> {
         let sum = p[0] + p[p.len() - 1];
         drop(m);
         tx.send_with(1, |a, out| {
-            *a = ActionHeader { env: 0, agents: 1, step: h.step };
+            *a = ActionHeader { step: h.step };
             out[0] = (sum != 0.0) as u8;
         })?;
     }
@@ -160,7 +160,7 @@ fn shm_rows(
             let t = Instant::now();
             let mut ready = t;
             tx.send_with(*n, |h, p| {
-                *h = ObsHeader { env: 0, agents: k as u32, first: 0, total: 0, step: i as u64, physics_ns: 0, render_ns: 0 };
+                *h = ObsHeader { agents: k as u32, step: i as u64, ..ObsHeader::default() };
                 p.copy_from_slice(src);
                 ready = Instant::now();
             })?;

@@ -404,7 +404,7 @@ impl ObsHop {
     /// the nanoseconds this took.
     fn carry(&mut self, env: &VecEnv, step: u64, batched: bool) -> Result<u64> {
         let t = Instant::now();
-        rotorhive_roles::sim::send_obs(&mut self.tx, env, 0, step, (0, 0), batched)?;
+        rotorhive_roles::sim::send_obs(&mut self.tx, env, step, batched)?;
         let got = self
             .gathered
             .recv_timeout(std::time::Duration::from_secs(10))

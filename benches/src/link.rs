@@ -243,7 +243,7 @@ fn worker_side(ep: &str, batch: usize, layout: u64, opts: &rotorhive_link::LinkO
             let mut seq = 0u64;
             while !stop.load(Ordering::Relaxed) {
                 let r = tx.send_with(batch * PACKED_LEN, |h, p| {
-                    *h = TransitionHeader { actor: 0, count: batch as u32, seq, weight_version: 0, episodes: 0 };
+                    *h = TransitionHeader { actor: 0, count: batch as u32, seq, weight_version: 0 };
                     // Written into the loan, as the baseline serializes its
                     // buffer; a marker proves each batch's identity.
                     p.copy_from_slice(&data);

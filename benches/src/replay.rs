@@ -39,7 +39,7 @@ pub fn producer(prefix: &str, index: usize, producers: usize, batches: usize) ->
     let t = Instant::now();
     for seq in 0..batches as u64 {
         tx.send_with(PER_MSG * PACKED_LEN, |h, out| {
-            *h = TransitionHeader { actor: index as u32, count: PER_MSG as u32, seq, weight_version: 0, episodes: 0 };
+            *h = TransitionHeader { actor: index as u32, count: PER_MSG as u32, seq, weight_version: 0 };
             out.copy_from_slice(&src);
         })?;
     }

@@ -233,7 +233,7 @@ mod tests {
         for (t, &(a, r, d)) in words.chunks_exact_mut(PACKED_LEN).zip(rows) {
             pack_transition(&obs, &obs, a, r, d, t);
         }
-        let h = TransitionHeader { actor, count: rows.len() as u32, seq: 0, weight_version: 0, episodes: 0 };
+        let h = TransitionHeader { actor, count: rows.len() as u32, seq: 0, weight_version: 0 };
         (wire::header_bytes(&h).to_vec(), wire::payload_bytes(&words).to_vec())
     }
 
@@ -325,7 +325,7 @@ mod tests {
         /// A header that fits, with arbitrary counts, indexes and payloads.
         #[test]
         fn arbitrary_headers_with_arbitrary_payloads(actor in any::<u32>(), count in any::<u32>(), p in proptest::collection::vec(any::<u8>(), 0..40_000)) {
-            let h = TransitionHeader { actor, count, seq: 0, weight_version: 0, episodes: 0 };
+            let h = TransitionHeader { actor, count, seq: 0, weight_version: 0 };
             let r = transitions(&host(), Some(wire::header_bytes(&h)), &[&p]);
             prop_assert!(r.is_err() || p.len() == count as usize * PACKED_LEN * 2);
             let e = EpisodeHeader { actor, count, transitions: 0, epsilon_micro: 0, step: 0 };

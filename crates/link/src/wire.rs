@@ -163,7 +163,7 @@ mod tests {
     #[test]
     fn headers_have_no_hidden_padding() {
         // Field sizes add up to the type's size: no implicit padding bytes.
-        assert_eq!(std::mem::size_of::<TransitionHeader>(), 4 + 4 + 8 + 8 + 8);
+        assert_eq!(std::mem::size_of::<TransitionHeader>(), 4 + 4 + 8 + 8);
         assert_eq!(std::mem::size_of::<EpisodeHeader>(), 4 + 4 + 8 + 8 + 8);
         assert_eq!(std::mem::size_of::<WeightsHeader>(), 8 + 8 + 8);
         assert_eq!(std::mem::size_of::<Telemetry>(), 4 * 4 + 6 * 8 + 4 * 8 + 8 * 4);
@@ -171,9 +171,9 @@ mod tests {
 
     #[test]
     fn headers_and_control_messages_round_trip() {
-        let h = TransitionHeader { actor: 3, count: 50, seq: 77, weight_version: 9, episodes: 1234 };
+        let h = TransitionHeader { actor: 3, count: 50, seq: 77, weight_version: 9 };
         let back: TransitionHeader = header_from(header_bytes(&h)).unwrap();
-        assert_eq!((back.actor, back.count, back.seq, back.weight_version, back.episodes), (3, 50, 77, 9, 1234));
+        assert_eq!((back.actor, back.count, back.seq, back.weight_version), (3, 50, 77, 9));
         assert!(header_from::<TransitionHeader>(&header_bytes(&h)[1..]).is_none());
         let hello = Hello { layout: 42, envs: 2, agents: 37, host: "b".into(), token: "t".into() };
         assert_eq!(Hello::decode(&hello.encode()), Some(hello.clone()));

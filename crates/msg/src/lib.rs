@@ -72,8 +72,6 @@ impl DoneKind {
 #[cfg_attr(feature = "zero-copy", derive(ZeroCopySend), type_name("rotorhive::ObsHeader"))]
 #[repr(C)]
 pub struct ObsHeader {
-    /// Environment (sim process) index.
-    pub env: u32,
     /// Agents in this message: all of them in batched mode, one in
     /// non-batched mode.
     pub agents: u32,
@@ -82,12 +80,10 @@ pub struct ObsHeader {
     /// Agents of the environment (the step is complete once `total` agents'
     /// observations have arrived).
     pub total: u32,
+    /// Unused; keeps the header free of padding.
+    pub reserved: u32,
     /// Environment step this observation follows (0 after the initial reset).
     pub step: u64,
-    /// Nanoseconds the sim spent on physics for this step.
-    pub physics_ns: u64,
-    /// Nanoseconds the sim spent rendering depth for this step.
-    pub render_ns: u64,
 }
 
 /// Length of the `f32` payload of an observation batch.
@@ -100,10 +96,6 @@ pub const fn obs_batch_len(agents: usize) -> usize {
 #[cfg_attr(feature = "zero-copy", derive(ZeroCopySend), type_name("rotorhive::ActionHeader"))]
 #[repr(C)]
 pub struct ActionHeader {
-    /// Environment index.
-    pub env: u32,
-    /// Agents in the batch.
-    pub agents: u32,
     /// The observation step these actions answer.
     pub step: u64,
 }
@@ -229,8 +221,6 @@ pub struct TransitionHeader {
     pub seq: u64,
     /// Weight version the acting policy used (for policy lag).
     pub weight_version: u64,
-    /// Episodes this actor has finished so far.
-    pub episodes: u64,
 }
 
 /// `u16` words of one [`Pick`] in a message: the row (2 words), its stamp
@@ -288,10 +278,6 @@ pub struct MinibatchHeader {
     pub acted: u32,
     /// Sequence number of the minibatch.
     pub seq: u64,
-    /// Transitions in the replay memory when it was sampled.
-    pub replay_len: u64,
-    /// Transitions inserted into the replay memory so far.
-    pub inserted: u64,
     /// Sum of the weight versions the `acted` transitions were acted with
     /// (the learner's policy lag is its version minus their mean).
     pub acted_version_sum: u64,
@@ -646,10 +632,10 @@ mod tests {
     #[test]
     fn layouts_are_stable() {
         // Headers cross process boundaries, so their sizes are part of the contract.
-        assert_eq!(std::mem::size_of::<ObsHeader>(), 40);
-        assert_eq!(std::mem::size_of::<ActionHeader>(), 16);
-        assert_eq!(std::mem::size_of::<TransitionHeader>(), 32);
-        assert_eq!(std::mem::size_of::<MinibatchHeader>(), 40);
+        assert_eq!(std::mem::size_of::<ObsHeader>(), 24);
+        assert_eq!(std::mem::size_of::<ActionHeader>(), 8);
+        assert_eq!(std::mem::size_of::<TransitionHeader>(), 24);
+        assert_eq!(std::mem::size_of::<MinibatchHeader>(), 24);
         assert_eq!(std::mem::size_of::<WeightsHeader>(), 24);
         assert_eq!(std::mem::size_of::<Telemetry>(), 128);
         assert_eq!(std::mem::size_of::<Learning>(), 32);

@@ -96,7 +96,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, e: usize) -> Result<()> {
             // The sim published this step again: our actions were not seen.
             // Answer with the same actions (once) and record nothing twice.
             if h.first == 0 {
-                send_actions(&mut a.act_tx, e, h.step, &a.prev_actions, &mut a.tel.sample.lost);
+                send_actions(&mut a.act_tx, h.step, &a.prev_actions, &mut a.tel.sample.lost);
             }
             continue;
         }
@@ -247,7 +247,7 @@ impl<'a, S: Service> Actor<'a, S> {
         self.tel.sample.time_stage(ActorStage::Inference, t);
         // The actions leave first; then this step's transitions (round
         // `h.step` of a deterministic run, which must follow the acting).
-        send_actions(&mut self.act_tx, self.e, h.step, &self.actions, &mut self.tel.sample.lost);
+        send_actions(&mut self.act_tx, h.step, &self.actions, &mut self.tel.sample.lost);
         let t = Instant::now();
         if self.have_prev {
             self.send_transitions(obs, rewards, dones)?;
@@ -300,7 +300,7 @@ impl<'a, S: Service> Actor<'a, S> {
             return Ok(());
         }
         let (e, nstep) = (self.e, &self.nstep);
-        let header = TransitionHeader { actor: e as u32, count: count as u32, seq: self.seq, weight_version: self.version, episodes: self.episodes };
+        let header = TransitionHeader { actor: e as u32, count: count as u32, seq: self.seq, weight_version: self.version };
         let sent = self.trans_tx.send_with(count * PACKED_LEN, |th, out| {
             *th = header;
             for (o, t) in out.chunks_exact_mut(PACKED_LEN).zip(&nstep.out) {
@@ -492,13 +492,13 @@ impl Gather {
 
 /// Publishes one action batch answering observation step `step`; a failed
 /// send is reported and counted, and the sim will publish the step again.
-fn send_actions<S: Service>(tx: &mut Sender<S, u8, ActionHeader>, e: usize, step: u64, actions: &[u8], lost: &mut u64) {
+fn send_actions<S: Service>(tx: &mut Sender<S, u8, ActionHeader>, step: u64, actions: &[u8], lost: &mut u64) {
     let n = actions.len();
     if let Err(err) = tx.send_with(n, |ah, out| {
-        *ah = ActionHeader { env: e as u32, agents: n as u32, step };
+        *ah = ActionHeader { step };
         out.copy_from_slice(actions);
     }) {
-        tracing::warn!("actor {e}: {err}");
+        tracing::warn!("actor: actions of step {step} not sent: {err}");
         *lost += 1;
     }
 }

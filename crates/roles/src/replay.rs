@@ -62,7 +62,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
             let t = Instant::now();
             let res = tx.send_with(minibatch_len(r.batch), |h, out| {
                 let acted = sample(&mut mem, out, &mut picks, r.priority_beta);
-                *h = minibatch_header(&mem, r.batch, mb_seq, acted);
+                *h = minibatch_header(r.batch, mb_seq, acted);
             });
             tel.sample.time_stage(ReplayStage::Sample, t);
             match res {
@@ -268,7 +268,7 @@ fn run_scheduled<S: Service>(
             let t = Instant::now();
             let res = tx.send_with(minibatch.len(), |h, o| {
                 o.copy_from_slice(&minibatch);
-                *h = minibatch_header(mem, batch, sent, acted);
+                *h = minibatch_header(batch, sent, acted);
             });
             tel.sample.time_stage(ReplayStage::Sample, t);
             match res {
@@ -396,15 +396,8 @@ fn store(mem: &mut Replay, journal: Option<&mut Journal>, batch: &[u16], version
 }
 
 /// The header of minibatch `seq` of `batch` transitions just sampled.
-fn minibatch_header(mem: &Replay, batch: usize, seq: u64, acted: Acted) -> MinibatchHeader {
-    MinibatchHeader {
-        batch: batch as u32,
-        acted: acted.known,
-        seq,
-        replay_len: mem.len() as u64,
-        inserted: mem.inserted(),
-        acted_version_sum: acted.version_sum,
-    }
+fn minibatch_header(batch: usize, seq: u64, acted: Acted) -> MinibatchHeader {
+    MinibatchHeader { batch: batch as u32, acted: acted.known, seq, acted_version_sum: acted.version_sum }
 }
 
 #[cfg(test)]

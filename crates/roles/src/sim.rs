@@ -35,7 +35,6 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
     let mut tel = crate::counters(hub, RoleKind::Sim, env_index, roles_of(cfg))?;
     let mut limiter = RateLimiter::new(hub, cfg)?;
     let mut step = 0u64;
-    let mut timing = (0u64, 0u64);
     let mut need_send = true;
     let mut last_send = Instant::now();
     loop {
@@ -43,7 +42,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
             break;
         }
         if need_send {
-            match send_obs(&mut obs_tx, &env, env_index, step, timing, batched) {
+            match send_obs(&mut obs_tx, &env, step, batched) {
                 Ok(()) => {
                     need_send = false;
                     last_send = Instant::now();
@@ -79,7 +78,6 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
         drop(msg);
         step += 1;
         let tm = env.timing();
-        timing = (tm.physics_ns, tm.render_ns);
         tel.sample.add_stage(SimStage::Physics, tm.physics_ns);
         tel.sample.add_stage(SimStage::Render, tm.render_ns);
         tel.sample.add_stage(SimStage::Reset, tm.reset_ns);
@@ -198,20 +196,13 @@ impl<S: Service> RateLimiter<S> {
 
 /// Publishes the observations of a step: one message for all agents
 /// (batched), or one message per agent (non-batched, the old path on purpose).
-pub fn send_obs<S: Service>(
-    tx: &mut Sender<S, f32, ObsHeader>,
-    env: &VecEnv,
-    e: usize,
-    step: u64,
-    timing: (u64, u64),
-    batched: bool,
-) -> rotorhive_transport::Result<()> {
+pub fn send_obs<S: Service>(tx: &mut Sender<S, f32, ObsHeader>, env: &VecEnv, step: u64, batched: bool) -> rotorhive_transport::Result<()> {
     let total = env.agents();
     let per = if batched { total } else { 1 };
     for first in (0..total).step_by(per) {
         let n = per.min(total - first);
         tx.send_with(obs_batch_len(n), |h, p| {
-            *h = ObsHeader { env: e as u32, agents: n as u32, first: first as u32, total: total as u32, step, physics_ns: timing.0, render_ns: timing.1 };
+            *h = ObsHeader { agents: n as u32, first: first as u32, total: total as u32, reserved: 0, step };
             let (obs, rest) = p.split_at_mut(n * OBS_LEN);
             env.write_observations(first, obs);
             let (rew, done) = rest.split_at_mut(n);
