@@ -169,7 +169,7 @@ fn bad_input_is_refused_clearly() {
     fails_with(&["train", bad_toml.to_str().unwrap()], &["bad.toml"]);
     fails_with(&["train", "--set", "sim.agnets=3"], &["agnets"]);
     fails_with(&["train", "--set", "replay.batch=0"], &["replay.batch"]);
-    fails_with(&["train", "--set", "replay.batch=99999"], &["replay.batch", "capacity"]);
+    fails_with(&["train", "--set", "replay.batch=999999"], &["replay.batch", "capacity"]);
     fails_with(&["train", "--set", "sim.agents=\"many\""], &["agents"]);
     fails_with(&["train", "--set", "sim.arena=\"/nonexistent/a.toml\""], &["/nonexistent/a.toml"]);
     let bad_arena = dir.join("arena.toml");

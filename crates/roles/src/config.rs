@@ -349,7 +349,7 @@ impl Default for ActorSection {
 impl Default for ReplaySection {
     fn default() -> Self {
         Self {
-            capacity: 50_000,
+            capacity: 200_000,
             min_fill: 15_000,
             batch: 32,
             prefetch: 4,
@@ -694,7 +694,7 @@ mod tests {
         assert!(e.contains("sim.agents"), "{e}");
         let e = format!("{:#}", Config::load(None, &["sim.agnets=3".into()]).unwrap_err());
         assert!(e.contains("agnets"), "{e}");
-        let e = format!("{:#}", Config::load(None, &["replay.batch=60000".into()]).unwrap_err());
+        let e = format!("{:#}", Config::load(None, &["replay.batch=300000".into()]).unwrap_err());
         assert!(e.contains("replay.batch"), "{e}");
         let e = format!("{:#}", Config::load(None, &["sim.agents=\"many\"".into()]).unwrap_err());
         assert!(e.contains("agents") || e.contains("invalid type"), "{e}");
