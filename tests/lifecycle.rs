@@ -98,9 +98,9 @@ fn mtime(p: &Path) -> SystemTime {
     std::fs::metadata(p).and_then(|m| m.modified()).unwrap()
 }
 
-/// Kills the learner `after` a checkpoint of its state was written; returns
-/// the seconds of updates the kill could lose (from that checkpoint to the
-/// kill) and checks that the restarted learner goes on from it.
+/// Kills the learner `after` a checkpoint of its state was written and
+/// checks that the restarted learner goes on from the update count of the
+/// last checkpoint the killed one wrote.
 fn kill_learner_after_checkpoint(dir: &Path, after: Duration) {
     let state = dir.join("checkpoints/learner-state.safetensors");
     let (_, pid, _) = role_state(dir, "learner").unwrap();

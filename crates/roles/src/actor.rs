@@ -96,7 +96,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, e: usize) -> Result<()> {
             // The sim published this step again: our actions were not seen.
             // Answer with the same actions (once) and record nothing twice.
             if h.first == 0 {
-                send_actions(&mut a.act_tx, h.step, &a.prev_actions, &mut a.tel.sample.lost);
+                send_actions(&mut a.act_tx, e, h.step, &a.prev_actions, &mut a.tel.sample.lost);
             }
             continue;
         }
@@ -247,7 +247,7 @@ impl<'a, S: Service> Actor<'a, S> {
         self.tel.sample.time_stage(ActorStage::Inference, t);
         // The actions leave first; then this step's transitions (round
         // `h.step` of a deterministic run, which must follow the acting).
-        send_actions(&mut self.act_tx, h.step, &self.actions, &mut self.tel.sample.lost);
+        send_actions(&mut self.act_tx, self.e, h.step, &self.actions, &mut self.tel.sample.lost);
         let t = Instant::now();
         if self.have_prev {
             self.send_transitions(obs, rewards, dones)?;
@@ -492,13 +492,13 @@ impl Gather {
 
 /// Publishes one action batch answering observation step `step`; a failed
 /// send is reported and counted, and the sim will publish the step again.
-fn send_actions<S: Service>(tx: &mut Sender<S, u8, ActionHeader>, step: u64, actions: &[u8], lost: &mut u64) {
+fn send_actions<S: Service>(tx: &mut Sender<S, u8, ActionHeader>, e: usize, step: u64, actions: &[u8], lost: &mut u64) {
     let n = actions.len();
     if let Err(err) = tx.send_with(n, |ah, out| {
         *ah = ActionHeader { step };
         out.copy_from_slice(actions);
     }) {
-        tracing::warn!("actor: actions of step {step} not sent: {err}");
+        tracing::warn!("actor {e}: {err}");
         *lost += 1;
     }
 }
