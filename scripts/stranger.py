@@ -35,7 +35,8 @@ def transition(action=1.0, reward=3.0, done=0.0):
 
 
 def trans_header(actor, count, seq=0):
-    return struct.pack("<IIQQQ", actor, count, seq, 0, 0)
+    # TransitionHeader: actor, count, seq, weight_version (24 bytes).
+    return struct.pack("<IIQQ", actor, count, seq, 0)
 
 
 def ep_header(actor, count):
@@ -63,7 +64,7 @@ def forged(slot_env):
         ("host/1/transitions", transition(), trans_header(a + 1000, 1)),  # nobody's environment
         ("host/1/transitions", transition() * 2, trans_header(a, 1)),  # count says 1, payload holds 2
         ("host/1/transitions", b"", trans_header(a, 0)),  # count 0
-        ("host/1/transitions", transition(), trans_header(a, 1)[:31]),  # short header
+        ("host/1/transitions", transition(), trans_header(a, 1)[:-1]),  # short header
         ("host/1/transitions", transition(), None),  # no header
         ("host/1/episodes", b"\x00" * 13, ep_header(a, 1)),  # not whole floats
         ("host/1/episodes", struct.pack("<4f", math.nan, 10, 1, 0.1), ep_header(a, 1)),  # NaN return
