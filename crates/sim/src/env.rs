@@ -180,8 +180,9 @@ pub struct StepTiming {
     pub reset_ns: u64,
 }
 
-/// Agents per piece of physics work handed to a pool thread.
-const PHYSICS_CHUNK: usize = 32;
+/// Agents per piece of physics work handed to a pool thread: whole groups
+/// of the vectorised flight kernel.
+const PHYSICS_CHUNK: usize = 2 * crate::flight::LANES;
 
 /// The flight computation of an environment.
 #[derive(Debug)]
@@ -405,14 +406,12 @@ impl VecEnv {
                 let (flight, radius) = (self.flight, self.cfg.drone_radius);
                 let geometry = &*geometry;
                 let work = |drones: &mut [Drone], path: &mut [Vector]| {
-                    for (d, path) in drones.iter_mut().zip(path.chunks_exact_mut(stride)) {
-                        path[0] = d.p;
-                        for p in &mut path[1..] {
-                            flight.step(d);
-                            *p = d.p;
-                        }
-                        if detect && !d.collided && geometry.path_hits(path, radius) {
-                            d.collided = true;
+                    flight.fly(drones, path, steps);
+                    if detect {
+                        for (d, path) in drones.iter_mut().zip(path.chunks_exact(stride)) {
+                            if !d.collided && geometry.path_hits(path, radius) {
+                                d.collided = true;
+                            }
                         }
                     }
                 };

@@ -29,7 +29,7 @@ use rapier3d::parry::partitioning::{Bvh, BvhBuildStrategy};
 use rapier3d::parry::shape::SharedShape;
 
 use crate::arena::{Arena, Obstacle};
-use crate::dynamics::{GRAVITY, Gains, QuadParams, body_wrench, rotor_thrusts};
+use crate::dynamics::{GRAVITY, Gains, QuadParams};
 
 /// Inner integration steps per physics step (rapier's solver substeps).
 pub(crate) const INNER: usize = 4;
@@ -77,29 +77,310 @@ pub(crate) struct Flight {
 }
 
 impl Flight {
-    /// One physics step of one drone: the controller once, then [`INNER`]
-    /// semi-implicit Euler steps of the rigid body under the rotor thrusts
-    /// (world-frame force held over the step, body-frame torque with the
-    /// gyroscopic term), then the linear damping.
-    #[inline]
+    /// One physics step of one drone: the same kernel as one lane of
+    /// [`Flight::fly_group`], so a drone flies the same alone or in a group.
     pub(crate) fn step(&self, d: &mut Drone) {
-        let q = &self.quad;
-        let axes = [d.q * Vector::X, d.q * Vector::Y, d.q * Vector::Z];
-        let sp = Vector::new(self.forward_speed, d.lateral_sp, 0.0);
-        let f = rotor_thrusts(q, &self.gains, d.p, d.v, axes, d.w, sp, self.altitude);
-        let (thrust, torque) = body_wrench(q, f);
-        let acc = axes[2] * (thrust / q.mass) - Vector::Z * GRAVITY;
-        let j = Vector::from(q.inertia);
-        let h = self.dt / INNER as f32;
-        for _ in 0..INNER {
-            d.v += acc * h;
-            d.w += (torque - d.w.cross(j * d.w)) / j * h;
-            d.p += d.v * h;
-            let half = d.w * (0.5 * h);
-            d.q = (d.q * Rotation::from_xyzw(half.x, half.y, half.z, 1.0)).normalize();
-        }
-        d.v *= 1.0 / (1.0 + self.dt * LINEAR_DAMPING);
+        let mut s = State::<f32>::gather(std::slice::from_ref(d));
+        self.kernel(&mut s);
+        s.scatter(std::slice::from_mut(d));
     }
+
+    /// Flies `drones` for `steps` physics steps and writes every drone's
+    /// positions into its stretch of `path` (`steps + 1` each, the start
+    /// first). Groups of [`LANES`] drones run as structure-of-arrays through
+    /// one vectorised kernel; the drones left over run the same kernel one
+    /// by one, with the same results to the bit (no fused multiply-add is
+    /// ever formed, and every lane's arithmetic is the scalar one).
+    pub(crate) fn fly(&self, drones: &mut [Drone], path: &mut [Vector], steps: usize) {
+        let (stride, grouped) = (steps + 1, drones.len() / LANES * LANES);
+        let mut groups = drones.chunks_exact_mut(LANES);
+        let mut paths = path.chunks_exact_mut(LANES * stride);
+        for (group, path) in (&mut groups).zip(&mut paths) {
+            fly_group(self, group, path, steps);
+        }
+        let rest = groups.into_remainder();
+        let rest_path = &mut path[grouped * stride..];
+        for (d, path) in rest.iter_mut().zip(rest_path.chunks_exact_mut(stride)) {
+            path[0] = d.p;
+            for p in &mut path[1..] {
+                self.step(d);
+                *p = d.p;
+            }
+        }
+    }
+
+    /// One physics step of a drone's state in plain numbers: the controller
+    /// once ([`crate::dynamics::rotor_thrusts`] written out over `T`), then
+    /// [`INNER`] semi-implicit Euler steps of the rigid body under the rotor
+    /// thrusts (world-frame force held over the step, body-frame torque with
+    /// the gyroscopic term), then the linear damping.
+    #[inline(always)]
+    fn kernel<T: Lane>(&self, s: &mut State<T>) {
+        let (q, g) = (&self.quad, &self.gains);
+        let [bx, by, bz] = axes(s.q);
+        let c = T::splat;
+        // Velocity loop (altitude held by an outer position loop on z).
+        let vz_sp = (c(g.alt) * (c(self.altitude) - s.p[2])).max(c(-2.0)).min(c(2.0));
+        let ax = c(g.vel_xy) * (c(self.forward_speed) - s.v[0]);
+        let ay = c(g.vel_xy) * (s.lat - s.v[1]);
+        let az = c(g.vel_z) * (vz_sp - s.v[2]);
+        let h = (ax * ax + ay * ay).sqrt();
+        let limit = h.gt_select(c(g.max_acc_xy), c(g.max_acc_xy) / h, c(1.0));
+        let force = [ax * limit * c(q.mass), ay * limit * c(q.mass), (az + c(GRAVITY)) * c(q.mass)];
+        // Desired attitude: body z along the force, yaw zero.
+        let bz_d = normalize_or(force, [c(0.0), c(0.0), c(1.0)]);
+        let by_d = normalize_or([c(0.0), bz_d[2], -bz_d[1]], [c(0.0), c(1.0), c(0.0)]);
+        let bx_d = cross(by_d, bz_d);
+        let collective = dot(force, bz).max(c(0.0));
+        // Attitude error e = ½ vee(R_dᵀR − RᵀR_d), body frame (Lee et al.).
+        let half = c(0.5);
+        let e = [half * (dot(bz_d, by) - dot(by_d, bz)), half * (dot(bx_d, bz) - dot(bz_d, bx)), half * (dot(by_d, bx) - dot(bx_d, by))];
+        let rate_sp = [c(-g.att) * e[0], c(-g.att) * e[1], c(-g.att_yaw) * e[2]];
+        let j = q.inertia.map(c);
+        let jw = [j[0] * s.w[0], j[1] * s.w[1], j[2] * s.w[2]];
+        let gyro = cross(s.w, jw);
+        let tau: [T; 3] = std::array::from_fn(|k| j[k] * ((rate_sp[k] - s.w[k]) * c(g.rate)) + gyro[k]);
+        // Mixer for the X frame, the rotors' limits, and what the clamped
+        // thrusts do to the body (`dynamics::body_wrench`).
+        let l = q.arm / std::f32::consts::SQRT_2;
+        let (t4, x4, y4, z4) = (collective / c(4.0), tau[0] / c(4.0 * l), tau[1] / c(4.0 * l), tau[2] / c(4.0 * q.torque_coeff));
+        let f = [t4 + x4 - y4 + z4, t4 + x4 + y4 - z4, t4 - x4 + y4 + z4, t4 - x4 - y4 - z4].map(|f| f.max(c(0.0)).min(c(q.max_rotor_thrust)));
+        let torque = [c(l) * (f[0] + f[1] - f[2] - f[3]), c(l) * (f[1] + f[2] - f[0] - f[3]), c(q.torque_coeff) * (f[0] - f[1] + f[2] - f[3])];
+        let per_mass = (f[0] + f[1] + f[2] + f[3]) / c(q.mass);
+        let acc = [bz[0] * per_mass, bz[1] * per_mass, bz[2] * per_mass - c(GRAVITY)];
+        let h = c(self.dt / INNER as f32);
+        for _ in 0..INNER {
+            let jw = [j[0] * s.w[0], j[1] * s.w[1], j[2] * s.w[2]];
+            let gyro = cross(s.w, jw);
+            for k in 0..3 {
+                s.v[k] = s.v[k] + acc[k] * h;
+                s.w[k] = s.w[k] + (torque[k] - gyro[k]) / j[k] * h;
+                s.p[k] = s.p[k] + s.v[k] * h;
+            }
+            let half = c(0.5) * h;
+            s.q = normalize_q(mul_q(s.q, [s.w[0] * half, s.w[1] * half, s.w[2] * half]));
+        }
+        let damp = c(1.0 / (1.0 + self.dt * LINEAR_DAMPING));
+        s.v = s.v.map(|v| v * damp);
+    }
+}
+
+/// Drones integrated together by [`Flight::fly`]: one AVX-512 register of
+/// `f32` (two of AVX2).
+pub(crate) const LANES: usize = 16;
+
+/// The arithmetic the flight kernel needs, for one drone (`f32`) or a
+/// group of [`LANES`] ([`Wide`]), lane by lane the same operations.
+pub(crate) trait Lane:
+    Copy + std::ops::Add<Output = Self> + std::ops::Sub<Output = Self> + std::ops::Mul<Output = Self> + std::ops::Div<Output = Self> + std::ops::Neg<Output = Self>
+{
+    fn splat(x: f32) -> Self;
+    fn sqrt(self) -> Self;
+    fn min(self, o: Self) -> Self;
+    fn max(self, o: Self) -> Self;
+    /// Per lane: `a` where `self > o`, otherwise `b`.
+    fn gt_select(self, o: Self, a: Self, b: Self) -> Self;
+}
+
+impl Lane for f32 {
+    #[inline(always)]
+    fn splat(x: f32) -> Self {
+        x
+    }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        f32::sqrt(self)
+    }
+    #[inline(always)]
+    fn min(self, o: Self) -> Self {
+        f32::min(self, o)
+    }
+    #[inline(always)]
+    fn max(self, o: Self) -> Self {
+        f32::max(self, o)
+    }
+    #[inline(always)]
+    fn gt_select(self, o: Self, a: Self, b: Self) -> Self {
+        if self > o { a } else { b }
+    }
+}
+
+/// [`LANES`] drones' values of one quantity; every operation is the `f32`
+/// one lane by lane, which the compiler turns into vector instructions.
+#[derive(Clone, Copy)]
+pub(crate) struct Wide([f32; LANES]);
+
+macro_rules! wide_op {
+    ($tr:ident, $f:ident, $op:tt) => {
+        impl std::ops::$tr for Wide {
+            type Output = Wide;
+            #[inline(always)]
+            fn $f(self, o: Wide) -> Wide {
+                Wide(std::array::from_fn(|i| self.0[i] $op o.0[i]))
+            }
+        }
+    };
+}
+wide_op!(Add, add, +);
+wide_op!(Sub, sub, -);
+wide_op!(Mul, mul, *);
+wide_op!(Div, div, /);
+
+impl std::ops::Neg for Wide {
+    type Output = Wide;
+    #[inline(always)]
+    fn neg(self) -> Wide {
+        Wide(self.0.map(|x| -x))
+    }
+}
+
+impl Lane for Wide {
+    #[inline(always)]
+    fn splat(x: f32) -> Self {
+        Wide([x; LANES])
+    }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        Wide(self.0.map(f32::sqrt))
+    }
+    #[inline(always)]
+    fn min(self, o: Self) -> Self {
+        Wide(std::array::from_fn(|i| f32::min(self.0[i], o.0[i])))
+    }
+    #[inline(always)]
+    fn max(self, o: Self) -> Self {
+        Wide(std::array::from_fn(|i| f32::max(self.0[i], o.0[i])))
+    }
+    #[inline(always)]
+    fn gt_select(self, o: Self, a: Self, b: Self) -> Self {
+        Wide(std::array::from_fn(|i| if self.0[i] > o.0[i] { a.0[i] } else { b.0[i] }))
+    }
+}
+
+/// Drones' states as plain numbers: position, velocity, rotation
+/// (`x, y, z, w`), body-frame angular velocity, lateral setpoint.
+#[derive(Clone, Copy)]
+pub(crate) struct State<T> {
+    p: [T; 3],
+    v: [T; 3],
+    q: [T; 4],
+    w: [T; 3],
+    lat: T,
+}
+
+impl<T: Lane> State<T> {
+    /// Drones' states, one per lane: `lane(value)` builds a `T` from every
+    /// drone's `value`.
+    #[inline(always)]
+    fn gather_with(lane: impl Fn(&dyn Fn(&Drone) -> f32) -> T) -> Self {
+        Self {
+            p: [lane(&|d| d.p.x), lane(&|d| d.p.y), lane(&|d| d.p.z)],
+            v: [lane(&|d| d.v.x), lane(&|d| d.v.y), lane(&|d| d.v.z)],
+            q: [lane(&|d| d.q.x), lane(&|d| d.q.y), lane(&|d| d.q.z), lane(&|d| d.q.w)],
+            w: [lane(&|d| d.w.x), lane(&|d| d.w.y), lane(&|d| d.w.z)],
+            lat: lane(&|d| d.lateral_sp),
+        }
+    }
+}
+
+impl State<f32> {
+    #[inline(always)]
+    fn gather(drones: &[Drone]) -> Self {
+        Self::gather_with(|f| f(&drones[0]))
+    }
+
+    #[inline(always)]
+    fn scatter(&self, drones: &mut [Drone]) {
+        put(&mut drones[0], self, |x| *x);
+    }
+}
+
+impl State<Wide> {
+    #[inline(always)]
+    fn gather(drones: &[Drone]) -> Self {
+        Self::gather_with(|f| Wide(std::array::from_fn(|i| f(&drones[i]))))
+    }
+
+    #[inline(always)]
+    fn scatter(&self, drones: &mut [Drone]) {
+        for (i, d) in drones.iter_mut().enumerate() {
+            put(d, self, |x| x.0[i]);
+        }
+    }
+}
+
+/// Writes one lane (`lane` reads it from a `T`) of `s` into drone `d`.
+#[inline(always)]
+fn put<T>(d: &mut Drone, s: &State<T>, lane: impl Fn(&T) -> f32) {
+    let v3 = |v: &[T; 3]| Vector::new(lane(&v[0]), lane(&v[1]), lane(&v[2]));
+    d.p = v3(&s.p);
+    d.v = v3(&s.v);
+    d.w = v3(&s.w);
+    d.q = Rotation::from_xyzw(lane(&s.q[0]), lane(&s.q[1]), lane(&s.q[2]), lane(&s.q[3]));
+}
+
+/// [`LANES`] drones flown `steps` physics steps, their positions written
+/// into `path` (`steps + 1` per drone). Compiled for AVX-512 and AVX2 beside
+/// the baseline and picked at run time.
+#[multiversion::multiversion(targets("x86_64+avx512f+avx512vl+avx512dq+avx2+fma+avx", "x86_64+avx2+fma+avx"))]
+fn fly_group(flight: &Flight, drones: &mut [Drone], path: &mut [Vector], steps: usize) {
+    let stride = steps + 1;
+    let mut s = State::<Wide>::gather(drones);
+    for (i, d) in drones.iter().enumerate() {
+        path[i * stride] = d.p;
+    }
+    for k in 1..stride {
+        flight.kernel(&mut s);
+        for i in 0..LANES {
+            path[i * stride + k] = Vector::new(s.p[0].0[i], s.p[1].0[i], s.p[2].0[i]);
+        }
+    }
+    s.scatter(drones);
+}
+
+/// The body axes in the world frame (the rotation's columns) of a unit
+/// quaternion `[x, y, z, w]`.
+#[inline(always)]
+fn axes<T: Lane>([x, y, z, w]: [T; 4]) -> [[T; 3]; 3] {
+    let (one, two) = (T::splat(1.0), T::splat(2.0));
+    let (xx, yy, zz, xy, xz, yz, wx, wy, wz) = (x * x, y * y, z * z, x * y, x * z, y * z, w * x, w * y, w * z);
+    [
+        [one - two * (yy + zz), two * (xy + wz), two * (xz - wy)],
+        [two * (xy - wz), one - two * (xx + zz), two * (yz + wx)],
+        [two * (xz + wy), two * (yz - wx), one - two * (xx + yy)],
+    ]
+}
+
+#[inline(always)]
+fn dot<T: Lane>(a: [T; 3], b: [T; 3]) -> T {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+#[inline(always)]
+fn cross<T: Lane>(a: [T; 3], b: [T; 3]) -> [T; 3] {
+    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+}
+
+/// `v / |v|`, or `fallback` where `v` is zero.
+#[inline(always)]
+fn normalize_or<T: Lane>(v: [T; 3], fallback: [T; 3]) -> [T; 3] {
+    let n2 = dot(v, v);
+    let inv = T::splat(1.0) / n2.sqrt();
+    let tiny = T::splat(f32::MIN_POSITIVE);
+    std::array::from_fn(|k| n2.gt_select(tiny, v[k] * inv, fallback[k]))
+}
+
+/// `q ⊗ (a, b, c, 1)`: a rotation by the small angle vector `2 (a, b, c)`
+/// after `q`, unnormalised.
+#[inline(always)]
+fn mul_q<T: Lane>([x, y, z, w]: [T; 4], [a, b, c]: [T; 3]) -> [T; 4] {
+    [w * a + x + y * c - z * b, w * b - x * c + y + z * a, w * c + x * b - y * a + z, w - (x * a + y * b + z * c)]
+}
+
+#[inline(always)]
+fn normalize_q<T: Lane>(q: [T; 4]) -> [T; 4] {
+    let inv = T::splat(1.0) / (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
+    q.map(|x| x * inv)
 }
 
 /// The arena's solid shapes (obstacles, walls, floor and ceiling) and a
@@ -179,6 +460,42 @@ mod tests {
         let mut a = Arena::generate("t", 1, &crate::arena::GenParams::default());
         a.obstacles = obstacles;
         a
+    }
+
+    /// 37 drones in different states: two groups of the vectorised kernel
+    /// and five left over.
+    fn drones() -> Vec<Drone> {
+        (0..37)
+            .map(|i| {
+                let t = i as f32;
+                let mut d = Drone::at(Vector::new(t, 0.3 * t, 2.0 + 0.01 * t), Vector::new(3.0, 0.1 * (t - 18.0), -0.05 * t));
+                d.q = Rotation::from_euler(rapier3d::glamx::EulerRot::XYZ, 0.01 * t, -0.02 * t, 0.005 * t);
+                d.w = Vector::new(0.1, -0.05 * t, 0.02);
+                d.lateral_sp = if i % 2 == 0 { 1.5 } else { -1.5 };
+                d
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_drone_flies_the_same_to_the_bit_alone_or_in_a_group() {
+        let flight = Flight { quad: QuadParams::default(), gains: Gains::default(), dt: 0.02, forward_speed: 3.0, altitude: 2.0 };
+        let steps = 50;
+        let mut group = drones();
+        let mut path = vec![Vector::ZERO; group.len() * (steps + 1)];
+        flight.fly(&mut group, &mut path, steps);
+        for (i, (flown, mut alone)) in group.iter().zip(drones()).enumerate() {
+            assert_eq!(path[i * (steps + 1)], alone.p);
+            for k in 1..=steps {
+                flight.step(&mut alone);
+                assert_eq!(path[i * (steps + 1) + k], alone.p, "drone {i}, step {k}");
+            }
+            let bits = |d: &Drone| [d.p, d.v, d.w].map(|v| v.to_array().map(f32::to_bits));
+            assert_eq!(bits(flown), bits(&alone), "drone {i}");
+            assert_eq!(flown.q.to_array().map(f32::to_bits), alone.q.to_array().map(f32::to_bits), "drone {i}");
+        }
+        // They did fly: every drone moved and turned.
+        assert!(group.iter().zip(drones()).all(|(a, b)| (a.p - b.p).length() > 1.0 && a.q != b.q));
     }
 
     #[test]
