@@ -53,14 +53,15 @@ fn assert_reproducible(name: &str, sets: &[&str], updates: u64, serial: bool) {
 }
 
 /// One environment, batched observations, one-step returns: 3,000
-/// agent-steps of 4 agents (750 rounds), 1 + (3,000 - 200) / 32 = 88 updates;
+/// agent-steps of 4 agents (750 rounds), 1 + (3,000 - 200) / 32 = 88 updates
+/// at one sample per insert (pinned: the schedule's arithmetic follows it);
 /// the second run in serial mode (every role a thread, iceoryx2 `local`).
 #[test]
 fn one_batched_environment_repeats_exactly_in_processes_and_in_serial_mode() {
     if common::skip_slow("one_batched_environment_repeats_exactly_in_processes_and_in_serial_mode") {
         return;
     }
-    assert_reproducible("det-one", &["max_env_steps=3000", "sim.agents=4", "replay.min_fill=200"], 88, true);
+    assert_reproducible("det-one", &["max_env_steps=3000", "sim.agents=4", "replay.min_fill=200", "replay.samples_per_insert=1.0"], 88, true);
 }
 
 /// Two environments of non-batched observations (the actor's gather),
@@ -80,6 +81,7 @@ fn two_non_batched_environments_with_n_step_and_prioritized_replay_repeat_exactl
         "sim.observation_mode=\"non-batched\"",
         "learner.n_step=3",
         "replay.min_fill=320",
+        "replay.samples_per_insert=1.0",
         "replay.prioritized=true",
         "actor.exploration=\"per-actor\"",
         "learner.reward_scale=0.01",

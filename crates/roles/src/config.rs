@@ -353,7 +353,7 @@ impl Default for ReplaySection {
             min_fill: 15_000,
             batch: 32,
             prefetch: 4,
-            samples_per_insert: 1.0,
+            samples_per_insert: 0.75,
             snapshot_every_s: 60.0,
             prioritized: false,
             priority_alpha: 0.6,
