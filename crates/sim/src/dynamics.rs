@@ -10,6 +10,8 @@
 
 use rapier3d::math::{Rotation, Vector};
 
+use crate::flight::{Lane, cross, dot, normalize_or};
+
 /// Physical constants of the quadrotor (an X-frame of about 1 kg).
 #[derive(Debug, Clone, Copy)]
 pub struct QuadParams {
@@ -115,41 +117,69 @@ pub fn rotor_thrusts(
     vel_sp: Vector,
     alt_sp: f32,
 ) -> [f32; 4] {
+    let v3 = |v: Vector| v.to_array();
+    thrusts(p, g, v3(position), v3(velocity), [v3(bx), v3(by), v3(bz)], v3(w_body), [vel_sp.x, vel_sp.y], alt_sp)
+}
+
+/// [`rotor_thrusts`] over any [`Lane`] type: one drone (`f32`) or a group
+/// (the direct path's vectorised kernel). Vectors are `[x, y, z]`; the
+/// velocity setpoint is horizontal, `[x, y]`.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+pub(crate) fn thrusts<T: Lane>(
+    p: &QuadParams,
+    g: &Gains,
+    position: [T; 3],
+    velocity: [T; 3],
+    [bx, by, bz]: [[T; 3]; 3],
+    w: [T; 3],
+    vel_sp: [T; 2],
+    alt_sp: T,
+) -> [T; 4] {
+    let c = T::splat;
     // Velocity loop (altitude held by an outer position loop on z).
-    let vz_sp = (g.alt * (alt_sp - position.z)).clamp(-2.0, 2.0);
-    let mut acc = Vector::new(g.vel_xy * (vel_sp.x - velocity.x), g.vel_xy * (vel_sp.y - velocity.y), g.vel_z * (vz_sp - velocity.z));
-    let h = (acc.x * acc.x + acc.y * acc.y).sqrt();
-    if h > g.max_acc_xy {
-        acc.x *= g.max_acc_xy / h;
-        acc.y *= g.max_acc_xy / h;
-    }
-    let force = (acc + Vector::Z * GRAVITY) * p.mass;
+    let vz_sp = (c(g.alt) * (alt_sp - position[2])).max(c(-2.0)).min(c(2.0));
+    let ax = c(g.vel_xy) * (vel_sp[0] - velocity[0]);
+    let ay = c(g.vel_xy) * (vel_sp[1] - velocity[1]);
+    let az = c(g.vel_z) * (vz_sp - velocity[2]);
+    let h = (ax * ax + ay * ay).sqrt();
+    let limit = h.gt_select(c(g.max_acc_xy), c(g.max_acc_xy) / h, c(1.0));
+    let force = [ax * limit * c(p.mass), ay * limit * c(p.mass), (az + c(GRAVITY)) * c(p.mass)];
 
     // Desired attitude: body z along the force, yaw zero.
-    let bz_d = force.normalize_or(Vector::Z);
-    let by_d = bz_d.cross(Vector::X).normalize_or(Vector::Y);
-    let bx_d = by_d.cross(bz_d);
-    let collective = force.dot(bz).max(0.0);
+    let bz_d = normalize_or(force, [c(0.0), c(0.0), c(1.0)]);
+    let by_d = normalize_or([c(0.0), bz_d[2], -bz_d[1]], [c(0.0), c(1.0), c(0.0)]);
+    let bx_d = cross(by_d, bz_d);
+    let collective = dot(force, bz).max(c(0.0));
 
     // Attitude error e = ½ vee(R_dᵀR − RᵀR_d) in the body frame (Lee et al.);
     // with M = R_dᵀR, M_ij = bd_i · b_j.
-    let e = Vector::new(0.5 * (bz_d.dot(by) - by_d.dot(bz)), 0.5 * (bx_d.dot(bz) - bz_d.dot(bx)), 0.5 * (by_d.dot(bx) - bx_d.dot(by)));
-    let rate_sp = Vector::new(-g.att * e.x, -g.att * e.y, -g.att_yaw * e.z);
-    let j = Vector::from(p.inertia);
-    let tau = j * ((rate_sp - w_body) * g.rate) + w_body.cross(j * w_body);
+    let half = c(0.5);
+    let e = [half * (dot(bz_d, by) - dot(by_d, bz)), half * (dot(bx_d, bz) - dot(bz_d, bx)), half * (dot(by_d, bx) - dot(bx_d, by))];
+    let rate_sp = [c(-g.att) * e[0], c(-g.att) * e[1], c(-g.att_yaw) * e[2]];
+    let j = p.inertia.map(c);
+    let gyro = cross(w, [j[0] * w[0], j[1] * w[1], j[2] * w[2]]);
+    let tau: [T; 3] = std::array::from_fn(|k| j[k] * ((rate_sp[k] - w[k]) * c(g.rate)) + gyro[k]);
 
     // Mixer for the X frame (see `rotors`), then the rotors' limits.
     let l = p.arm / std::f32::consts::SQRT_2;
-    let (t4, x4, y4, z4) = (collective / 4.0, tau.x / (4.0 * l), tau.y / (4.0 * l), tau.z / (4.0 * p.torque_coeff));
-    [t4 + x4 - y4 + z4, t4 + x4 + y4 - z4, t4 - x4 + y4 + z4, t4 - x4 - y4 - z4].map(|f| f.clamp(0.0, p.max_rotor_thrust))
+    let (t4, x4, y4, z4) = (collective / c(4.0), tau[0] / c(4.0 * l), tau[1] / c(4.0 * l), tau[2] / c(4.0 * p.torque_coeff));
+    [t4 + x4 - y4 + z4, t4 + x4 + y4 - z4, t4 - x4 + y4 + z4, t4 - x4 - y4 - z4].map(|f| f.max(c(0.0)).min(c(p.max_rotor_thrust)))
 }
 
 /// What four rotor thrusts do to the body: the total thrust along body z (N)
 /// and the body-frame torque (N m) of the X frame (see `rotors`).
 #[inline]
 pub fn body_wrench(p: &QuadParams, f: [f32; 4]) -> (f32, Vector) {
-    let l = p.arm / std::f32::consts::SQRT_2;
-    let torque = Vector::new(l * (f[0] + f[1] - f[2] - f[3]), l * (f[1] + f[2] - f[0] - f[3]), p.torque_coeff * (f[0] - f[1] + f[2] - f[3]));
+    let (thrust, torque) = wrench(p, f);
+    (thrust, Vector::from(torque))
+}
+
+/// [`body_wrench`] over any [`Lane`] type.
+#[inline(always)]
+pub(crate) fn wrench<T: Lane>(p: &QuadParams, f: [T; 4]) -> (T, [T; 3]) {
+    let l = T::splat(p.arm / std::f32::consts::SQRT_2);
+    let torque = [l * (f[0] + f[1] - f[2] - f[3]), l * (f[1] + f[2] - f[0] - f[3]), T::splat(p.torque_coeff) * (f[0] - f[1] + f[2] - f[3])];
     (f[0] + f[1] + f[2] + f[3], torque)
 }
 

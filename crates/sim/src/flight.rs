@@ -32,7 +32,7 @@ use rapier3d::parry::partitioning::{Bvh, BvhBuildStrategy};
 use rapier3d::parry::shape::SharedShape;
 
 use crate::arena::{Arena, Obstacle};
-use crate::dynamics::{GRAVITY, Gains, QuadParams};
+use crate::dynamics::{GRAVITY, Gains, QuadParams, thrusts, wrench};
 
 /// Inner integration steps per physics step (rapier's solver substeps).
 pub(crate) const INNER: usize = 4;
@@ -125,44 +125,21 @@ impl Flight {
     }
 
     /// One physics step of a drone's state in plain numbers: the controller
-    /// once ([`crate::dynamics::rotor_thrusts`] written out over `T`), then
+    /// once ([`thrusts`], the cascade over `T`), then
     /// [`INNER`] semi-implicit Euler steps of the rigid body under the rotor
     /// thrusts (world-frame force held over the step, body-frame torque with
     /// the gyroscopic term), then the linear damping.
     #[inline(always)]
     fn kernel<T: Lane>(&self, s: &mut State<T>) {
-        let (q, g) = (&self.quad, &self.gains);
-        let [bx, by, bz] = axes(s.q);
+        let q = &self.quad;
         let c = T::splat;
-        // Velocity loop (altitude held by an outer position loop on z).
-        let vz_sp = (c(g.alt) * (c(self.altitude) - s.p[2])).max(c(-2.0)).min(c(2.0));
-        let ax = c(g.vel_xy) * (c(self.forward_speed) - s.v[0]);
-        let ay = c(g.vel_xy) * (s.lat - s.v[1]);
-        let az = c(g.vel_z) * (vz_sp - s.v[2]);
-        let h = (ax * ax + ay * ay).sqrt();
-        let limit = h.gt_select(c(g.max_acc_xy), c(g.max_acc_xy) / h, c(1.0));
-        let force = [ax * limit * c(q.mass), ay * limit * c(q.mass), (az + c(GRAVITY)) * c(q.mass)];
-        // Desired attitude: body z along the force, yaw zero.
-        let bz_d = normalize_or(force, [c(0.0), c(0.0), c(1.0)]);
-        let by_d = normalize_or([c(0.0), bz_d[2], -bz_d[1]], [c(0.0), c(1.0), c(0.0)]);
-        let bx_d = cross(by_d, bz_d);
-        let collective = dot(force, bz).max(c(0.0));
-        // Attitude error e = ½ vee(R_dᵀR − RᵀR_d), body frame (Lee et al.).
-        let half = c(0.5);
-        let e = [half * (dot(bz_d, by) - dot(by_d, bz)), half * (dot(bx_d, bz) - dot(bz_d, bx)), half * (dot(by_d, bx) - dot(bx_d, by))];
-        let rate_sp = [c(-g.att) * e[0], c(-g.att) * e[1], c(-g.att_yaw) * e[2]];
-        let j = q.inertia.map(c);
-        let jw = [j[0] * s.w[0], j[1] * s.w[1], j[2] * s.w[2]];
-        let gyro = cross(s.w, jw);
-        let tau: [T; 3] = std::array::from_fn(|k| j[k] * ((rate_sp[k] - s.w[k]) * c(g.rate)) + gyro[k]);
-        // Mixer for the X frame, the rotors' limits, and what the clamped
-        // thrusts do to the body (`dynamics::body_wrench`).
-        let l = q.arm / std::f32::consts::SQRT_2;
-        let (t4, x4, y4, z4) = (collective / c(4.0), tau[0] / c(4.0 * l), tau[1] / c(4.0 * l), tau[2] / c(4.0 * q.torque_coeff));
-        let f = [t4 + x4 - y4 + z4, t4 + x4 + y4 - z4, t4 - x4 + y4 + z4, t4 - x4 - y4 - z4].map(|f| f.max(c(0.0)).min(c(q.max_rotor_thrust)));
-        let torque = [c(l) * (f[0] + f[1] - f[2] - f[3]), c(l) * (f[1] + f[2] - f[0] - f[3]), c(q.torque_coeff) * (f[0] - f[1] + f[2] - f[3])];
-        let per_mass = (f[0] + f[1] + f[2] + f[3]) / c(q.mass);
+        let axes = axes(s.q);
+        let f = thrusts(q, &self.gains, s.p, s.v, axes, s.w, [c(self.forward_speed), s.lat], c(self.altitude));
+        let (thrust, torque) = wrench(q, f);
+        let per_mass = thrust / c(q.mass);
+        let bz = axes[2];
         let acc = [bz[0] * per_mass, bz[1] * per_mass, bz[2] * per_mass - c(GRAVITY)];
+        let j = q.inertia.map(c);
         let h = c(self.dt / INNER as f32);
         for _ in 0..INNER {
             let jw = [j[0] * s.w[0], j[1] * s.w[1], j[2] * s.w[2]];
@@ -372,18 +349,18 @@ fn axes<T: Lane>([x, y, z, w]: [T; 4]) -> [[T; 3]; 3] {
 }
 
 #[inline(always)]
-fn dot<T: Lane>(a: [T; 3], b: [T; 3]) -> T {
+pub(crate) fn dot<T: Lane>(a: [T; 3], b: [T; 3]) -> T {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
 #[inline(always)]
-fn cross<T: Lane>(a: [T; 3], b: [T; 3]) -> [T; 3] {
+pub(crate) fn cross<T: Lane>(a: [T; 3], b: [T; 3]) -> [T; 3] {
     [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
 }
 
 /// `v / |v|`, or `fallback` where `v` is zero.
 #[inline(always)]
-fn normalize_or<T: Lane>(v: [T; 3], fallback: [T; 3]) -> [T; 3] {
+pub(crate) fn normalize_or<T: Lane>(v: [T; 3], fallback: [T; 3]) -> [T; 3] {
     let n2 = dot(v, v);
     let inv = T::splat(1.0) / n2.sqrt();
     let tiny = T::splat(f32::MIN_POSITIVE);
