@@ -53,6 +53,10 @@ pub enum BenchCmd {
         /// Arena file.
         #[arg(long, default_value = "configs/arenas/train.toml")]
         arena: PathBuf,
+        /// Measure this config's simulator instead (a level's, say): its
+        /// training lanes, speeds, noise and randomisation.
+        #[arg(long, conflicts_with = "arena")]
+        config: Option<PathBuf>,
         /// Print one JSON object as the last line.
         #[arg(long)]
         json: bool,
@@ -170,6 +174,10 @@ pub enum BenchCmd {
         /// Grid, budget and seeds.
         #[arg(long, default_value = "configs/bench/agent-table.toml")]
         config: PathBuf,
+        /// The training config of every cell (a level's, say), instead of
+        /// the table config's `config`.
+        #[arg(long)]
+        train_config: Option<PathBuf>,
         /// Where the runs and the table go.
         #[arg(long, default_value = "runs/agent-table")]
         out: PathBuf,
@@ -199,7 +207,13 @@ pub enum BenchCmd {
 
 pub fn run(cmd: BenchCmd) -> Result<()> {
     match cmd {
-        BenchCmd::Sim { agents, steps, threads, physics, arena, json } => bench_sim(&agents, steps, threads, &physics, &arena, json),
+        BenchCmd::Sim { agents, steps, threads, physics, arena, config, json } => {
+            let world = match config {
+                Some(c) => SimWorld::Config(Box::new(rotorhive_roles::Config::load(Some(&c), &[])?)),
+                None => SimWorld::Arena(Arena::load(&arena)?),
+            };
+            bench_sim(&agents, (steps, threads), &physics, &world, json)
+        }
         BenchCmd::Render { agents, renderer, steps, threads, arena, plot, json } => bench_render(&agents, &renderer, steps, threads, &arena, &plot, json),
         BenchCmd::Ipc { iters, json } => crate::ipc::run(iters, json),
         BenchCmd::IpcPeer { prefix } => crate::ipc::peer(&prefix),
@@ -207,7 +221,7 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
         BenchCmd::LinkSide { side, endpoint, seconds, batch, tls } => crate::link::side(&side, &endpoint, seconds, batch, tls),
         BenchCmd::Replay { producers, seconds, json } => crate::replay::run(producers, seconds, json),
         BenchCmd::ReplayProducer { prefix, index, producers, batches } => crate::replay::producer(&prefix, index, producers, batches),
-        BenchCmd::Table { config, out, json } => crate::table::run(&config, &out, json),
+        BenchCmd::Table { config, train_config, out, json } => crate::table::run(&config, train_config.as_deref(), &out, json),
         BenchCmd::Seeds(args) => crate::seeds::run(&args),
         BenchCmd::Learner { threads, batch, updates, compare, json } => crate::learner::bench(threads, batch, updates, compare, json),
     }
@@ -228,18 +242,37 @@ fn physics_name(p: PhysicsKind) -> &'static str {
     }
 }
 
-fn bench_sim(agents: &[usize], steps: usize, threads: usize, physics: &[PhysicsKind], arena: &std::path::Path, json: bool) -> Result<()> {
+/// What `hive bench sim` flies in: one arena with the default settings, or
+/// a config's training lanes with its settings.
+enum SimWorld {
+    Arena(Arena),
+    Config(Box<rotorhive_roles::Config>),
+}
+
+impl SimWorld {
+    /// The environment of `n` agents with `threads` and `physics`.
+    fn env(&self, n: usize, threads: usize, physics: PhysicsKind) -> Result<VecEnv> {
+        Ok(match self {
+            SimWorld::Arena(a) => VecEnv::new(SimConfig { agents: n, render_threads: threads, physics, ..SimConfig::default() }, a.clone(), 1)?,
+            SimWorld::Config(c) => {
+                let sim = SimConfig { agents: n, render_threads: threads, physics, ..c.sim_config() };
+                VecEnv::new_lanes(sim, &c.lane_arenas(0)?, 1)?
+            }
+        })
+    }
+}
+
+fn bench_sim(agents: &[usize], (steps, threads): (usize, usize), physics: &[PhysicsKind], world: &SimWorld, json: bool) -> Result<()> {
     if agents.contains(&0) || steps == 0 || threads == 0 {
         usage!("--agents, --steps and --threads must be positive");
     }
-    let arena = Arena::load(arena)?;
     let mut rows = Vec::new();
     println!(
         "{:>7} {:>8} {:>16} {:>12} {:>11} {:>11} {:>11} {:>15} {:>14}",
         "agents", "physics", "agent-steps/s", "step ms", "physics ms", "render ms", "reset ms", "physics µs/agent", "render µs/agent"
     );
     for (&n, &kind) in agents.iter().flat_map(|n| physics.iter().map(move |p| (n, p))) {
-        let mut env = VecEnv::new(SimConfig { agents: n, render_threads: threads, physics: kind, ..SimConfig::default() }, arena.clone(), 1)?;
+        let mut env = world.env(n, threads, kind)?;
         // A fixed pseudo-random action pattern: agents crash and reset as in training.
         let actions = |t: usize| -> Vec<u8> { (0..n).map(|i| (((t * 31 + i * 17) >> 2) % 2) as u8).collect() };
         for t in 0..3 {

@@ -51,12 +51,14 @@ pub struct SeedsArgs {
     /// ones on the wall budget (0: free-running).
     #[arg(long, default_value_t = 0)]
     pub deterministic_steps: u64,
-    /// Test-arena episodes that score each run's result.
+    /// Held-out episodes that score each run's result (shared evenly among
+    /// the test layouts).
     #[arg(long, default_value_t = 500)]
     pub test_episodes: usize,
-    /// The test arena (never trained on).
-    #[arg(long, default_value = "configs/arenas/test.toml")]
-    pub test_arena: PathBuf,
+    /// A test arena instead of the config's held-out test set (`eval.test_arenas`
+    /// and `eval.test_layouts`).
+    #[arg(long)]
+    pub test_arena: Option<PathBuf>,
     /// Bootstrap resamples of every interval.
     #[arg(long, default_value_t = 5000)]
     pub resamples: usize,
@@ -152,6 +154,11 @@ pub struct RunResult {
     /// The same time, censored at the run's wall time when not reached.
     time_censored_s: f64,
     time_to_target_s: Option<f64>,
+    /// Agent-steps to the first greedy validation at the target: the
+    /// learning metric.
+    env_steps_to_target: Option<u64>,
+    /// Agent-steps, updates and epsilon when the rolling reward crossed.
+    at_threshold: (Option<u64>, Option<u64>, Option<f64>),
     best_validation: Option<f64>,
     final_validation: Option<f64>,
     result_validation: Option<f64>,
@@ -216,15 +223,31 @@ fn validation_curve(run_dir: &Path) -> Vec<(f64, f64)> {
     rotorhive_records::rows::read::<EvalRow>(&run_dir.join("evals.csv")).unwrap_or_default().iter().map(|r| (r.wall_s, r.success_rate)).collect()
 }
 
-/// The success rate of a run's result on the test arena over `episodes`
-/// fresh episodes, flown with the run's own simulator settings.
-fn test_success(run_dir: &Path, checkpoint: &Path, arena: &Path, episodes: usize) -> Result<f64> {
+/// The held-out test set of `cfg`, or the one arena `--test-arena` names.
+fn test_set(cfg: &Config, arena: Option<&Path>) -> Result<Vec<rotorhive_sim::Arena>> {
+    match arena {
+        Some(p) => Ok(vec![rotorhive_sim::Arena::load(p)?]),
+        None => Ok(cfg.test_arenas()?),
+    }
+}
+
+/// The pooled success rate of `pilot` on the held-out test set over
+/// `episodes` fresh episodes (shared among the layouts), flown with the
+/// simulator settings of `cfg`.
+fn pooled_success(cfg: &Config, pilot: rotorhive_roles::eval::Pilot<'_>, arena: Option<&Path>, episodes: usize) -> Result<f64> {
+    let layouts = test_set(cfg, arena)?;
+    let sim = rotorhive_sim::SimConfig { renderer: rotorhive_sim::RendererKind::Cpu, ..cfg.sim_config() };
+    let stats = rotorhive_roles::eval::fly_layouts(pilot, &sim, &layouts, episodes.div_ceil(layouts.len()), 12345)?;
+    Ok(rotorhive_roles::eval::EvalStats::pooled(&stats).success_rate())
+}
+
+/// The success rate of a run's result on the held-out test set, flown
+/// with the run's own simulator settings.
+fn test_success(run_dir: &Path, checkpoint: &Path, arena: Option<&Path>, episodes: usize) -> Result<f64> {
     let cfg = Config::load(Some(&run_dir.join("config.toml")), &[])?;
     let net = rotorhive_model::QNet::new(0, &rotorhive_model::Device::Cpu)?;
     net.load(checkpoint)?;
-    let arena = rotorhive_sim::Arena::load(arena)?;
-    let sim = rotorhive_sim::SimConfig { renderer: rotorhive_sim::RendererKind::Cpu, ..cfg.sim_config() };
-    Ok(rotorhive_roles::eval::fly_greedy(&net, sim, std::slice::from_ref(&arena), episodes, 12345)?.success_rate())
+    pooled_success(&cfg, rotorhive_roles::eval::Pilot::Net(&net), arena, episodes)
 }
 
 /// Runs one seed of one arm and scores it.
@@ -258,7 +281,7 @@ fn run_one(a: &SeedsArgs, exe: &Path, arm: &Arm, seed: u64, dir: &Path) -> Resul
         Err(e) => return Ok(failed(format!("{e:#}"))),
     };
     let test = match &summary.checkpoint {
-        Some(c) if a.test_episodes > 0 => Some(test_success(dir, Path::new(c), &a.test_arena, a.test_episodes)?),
+        Some(c) if a.test_episodes > 0 => Some(test_success(dir, Path::new(c), a.test_arena.as_deref(), a.test_episodes)?),
         _ => None,
     };
     let validation = validation_curve(dir);
@@ -273,6 +296,8 @@ fn run_one(a: &SeedsArgs, exe: &Path, arm: &Arm, seed: u64, dir: &Path) -> Resul
         time_s,
         time_censored_s: time_s.unwrap_or(if a.deterministic_steps > 0 { summary.wall_s } else { a.budget_s }),
         time_to_target_s: summary.time_to_target_success_s,
+        env_steps_to_target: summary.env_steps_to_target,
+        at_threshold: (summary.env_steps_at_threshold, summary.updates_at_threshold, summary.epsilon_at_threshold),
         best_validation: validation.iter().map(|p| p.1).reduce(f64::max),
         final_validation: summary.final_validation_success,
         result_validation: summary.result_validation_success,
@@ -391,10 +416,13 @@ fn pct(v: Option<f64>) -> String {
     v.map_or("—".into(), |v| format!("{:.1}", v * 100.0))
 }
 
-/// The report of a finished experiment: per-arm statistics as JSON.
-fn arm_stats(name: &str, runs: &[&RunResult], resamples: usize, rng: &mut Pcg64Mcg) -> serde_json::Value {
+/// The report of a finished experiment: per-arm statistics as JSON, with
+/// the reactive rule's pooled test success on the arm's test set.
+fn arm_stats(name: &str, runs: &[&RunResult], resamples: usize, rng: &mut Pcg64Mcg, reactive: Option<f64>) -> serde_json::Value {
     let times: Vec<f64> = runs.iter().map(|r| r.time_censored_s).collect();
     let targets: Vec<f64> = runs.iter().filter_map(|r| r.time_to_target_s).collect();
+    let steps_to_target: Vec<f64> = runs.iter().filter_map(|r| r.env_steps_to_target.map(|s| s as f64)).collect();
+    let at = |f: &dyn Fn(&RunResult) -> Option<f64>| median(&runs.iter().filter_map(|r| f(r)).collect::<Vec<_>>());
     let tests: Vec<f64> = runs.iter().filter_map(|r| r.test_success).collect();
     let collapse: Vec<f64> = runs.iter().filter_map(|r| Some(r.best_validation? - r.final_validation?)).collect();
     json!({
@@ -409,6 +437,12 @@ fn arm_stats(name: &str, runs: &[&RunResult], resamples: usize, rng: &mut Pcg64M
         "iqm_time_ci": bootstrap(&[&times], resamples, rng, |d| iqm(&d[0])),
         "reached_target": targets.len(),
         "median_time_to_target_s": if targets.len() == runs.len() { json!(median(&targets)) } else { json!(null) },
+        "median_env_steps_to_target": if steps_to_target.len() == runs.len() && !runs.is_empty() { json!(median(&steps_to_target)) } else { json!(null) },
+        "env_steps_to_target": runs.iter().map(|r| r.env_steps_to_target).collect::<Vec<_>>(),
+        "median_env_steps_at_threshold": at(&|r| r.at_threshold.0.map(|v| v as f64)),
+        "median_updates_at_threshold": at(&|r| r.at_threshold.1.map(|v| v as f64)),
+        "median_epsilon_at_threshold": at(&|r| r.at_threshold.2),
+        "reactive_test_success": reactive,
         "times_to_target_s": runs.iter().map(|r| r.time_to_target_s).collect::<Vec<_>>(),
         "test_success": runs.iter().map(|r| r.test_success).collect::<Vec<_>>(),
         "test_success_min": tests.iter().copied().reduce(f64::min),
@@ -436,7 +470,18 @@ pub fn run(a: &SeedsArgs) -> Result<()> {
         let sets: Vec<String> = a.set.iter().chain(&arm.set).cloned().collect();
         Config::load(a.config.as_deref(), &sets).doing_with(|| format!("arm {}", arm.name))?;
     }
-    rotorhive_sim::Arena::load(&a.test_arena)?;
+    // The reactive rule on each arm's test set: the floor beside the arm.
+    let mut reactive = Vec::new();
+    for arm in &arms {
+        let sets: Vec<String> = a.set.iter().chain(&arm.set).cloned().collect();
+        let cfg = Config::load(a.config.as_deref(), &sets)?;
+        let r = if a.test_episodes > 0 {
+            Some(pooled_success(&cfg, rotorhive_roles::eval::Pilot::Reactive, a.test_arena.as_deref(), a.test_episodes)?)
+        } else {
+            None
+        };
+        reactive.push(r);
+    }
     std::fs::create_dir_all(&a.out).doing_with(|| format!("cannot create {}", a.out.display()))?;
     let exe = std::env::current_exe()?;
     let total = seeds.len() * arms.len();
@@ -463,14 +508,15 @@ pub fn run(a: &SeedsArgs) -> Result<()> {
             results.push(r);
         }
     }
-    report(a, &arms, &results)
+    report(a, &arms, &results, &reactive)
 }
 
 /// Statistics, tables, curves and the JSON line of finished runs.
-fn report(a: &SeedsArgs, arms: &[Arm], results: &[RunResult]) -> Result<()> {
+fn report(a: &SeedsArgs, arms: &[Arm], results: &[RunResult], reactive: &[Option<f64>]) -> Result<()> {
     let mut rng = Pcg64Mcg::seed_from_u64(0x5eed5);
     let by_arm: Vec<Vec<&RunResult>> = arms.iter().map(|arm| results.iter().filter(|r| r.arm == arm.name).collect()).collect();
-    let stats: Vec<serde_json::Value> = arms.iter().zip(&by_arm).map(|(arm, runs)| arm_stats(&arm.name, runs, a.resamples, &mut rng)).collect();
+    let stats: Vec<serde_json::Value> =
+        arms.iter().zip(&by_arm).zip(reactive).map(|((arm, runs), r)| arm_stats(&arm.name, runs, a.resamples, &mut rng, *r)).collect();
     let mut pairs = Vec::new();
     for i in 0..arms.len() {
         for j in 0..arms.len() {
@@ -561,32 +607,37 @@ fn write_md(a: &SeedsArgs, stats: &[serde_json::Value], pairs: &[serde_json::Val
     };
     writeln!(
         md,
-        "Runs: {how}; interleaved A B / B A by seed; unconverged runs count at the budget. Test success: the run's result on `{}` over {} episodes. Intervals: 95 % percentile bootstrap ({} resamples).\n",
-        a.test_arena.display(),
+        "Runs: {how}; interleaved A B / B A by seed; unconverged runs count at the budget. Test success: the run's result on {} over {} episodes, pooled; the reactive rule on the same. Learning: agent-steps (and seconds) until a greedy validation first reached the target. Intervals: 95 % percentile bootstrap ({} resamples).\n",
+        a.test_arena.as_ref().map_or("the config's held-out test set".to_string(), |p| format!("`{}`", p.display())),
         a.test_episodes,
         a.resamples
     )?;
     writeln!(
         md,
-        "| arm | converged | median time to threshold (s) | IQM (s) [95 % CI] | reached target | median time to target (s) | test success min / IQM (%) | max collapse (best − final validation, points) | agent-steps/s | updates/s |"
+        "| arm | reached target | median agent-steps to target | median time to target (s) | test success min / median / IQM (%) | reactive rule (%) | converged | median time to threshold (s) | IQM (s) [95 % CI] | epsilon at threshold | max collapse (best − final validation, points) | agent-steps/s | updates/s |"
     )?;
-    writeln!(md, "|---|---|---|---|---|---|---|---|---|---|")?;
+    writeln!(md, "|---|---|---|---|---|---|---|---|---|---|---|---|---|")?;
     for s in stats {
+        let tests: Vec<f64> = s["test_success"].as_array().map_or(vec![], |v| v.iter().filter_map(|x| x.as_f64()).collect());
         writeln!(
             md,
-            "| {} | {}/{} | {} {} | {} {} | {}/{} | {} | {} / {} | {} | {} | {} |",
+            "| {} | {}/{} | {} | {} | {} / {} / {} | {} | {}/{} | {} {} | {} {} | {} | {} | {} | {} |",
             s["name"].as_str().unwrap_or("?"),
+            s["reached_target"],
+            s["runs"],
+            s["median_env_steps_to_target"].as_f64().map_or("—".to_string(), |x| format!("{x:.0}")),
+            f(&s["median_time_to_target_s"]),
+            p(&s["test_success_min"]),
+            p(&json!(median(&tests))),
+            p(&s["test_success_iqm"]),
+            p(&s["reactive_test_success"]),
             s["converged"],
             s["runs"],
             f(&s["median_time_s"]),
             ci(&s["median_time_ci"]),
             f(&s["iqm_time_s"]),
             ci(&s["iqm_time_ci"]),
-            s["reached_target"],
-            s["runs"],
-            f(&s["median_time_to_target_s"]),
-            p(&s["test_success_min"]),
-            p(&s["test_success_iqm"]),
+            s["median_epsilon_at_threshold"].as_f64().map_or("—".to_string(), |x| format!("{x:.2}")),
             p(&s["collapse_max"]),
             f(&s["env_steps_per_s"]),
             f(&s["updates_per_s"]),

@@ -375,8 +375,11 @@ fn table_text(tc: &TableConfig, rows: &[Value]) -> Result<(String, String)> {
     Ok((md, csv))
 }
 
-pub fn run(config: &Path, out: &Path, json_out: bool) -> Result<()> {
-    let tc = load(config)?;
+pub fn run(config: &Path, train_config: Option<&Path>, out: &Path, json_out: bool) -> Result<()> {
+    let mut tc = load(config)?;
+    if let Some(c) = train_config {
+        tc.config = c.to_path_buf();
+    }
     std::fs::create_dir_all(out).doing_with(|| format!("cannot create {}", out.display()))?;
     let exe = std::env::current_exe()?;
     let mut rows = Vec::new();

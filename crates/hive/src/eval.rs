@@ -1,48 +1,136 @@
-//! `hive eval`: flies a checkpoint's greedy policy for N episodes (one per
-//! agent, all in one environment) and reports the success rate.
+//! `hive eval`: flies a checkpoint's greedy policy, or the scripted
+//! reactive rule, on held-out layouts (a level's test set or the arenas
+//! given) with the sim settings of the level or of the run that wrote the
+//! checkpoint, and reports the success rate per layout and pooled, with
+//! 95 % Wilson intervals.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Result, bail};
-use clap::Args;
+use clap::{Args, ValueEnum};
 use rotorhive_model::{Device, QNet};
+use rotorhive_roles::Config;
 pub use rotorhive_roles::eval::fly_greedy;
-use rotorhive_sim::{Arena, SimConfig};
+use rotorhive_roles::eval::{EvalStats, Pilot, fly_layouts};
+use rotorhive_sim::Arena;
+
+/// Who flies in `hive eval`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum PolicyKind {
+    /// The checkpoint's greedy action.
+    Greedy,
+    /// The scripted reactive rule on the same depth images and velocity
+    /// (no checkpoint): the floor a learned policy must beat.
+    Reactive,
+}
 
 #[derive(Args, Debug)]
 pub struct EvalArgs {
     /// Weights (safetensors) written by `hive train`.
+    #[arg(long, required_unless_present = "policy")]
+    pub checkpoint: Option<PathBuf>,
+    /// Who flies: the checkpoint's greedy policy or the reactive rule.
+    #[arg(long, value_enum)]
+    pub policy: Option<PolicyKind>,
+    /// A level (`configs/levels/NAME.toml`): its sim settings and its
+    /// held-out test layouts. Without it: the settings of the run that
+    /// wrote the checkpoint (its `config.toml`), else the defaults.
     #[arg(long)]
-    pub checkpoint: PathBuf,
-    /// Arena to fly in.
-    #[arg(long, default_value = "configs/arenas/test.toml")]
-    pub arena: PathBuf,
-    /// Episodes.
-    #[arg(long, default_value_t = 100)]
+    pub level: Option<String>,
+    /// Arenas to fly in, instead of the test layouts (repeatable).
+    #[arg(long)]
+    pub arena: Vec<PathBuf>,
+    /// Episodes in all, shared evenly among the layouts.
+    #[arg(long, default_value_t = 500)]
     pub episodes: usize,
     /// Seed of the spawn positions.
     #[arg(long, default_value_t = 12345)]
     pub seed: u64,
+    /// Overrides of the config's keys (`sim.noise.dropout=0.05`), repeatable.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
     /// Print one JSON object as the last line.
     #[arg(long)]
     pub json: bool,
+}
+
+/// The config of the run that wrote `checkpoint`: `config.toml` in its
+/// directory or the one above (`RUN_DIR/checkpoints/best.safetensors`).
+fn run_config(checkpoint: &Path) -> Option<PathBuf> {
+    checkpoint.ancestors().skip(1).take(2).map(|d| d.join("config.toml")).find(|p| p.is_file())
+}
+
+/// The config an evaluation flies with, and where it came from.
+fn config(a: &EvalArgs) -> Result<(Config, String)> {
+    if let Some(level) = &a.level {
+        return Ok((Config::level(level, &a.set)?, format!("level {level}")));
+    }
+    if let Some(path) = a.checkpoint.as_deref().and_then(run_config) {
+        return Ok((Config::load(Some(&path), &a.set)?, path.display().to_string()));
+    }
+    Ok((Config::load(None, &a.set)?, "the defaults".into()))
 }
 
 pub fn run(a: EvalArgs) -> Result<()> {
     if a.episodes == 0 {
         bail!("--episodes must be positive");
     }
+    let policy = a.policy.unwrap_or(PolicyKind::Greedy);
     let net = QNet::new(0, &Device::Cpu)?;
-    net.load(&a.checkpoint)?;
-    let arena = Arena::load(&a.arena)?;
-    let n = a.episodes;
-    let st = fly_greedy(&net, SimConfig::default(), std::slice::from_ref(&arena), n, a.seed)?;
-    let (success_rate, mean_reward, collisions) = (st.success_rate(), st.mean_reward, st.collisions);
-    println!("{n} episodes on {}: success {:.1} %, collisions {collisions}, mean reward {mean_reward:.1}", a.arena.display(), success_rate * 100.0);
+    match (policy, &a.checkpoint) {
+        (PolicyKind::Greedy, Some(c)) => net.load(c)?,
+        (PolicyKind::Greedy, None) => bail!("--policy greedy needs --checkpoint"),
+        (PolicyKind::Reactive, Some(_)) => bail!("--policy reactive flies no checkpoint: leave out --checkpoint"),
+        (PolicyKind::Reactive, None) => {}
+    }
+    let (cfg, source) = config(&a)?;
+    let layouts: Vec<Arena> = if a.arena.is_empty() { cfg.test_arenas()? } else { a.arena.iter().map(|p| Arena::load(p)).collect::<Result<_, _>>()? };
+    let per_layout = a.episodes.div_ceil(layouts.len());
+    let pilot = match policy {
+        PolicyKind::Greedy => Pilot::Net(&net),
+        PolicyKind::Reactive => Pilot::Reactive,
+    };
+    let stats = fly_layouts(pilot, &cfg.sim_config(), &layouts, per_layout, a.seed)?;
+    let pooled = EvalStats::pooled(&stats);
+    let pct = |s: &EvalStats| {
+        let [lo, hi] = s.wilson();
+        format!("{:.1} % [{:.1}, {:.1}]", s.success_rate() * 100.0, lo * 100.0, hi * 100.0)
+    };
+    let who = match policy {
+        PolicyKind::Greedy => a.checkpoint.as_ref().map_or(String::new(), |c| c.display().to_string()),
+        PolicyKind::Reactive => "the reactive rule".into(),
+    };
+    println!("{who}, settings of {source}:");
+    for (l, s) in layouts.iter().zip(&stats) {
+        println!("  {}: {} episodes, success {}, collisions {}, mean reward {:.1}", l.name, s.episodes, pct(s), s.collisions, s.mean_reward);
+    }
+    println!(
+        "pooled: {} episodes on {} layouts, success {}, collisions {}, mean reward {:.1}",
+        pooled.episodes,
+        layouts.len(),
+        pct(&pooled),
+        pooled.collisions,
+        pooled.mean_reward
+    );
     if a.json {
+        let layouts_json: Vec<serde_json::Value> = layouts
+            .iter()
+            .zip(&stats)
+            .map(|(l, s)| serde_json::json!({ "name": l.name, "success_rate": s.success_rate(), "ci": s.wilson(), "episodes": s.episodes, "mean_reward": s.mean_reward }))
+            .collect();
         println!(
             "{}",
-            serde_json::json!({ "success_rate": success_rate, "mean_reward": mean_reward, "episodes": n, "collisions": collisions, "arena": a.arena.display().to_string() })
+            serde_json::json!({
+                "success_rate": pooled.success_rate(),
+                "ci": pooled.wilson(),
+                "mean_reward": pooled.mean_reward,
+                "episodes": pooled.episodes,
+                "collisions": pooled.collisions,
+                "layouts": layouts_json,
+                "policy": match policy { PolicyKind::Greedy => "greedy", PolicyKind::Reactive => "reactive" },
+                "level": a.level,
+                "settings": source,
+            })
         );
     }
     Ok(())

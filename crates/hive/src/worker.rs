@@ -224,8 +224,11 @@ fn join_token(run_dir: &std::path::Path) -> Result<String> {
 fn worker_config(link: &Worker, run_dir: &std::path::Path, envs: usize, agents: Option<u32>) -> Result<(Config, PathBuf)> {
     let head_cfg = run_dir.join("head-config.toml");
     std::fs::write(&head_cfg, &link.config).with_context(|| format!("cannot write {}", head_cfg.display()))?;
-    let arena = run_dir.join("arena.toml");
-    std::fs::write(&arena, &link.arena).with_context(|| format!("cannot write {}", arena.display()))?;
+    // An empty arena: the head's lanes are all generated.
+    let arena = if link.arena.is_empty() { PathBuf::new() } else { run_dir.join("arena.toml") };
+    if !link.arena.is_empty() {
+        std::fs::write(&arena, &link.arena).with_context(|| format!("cannot write {}", arena.display()))?;
+    }
     let head = Config::load(Some(&head_cfg), &[]).context("the config the head sent")?;
     let agents = agents.map_or(head.sim.agents, |n| n as usize);
     let sets = [

@@ -34,28 +34,46 @@ fn value_error(e: impl std::fmt::Display) -> PyErr {
     PyValueError::new_err(e.to_string())
 }
 
-/// The arena an environment flies in: a file, a generated one, or the
-/// shipped training arena.
-fn base_arena(arena: Option<&str>, arena_seed: Option<u64>) -> PyResult<Arena> {
-    match (arena, arena_seed) {
-        (Some(_), Some(_)) => Err(value_error("give `arena` (a file) or `arena_seed` (a generated arena), not both")),
-        (Some(p), None) => Arena::load(Path::new(p)).map_err(value_error),
-        (None, Some(s)) => Ok(Arena::generate(&format!("generated-{s}"), s, &GenParams::default())),
-        (None, None) => Ok(Arena::parse(TRAIN_ARENA, "configs/arenas/train.toml").expect("the shipped arena is valid")),
-    }
+/// Where an environment's arenas come from: a file, a generated one, or
+/// the level's own (the paper's: the shipped training arena; the others:
+/// their generated lanes).
+#[derive(Clone, Copy, Default)]
+struct Source<'a> {
+    arena: Option<&'a str>,
+    arena_seed: Option<u64>,
+    level: Option<&'a str>,
+}
+
+/// The lanes an environment of `cfg` flies in, from `src`.
+fn lanes(cfg: &Config, src: Source<'_>) -> PyResult<Vec<Arena>> {
+    let params = cfg.sim.generator.clone().map_or_else(GenParams::default, |g| GenParams { drone_radius: cfg.sim.drone_radius, ..g });
+    let base = match (src.arena, src.arena_seed) {
+        (Some(_), Some(_)) => return Err(value_error("give `arena` (a file) or `arena_seed` (a generated arena), not both")),
+        (Some(p), None) => Arena::load(Path::new(p)).map_err(value_error)?,
+        (None, Some(s)) => Arena::generate(&format!("generated-{s}"), s, &params),
+        // A level without an arena file trains on its generated lanes alone.
+        (None, None) if cfg.sim.arena.as_os_str().is_empty() => return cfg.lane_arenas(0).map_err(value_error),
+        (None, None) => Arena::parse(TRAIN_ARENA, "configs/arenas/train.toml").expect("the shipped arena is valid"),
+    };
+    Ok(cfg.lanes_around(base, 0))
 }
 
 /// Builds the environment as `hive sim --env 0` does for the config that
-/// the built-in defaults and `overrides` (`sim.key=value`) give.
-fn build_env(agents: usize, seed: u64, arena: Option<&str>, arena_seed: Option<u64>, overrides: &[String]) -> PyResult<(VecEnv, usize)> {
+/// the level (or the built-in defaults) and `overrides` (`sim.key=value`)
+/// give.
+fn build_env(agents: usize, seed: u64, src: Source<'_>, overrides: &[String]) -> PyResult<(VecEnv, usize)> {
     if agents == 0 {
         return Err(value_error("`num_envs` must be at least 1"));
     }
     let mut ov = overrides.to_vec();
     ov.push(format!("sim.agents={agents}"));
     ov.push(format!("seed={seed}"));
-    let cfg = Config::load(None, &ov).map_err(|e| value_error(format!("{e:#}").replace("config defaults (configs/default.toml): ", "")))?;
-    let arenas = cfg.lanes_around(base_arena(arena, arena_seed)?, 0);
+    let cfg = match src.level {
+        Some(l) => Config::level(l, &ov),
+        None => Config::load(None, &ov),
+    };
+    let cfg = cfg.map_err(|e| value_error(format!("{e:#}").replace("config defaults (configs/default.toml): ", "")))?;
+    let arenas = lanes(&cfg, src)?;
     let lanes = arenas.len();
     let env = VecEnv::new_lanes(cfg.sim_config(), &arenas, rotorhive_roles::seeds::sim(cfg.seed, 0))
         .map_err(|e| PyRuntimeError::new_err(format!("the simulator could not start: {e}")))?;
@@ -105,9 +123,10 @@ struct Sim {
 impl Sim {
     /// `overrides` are `sim.key=value` strings, as `hive train --set`.
     #[new]
-    #[pyo3(signature = (agents, seed=0, arena=None, arena_seed=None, overrides=Vec::new()))]
-    fn new(agents: usize, seed: u64, arena: Option<String>, arena_seed: Option<u64>, overrides: Vec<String>) -> PyResult<Self> {
-        let (mut env, lanes) = build_env(agents, seed, arena.as_deref(), arena_seed, &overrides)?;
+    #[pyo3(signature = (agents, seed=0, arena=None, arena_seed=None, overrides=Vec::new(), level=None))]
+    fn new(agents: usize, seed: u64, arena: Option<String>, arena_seed: Option<u64>, overrides: Vec<String>, level: Option<String>) -> PyResult<Self> {
+        let src = Source { arena: arena.as_deref(), arena_seed, level: level.as_deref() };
+        let (mut env, lanes) = build_env(agents, seed, src, &overrides)?;
         env.drop_observation_buffer();
         env.set_autoreset(Autoreset::Disabled);
         let tracks = Tracks::new(&env);
@@ -283,7 +302,7 @@ fn rust_agent_steps_per_second(
     actions: Option<PyReadonlyArray2<'_, u8>>,
     autoreset: &str,
 ) -> PyResult<f64> {
-    let (mut env, _) = build_env(agents, seed, None, None, &overrides)?;
+    let (mut env, _) = build_env(agents, seed, Source::default(), &overrides)?;
     env.drop_observation_buffer();
     match parse_autoreset(autoreset)? {
         // Never restarted, ended agents would fly on unscored.
@@ -326,7 +345,7 @@ fn rust_agent_steps_per_second(
 /// the first from the start), rewards and done codes (`T × agents`). The
 /// tests compare the Python environment with it step for step.
 #[pyfunction]
-#[pyo3(signature = (actions, seed=0, arena=None, arena_seed=None, overrides=Vec::new()))]
+#[pyo3(signature = (actions, seed=0, arena=None, arena_seed=None, overrides=Vec::new(), level=None))]
 #[allow(clippy::type_complexity)]
 fn reference_rollout<'py>(
     py: Python<'py>,
@@ -335,10 +354,12 @@ fn reference_rollout<'py>(
     arena: Option<String>,
     arena_seed: Option<u64>,
     overrides: Vec<String>,
+    level: Option<String>,
 ) -> PyResult<(Bound<'py, PyArray3<f32>>, Bound<'py, PyArray2<f32>>, Bound<'py, PyArray2<u8>>)> {
     let (t, n) = (actions.shape()[0], actions.shape()[1]);
     let acts = actions.as_array();
-    let (mut env, _) = build_env(n, seed, arena.as_deref(), arena_seed, &overrides)?;
+    let src = Source { arena: arena.as_deref(), arena_seed, level: level.as_deref() };
+    let (mut env, _) = build_env(n, seed, src, &overrides)?;
     let len = env.obs_len();
     let mut obs = Array3::<f32>::zeros((t + 1, n, len));
     let mut rewards = Array2::<f32>::zeros((t, n));

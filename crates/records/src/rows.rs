@@ -71,7 +71,8 @@ impl MetricsRow {
 }
 
 /// The header of `evals.csv`.
-pub const EVALS_HEADER: &str = "wall_s,updates,version,episodes,success_rate,mean_reward,best,confirmed_episodes,confirmed_success_rate,confirmed_mean_reward";
+pub const EVALS_HEADER: &str =
+    "wall_s,updates,version,episodes,success_rate,mean_reward,best,confirmed_episodes,confirmed_success_rate,confirmed_mean_reward,env_steps";
 
 /// One greedy validation of `evals.csv`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -96,6 +97,10 @@ pub struct EvalRow {
     pub confirmed_success_rate: Option<f64>,
     /// Its mean return.
     pub confirmed_mean_reward: Option<f64>,
+    /// Agent-steps of the run (every host's) when the weights were taken
+    /// (absent in tables of runs before the fourth wave).
+    #[serde(default)]
+    pub env_steps: Option<u64>,
 }
 
 /// `v` rounded to `digits` decimals (what the tables keep: they would
@@ -187,11 +192,12 @@ mod tests {
             confirmed_episodes: None,
             confirmed_success_rate: None,
             confirmed_mean_reward: None,
+            env_steps: Some(12_000),
         };
         std::fs::write(dir.join("evals.csv"), format!("{EVALS_HEADER}\n{}", line(&e).unwrap())).unwrap();
         assert_eq!(read::<EvalRow>(&dir.join("evals.csv")).unwrap(), vec![e]);
         // A row of another shape names the file and what is wrong.
-        std::fs::write(dir.join("evals.csv"), format!("{EVALS_HEADER}\n1,x,2,3,0.5,1,0,,,\n")).unwrap();
+        std::fs::write(dir.join("evals.csv"), format!("{EVALS_HEADER}\n1,x,2,3,0.5,1,0,,,,\n")).unwrap();
         let err = read::<EvalRow>(&dir.join("evals.csv")).unwrap_err().to_string();
         assert!(err.contains("evals.csv") && err.contains("updates"), "{err}");
         assert!(read::<EvalRow>(&dir.join("none.csv")).unwrap().is_empty());
@@ -216,6 +222,7 @@ mod tests {
             confirmed_episodes: None,
             confirmed_success_rate: None,
             confirmed_mean_reward: None,
+            env_steps: None,
         })
         .unwrap();
         let text = String::from_utf8(w.into_inner().unwrap()).unwrap();

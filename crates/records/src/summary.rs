@@ -100,6 +100,20 @@ pub struct Summary {
     /// `eval.target_success` (wall s); null if never.
     #[serde(default)]
     pub time_to_target_success_s: Option<f64>,
+    /// Agent-steps (every host's) when the rolling reward reached the
+    /// threshold; null if never.
+    #[serde(default)]
+    pub env_steps_at_threshold: Option<u64>,
+    /// Learner updates then.
+    #[serde(default)]
+    pub updates_at_threshold: Option<u64>,
+    /// The actors' exploration rate then.
+    #[serde(default)]
+    pub epsilon_at_threshold: Option<f64>,
+    /// Agent-steps until a greedy validation first reached
+    /// `eval.target_success`: the learning metric; null if never.
+    #[serde(default)]
+    pub env_steps_to_target: Option<u64>,
     /// The result's validation success: its confirmation on fresh spawns
     /// (`eval.confirm_episodes`), or its screening when confirmation is off.
     #[serde(default)]
@@ -188,6 +202,10 @@ mod tests {
             best_eval_at_s: Some(55.0),
             best_eval_updates: Some(11_000),
             time_to_target_success_s: Some(55.0),
+            env_steps_at_threshold: Some(350_000),
+            updates_at_threshold: Some(10_500),
+            epsilon_at_threshold: Some(0.31),
+            env_steps_to_target: Some(380_000),
             result_validation_success: Some(0.93),
             result_validation_episodes: Some(300),
             final_validation_success: Some(0.85),
@@ -214,6 +232,10 @@ mod tests {
             "result_validation_success",
             "result_validation_episodes",
             "skipped_updates",
+            "env_steps_at_threshold",
+            "updates_at_threshold",
+            "epsilon_at_threshold",
+            "env_steps_to_target",
         ] {
             assert!(v.get(key).is_some(), "no key {key}");
         }

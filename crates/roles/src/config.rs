@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use crate::error::{Doing, Result, RoleError, config_err};
 use serde::{Deserialize, Serialize};
 
-use rotorhive_sim::{Arena, CameraSpec, GenParams, PhysicsKind, RendererKind, SimConfig};
+use rotorhive_sim::{Arena, CameraSpec, GenParams, Noise, PhysicsKind, Randomize, RendererKind, SimConfig};
 
 /// `sim.observation_mode`: the records' enum, so that `summary.json` names
 /// the mode with the config's own word.
@@ -140,11 +140,32 @@ pub struct EvalSection {
     /// checked against `target_success` (no winner's curse from the maximum
     /// of noisy scores). 0: the screening score decides.
     pub confirm_episodes: usize,
+    /// Also an evaluation every this many agent-steps (every host's), on
+    /// the agent-step clock rather than the wall clock: the learning curve
+    /// in experience; 0: none.
+    pub every_env_steps: u64,
+    /// Held-out test arenas (files), never trained or validated on: what
+    /// `hive eval` without `--arena` and `hive bench seeds` score a result on.
+    pub test_arenas: Vec<PathBuf>,
+    /// Also this many held-out layouts drawn by the level's generator from
+    /// seeds no run trains or validates on (`seeds::test_layout`).
+    pub test_layouts: usize,
 }
 
 impl Default for EvalSection {
     fn default() -> Self {
-        Self { every_s: 15.0, episodes: 100, arena: String::new(), validation_arenas: 10, target_success: 0.9, after_threshold_s: 240.0, confirm_episodes: 300 }
+        Self {
+            every_s: 15.0,
+            episodes: 100,
+            arena: String::new(),
+            validation_arenas: 10,
+            target_success: 0.9,
+            after_threshold_s: 240.0,
+            confirm_episodes: 300,
+            every_env_steps: 0,
+            test_arenas: vec![PathBuf::from("configs/arenas/test.toml")],
+            test_layouts: 4,
+        }
     }
 }
 
@@ -156,12 +177,29 @@ pub struct SimSection {
     pub envs: usize,
     /// Agents per simulator.
     pub agents: usize,
-    /// Arena file.
+    /// Arena file; empty: the `generated_lanes` alone (which `generator`
+    /// then needs).
     pub arena: PathBuf,
     /// Generated arenas flown beside `arena` (each a lane of its own, with
     /// different seeds in every environment); agents start each episode in
     /// a lane drawn at random. 0 trains on `arena` alone.
     pub generated_lanes: usize,
+    /// Forward speed setpoint (m/s).
+    pub forward_speed: f32,
+    /// Lateral velocity change per action (m/s).
+    pub lateral_step: f32,
+    /// Largest lateral speed setpoint (m/s).
+    pub max_lateral_speed: f32,
+    /// Radius of the drone's collision sphere (m).
+    pub drone_radius: f32,
+    /// Reward of a step that ends in none of the ways below.
+    pub reward_step: f32,
+    /// Reward of the step that ends in a collision.
+    pub reward_collision: f32,
+    /// Reward of the step that times out.
+    pub reward_timeout: f32,
+    /// Reward of the step that reaches the end of the arena.
+    pub reward_goal: f32,
     /// The renderer.
     pub renderer: RendererKind,
     /// One observation message per step or one per agent.
@@ -182,6 +220,39 @@ pub struct SimSection {
     pub depth_range: f32,
     /// Threads for CPU rendering.
     pub render_threads: usize,
+    /// The generator of the training lanes, the validation arenas and the
+    /// generated test layouts; absent: the paper's generator at the size
+    /// of `arena`.
+    pub generator: Option<GenParams>,
+    /// The depth camera's noise, dropout and latency.
+    pub noise: Noise,
+    /// Per-episode randomisation of dynamics, camera and spawn.
+    pub randomize: Randomize,
+    /// A generator parameter ramped over the run (training lanes only).
+    pub curriculum: Option<Curriculum>,
+}
+
+/// `[sim.curriculum]`: one key of `[sim.generator]` ramps linearly from
+/// `from` to the generator's own value over `over_env_steps` agent-steps,
+/// in `stages` steps; at each stage every simulator regenerates its
+/// training lanes (the agents then flying end their episodes as timeouts).
+/// Validation and test arenas are always the generator's own.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Curriculum {
+    /// The key under `[sim.generator]`, e.g. `spacing`.
+    pub key: String,
+    /// Its value at the start.
+    pub from: f64,
+    /// Agent-steps (every host's) until it reaches the generator's value.
+    pub over_env_steps: u64,
+    /// Changes along the way.
+    #[serde(default = "default_stages")]
+    pub stages: u32,
+}
+
+fn default_stages() -> u32 {
+    5
 }
 
 /// `[actor]`.
@@ -327,6 +398,18 @@ impl Default for SimSection {
             max_steps: 400,
             depth_range: 20.0,
             render_threads: 1,
+            forward_speed: 1.0,
+            lateral_step: 0.25,
+            max_lateral_speed: 3.0,
+            drone_radius: 0.3,
+            reward_step: 3.0,
+            reward_collision: -100.0,
+            reward_timeout: -10.0,
+            reward_goal: 3.0,
+            generator: None,
+            noise: Noise::default(),
+            randomize: Randomize::default(),
+            curriculum: None,
         }
     }
 }
@@ -422,7 +505,20 @@ impl Config {
             // The defaults are `configs/default.toml`, built in.
             None => (DEFAULT_TOML.to_string(), "defaults (configs/default.toml)".to_string()),
         };
-        let mut table: toml::Table = toml::from_str(&text).map_err(|e| RoleError::Config(format!("config {source}: {}", e.to_string().trim_end())))?;
+        Self::parse(&text, &source, overrides)
+    }
+
+    /// The config of a level (`configs/levels/NAME.toml`, built in), with
+    /// `key=value` overrides.
+    pub fn level(name: &str, overrides: &[String]) -> Result<Self> {
+        let text = crate::levels::text(name)?;
+        Self::parse(text, &format!("level {name} (configs/levels/{name}.toml)"), overrides)
+    }
+
+    /// Parses config TOML (`source` names it in messages), applies
+    /// overrides and validates.
+    pub fn parse(text: &str, source: &str, overrides: &[String]) -> Result<Self> {
+        let mut table: toml::Table = toml::from_str(text).map_err(|e| RoleError::Config(format!("config {source}: {}", e.to_string().trim_end())))?;
         for o in overrides {
             apply_override(&mut table, o)?;
         }
@@ -490,6 +586,62 @@ impl Config {
         }
         if s.envs > 64 || s.agents > 4096 {
             config_err!("keys `sim.envs` ({}) and `sim.agents` ({}) must be at most 64 and 4096", s.envs, s.agents);
+        }
+        self.validate_task()
+    }
+
+    /// The task's keys: speeds, rewards, generator, noise, randomisation,
+    /// curriculum.
+    fn validate_task(&self) -> Result<()> {
+        let s = &self.sim;
+        positive("sim.forward_speed", s.forward_speed as f64)?;
+        positive("sim.lateral_step", s.lateral_step as f64)?;
+        if !(s.max_lateral_speed.is_finite() && s.max_lateral_speed >= s.lateral_step) {
+            config_err!("key `sim.max_lateral_speed` must be at least `sim.lateral_step` ({}), got {}", s.lateral_step, s.max_lateral_speed);
+        }
+        if !(s.drone_radius > 0.0 && s.drone_radius <= 2.0) {
+            config_err!("key `sim.drone_radius` must lie in (0, 2] m, got {}", s.drone_radius);
+        }
+        for (k, v) in [
+            ("sim.reward_step", s.reward_step),
+            ("sim.reward_collision", s.reward_collision),
+            ("sim.reward_timeout", s.reward_timeout),
+            ("sim.reward_goal", s.reward_goal),
+        ] {
+            if !(v.is_finite() && v.abs() <= 1e6) {
+                config_err!("key `{k}` must be a finite number of at most 1e6 in size, got {v}");
+            }
+        }
+        if let Some(g) = &s.generator {
+            g.validate().map_err(|e| RoleError::Config(format!("key `sim.generator.{}`", e)))?;
+        }
+        if s.arena.as_os_str().is_empty() && (s.generator.is_none() || s.generated_lanes == 0) {
+            config_err!("key `sim.arena` is empty: training then needs `[sim.generator]` and `sim.generated_lanes` above 0");
+        }
+        s.noise.validate().map_err(|(k, m)| RoleError::Config(format!("key `sim.noise.{k}` {m}")))?;
+        s.randomize.validate().map_err(|(k, m)| RoleError::Config(format!("key `sim.randomize.{k}` {m}")))?;
+        let latency = s.noise.latency_s != [0.0, 0.0];
+        if s.physics == PhysicsKind::Rapier && (latency || s.randomize.dynamics()) {
+            config_err!("keys `sim.noise.latency_s` and the dynamics of `[sim.randomize]` need `sim.physics = \"direct\"` (the rapier path is the reference)");
+        }
+        if s.noise.latency_s[1] >= s.action_period {
+            config_err!("key `sim.noise.latency_s` must stay below `sim.action_period` ({} s), got {:?}", s.action_period, s.noise.latency_s);
+        }
+        if let Some(c) = &s.curriculum {
+            if c.stages == 0 || c.over_env_steps == 0 {
+                config_err!("keys `sim.curriculum.stages` and `sim.curriculum.over_env_steps` must be positive");
+            }
+            if s.generator.is_none() || s.generated_lanes == 0 {
+                config_err!("key `sim.curriculum` ramps a key of `[sim.generator]` over the generated lanes: give both");
+            }
+            self.generator_at_stage(0)?;
+        }
+        let e = &self.eval;
+        if e.test_arenas.is_empty() && e.test_layouts == 0 {
+            config_err!("keys `eval.test_arenas` and `eval.test_layouts`: a config needs at least one test arena or layout");
+        }
+        if e.test_layouts > 64 {
+            config_err!("key `eval.test_layouts` must be at most 64, got {}", e.test_layouts);
         }
         Ok(())
     }
@@ -563,28 +715,101 @@ impl Config {
         Ok(Arena::load(&self.sim.arena)?)
     }
 
-    /// Parameters of generated arenas: the training arena's size.
-    fn gen_params(&self) -> Result<GenParams> {
-        Ok(gen_params_like(&self.arena()?))
+    /// Loads the training arena, or `None` where `sim.arena` is empty.
+    fn base_arena(&self) -> Result<Option<Arena>> {
+        if self.sim.arena.as_os_str().is_empty() { Ok(None) } else { self.arena().map(Some) }
     }
 
-    /// The arenas environment `env` trains in: `sim.arena` and
-    /// `sim.generated_lanes` generated ones (seeds that no shipped arena uses).
+    /// Parameters of generated arenas: `[sim.generator]`, else the paper's
+    /// generator at the training arena's size.
+    pub fn gen_params(&self) -> Result<GenParams> {
+        match &self.sim.generator {
+            Some(g) => Ok(GenParams { drone_radius: self.sim.drone_radius, ..g.clone() }),
+            None => Ok(self.gen_params_like(&self.arena()?)),
+        }
+    }
+
+    /// The generator's parameters like [`Config::gen_params`], for lanes
+    /// beside `base`.
+    fn gen_params_like(&self, base: &Arena) -> GenParams {
+        match &self.sim.generator {
+            Some(g) => GenParams { drone_radius: self.sim.drone_radius, ..g.clone() },
+            None => GenParams { length: base.length, width: base.width, height: base.height, drone_radius: self.sim.drone_radius, ..GenParams::default() },
+        }
+    }
+
+    /// The generator at curriculum stage `stage` (0 = the start): the
+    /// ramped key set between `from` and the generator's own value.
+    pub fn generator_at_stage(&self, stage: u32) -> Result<GenParams> {
+        let p = self.gen_params()?;
+        let Some(c) = &self.sim.curriculum else { return Ok(p) };
+        let mut table = toml::Table::try_from(&p).map_err(|e| RoleError::Config(format!("key `sim.generator`: {e}")))?;
+        let Some(to) = table.get(&c.key).and_then(|v| v.as_float().or_else(|| v.as_integer().map(|i| i as f64))) else {
+            config_err!("key `sim.curriculum.key`: `{}` is not a number of `[sim.generator]`", c.key);
+        };
+        let t = (stage.min(c.stages) as f64) / c.stages as f64;
+        let value = c.from + (to - c.from) * t;
+        let v = if table[&c.key].is_integer() { toml::Value::Integer(value.round() as i64) } else { toml::Value::Float(value) };
+        table.insert(c.key.clone(), v);
+        let q: GenParams = GenParams::deserialize(toml::Value::Table(table)).map_err(|e| RoleError::Config(format!("key `sim.curriculum`: {e}")))?;
+        q.validate().map_err(|e| RoleError::Config(format!("key `sim.curriculum` at stage {stage}: {e}")))?;
+        Ok(GenParams { drone_radius: self.sim.drone_radius, ..q })
+    }
+
+    /// The curriculum stage at `env_steps` agent-steps of the run.
+    pub fn curriculum_stage(&self, env_steps: u64) -> u32 {
+        match &self.sim.curriculum {
+            Some(c) => (env_steps.saturating_mul(c.stages as u64) / c.over_env_steps).min(c.stages as u64) as u32,
+            None => 0,
+        }
+    }
+
+    /// The arenas environment `env` trains in: `sim.arena` (unless empty)
+    /// and `sim.generated_lanes` generated ones (seeds that no shipped
+    /// arena, validation arena or test layout uses).
     pub fn lane_arenas(&self, env: usize) -> Result<Vec<Arena>> {
-        Ok(self.lanes_around(self.arena()?, env))
+        self.lane_arenas_at(env, 0)
+    }
+
+    /// [`Config::lane_arenas`] at curriculum stage `stage`.
+    pub fn lane_arenas_at(&self, env: usize, stage: u32) -> Result<Vec<Arena>> {
+        let base = self.base_arena()?;
+        let p = match &base {
+            Some(b) if self.sim.curriculum.is_none() => self.gen_params_like(b),
+            _ => self.generator_at_stage(stage)?,
+        };
+        Ok(self.lanes_with(base, env, &p))
     }
 
     /// `base` and the `sim.generated_lanes` generated arenas of environment
     /// `env` beside it, of `base`'s size (what [`Config::lane_arenas`] gives
     /// for an arena that is not a file, as the Python package's).
     pub fn lanes_around(&self, base: Arena, env: usize) -> Vec<Arena> {
-        let p = gen_params_like(&base);
-        let mut v = vec![base];
+        let p = self.gen_params_like(&base);
+        self.lanes_with(Some(base), env, &p)
+    }
+
+    fn lanes_with(&self, base: Option<Arena>, env: usize, p: &GenParams) -> Vec<Arena> {
+        let mut v: Vec<Arena> = base.into_iter().collect();
         for k in 0..self.sim.generated_lanes {
             let seed = crate::seeds::lane(self.seed, env, k);
-            v.push(Arena::generate(&format!("lane-{k}"), seed, &p));
+            v.push(Arena::generate(&format!("lane-{k}"), seed, p));
         }
         v
+    }
+
+    /// The held-out test set: `eval.test_arenas` (files) and
+    /// `eval.test_layouts` layouts of the generator.
+    pub fn test_arenas(&self) -> Result<Vec<Arena>> {
+        let mut v = Vec::new();
+        for f in &self.eval.test_arenas {
+            v.push(Arena::load(f)?);
+        }
+        if self.eval.test_layouts > 0 {
+            let p = self.gen_params()?;
+            v.extend((0..self.eval.test_layouts).map(|k| Arena::generate(&format!("test-layout-{}", k + 1), crate::seeds::test_layout(k), &p)));
+        }
+        Ok(v)
     }
 
     /// The arenas of greedy evaluations during training: `eval.arena`, or by
@@ -612,6 +837,16 @@ impl Config {
             render_threads: s.render_threads,
             renderer: s.renderer,
             batched: self.batched(),
+            forward_speed: s.forward_speed,
+            lateral_step: s.lateral_step,
+            max_lateral_speed: s.max_lateral_speed,
+            drone_radius: s.drone_radius,
+            reward_step: s.reward_step,
+            reward_collision: s.reward_collision,
+            reward_timeout: s.reward_timeout,
+            reward_goal: s.reward_goal,
+            noise: s.noise.clone(),
+            randomize: s.randomize.clone(),
             ..SimConfig::default()
         }
     }
@@ -630,11 +865,6 @@ impl Config {
 
 /// Applies one `a.b=value` override; the value is parsed as TOML, or taken as
 /// a string when it does not parse.
-/// Parameters of generated arenas of `a`'s size.
-fn gen_params_like(a: &Arena) -> GenParams {
-    GenParams { length: a.length, width: a.width, height: a.height, ..GenParams::default() }
-}
-
 fn apply_override(table: &mut toml::Table, o: &str) -> Result<()> {
     let Some((key, raw)) = o.split_once('=') else {
         config_err!("override {o:?} is not of the form key=value");

@@ -1,6 +1,9 @@
 //! Greedy evaluation: a policy flown without exploration for a number of
-//! episodes, the success rate and mean reward. Used by `hive eval`, by the
-//! evaluator beside training and by `hive bench seeds`.
+//! episodes, the success rate and mean reward; per held-out layout and
+//! pooled, with Wilson intervals. The policy is a network's greedy choice
+//! or the scripted reactive rule, the floor a learned policy must beat.
+//! Used by `hive eval`, by the evaluator beside training and by `hive
+//! bench seeds`.
 
 use crate::error::Result;
 use rotorhive_model::QNet;
@@ -24,18 +27,119 @@ impl EvalStats {
     pub fn success_rate(&self) -> f64 {
         self.successes as f64 / self.episodes.max(1) as f64
     }
+
+    /// The 95 % Wilson score interval of the success rate.
+    pub fn wilson(&self) -> [f64; 2] {
+        wilson(self.successes, self.episodes)
+    }
+
+    /// Several evaluations as one (pooled episodes).
+    pub fn pooled(all: &[EvalStats]) -> EvalStats {
+        let episodes: usize = all.iter().map(|s| s.episodes).sum();
+        let reward: f64 = all.iter().map(|s| s.mean_reward * s.episodes as f64).sum();
+        EvalStats {
+            episodes,
+            successes: all.iter().map(|s| s.successes).sum(),
+            collisions: all.iter().map(|s| s.collisions).sum(),
+            mean_reward: reward / episodes.max(1) as f64,
+        }
+    }
+}
+
+/// The 95 % Wilson score interval of `k` successes in `n` trials.
+pub fn wilson(k: usize, n: usize) -> [f64; 2] {
+    if n == 0 {
+        return [0.0, 1.0];
+    }
+    let (n, p, z) = (n as f64, k as f64 / n as f64, 1.959_964);
+    let z2 = z * z;
+    let centre = (p + z2 / (2.0 * n)) / (1.0 + z2 / n);
+    let half = z * (p * (1.0 - p) / n + z2 / (4.0 * n * n)).sqrt() / (1.0 + z2 / n);
+    [(centre - half).max(0.0), (centre + half).min(1.0)]
+}
+
+/// Who flies: a network's greedy action, or the scripted reactive rule.
+#[derive(Clone, Copy)]
+pub enum Pilot<'a> {
+    /// The greedy action of a Q-network.
+    Net(&'a QNet),
+    /// [`reactive`]: steer toward the clearest columns of the depth image.
+    Reactive,
+}
+
+impl Pilot<'_> {
+    /// The actions of every agent for a batch of observations (rows of
+    /// `obs_len` floats: two depth frames of `side`² pixels, the velocity).
+    pub fn act(&self, obs: &[f32], obs_len: usize, side: usize) -> Result<Vec<u8>> {
+        match self {
+            Pilot::Net(net) => Ok(net.greedy(obs)?),
+            Pilot::Reactive => Ok(obs.chunks_exact(obs_len).map(|o| reactive(o, side)).collect()),
+        }
+    }
+}
+
+/// The reactive rule's settings: chosen on the paper's training arena
+/// (87.6 % there, 88.2 % of `configs/arenas/test.toml`;
+/// `shared/research/tasks/reactive_depth.py`, whose rule this is).
+const REACTIVE_NEAR: f32 = 0.5;
+/// Columns on each side that a column's clearance is the minimum over.
+const REACTIVE_WINDOW: usize = 4;
+/// Lateral speed wanted per column of the target off the centre (m/s).
+const REACTIVE_GAIN: f32 = 0.12;
+
+/// A scripted reactive policy on one observation (`side`² pixels of the
+/// previous and the current depth frame, then the body velocity): the
+/// nearest depth of each column over the middle rows, widened to the
+/// minimum over `REACTIVE_WINDOW` neighbours each side; when straight
+/// ahead is nearer than `REACTIVE_NEAR` of the range, the lateral velocity
+/// is pushed toward the clearest column, else toward zero. Action 1 raises
+/// the lateral setpoint, 0 lowers it.
+pub fn reactive(obs: &[f32], side: usize) -> u8 {
+    let px = side * side;
+    let cur = &obs[px..2 * px];
+    let rows = (side * 10 / 32)..(side * 22 / 32).max(side * 10 / 32 + 1);
+    let nearest: Vec<f32> = (0..side).map(|c| rows.clone().map(|r| cur[r * side + c]).fold(f32::INFINITY, f32::min)).collect();
+    let w = REACTIVE_WINDOW;
+    // Beyond the image's edges reads as an obstacle at 0.
+    let clear: Vec<f32> = (0..side)
+        .map(|c| {
+            (c as isize - w as isize..=c as isize + w as isize)
+                .map(|k| if k < 0 || k >= side as isize { 0.0 } else { nearest[k as usize] })
+                .fold(f32::INFINITY, f32::min)
+        })
+        .collect();
+    let mid = (side as f32 - 1.0) / 2.0;
+    let mut target = 0;
+    let mut best = f32::NEG_INFINITY;
+    for (c, v) in clear.iter().enumerate() {
+        let score = v - 0.002 * (c as f32 - mid).abs();
+        if score > best {
+            best = score;
+            target = c;
+        }
+    }
+    let centre = clear[side / 2 - 1].min(clear[side / 2]);
+    let want = if centre > REACTIVE_NEAR { 0.0 } else { -REACTIVE_GAIN * (target as f32 - mid) };
+    let vy = obs[2 * px + 1];
+    u8::from(want > vy)
 }
 
 /// Flies `episodes` greedy episodes at once, one per agent, each agent's
 /// first episode counted; with several arenas, side by side, each agent in
 /// one drawn at random (the same ones for the same seed).
 pub fn fly_greedy(net: &QNet, sim: SimConfig, arenas: &[Arena], episodes: usize, seed: u64) -> Result<EvalStats> {
+    fly(Pilot::Net(net), sim, arenas, episodes, seed)
+}
+
+/// [`fly_greedy`] with any pilot.
+pub fn fly(pilot: Pilot<'_>, sim: SimConfig, arenas: &[Arena], episodes: usize, seed: u64) -> Result<EvalStats> {
     let n = episodes;
     let mut env = VecEnv::new_lanes(SimConfig { agents: n, ..sim }, arenas, seed)?;
     let mut result: Vec<Option<(f32, Done)>> = vec![None; n];
     let max_steps = env.config().max_steps;
+    let (obs_len, side) = (env.obs_len(), env.config().camera.side);
     for _ in 0..max_steps + 1 {
-        let actions = net.greedy(env.observations())?;
+        let actions = pilot.act(env.observations(), obs_len, side)?;
         env.step(&actions)?;
         for ep in env.finished() {
             result[ep.agent].get_or_insert((ep.reward, ep.done));
@@ -51,4 +155,52 @@ pub fn fly_greedy(net: &QNet, sim: SimConfig, arenas: &[Arena], episodes: usize,
         collisions: done.iter().filter(|(_, d)| *d == Done::Collision).count(),
         mean_reward: done.iter().map(|(r, _)| *r as f64).sum::<f64>() / done.len().max(1) as f64,
     })
+}
+
+/// Flies `episodes` episodes in every layout on its own (the held-out test
+/// set): one result per layout, in order.
+pub fn fly_layouts(pilot: Pilot<'_>, sim: &SimConfig, layouts: &[Arena], episodes: usize, seed: u64) -> Result<Vec<EvalStats>> {
+    layouts.iter().enumerate().map(|(k, a)| fly(pilot, sim.clone(), std::slice::from_ref(a), episodes, seed.wrapping_add(k as u64))).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn wilson_intervals_match_the_textbook() {
+        // 90 of 100: [0.826, 0.945]; 0 of 10: [0, 0.278].
+        let [lo, hi] = wilson(90, 100);
+        assert!((lo - 0.8256).abs() < 1e-3 && (hi - 0.9448).abs() < 1e-3, "{lo} {hi}");
+        let [lo, hi] = wilson(0, 10);
+        assert!(lo == 0.0 && (hi - 0.2775).abs() < 1e-3, "{hi}");
+    }
+
+    #[test]
+    fn the_reactive_rule_steers_toward_the_clear_side() {
+        let side = 32;
+        let px = side * side;
+        // A wall ahead on the left half of the image (columns 0-19 near),
+        // clear on the right: steer so that the target column is right of
+        // the centre, i.e. a negative lateral speed (action 0) from rest.
+        let mut obs = vec![1.0; 2 * px + 3];
+        for r in 0..side {
+            for c in 0..20 {
+                obs[px + r * side + c] = 0.2;
+            }
+        }
+        assert_eq!(reactive(&obs, side), 0);
+        // Mirrored: steer the other way.
+        let mut obs = vec![1.0; 2 * px + 3];
+        for r in 0..side {
+            for c in 12..side {
+                obs[px + r * side + c] = 0.2;
+            }
+        }
+        assert_eq!(reactive(&obs, side), 1);
+        // All clear and flying sideways: back toward zero lateral speed.
+        let mut obs = vec![1.0; 2 * px + 3];
+        obs[2 * px + 1] = 0.5;
+        assert_eq!(reactive(&obs, side), 0);
+    }
 }

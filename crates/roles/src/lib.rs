@@ -12,6 +12,7 @@ pub mod config;
 pub mod error;
 pub mod eval;
 pub mod learner;
+pub mod levels;
 pub mod replay;
 pub mod schedule;
 pub mod seeds;

@@ -38,6 +38,13 @@ pub fn validation_arena(k: usize) -> u64 {
     VALIDATION_ARENA_BASE + k as u64
 }
 
+/// Generated held-out test layout `k` of a level (`eval.test_layouts`):
+/// the same for every run, and far from every lane's and validation
+/// arena's seed, so no run trains or validates on one.
+pub fn test_layout(k: usize) -> u64 {
+    TEST_LAYOUT_BASE + k as u64
+}
+
 /// The spawns of the validations during training.
 pub fn validation(seed: u64) -> u64 {
     seed.wrapping_add(VALIDATION_SALT)
@@ -63,6 +70,8 @@ const LANE_SEED_STRIDE: u64 = 100_000;
 const LANE_ENV_STRIDE: u64 = 1000;
 /// Generated validation arenas.
 const VALIDATION_ARENA_BASE: u64 = 4242;
+/// Held-out test layouts: past any lane of a run seed below 10^13.
+const TEST_LAYOUT_BASE: u64 = 1 << 60;
 /// The validations' spawns.
 const VALIDATION_SALT: u64 = 7777;
 /// Confirmations' spawns, a prime apart.
@@ -80,7 +89,7 @@ mod tests {
             // make two of them draw the same numbers.
             let mut spawns = vec![validation(seed)];
             spawns.extend((1..5).map(|n| confirmation(seed, n)));
-            let mut arenas: Vec<u64> = (0..16).map(validation_arena).collect();
+            let mut arenas: Vec<u64> = (0..16).map(validation_arena).chain((0..64).map(test_layout)).collect();
             let mut sampling = vec![replay(seed)];
             for e in 0..64 {
                 spawns.push(sim(seed, e));

@@ -35,6 +35,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
     let mut tel = crate::counters(hub, RoleKind::Sim, env_index, roles_of(cfg))?;
     let mut limiter = RateLimiter::new(hub, cfg)?;
     let mut step = 0u64;
+    let mut stage = 0u32;
     let mut need_send = true;
     let mut last_send = Instant::now();
     loop {
@@ -84,6 +85,15 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
         tel.sample.work += n as u64;
         tel.sample.work2 += env.finished().len() as u64;
         need_send = true;
+        // A curriculum's next stage: new training lanes (the run's
+        // agent-steps as this sim sees them: its own steps times every
+        // host's agents).
+        let now = cfg.curriculum_stage(step.saturating_mul(cfg.agents_total() as u64));
+        if now != stage {
+            stage = now;
+            env.replace_arenas(&cfg.lane_arenas_at(env_index, stage)?).doing("changing the training lanes")?;
+            tracing::info!("sim {env_index}: curriculum stage {stage}");
+        }
         let t = Instant::now();
         limiter.wait(hub, step)?;
         // Waiting on the rate limit is waiting on another process.

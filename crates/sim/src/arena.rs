@@ -4,8 +4,6 @@
 
 use std::path::Path;
 
-use rand::{Rng, SeedableRng};
-use rand_pcg::Pcg64Mcg;
 use serde::{Deserialize, Serialize};
 
 /// An error in an arena file or arena description.
@@ -111,32 +109,6 @@ pub struct Arena {
     /// Obstacles.
     #[serde(default, rename = "obstacle")]
     pub obstacles: Vec<Obstacle>,
-}
-
-/// Parameters of the procedural generator.
-#[derive(Debug, Clone)]
-pub struct GenParams {
-    /// Arena length (metres).
-    pub length: f32,
-    /// Arena width (metres).
-    pub width: f32,
-    /// Arena height (metres).
-    pub height: f32,
-    /// Mean distance between successive obstacles along x (metres).
-    pub spacing: f32,
-    /// Obstacles start at this x (metres).
-    pub first_x: f32,
-    /// Every straight line from the spawn region is blocked before this many
-    /// metres past the spawn.
-    pub block_within: f32,
-    /// Radius of the drone, used for the blocking check (metres).
-    pub drone_radius: f32,
-}
-
-impl Default for GenParams {
-    fn default() -> Self {
-        Self { length: 150.0, width: 12.0, height: 6.0, spacing: 6.0, first_x: 12.0, block_within: 90.0, drone_radius: 0.3 }
-    }
 }
 
 /// Several arenas side by side along y, as one world.
@@ -298,42 +270,6 @@ impl Arena {
         Ok(())
     }
 
-    /// Generates a random arena: obstacles scattered along the corridor, then
-    /// more added until every straight flight from the spawn region is blocked
-    /// within `params.block_within` metres.
-    pub fn generate(name: &str, seed: u64, params: &GenParams) -> Self {
-        let mut rng = Pcg64Mcg::seed_from_u64(seed);
-        let hw = params.width / 2.0;
-        let hz = params.height / 2.0;
-        let mut obstacles = Vec::new();
-        let random_obstacle = |rng: &mut Pcg64Mcg, x: f32, y: f32| -> Obstacle {
-            if rng.random_bool(0.5) {
-                let hx = rng.random_range(0.3..1.0);
-                let hy = rng.random_range(0.4..1.2);
-                Obstacle::Box { center: [x, y.clamp(-hw + hy, hw - hy), hz], half_extents: [hx, hy, hz] }
-            } else {
-                let r = rng.random_range(0.4..0.9);
-                Obstacle::Cylinder { center: [x, y.clamp(-hw + r, hw - r), hz], radius: r, half_height: hz }
-            }
-        };
-        let mut x = params.first_x;
-        while x < params.length - 4.0 {
-            let y = rng.random_range(-hw..hw);
-            obstacles.push(random_obstacle(&mut rng, x, y));
-            x += params.spacing * rng.random_range(0.6..1.4);
-        }
-        let spawn = Spawn { x: 2.0, y: [-hw * 0.5, hw * 0.5], z: hz.min(2.0) };
-        // Close every lateral line that no obstacle within reach blocks yet.
-        let reach = spawn.x + params.block_within;
-        for _ in 0..200 {
-            let Some(gap) = first_unblocked_line(&obstacles, params.width, params.drone_radius, reach) else { break };
-            let x = rng.random_range(params.first_x..reach - 2.0);
-            obstacles.push(random_obstacle(&mut rng, x, gap));
-        }
-        obstacles.sort_by(|a, b| a.center()[0].total_cmp(&b.center()[0]));
-        Arena { name: name.to_string(), length: params.length, width: params.width, height: params.height, spawn, obstacles }
-    }
-
     /// The lateral position of a straight flight along +x that passes every
     /// obstacle with x below `reach`, or `None` when all are blocked.
     pub fn unblocked_line(&self, drone_radius: f32, reach: f32) -> Option<f32> {
@@ -343,7 +279,7 @@ impl Arena {
 
 /// Scans y in 5 cm steps across the corridor and returns the first y whose
 /// straight line along +x meets no obstacle (widened by the drone radius) before `reach`.
-fn first_unblocked_line(obstacles: &[Obstacle], width: f32, drone_radius: f32, reach: f32) -> Option<f32> {
+pub(crate) fn first_unblocked_line(obstacles: &[Obstacle], width: f32, drone_radius: f32, reach: f32) -> Option<f32> {
     let hw = width / 2.0;
     let steps = (width / 0.05) as i32;
     (0..=steps).map(|i| -hw + drone_radius + i as f32 * 0.05).filter(|y| *y <= hw - drone_radius).find(|&y| {
@@ -412,15 +348,5 @@ half_height = 2.5
         assert!(m.contains("sphere"), "{m}");
         let m = err(&GOOD.replace("name = \"t\"", "name = \"t\"\nlenght = 3.0"));
         assert!(m.contains("lenght"), "{m}");
-    }
-
-    #[test]
-    fn generator_is_seeded_valid_and_blocking() {
-        let p = GenParams::default();
-        let a = Arena::generate("g", 7, &p);
-        assert_eq!(a, Arena::generate("g", 7, &p));
-        assert_ne!(a, Arena::generate("g", 8, &p));
-        a.validate("generated").unwrap();
-        assert_eq!(a.unblocked_line(p.drone_radius, a.spawn.x + p.block_within), None);
     }
 }

@@ -118,17 +118,19 @@ pub fn rotor_thrusts(
     alt_sp: f32,
 ) -> [f32; 4] {
     let v3 = |v: Vector| v.to_array();
-    thrusts(p, g, v3(position), v3(velocity), [v3(bx), v3(by), v3(bz)], v3(w_body), [vel_sp.x, vel_sp.y], alt_sp)
+    thrusts(p, g, g.vel_xy, v3(position), v3(velocity), [v3(bx), v3(by), v3(bz)], v3(w_body), [vel_sp.x, vel_sp.y], alt_sp)
 }
 
 /// [`rotor_thrusts`] over any [`Lane`] type: one drone (`f32`) or a group
 /// (the direct path's vectorised kernel). Vectors are `[x, y, z]`; the
-/// velocity setpoint is horizontal, `[x, y]`.
+/// velocity setpoint is horizontal, `[x, y]`; `vel_gain` stands for
+/// `g.vel_xy` (a drone's own, under domain randomisation).
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 pub(crate) fn thrusts<T: Lane>(
     p: &QuadParams,
     g: &Gains,
+    vel_gain: T,
     position: [T; 3],
     velocity: [T; 3],
     [bx, by, bz]: [[T; 3]; 3],
@@ -139,8 +141,8 @@ pub(crate) fn thrusts<T: Lane>(
     let c = T::splat;
     // Velocity loop (altitude held by an outer position loop on z).
     let vz_sp = (c(g.alt) * (alt_sp - position[2])).max(c(-2.0)).min(c(2.0));
-    let ax = c(g.vel_xy) * (vel_sp[0] - velocity[0]);
-    let ay = c(g.vel_xy) * (vel_sp[1] - velocity[1]);
+    let ax = vel_gain * (vel_sp[0] - velocity[0]);
+    let ay = vel_gain * (vel_sp[1] - velocity[1]);
     let az = c(g.vel_z) * (vz_sp - velocity[2]);
     let h = (ax * ax + ay * ay).sqrt();
     let limit = h.gt_select(c(g.max_acc_xy), c(g.max_acc_xy) / h, c(1.0));

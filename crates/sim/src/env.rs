@@ -15,9 +15,10 @@ use rapier3d::math::Vector;
 
 use crate::arena::{Arena, ArenaError, Lanes, Spawn};
 use crate::dynamics::{DroneState, Gains, QuadParams};
-use crate::flight::{Drone, Flight, Geometry};
+use crate::flight::{Body, Drone, Flight, Geometry};
 use crate::gpu::{GpuDepthRenderer, GpuError};
 use crate::rapier_flight::RapierFlight;
+use crate::realism::{Noise, PixelNoise, Randomize, WIND_DRAG};
 use crate::render::{CameraPose, CameraSpec, DepthRenderer, Drones, Scene};
 
 /// Why an episode ended (mirrors `rotorhive_msg::DoneKind` codes).
@@ -110,6 +111,12 @@ pub struct SimConfig {
     pub reward_collision: f32,
     /// Reward of the step that times out.
     pub reward_timeout: f32,
+    /// Reward of the step that reaches the end of the arena.
+    pub reward_goal: f32,
+    /// The depth camera's noise, dropout and latency.
+    pub noise: Noise,
+    /// Per-episode randomisation of dynamics, camera and spawn.
+    pub randomize: Randomize,
     /// Drones collide with and see each other.
     pub interactive: bool,
     /// Depth camera.
@@ -144,6 +151,9 @@ impl Default for SimConfig {
             reward_step: 3.0,
             reward_collision: -100.0,
             reward_timeout: -10.0,
+            reward_goal: 3.0,
+            noise: Noise::default(),
+            randomize: Randomize::default(),
             interactive: false,
             camera: CameraSpec::default(),
             render_threads: 1,
@@ -199,8 +209,18 @@ pub struct VecEnv {
     physics: Physics,
     drones: Vec<Drone>,
     /// Positions of every agent over the last action, `(substeps + 1)` each
-    /// (the direct path's collision query).
+    /// (the direct path's collision query, and the camera's latency).
     path: Vec<Vector>,
+    /// Positions per agent in `path` (0 before the first action).
+    path_stride: usize,
+    /// Each agent's camera pitch (rad) and latency (physics steps) of its
+    /// episode.
+    pitch: Vec<f32>,
+    lag: Vec<usize>,
+    /// The depth noise's random numbers.
+    pixel_noise: PixelNoise,
+    /// Arenas that replace the world at the next step (a curriculum).
+    pending: Option<Lanes>,
     scene: Scene,
     renderer: DepthRenderer,
     gpu: Option<GpuDepthRenderer>,
@@ -273,8 +293,13 @@ impl VecEnv {
             arena,
             flight,
             physics,
-            drones: vec![Drone::at(Vector::ZERO, Vector::ZERO); n],
+            drones: vec![Drone::at(Vector::ZERO, Vector::ZERO, flight.nominal()); n],
             path: Vec::new(),
+            path_stride: 0,
+            pitch: vec![0.0; n],
+            lag: vec![0; n],
+            pixel_noise: PixelNoise::new(seed),
+            pending: None,
             rng: Pcg64Mcg::seed_from_u64(seed),
             steps: vec![0; n],
             returns: vec![0.0; n],
@@ -370,7 +395,7 @@ impl VecEnv {
     /// Places a drone at a pose with a velocity, for tests and tools.
     pub fn place(&mut self, agent: usize, position: [f32; 3], velocity: [f32; 3]) {
         let d = &mut self.drones[agent];
-        *d = Drone { lateral_sp: velocity[1], ..Drone::at(Vector::from(position), Vector::from(velocity)) };
+        *d = Drone { lateral_sp: velocity[1], ..Drone::at(Vector::from(position), Vector::from(velocity), self.flight.nominal()) };
         if let Physics::Rapier(r) = &mut self.physics {
             r.load(agent, d);
         }
@@ -402,6 +427,7 @@ impl VecEnv {
             }
             Physics::Direct(geometry) => {
                 let stride = steps + 1;
+                self.path_stride = stride;
                 self.path.resize(self.drones.len() * stride, Vector::ZERO);
                 let (flight, radius) = (self.flight, self.cfg.drone_radius);
                 let geometry = &*geometry;
@@ -474,7 +500,7 @@ impl VecEnv {
             let (reward, done) = if self.drones[i].collided {
                 (self.cfg.reward_collision, Done::Collision)
             } else if x >= self.arena.length {
-                (self.cfg.reward_step, Done::Goal)
+                (self.cfg.reward_goal, Done::Goal)
             } else if self.steps[i] >= self.cfg.max_steps {
                 (self.cfg.reward_timeout, Done::Timeout)
             } else {
@@ -490,6 +516,9 @@ impl VecEnv {
                     self.restarted[i] = true;
                 }
             }
+        }
+        if let Some(lanes) = self.pending.take() {
+            self.change_world(lanes)?;
         }
         let t2 = Instant::now();
         std::mem::swap(&mut self.prev, &mut self.cur);
@@ -514,7 +543,12 @@ impl VecEnv {
         let lane = if self.lane_offsets.len() > 1 { self.rng.random_range(0..self.lane_offsets.len()) } else { 0 };
         let s = &self.lane_spawns[lane];
         let y = self.lane_offsets[lane] + if s.y[1] > s.y[0] { self.rng.random_range(s.y[0]..s.y[1]) } else { s.y[0] };
-        self.drones[i] = Drone::at(Vector::new(s.x, y, s.z), Vector::new(self.cfg.forward_speed, 0.0, 0.0));
+        let (sx, sz) = (s.x, s.z);
+        let body = self.draw_body();
+        self.drones[i] = Drone::at(Vector::new(sx, y, sz), Vector::new(body.fwd, 0.0, 0.0), body);
+        if !self.cfg.randomize.is_off() || !self.cfg.noise.is_off() {
+            self.randomize_spawn(i);
+        }
         if let Physics::Rapier(r) = &mut self.physics {
             r.load(i, &self.drones[i]);
         }
@@ -522,8 +556,98 @@ impl VecEnv {
         self.returns[i] = 0.0;
     }
 
+    /// A drone's parameters for a new episode: the nominal ones, or drawn
+    /// (`[sim.randomize]`; nothing is drawn when its dynamics are off, so
+    /// the paper's task draws the same spawns as ever).
+    fn draw_body(&mut self) -> Body {
+        let nominal = self.flight.nominal();
+        let r = &self.cfg.randomize;
+        if !r.dynamics() {
+            return nominal;
+        }
+        let rng = &mut self.rng;
+        let mut sym = |a: f32| if a > 0.0 { rng.random_range(-a..=a) } else { 0.0 };
+        let (mass, gain, wind) = (sym(r.mass), sym(r.vel_gain), sym(r.wind));
+        let [lo, hi] = r.forward_speed_scale;
+        let scale = if hi > lo { self.rng.random_range(lo..=hi) } else { lo };
+        Body { fwd: nominal.fwd * scale, mass: nominal.mass * (1.0 + mass), vel_gain: nominal.vel_gain * (1.0 + gain), push: WIND_DRAG * wind }
+    }
+
+    /// The rest of a new episode's draws: spawn x, heading and lateral
+    /// velocity, the camera's pitch and latency.
+    fn randomize_spawn(&mut self, i: usize) {
+        let (r, noise, dt) = (self.cfg.randomize.clone(), self.cfg.noise.clone(), self.cfg.physics_dt);
+        let rng = &mut self.rng;
+        let mut sym = |a: f32| if a > 0.0 { rng.random_range(-a..=a) } else { 0.0 };
+        let heading = sym(r.spawn_heading_deg).to_radians();
+        let lateral = sym(r.spawn_lateral_speed);
+        self.pitch[i] = sym(r.camera_pitch_deg).to_radians();
+        let dx = if r.spawn_x > 0.0 { self.rng.random_range(0.0..=r.spawn_x) } else { 0.0 };
+        let [lo, hi] = noise.latency_s;
+        let latency = if hi > lo { self.rng.random_range(lo..=hi) } else { lo };
+        self.lag[i] = (latency / dt).round() as usize;
+        let d = &mut self.drones[i];
+        d.p.x += dx;
+        d.q = rapier3d::math::Rotation::from_rotation_z(heading);
+        d.v.y = lateral;
+        d.lateral_sp = lateral;
+    }
+
+    /// Replaces the world with `arenas` at the end of the next step (a
+    /// curriculum's new stage): every agent still flying then ends its
+    /// episode as a timeout and starts the next one in the new lanes.
+    pub fn replace_arenas(&mut self, arenas: &[Arena]) -> Result<(), LanesError> {
+        self.pending = Some(Lanes::new(arenas)?);
+        Ok(())
+    }
+
+    /// Swaps the world for `lanes` in the middle of a step, after scoring.
+    fn change_world(&mut self, lanes: Lanes) -> Result<(), GpuError> {
+        let Lanes { world, offsets, spawns, bounds } = lanes;
+        self.physics = match self.cfg.physics {
+            PhysicsKind::Direct => Physics::Direct(Geometry::new(&world)),
+            PhysicsKind::Rapier => {
+                Physics::Rapier(Box::new(RapierFlight::new(&world, self.cfg.agents, &self.flight, self.cfg.drone_radius, self.cfg.interactive)))
+            }
+        };
+        let mut scene = Scene::new(&world);
+        scene.set_lanes(&bounds);
+        if self.gpu.is_some() {
+            self.gpu = Some(GpuDepthRenderer::new(self.cfg.camera, &scene)?);
+        }
+        self.scene = scene;
+        self.arena = world;
+        self.lane_offsets = offsets;
+        self.lane_spawns = spawns;
+        self.path_stride = 0;
+        for i in 0..self.cfg.agents {
+            if self.dones[i] == Done::Running {
+                self.returns[i] += self.cfg.reward_timeout - self.rewards[i];
+                self.rewards[i] = self.cfg.reward_timeout;
+                self.dones[i] = Done::Timeout;
+                self.finished.push(Episode { agent: i, reward: self.returns[i], steps: self.steps[i], done: Done::Timeout });
+            }
+            // Every agent starts again in the new lanes (those that ended in
+            // this step had been placed in the old ones).
+            self.reset_agent(i);
+            self.restarted[i] = true;
+        }
+        Ok(())
+    }
+
+    /// Where agent `i`'s camera sees from: its pose, `lag` physics steps
+    /// back along the last action's path where it has a latency.
+    fn camera_at(&self, i: usize) -> CameraPose {
+        let mut cam = self.camera(i);
+        let (lag, stride) = (self.lag[i], self.path_stride);
+        if lag > 0 && stride > 0 && !self.restarted[i] && self.path.len() >= (i + 1) * stride {
+            cam.position = self.path[i * stride + stride - 1 - lag.min(stride - 1)];
+        }
+        cam
+    }
+
     fn render(&mut self) -> Result<(), GpuError> {
-        let cams: Vec<CameraPose> = (0..self.cfg.agents).map(|i| self.camera(i)).collect();
+        let cams: Vec<CameraPose> = (0..self.cfg.agents).map(|i| self.camera_at(i)).collect();
         let positions: Vec<Vector> = cams.iter().map(|c| c.position).collect();
         let drones = self.cfg.interactive.then_some(Drones { positions: &positions, radius: self.cfg.drone_radius });
         let px = self.cfg.camera.side * self.cfg.camera.side;
@@ -542,6 +666,9 @@ impl VecEnv {
                     self.renderer.render(&self.scene, &cams[i..i + 1], i, drones, img);
                 }
             }
+        }
+        if self.cfg.noise.depth_sigma > 0.0 || self.cfg.noise.dropout > 0.0 {
+            self.pixel_noise.apply(&self.cfg.noise, self.cfg.camera.range, &mut self.cur);
         }
         Ok(())
     }
@@ -606,6 +733,9 @@ impl VecEnv {
                 }
                 None => self.renderer.render(&self.scene, &cams, 0, None, &mut img),
             }
+            if self.cfg.noise.depth_sigma > 0.0 || self.cfg.noise.dropout > 0.0 {
+                self.pixel_noise.apply(&self.cfg.noise, self.cfg.camera.range, &mut img);
+            }
             for (k, i) in reset.iter().enumerate() {
                 self.cur[i * px..(i + 1) * px].copy_from_slice(&img[k * px..(k + 1) * px]);
             }
@@ -633,7 +763,9 @@ impl VecEnv {
 
     fn camera(&self, agent: usize) -> CameraPose {
         let d = &self.drones[agent];
-        CameraPose { position: d.p, rotation: d.q }
+        let pitch = self.pitch[agent];
+        let rotation = if pitch == 0.0 { d.q } else { d.q * rapier3d::math::Rotation::from_rotation_y(pitch) };
+        CameraPose { position: d.p, rotation }
     }
 
     fn body_velocity(&self, agent: usize) -> [f32; 3] {

@@ -55,12 +55,29 @@ pub(crate) struct Drone {
     pub(crate) lateral_sp: f32,
     /// Touched something during the current action.
     pub(crate) collided: bool,
+    /// This drone's own parameters (randomised per episode, or nominal).
+    pub(crate) body: Body,
+}
+
+/// A drone's own physical parameters and setpoints, drawn per episode by
+/// domain randomisation (`[sim.randomize]`) or the nominal ones of
+/// [`Flight::nominal`]; the kernel reads them lane by lane.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Body {
+    /// Forward speed setpoint (m/s).
+    pub(crate) fwd: f32,
+    /// True mass (kg); the controller still assumes the nominal one.
+    pub(crate) mass: f32,
+    /// Horizontal velocity gain of the controller (1/s).
+    pub(crate) vel_gain: f32,
+    /// Lateral acceleration of the wind (m/s²).
+    pub(crate) push: f32,
 }
 
 impl Drone {
     /// At rest in the identity attitude at `p` with velocity `v`.
-    pub(crate) fn at(p: Vector, v: Vector) -> Self {
-        Self { p, v, q: Rotation::IDENTITY, w: Vector::ZERO, lateral_sp: 0.0, collided: false }
+    pub(crate) fn at(p: Vector, v: Vector, body: Body) -> Self {
+        Self { p, v, q: Rotation::IDENTITY, w: Vector::ZERO, lateral_sp: 0.0, collided: false, body }
     }
 
     /// Angular velocity in the world frame.
@@ -80,6 +97,11 @@ pub(crate) struct Flight {
 }
 
 impl Flight {
+    /// The parameters of a drone without randomisation.
+    pub(crate) fn nominal(&self) -> Body {
+        Body { fwd: self.forward_speed, mass: self.quad.mass, vel_gain: self.gains.vel_xy, push: 0.0 }
+    }
+
     /// One physics step of one drone: the same kernel as one lane of
     /// [`Flight::fly_group`], so a drone flies the same alone or in a group.
     pub(crate) fn step(&self, d: &mut Drone) {
@@ -134,11 +156,11 @@ impl Flight {
         let q = &self.quad;
         let c = T::splat;
         let axes = axes(s.q);
-        let f = thrusts(q, &self.gains, s.p, s.v, axes, s.w, [c(self.forward_speed), s.lat], c(self.altitude));
+        let f = thrusts(q, &self.gains, s.gain, s.p, s.v, axes, s.w, [s.fwd, s.lat], c(self.altitude));
         let (thrust, torque) = wrench(q, f);
-        let per_mass = thrust / c(q.mass);
+        let per_mass = thrust / s.mass;
         let bz = axes[2];
-        let acc = [bz[0] * per_mass, bz[1] * per_mass, bz[2] * per_mass - c(GRAVITY)];
+        let acc = [bz[0] * per_mass, bz[1] * per_mass + s.push, bz[2] * per_mass - c(GRAVITY)];
         let j = q.inertia.map(c);
         let h = c(self.dt / INNER as f32);
         for _ in 0..INNER {
@@ -255,7 +277,8 @@ impl Lane for Wide {
 }
 
 /// Drones' states as plain numbers: position, velocity, rotation
-/// (`x, y, z, w`), body-frame angular velocity, lateral setpoint.
+/// (`x, y, z, w`), body-frame angular velocity, lateral setpoint, and the
+/// drone's own parameters ([`Body`]: read, never written back).
 #[derive(Clone, Copy)]
 pub(crate) struct State<T> {
     p: [T; 3],
@@ -263,6 +286,10 @@ pub(crate) struct State<T> {
     q: [T; 4],
     w: [T; 3],
     lat: T,
+    fwd: T,
+    mass: T,
+    gain: T,
+    push: T,
 }
 
 impl<T: Lane> State<T> {
@@ -276,6 +303,10 @@ impl<T: Lane> State<T> {
             q: [lane(&|d| d.q.x), lane(&|d| d.q.y), lane(&|d| d.q.z), lane(&|d| d.q.w)],
             w: [lane(&|d| d.w.x), lane(&|d| d.w.y), lane(&|d| d.w.z)],
             lat: lane(&|d| d.lateral_sp),
+            fwd: lane(&|d| d.body.fwd),
+            mass: lane(&|d| d.body.mass),
+            gain: lane(&|d| d.body.vel_gain),
+            push: lane(&|d| d.body.push),
         }
     }
 }
@@ -454,17 +485,23 @@ mod tests {
     use super::*;
 
     fn arena(obstacles: Vec<Obstacle>) -> Arena {
-        let mut a = Arena::generate("t", 1, &crate::arena::GenParams::default());
+        let mut a = Arena::generate("t", 1, &crate::generate::GenParams::default());
         a.obstacles = obstacles;
         a
     }
 
-    /// `n` drones in different states.
-    fn drones(n: usize) -> Vec<Drone> {
+    /// `n` drones in different states; with `varied`, each of its own
+    /// randomised body (mass, gain, forward speed, wind).
+    fn drones(flight: &Flight, n: usize, varied: bool) -> Vec<Drone> {
         (0..n)
             .map(|i| {
                 let t = i as f32;
-                let mut d = Drone::at(Vector::new(t, 0.3 * t, 2.0 + 0.01 * t), Vector::new(3.0, 0.1 * (t - 18.0), -0.05 * t));
+                let body = if varied {
+                    Body { fwd: 0.8 + 0.02 * t, mass: 0.8 + 0.011 * t, vel_gain: 1.75 + 0.04 * t, push: 0.5 - 0.03 * t }
+                } else {
+                    flight.nominal()
+                };
+                let mut d = Drone::at(Vector::new(t, 0.3 * t, 2.0 + 0.01 * t), Vector::new(3.0, 0.1 * (t - 18.0), -0.05 * t), body);
                 d.q = Rotation::from_euler(rapier3d::glamx::EulerRot::XYZ, 0.01 * t, -0.02 * t, 0.005 * t);
                 d.w = Vector::new(0.1, -0.05 * t, 0.02);
                 d.lateral_sp = if i % 2 == 0 { 1.5 } else { -1.5 };
@@ -479,16 +516,20 @@ mod tests {
         let steps = 50;
         // Two groups and five left over (one by one); two groups and 13
         // left over (a padded group).
-        for n in [37, 45] {
-            fly_and_compare(&flight, n, steps);
+        // Each with its nominal body, then each with its own (randomised
+        // dynamics run through the same lanes).
+        for varied in [false, true] {
+            for n in [37, 45] {
+                fly_and_compare(&flight, n, steps, varied);
+            }
         }
     }
 
-    fn fly_and_compare(flight: &Flight, n: usize, steps: usize) {
-        let mut group = drones(n);
+    fn fly_and_compare(flight: &Flight, n: usize, steps: usize, varied: bool) {
+        let mut group = drones(flight, n, varied);
         let mut path = vec![Vector::ZERO; group.len() * (steps + 1)];
         flight.fly(&mut group, &mut path, steps);
-        for (i, (flown, mut alone)) in group.iter().zip(drones(n)).enumerate() {
+        for (i, (flown, mut alone)) in group.iter().zip(drones(flight, n, varied)).enumerate() {
             assert_eq!(path[i * (steps + 1)], alone.p);
             for k in 1..=steps {
                 flight.step(&mut alone);
@@ -499,7 +540,7 @@ mod tests {
             assert_eq!(flown.q.to_array().map(f32::to_bits), alone.q.to_array().map(f32::to_bits), "drone {i}");
         }
         // They did fly: every drone moved and turned.
-        assert!(group.iter().zip(drones(n)).all(|(a, b)| (a.p - b.p).length() > 1.0 && a.q != b.q));
+        assert!(group.iter().zip(drones(flight, n, varied)).all(|(a, b)| (a.p - b.p).length() > 1.0 && a.q != b.q));
     }
 
     #[test]

@@ -8,13 +8,17 @@ pub mod arena;
 pub mod dynamics;
 pub mod env;
 mod flight;
+pub mod generate;
 pub mod gpu;
 mod pool;
 mod rapier_flight;
+pub mod realism;
 pub mod render;
 pub mod view;
 
-pub use arena::{Arena, ArenaError, GenParams, Lanes, Obstacle, Spawn};
+pub use arena::{Arena, ArenaError, Lanes, Obstacle, Spawn};
 pub use env::{Autoreset, Done, Episode, LanesError, PhysicsKind, RendererKind, SimConfig, StepTiming, VecEnv};
+pub use generate::{GenMode, GenParamError, GenParams};
 pub use gpu::{GpuDepthRenderer, GpuError};
+pub use realism::{Noise, Randomize};
 pub use render::{CameraPose, CameraSpec, DepthRenderer, Scene};

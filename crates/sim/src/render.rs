@@ -644,7 +644,7 @@ mod tests {
 
     #[test]
     fn far_things_clip_at_the_range_and_threads_agree() {
-        let a = Arena::generate("g", 3, &crate::arena::GenParams::default());
+        let a = Arena::generate("g", 3, &crate::generate::GenParams::default());
         let scene = Scene::new(&a);
         let spec = CameraSpec::default();
         let cams: Vec<CameraPose> = (0..37)
@@ -688,7 +688,7 @@ mod tests {
     #[test]
     fn culling_by_projected_rectangles_changes_no_pixel() {
         use rand::{Rng, SeedableRng};
-        let a = Arena::generate("g", 11, &crate::arena::GenParams::default());
+        let a = Arena::generate("g", 11, &crate::generate::GenParams::default());
         let scene = Scene::new(&a);
         let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(5);
         let mut seen = 0;

@@ -12,7 +12,7 @@
 use std::io::Write;
 use std::path::PathBuf;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -30,6 +30,9 @@ use rotorhive_transport::{Channel, Hub};
 pub(super) struct EvalPoint {
     pub(super) wall: f64,
     pub(super) updates: u64,
+    /// Agent-steps of the run when the weights were taken (unknown in
+    /// tables of older runs).
+    pub(super) env_steps: Option<u64>,
     /// The screening: success rate and mean reward on the fixed spawns.
     pub(super) success: f64,
     pub(super) mean_reward: f64,
@@ -53,6 +56,7 @@ impl EvalPoint {
             confirmed_episodes: self.confirmed.map(|_| confirm_episodes as u64),
             confirmed_success_rate: self.confirmed.map(|c| rows::round(c.0, 4)),
             confirmed_mean_reward: self.confirmed.map(|c| rows::round(c.1, 2)),
+            env_steps: self.env_steps,
         }
     }
 
@@ -74,6 +78,7 @@ fn read_evals(path: &std::path::Path) -> Result<Vec<EvalPoint>> {
         .map(|r| EvalPoint {
             wall: r.wall_s,
             updates: r.updates,
+            env_steps: r.env_steps,
             success: r.success_rate,
             mean_reward: r.mean_reward,
             confirmed: r.confirmed_success_rate.zip(r.confirmed_mean_reward),
@@ -90,28 +95,40 @@ fn best_of(evals: &[EvalPoint], confirming: bool) -> Option<EvalPoint> {
 /// 90 %, so that a better policy that screened unluckily is not passed over.
 const CANDIDATE_SLACK: f64 = 0.06;
 
-/// Flies the newest published weights greedily every `eval.every_s` seconds
-/// (or when asked through `now`), on its own iceoryx2 node, and keeps the
-/// best weights as `checkpoints/best.safetensors`. Every evaluation uses the
-/// same spawn positions, so they compare.
+/// The run's clocks as the evaluator reads them: its start, and the
+/// agent-steps the supervisor last counted.
+struct Clocks {
+    start: Instant,
+    steps: Arc<AtomicU64>,
+}
+
+/// Flies the newest published weights greedily every `eval.every_s` seconds,
+/// every `eval.every_env_steps` agent-steps (or when asked through `now`),
+/// on its own iceoryx2 node, and keeps the best weights as
+/// `checkpoints/best.safetensors`. Every evaluation uses the same spawn
+/// positions, so they compare.
 #[allow(clippy::too_many_arguments)]
 fn fly<S: Service>(
     prefix: String,
     cfg: Config,
     run_dir: PathBuf,
-    start: Instant,
+    clocks: Clocks,
     stop: Arc<AtomicBool>,
     now: mpsc::Receiver<()>,
     out: mpsc::Sender<EvalPoint>,
     (resumed, prior_best): (bool, Option<(f64, f64)>),
 ) -> Result<()> {
+    let start = clocks.start;
     let hub = Hub::<S>::new(&prefix, "eval")?;
     let mut rx = hub.receiver::<f32, WeightsHeader>(&Channel::weights(cfg.sim.envs))?;
     let mut net = QNet::new(0, &Device::Cpu)?;
     net.set_threads(1);
     let arenas = cfg.eval_arenas()?;
-    let every = Duration::from_secs_f64(cfg.eval.every_s);
+    // Neither clock is used when its setting is 0.
+    let every = Duration::from_secs_f64(if cfg.eval.every_s > 0.0 { cfg.eval.every_s } else { 1e9 });
     let mut next = Instant::now() + every;
+    let every_steps = if cfg.eval.every_env_steps > 0 { cfg.eval.every_env_steps } else { u64::MAX };
+    let mut next_steps = every_steps;
     // A resumed run goes on from its best score (so `best.safetensors` only
     // ever improves) and appends to its table.
     let mut best: Option<(f64, f64)> = prior_best;
@@ -126,7 +143,8 @@ fn fly<S: Service>(
     std::fs::create_dir_all(&ckpt_dir)?;
     while !stop.load(Ordering::Relaxed) {
         let asked = now.try_recv().is_ok();
-        if !asked && Instant::now() < next {
+        let steps = clocks.steps.load(Ordering::Relaxed);
+        if !asked && Instant::now() < next && steps < next_steps {
             std::thread::sleep(Duration::from_millis(50));
             continue;
         }
@@ -157,11 +175,15 @@ fn fly<S: Service>(
             net.save_with(&ckpt_dir.join("best.safetensors"), &cfg.checkpoint_tags())?;
         }
         let wall = start.elapsed().as_secs_f64();
-        let point = EvalPoint { wall, updates: h.updates, success, mean_reward, confirmed };
+        let point = EvalPoint { wall, updates: h.updates, env_steps: Some(steps), success, mean_reward, confirmed };
         csv.write_all(rows::line(&point.row(h.version, st.episodes, better, k))?.as_bytes())?;
         csv.flush()?;
         let _ = out.send(point);
         next = Instant::now() + every;
+        if steps >= next_steps {
+            // The next multiple of the cadence past the steps now.
+            next_steps = (steps / every_steps + 1).saturating_mul(every_steps);
+        }
     }
     Ok(())
 }
@@ -178,11 +200,19 @@ pub(super) struct Evaluator {
 }
 
 impl Evaluator {
-    /// Starts evaluating every `eval.every_s` seconds (no thread when 0).
+    /// Starts evaluating every `eval.every_s` seconds and every
+    /// `eval.every_env_steps` agent-steps (no thread when both are 0);
+    /// `steps` is the run's agent-steps as the supervisor counts them.
     /// A resumed run reads its earlier evaluations back from `evals.csv`:
     /// they count for the result, and a new evaluation becomes
     /// `best.safetensors` only if it beats them.
-    pub(super) fn start<S: Service>(cfg: &Config, prefix: &str, run_dir: &std::path::Path, start: Instant, resumed: bool) -> Result<Self> {
+    pub(super) fn start<S: Service>(
+        cfg: &Config,
+        prefix: &str,
+        run_dir: &std::path::Path,
+        (start, steps): (Instant, Arc<AtomicU64>),
+        resumed: bool,
+    ) -> Result<Self> {
         let stop = Arc::new(AtomicBool::new(false));
         let (now, now_rx) = mpsc::channel();
         let (tx, rx) = mpsc::channel();
@@ -190,9 +220,10 @@ impl Evaluator {
         let evals = if resumed { read_evals(&run_dir.join("evals.csv"))? } else { Vec::new() };
         let prior_best = best_of(&evals, confirming).and_then(|b| b.score(confirming));
         let mut thread = None;
-        if cfg.eval.every_s > 0.0 {
+        if cfg.eval.every_s > 0.0 || cfg.eval.every_env_steps > 0 {
             let (p, c, d, st) = (prefix.to_string(), cfg.clone(), run_dir.to_path_buf(), stop.clone());
-            thread = Some(std::thread::Builder::new().name("eval".into()).spawn(move || fly::<S>(p, c, d, start, st, now_rx, tx, (resumed, prior_best)))?);
+            let clocks = Clocks { start, steps };
+            thread = Some(std::thread::Builder::new().name("eval".into()).spawn(move || fly::<S>(p, c, d, clocks, st, now_rx, tx, (resumed, prior_best)))?);
         }
         Ok(Self { thread, stop, now, rx, evals, confirming })
     }
@@ -227,9 +258,9 @@ impl Evaluator {
         self.best().and_then(|b| b.score(self.confirming))
     }
 
-    /// When a screening first reached `target` success.
-    pub(super) fn first_at(&self, target: f64) -> Option<f64> {
-        self.evals.iter().find(|e| e.success >= target).map(|e| e.wall)
+    /// The first screening that reached `target` success.
+    pub(super) fn first_at(&self, target: f64) -> Option<EvalPoint> {
+        self.evals.iter().find(|e| e.success >= target).copied()
     }
 
     /// Whether the thread ended before it was asked to (an error).

@@ -15,7 +15,7 @@ mod records;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, AtomicU64};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
@@ -103,7 +103,13 @@ pub fn run(a: TrainArgs) -> Result<()> {
     let link = match head {
         Some(mut head) => {
             // The workers get the config every role of this run reads, and the arena.
-            let text = (cfg.to_toml(), std::fs::read_to_string(&cfg.sim.arena).with_context(|| format!("arena {}", cfg.sim.arena.display()))?);
+            // (No arena file: the lanes are all generated, and none is sent.)
+            let arena = if cfg.sim.arena.as_os_str().is_empty() {
+                String::new()
+            } else {
+                std::fs::read_to_string(&cfg.sim.arena).with_context(|| format!("arena {}", cfg.sim.arena.display()))?
+            };
+            let text = (cfg.to_toml(), arena);
             let t = text.clone();
             head.admit(move |_| t.clone());
             Some((head, text))
@@ -150,14 +156,22 @@ fn resolve_config(a: &TrainArgs) -> Result<Config> {
         }
         cfg.max_seconds = s;
     }
-    // Fail on a bad arena before anything starts.
-    cfg.arena()?;
+    // Fail on a bad arena or generator before anything starts.
+    if !cfg.sim.arena.as_os_str().is_empty() {
+        cfg.arena()?;
+    }
+    cfg.gen_params()?;
     Ok(cfg)
 }
 
 /// Roles read the arenas relative to their working directory: resolve them.
 fn resolve_paths(cfg: &mut Config) -> Result<()> {
-    cfg.sim.arena = cfg.sim.arena.canonicalize().with_context(|| format!("arena {}", cfg.sim.arena.display()))?;
+    if !cfg.sim.arena.as_os_str().is_empty() {
+        cfg.sim.arena = cfg.sim.arena.canonicalize().with_context(|| format!("arena {}", cfg.sim.arena.display()))?;
+    }
+    for t in &mut cfg.eval.test_arenas {
+        *t = t.canonicalize().with_context(|| format!("key `eval.test_arenas`: {}", t.display()))?;
+    }
     if !cfg.eval.arena.is_empty() {
         cfg.eval.arena = Path::new(&cfg.eval.arena).canonicalize().with_context(|| format!("key `eval.arena`: {}", cfg.eval.arena))?.display().to_string();
         cfg.eval_arenas()?;
@@ -223,6 +237,8 @@ struct Supervisor<'a> {
     bar: ProgressBar,
     start: Instant,
     restarts: u64,
+    /// The run's agent-steps, for the evaluator's agent-step clock.
+    steps: Arc<AtomicU64>,
 }
 
 /// Supervises the run `prefix` until it ends, then writes its records.
@@ -244,10 +260,12 @@ fn supervise<S: Service>(a: &TrainArgs, cfg: Config, run_dir: &Path, cfg_path: &
     bar.set_style(ProgressStyle::with_template("{spinner} [{elapsed_precise}] {msg}").expect("valid template"));
     bar.enable_steady_tick(Duration::from_millis(200));
     let start = Instant::now();
+    let steps = Arc::new(AtomicU64::new(0));
     let mut s = Supervisor {
         progress: Progress::open(run_dir, &cfg, resumed)?,
         monitor: Monitor::open(run_dir, resumed)?,
-        evaluator: Evaluator::start::<S>(&cfg, &prefix, run_dir, start, resumed)?,
+        evaluator: Evaluator::start::<S>(&cfg, &prefix, run_dir, (start, steps.clone()), resumed)?,
+        steps,
         board: if cfg.tensorboard { Some(Board::open(run_dir, &launcher::host_name())?) } else { None },
         schedule: cfg.deterministic.then(|| Schedule::new(&cfg)),
         order: EpisodeOrder::new(cfg.sim.envs, cfg.deterministic),
@@ -285,6 +303,7 @@ impl Supervisor<'_> {
             self.take_episodes(&mut p.episodes_rx)?;
             self.evaluator.poll();
             self.monitor.receive(&mut p.telemetry_rx)?;
+            self.steps.store(self.monitor.counts().0, std::sync::atomic::Ordering::Relaxed);
             if self.done() {
                 return Ok(());
             }
@@ -318,7 +337,10 @@ impl Supervisor<'_> {
                 }
                 None => self.monitor.counts(),
             };
-            if self.progress.record(&h, &payload, counts, self.wall())? {
+            // At the crossing an evaluation is asked for, unless they run
+            // on the agent-step clock (the learning metric must not be
+            // timed by the crossing).
+            if self.progress.record(&h, &payload, counts, self.wall())? && self.cfg.eval.every_env_steps == 0 {
                 self.evaluator.ask_now();
             }
         }
@@ -494,7 +516,11 @@ impl Supervisor<'_> {
             best_eval_mean_reward: best.map(|b| b.mean_reward),
             best_eval_at_s: best.map(|b| b.wall),
             best_eval_updates: best.map(|b| b.updates),
-            time_to_target_success_s: self.evaluator.first_at(cfg.eval.target_success),
+            time_to_target_success_s: self.evaluator.first_at(cfg.eval.target_success).map(|e| e.wall),
+            env_steps_at_threshold: self.progress.at_threshold.map(|a| a.0),
+            updates_at_threshold: self.progress.at_threshold.map(|a| a.1),
+            epsilon_at_threshold: self.progress.at_threshold.map(|a| a.2),
+            env_steps_to_target: self.evaluator.first_at(cfg.eval.target_success).and_then(|e| e.env_steps),
             result_validation_success: self.evaluator.best_score().map(|s| s.0),
             result_validation_episodes: best.map(|_| if cfg.eval.confirm_episodes > 0 { cfg.eval.confirm_episodes } else { cfg.eval.episodes }),
             final_validation_success: self.evaluator.evals.last().map(|e| e.success),

@@ -143,6 +143,8 @@ pub(super) struct Progress {
     pub(super) curve: Series,
     /// When the rolling reward first reached the threshold.
     pub(super) time_to_threshold: Option<f64>,
+    /// The agent-steps, learner updates and exploration rate then.
+    pub(super) at_threshold: Option<(u64, u64, f64)>,
 }
 
 /// The exploration rate at or below which an episode counts in the rolling
@@ -171,6 +173,7 @@ impl Progress {
             epsilon: cfg.actor.eps_start,
             curve: Series::default(),
             time_to_threshold: None,
+            at_threshold: None,
         })
     }
 
@@ -201,6 +204,9 @@ impl Progress {
             })?;
         }
         self.time_to_threshold = self.rolling.crossed_at;
+        if crossed && self.at_threshold.is_none() {
+            self.at_threshold = Some((counts.0, counts.1, self.epsilon));
+        }
         Ok(crossed)
     }
 

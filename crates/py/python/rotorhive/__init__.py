@@ -21,7 +21,7 @@ import gymnasium as _gym
 
 from . import _rotorhive
 from ._rotorhive import OBS_LEN, QNetwork
-from .envs import COLLISION, DONE_NAMES, GOAL, RUNNING, TIMEOUT, NavigateEnv, NavigateVectorEnv, sim_keys
+from .envs import COLLISION, DONE_NAMES, GOAL, LEVELS, RUNNING, TIMEOUT, NavigateEnv, NavigateVectorEnv, sim_keys
 
 __version__ = _rotorhive.__version__
 
@@ -34,6 +34,7 @@ __all__ = [
     "TIMEOUT",
     "NavigateEnv",
     "NavigateVectorEnv",
+    "LEVELS",
     "QNetwork",
     "sim_keys",
 ]
@@ -47,3 +48,14 @@ if "rotorhive/Navigate-v0" not in _gym.registry:
     )
 if "rotorhive/NavigateSingle-v0" not in _gym.registry:
     _gym.register(id="rotorhive/NavigateSingle-v0", entry_point="rotorhive.envs:NavigateEnv")
+# The graded levels: the same environments with a level's settings and lanes
+# as defaults (`configs/levels/NAME.toml`).
+for _name, _id in LEVELS.items():
+    if _name != "paper" and _id not in _gym.registry:
+        _gym.register(
+            id=_id,
+            entry_point="rotorhive.envs:NavigateEnv",
+            vector_entry_point="rotorhive.envs:NavigateVectorEnv",
+            kwargs={"level": _name},
+            max_episode_steps=None,
+        )

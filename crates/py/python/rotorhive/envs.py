@@ -28,7 +28,20 @@ RUNNING, COLLISION, GOAL, TIMEOUT = range(4)
 
 # Keys of the config's [sim] section that are not keyword arguments: the
 # agent count is `num_envs`, the arena is `arena` / `arena_seed`.
-_NOT_KWARGS = {"agents", "envs", "arena"}
+# The nested sections (generator, noise, randomize, curriculum) come with a
+# level (`level="noisy"`), not as keyword arguments.
+_NOT_KWARGS = {"agents", "envs", "arena", "generator", "noise", "randomize", "curriculum"}
+
+#: The graded levels and their Gymnasium IDs (``configs/levels/``).
+LEVELS = {"paper": "rotorhive/Navigate-v0", "dense": "rotorhive/Dense-v0", "forest": "rotorhive/Forest-v0", "noisy": "rotorhive/Noisy-v0"}
+
+
+def _level(level: Any) -> str | None:
+    if level is None:
+        return None
+    if level not in LEVELS:
+        raise ValueError(f"level {level!r} is not one of {', '.join(LEVELS)}")
+    return str(level)
 
 
 def sim_keys() -> list[str]:
@@ -112,7 +125,9 @@ class NavigateVectorEnv(VectorEnv):
 
     Keyword arguments: `seed` (the simulator's seed, as `hive train`'s),
     `arena` (an arena file; default: the shipped training arena) or
-    `arena_seed` (a generated arena), `autoreset_mode` (`NEXT_STEP`,
+    `arena_seed` (a generated arena), `level` (a graded level's settings
+    and lanes: `paper`, `dense`, `forest`, `noisy`; the IDs
+    ``rotorhive/Dense-v0`` etc. set it), `autoreset_mode` (`NEXT_STEP`,
     `SAME_STEP` or `DISABLED`), `copy` (True: every call returns fresh
     arrays; False: the observation arrays are views of the environment's
     buffers, which the next `step` or `reset` overwrites) and the
@@ -133,6 +148,7 @@ class NavigateVectorEnv(VectorEnv):
         seed: int = 0,
         arena: Any = None,
         arena_seed: int | None = None,
+        level: str | None = None,
         autoreset_mode: str | AutoresetMode = AutoresetMode.NEXT_STEP,
         copy: bool = True,
         render_mode: str | None = None,
@@ -148,7 +164,7 @@ class NavigateVectorEnv(VectorEnv):
         except ValueError:
             names = ", ".join(m.name for m in AutoresetMode)
             raise ValueError(f"autoreset_mode {autoreset_mode!r} is not one of {names}") from None
-        self._sim = _rotorhive.Sim(n, seed, _arena(arena), arena_seed, _overrides("rotorhive/Navigate-v0", sim))
+        self._sim = _rotorhive.Sim(n, seed, _arena(arena), arena_seed, _overrides("rotorhive/Navigate-v0", sim), _level(level))
         if self.autoreset_mode == AutoresetMode.NEXT_STEP:
             # The simulator itself restarts an ended agent in the next step,
             # without drawing it twice.
@@ -290,12 +306,14 @@ class NavigateEnv(gym.Env):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": RENDER_FPS}
 
-    def __init__(self, *, seed: int = 0, arena: Any = None, arena_seed: int | None = None, render_mode: str | None = None, **sim: Any) -> None:
+    def __init__(
+        self, *, seed: int = 0, arena: Any = None, arena_seed: int | None = None, level: str | None = None, render_mode: str | None = None, **sim: Any
+    ) -> None:
         seed = _check_int("seed", seed, 0)
         if arena_seed is not None:
             arena_seed = _check_int("arena_seed", arena_seed, 0)
         _check_render_mode(render_mode)
-        self._sim = _rotorhive.Sim(1, seed, _arena(arena), arena_seed, _overrides("rotorhive/NavigateSingle-v0", sim))
+        self._sim = _rotorhive.Sim(1, seed, _arena(arena), arena_seed, _overrides("rotorhive/NavigateSingle-v0", sim), _level(level))
         self.render_mode = render_mode
         self.observation_space = _spaces(self._sim.side)
         self.action_space = spaces.Discrete(2)
