@@ -613,7 +613,7 @@ impl Config {
             }
         }
         if let Some(g) = &s.generator {
-            g.validate().map_err(|e| RoleError::Config(format!("key `sim.generator.{}`", e)))?;
+            g.validate().map_err(|e| RoleError::Config(format!("key `sim.generator.{}`: {}", e.key, e.message)))?;
         }
         if s.arena.as_os_str().is_empty() && (s.generator.is_none() || s.generated_lanes == 0) {
             config_err!("key `sim.arena` is empty: training then needs `[sim.generator]` and `sim.generated_lanes` above 0");
@@ -926,6 +926,52 @@ mod tests {
         assert!(e.contains("agnets"), "{e}");
         let e = format!("{:#}", Config::load(None, &["replay.batch=300000".into()]).unwrap_err());
         assert!(e.contains("replay.batch"), "{e}");
+        // The task's keys and sections, named when wrong.
+        let c = Config::load(None, &["sim.forward_speed=2.0".into(), "sim.generator.spacing=3.0".into(), "sim.noise.dropout=0.02".into()]).unwrap();
+        assert_eq!((c.sim_config().forward_speed, c.gen_params().unwrap().spacing, c.sim_config().noise.dropout), (2.0, 3.0, 0.02));
+        for (set, key) in [
+            ("sim.generator.per_row=9", "sim.generator.per_row"),
+            ("sim.generator.spacnig=3", "spacnig"),
+            ("sim.noise.dropout=0.9", "sim.noise.dropout"),
+            ("sim.randomize.mass=-1", "sim.randomize.mass"),
+            ("sim.lateral_step=0", "sim.lateral_step"),
+            ("sim.reward_collision=nan", "sim.reward_collision"),
+        ] {
+            let e = format!("{:#}", Config::load(None, &[set.into()]).unwrap_err());
+            assert!(e.contains(key), "{set}: {e}");
+        }
+        // Randomised dynamics live on the direct path only.
+        let e = format!("{:#}", Config::load(None, &["sim.physics=\"rapier\"".into(), "sim.randomize.wind=0.5".into()]).unwrap_err());
+        assert!(e.contains("direct"), "{e}");
+        // A curriculum ramps a generator key between stages.
+        let c = Config::load(
+            None,
+            &[
+                "sim.generator.spacing=3.0".into(),
+                "sim.curriculum.key=\"spacing\"".into(),
+                "sim.curriculum.from=6.0".into(),
+                "sim.curriculum.over_env_steps=100000".into(),
+                "sim.curriculum.stages=3".into(),
+            ],
+        )
+        .unwrap();
+        let at = |s| c.generator_at_stage(s).unwrap().spacing;
+        assert_eq!((at(0), at(1), at(3)), (6.0, 5.0, 3.0));
+        assert_eq!((c.curriculum_stage(0), c.curriculum_stage(40_000), c.curriculum_stage(10_000_000)), (0, 1, 3));
+        let e = format!(
+            "{:#}",
+            Config::load(
+                None,
+                &[
+                    "sim.generator.spacing=3.0".into(),
+                    "sim.curriculum.key=\"colour\"".into(),
+                    "sim.curriculum.from=1".into(),
+                    "sim.curriculum.over_env_steps=5".into()
+                ]
+            )
+            .unwrap_err()
+        );
+        assert!(e.contains("colour"), "{e}");
         let e = format!("{:#}", Config::load(None, &["sim.agents=\"many\"".into()]).unwrap_err());
         assert!(e.contains("agents") || e.contains("invalid type"), "{e}");
     }

@@ -203,4 +203,26 @@ mod tests {
         obs[2 * px + 1] = 0.5;
         assert_eq!(reactive(&obs, side), 0);
     }
+
+    #[test]
+    fn the_reactive_rule_beats_a_random_policy_on_the_paper_test_arena() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/arenas/test.toml");
+        let arena = Arena::load(&root).unwrap();
+        let sim = SimConfig::default();
+        let reactive = fly(Pilot::Reactive, sim.clone(), std::slice::from_ref(&arena), 100, 5).unwrap();
+        // A uniformly random policy, flown the same way.
+        let mut env = VecEnv::new(SimConfig { agents: 100, ..sim }, arena, 5).unwrap();
+        let mut rng = rand_pcg::Pcg64Mcg::new(9);
+        let mut first: Vec<Option<Done>> = vec![None; 100];
+        for _ in 0..401 {
+            let actions: Vec<u8> = (0..100).map(|_| rand::Rng::random_range(&mut rng, 0..2u8)).collect();
+            env.step(&actions).unwrap();
+            for ep in env.finished() {
+                first[ep.agent].get_or_insert(ep.done);
+            }
+        }
+        let random = first.iter().filter(|d| **d == Some(Done::Goal)).count();
+        assert!(reactive.success_rate() > 0.5, "reactive {}", reactive.success_rate());
+        assert!((reactive.successes as f64) > 5.0 * random as f64 + 10.0, "reactive {} against random {random}", reactive.successes);
+    }
 }

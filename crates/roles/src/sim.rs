@@ -85,21 +85,26 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
         tel.sample.work += n as u64;
         tel.sample.work2 += env.finished().len() as u64;
         need_send = true;
-        // A curriculum's next stage: new training lanes (the run's
-        // agent-steps as this sim sees them: its own steps times every
-        // host's agents).
-        let now = cfg.curriculum_stage(step.saturating_mul(cfg.agents_total() as u64));
-        if now != stage {
-            stage = now;
-            env.replace_arenas(&cfg.lane_arenas_at(env_index, stage)?).doing("changing the training lanes")?;
-            tracing::info!("sim {env_index}: curriculum stage {stage}");
-        }
+        follow_curriculum(cfg, &mut env, env_index, step, &mut stage)?;
         let t = Instant::now();
         limiter.wait(hub, step)?;
         // Waiting on the rate limit is waiting on another process.
         tel.sample.time_stage(SimStage::TransportWait, t);
     }
     tel.tick(true, Telemetry::beat);
+    Ok(())
+}
+
+/// A curriculum's next stage: new training lanes, once the run's
+/// agent-steps (as this sim sees them: its own steps times every host's
+/// agents) reach it.
+fn follow_curriculum(cfg: &crate::Config, env: &mut VecEnv, env_index: usize, step: u64, stage: &mut u32) -> Result<()> {
+    let now = cfg.curriculum_stage(step.saturating_mul(cfg.agents_total() as u64));
+    if now != *stage {
+        *stage = now;
+        env.replace_arenas(&cfg.lane_arenas_at(env_index, now)?).doing("changing the training lanes")?;
+        tracing::info!("sim {env_index}: curriculum stage {now}");
+    }
     Ok(())
 }
 

@@ -130,46 +130,61 @@ impl Randomize {
     }
 }
 
-/// The per-pixel random numbers of the depth noise: wyrand, one 64-bit
-/// word per pixel, three 16-bit uniforms summed for a Gaussian draw
-/// (Irwin–Hall: tails cut at ±3σ) and 16 bits for the dropout.
-/// Hand-written because a Gaussian from `rand_distr` per pixel costs about
-/// 10 µs per 32×32 image, more than rendering it (about 6 µs).
+/// The per-pixel random numbers of the depth noise: a counter-based hash
+/// (murmur3's 32-bit finaliser of a per-call key and the pixel's index),
+/// two 32-bit words per pixel: three 16-bit uniforms summed for a Gaussian
+/// draw (Irwin–Hall: tails cut at ±3σ) and 16 bits for the dropout.
+/// Hand-written and branch-free so that the loop vectorises (AVX2 and
+/// AVX-512, picked at run time): a sequential wyrand per pixel cost 2.3 µs
+/// per 32×32 image (`hive bench sim --config configs/levels/noisy.toml`:
+/// 64,139 agent-steps/s at 50 agents against dense's 75,037), this about
+/// 0.3 µs; a Gaussian from `rand_distr` about 10 µs.
 #[derive(Debug, Clone)]
 pub(crate) struct PixelNoise {
-    state: u64,
+    seed: u64,
+    calls: u64,
 }
 
 impl PixelNoise {
     pub(crate) fn new(seed: u64) -> Self {
-        Self { state: seed ^ 0x9e37_79b9_7f4a_7c15 }
-    }
-
-    #[inline(always)]
-    fn next(&mut self) -> u64 {
-        self.state = self.state.wrapping_add(0xa076_1d64_78bd_642f);
-        let t = (self.state as u128).wrapping_mul((self.state ^ 0xe703_7ed1_a0b4_28db) as u128);
-        ((t >> 64) as u64) ^ (t as u64)
+        Self { seed: seed ^ 0x9e37_79b9_7f4a_7c15, calls: 0 }
     }
 
     /// Corrupts normalised depth pixels (depth / `range`, in [0, 1]).
     pub(crate) fn apply(&mut self, noise: &Noise, range: f32, img: &mut [f32]) {
-        const U16: f32 = 1.0 / 65536.0;
-        let k = noise.depth_sigma * range;
-        let drop = (noise.dropout * 65536.0) as u64;
-        for px in img {
-            let r = self.next();
-            if (r >> 48) < drop {
-                *px = 0.0;
-                continue;
-            }
-            // Sum of three uniforms: mean 1.5, standard deviation 0.5.
-            let s = ((r & 0xffff) + ((r >> 16) & 0xffff) + ((r >> 32) & 0xffff)) as f32 * U16;
-            let z = (s - 1.5) * 2.0;
-            // σ in normalised units: depth_sigma · d² / range with d = px · range.
-            let d = *px;
-            *px = (d + k * d * d * z).clamp(0.0, 1.0);
-        }
+        self.calls += 1;
+        // A key per call from the seed and the call count (wyrand's mix).
+        let x = self.seed.wrapping_add(self.calls.wrapping_mul(0xa076_1d64_78bd_642f));
+        let t = (x as u128).wrapping_mul((x ^ 0xe703_7ed1_a0b4_28db) as u128);
+        let key = (((t >> 64) as u64) ^ (t as u64)) as u32;
+        let drop = (noise.dropout * 65536.0) as u32;
+        // σ in normalised units: depth_sigma · d² / range with d = px · range.
+        corrupt(key, noise.depth_sigma * range, drop, img);
+    }
+}
+
+/// Murmur3's 32-bit finaliser: a bijection that mixes every bit.
+#[inline(always)]
+fn fmix32(mut h: u32) -> u32 {
+    h ^= h >> 16;
+    h = h.wrapping_mul(0x85eb_ca6b);
+    h ^= h >> 13;
+    h = h.wrapping_mul(0xc2b2_ae35);
+    h ^ (h >> 16)
+}
+
+#[multiversion::multiversion(targets("x86_64+avx512f+avx512vl+avx512dq+avx2+fma+avx", "x86_64+avx2+fma+avx"))]
+fn corrupt(key: u32, k: f32, drop: u32, img: &mut [f32]) {
+    const U16: f32 = 1.0 / 65536.0;
+    for (i, px) in img.iter_mut().enumerate() {
+        let j = (i as u32).wrapping_mul(2);
+        let (a, b) = (fmix32(key ^ j), fmix32(key ^ (j | 1)));
+        // Sum of three uniforms: mean 1.5, standard deviation 0.5.
+        let s = ((a & 0xffff) + (a >> 16) + (b & 0xffff)) as f32 * U16;
+        let z = (s - 1.5) * 2.0;
+        let d = *px;
+        let v = (d + k * d * d * z).clamp(0.0, 1.0);
+        *px = if (b >> 16) < drop { 0.0 } else { v };
     }
 }
 

@@ -370,3 +370,47 @@ fn next_step_autoreset_starts_the_next_episode_one_step_later() {
     env.step(&[1, 0]).unwrap();
     assert_eq!(env.dones(), &[Done::Timeout, Done::Timeout]);
 }
+
+#[test]
+fn randomised_dynamics_vary_per_drone_and_are_off_by_default() {
+    use rotorhive_sim::Randomize;
+    let fly = |r: Randomize| {
+        let mut env = VecEnv::new(SimConfig { randomize: r, ..cfg(20) }, open_arena(200.0, vec![]), 3).unwrap();
+        for t in 0..8 {
+            env.step(&vec![(t % 2) as u8; 20]).unwrap();
+        }
+        env.positions()
+    };
+    let x_spread = |p: &[[f32; 3]]| p.iter().map(|q| q[0]).fold(f32::MIN, f32::max) - p.iter().map(|q| q[0]).fold(f32::MAX, f32::min);
+    // Off: every drone flies the same course (same actions, same spawn x).
+    assert!(x_spread(&fly(Randomize::default())) < 1e-3);
+    // Forward speeds of 0.8-1.5 m/s: after 8 s their x differ by metres.
+    let spread = x_spread(&fly(Randomize { forward_speed_scale: [0.8, 1.5], ..Randomize::default() }));
+    assert!(spread > 2.0, "x spread {spread}");
+    // Wind alone pushes drones sideways apart.
+    let p = fly(Randomize { wind: 0.5, ..Randomize::default() });
+    let y: Vec<f32> = p.iter().map(|q| q[1]).collect();
+    let y_spread = y.iter().copied().fold(f32::MIN, f32::max) - y.iter().copied().fold(f32::MAX, f32::min);
+    assert!(y_spread > 0.2, "y spread {y_spread}");
+}
+
+#[test]
+fn a_new_world_ends_every_flight_as_a_timeout_and_starts_the_next_in_it() {
+    let mut env = VecEnv::new(cfg(4), open_arena(100.0, vec![]), 1).unwrap();
+    env.step(&[0, 1, 0, 1]).unwrap();
+    // The next world has a wall across the corridor at x = 10.
+    let wall = Obstacle::Box { center: [10.0, 0.0, 4.0], half_extents: [0.3, 10.0, 4.0] };
+    env.replace_arenas(&[open_arena(100.0, vec![wall])]).unwrap();
+    env.step(&[0, 1, 0, 1]).unwrap();
+    assert!(env.dones().iter().all(|d| *d == Done::Timeout), "{:?}", env.dones());
+    assert_eq!(env.finished().len(), 4);
+    assert!(env.finished().iter().all(|e| e.steps == 2 && e.reward == 3.0 - 10.0));
+    // Everyone starts again at the spawn and meets the new wall.
+    assert!(env.positions().iter().all(|p| p[0] < 3.0));
+    let mut hit = 0;
+    for t in 0..12 {
+        env.step(&vec![(t % 2) as u8; 4]).unwrap();
+        hit += env.finished().iter().filter(|e| e.done == Done::Collision).count();
+    }
+    assert_eq!(hit, 4, "every drone flies into the new wall");
+}
