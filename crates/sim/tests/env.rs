@@ -377,7 +377,7 @@ fn randomised_dynamics_vary_per_drone_and_are_off_by_default() {
     let fly = |r: Randomize| {
         let mut env = VecEnv::new(SimConfig { randomize: r, ..cfg(20) }, open_arena(200.0, vec![]), 3).unwrap();
         for t in 0..8 {
-            env.step(&vec![(t % 2) as u8; 20]).unwrap();
+            env.step(&[(t % 2) as u8; 20]).unwrap();
         }
         env.positions()
     };
@@ -409,7 +409,7 @@ fn a_new_world_ends_every_flight_as_a_timeout_and_starts_the_next_in_it() {
     assert!(env.positions().iter().all(|p| p[0] < 3.0));
     let mut hit = 0;
     for t in 0..12 {
-        env.step(&vec![(t % 2) as u8; 4]).unwrap();
+        env.step(&[(t % 2) as u8; 4]).unwrap();
         hit += env.finished().iter().filter(|e| e.done == Done::Collision).count();
     }
     assert_eq!(hit, 4, "every drone flies into the new wall");
