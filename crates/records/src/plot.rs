@@ -65,6 +65,50 @@ pub fn reward_plot(points: &[(f64, f64)], threshold: f64, validation: &[(f64, f6
     Ok(())
 }
 
+/// The colour of series `i`: the ten of matplotlib's `tab10`, then
+/// plotters' 99-colour palette, so that no two of a plot's series share one.
+fn series_color(i: usize) -> RGBColor {
+    const TAB10: [(u8, u8, u8); 10] = [
+        (31, 119, 180),
+        (255, 127, 14),
+        (44, 160, 44),
+        (214, 39, 40),
+        (148, 103, 189),
+        (140, 86, 75),
+        (227, 119, 194),
+        (127, 127, 127),
+        (188, 189, 34),
+        (23, 190, 207),
+    ];
+    match TAB10.get(i) {
+        Some(&(r, g, b)) => RGBColor(r, g, b),
+        None => {
+            let c = Palette99::pick(i - TAB10.len()).to_rgba();
+            RGBColor(c.0, c.1, c.2)
+        }
+    }
+}
+
+/// A part of a picture being drawn.
+type Area<'a> = DrawingArea<BitMapBackend<'a>, plotters::coord::Shift>;
+
+/// The plot's area and, beside it on the right, a panel with the legend
+/// (a legend inside the plot covers the curves).
+fn with_legend_panel<'a>(out: &'a Path, names: &[&str]) -> Result<(Area<'a>, Area<'a>)> {
+    let widest = names.iter().map(|n| n.chars().count()).max().unwrap_or(0) as u32;
+    let panel = (widest * 8 + 50).clamp(80, 320);
+    let root = BitMapBackend::new(out, (800 + panel, 480)).into_drawing_area();
+    root.fill(&WHITE).map_err(plot_err)?;
+    let (plot, legend) = root.split_horizontally(800);
+    for (i, name) in names.iter().enumerate() {
+        let y = 40 + 22 * i as i32;
+        let c = series_color(i);
+        legend.draw(&PathElement::new(vec![(6, y), (30, y)], c.stroke_width(3))).map_err(plot_err)?;
+        legend.draw(&Text::new(name.to_string(), (36, y - 8), ("sans-serif", 15))).map_err(plot_err)?;
+    }
+    Ok((plot, legend))
+}
+
 /// One arm's curve over seeds: (x, middle, low, high), e.g. the IQM with
 /// the 25th and 75th percentiles.
 pub type Band = (String, Vec<(f64, f64, f64, f64)>);
@@ -72,8 +116,8 @@ pub type Band = (String, Vec<(f64, f64, f64, f64)>);
 /// Curves with shaded bands, one per arm (`hive bench seeds`).
 pub fn band_plot(title: &str, x_desc: &str, y_desc: &str, bands: &[Band], y_range: (f64, f64), out: &Path) -> Result<()> {
     font();
-    let root = BitMapBackend::new(out, (800, 480)).into_drawing_area();
-    root.fill(&WHITE).map_err(plot_err)?;
+    let names: Vec<&str> = bands.iter().map(|b| b.0.as_str()).collect();
+    let (root, legend) = with_legend_panel(out, &names)?;
     let xmax = bands.iter().flat_map(|b| b.1.iter().map(|p| p.0)).fold(1.0f64, f64::max);
     let mut chart = ChartBuilder::on(&root)
         .caption(title, ("sans-serif", 20))
@@ -83,27 +127,22 @@ pub fn band_plot(title: &str, x_desc: &str, y_desc: &str, bands: &[Band], y_rang
         .build_cartesian_2d(0f64..xmax, y_range.0..y_range.1)
         .map_err(plot_err)?;
     chart.configure_mesh().x_desc(x_desc).y_desc(y_desc).draw().map_err(plot_err)?;
-    let colors = [BLUE, RED, GREEN, MAGENTA, CYAN, BLACK];
-    for (i, (name, pts)) in bands.iter().enumerate() {
-        let c = colors[i % colors.len()];
+    for (i, (_, pts)) in bands.iter().enumerate() {
+        let c = series_color(i);
         let area: Vec<(f64, f64)> = pts.iter().map(|p| (p.0, p.3)).chain(pts.iter().rev().map(|p| (p.0, p.2))).collect();
         chart.draw_series([Polygon::new(area, c.mix(0.15).filled())]).map_err(plot_err)?;
-        chart
-            .draw_series(LineSeries::new(pts.iter().map(|p| (p.0, p.1)), c.stroke_width(2)))
-            .map_err(plot_err)?
-            .label(name.as_str())
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
+        chart.draw_series(LineSeries::new(pts.iter().map(|p| (p.0, p.1)), c.stroke_width(2))).map_err(plot_err)?;
     }
-    chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).draw().map_err(plot_err)?;
     root.present().map_err(plot_err)?;
+    legend.present().map_err(plot_err)?;
     Ok(())
 }
 
 /// A line chart of several named series (e.g. milliseconds against agents).
 pub fn lines_plot(title: &str, x_desc: &str, y_desc: &str, series: &[(String, Vec<(f64, f64)>)], out: &Path) -> Result<()> {
     font();
-    let root = BitMapBackend::new(out, (800, 480)).into_drawing_area();
-    root.fill(&WHITE).map_err(plot_err)?;
+    let names: Vec<&str> = series.iter().map(|s| s.0.as_str()).collect();
+    let (root, legend) = with_legend_panel(out, &names)?;
     let pts = || series.iter().flat_map(|s| s.1.iter().copied());
     let xmax = pts().map(|p| p.0).fold(1.0f64, f64::max);
     let ymax = pts().map(|p| p.1).fold(1e-3f64, f64::max) * 1.1;
@@ -115,17 +154,12 @@ pub fn lines_plot(title: &str, x_desc: &str, y_desc: &str, series: &[(String, Ve
         .build_cartesian_2d(0f64..xmax, 0f64..ymax)
         .map_err(plot_err)?;
     chart.configure_mesh().x_desc(x_desc).y_desc(y_desc).draw().map_err(plot_err)?;
-    let colors = [BLUE, RED, GREEN, MAGENTA, CYAN, BLACK];
-    for (i, (name, s)) in series.iter().enumerate() {
-        let c = colors[i % colors.len()];
-        chart
-            .draw_series(LineSeries::new(s.iter().copied(), c.stroke_width(2)))
-            .map_err(plot_err)?
-            .label(name.as_str())
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
+    for (i, (_, s)) in series.iter().enumerate() {
+        let c = series_color(i);
+        chart.draw_series(LineSeries::new(s.iter().copied(), c.stroke_width(2))).map_err(plot_err)?;
         chart.draw_series(s.iter().map(|p| Circle::new(*p, 3, c.filled()))).map_err(plot_err)?;
     }
-    chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).draw().map_err(plot_err)?;
     root.present().map_err(plot_err)?;
+    legend.present().map_err(plot_err)?;
     Ok(())
 }
