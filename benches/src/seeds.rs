@@ -466,22 +466,21 @@ pub fn run(a: &SeedsArgs) -> Result<()> {
         usage!("--budget-s must be positive, got {}", a.budget_s);
     }
     // Every arm's config must load before hours of runs start.
-    for arm in &arms {
-        let sets: Vec<String> = a.set.iter().chain(&arm.set).cloned().collect();
-        Config::load(a.config.as_deref(), &sets).doing_with(|| format!("arm {}", arm.name))?;
-    }
+    let configs: Vec<Config> = arms
+        .iter()
+        .map(|arm| {
+            let sets: Vec<String> = a.set.iter().chain(&arm.set).cloned().collect();
+            Config::load(a.config.as_deref(), &sets).doing_with(|| format!("arm {}", arm.name))
+        })
+        .collect::<Result<_>>()?;
     // The reactive rule on each arm's test set: the floor beside the arm.
-    let mut reactive = Vec::new();
-    for arm in &arms {
-        let sets: Vec<String> = a.set.iter().chain(&arm.set).cloned().collect();
-        let cfg = Config::load(a.config.as_deref(), &sets)?;
-        let r = if a.test_episodes > 0 {
-            Some(pooled_success(&cfg, rotorhive_roles::eval::Pilot::Reactive, a.test_arena.as_deref(), a.test_episodes)?)
-        } else {
-            None
-        };
-        reactive.push(r);
-    }
+    let reactive: Vec<Option<f64>> = configs
+        .iter()
+        .map(|cfg| {
+            let pilot = rotorhive_roles::eval::Pilot::Reactive;
+            (a.test_episodes > 0).then(|| pooled_success(cfg, pilot, a.test_arena.as_deref(), a.test_episodes)).transpose()
+        })
+        .collect::<Result<_>>()?;
     std::fs::create_dir_all(&a.out).doing_with(|| format!("cannot create {}", a.out.display()))?;
     let exe = std::env::current_exe()?;
     let total = seeds.len() * arms.len();

@@ -92,13 +92,16 @@ pub fn gen_arena(a: GenArenaArgs) -> Result<()> {
         anyhow::bail!("generator: {e}");
     }
     let arena = Arena::generate(&a.name, a.seed, &p);
+    // The command line that draws this layout again.
     let mut flags = format!("--seed {}", a.seed);
-    for (k, v) in
-        [("", what), ("--length", a.length.map_or(String::new(), |l| l.to_string())), ("--spacing", a.spacing.map_or(String::new(), |s| s.to_string()))]
-    {
-        if !v.is_empty() {
-            flags.push_str(&if k.is_empty() { format!(" {v}") } else { format!(" {k} {v}") });
-        }
+    if !what.is_empty() {
+        flags.push_str(&format!(" {what}"));
+    }
+    if let Some(l) = a.length {
+        flags.push_str(&format!(" --length {l}"));
+    }
+    if let Some(s) = a.spacing {
+        flags.push_str(&format!(" --spacing {s}"));
     }
     for s in &a.set {
         flags.push_str(&format!(" --set {s}"));

@@ -25,7 +25,7 @@ use rotorhive_model::{Device, OBS_LEN, PARAMS, QNet};
 use rotorhive_roles::Config;
 use rotorhive_roles::config::SimSection;
 use rotorhive_sim::view::{self, Canvas, Focus, Tracks};
-use rotorhive_sim::{Arena, Autoreset, GenParams, GpuError, VecEnv};
+use rotorhive_sim::{Arena, Autoreset, GpuError, VecEnv};
 
 /// The shipped training arena: the default of `arena`, as in `hive train`.
 const TRAIN_ARENA: &str = include_str!("../../../configs/arenas/train.toml");
@@ -46,7 +46,7 @@ struct Source<'a> {
 
 /// The lanes an environment of `cfg` flies in, from `src`.
 fn lanes(cfg: &Config, src: Source<'_>) -> PyResult<Vec<Arena>> {
-    let params = cfg.sim.generator.clone().map_or_else(GenParams::default, |g| GenParams { drone_radius: cfg.sim.drone_radius, ..g });
+    let params = cfg.generator().unwrap_or_default();
     let base = match (src.arena, src.arena_seed) {
         (Some(_), Some(_)) => return Err(value_error("give `arena` (a file) or `arena_seed` (a generated arena), not both")),
         (Some(p), None) => Arena::load(Path::new(p)).map_err(value_error)?,
@@ -378,6 +378,12 @@ fn reference_rollout<'py>(
     Ok((obs.into_pyarray(py), rewards.into_pyarray(py), dones.into_pyarray(py)))
 }
 
+/// The graded levels: (name, Gymnasium ID), in order of difficulty.
+#[pyfunction]
+fn levels() -> Vec<(&'static str, &'static str)> {
+    rotorhive_roles::levels::LEVELS.iter().map(|(name, id, _)| (*name, *id)).collect()
+}
+
 /// The keys of the config's `[sim]` section, which the environments take as
 /// keyword arguments.
 #[pyfunction]
@@ -459,6 +465,7 @@ fn _rotorhive(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(rust_agent_steps_per_second, m)?)?;
     m.add_function(wrap_pyfunction!(reference_rollout, m)?)?;
     m.add_function(wrap_pyfunction!(sim_keys, m)?)?;
+    m.add_function(wrap_pyfunction!(levels, m)?)?;
     m.add("OBS_LEN", OBS_LEN)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())

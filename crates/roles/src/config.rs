@@ -720,11 +720,17 @@ impl Config {
         if self.sim.arena.as_os_str().is_empty() { Ok(None) } else { self.arena().map(Some) }
     }
 
+    /// `[sim.generator]` with the run's drone radius, where the config
+    /// has one.
+    pub fn generator(&self) -> Option<GenParams> {
+        self.sim.generator.as_ref().map(|g| GenParams { drone_radius: self.sim.drone_radius, ..g.clone() })
+    }
+
     /// Parameters of generated arenas: `[sim.generator]`, else the paper's
     /// generator at the training arena's size.
     pub fn gen_params(&self) -> Result<GenParams> {
-        match &self.sim.generator {
-            Some(g) => Ok(GenParams { drone_radius: self.sim.drone_radius, ..g.clone() }),
+        match self.generator() {
+            Some(g) => Ok(g),
             None => Ok(self.gen_params_like(&self.arena()?)),
         }
     }
@@ -732,10 +738,13 @@ impl Config {
     /// The generator's parameters like [`Config::gen_params`], for lanes
     /// beside `base`.
     fn gen_params_like(&self, base: &Arena) -> GenParams {
-        match &self.sim.generator {
-            Some(g) => GenParams { drone_radius: self.sim.drone_radius, ..g.clone() },
-            None => GenParams { length: base.length, width: base.width, height: base.height, drone_radius: self.sim.drone_radius, ..GenParams::default() },
-        }
+        self.generator().unwrap_or_else(|| GenParams {
+            length: base.length,
+            width: base.width,
+            height: base.height,
+            drone_radius: self.sim.drone_radius,
+            ..GenParams::default()
+        })
     }
 
     /// The generator at curriculum stage `stage` (0 = the start): the

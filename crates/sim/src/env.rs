@@ -201,6 +201,34 @@ enum Physics {
     Rapier(Box<RapierFlight>),
 }
 
+/// What an environment builds from its world (the lanes side by side):
+/// the flight at the world's altitude, the physics, the CPU scene with the
+/// lanes' bounds and, with the wgpu renderer, its scene on the GPU. A new
+/// world (a curriculum's next stage) builds them again the same way.
+struct World {
+    flight: Flight,
+    physics: Physics,
+    scene: Scene,
+    gpu: Option<GpuDepthRenderer>,
+}
+
+impl World {
+    fn new(cfg: &SimConfig, arena: &Arena, bounds: &[[f32; 2]]) -> Result<Self, GpuError> {
+        let flight = Flight { quad: cfg.quad, gains: cfg.gains, dt: cfg.physics_dt, forward_speed: cfg.forward_speed, altitude: arena.spawn.z };
+        let physics = match cfg.physics {
+            PhysicsKind::Direct => Physics::Direct(Geometry::new(arena)),
+            PhysicsKind::Rapier => Physics::Rapier(Box::new(RapierFlight::new(arena, cfg.agents, &flight, cfg.drone_radius, cfg.interactive))),
+        };
+        let mut scene = Scene::new(arena);
+        scene.set_lanes(bounds);
+        let gpu = match cfg.renderer {
+            RendererKind::Cpu => None,
+            RendererKind::Wgpu => Some(GpuDepthRenderer::new(cfg.camera, &scene)?),
+        };
+        Ok(Self { flight, physics, scene, gpu })
+    }
+}
+
 /// N quadrotors in one arena.
 pub struct VecEnv {
     cfg: SimConfig,
@@ -269,20 +297,10 @@ impl VecEnv {
     fn with_lanes(cfg: SimConfig, lanes: Lanes, seed: u64) -> Result<Self, GpuError> {
         let Lanes { world: arena, offsets: lane_offsets, spawns: lane_spawns, bounds: lane_bounds } = lanes;
         assert!(cfg.agents > 0, "a VecEnv needs at least one agent");
-        let flight = Flight { quad: cfg.quad, gains: cfg.gains, dt: cfg.physics_dt, forward_speed: cfg.forward_speed, altitude: arena.spawn.z };
-        let physics = match cfg.physics {
-            PhysicsKind::Direct => Physics::Direct(Geometry::new(&arena)),
-            PhysicsKind::Rapier => Physics::Rapier(Box::new(RapierFlight::new(&arena, cfg.agents, &flight, cfg.drone_radius, cfg.interactive))),
-        };
+        let World { flight, physics, scene, gpu } = World::new(&cfg, &arena, &lane_bounds)?;
         let n = cfg.agents;
         let px = cfg.camera.side * cfg.camera.side;
         let obs_len = 2 * px + 3;
-        let mut scene = Scene::new(&arena);
-        scene.set_lanes(&lane_bounds);
-        let gpu = match cfg.renderer {
-            RendererKind::Cpu => None,
-            RendererKind::Wgpu => Some(GpuDepthRenderer::new(cfg.camera, &scene)?),
-        };
         let mut env = Self {
             renderer: DepthRenderer::new(cfg.camera, cfg.render_threads),
             gpu,
@@ -566,26 +584,21 @@ impl VecEnv {
             return nominal;
         }
         let rng = &mut self.rng;
-        let mut sym = |a: f32| if a > 0.0 { rng.random_range(-a..=a) } else { 0.0 };
-        let (mass, gain, wind) = (sym(r.mass), sym(r.vel_gain), sym(r.wind));
-        let [lo, hi] = r.forward_speed_scale;
-        let scale = if hi > lo { self.rng.random_range(lo..=hi) } else { lo };
+        let (mass, gain, wind) = (symmetric(rng, r.mass), symmetric(rng, r.vel_gain), symmetric(rng, r.wind));
+        let scale = within(rng, r.forward_speed_scale);
         Body { fwd: nominal.fwd * scale, mass: nominal.mass * (1.0 + mass), vel_gain: nominal.vel_gain * (1.0 + gain), push: WIND_DRAG * wind }
     }
 
     /// The rest of a new episode's draws: spawn x, heading and lateral
     /// velocity, the camera's pitch and latency.
     fn randomize_spawn(&mut self, i: usize) {
-        let (r, noise, dt) = (self.cfg.randomize.clone(), self.cfg.noise.clone(), self.cfg.physics_dt);
-        let rng = &mut self.rng;
-        let mut sym = |a: f32| if a > 0.0 { rng.random_range(-a..=a) } else { 0.0 };
-        let heading = sym(r.spawn_heading_deg).to_radians();
-        let lateral = sym(r.spawn_lateral_speed);
-        self.pitch[i] = sym(r.camera_pitch_deg).to_radians();
-        let dx = if r.spawn_x > 0.0 { self.rng.random_range(0.0..=r.spawn_x) } else { 0.0 };
-        let [lo, hi] = noise.latency_s;
-        let latency = if hi > lo { self.rng.random_range(lo..=hi) } else { lo };
-        self.lag[i] = (latency / dt).round() as usize;
+        let (r, rng) = (&self.cfg.randomize, &mut self.rng);
+        let heading = symmetric(rng, r.spawn_heading_deg).to_radians();
+        let lateral = symmetric(rng, r.spawn_lateral_speed);
+        self.pitch[i] = symmetric(rng, r.camera_pitch_deg).to_radians();
+        let dx = within(rng, [0.0, r.spawn_x]);
+        let latency = within(rng, self.cfg.noise.latency_s);
+        self.lag[i] = (latency / self.cfg.physics_dt).round() as usize;
         let d = &mut self.drones[i];
         d.p.x += dx;
         d.q = rapier3d::math::Rotation::from_rotation_z(heading);
@@ -604,18 +617,8 @@ impl VecEnv {
     /// Swaps the world for `lanes` in the middle of a step, after scoring.
     fn change_world(&mut self, lanes: Lanes) -> Result<(), GpuError> {
         let Lanes { world, offsets, spawns, bounds } = lanes;
-        self.physics = match self.cfg.physics {
-            PhysicsKind::Direct => Physics::Direct(Geometry::new(&world)),
-            PhysicsKind::Rapier => {
-                Physics::Rapier(Box::new(RapierFlight::new(&world, self.cfg.agents, &self.flight, self.cfg.drone_radius, self.cfg.interactive)))
-            }
-        };
-        let mut scene = Scene::new(&world);
-        scene.set_lanes(&bounds);
-        if self.gpu.is_some() {
-            self.gpu = Some(GpuDepthRenderer::new(self.cfg.camera, &scene)?);
-        }
-        self.scene = scene;
+        let World { flight, physics, scene, gpu } = World::new(&self.cfg, &world, &bounds)?;
+        (self.flight, self.physics, self.scene, self.gpu) = (flight, physics, scene, gpu);
         self.arena = world;
         self.lane_offsets = offsets;
         self.lane_spawns = spawns;
@@ -667,9 +670,7 @@ impl VecEnv {
                 }
             }
         }
-        if self.cfg.noise.depth_sigma > 0.0 || self.cfg.noise.dropout > 0.0 {
-            self.pixel_noise.apply(&self.cfg.noise, self.cfg.camera.range, &mut self.cur);
-        }
+        self.pixel_noise.apply(&self.cfg.noise, self.cfg.camera.range, &mut self.cur);
         Ok(())
     }
 
@@ -733,9 +734,7 @@ impl VecEnv {
                 }
                 None => self.renderer.render(&self.scene, &cams, 0, None, &mut img),
             }
-            if self.cfg.noise.depth_sigma > 0.0 || self.cfg.noise.dropout > 0.0 {
-                self.pixel_noise.apply(&self.cfg.noise, self.cfg.camera.range, &mut img);
-            }
+            self.pixel_noise.apply(&self.cfg.noise, self.cfg.camera.range, &mut img);
             for (k, i) in reset.iter().enumerate() {
                 self.cur[i * px..(i + 1) * px].copy_from_slice(&img[k * px..(k + 1) * px]);
             }
@@ -786,6 +785,18 @@ impl VecEnv {
     pub fn drop_observation_buffer(&mut self) {
         self.obs = Vec::new();
     }
+}
+
+/// A draw from `[-a, a]`, or 0 (nothing drawn) when `a` is 0.
+fn symmetric(rng: &mut Pcg64Mcg, a: f32) -> f32 {
+    if a > 0.0 { rng.random_range(-a..=a) } else { 0.0 }
+}
+
+/// A draw from `[lo, hi]`, or `lo` (nothing drawn) when the range is
+/// empty: a setting that is off draws nothing, so the streams of the
+/// paper's task stay as they were.
+fn within(rng: &mut Pcg64Mcg, [lo, hi]: [f32; 2]) -> f32 {
+    if hi > lo { rng.random_range(lo..=hi) } else { lo }
 }
 
 /// Marks every two drones closer than twice `radius` as collided (drones'

@@ -150,8 +150,12 @@ impl PixelNoise {
         Self { seed: seed ^ 0x9e37_79b9_7f4a_7c15, calls: 0 }
     }
 
-    /// Corrupts normalised depth pixels (depth / `range`, in [0, 1]).
+    /// Corrupts normalised depth pixels (depth / `range`, in [0, 1]);
+    /// nothing where the camera has neither noise nor dropout.
     pub(crate) fn apply(&mut self, noise: &Noise, range: f32, img: &mut [f32]) {
+        if noise.depth_sigma == 0.0 && noise.dropout == 0.0 {
+            return;
+        }
         self.calls += 1;
         // A key per call from the seed and the call count (wyrand's mix).
         let x = self.seed.wrapping_add(self.calls.wrapping_mul(0xa076_1d64_78bd_642f));

@@ -102,6 +102,46 @@ struct Clocks {
     steps: Arc<AtomicU64>,
 }
 
+/// When the evaluator flies next: every `eval.every_s` seconds, every
+/// `eval.every_env_steps` agent-steps, or both (a clock whose setting is 0
+/// is not used).
+struct Cadence {
+    every: Option<Duration>,
+    next: Option<Instant>,
+    every_steps: Option<u64>,
+    next_steps: Option<u64>,
+}
+
+impl Cadence {
+    fn new(cfg: &Config) -> Self {
+        let every = (cfg.eval.every_s > 0.0).then(|| Duration::from_secs_f64(cfg.eval.every_s));
+        let every_steps = (cfg.eval.every_env_steps > 0).then_some(cfg.eval.every_env_steps);
+        Self { every, next: every.map(|e| Instant::now() + e), every_steps, next_steps: every_steps }
+    }
+
+    /// Whether either clock has come round, at `steps` agent-steps.
+    fn due(&self, steps: u64) -> bool {
+        self.next.is_some_and(|t| Instant::now() >= t) || self.next_steps.is_some_and(|s| steps >= s)
+    }
+
+    /// No new weights to fly: the wall clock tries again in half a
+    /// second (the agent-step clock stays due).
+    fn retry_soon(&mut self) {
+        self.next = self.every.map(|_| Instant::now() + Duration::from_millis(500));
+    }
+
+    /// An evaluation was flown at `steps` agent-steps.
+    fn flown(&mut self, steps: u64) {
+        self.next = self.every.map(|e| Instant::now() + e);
+        if let (Some(e), Some(s)) = (self.every_steps, self.next_steps)
+            && steps >= s
+        {
+            // The next multiple of the cadence past the steps now.
+            self.next_steps = Some((steps / e + 1).saturating_mul(e));
+        }
+    }
+}
+
 /// Flies the newest published weights greedily every `eval.every_s` seconds,
 /// every `eval.every_env_steps` agent-steps (or when asked through `now`),
 /// on its own iceoryx2 node, and keeps the best weights as
@@ -124,11 +164,7 @@ fn fly<S: Service>(
     let mut net = QNet::new(0, &Device::Cpu)?;
     net.set_threads(1);
     let arenas = cfg.eval_arenas()?;
-    // Neither clock is used when its setting is 0.
-    let every = Duration::from_secs_f64(if cfg.eval.every_s > 0.0 { cfg.eval.every_s } else { 1e9 });
-    let mut next = Instant::now() + every;
-    let every_steps = if cfg.eval.every_env_steps > 0 { cfg.eval.every_env_steps } else { u64::MAX };
-    let mut next_steps = every_steps;
+    let mut cadence = Cadence::new(&cfg);
     // A resumed run goes on from its best score (so `best.safetensors` only
     // ever improves) and appends to its table.
     let mut best: Option<(f64, f64)> = prior_best;
@@ -144,13 +180,14 @@ fn fly<S: Service>(
     while !stop.load(Ordering::Relaxed) {
         let asked = now.try_recv().is_ok();
         let steps = clocks.steps.load(Ordering::Relaxed);
-        if !asked && Instant::now() < next && steps < next_steps {
+        if !asked && !cadence.due(steps) {
             std::thread::sleep(Duration::from_millis(50));
             continue;
         }
         let Some(m) = rx.latest().context("reading weights to evaluate")? else {
-            // Nothing new since the last evaluation.
-            next = Instant::now() + Duration::from_millis(500);
+            // Nothing new since the last evaluation: look again soon.
+            cadence.retry_soon();
+            std::thread::sleep(Duration::from_millis(50));
             continue;
         };
         let h = *m.user_header();
@@ -179,11 +216,7 @@ fn fly<S: Service>(
         csv.write_all(rows::line(&point.row(h.version, st.episodes, better, k))?.as_bytes())?;
         csv.flush()?;
         let _ = out.send(point);
-        next = Instant::now() + every;
-        if steps >= next_steps {
-            // The next multiple of the cadence past the steps now.
-            next_steps = (steps / every_steps + 1).saturating_mul(every_steps);
-        }
+        cadence.flown(steps);
     }
     Ok(())
 }

@@ -32,8 +32,9 @@ RUNNING, COLLISION, GOAL, TIMEOUT = range(4)
 # level (`level="noisy"`), not as keyword arguments.
 _NOT_KWARGS = {"agents", "envs", "arena", "generator", "noise", "randomize", "curriculum"}
 
-#: The graded levels and their Gymnasium IDs (``configs/levels/``).
-LEVELS = {"paper": "rotorhive/Navigate-v0", "dense": "rotorhive/Dense-v0", "forest": "rotorhive/Forest-v0", "noisy": "rotorhive/Noisy-v0"}
+#: The graded levels and their Gymnasium IDs (``configs/levels/``, as the
+#: Rust crate lists them).
+LEVELS = dict(_rotorhive.levels())
 
 
 def _level(level: Any) -> str | None:
