@@ -9,7 +9,10 @@ fn every_crate_is_in_the_code_map() {
     let mut n = 0;
     for entry in std::fs::read_dir(root.join("crates")).unwrap() {
         let name = entry.unwrap().file_name().into_string().unwrap();
-        assert!(doc.contains(&format!("### `crates/{name}`")), "crates/{name} is missing from ARCHITECTURE.md's code map");
+        assert!(
+            doc.contains(&format!("### `crates/{name}`")),
+            "crates/{name} is missing from ARCHITECTURE.md's code map"
+        );
         n += 1;
     }
     assert!(n >= 8);
@@ -17,10 +20,17 @@ fn every_crate_is_in_the_code_map() {
     // And every module of every crate (`sumtree.rs` or `sumtree`), so that
     // a new file cannot hide from the map.
     let mut missing = Vec::new();
-    for dir in std::fs::read_dir(root.join("crates")).unwrap().map(|e| e.unwrap().path().join("src")).chain([root.join("benches/src")]) {
+    for dir in std::fs::read_dir(root.join("crates"))
+        .unwrap()
+        .map(|e| e.unwrap().path().join("src"))
+        .chain([root.join("benches/src")])
+    {
         for f in sources(&dir) {
             let stem = f.file_stem().unwrap().to_string_lossy().into_owned();
-            if !["lib", "main", "mod"].contains(&stem.as_str()) && !doc.contains(&format!("{stem}.rs")) && !doc.contains(&format!("`{stem}`")) {
+            if !["lib", "main", "mod"].contains(&stem.as_str())
+                && !doc.contains(&format!("{stem}.rs"))
+                && !doc.contains(&format!("`{stem}`"))
+            {
                 missing.push(f.display().to_string());
             }
         }
@@ -48,7 +58,12 @@ fn non_test_lines(path: &Path) -> Vec<String> {
     if path.file_name().is_some_and(|n| n == "tests.rs") {
         return Vec::new();
     }
-    std::fs::read_to_string(path).unwrap().lines().take_while(|l| !l.starts_with("#[cfg(test)]")).map(str::to_string).collect()
+    std::fs::read_to_string(path)
+        .unwrap()
+        .lines()
+        .take_while(|l| !l.starts_with("#[cfg(test)]"))
+        .map(str::to_string)
+        .collect()
 }
 
 /// Architecture Invariant: the binary is a thin layer: `crates/hive` holds
@@ -56,7 +71,10 @@ fn non_test_lines(path: &Path) -> Vec<String> {
 #[test]
 fn the_binary_holds_at_most_a_quarter_of_the_code() {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
-    let mut dirs: Vec<PathBuf> = std::fs::read_dir(root.join("crates")).unwrap().map(|e| e.unwrap().path().join("src")).collect();
+    let mut dirs: Vec<PathBuf> = std::fs::read_dir(root.join("crates"))
+        .unwrap()
+        .map(|e| e.unwrap().path().join("src"))
+        .collect();
     dirs.push(root.join("benches/src"));
     let (mut total, mut hive) = (0, 0);
     for dir in dirs.iter().filter(|d| d.exists()) {
@@ -67,7 +85,11 @@ fn the_binary_holds_at_most_a_quarter_of_the_code() {
         }
     }
     assert!(hive > 0 && total > 10_000, "{hive} of {total}");
-    assert!(hive * 4 <= total, "crates/hive holds {hive} of {total} non-test lines ({:.1} %), more than 25 %", 100.0 * hive as f64 / total as f64);
+    assert!(
+        hive * 4 <= total,
+        "crates/hive holds {hive} of {total} non-test lines ({:.1} %), more than 25 %",
+        100.0 * hive as f64 / total as f64
+    );
 }
 
 /// Architecture Invariant: no function of the workspace (every crate's
@@ -76,7 +98,10 @@ fn the_binary_holds_at_most_a_quarter_of_the_code() {
 #[test]
 fn no_function_is_longer_than_80_lines() {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
-    let mut dirs: Vec<PathBuf> = std::fs::read_dir(root.join("crates")).unwrap().map(|e| e.unwrap().path().join("src")).collect();
+    let mut dirs: Vec<PathBuf> = std::fs::read_dir(root.join("crates"))
+        .unwrap()
+        .map(|e| e.unwrap().path().join("src"))
+        .collect();
     dirs.push(root.join("benches/src"));
     let files: Vec<PathBuf> = dirs.iter().filter(|d| d.exists()).flat_map(|d| sources(d)).collect();
     assert!(files.len() >= 60, "{files:?}");
@@ -105,7 +130,10 @@ fn no_function_is_longer_than_80_lines() {
                 continue;
             }
             checked += 1;
-            let end = lines[i..].iter().position(|x| x == &format!("{indent}}}")).map_or(lines.len() - i, |k| k + 1);
+            let end = lines[i..]
+                .iter()
+                .position(|x| x == &format!("{indent}}}"))
+                .map_or(lines.len() - i, |k| k + 1);
             if end > 80 {
                 long.push(format!("{}:{}: {end} lines", f.display(), i + 1));
             }
@@ -122,8 +150,11 @@ type Dependency = (String, Vec<String>);
 /// with the features asked of each), from `cargo metadata`.
 fn dependencies() -> Vec<(String, Vec<Dependency>)> {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
-    let out =
-        std::process::Command::new(env!("CARGO")).current_dir(&root).args(["metadata", "--format-version", "1", "--no-deps", "--offline"]).output().unwrap();
+    let out = std::process::Command::new(env!("CARGO"))
+        .current_dir(&root)
+        .args(["metadata", "--format-version", "1", "--no-deps", "--offline"])
+        .output()
+        .unwrap();
     assert!(out.status.success(), "cargo metadata: {}", String::from_utf8_lossy(&out.stderr));
     let meta: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     meta["packages"]
@@ -136,7 +167,17 @@ fn dependencies() -> Vec<(String, Vec<Dependency>)> {
                 .unwrap()
                 .iter()
                 .filter(|d| d["kind"].is_null())
-                .map(|d| (d["name"].as_str().unwrap().to_string(), d["features"].as_array().unwrap().iter().map(|f| f.as_str().unwrap().to_string()).collect()))
+                .map(|d| {
+                    (
+                        d["name"].as_str().unwrap().to_string(),
+                        d["features"]
+                            .as_array()
+                            .unwrap()
+                            .iter()
+                            .map(|f| f.as_str().unwrap().to_string())
+                            .collect(),
+                    )
+                })
                 .collect();
             (p["name"].as_str().unwrap().to_string(), deps)
         })
@@ -151,8 +192,12 @@ fn domain_crates_stay_pure_and_the_transport_knows_no_domain() {
     let deps = dependencies();
     assert!(deps.len() >= 7, "{deps:?}");
     let uses = |krate: &str, what: &[&str]| -> Vec<String> {
-        let (_, d) = deps.iter().find(|(n, _)| n == krate).unwrap_or_else(|| panic!("no crate {krate}"));
-        d.iter().filter(|(n, _)| what.iter().any(|w| n.starts_with(w))).map(|(n, _)| n.clone()).collect()
+        let (_, d) =
+            deps.iter().find(|(n, _)| n == krate).unwrap_or_else(|| panic!("no crate {krate}"));
+        d.iter()
+            .filter(|(n, _)| what.iter().any(|w| n.starts_with(w)))
+            .map(|(n, _)| n.clone())
+            .collect()
     };
     for domain in ["rotorhive-sim", "rotorhive-model", "rotorhive-replay", "rotorhive-records"] {
         let bad = uses(domain, &["iceoryx2", "zenoh", "rotorhive-transport", "rotorhive-roles"]);
@@ -160,35 +205,58 @@ fn domain_crates_stay_pure_and_the_transport_knows_no_domain() {
         // The layout crate without its iceoryx2 derive.
         let (_, d) = deps.iter().find(|(n, _)| n == domain).unwrap();
         if let Some((_, features)) = d.iter().find(|(n, _)| n == "rotorhive-msg") {
-            assert!(features.is_empty(), "{domain} takes rotorhive-msg with {features:?}: the domain crates use its layout only");
+            assert!(
+                features.is_empty(),
+                "{domain} takes rotorhive-msg with {features:?}: the domain crates use its layout only"
+            );
         }
     }
     // The model takes its layout (OBS_LEN, TRANSITION_LEN, …) from msg.
     assert_eq!(uses("rotorhive-model", &["rotorhive-msg"]), vec!["rotorhive-msg".to_string()]);
     let msg = deps.iter().find(|(n, _)| n == "rotorhive-msg").unwrap();
     // Only bytemuck (its headers are Pod) and, for its derive, iceoryx2.
-    assert!(msg.1.iter().all(|(n, _)| n == "iceoryx2" || n == "bytemuck"), "rotorhive-msg depends on {:?}", msg.1);
+    assert!(
+        msg.1.iter().all(|(n, _)| n == "iceoryx2" || n == "bytemuck"),
+        "rotorhive-msg depends on {:?}",
+        msg.1
+    );
     // The records of a run know no candle or rapier either.
     let bad = uses("rotorhive-records", &["candle", "rapier", "rotorhive-model", "rotorhive-sim"]);
     assert!(bad.is_empty(), "rotorhive-records depends on {bad:?}");
-    let bad = uses("rotorhive-transport", &["candle", "rapier", "rotorhive-sim", "rotorhive-model"]);
+    let bad =
+        uses("rotorhive-transport", &["candle", "rapier", "rotorhive-sim", "rotorhive-model"]);
     assert!(bad.is_empty(), "rotorhive-transport depends on {bad:?}");
     // Zenoh stays in the link crate; the link knows no model, simulator or role.
     for (krate, d) in &deps {
         if krate != "rotorhive-link" {
-            assert!(!d.iter().any(|(n, _)| n == "zenoh"), "{krate} imports zenoh: only rotorhive-link may");
+            assert!(
+                !d.iter().any(|(n, _)| n == "zenoh"),
+                "{krate} imports zenoh: only rotorhive-link may"
+            );
         }
     }
-    let bad = uses("rotorhive-link", &["candle", "rapier", "rotorhive-sim", "rotorhive-model", "rotorhive-roles"]);
+    let bad = uses(
+        "rotorhive-link",
+        &["candle", "rapier", "rotorhive-sim", "rotorhive-model", "rotorhive-roles"],
+    );
     assert!(bad.is_empty(), "rotorhive-link depends on {bad:?}");
-    let zenoh = deps.iter().find(|(n, _)| n == "rotorhive-link").and_then(|(_, d)| d.iter().find(|(n, _)| n == "zenoh")).expect("the link imports zenoh");
+    let zenoh = deps
+        .iter()
+        .find(|(n, _)| n == "rotorhive-link")
+        .and_then(|(_, d)| d.iter().find(|(n, _)| n == "zenoh"))
+        .expect("the link imports zenoh");
     let mut features = zenoh.1.clone();
     features.sort();
-    assert_eq!(features, ["transport_quic", "transport_tcp", "transport_tls"].map(String::from).to_vec(), "zenoh with its TCP, TLS and QUIC transports only");
+    assert_eq!(
+        features,
+        ["transport_quic", "transport_tcp", "transport_tls"].map(String::from).to_vec(),
+        "zenoh with its TCP, TLS and QUIC transports only"
+    );
     // Python stays in the Python package's crate.
     for (krate, d) in &deps {
         if krate != "rotorhive-py" {
-            let py: Vec<&String> = d.iter().map(|(n, _)| n).filter(|n| *n == "pyo3" || *n == "numpy").collect();
+            let py: Vec<&String> =
+                d.iter().map(|(n, _)| n).filter(|n| *n == "pyo3" || *n == "numpy").collect();
             assert!(py.is_empty(), "{krate} imports {py:?}: only rotorhive-py may");
         }
     }
@@ -200,7 +268,10 @@ fn domain_crates_stay_pure_and_the_transport_knows_no_domain() {
     // into Python exceptions at its edge).
     for (krate, d) in &deps {
         if !["hive", "rotorhive-py"].contains(&krate.as_str()) {
-            assert!(!d.iter().any(|(n, _)| n == "anyhow"), "the library {krate} depends on anyhow: give it a thiserror type");
+            assert!(
+                !d.iter().any(|(n, _)| n == "anyhow"),
+                "the library {krate} depends on anyhow: give it a thiserror type"
+            );
         }
     }
 }

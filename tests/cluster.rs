@@ -45,7 +45,11 @@ fn small_run() -> Vec<&'static str> {
 }
 
 fn text(o: &Output) -> String {
-    format!("stdout:\n{}\nstderr:\n{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
+    format!(
+        "stdout:\n{}\nstderr:\n{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
 }
 
 /// Loss across hosts is counted and rare. Our side never drops a batch
@@ -66,7 +70,9 @@ fn assert_little_loss(host: &serde_json::Value, s: &serde_json::Value, h: &Outpu
 
 #[test]
 fn a_head_trains_from_a_worker_on_another_domain_over_mutual_tls_without_loss() {
-    if common::skip_slow("a_head_trains_from_a_worker_on_another_domain_over_mutual_tls_without_loss") {
+    if common::skip_slow(
+        "a_head_trains_from_a_worker_on_another_domain_over_mutual_tls_without_loss",
+    ) {
         return;
     }
     let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
@@ -75,7 +81,9 @@ fn a_head_trains_from_a_worker_on_another_domain_over_mutual_tls_without_loss() 
     let certs = tmp("certs");
     let other = tmp("other-ca");
     for (d, n) in [(&certs, "2"), (&other, "1")] {
-        let o = hive(&["certs", "--out", &d.display().to_string(), "--workers", n, "--force"]).output().unwrap();
+        let o = hive(&["certs", "--out", &d.display().to_string(), "--workers", n, "--force"])
+            .output()
+            .unwrap();
         assert!(o.status.success(), "{}", text(&o));
     }
     let tls = |d: &std::path::Path, host: &str| d.join(host).display().to_string();
@@ -87,7 +95,19 @@ fn a_head_trains_from_a_worker_on_another_domain_over_mutual_tls_without_loss() 
     // /dev/shm, as the machine's shared domain does.
     let (hd, wd) = ("cluster-head".to_string(), "cluster-worker".to_string());
     let head_tls = tls(&certs, "head");
-    let mut head_args = vec!["--domain", &hd, "train", "configs/default.toml", "--listen", &ep, "--tls", &head_tls, "--max-seconds", "25", "--run-dir"];
+    let mut head_args = vec![
+        "--domain",
+        &hd,
+        "train",
+        "configs/default.toml",
+        "--listen",
+        &ep,
+        "--tls",
+        &head_tls,
+        "--max-seconds",
+        "25",
+        "--run-dir",
+    ];
     let dir_s = dir.display().to_string();
     head_args.push(&dir_s);
     head_args.extend(small_run());
@@ -96,9 +116,23 @@ fn a_head_trains_from_a_worker_on_another_domain_over_mutual_tls_without_loss() 
     // The worker may start before the head listens: it keeps asking.
     let wdir_s = wdir.display().to_string();
     let worker_tls = tls(&certs, "worker-1");
-    let worker = hive(&["--domain", &wd, "worker", "--connect", &ep, "--tls", &worker_tls, "--agents", "8", "--name", "second-host", "--run-dir", &wdir_s])
-        .spawn()
-        .unwrap();
+    let worker = hive(&[
+        "--domain",
+        &wd,
+        "worker",
+        "--connect",
+        &ep,
+        "--tls",
+        &worker_tls,
+        "--agents",
+        "8",
+        "--name",
+        "second-host",
+        "--run-dir",
+        &wdir_s,
+    ])
+    .spawn()
+    .unwrap();
     // Meanwhile: a certificate of another CA, and no TLS at all, get no
     // session with the head (they never reach the join: the handshake
     // fails first); a certificate of the run's CA for a worker the run does
@@ -114,11 +148,25 @@ fn a_head_trains_from_a_worker_on_another_domain_over_mutual_tls_without_loss() 
         (vec!["--connect", &plain_ep], "plaintext"),
         (vec!["--connect", ep.as_str(), "--tls", &unlisted_tls], "a worker the run does not list"),
     ] {
-        let mut all = vec!["--domain", "cluster-intruder", "worker", "--join-timeout", "4", "--name", "intruder", "--run-dir", &intruder_dir];
+        let mut all = vec![
+            "--domain",
+            "cluster-intruder",
+            "worker",
+            "--join-timeout",
+            "4",
+            "--name",
+            "intruder",
+            "--run-dir",
+            &intruder_dir,
+        ];
         all.extend(args.iter().copied());
         let o = hive(&all).output().unwrap();
         assert!(!o.status.success(), "{name}: {}", text(&o));
-        assert!(String::from_utf8_lossy(&o.stderr).contains("no head answered"), "{name}: {}", text(&o));
+        assert!(
+            String::from_utf8_lossy(&o.stderr).contains("no head answered"),
+            "{name}: {}",
+            text(&o)
+        );
     }
     let w = worker.wait_with_output().unwrap();
     let h = head.wait_with_output().unwrap();
@@ -126,10 +174,16 @@ fn a_head_trains_from_a_worker_on_another_domain_over_mutual_tls_without_loss() 
     let wout = String::from_utf8_lossy(&w.stdout);
     assert!(wout.contains("the head ended the run"), "{wout}");
     // The weights the worker's actors act with rise with the head's learner.
-    let version: u64 = wout.split("weights version ").nth(1).and_then(|s| s.split_whitespace().next()).and_then(|v| v.parse().ok()).unwrap();
+    let version: u64 = wout
+        .split("weights version ")
+        .nth(1)
+        .and_then(|s| s.split_whitespace().next())
+        .and_then(|v| v.parse().ok())
+        .unwrap();
     assert!(version > 5, "weights version on the worker: {version}\n{wout}");
 
-    let s: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    let s: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
     let hosts = s["hosts"].as_array().unwrap();
     assert_eq!(hosts.len(), 2, "{s}");
     assert_eq!(hosts[1]["name"], "second-host");
@@ -144,17 +198,27 @@ fn a_head_trains_from_a_worker_on_another_domain_over_mutual_tls_without_loss() 
     // The worker's actor (environment 1 of the run) reached the head's
     // records: its telemetry rows count transitions and episodes.
     let tel = std::fs::read_to_string(dir.join("telemetry.csv")).unwrap();
-    let remote: Vec<&str> = tel.lines().filter(|l| l.split(',').nth(1) == Some("actor") && l.split(',').nth(2) == Some("1")).collect();
-    let last = remote.last().unwrap_or_else(|| panic!("no telemetry of the worker's actor:\n{tel}"));
+    let remote: Vec<&str> = tel
+        .lines()
+        .filter(|l| l.split(',').nth(1) == Some("actor") && l.split(',').nth(2) == Some("1"))
+        .collect();
+    let last =
+        remote.last().unwrap_or_else(|| panic!("no telemetry of the worker's actor:\n{tel}"));
     let cols: Vec<&str> = last.split(',').collect();
-    assert!(cols[8].parse::<u64>().unwrap() > 1000 && cols[9].parse::<u64>().unwrap() > 10, "{last}");
+    assert!(
+        cols[8].parse::<u64>().unwrap() > 1000 && cols[9].parse::<u64>().unwrap() > 10,
+        "{last}"
+    );
     // The link is a member with its own telemetry.
     assert!(tel.lines().any(|l| l.split(',').nth(1) == Some("link")), "{tel}");
     // Nothing of the head's domain is left in shared memory.
     let left: Vec<String> = std::fs::read_dir("/dev/shm")
         .unwrap()
         .filter_map(|e| e.ok().map(|e| e.file_name().to_string_lossy().into_owned()))
-        .filter(|n| (n.starts_with(&format!("rh_{hd}_")) || n.starts_with(&format!("rh_{wd}_"))) && !n.ends_with("global_mgmt"))
+        .filter(|n| {
+            (n.starts_with(&format!("rh_{hd}_")) || n.starts_with(&format!("rh_{wd}_")))
+                && !n.ends_with("global_mgmt")
+        })
         .collect();
     assert!(left.is_empty(), "{left:?}");
     for d in [&dir, &wdir, &certs, &other] {
@@ -178,7 +242,18 @@ fn bad_addresses_and_a_missing_head_fail_clearly() {
     check(&["worker", "--connect", "tcp/127.0.0.1:http"], "expected tcp/HOST:PORT");
     let port = free_port();
     let scratch = tmp("no-head").display().to_string();
-    let waited = check(&["worker", "--connect", &format!("tcp/127.0.0.1:{port}"), "--join-timeout", "3", "--run-dir", &scratch], "no head answered");
+    let waited = check(
+        &[
+            "worker",
+            "--connect",
+            &format!("tcp/127.0.0.1:{port}"),
+            "--join-timeout",
+            "3",
+            "--run-dir",
+            &scratch,
+        ],
+        "no head answered",
+    );
     eprintln!("a worker with --join-timeout 3 gave up after {:.2} s", waited.as_secs_f64());
     check(&["train", "--set", "cluster.workers=1"], "needs --listen");
     check(&["train", "--listen", "localhost"], "expected tcp/HOST:PORT");
@@ -186,7 +261,18 @@ fn bad_addresses_and_a_missing_head_fail_clearly() {
     let any = format!("tcp/0.0.0.0:{}", free_port());
     check(&["train", "--listen", &any, "--set", "cluster.workers=1"], "--insecure");
     check(&["train", "--listen", &format!("tls/127.0.0.1:{port}")], "needs --tls DIR");
-    check(&["worker", "--connect", &format!("tls/127.0.0.1:{port}"), "--tls", "/nonexistent", "--run-dir", &scratch], "ca.pem is missing");
+    check(
+        &[
+            "worker",
+            "--connect",
+            &format!("tls/127.0.0.1:{port}"),
+            "--tls",
+            "/nonexistent",
+            "--run-dir",
+            &scratch,
+        ],
+        "ca.pem is missing",
+    );
     let certs = tmp("certs-twice");
     let c = certs.display().to_string();
     assert!(hive(&["certs", "--out", &c]).output().unwrap().status.success());
@@ -197,7 +283,10 @@ fn bad_addresses_and_a_missing_head_fail_clearly() {
     let busy = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
     let ep = format!("tcp/127.0.0.1:{}", busy.local_addr().unwrap().port());
     let dir = tmp("busy");
-    check(&["train", "--listen", &ep, "--run-dir", &dir.display().to_string()], &format!("listen on {ep}"));
+    check(
+        &["train", "--listen", &ep, "--run-dir", &dir.display().to_string()],
+        &format!("listen on {ep}"),
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -218,10 +307,17 @@ fn lines_of(child: &mut std::process::Child) -> std::sync::mpsc::Receiver<(Insta
 fn children_of(pid: u32) -> Vec<(i32, String)> {
     let mut out = Vec::new();
     for e in std::fs::read_dir("/proc").unwrap().flatten() {
-        let Ok(p) = e.file_name().to_string_lossy().parse::<i32>() else { continue };
-        let Ok(stat) = std::fs::read_to_string(format!("/proc/{p}/stat")) else { continue };
+        let Ok(p) = e.file_name().to_string_lossy().parse::<i32>() else {
+            continue;
+        };
+        let Ok(stat) = std::fs::read_to_string(format!("/proc/{p}/stat")) else {
+            continue;
+        };
         // The parent's pid is the second field after the command's ")".
-        let ppid = stat.rsplit_once(')').and_then(|(_, rest)| rest.split_whitespace().nth(1)).and_then(|v| v.parse::<u32>().ok());
+        let ppid = stat
+            .rsplit_once(')')
+            .and_then(|(_, rest)| rest.split_whitespace().nth(1))
+            .and_then(|v| v.parse::<u32>().ok());
         if ppid == Some(pid) {
             let cmd = std::fs::read(format!("/proc/{p}/cmdline")).unwrap_or_default();
             out.push((p, String::from_utf8_lossy(&cmd).replace('\0', " ")));
@@ -232,7 +328,9 @@ fn children_of(pid: u32) -> Vec<(i32, String)> {
 
 /// Whether process `pid` still runs (a zombie does not).
 fn alive(pid: i32) -> bool {
-    std::fs::read_to_string(format!("/proc/{pid}/stat")).is_ok_and(|s| s.rsplit_once(')').and_then(|(_, r)| r.split_whitespace().next()) != Some("Z"))
+    std::fs::read_to_string(format!("/proc/{pid}/stat")).is_ok_and(|s| {
+        s.rsplit_once(')').and_then(|(_, r)| r.split_whitespace().next()) != Some("Z")
+    })
 }
 
 /// The heartbeats of sim `index`'s rows in a run's telemetry table, in
@@ -248,7 +346,11 @@ fn sim_heartbeats(tel: &std::path::Path, index: u32) -> Vec<u64> {
         .collect()
 }
 
-fn wait_line(rx: &std::sync::mpsc::Receiver<(Instant, String)>, want: &str, within: Duration) -> Option<Instant> {
+fn wait_line(
+    rx: &std::sync::mpsc::Receiver<(Instant, String)>,
+    want: &str,
+    within: Duration,
+) -> Option<Instant> {
     let end = Instant::now() + within;
     while let Some(left) = end.checked_duration_since(Instant::now()) {
         match rx.recv_timeout(left) {
@@ -270,25 +372,55 @@ fn a_killed_worker_comes_back_and_a_killed_head_is_noticed() {
     let ep = format!("tcp/127.0.0.1:{}", free_port());
     let hd = "cluster-head".to_string();
     let dir_s = dir.display().to_string();
-    let mut args = vec!["--domain", &hd, "train", "--listen", &ep, "--max-seconds", "30", "--run-dir", &dir_s];
+    let mut args =
+        vec!["--domain", &hd, "train", "--listen", &ep, "--max-seconds", "30", "--run-dir", &dir_s];
     args.extend(small_run());
     args.extend(["--set", "cluster.workers=1"]);
     let mut head = hive(&args).spawn().unwrap();
     // One run directory for both starts of the host: it keeps the join token.
     let wdir = tmp("restart-worker").display().to_string();
-    let worker = |domain: &str| hive(&["--domain", domain, "worker", "--connect", &ep, "--agents", "8", "--name", "w", "--run-dir", &wdir]).spawn().unwrap();
+    let worker = |domain: &str| {
+        hive(&[
+            "--domain",
+            domain,
+            "worker",
+            "--connect",
+            &ep,
+            "--agents",
+            "8",
+            "--name",
+            "w",
+            "--run-dir",
+            &wdir,
+        ])
+        .spawn()
+        .unwrap()
+    };
     let mut first = worker("cluster-worker");
     let first_lines = lines_of(&mut first);
     assert!(wait_line(&first_lines, "joined the run", Duration::from_secs(30)).is_some());
     // The worker's roles are processes of its own: an actor killed with
     // SIGKILL is started again by the worker.
-    common::wait_for("the worker's sim and actor", Duration::from_secs(20), || children_of(first.id()).len() == 2);
+    common::wait_for("the worker's sim and actor", Duration::from_secs(20), || {
+        children_of(first.id()).len() == 2
+    });
     let roles = children_of(first.id());
-    let actor = roles.iter().find(|(_, cmd)| cmd.contains("actor")).unwrap_or_else(|| panic!("{roles:?}")).0;
+    let actor = roles
+        .iter()
+        .find(|(_, cmd)| cmd.contains("actor"))
+        .unwrap_or_else(|| panic!("{roles:?}"))
+        .0;
     // SAFETY: a plain signal to a process of this test's run.
     unsafe { libc::kill(actor, libc::SIGKILL) };
-    let restarted = || children_of(first.id()).into_iter().find(|(p, cmd)| cmd.contains("actor") && *p != actor).map(|(p, _)| p);
-    common::wait_for("the killed actor to be started again", Duration::from_secs(20), || restarted().is_some());
+    let restarted = || {
+        children_of(first.id())
+            .into_iter()
+            .find(|(p, cmd)| cmd.contains("actor") && *p != actor)
+            .map(|(p, _)| p)
+    };
+    common::wait_for("the killed actor to be started again", Duration::from_secs(20), || {
+        restarted().is_some()
+    });
     let again = restarted().unwrap();
     std::thread::sleep(Duration::from_secs(3));
     let roles = children_of(first.id());
@@ -298,24 +430,43 @@ fn a_killed_worker_comes_back_and_a_killed_head_is_noticed() {
     first.kill().unwrap();
     let killed = Instant::now();
     first.wait().unwrap();
-    common::wait_for("the killed worker's roles to stop", Duration::from_secs(20), || roles.iter().all(|(p, _)| !alive(*p)));
+    common::wait_for("the killed worker's roles to stop", Duration::from_secs(20), || {
+        roles.iter().all(|(p, _)| !alive(*p))
+    });
     eprintln!("the killed worker's roles stopped after {:.2} s", killed.elapsed().as_secs_f64());
     // The same host comes back in the same domain (cleaning what the
     // killed one left): it gets its old place.
     let started = Instant::now();
     let mut second = worker("cluster-worker");
     let second_lines = lines_of(&mut second);
-    let joined = wait_line(&second_lines, "joined the run", Duration::from_secs(20)).expect("the restarted worker joined");
-    eprintln!("the restarted worker joined after {:.2} s", joined.duration_since(started).as_secs_f64());
+    let joined = wait_line(&second_lines, "joined the run", Duration::from_secs(20))
+        .expect("the restarted worker joined");
+    eprintln!(
+        "the restarted worker joined after {:.2} s",
+        joined.duration_since(started).as_secs_f64()
+    );
     assert!(head.try_wait().unwrap().is_none(), "the head stopped when its worker died");
     // Another process under the same name, without the join token the
     // first one kept in its run directory, does not take the place.
     let thief_dir = tmp("thief");
     let thief_dir_s = thief_dir.display().to_string();
-    let o =
-        hive(&["--domain", "cluster-intruder", "worker", "--connect", &ep, "--agents", "8", "--name", "w", "--run-dir", &thief_dir_s, "--join-timeout", "10"])
-            .output()
-            .unwrap();
+    let o = hive(&[
+        "--domain",
+        "cluster-intruder",
+        "worker",
+        "--connect",
+        &ep,
+        "--agents",
+        "8",
+        "--name",
+        "w",
+        "--run-dir",
+        &thief_dir_s,
+        "--join-timeout",
+        "10",
+    ])
+    .output()
+    .unwrap();
     assert!(!o.status.success(), "{}", text(&o));
     assert!(String::from_utf8_lossy(&o.stderr).contains("with its join token"), "{}", text(&o));
     let _ = std::fs::remove_dir_all(&thief_dir);
@@ -323,11 +474,15 @@ fn a_killed_worker_comes_back_and_a_killed_head_is_noticed() {
     // telemetry, sim 1's heartbeat starts again (a new process; a remote
     // pid means nothing on the head and is sent as 0) and goes on rising.
     let tel = dir.join("telemetry.csv");
-    common::wait_for("the restarted worker's sim in the head's telemetry", Duration::from_secs(20), || {
-        let beats = sim_heartbeats(&tel, 1);
-        let restart = beats.windows(2).position(|w| w[1] < w[0]);
-        restart.is_some_and(|r| beats[r + 1..].iter().max().is_some_and(|m| *m >= 3))
-    });
+    common::wait_for(
+        "the restarted worker's sim in the head's telemetry",
+        Duration::from_secs(20),
+        || {
+            let beats = sim_heartbeats(&tel, 1);
+            let restart = beats.windows(2).position(|w| w[1] < w[0]);
+            restart.is_some_and(|r| beats[r + 1..].iter().max().is_some_and(|m| *m >= 3))
+        },
+    );
     // Now the head dies without ending the run: the worker notices.
     head.kill().unwrap();
     head.wait().unwrap();
@@ -349,14 +504,36 @@ fn a_head_held_busy_slows_the_worker_without_loss() {
     let dir = tmp("busy-head");
     let ep = format!("tcp/127.0.0.1:{}", free_port());
     let dir_s = dir.display().to_string();
-    let mut args = vec!["--domain", "cluster-head", "train", "--listen", &ep, "--max-seconds", "30", "--run-dir", &dir_s];
+    let mut args = vec![
+        "--domain",
+        "cluster-head",
+        "train",
+        "--listen",
+        &ep,
+        "--max-seconds",
+        "30",
+        "--run-dir",
+        &dir_s,
+    ];
     args.extend(small_run());
     // No rate limit: the worker's actors push as fast as they can, so a
     // stalled replay is felt at once.
     args.extend(["--set", "cluster.workers=1", "--set", "replay.samples_per_insert=0"]);
     let head = hive(&args).spawn().unwrap();
     let wdir = tmp("busy-head-worker").display().to_string();
-    let mut worker = hive(&["--domain", "cluster-worker", "worker", "--connect", &ep, "--agents", "8", "--run-dir", &wdir]).spawn().unwrap();
+    let mut worker = hive(&[
+        "--domain",
+        "cluster-worker",
+        "worker",
+        "--connect",
+        &ep,
+        "--agents",
+        "8",
+        "--run-dir",
+        &wdir,
+    ])
+    .spawn()
+    .unwrap();
     let lines = lines_of(&mut worker);
     assert!(wait_line(&lines, "joined the run", Duration::from_secs(30)).is_some());
     // The replay's process id, from the head's telemetry.
@@ -371,7 +548,9 @@ fn a_head_held_busy_slows_the_worker_without_loss() {
         std::thread::sleep(Duration::from_millis(200));
     };
     // The worker's sim has stepped for a few seconds: its batches flow.
-    common::wait_for("the worker's sim at work", Duration::from_secs(30), || sim_heartbeats(&tel, 1).last().is_some_and(|b| *b >= 5));
+    common::wait_for("the worker's sim at work", Duration::from_secs(30), || {
+        sim_heartbeats(&tel, 1).last().is_some_and(|b| *b >= 5)
+    });
     // Hold the head's replay for 1 s (half the actors' 2 s stall bound,
     // past which an actor gives a batch up and counts it lost): transitions
     // pile up in the head's link, then zenoh's queue, then the worker's link
@@ -385,7 +564,8 @@ fn a_head_held_busy_slows_the_worker_without_loss() {
     let w = worker.wait_with_output().unwrap();
     assert!(h.status.success(), "head: {}", text(&h));
     assert!(w.status.success(), "worker: {}", text(&w));
-    let s: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    let s: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
     for host in s["hosts"].as_array().unwrap() {
         assert_little_loss(host, &s, &h, &w);
     }
@@ -397,9 +577,16 @@ fn a_head_held_busy_slows_the_worker_without_loss() {
     }
     // The head's link waited on the replay for the time it stood still
     // (and the worker, behind it, with it).
-    let link = t.lines().rfind(|l| l.split(',').nth(1) == Some("link") && l.split(',').nth(2) == Some("0")).unwrap().to_string();
+    let link = t
+        .lines()
+        .rfind(|l| l.split(',').nth(1) == Some("link") && l.split(',').nth(2) == Some("0"))
+        .unwrap()
+        .to_string();
     let send_wait_ms: f64 = link.split(',').nth(15).unwrap().parse().unwrap();
-    assert!(send_wait_ms > 1000.0, "the head's link waited {send_wait_ms} ms on the replay: {link}");
+    assert!(
+        send_wait_ms > 1000.0,
+        "the head's link waited {send_wait_ms} ms on the replay: {link}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -414,8 +601,13 @@ impl NetPair {
         let id = std::process::id() % 100_000;
         let (a, b) = (format!("rha{id}"), format!("rhb{id}"));
         let run = |args: &[&str]| -> Result<(), String> {
-            let o = Command::new("ip").args(args).output().map_err(|e| format!("ip {args:?}: {e}"))?;
-            if o.status.success() { Ok(()) } else { Err(format!("ip {args:?}: {}", String::from_utf8_lossy(&o.stderr).trim())) }
+            let o =
+                Command::new("ip").args(args).output().map_err(|e| format!("ip {args:?}: {e}"))?;
+            if o.status.success() {
+                Ok(())
+            } else {
+                Err(format!("ip {args:?}: {}", String::from_utf8_lossy(&o.stderr).trim()))
+            }
         };
         let pair = Self { a: a.clone(), b: b.clone() };
         let (va, vb) = (format!("va{id}"), format!("vb{id}"));
@@ -435,12 +627,24 @@ impl NetPair {
 
     /// `hive args` inside namespace `ns`, with a /dev/shm of its own.
     fn hive(&self, ns: &str, args: &[&str]) -> Command {
-        let mut line = format!("mount -t tmpfs none /dev/shm && exec {}", env!("CARGO_BIN_EXE_hive"));
+        let mut line =
+            format!("mount -t tmpfs none /dev/shm && exec {}", env!("CARGO_BIN_EXE_hive"));
         for a in args {
             line.push_str(&format!(" '{a}'"));
         }
         let mut c = Command::new("ip");
-        c.current_dir(root()).args(["netns", "exec", ns, "unshare", "-m", "--propagation", "private", "sh", "-c", &line]);
+        c.current_dir(root()).args([
+            "netns",
+            "exec",
+            ns,
+            "unshare",
+            "-m",
+            "--propagation",
+            "private",
+            "sh",
+            "-c",
+            &line,
+        ]);
         c.stdout(Stdio::piped()).stderr(Stdio::piped());
         c
     }
@@ -474,17 +678,43 @@ fn two_hosts_in_two_network_namespaces_with_their_own_shared_memory() {
     };
     let dir = tmp("netns");
     let dir_s = dir.display().to_string();
-    let mut args = vec!["train", "--listen", "tcp/10.78.0.1:7447", "--insecure", "--max-seconds", "20", "--run-dir", &dir_s];
+    let mut args = vec![
+        "train",
+        "--listen",
+        "tcp/10.78.0.1:7447",
+        "--insecure",
+        "--max-seconds",
+        "20",
+        "--run-dir",
+        &dir_s,
+    ];
     args.extend(small_run());
     args.extend(["--set", "cluster.workers=1"]);
     let head = net.hive(&net.a, &args).spawn().unwrap();
     let wdir = tmp("netns-worker").display().to_string();
-    let worker = net.hive(&net.b, &["worker", "--connect", "tcp/10.78.0.1:7447", "--agents", "8", "--name", "other-host", "--run-dir", &wdir]).spawn().unwrap();
+    let worker = net
+        .hive(
+            &net.b,
+            &[
+                "worker",
+                "--connect",
+                "tcp/10.78.0.1:7447",
+                "--agents",
+                "8",
+                "--name",
+                "other-host",
+                "--run-dir",
+                &wdir,
+            ],
+        )
+        .spawn()
+        .unwrap();
     let w = worker.wait_with_output().unwrap();
     let h = head.wait_with_output().unwrap();
     assert!(h.status.success(), "head: {}", text(&h));
     assert!(w.status.success(), "worker: {}", text(&w));
-    let s: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    let s: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
     let hosts = s["hosts"].as_array().unwrap();
     assert_eq!(hosts.len(), 2, "{s}");
     for host in hosts {

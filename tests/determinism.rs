@@ -12,16 +12,29 @@ use std::process::Command;
 fn run(name: &str, sets: &[&str], serial: bool) -> (Vec<String>, Vec<u8>, serde_json::Value) {
     let dir = tmp(name);
     let mut c = Command::new(env!("CARGO_BIN_EXE_hive"));
-    c.current_dir(root()).args(["train", "configs/default.toml", "--quiet", "--max-seconds", "120", "--run-dir"]).arg(&dir);
+    c.current_dir(root())
+        .args(["train", "configs/default.toml", "--quiet", "--max-seconds", "120", "--run-dir"])
+        .arg(&dir);
     if serial {
         c.arg("--serial");
     }
-    let common = ["deterministic=true", "sim.generated_lanes=0", "replay.capacity=3000", "eval.every_s=0", "seed=5"];
+    let common = [
+        "deterministic=true",
+        "sim.generated_lanes=0",
+        "replay.capacity=3000",
+        "eval.every_s=0",
+        "seed=5",
+    ];
     for s in common.iter().chain(sets) {
         c.args(["--set", s]);
     }
     let out = c.output().unwrap();
-    assert!(out.status.success(), "{name} failed: {}\n{}", String::from_utf8_lossy(&out.stderr), String::from_utf8_lossy(&out.stdout));
+    assert!(
+        out.status.success(),
+        "{name} failed: {}\n{}",
+        String::from_utf8_lossy(&out.stderr),
+        String::from_utf8_lossy(&out.stdout)
+    );
     let rows = std::fs::read_to_string(dir.join("metrics.csv"))
         .unwrap()
         .lines()
@@ -33,7 +46,8 @@ fn run(name: &str, sets: &[&str], serial: bool) -> (Vec<String>, Vec<u8>, serde_
         })
         .collect();
     let weights = std::fs::read(dir.join("final.safetensors")).unwrap();
-    let summary = serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    let summary =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
     let _ = std::fs::remove_dir_all(&dir);
     (rows, weights, summary)
 }
@@ -44,7 +58,11 @@ fn assert_reproducible(name: &str, sets: &[&str], updates: u64, serial: bool) {
     let (rows_a, weights_a, summary) = run(&format!("{name}-a"), sets, false);
     let (rows_b, weights_b, _) = run(&format!("{name}-b"), sets, serial);
     assert!(rows_a.len() > 20, "{name}: only {} episodes", rows_a.len());
-    assert_eq!(summary["learner_updates"].as_u64(), Some(updates), "{name}: the schedule's updates, all made: {summary}");
+    assert_eq!(
+        summary["learner_updates"].as_u64(),
+        Some(updates),
+        "{name}: the schedule's updates, all made: {summary}"
+    );
     if let Some(i) = rows_a.iter().zip(&rows_b).position(|(a, b)| a != b) {
         panic!("{name}: episode row {i} differs:\n{}\n{}", rows_a[i], rows_b[i]);
     }
@@ -58,10 +76,21 @@ fn assert_reproducible(name: &str, sets: &[&str], updates: u64, serial: bool) {
 /// the second run in serial mode (every role a thread, iceoryx2 `local`).
 #[test]
 fn one_batched_environment_repeats_exactly_in_processes_and_in_serial_mode() {
-    if common::skip_slow("one_batched_environment_repeats_exactly_in_processes_and_in_serial_mode") {
+    if common::skip_slow("one_batched_environment_repeats_exactly_in_processes_and_in_serial_mode")
+    {
         return;
     }
-    assert_reproducible("det-one", &["max_env_steps=3000", "sim.agents=4", "replay.min_fill=200", "replay.samples_per_insert=1.0"], 88, true);
+    assert_reproducible(
+        "det-one",
+        &[
+            "max_env_steps=3000",
+            "sim.agents=4",
+            "replay.min_fill=200",
+            "replay.samples_per_insert=1.0",
+        ],
+        88,
+        true,
+    );
 }
 
 /// Two environments of non-batched observations (the actor's gather),
@@ -71,7 +100,9 @@ fn one_batched_environment_repeats_exactly_in_processes_and_in_serial_mode() {
 /// `prefetch` later is sampled.
 #[test]
 fn two_non_batched_environments_with_n_step_and_prioritized_replay_repeat_exactly() {
-    if common::skip_slow("two_non_batched_environments_with_n_step_and_prioritized_replay_repeat_exactly") {
+    if common::skip_slow(
+        "two_non_batched_environments_with_n_step_and_prioritized_replay_repeat_exactly",
+    ) {
         return;
     }
     let sets = [

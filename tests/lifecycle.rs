@@ -24,25 +24,28 @@ fn hive(args: &[&str], dir: &Path) -> Command {
 
 /// A small, long training run in `dir` (the tests stop it).
 fn start_run(dir: &Path) -> Run {
-    let child = hive(&["train", "configs/default.toml", "--quiet", "--max-seconds", "150", "--run-dir"], dir)
-        .args([
-            "--set",
-            "sim.agents=8",
-            "--set",
-            "replay.min_fill=300",
-            "--set",
-            "replay.capacity=2000",
-            "--set",
-            "eval.every_s=0",
-            "--set",
-            "threshold=100000",
-            "--set",
-            "learner.checkpoint_every_s=1",
-        ])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let child = hive(
+        &["train", "configs/default.toml", "--quiet", "--max-seconds", "150", "--run-dir"],
+        dir,
+    )
+    .args([
+        "--set",
+        "sim.agents=8",
+        "--set",
+        "replay.min_fill=300",
+        "--set",
+        "replay.capacity=2000",
+        "--set",
+        "eval.every_s=0",
+        "--set",
+        "threshold=100000",
+        "--set",
+        "learner.checkpoint_every_s=1",
+    ])
+    .stdout(Stdio::piped())
+    .stderr(Stdio::piped())
+    .spawn()
+    .unwrap();
     Run { child: Some(child) }
 }
 
@@ -89,7 +92,8 @@ fn gone(pid: i32) -> bool {
 /// Newest (wall_s, pid, work) of a role from `telemetry.csv`.
 fn role_state(dir: &Path, role: &str) -> Option<(f64, i32, u64)> {
     let text = std::fs::read_to_string(dir.join("telemetry.csv")).ok()?;
-    let row = text.lines().skip(1).filter(|l| l.split(',').nth(1) == Some(role)).last()?.to_string();
+    let row =
+        text.lines().skip(1).filter(|l| l.split(',').nth(1) == Some(role)).last()?.to_string();
     let f: Vec<&str> = row.split(',').collect();
     Some((f[0].parse().ok()?, f[3].parse().ok()?, f[8].parse().ok()?))
 }
@@ -112,11 +116,23 @@ fn kill_learner_after_checkpoint(dir: &Path, after: Duration) {
     // changes: the learner that wrote it is dead and the next one reads it
     // before it writes.
     let stored = stored_updates(&state);
-    wait_for("the learner to come back", Duration::from_secs(30), || role_state(dir, "learner").is_some_and(|(_, p, _)| p != pid));
+    wait_for("the learner to come back", Duration::from_secs(30), || {
+        role_state(dir, "learner").is_some_and(|(_, p, _)| p != pid)
+    });
     let log = std::fs::read_to_string(dir.join("logs/learner.log")).unwrap();
-    let restored: u64 = log.lines().filter_map(|l| l.split(" at update ").nth(1)).next_back().expect("the learner restored its state").trim().parse().unwrap();
+    let restored: u64 = log
+        .lines()
+        .filter_map(|l| l.split(" at update ").nth(1))
+        .next_back()
+        .expect("the learner restored its state")
+        .trim()
+        .parse()
+        .unwrap();
     assert!(restored > 0, "restored at update 0:\n{log}");
-    assert_eq!(restored, stored, "the learner came back at another update than its last checkpoint's:\n{log}");
+    assert_eq!(
+        restored, stored,
+        "the learner came back at another update than its last checkpoint's:\n{log}"
+    );
 }
 
 /// The update count a learner state file holds (safetensors: the header's
@@ -133,23 +149,37 @@ fn stored_updates(path: &Path) -> u64 {
 
 #[test]
 fn sighup_stops_cleanly_a_live_run_directory_is_refused_and_a_killed_learner_loses_little() {
-    if common::skip_slow("sighup_stops_cleanly_a_live_run_directory_is_refused_and_a_killed_learner_loses_little") {
+    if common::skip_slow(
+        "sighup_stops_cleanly_a_live_run_directory_is_refused_and_a_killed_learner_loses_little",
+    ) {
         return;
     }
     let _turn = TURN.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
     let dir = tmp("lifecycle");
     let run = start_run(&dir);
-    wait_for("the learner to update", Duration::from_secs(60), || role_state(&dir, "learner").is_some_and(|(_, _, u)| u > 20));
-    wait_for("a learner checkpoint", Duration::from_secs(20), || dir.join("checkpoints/learner-state.safetensors").exists());
+    wait_for("the learner to update", Duration::from_secs(60), || {
+        role_state(&dir, "learner").is_some_and(|(_, _, u)| u > 20)
+    });
+    wait_for("a learner checkpoint", Duration::from_secs(20), || {
+        dir.join("checkpoints/learner-state.safetensors").exists()
+    });
 
     // One owner per run directory: a second run and a resume are refused,
     // naming the directory and the owner's process id.
     let pid = run.pid().to_string();
-    for args in [&["train", "configs/default.toml", "--quiet", "--max-seconds", "5", "--run-dir"][..], &["train", "--quiet", "--resume"][..]] {
+    for args in [
+        &["train", "configs/default.toml", "--quiet", "--max-seconds", "5", "--run-dir"][..],
+        &["train", "--quiet", "--resume"][..],
+    ] {
         let out = hive(args, &dir).output().unwrap();
         let stderr = String::from_utf8_lossy(&out.stderr);
         assert!(!out.status.success(), "{args:?} ran on a live run directory");
-        assert!(stderr.contains(&dir.display().to_string()) && stderr.contains(&pid) && !stderr.contains("panicked"), "{stderr}");
+        assert!(
+            stderr.contains(&dir.display().to_string())
+                && stderr.contains(&pid)
+                && !stderr.contains("panicked"),
+            "{stderr}"
+        );
     }
 
     // A learner killed right after a checkpoint, and later (they come every
@@ -158,13 +188,16 @@ fn sighup_stops_cleanly_a_live_run_directory_is_refused_and_a_killed_learner_los
     kill_learner_after_checkpoint(&dir, Duration::ZERO);
     kill_learner_after_checkpoint(&dir, Duration::from_millis(850));
     let (_, _, updates) = role_state(&dir, "learner").unwrap();
-    wait_for("updates after the restarts", Duration::from_secs(30), || role_state(&dir, "learner").is_some_and(|(_, _, u)| u > updates + 5));
+    wait_for("updates after the restarts", Duration::from_secs(30), || {
+        role_state(&dir, "learner").is_some_and(|(_, _, u)| u > updates + 5)
+    });
 
     // The terminal closes: SIGHUP stops the run the clean way.
     let out = run.signal_and_wait(libc::SIGHUP);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "SIGHUP: {stderr}");
-    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
     assert_eq!(summary["interrupted"], serde_json::Value::Bool(true), "{summary}");
     assert_eq!(summary["leftover_services"].as_array().map(Vec::len), Some(0), "{summary}");
     assert!(summary["restarts"].as_u64().unwrap() >= 2, "{summary}");
@@ -174,7 +207,11 @@ fn sighup_stops_cleanly_a_live_run_directory_is_refused_and_a_killed_learner_los
     // The refused runs wrote nothing: one header in each table.
     for t in ["metrics.csv", "telemetry.csv"] {
         let text = std::fs::read_to_string(dir.join(t)).unwrap();
-        assert_eq!(text.lines().filter(|l| l.starts_with("kind,") || l.starts_with("wall_s,")).count(), 1, "{t} was written twice");
+        assert_eq!(
+            text.lines().filter(|l| l.starts_with("kind,") || l.starts_with("wall_s,")).count(),
+            1,
+            "{t} was written twice"
+        );
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -188,21 +225,36 @@ fn no_role_outlives_a_killed_supervisor() {
     let dir = tmp("orphans");
     let run = start_run(&dir);
     wait_for("every role to report", Duration::from_secs(60), || {
-        ["sim", "actor", "replay", "learner"].iter().all(|r| role_state(&dir, r).is_some()) && role_state(&dir, "learner").is_some_and(|(_, _, u)| u > 5)
+        ["sim", "actor", "replay", "learner"].iter().all(|r| role_state(&dir, r).is_some())
+            && role_state(&dir, "learner").is_some_and(|(_, _, u)| u > 5)
     });
-    let pids: Vec<(&str, i32)> = ["sim", "actor", "replay", "learner"].iter().map(|r| (*r, role_state(&dir, r).unwrap().1)).collect();
+    let pids: Vec<(&str, i32)> = ["sim", "actor", "replay", "learner"]
+        .iter()
+        .map(|r| (*r, role_state(&dir, r).unwrap().1))
+        .collect();
     assert!(pids.iter().all(|(_, p)| !gone(*p)), "{pids:?}");
     let out = run.signal_and_wait(libc::SIGKILL);
     assert!(!out.status.success());
     // The design gives them 2 s; a test asserts no time, it prints it.
     let killed = std::time::Instant::now();
-    wait_for("the roles of a killed supervisor to exit", Duration::from_secs(20), || pids.iter().all(|(_, p)| gone(*p)));
-    eprintln!("the roles exited {:.2} s after their supervisor was killed", killed.elapsed().as_secs_f64());
+    wait_for("the roles of a killed supervisor to exit", Duration::from_secs(20), || {
+        pids.iter().all(|(_, p)| gone(*p))
+    });
+    eprintln!(
+        "the roles exited {:.2} s after their supervisor was killed",
+        killed.elapsed().as_secs_f64()
+    );
     // The dead run blocks neither its own resume (its lock died with it)
     // nor leaves its shared memory behind once the next start cleans.
-    let out = hive(&["train", "--quiet", "--max-seconds", "4", "--set", "eval.every_s=0", "--resume"], &dir).output().unwrap();
+    let out = hive(
+        &["train", "--quiet", "--max-seconds", "4", "--set", "eval.every_s=0", "--resume"],
+        &dir,
+    )
+    .output()
+    .unwrap();
     assert!(out.status.success(), "resume after SIGKILL: {}", String::from_utf8_lossy(&out.stderr));
-    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
     assert_eq!(summary["leftover_services"].as_array().map(Vec::len), Some(0), "{summary}");
     let _ = std::fs::remove_dir_all(&dir);
 }

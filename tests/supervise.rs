@@ -47,8 +47,12 @@ fn killed_roles_are_restarted_and_training_goes_on() {
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    wait_for("the learner to update", Duration::from_secs(40), || role_state(&dir, "learner").is_some_and(|(_, u)| u > 20));
-    wait_for("a learner state file", Duration::from_secs(20), || dir.join("checkpoints/learner-state.safetensors").exists());
+    wait_for("the learner to update", Duration::from_secs(40), || {
+        role_state(&dir, "learner").is_some_and(|(_, u)| u > 20)
+    });
+    wait_for("a learner state file", Duration::from_secs(20), || {
+        dir.join("checkpoints/learner-state.safetensors").exists()
+    });
     // The run's data segments (every payload crosses through them) are the
     // user's alone (mode 0600). iceoryx2's own node-management segments
     // (`*_node.*`) are created by iceoryx2 with other modes and not checked.
@@ -70,11 +74,15 @@ fn killed_roles_are_restarted_and_training_goes_on() {
         assert_eq!(unsafe { libc_kill(pid, 9) }, 0, "kill {role} {pid}");
         killed.push((role, pid));
         // A new process of the role reports, and the learner keeps updating.
-        wait_for(&format!("{role} to come back"), Duration::from_secs(30), || role_state(&dir, role).is_some_and(|(p, _)| p != pid));
-        let (_, learner_before) = role_state(&dir, "learner").unwrap();
-        wait_for(&format!("updates after killing {role} ({before})"), Duration::from_secs(30), || {
-            role_state(&dir, "learner").is_some_and(|(_, u)| u > learner_before + 5)
+        wait_for(&format!("{role} to come back"), Duration::from_secs(30), || {
+            role_state(&dir, role).is_some_and(|(p, _)| p != pid)
         });
+        let (_, learner_before) = role_state(&dir, "learner").unwrap();
+        wait_for(
+            &format!("updates after killing {role} ({before})"),
+            Duration::from_secs(30),
+            || role_state(&dir, "learner").is_some_and(|(_, u)| u > learner_before + 5),
+        );
     }
     // The restored learner went on from its saved update count.
     let (_, updates) = role_state(&dir, "learner").unwrap();
@@ -84,7 +92,8 @@ fn killed_roles_are_restarted_and_training_goes_on() {
     let out = child.wait_with_output().unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "train failed: {stderr}");
-    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
     assert!(summary["restarts"].as_u64().unwrap() >= 4, "{summary} ({killed:?})");
     assert_eq!(summary["leftover_services"].as_array().map(Vec::len), Some(0), "{summary}");
     let _ = std::fs::remove_dir_all(&dir);
@@ -119,7 +128,8 @@ fn a_role_that_keeps_dying_stops_the_run() {
     assert!(!stderr.contains("panicked"), "{stderr}");
     let log = std::fs::read_to_string(dir.join("logs/replay.log")).unwrap();
     assert!(log.contains("replay.bin") && log.contains("not a rotorhive replay snapshot"), "{log}");
-    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
     assert_eq!(summary["restarts"].as_u64(), Some(3), "{summary}");
     assert_eq!(summary["leftover_services"].as_array().map(Vec::len), Some(0), "{summary}");
     let _ = std::fs::remove_dir_all(&dir);

@@ -28,15 +28,34 @@ use serde_json::json;
 /// The three payloads, in floats (a transition batch: the bytes of 50
 /// packed transitions).
 fn kinds() -> [(&'static str, usize); 4] {
-    [("obs_batch", obs_batch_len(50)), ("transition_batch", 50 * PACKED_LEN / 2), ("weights", rotorhive_model::num_params()), ("empty", 1)]
+    [
+        ("obs_batch", obs_batch_len(50)),
+        ("transition_batch", 50 * PACKED_LEN / 2),
+        ("weights", rotorhive_model::num_params()),
+        ("empty", 1),
+    ]
 }
 
 fn request_channel() -> Channel {
-    Channel { name: "bench.req".into(), publishers: 1, subscribers: 1, buffer: 2, overflow: false, history: 0 }
+    Channel {
+        name: "bench.req".into(),
+        publishers: 1,
+        subscribers: 1,
+        buffer: 2,
+        overflow: false,
+        history: 0,
+    }
 }
 
 fn ack_channel() -> Channel {
-    Channel { name: "bench.ack".into(), publishers: 1, subscribers: 1, buffer: 2, overflow: false, history: 0 }
+    Channel {
+        name: "bench.ack".into(),
+        publishers: 1,
+        subscribers: 1,
+        buffer: 2,
+        overflow: false,
+        history: 0,
+    }
 }
 
 /// What PRL4AirSim's msgpack-RPC carried: a typed record with a float array.
@@ -94,7 +113,9 @@ pub fn peer(prefix: &str) -> Result<()> {
     std::io::stdout().flush()?;
     // Shared memory first, until the parent sends the end marker.
     loop {
-        let Some(m) = rx.recv_timeout(TIMEOUT)? else { failed!("no message from the benchmark for {TIMEOUT:?}") };
+        let Some(m) = rx.recv_timeout(TIMEOUT)? else {
+            failed!("no message from the benchmark for {TIMEOUT:?}")
+        };
         let h = *m.user_header();
         if h.agents == u32::MAX {
             break;
@@ -116,15 +137,18 @@ pub fn peer(prefix: &str) -> Result<()> {
         if m.kind as usize >= kinds().len() || m.data.is_empty() {
             failed!("msgpack message {} of unknown kind {} or empty", m.seq, m.kind);
         }
-        let ack = rmp_serde::to_vec(&RpcAck { seq: m.seq, checksum: m.data[0] + m.data[m.data.len() - 1] })?;
+        let ack = rmp_serde::to_vec(&RpcAck {
+            seq: m.seq,
+            checksum: m.data[0] + m.data[m.data.len() - 1],
+        })?;
         write_frame(&mut s, &ack)?;
     }
     Ok(())
 }
 
 fn percentile(v: &mut [f64], q: f64) -> f64 {
-    v.sort_by(|a, b| a.total_cmp(b));
-    v[((v.len() - 1) as f64 * q).round() as usize]
+    v.sort_by(f64::total_cmp);
+    crate::stats::quantile(v, q)
 }
 
 struct Stats {
@@ -136,7 +160,12 @@ struct Stats {
 
 fn stats(mut half_rtt_us: Vec<f64>, wall: f64) -> Stats {
     let n = half_rtt_us.len();
-    Stats { p50: percentile(&mut half_rtt_us, 0.5), p90: percentile(&mut half_rtt_us, 0.9), p99: percentile(&mut half_rtt_us, 0.99), per_s: n as f64 / wall }
+    Stats {
+        p50: percentile(&mut half_rtt_us, 0.5),
+        p90: percentile(&mut half_rtt_us, 0.9),
+        p99: percentile(&mut half_rtt_us, 0.99),
+        per_s: n as f64 / wall,
+    }
 }
 
 /// Each kind of message through shared memory to the peer and back,
@@ -197,7 +226,8 @@ fn tcp_rows(port: u16, sources: &[Vec<f32>], iters: usize) -> Result<Vec<Stats>>
             let t = Instant::now();
             // The sender's data lives in its own buffers, as in the sim;
             // it is serialized from there, not cloned first.
-            let msg = rmp_serde::to_vec(&RpcMsgRef { kind: k as u32, seq: i as u64, data: &sources[k] })?;
+            let msg =
+                rmp_serde::to_vec(&RpcMsgRef { kind: k as u32, seq: i as u64, data: &sources[k] })?;
             write_frame(&mut s, &msg)?;
             if !read_frame(&mut s, &mut buf)? {
                 failed!("the TCP peer closed the connection");
@@ -220,7 +250,17 @@ fn tcp_rows(port: u16, sources: &[Vec<f32>], iters: usize) -> Result<Vec<Stats>>
 fn print_rows(shm: &[(Stats, Stats)], tcp: &[Stats]) -> Vec<serde_json::Value> {
     println!(
         "{:>17} {:>8} {:>11} {:>11} {:>10} {:>16} {:>15} {:>15} {:>11} {:>7} {:>12}",
-        "message", "KiB", "shm p50 µs", "shm p99 µs", "shm msg/s", "+copy-in p50 µs", "msgpack p50 µs", "msgpack p99 µs", "msgpack/s", "ratio", "ratio +copy"
+        "message",
+        "KiB",
+        "shm p50 µs",
+        "shm p99 µs",
+        "shm msg/s",
+        "+copy-in p50 µs",
+        "msgpack p50 µs",
+        "msgpack p99 µs",
+        "msgpack/s",
+        "ratio",
+        "ratio +copy"
     );
     let mut rows = Vec::new();
     for (k, (name, n)) in kinds().iter().enumerate() {
@@ -254,7 +294,10 @@ pub fn run(iters: usize, json_out: bool) -> Result<()> {
     if iters == 0 {
         usage!("--iters must be positive");
     }
-    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.subsec_nanos()).unwrap_or(0);
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.subsec_nanos())
+        .unwrap_or(0);
     let prefix = format!("bench-ipc-{}-{nanos:x}", std::process::id());
     let hub = Hub::<Ipc>::new(&prefix, "bench")?;
     let max = kinds().iter().map(|k| k.1).max().unwrap_or(1);
@@ -270,8 +313,14 @@ pub fn run(iters: usize, json_out: bool) -> Result<()> {
     let result = (|| -> Result<Vec<serde_json::Value>> {
         let mut line = String::new();
         BufReader::new(child.stdout.take().doing("peer stdout")?).read_line(&mut line)?;
-        let port: u16 = line.trim().parse().doing_with(|| format!("peer printed {line:?} instead of a port"))?;
-        let sources: Vec<Vec<f32>> = kinds().iter().map(|(_, n)| (0..*n).map(|i| (i % 97) as f32 * 0.01 + 0.5).collect()).collect();
+        let port: u16 = line
+            .trim()
+            .parse()
+            .doing_with(|| format!("peer printed {line:?} instead of a port"))?;
+        let sources: Vec<Vec<f32>> = kinds()
+            .iter()
+            .map(|(_, n)| (0..*n).map(|i| (i % 97) as f32 * 0.01 + 0.5).collect())
+            .collect();
         let shm = shm_rows(&mut tx, &mut rx, &sources, iters)?;
         tx.send_with(1, |h, _| *h = ObsHeader { agents: u32::MAX, ..ObsHeader::default() })?;
         let tcp = tcp_rows(port, &sources, iters)?;

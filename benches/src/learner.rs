@@ -79,7 +79,13 @@ fn measure(fused: bool, threads: usize, batch: usize, updates: usize) -> Result<
 /// `hive bench learner`: updates per second on random minibatches through the
 /// same update path, and actor inference latency at batch 1 and 50; with
 /// `compare`, the generic path of stock candle ops measured in the same run.
-pub fn bench(threads: usize, batch: usize, updates: usize, compare: bool, json: bool) -> Result<()> {
+pub fn bench(
+    threads: usize,
+    batch: usize,
+    updates: usize,
+    compare: bool,
+    json: bool,
+) -> Result<()> {
     if threads == 0 || batch == 0 || updates == 0 {
         usage!("--threads, --batch and --updates must be positive");
     }
@@ -93,10 +99,17 @@ pub fn bench(threads: usize, batch: usize, updates: usize, compare: bool, json: 
     }
     let fused = measure(true, threads, batch, updates)?;
     let generic = if compare { Some(measure(false, threads, batch, updates)?) } else { None };
-    for (name, p) in std::iter::once(("fused", &fused)).chain(generic.as_ref().map(|g| ("generic", g))) {
+    for (name, p) in
+        std::iter::once(("fused", &fused)).chain(generic.as_ref().map(|g| ("generic", g)))
+    {
         println!(
             "{name:>8}: threads {threads}, batch {batch}: {:.1} updates/s (forward {:.2} ms, backward {:.2} ms, optimiser {:.2} ms); inference batch 1: {:.3} ms, batch 50: {:.3} ms",
-            p.updates_per_s, p.forward_ms, p.backward_ms, p.optimiser_ms, p.infer_b1_ms, p.infer_b50_ms
+            p.updates_per_s,
+            p.forward_ms,
+            p.backward_ms,
+            p.optimiser_ms,
+            p.infer_b1_ms,
+            p.infer_b50_ms
         );
     }
     if let Some(g) = &generic {

@@ -31,6 +31,7 @@ mod learner;
 mod link;
 mod replay;
 pub mod seeds;
+pub mod stats;
 mod table;
 
 #[derive(Subcommand, Debug)]
@@ -209,21 +210,35 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
     match cmd {
         BenchCmd::Sim { agents, steps, threads, physics, arena, config, json } => {
             let world = match config {
-                Some(c) => SimWorld::Config(Box::new(rotorhive_roles::Config::load(Some(&c), &[])?)),
+                Some(c) => {
+                    SimWorld::Config(Box::new(rotorhive_roles::Config::load(Some(&c), &[])?))
+                }
                 None => SimWorld::Arena(Arena::load(&arena)?),
             };
             bench_sim(&agents, (steps, threads), &physics, &world, json)
         }
-        BenchCmd::Render { agents, renderer, steps, threads, arena, plot, json } => bench_render(&agents, &renderer, steps, threads, &arena, &plot, json),
+        BenchCmd::Render { agents, renderer, steps, threads, arena, plot, json } => {
+            bench_render(&agents, &renderer, steps, threads, &arena, &plot, json)
+        }
         BenchCmd::Ipc { iters, json } => crate::ipc::run(iters, json),
         BenchCmd::IpcPeer { prefix } => crate::ipc::peer(&prefix),
         BenchCmd::Link { seconds, batch, tls, json } => crate::link::run(seconds, batch, tls, json),
-        BenchCmd::LinkSide { side, endpoint, seconds, batch, tls } => crate::link::side(&side, &endpoint, seconds, batch, tls),
-        BenchCmd::Replay { producers, seconds, json } => crate::replay::run(producers, seconds, json),
-        BenchCmd::ReplayProducer { prefix, index, producers, batches } => crate::replay::producer(&prefix, index, producers, batches),
-        BenchCmd::Table { config, train_config, out, json } => crate::table::run(&config, train_config.as_deref(), &out, json),
+        BenchCmd::LinkSide { side, endpoint, seconds, batch, tls } => {
+            crate::link::side(&side, &endpoint, seconds, batch, tls)
+        }
+        BenchCmd::Replay { producers, seconds, json } => {
+            crate::replay::run(producers, seconds, json)
+        }
+        BenchCmd::ReplayProducer { prefix, index, producers, batches } => {
+            crate::replay::producer(&prefix, index, producers, batches)
+        }
+        BenchCmd::Table { config, train_config, out, json } => {
+            crate::table::run(&config, train_config.as_deref(), &out, json)
+        }
         BenchCmd::Seeds(args) => crate::seeds::run(&args),
-        BenchCmd::Learner { threads, batch, updates, compare, json } => crate::learner::bench(threads, batch, updates, compare, json),
+        BenchCmd::Learner { threads, batch, updates, compare, json } => {
+            crate::learner::bench(threads, batch, updates, compare, json)
+        }
     }
 }
 
@@ -253,28 +268,49 @@ impl SimWorld {
     /// The environment of `n` agents with `threads` and `physics`.
     fn env(&self, n: usize, threads: usize, physics: PhysicsKind) -> Result<VecEnv> {
         Ok(match self {
-            SimWorld::Arena(a) => VecEnv::new(SimConfig { agents: n, render_threads: threads, physics, ..SimConfig::default() }, a.clone(), 1)?,
+            SimWorld::Arena(a) => VecEnv::new(
+                SimConfig { agents: n, render_threads: threads, physics, ..SimConfig::default() },
+                a.clone(),
+                1,
+            )?,
             SimWorld::Config(c) => {
-                let sim = SimConfig { agents: n, render_threads: threads, physics, ..c.sim_config() };
+                let sim =
+                    SimConfig { agents: n, render_threads: threads, physics, ..c.sim_config() };
                 VecEnv::new_lanes(sim, &c.lane_arenas(0)?, 1)?
             }
         })
     }
 }
 
-fn bench_sim(agents: &[usize], (steps, threads): (usize, usize), physics: &[PhysicsKind], world: &SimWorld, json: bool) -> Result<()> {
+fn bench_sim(
+    agents: &[usize],
+    (steps, threads): (usize, usize),
+    physics: &[PhysicsKind],
+    world: &SimWorld,
+    json: bool,
+) -> Result<()> {
     if agents.contains(&0) || steps == 0 || threads == 0 {
         usage!("--agents, --steps and --threads must be positive");
     }
     let mut rows = Vec::new();
     println!(
         "{:>7} {:>8} {:>16} {:>12} {:>11} {:>11} {:>11} {:>15} {:>14}",
-        "agents", "physics", "agent-steps/s", "step ms", "physics ms", "render ms", "reset ms", "physics µs/agent", "render µs/agent"
+        "agents",
+        "physics",
+        "agent-steps/s",
+        "step ms",
+        "physics ms",
+        "render ms",
+        "reset ms",
+        "physics µs/agent",
+        "render µs/agent"
     );
     for (&n, &kind) in agents.iter().flat_map(|n| physics.iter().map(move |p| (n, p))) {
         let mut env = world.env(n, threads, kind)?;
         // A fixed pseudo-random action pattern: agents crash and reset as in training.
-        let actions = |t: usize| -> Vec<u8> { (0..n).map(|i| (((t * 31 + i * 17) >> 2) % 2) as u8).collect() };
+        let actions = |t: usize| -> Vec<u8> {
+            (0..n).map(|i| (((t * 31 + i * 17) >> 2) % 2) as u8).collect()
+        };
         for t in 0..3 {
             env.step(&actions(t))?;
         }
@@ -313,7 +349,11 @@ fn bench_sim(agents: &[usize], (steps, threads): (usize, usize), physics: &[Phys
         }));
     }
     if json {
-        let out = if rows.len() == 1 { rows.remove(0) } else { json!({ "threads": threads, "rows": rows }) };
+        let out = if rows.len() == 1 {
+            rows.remove(0)
+        } else {
+            json!({ "threads": threads, "rows": rows })
+        };
         println!("{out}");
     }
     Ok(())
@@ -323,7 +363,15 @@ fn bench_sim(agents: &[usize], (steps, threads): (usize, usize), physics: &[Phys
 /// drawn and read back into the observation buffer) with the same agents
 /// and actions in both modes: batched (one call, one submission, one
 /// synchronisation per step) and non-batched (one of each per agent).
-fn bench_render(agents: &[usize], renderer: &str, steps: usize, threads: usize, arena: &std::path::Path, plot: &std::path::Path, json: bool) -> Result<()> {
+fn bench_render(
+    agents: &[usize],
+    renderer: &str,
+    steps: usize,
+    threads: usize,
+    arena: &std::path::Path,
+    plot: &std::path::Path,
+    json: bool,
+) -> Result<()> {
     if agents.contains(&0) || steps == 0 {
         usage!("--agents and --steps must be positive");
     }
@@ -333,11 +381,22 @@ fn bench_render(agents: &[usize], renderer: &str, steps: usize, threads: usize, 
         other => usage!("--renderer must be cpu or wgpu, got {other:?}"),
     };
     let arena = Arena::load(arena)?;
-    let threads = if threads == 0 { std::thread::available_parallelism().map_or(1, |n| n.get()) } else { threads };
-    let mut adapter = format!("cpu ray casting, {threads} thread{}", if threads == 1 { "" } else { "s" });
+    let threads = if threads == 0 {
+        std::thread::available_parallelism().map_or(1, |n| n.get())
+    } else {
+        threads
+    };
+    let mut adapter =
+        format!("cpu ray casting, {threads} thread{}", if threads == 1 { "" } else { "s" });
     // (render, render + transport) ms per step.
     let mut measure = |n: usize, batched: bool| -> Result<(f64, f64)> {
-        let cfg = SimConfig { agents: n, renderer: kind, batched, render_threads: threads, ..SimConfig::default() };
+        let cfg = SimConfig {
+            agents: n,
+            renderer: kind,
+            batched,
+            render_threads: threads,
+            ..SimConfig::default()
+        };
         let mut env = VecEnv::new(cfg, arena.clone(), 1)?;
         // As in `hive sim`: observations are assembled in the loaned sample.
         env.drop_observation_buffer();
@@ -345,7 +404,9 @@ fn bench_render(agents: &[usize], renderer: &str, steps: usize, threads: usize, 
             adapter = g.adapter().to_string();
         }
         let mut hop = ObsHop::new(n, batched)?;
-        let actions = |t: usize| -> Vec<u8> { (0..n).map(|i| (((t * 31 + i * 17) >> 2) % 2) as u8).collect() };
+        let actions = |t: usize| -> Vec<u8> {
+            (0..n).map(|i| (((t * 31 + i * 17) >> 2) % 2) as u8).collect()
+        };
         let (mut render, mut total) = (0u64, 0u64);
         for t in 0..steps + 2 {
             env.step(&actions(t))?;
@@ -359,7 +420,15 @@ fn bench_render(agents: &[usize], renderer: &str, steps: usize, threads: usize, 
         let ms = |ns: u64| ns as f64 / 1e6 / steps as f64;
         Ok((ms(render), ms(total)))
     };
-    println!("{:>7} {:>12} {:>15} {:>8}   {:>17} {:>20}", "agents", "batched ms", "non-batched ms", "ratio", "batched render ms", "non-batched render ms");
+    println!(
+        "{:>7} {:>12} {:>15} {:>8}   {:>17} {:>20}",
+        "agents",
+        "batched ms",
+        "non-batched ms",
+        "ratio",
+        "batched render ms",
+        "non-batched render ms"
+    );
     let mut rows = Vec::new();
     let (mut b_pts, mut nb_pts) = (Vec::new(), Vec::new());
     for &n in agents {
@@ -370,7 +439,9 @@ fn bench_render(agents: &[usize], renderer: &str, steps: usize, threads: usize, 
         nb_pts.push((n as f64, nb));
         rows.push(json!({ "agents": n, "batched_ms": b, "non_batched_ms": nb, "ratio": nb / b, "batched_render_ms": br, "non_batched_render_ms": nbr }));
     }
-    println!("renderer {renderer} ({adapter}); observations carried through iceoryx2 to a gathering thread as in training");
+    println!(
+        "renderer {renderer} ({adapter}); observations carried through iceoryx2 to a gathering thread as in training"
+    );
     println!("paper (AirSim, RTX 2070): 10 agents 61 ms batched, 197 ms non-batched");
     rotorhive_records::plot::lines_plot(
         &format!("observation gathering per step ({renderer})"),
@@ -407,7 +478,11 @@ impl ObsHop {
         let prefix = format!("bench-render-{}-{n}-{batched}", std::process::id());
         let ch = Channel::obs(0, if batched { 1 } else { n });
         let hub = Hub::<Ipc>::new(&prefix, "bench-render-sim")?;
-        let tx = hub.sender::<f32, rotorhive_msg::ObsHeader>(&ch, rotorhive_msg::obs_batch_len(n), std::time::Duration::from_secs(5))?;
+        let tx = hub.sender::<f32, rotorhive_msg::ObsHeader>(
+            &ch,
+            rotorhive_msg::obs_batch_len(n),
+            std::time::Duration::from_secs(5),
+        )?;
         let (done_tx, gathered) = std::sync::mpsc::channel();
         let (ready_tx, ready) = std::sync::mpsc::channel();
         let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
@@ -418,18 +493,26 @@ impl ObsHop {
             let _ = ready_tx.send(());
             let mut gather = rotorhive_roles::actor::Gather::new(n);
             while !halt.load(std::sync::atomic::Ordering::Relaxed) {
-                let Some(m) = rx.recv_timeout(std::time::Duration::from_millis(10))? else { continue };
+                let Some(m) = rx.recv_timeout(std::time::Duration::from_millis(10))? else {
+                    continue;
+                };
                 let h = *m.user_header();
                 // A whole batch is used in place (the actor's network reads it
                 // from shared memory); per-agent messages are copied together.
-                let complete = if h.agents == h.total { std::hint::black_box(m.payload()[m.payload().len() - 1]) >= 0.0 } else { gather.add(&h, m.payload()) };
+                let complete = if h.agents == h.total {
+                    std::hint::black_box(m.payload()[m.payload().len() - 1]) >= 0.0
+                } else {
+                    gather.add(&h, m.payload())
+                };
                 if complete && done_tx.send(h.step).is_err() {
                     break;
                 }
             }
             Ok(())
         });
-        ready.recv_timeout(std::time::Duration::from_secs(10)).map_err(|_| BenchError::Failed("the gathering thread of bench render did not start".into()))?;
+        ready.recv_timeout(std::time::Duration::from_secs(10)).map_err(|_| {
+            BenchError::Failed("the gathering thread of bench render did not start".into())
+        })?;
         Ok(Self { _hub: hub, tx, gathered, stop, thread: Some(thread) })
     }
 
@@ -438,10 +521,9 @@ impl ObsHop {
     fn carry(&mut self, env: &VecEnv, step: u64, batched: bool) -> Result<u64> {
         let t = Instant::now();
         rotorhive_roles::sim::send_obs(&mut self.tx, env, step, batched)?;
-        let got = self
-            .gathered
-            .recv_timeout(std::time::Duration::from_secs(10))
-            .map_err(|_| BenchError::Failed(format!("step {step}'s observations were not gathered within 10 s")))?;
+        let got = self.gathered.recv_timeout(std::time::Duration::from_secs(10)).map_err(|_| {
+            BenchError::Failed(format!("step {step}'s observations were not gathered within 10 s"))
+        })?;
         if got != step {
             failed!("gathered step {got}, expected {step}");
         }

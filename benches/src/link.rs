@@ -56,7 +56,8 @@ pub fn run(seconds: f64, batch: usize, with_tls: bool, json_out: bool) -> Result
     // The same over mutual TLS on TCP and on QUIC, with certificates made
     // for this run.
     let secure = if with_tls {
-        let certs = std::env::temp_dir().join(format!("rotorhive-bench-link-{}", std::process::id()));
+        let certs =
+            std::env::temp_dir().join(format!("rotorhive-bench-link-{}", std::process::id()));
         rotorhive_link::certs::make(&certs, 1, &[])?;
         let tls = secure_pair(seconds, batch, &certs, "tls");
         let quic = secure_pair(seconds, batch, &certs, "quic");
@@ -65,21 +66,50 @@ pub fn run(seconds: f64, batch: usize, with_tls: bool, json_out: bool) -> Result
     } else {
         None
     };
-    let (link_rate, lost, got, sent, ep) = (plain.rate, plain.lost, plain.got, plain.sent.clone(), plain.endpoint.clone());
+    let (link_rate, lost, got, sent, ep) =
+        (plain.rate, plain.lost, plain.got, plain.sent.clone(), plain.endpoint.clone());
     let (base_got, base_secs) = msgpack_tcp(seconds, batch)?;
     let base_rate = base_got as f64 / base_secs;
     let mb = |r: f64| r * (PACKED_LEN * 2) as f64 / 1e6;
     println!("{:<32} {:>14} {:>10} {:>8}", "path", "transitions/s", "MB/s", "lost");
-    println!("{:<32} {:>14.0} {:>10.0} {:>8}", "link: shm → zenoh/TCP → shm", link_rate, mb(link_rate), lost);
+    println!(
+        "{:<32} {:>14.0} {:>10.0} {:>8}",
+        "link: shm → zenoh/TCP → shm",
+        link_rate,
+        mb(link_rate),
+        lost
+    );
     if let Some((tls, quic)) = &secure {
-        println!("{:<32} {:>14.0} {:>10.0} {:>8}", "link: shm → zenoh/mTLS → shm", tls.rate, mb(tls.rate), tls.lost);
-        println!("{:<32} {:>14.0} {:>10.0} {:>8}", "link: shm → zenoh/QUIC → shm", quic.rate, mb(quic.rate), quic.lost);
+        println!(
+            "{:<32} {:>14.0} {:>10.0} {:>8}",
+            "link: shm → zenoh/mTLS → shm",
+            tls.rate,
+            mb(tls.rate),
+            tls.lost
+        );
+        println!(
+            "{:<32} {:>14.0} {:>10.0} {:>8}",
+            "link: shm → zenoh/QUIC → shm",
+            quic.rate,
+            mb(quic.rate),
+            quic.lost
+        );
     }
-    println!("{:<32} {:>14.0} {:>10.0} {:>8}", "msgpack over TCP (baseline)", base_rate, mb(base_rate), "-");
+    println!(
+        "{:<32} {:>14.0} {:>10.0} {:>8}",
+        "msgpack over TCP (baseline)",
+        base_rate,
+        mb(base_rate),
+        "-"
+    );
     println!(
         "ratio {:.1}× the baseline{}; batches of {batch} transitions ({} bytes each), {seconds} s per path; worker sent {} transitions",
         link_rate / base_rate,
-        secure.as_ref().map_or(String::new(), |(t, q)| format!(", TLS {:.2}× and QUIC {:.2}× plain", t.rate / link_rate, q.rate / link_rate)),
+        secure.as_ref().map_or(String::new(), |(t, q)| format!(
+            ", TLS {:.2}× and QUIC {:.2}× plain",
+            t.rate / link_rate,
+            q.rate / link_rate
+        )),
         PACKED_LEN * 2,
         sent
     );
@@ -123,9 +153,13 @@ fn secure_pair(seconds: f64, batch: usize, certs: &std::path::Path, kind: &str) 
     let mut attempt = 1;
     loop {
         match link_pair(seconds, batch, Some((certs, kind))) {
-            Ok(p) => return Ok(Pair { attempts: attempt, ..p }),
+            Ok(p) => {
+                return Ok(Pair { attempts: attempt, ..p });
+            }
             Err(e) if attempt < 3 => {
-                eprintln!("warning: the {kind}/ path failed (try {attempt} of 3), trying again: {e:#}");
+                eprintln!(
+                    "warning: the {kind}/ path failed (try {attempt} of 3), trying again: {e:#}"
+                );
                 attempt += 1;
             }
             Err(e) => return Err(e),
@@ -140,12 +174,8 @@ fn link_pair(seconds: f64, batch: usize, tls: Option<(&std::path::Path, &str)>) 
     let exe = std::env::current_exe()?;
     let side = |name: &str, domain: String, dir: &str| -> Result<std::process::Child> {
         let mut c = Command::new(&exe);
-        c.args(["--domain", &domain, "bench", "link-side", "--side", name, "--endpoint", &ep]).args([
-            "--seconds",
-            &seconds.to_string(),
-            "--batch",
-            &batch.to_string(),
-        ]);
+        c.args(["--domain", &domain, "bench", "link-side", "--side", name, "--endpoint", &ep])
+            .args(["--seconds", &seconds.to_string(), "--batch", &batch.to_string()]);
         if let Some((t, _)) = tls {
             c.arg("--tls").arg(t.join(dir));
         }
@@ -160,35 +190,69 @@ fn link_pair(seconds: f64, batch: usize, tls: Option<(&std::path::Path, &str)>) 
     let last = |o: &std::process::Output| -> Result<serde_json::Value> {
         let out = String::from_utf8_lossy(&o.stdout);
         let line = out.lines().last().unwrap_or("");
-        serde_json::from_str(line).doing_with(|| format!("a side of the link bench on {ep} failed ({}): {out}", o.status))
+        serde_json::from_str(line)
+            .doing_with(|| format!("a side of the link bench on {ep} failed ({}): {out}", o.status))
     };
     let (hj, wj) = (last(&h)?, last(&w)?);
     let got = hj["transitions"].as_u64().unwrap_or(0);
     let secs = hj["seconds"].as_f64().unwrap_or(f64::NAN);
-    Ok(Pair { rate: got as f64 / secs, lost: hj["lost"].as_u64().unwrap_or(0), got, sent: wj["sent"].clone(), endpoint: ep, attempts: 1 })
+    Ok(Pair {
+        rate: got as f64 / secs,
+        lost: hj["lost"].as_u64().unwrap_or(0),
+        got,
+        sent: wj["sent"].clone(),
+        endpoint: ep,
+        attempts: 1,
+    })
 }
 
 /// One side of the link benchmark, in its own domain (started by [`run`]).
-pub fn side(side: &str, ep: &str, seconds: f64, batch: usize, tls: Option<std::path::PathBuf>) -> Result<()> {
+pub fn side(
+    side: &str,
+    ep: &str,
+    seconds: f64,
+    batch: usize,
+    tls: Option<std::path::PathBuf>,
+) -> Result<()> {
     let layout = rotorhive_link::layout(rotorhive_model::num_params());
     // The run's access control as `hive train` and `hive worker` set it.
     match side {
-        "head" => head_side(ep, seconds, batch, layout, &rotorhive_link::LinkOptions::for_head(tls, None, 1)),
-        "worker" => worker_side(ep, batch, layout, &rotorhive_link::LinkOptions::for_worker(tls, None)),
+        "head" => head_side(
+            ep,
+            seconds,
+            batch,
+            layout,
+            &rotorhive_link::LinkOptions::for_head(tls, None, 1),
+        ),
+        "worker" => {
+            worker_side(ep, batch, layout, &rotorhive_link::LinkOptions::for_worker(tls, None))
+        }
         other => usage!("--side {other}: head or worker"),
     }
 }
 
 /// The head side: its link brings the worker's batches into shared memory,
 /// where a consumer counts them for `seconds` from the first.
-fn head_side(ep: &str, seconds: f64, batch: usize, layout: u64, opts: &rotorhive_link::LinkOptions) -> Result<()> {
+fn head_side(
+    ep: &str,
+    seconds: f64,
+    batch: usize,
+    layout: u64,
+    opts: &rotorhive_link::LinkOptions,
+) -> Result<()> {
     let stop = Arc::new(AtomicBool::new(false));
     let mut head = rotorhive_link::Head::listen(ep, RUN, layout, opts)?;
     head.gather(1, 1, batch, Duration::from_secs(30), rotorhive_transport::stop_requested)?;
     head.admit(|_| (String::new(), String::new()));
     let hub = Hub::<Ipc>::new(RUN, "bench-consumer")?;
     let mut rx = hub.receiver::<u16, TransitionHeader>(&Channel::transitions(1))?;
-    let mut link = head.bridge::<Ipc>(RUN.into(), 1, 2, stop.clone(), Box::new(|_| (String::new(), String::new())))?;
+    let mut link = head.bridge::<Ipc>(
+        RUN.into(),
+        1,
+        2,
+        stop.clone(),
+        Box::new(|_| (String::new(), String::new())),
+    )?;
     let (mut got, mut lost, mut first) = (0u64, 0u64, None::<Instant>);
     let mut seen = rotorhive_msg::SeqTracker::new(1);
     let deadline = Instant::now() + Duration::from_secs_f64(seconds) + Duration::from_secs(20);
@@ -196,7 +260,9 @@ fn head_side(ep: &str, seconds: f64, batch: usize, layout: u64, opts: &rotorhive
         if first.is_some_and(|t| t.elapsed().as_secs_f64() >= seconds) {
             break;
         }
-        let Some(m) = rx.recv_timeout(Duration::from_millis(100))? else { continue };
+        let Some(m) = rx.recv_timeout(Duration::from_millis(100))? else {
+            continue;
+        };
         let h = *m.user_header();
         lost += seen.observe(h.actor as usize, h.seq) * h.count as u64;
         if m.payload().len() != h.count as usize * PACKED_LEN || m.payload()[0] != (h.seq as u16) {
@@ -220,10 +286,27 @@ fn head_side(ep: &str, seconds: f64, batch: usize, layout: u64, opts: &rotorhive
 
 /// The worker side: a producer sends the same batch (with its sequence
 /// number as a marker) as fast as the link takes it.
-fn worker_side(ep: &str, batch: usize, layout: u64, opts: &rotorhive_link::LinkOptions) -> Result<()> {
+fn worker_side(
+    ep: &str,
+    batch: usize,
+    layout: u64,
+    opts: &rotorhive_link::LinkOptions,
+) -> Result<()> {
     let stop = Arc::new(AtomicBool::new(false));
-    let hello = rotorhive_link::Hello { layout, envs: 1, agents: batch as u32, host: "bench-worker".into(), token: "bench".into() };
-    let w = rotorhive_link::Worker::join(ep, &hello, Duration::from_secs(30), opts, rotorhive_transport::stop_requested)?;
+    let hello = rotorhive_link::Hello {
+        layout,
+        envs: 1,
+        agents: batch as u32,
+        host: "bench-worker".into(),
+        token: "bench".into(),
+    };
+    let w = rotorhive_link::Worker::join(
+        ep,
+        &hello,
+        Duration::from_secs(30),
+        opts,
+        rotorhive_transport::stop_requested,
+    )?;
     let hub = Hub::<Ipc>::new(RUN, "bench-link")?.with_stop(stop.clone());
     let (ready_tx, ready_rx) = std::sync::mpsc::channel::<()>();
     let producer = {
@@ -233,7 +316,11 @@ fn worker_side(ep: &str, batch: usize, layout: u64, opts: &rotorhive_link::LinkO
             // Start once the link takes batches.
             let _ = ready_rx.recv();
             let hub = Hub::<Ipc>::new(RUN, "bench-producer")?;
-            let mut tx = hub.sender::<u16, TransitionHeader>(&Channel::transitions(1), batch * PACKED_LEN, rotorhive_roles::STALL_TIMEOUT)?;
+            let mut tx = hub.sender::<u16, TransitionHeader>(
+                &Channel::transitions(1),
+                batch * PACKED_LEN,
+                rotorhive_roles::STALL_TIMEOUT,
+            )?;
             // A burst sent within ~100 ms of a publisher's creation lost
             // batches 8..N to the subscriber created before it in about
             // one run in four (iceoryx2 0.10, not yet understood; the
@@ -264,7 +351,8 @@ fn worker_side(ep: &str, batch: usize, layout: u64, opts: &rotorhive_link::LinkO
         let _ = ready_tx.send(());
     });
     stop.store(true, Ordering::SeqCst);
-    let produced = producer.join().map_err(|_| BenchError::Failed("producer panicked".into()))??;
+    let produced =
+        producer.join().map_err(|_| BenchError::Failed("producer panicked".into()))??;
     end?;
     println!("{}", json!({"sent": stats.transitions, "produced": produced}));
     Ok(())

@@ -12,7 +12,10 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use crate::error::{Doing, Result, failed, usage};
-use rotorhive_msg::{MinibatchHeader, OBS_LEN, PACKED_LEN, PICK_WORDS, Pick, PriorityHeader, Telemetry, TransitionHeader, pack_transition};
+use rotorhive_msg::{
+    MinibatchHeader, OBS_LEN, PACKED_LEN, PICK_WORDS, Pick, PriorityHeader, Telemetry,
+    TransitionHeader, pack_transition,
+};
 use rotorhive_roles::replay::minibatch_len;
 use rotorhive_transport::{Channel, Hub, Ipc, services_of_run};
 use serde_json::json;
@@ -24,7 +27,11 @@ const PER_MSG: usize = 50;
 /// takes them, then prints the seconds it took.
 pub fn producer(prefix: &str, index: usize, producers: usize, batches: usize) -> Result<()> {
     let hub = Hub::<Ipc>::new(prefix, &format!("bench-producer-{index}"))?;
-    let mut tx = hub.sender::<u16, TransitionHeader>(&Channel::transitions(producers), PER_MSG * PACKED_LEN, Duration::from_secs(5))?;
+    let mut tx = hub.sender::<u16, TransitionHeader>(
+        &Channel::transitions(producers),
+        PER_MSG * PACKED_LEN,
+        Duration::from_secs(5),
+    )?;
     // Valid packed transitions (action and done 0 or 1), as an actor sends.
     let mut src = vec![0u16; PER_MSG * PACKED_LEN];
     let obs = vec![0.5f32; OBS_LEN];
@@ -39,7 +46,12 @@ pub fn producer(prefix: &str, index: usize, producers: usize, batches: usize) ->
     let t = Instant::now();
     for seq in 0..batches as u64 {
         tx.send_with(PER_MSG * PACKED_LEN, |h, out| {
-            *h = TransitionHeader { actor: index as u32, count: PER_MSG as u32, seq, weight_version: 0 };
+            *h = TransitionHeader {
+                actor: index as u32,
+                count: PER_MSG as u32,
+                seq,
+                weight_version: 0,
+            };
             out.copy_from_slice(&src);
         })?;
     }
@@ -95,7 +107,8 @@ fn join_producers(children: Vec<Child>) -> Result<f64> {
         if !status.success() {
             failed!("a producer failed ({status})");
         }
-        worst = worst.max(line.trim().parse::<f64>().doing_with(|| format!("producer printed {line:?}"))?);
+        worst = worst
+            .max(line.trim().parse::<f64>().doing_with(|| format!("producer printed {line:?}"))?);
     }
     Ok(worst)
 }
@@ -117,18 +130,55 @@ pub fn run(producers: usize, seconds: f64, json_out: bool) -> Result<()> {
     // The first row is the default config's replay: its sampling and journal.
     let default_prioritized = rotorhive_roles::Config::default().replay.prioritized;
     let mut variants = vec![
-        Variant { name: "uniform, journal on, limiter off", samples_per_insert: 0.0, journal: true, prioritized: false },
-        Variant { name: "prioritized + feedback, journal on, limiter off", samples_per_insert: 0.0, journal: true, prioritized: true },
-        Variant { name: "uniform, journal off, limiter off", samples_per_insert: 0.0, journal: false, prioritized: false },
-        Variant { name: "prioritized + feedback, journal off, limiter off", samples_per_insert: 0.0, journal: false, prioritized: true },
-        Variant { name: "uniform, journal on, limiter on (samples_per_insert = 1)", samples_per_insert: 1.0, journal: true, prioritized: false },
-        Variant { name: "prioritized + feedback, journal on, limiter on", samples_per_insert: 1.0, journal: true, prioritized: true },
+        Variant {
+            name: "uniform, journal on, limiter off",
+            samples_per_insert: 0.0,
+            journal: true,
+            prioritized: false,
+        },
+        Variant {
+            name: "prioritized + feedback, journal on, limiter off",
+            samples_per_insert: 0.0,
+            journal: true,
+            prioritized: true,
+        },
+        Variant {
+            name: "uniform, journal off, limiter off",
+            samples_per_insert: 0.0,
+            journal: false,
+            prioritized: false,
+        },
+        Variant {
+            name: "prioritized + feedback, journal off, limiter off",
+            samples_per_insert: 0.0,
+            journal: false,
+            prioritized: true,
+        },
+        Variant {
+            name: "uniform, journal on, limiter on (samples_per_insert = 1)",
+            samples_per_insert: 1.0,
+            journal: true,
+            prioritized: false,
+        },
+        Variant {
+            name: "prioritized + feedback, journal on, limiter on",
+            samples_per_insert: 1.0,
+            journal: true,
+            prioritized: true,
+        },
     ];
     if default_prioritized {
         variants.swap(0, 1);
     }
     let mut rows = Vec::new();
-    println!("{:<58} {:>16} {:>16} {:>22} {:>22}", "variant", "inserts/s alone", "samples/s alone", "inserts/s (together)", "samples/s (together)");
+    println!(
+        "{:<58} {:>16} {:>16} {:>22} {:>22}",
+        "variant",
+        "inserts/s alone",
+        "samples/s alone",
+        "inserts/s (together)",
+        "samples/s (together)"
+    );
     for v in &variants {
         let r = measure(producers, seconds, v)?;
         println!(
@@ -165,7 +215,10 @@ pub fn run(producers: usize, seconds: f64, json_out: bool) -> Result<()> {
 
 /// Runs one replay process with the setting `v` through the three phases.
 fn measure(producers: usize, seconds: f64, v: &Variant) -> Result<serde_json::Value> {
-    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.subsec_nanos()).unwrap_or(0);
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.subsec_nanos())
+        .unwrap_or(0);
     let prefix = format!("bench-replay-{}-{nanos:x}", std::process::id());
     let dir = std::env::temp_dir().join(&prefix);
     std::fs::create_dir_all(&dir)?;
@@ -175,23 +228,33 @@ fn measure(producers: usize, seconds: f64, v: &Variant) -> Result<serde_json::Va
     let cfg_path = replay_config(&dir, producers, capacity, v)?;
     let hub = Hub::<Ipc>::new(&prefix, "bench-learner")?;
     let mut rx = hub.receiver::<u16, MinibatchHeader>(&Channel::minibatches(4))?;
-    let mut prio_tx =
-        if v.prioritized { Some(hub.sender::<u16, PriorityHeader>(&Channel::priorities(4), 32 * PICK_WORDS, Duration::from_millis(50))?) } else { None };
+    let mut prio_tx = if v.prioritized {
+        Some(hub.sender::<u16, PriorityHeader>(
+            &Channel::priorities(4),
+            32 * PICK_WORDS,
+            Duration::from_millis(50),
+        )?)
+    } else {
+        None
+    };
     // What the learner does with a minibatch here: read its picks and send
     // each row a new priority (a made-up |TD error| that varies by row).
-    let mut feed_back = move |m: &rotorhive_transport::Msg<Ipc, u16, MinibatchHeader>| -> Result<()> {
-        let Some(tx) = &mut prio_tx else { return Ok(()) };
-        let tail = &m.payload()[32 * PACKED_LEN..];
-        let seq = m.user_header().seq;
-        tx.send_with(32 * PICK_WORDS, |h, out| {
-            *h = PriorityHeader { count: 32, reserved: 0, seq };
-            for (w, o) in tail.chunks_exact(PICK_WORDS).zip(out.chunks_exact_mut(PICK_WORDS)) {
-                let p = Pick::unpack(w);
-                Pick { value: (p.row % 97) as f32 * 0.01, ..p }.pack(o);
-            }
-        })?;
-        Ok(())
-    };
+    let mut feed_back =
+        move |m: &rotorhive_transport::Msg<Ipc, u16, MinibatchHeader>| -> Result<()> {
+            let Some(tx) = &mut prio_tx else {
+                return Ok(());
+            };
+            let tail = &m.payload()[32 * PACKED_LEN..];
+            let seq = m.user_header().seq;
+            tx.send_with(32 * PICK_WORDS, |h, out| {
+                *h = PriorityHeader { count: 32, reserved: 0, seq };
+                for (w, o) in tail.chunks_exact(PICK_WORDS).zip(out.chunks_exact_mut(PICK_WORDS)) {
+                    let p = Pick::unpack(w);
+                    Pick { value: (p.row % 97) as f32 * 0.01, ..p }.pack(o);
+                }
+            })?;
+            Ok(())
+        };
     let mut tel = hub.receiver::<u8, Telemetry>(&Channel::telemetry(2 * producers + 2))?;
     let procs = Procs(vec![start_replay(&cfg_path, &prefix, &dir)?]);
     let result = (|| -> Result<serde_json::Value> {
@@ -236,11 +299,16 @@ fn measure(producers: usize, seconds: f64, v: &Variant) -> Result<serde_json::Va
 }
 
 /// What the bench's learner does with a minibatch.
-type FeedBack<'a> = dyn FnMut(&rotorhive_transport::Msg<Ipc, u16, MinibatchHeader>) -> Result<()> + 'a;
+type FeedBack<'a> =
+    dyn FnMut(&rotorhive_transport::Msg<Ipc, u16, MinibatchHeader>) -> Result<()> + 'a;
 
 /// Phase 2: minibatches taken for `secs` (the memory full, no inserts);
 /// returns how many and the seconds it took.
-fn sample_for(rx: &mut rotorhive_transport::Receiver<Ipc, u16, MinibatchHeader>, secs: f64, feed_back: &mut FeedBack<'_>) -> Result<(u64, f64)> {
+fn sample_for(
+    rx: &mut rotorhive_transport::Receiver<Ipc, u16, MinibatchHeader>,
+    secs: f64,
+    feed_back: &mut FeedBack<'_>,
+) -> Result<(u64, f64)> {
     let t = Instant::now();
     let mut n = 0u64;
     while t.elapsed().as_secs_f64() < secs {
@@ -279,7 +347,12 @@ fn together(
 }
 
 /// The replay's config for `producers` producers filling `capacity`.
-fn replay_config(dir: &std::path::Path, producers: usize, capacity: usize, v: &Variant) -> Result<std::path::PathBuf> {
+fn replay_config(
+    dir: &std::path::Path,
+    producers: usize,
+    capacity: usize,
+    v: &Variant,
+) -> Result<std::path::PathBuf> {
     let cfg = format!(
         "[sim]\nenvs = {producers}\n[replay]\ncapacity = {capacity}\nmin_fill = {capacity}\nbatch = 32\nprefetch = 4\nsamples_per_insert = {:?}\nsnapshot_every_s = {}\nprioritized = {}\n",
         v.samples_per_insert,
@@ -292,7 +365,11 @@ fn replay_config(dir: &std::path::Path, producers: usize, capacity: usize, v: &V
 }
 
 /// The replay role as a process of run `prefix`.
-fn start_replay(cfg_path: &std::path::Path, prefix: &str, dir: &std::path::Path) -> Result<std::process::Child> {
+fn start_replay(
+    cfg_path: &std::path::Path,
+    prefix: &str,
+    dir: &std::path::Path,
+) -> Result<std::process::Child> {
     Command::new(std::env::current_exe()?)
         .arg("replay")
         .arg(cfg_path)
@@ -350,7 +427,8 @@ fn priority_updates(tel: &mut rotorhive_transport::Receiver<Ipc, u8, Telemetry>)
         if let Some(m) = tel.recv_timeout(Duration::from_millis(100))?
             && m.user_header().role == rotorhive_msg::RoleKind::Replay as u32
         {
-            priority_updates = priority_updates.max(m.user_header().learning.priority_updates as u64);
+            priority_updates =
+                priority_updates.max(m.user_header().learning.priority_updates as u64);
         }
     }
     Ok(priority_updates)

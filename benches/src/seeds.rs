@@ -17,13 +17,14 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use crate::error::{BenchError, Doing, Result, failed, usage};
-use rand::{Rng, SeedableRng};
+use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 use serde::Deserialize;
-use serde_json::json;
 
 use rotorhive_records::rows::{EvalRow, MetricsKind, MetricsRow};
-use rotorhive_records::{Rolling, Summary};
+use rotorhive_records::{Rolling, Summary, plot};
+
+use crate::stats::{bootstrap, iqm, median, prob_lower, quantile};
 use rotorhive_roles::{Config, Exploration};
 
 /// The command line of `hive bench seeds`.
@@ -94,10 +95,13 @@ struct ArmsFile {
 
 /// Parses `1-10` or `1,4,7`.
 pub fn parse_seeds(s: &str) -> Result<Vec<u64>> {
-    let bad = || BenchError::Usage(format!("--seeds {s:?}: expected a range like 1-10 or a list like 1,4,7"));
+    let bad = || {
+        BenchError::Usage(format!("--seeds {s:?}: expected a range like 1-10 or a list like 1,4,7"))
+    };
     let seeds: Vec<u64> = match s.split_once('-') {
         Some((a, b)) => {
-            let (a, b): (u64, u64) = (a.trim().parse().map_err(|_| bad())?, b.trim().parse().map_err(|_| bad())?);
+            let (a, b): (u64, u64) =
+                (a.trim().parse().map_err(|_| bad())?, b.trim().parse().map_err(|_| bad())?);
             if a > b {
                 return Err(bad());
             }
@@ -117,7 +121,8 @@ pub fn parse_arm(s: &str) -> Result<Arm> {
     if name.trim().is_empty() {
         usage!("--arm {s:?}: the arm needs a name (NAME:key=value,...)");
     }
-    let set: Vec<String> = sets.split(',').map(str::trim).filter(|v| !v.is_empty()).map(String::from).collect();
+    let set: Vec<String> =
+        sets.split(',').map(str::trim).filter(|v| !v.is_empty()).map(String::from).collect();
     if let Some(v) = set.iter().find(|v| !v.contains('=')) {
         usage!("--arm {s:?}: {v:?} is not key=value");
     }
@@ -128,8 +133,11 @@ pub fn parse_arm(s: &str) -> Result<Arm> {
 fn arms_of(a: &SeedsArgs) -> Result<Vec<Arm>> {
     let mut arms: Vec<Arm> = a.arms.iter().map(|s| parse_arm(s)).collect::<Result<_>>()?;
     if let Some(f) = &a.arms_file {
-        let text = std::fs::read_to_string(f).doing_with(|| format!("arms file {}", f.display()))?;
-        let file: ArmsFile = toml::from_str(&text).map_err(|e| BenchError::Usage(format!("arms file {}: {}", f.display(), e.to_string().trim_end())))?;
+        let text =
+            std::fs::read_to_string(f).doing_with(|| format!("arms file {}", f.display()))?;
+        let file: ArmsFile = toml::from_str(&text).map_err(|e| {
+            BenchError::Usage(format!("arms file {}: {}", f.display(), e.to_string().trim_end()))
+        })?;
         arms.extend(file.arm);
     }
     if arms.is_empty() {
@@ -195,14 +203,19 @@ impl RunResult {
 /// and the rolling-reward curve of its `tick` rows.
 pub fn threshold_time(run_dir: &Path) -> Result<(Option<f64>, Curve)> {
     let cfg = Config::load(Some(&run_dir.join("config.toml")), &[])?;
-    let floor = (cfg.actor.exploration == Exploration::PerActor).then_some(cfg.actor.eps_end as f32);
+    let floor =
+        (cfg.actor.exploration == Exploration::PerActor).then_some(cfg.actor.eps_end as f32);
     let mut rolling = Rolling::new(cfg.rolling_window, cfg.threshold, floor);
     let mut curve = Vec::new();
     for row in rotorhive_records::rows::read::<MetricsRow>(&run_dir.join("metrics.csv"))? {
         match row.kind {
             MetricsKind::Episode => {
                 let (Some(r), Some(eps)) = (row.episode_reward, row.epsilon) else {
-                    failed!("{}: an episode row without its return or epsilon at {} s", run_dir.join("metrics.csv").display(), row.wall_s)
+                    failed!(
+                        "{}: an episode row without its return or epsilon at {} s",
+                        run_dir.join("metrics.csv").display(),
+                        row.wall_s
+                    )
                 };
                 rolling.push(row.wall_s, r, false, eps as f32);
             }
@@ -220,7 +233,11 @@ pub fn threshold_time(run_dir: &Path) -> Result<(Option<f64>, Curve)> {
 /// (wall, screening success) of each evaluation in `evals.csv`.
 fn validation_curve(run_dir: &Path) -> Vec<(f64, f64)> {
     // A run that never evaluated, or whose table is damaged, has no curve.
-    rotorhive_records::rows::read::<EvalRow>(&run_dir.join("evals.csv")).unwrap_or_default().iter().map(|r| (r.wall_s, r.success_rate)).collect()
+    rotorhive_records::rows::read::<EvalRow>(&run_dir.join("evals.csv"))
+        .unwrap_or_default()
+        .iter()
+        .map(|r| (r.wall_s, r.success_rate))
+        .collect()
 }
 
 /// The held-out test set of `cfg`, or the one arena `--test-arena` names.
@@ -234,16 +251,33 @@ fn test_set(cfg: &Config, arena: Option<&Path>) -> Result<Vec<rotorhive_sim::Are
 /// The pooled success rate of `pilot` on the held-out test set over
 /// `episodes` fresh episodes (shared among the layouts), flown with the
 /// simulator settings of `cfg`.
-fn pooled_success(cfg: &Config, pilot: rotorhive_roles::eval::Pilot<'_>, arena: Option<&Path>, episodes: usize) -> Result<f64> {
+fn pooled_success(
+    cfg: &Config,
+    pilot: rotorhive_roles::eval::Pilot<'_>,
+    arena: Option<&Path>,
+    episodes: usize,
+) -> Result<f64> {
     let layouts = test_set(cfg, arena)?;
-    let sim = rotorhive_sim::SimConfig { renderer: rotorhive_sim::RendererKind::Cpu, ..cfg.sim_config() };
-    let stats = rotorhive_roles::eval::fly_layouts(pilot, &sim, &layouts, episodes.div_ceil(layouts.len()), 12345)?;
+    let sim =
+        rotorhive_sim::SimConfig { renderer: rotorhive_sim::RendererKind::Cpu, ..cfg.sim_config() };
+    let stats = rotorhive_roles::eval::fly_layouts(
+        pilot,
+        &sim,
+        &layouts,
+        episodes.div_ceil(layouts.len()),
+        12345,
+    )?;
     Ok(rotorhive_roles::eval::EvalStats::pooled(&stats).success_rate())
 }
 
 /// The success rate of a run's result on the held-out test set, flown
 /// with the run's own simulator settings.
-fn test_success(run_dir: &Path, checkpoint: &Path, arena: Option<&Path>, episodes: usize) -> Result<f64> {
+fn test_success(
+    run_dir: &Path,
+    checkpoint: &Path,
+    arena: Option<&Path>,
+    episodes: usize,
+) -> Result<f64> {
     let cfg = Config::load(Some(&run_dir.join("config.toml")), &[])?;
     let net = rotorhive_model::QNet::new(0, &rotorhive_model::Device::Cpu)?;
     net.load(checkpoint)?;
@@ -281,23 +315,36 @@ fn run_one(a: &SeedsArgs, exe: &Path, arm: &Arm, seed: u64, dir: &Path) -> Resul
         Err(e) => return Ok(failed(format!("{e:#}"))),
     };
     let test = match &summary.checkpoint {
-        Some(c) if a.test_episodes > 0 => Some(test_success(dir, Path::new(c), a.test_arena.as_deref(), a.test_episodes)?),
+        Some(c) if a.test_episodes > 0 => {
+            Some(test_success(dir, Path::new(c), a.test_arena.as_deref(), a.test_episodes)?)
+        }
         _ => None,
     };
     let validation = validation_curve(dir);
     // The replay memory's file (hundreds of MB per run) is not part of the
     // result: an experiment of tens of runs would fill the disk.
     let _ = std::fs::remove_file(dir.join("replay.bin"));
-    let failure = summary.failure.clone().or_else(|| status.filter(|s| !s.success()).map(|s| format!("hive train exited with {s}")));
+    let failure = summary
+        .failure
+        .clone()
+        .or_else(|| status.filter(|s| !s.success()).map(|s| format!("hive train exited with {s}")));
     Ok(RunResult {
         arm: arm.name.clone(),
         seed,
         dir: dir.to_path_buf(),
         time_s,
-        time_censored_s: time_s.unwrap_or(if a.deterministic_steps > 0 { summary.wall_s } else { a.budget_s }),
+        time_censored_s: time_s.unwrap_or(if a.deterministic_steps > 0 {
+            summary.wall_s
+        } else {
+            a.budget_s
+        }),
         time_to_target_s: summary.time_to_target_success_s,
         env_steps_to_target: summary.env_steps_to_target,
-        at_threshold: (summary.env_steps_at_threshold, summary.updates_at_threshold, summary.epsilon_at_threshold),
+        at_threshold: (
+            summary.env_steps_at_threshold,
+            summary.updates_at_threshold,
+            summary.epsilon_at_threshold,
+        ),
         best_validation: validation.iter().map(|p| p.1).reduce(f64::max),
         final_validation: summary.final_validation_success,
         result_validation: summary.result_validation_success,
@@ -312,7 +359,13 @@ fn run_one(a: &SeedsArgs, exe: &Path, arm: &Arm, seed: u64, dir: &Path) -> Resul
 }
 
 /// Trains one seed of one arm into `dir` (emptied first).
-fn train(a: &SeedsArgs, exe: &Path, arm: &Arm, seed: u64, dir: &Path) -> Result<std::process::ExitStatus> {
+fn train(
+    a: &SeedsArgs,
+    exe: &Path,
+    arm: &Arm,
+    seed: u64,
+    dir: &Path,
+) -> Result<std::process::ExitStatus> {
     let _ = std::fs::remove_dir_all(dir);
     let mut cmd = Command::new(exe);
     cmd.arg("train");
@@ -323,7 +376,10 @@ fn train(a: &SeedsArgs, exe: &Path, arm: &Arm, seed: u64, dir: &Path) -> Result<
     cmd.arg("--quiet").arg("--run-dir").arg(dir).arg("--max-seconds").arg(budget.to_string());
     let mut sets = vec![format!("seed={seed}"), "early_stop=false".to_string()];
     if a.deterministic_steps > 0 {
-        sets.extend(["deterministic=true".to_string(), format!("max_env_steps={}", a.deterministic_steps)]);
+        sets.extend([
+            "deterministic=true".to_string(),
+            format!("max_env_steps={}", a.deterministic_steps),
+        ]);
     }
     for s in sets.iter().chain(&a.set).chain(&arm.set) {
         cmd.arg("--set").arg(s);
@@ -332,76 +388,18 @@ fn train(a: &SeedsArgs, exe: &Path, arm: &Arm, seed: u64, dir: &Path) -> Result<
     cmd.status().doing_with(|| format!("arm {} seed {seed}: cannot start hive train", arm.name))
 }
 
-/// The median of `v` (NaN when empty).
-pub fn median(v: &[f64]) -> f64 {
-    let mut s = v.to_vec();
-    s.sort_by(f64::total_cmp);
-    match s.len() {
-        0 => f64::NAN,
-        n if n % 2 == 1 => s[n / 2],
-        n => (s[n / 2 - 1] + s[n / 2]) / 2.0,
-    }
-}
-
-/// The interquartile mean (rliable's IQM, scipy's `trim_mean(v, 0.25)`):
-/// the mean of what is left after cutting a quarter of the values, rounded
-/// down, from each end.
-pub fn iqm(v: &[f64]) -> f64 {
-    let mut s = v.to_vec();
-    s.sort_by(f64::total_cmp);
-    let cut = s.len() / 4;
-    let mid = &s[cut..s.len() - cut];
-    if mid.is_empty() { f64::NAN } else { mid.iter().sum::<f64>() / mid.len() as f64 }
-}
-
-/// The probability that a draw of `b` is lower (better) than a draw of `a`,
-/// ties counted half: the Mann-Whitney U over `a.len() · b.len()`.
-pub fn prob_lower(a: &[f64], b: &[f64]) -> f64 {
-    let mut wins = 0.0;
-    for x in a {
-        for y in b {
-            wins += if y < x {
-                1.0
-            } else if y == x {
-                0.5
-            } else {
-                0.0
-            };
-        }
-    }
-    wins / (a.len() * b.len()).max(1) as f64
-}
-
-/// A 95 % percentile-bootstrap interval of `stat` over resamples (with
-/// replacement) of each sample in `samples`.
-pub fn bootstrap(samples: &[&[f64]], resamples: usize, rng: &mut Pcg64Mcg, stat: impl Fn(&[Vec<f64>]) -> f64) -> [f64; 2] {
-    let mut values: Vec<f64> = (0..resamples)
-        .map(|_| {
-            let drawn: Vec<Vec<f64>> = samples.iter().map(|s| (0..s.len()).map(|_| s[rng.random_range(0..s.len())]).collect()).collect();
-            stat(&drawn)
-        })
-        .filter(|v| v.is_finite())
-        .collect();
-    values.sort_by(f64::total_cmp);
-    if values.is_empty() {
-        return [f64::NAN, f64::NAN];
-    }
-    let at = |q: f64| values[((q * (values.len() - 1) as f64).round() as usize).min(values.len() - 1)];
-    [at(0.025), at(0.975)]
-}
-
 /// (x, IQM, 25th, 75th percentile) over runs on a grid of `step` seconds,
 /// each run's value at x being its newest point at or before x.
 fn band(curves: &[&Vec<(f64, f64)>], step: f64, end: f64) -> Vec<(f64, f64, f64, f64)> {
     let mut out = Vec::new();
     let mut x = step;
     while x <= end + 1e-9 {
-        let vals: Vec<f64> = curves.iter().filter_map(|c| c.iter().rev().find(|p| p.0 <= x).map(|p| p.1)).collect();
+        let vals: Vec<f64> =
+            curves.iter().filter_map(|c| c.iter().rev().find(|p| p.0 <= x).map(|p| p.1)).collect();
         if !vals.is_empty() {
             let mut s = vals.clone();
             s.sort_by(f64::total_cmp);
-            let q = |f: f64| s[((f * (s.len() - 1) as f64).round() as usize).min(s.len() - 1)];
-            out.push((x, iqm(&vals), q(0.25), q(0.75)));
+            out.push((x, iqm(&vals), quantile(&s, 0.25), quantile(&s, 0.75)));
         }
         x += step;
     }
@@ -416,46 +414,181 @@ fn pct(v: Option<f64>) -> String {
     v.map_or("—".into(), |v| format!("{:.1}", v * 100.0))
 }
 
-/// The report of a finished experiment: per-arm statistics as JSON, with
-/// the reactive rule's pooled test success on the arm's test set.
-fn arm_stats(name: &str, runs: &[&RunResult], resamples: usize, rng: &mut Pcg64Mcg, reactive: Option<f64>) -> serde_json::Value {
-    let times: Vec<f64> = runs.iter().map(|r| r.time_censored_s).collect();
-    let targets: Vec<f64> = runs.iter().filter_map(|r| r.time_to_target_s).collect();
-    let steps_to_target: Vec<f64> = runs.iter().filter_map(|r| r.env_steps_to_target.map(|s| s as f64)).collect();
-    let at = |f: &dyn Fn(&RunResult) -> Option<f64>| median(&runs.iter().filter_map(|r| f(r)).collect::<Vec<_>>());
-    let tests: Vec<f64> = runs.iter().filter_map(|r| r.test_success).collect();
-    let collapse: Vec<f64> = runs.iter().filter_map(|r| Some(r.best_validation? - r.final_validation?)).collect();
-    json!({
-        "name": name,
-        "runs": runs.len(),
-        "converged": runs.iter().filter(|r| r.time_s.is_some()).count(),
-        "seeds": runs.iter().map(|r| r.seed).collect::<Vec<_>>(),
-        "times_s": runs.iter().map(|r| r.time_s).collect::<Vec<_>>(),
-        "median_time_s": median(&times),
-        "median_time_ci": bootstrap(&[&times], resamples, rng, |d| median(&d[0])),
-        "iqm_time_s": iqm(&times),
-        "iqm_time_ci": bootstrap(&[&times], resamples, rng, |d| iqm(&d[0])),
-        "reached_target": targets.len(),
-        "median_time_to_target_s": if targets.len() == runs.len() { json!(median(&targets)) } else { json!(null) },
-        "median_env_steps_to_target": if steps_to_target.len() == runs.len() && !runs.is_empty() { json!(median(&steps_to_target)) } else { json!(null) },
-        "env_steps_to_target": runs.iter().map(|r| r.env_steps_to_target).collect::<Vec<_>>(),
-        "median_env_steps_at_threshold": at(&|r| r.at_threshold.0.map(|v| v as f64)),
-        "median_updates_at_threshold": at(&|r| r.at_threshold.1.map(|v| v as f64)),
-        "median_epsilon_at_threshold": at(&|r| r.at_threshold.2),
-        "reactive_test_success": reactive,
-        "times_to_target_s": runs.iter().map(|r| r.time_to_target_s).collect::<Vec<_>>(),
-        "test_success": runs.iter().map(|r| r.test_success).collect::<Vec<_>>(),
-        "test_success_min": tests.iter().copied().reduce(f64::min),
-        "test_success_iqm": iqm(&tests),
-        "result_validation": runs.iter().map(|r| r.result_validation).collect::<Vec<_>>(),
-        "best_validation": runs.iter().map(|r| r.best_validation).collect::<Vec<_>>(),
-        "final_validation": runs.iter().map(|r| r.final_validation).collect::<Vec<_>>(),
-        "collapse_max": collapse.iter().copied().reduce(f64::max),
-        "env_steps_per_s": median(&runs.iter().map(|r| r.env_steps_per_s).collect::<Vec<_>>()),
-        "updates_per_s": median(&runs.iter().map(|r| r.updates_per_s).collect::<Vec<_>>()),
-        "skipped_updates": runs.iter().map(|r| r.skipped_updates).sum::<u64>(),
-        "failures": runs.iter().filter(|r| r.failure.is_some()).count(),
-    })
+/// One arm's statistics: the JSON of `--json` (`arms`) and the rows of
+/// `seeds.md`. Times and steps are medians over the arm's runs where the
+/// name says so; a statistic of no runs is NaN (JSON `null`).
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct ArmStats {
+    name: String,
+    runs: usize,
+    converged: usize,
+    seeds: Vec<u64>,
+    times_s: Vec<Option<f64>>,
+    median_time_s: f64,
+    median_time_ci: [f64; 2],
+    iqm_time_s: f64,
+    iqm_time_ci: [f64; 2],
+    reached_target: usize,
+    /// Only when every run reached the target.
+    median_time_to_target_s: Option<f64>,
+    /// Only when every run reached the target.
+    median_env_steps_to_target: Option<f64>,
+    env_steps_to_target: Vec<Option<u64>>,
+    median_env_steps_at_threshold: f64,
+    median_updates_at_threshold: f64,
+    median_epsilon_at_threshold: f64,
+    /// The reactive rule's pooled success on the arm's test set.
+    reactive_test_success: Option<f64>,
+    times_to_target_s: Vec<Option<f64>>,
+    test_success: Vec<Option<f64>>,
+    test_success_min: Option<f64>,
+    test_success_iqm: f64,
+    result_validation: Vec<Option<f64>>,
+    best_validation: Vec<Option<f64>>,
+    final_validation: Vec<Option<f64>>,
+    collapse_max: Option<f64>,
+    env_steps_per_s: f64,
+    updates_per_s: f64,
+    skipped_updates: u64,
+    failures: usize,
+}
+
+impl ArmStats {
+    /// The statistics of an arm's finished runs, with the reactive rule's
+    /// pooled test success on the arm's test set.
+    fn of(
+        name: &str,
+        runs: &[&RunResult],
+        resamples: usize,
+        rng: &mut Pcg64Mcg,
+        reactive: Option<f64>,
+    ) -> Self {
+        let times: Vec<f64> = runs.iter().map(|r| r.time_censored_s).collect();
+        let targets: Vec<f64> = runs.iter().filter_map(|r| r.time_to_target_s).collect();
+        let steps_to_target: Vec<f64> =
+            runs.iter().filter_map(|r| r.env_steps_to_target.map(|s| s as f64)).collect();
+        let all = |v: &[f64]| (v.len() == runs.len() && !runs.is_empty()).then(|| median(v));
+        let med = |f: &dyn Fn(&RunResult) -> Option<f64>| {
+            median(&runs.iter().filter_map(|r| f(r)).collect::<Vec<_>>())
+        };
+        let each = |f: &dyn Fn(&RunResult) -> Option<f64>| runs.iter().map(|r| f(r)).collect();
+        let tests: Vec<f64> = runs.iter().filter_map(|r| r.test_success).collect();
+        let collapse = runs.iter().filter_map(|r| Some(r.best_validation? - r.final_validation?));
+        Self {
+            name: name.to_string(),
+            runs: runs.len(),
+            converged: runs.iter().filter(|r| r.time_s.is_some()).count(),
+            seeds: runs.iter().map(|r| r.seed).collect(),
+            times_s: each(&|r| r.time_s),
+            median_time_s: median(&times),
+            median_time_ci: bootstrap(&[&times], resamples, rng, |d| median(&d[0])),
+            iqm_time_s: iqm(&times),
+            iqm_time_ci: bootstrap(&[&times], resamples, rng, |d| iqm(&d[0])),
+            reached_target: targets.len(),
+            median_time_to_target_s: all(&targets),
+            median_env_steps_to_target: all(&steps_to_target),
+            env_steps_to_target: runs.iter().map(|r| r.env_steps_to_target).collect(),
+            median_env_steps_at_threshold: med(&|r| r.at_threshold.0.map(|v| v as f64)),
+            median_updates_at_threshold: med(&|r| r.at_threshold.1.map(|v| v as f64)),
+            median_epsilon_at_threshold: med(&|r| r.at_threshold.2),
+            reactive_test_success: reactive,
+            times_to_target_s: each(&|r| r.time_to_target_s),
+            test_success: each(&|r| r.test_success),
+            test_success_min: tests.iter().copied().reduce(f64::min),
+            test_success_iqm: iqm(&tests),
+            result_validation: each(&|r| r.result_validation),
+            best_validation: each(&|r| r.best_validation),
+            final_validation: each(&|r| r.final_validation),
+            collapse_max: collapse.reduce(f64::max),
+            env_steps_per_s: med(&|r| Some(r.env_steps_per_s)),
+            updates_per_s: med(&|r| Some(r.updates_per_s)),
+            skipped_updates: runs.iter().map(|r| r.skipped_updates).sum(),
+            failures: runs.iter().filter(|r| r.failure.is_some()).count(),
+        }
+    }
+
+    /// Its row of `seeds.md`'s summary table.
+    fn md_row(&self) -> String {
+        let tests: Vec<f64> = self.test_success.iter().flatten().copied().collect();
+        let f = |v: f64| if v.is_finite() { format!("{v:.1}") } else { "—".to_string() };
+        let ci = |v: [f64; 2]| format!("[{}, {}]", f(v[0]), f(v[1]));
+        let p = |v: Option<f64>| v.filter(|x| x.is_finite()).map(|x| x * 100.0);
+        let steps = self.median_env_steps_to_target.map(|x| format!("{x:.0}"));
+        let eps = Some(self.median_epsilon_at_threshold).filter(|x| x.is_finite());
+        format!(
+            "| {} | {}/{} | {} | {} | {} / {} / {} | {} | {}/{} | {} {} | {} {} | {} | {} | {} | {} |",
+            self.name,
+            self.reached_target,
+            self.runs,
+            steps.unwrap_or("—".into()),
+            opt(self.median_time_to_target_s, 1),
+            opt(p(self.test_success_min), 1),
+            opt(p(Some(median(&tests))), 1),
+            opt(p(Some(self.test_success_iqm)), 1),
+            opt(p(self.reactive_test_success), 1),
+            self.converged,
+            self.runs,
+            f(self.median_time_s),
+            ci(self.median_time_ci),
+            f(self.iqm_time_s),
+            ci(self.iqm_time_ci),
+            opt(eps, 2),
+            opt(p(self.collapse_max), 1),
+            f(self.env_steps_per_s),
+            f(self.updates_per_s),
+        )
+    }
+}
+
+/// The probability that a run of arm `b` is sooner than a run of arm `a`,
+/// to the threshold and to the validation target, with their intervals.
+#[derive(Debug, Clone, serde::Serialize)]
+struct Pair {
+    a: String,
+    b: String,
+    p: f64,
+    ci: [f64; 2],
+    p_target: f64,
+    ci_target: [f64; 2],
+}
+
+impl Pair {
+    fn of(
+        a: &SeedsArgs,
+        (na, ra): (&str, &[&RunResult]),
+        (nb, rb): (&str, &[&RunResult]),
+        rng: &mut Pcg64Mcg,
+    ) -> Self {
+        let ta: Vec<f64> = ra.iter().map(|r| r.time_censored_s).collect();
+        let tb: Vec<f64> = rb.iter().map(|r| r.time_censored_s).collect();
+        let ci = bootstrap(&[&ta, &tb], a.resamples, rng, |d| prob_lower(&d[0], &d[1]));
+        // The same on time to the validation target (unreached: the budget).
+        let target = |runs: &[&RunResult]| -> Vec<f64> {
+            runs.iter().map(|r| r.time_to_target_s.unwrap_or(a.budget_s)).collect()
+        };
+        let (ga, gb) = (target(ra), target(rb));
+        let ci_target = bootstrap(&[&ga, &gb], a.resamples, rng, |d| prob_lower(&d[0], &d[1]));
+        Self {
+            a: na.to_string(),
+            b: nb.to_string(),
+            p: prob_lower(&ta, &tb),
+            ci,
+            p_target: prob_lower(&ga, &gb),
+            ci_target,
+        }
+    }
+}
+
+/// The last line of `hive bench seeds --json`.
+#[derive(serde::Serialize)]
+struct SeedsReport<'a> {
+    bench: &'static str,
+    budget_s: f64,
+    deterministic_steps: u64,
+    test_episodes: usize,
+    arms: &'a [ArmStats],
+    prob_improvement: &'a [Pair],
+    out: String,
 }
 
 /// Runs the experiment and writes `seeds.md`, `seeds.csv`, `seeds.png`.
@@ -478,7 +611,9 @@ pub fn run(a: &SeedsArgs) -> Result<()> {
         .iter()
         .map(|cfg| {
             let pilot = rotorhive_roles::eval::Pilot::Reactive;
-            (a.test_episodes > 0).then(|| pooled_success(cfg, pilot, a.test_arena.as_deref(), a.test_episodes)).transpose()
+            (a.test_episodes > 0)
+                .then(|| pooled_success(cfg, pilot, a.test_arena.as_deref(), a.test_episodes))
+                .transpose()
         })
         .collect::<Result<_>>()?;
     std::fs::create_dir_all(&a.out).doing_with(|| format!("cannot create {}", a.out.display()))?;
@@ -488,13 +623,18 @@ pub fn run(a: &SeedsArgs) -> Result<()> {
     let mut k = 0;
     for (j, &seed) in seeds.iter().enumerate() {
         // A B, B A, A B, ...: each arm runs first as often as last.
-        let order: Vec<&Arm> = if j % 2 == 0 { arms.iter().collect() } else { arms.iter().rev().collect() };
+        let order: Vec<&Arm> =
+            if j % 2 == 0 { arms.iter().collect() } else { arms.iter().rev().collect() };
         for arm in order {
             k += 1;
             eprintln!(
                 "[{k}/{total}] arm {} seed {seed}: {}",
                 arm.name,
-                if a.deterministic_steps > 0 { format!("{} agent-steps", a.deterministic_steps) } else { format!("{:.0} s", a.budget_s) }
+                if a.deterministic_steps > 0 {
+                    format!("{} agent-steps", a.deterministic_steps)
+                } else {
+                    format!("{:.0} s", a.budget_s)
+                }
             );
             let dir = a.out.join(format!("{}-seed{seed}", arm.name));
             let r = run_one(a, &exe, arm, seed, &dir)?;
@@ -511,58 +651,88 @@ pub fn run(a: &SeedsArgs) -> Result<()> {
 }
 
 /// Statistics, tables, curves and the JSON line of finished runs.
-fn report(a: &SeedsArgs, arms: &[Arm], results: &[RunResult], reactive: &[Option<f64>]) -> Result<()> {
+fn report(
+    a: &SeedsArgs,
+    arms: &[Arm],
+    results: &[RunResult],
+    reactive: &[Option<f64>],
+) -> Result<()> {
     let mut rng = Pcg64Mcg::seed_from_u64(0x5eed5);
-    let by_arm: Vec<Vec<&RunResult>> = arms.iter().map(|arm| results.iter().filter(|r| r.arm == arm.name).collect()).collect();
-    let stats: Vec<serde_json::Value> =
-        arms.iter().zip(&by_arm).zip(reactive).map(|((arm, runs), r)| arm_stats(&arm.name, runs, a.resamples, &mut rng, *r)).collect();
+    let by_arm: Vec<Vec<&RunResult>> =
+        arms.iter().map(|arm| results.iter().filter(|r| r.arm == arm.name).collect()).collect();
+    let stats: Vec<ArmStats> = arms
+        .iter()
+        .zip(&by_arm)
+        .zip(reactive)
+        .map(|((arm, runs), r)| ArmStats::of(&arm.name, runs, a.resamples, &mut rng, *r))
+        .collect();
     let mut pairs = Vec::new();
     for i in 0..arms.len() {
-        for j in 0..arms.len() {
-            if i == j {
-                continue;
-            }
-            let ta: Vec<f64> = by_arm[i].iter().map(|r| r.time_censored_s).collect();
-            let tb: Vec<f64> = by_arm[j].iter().map(|r| r.time_censored_s).collect();
-            let ci = bootstrap(&[&ta, &tb], a.resamples, &mut rng, |d| prob_lower(&d[0], &d[1]));
-            // The same on time to the validation target (unreached: the budget).
-            let target = |runs: &[&RunResult]| -> Vec<f64> { runs.iter().map(|r| r.time_to_target_s.unwrap_or(a.budget_s)).collect() };
-            let (ga, gb) = (target(&by_arm[i]), target(&by_arm[j]));
-            let gci = bootstrap(&[&ga, &gb], a.resamples, &mut rng, |d| prob_lower(&d[0], &d[1]));
-            pairs
-                .push(json!({ "a": arms[i].name, "b": arms[j].name, "p": prob_lower(&ta, &tb), "ci": ci, "p_target": prob_lower(&ga, &gb), "ci_target": gci }));
+        for j in (0..arms.len()).filter(|&j| j != i) {
+            let (x, y) = ((&*arms[i].name, &*by_arm[i]), (&*arms[j].name, &*by_arm[j]));
+            pairs.push(Pair::of(a, x, y, &mut rng));
         }
     }
     write_csv(&a.out.join("seeds.csv"), results)?;
     write_md(a, &stats, &pairs, results)?;
-    let end = if a.deterministic_steps > 0 { results.iter().flat_map(|r| r.curve.last().map(|p| p.0)).fold(1.0, f64::max) } else { a.budget_s };
-    let step = (end / 90.0).max(1.0);
-    let bands: Vec<rotorhive_records::plot::Band> =
-        arms.iter().zip(&by_arm).map(|(arm, runs)| (arm.name.clone(), band(&runs.iter().map(|r| &r.curve).collect::<Vec<_>>(), step, end))).collect();
-    let title = "rolling episode reward: IQM over seeds, band 25-75 %";
-    if let Err(e) = rotorhive_records::plot::band_plot(title, "wall time (s)", "reward", &bands, (-110.0, 460.0), &a.out.join("seeds.png")) {
-        eprintln!("seeds.png not written: {e:#}");
-    }
-    let vbands: Vec<rotorhive_records::plot::Band> = arms
-        .iter()
-        .zip(&by_arm)
-        .map(|(arm, runs)| {
-            let curves: Vec<Vec<(f64, f64)>> = runs.iter().map(|r| r.validation.iter().map(|p| (p.0, p.1 * 100.0)).collect()).collect();
-            (arm.name.clone(), band(&curves.iter().collect::<Vec<_>>(), step, end))
-        })
-        .collect();
-    let title = "greedy validation success (%): IQM over seeds, band 25-75 %";
-    if let Err(e) = rotorhive_records::plot::band_plot(title, "wall time (s)", "%", &vbands, (0.0, 100.0), &a.out.join("seeds-validation.png")) {
-        eprintln!("seeds-validation.png not written: {e:#}");
-    }
+    plot(a, arms, &by_arm, results);
     print!("{}", std::fs::read_to_string(a.out.join("seeds.md"))?);
     if a.json {
-        println!(
-            "{}",
-            json!({ "bench": "seeds", "budget_s": a.budget_s, "deterministic_steps": a.deterministic_steps, "test_episodes": a.test_episodes, "arms": stats, "prob_improvement": pairs, "out": a.out.display().to_string() })
-        );
+        let report = SeedsReport {
+            bench: "seeds",
+            budget_s: a.budget_s,
+            deterministic_steps: a.deterministic_steps,
+            test_episodes: a.test_episodes,
+            arms: &stats,
+            prob_improvement: &pairs,
+            out: a.out.display().to_string(),
+        };
+        println!("{}", serde_json::to_string(&report)?);
     }
     Ok(())
+}
+
+/// `seeds.png` (rolling reward) and `seeds-validation.png` (greedy
+/// validation success): IQM and quartile band of each arm over time. A plot
+/// that cannot be drawn is reported and skipped.
+fn plot(a: &SeedsArgs, arms: &[Arm], by_arm: &[Vec<&RunResult>], results: &[RunResult]) {
+    let end = if a.deterministic_steps > 0 {
+        results.iter().flat_map(|r| r.curve.last().map(|p| p.0)).fold(1.0, f64::max)
+    } else {
+        a.budget_s
+    };
+    let step = (end / 90.0).max(1.0);
+    let bands_of = |curve: &dyn Fn(&RunResult) -> Vec<(f64, f64)>| -> Vec<plot::Band> {
+        let named = arms.iter().zip(by_arm);
+        named
+            .map(|(arm, runs)| {
+                let curves: Vec<Vec<(f64, f64)>> = runs.iter().map(|r| curve(r)).collect();
+                (arm.name.clone(), band(&curves.iter().collect::<Vec<_>>(), step, end))
+            })
+            .collect()
+    };
+    let plots = [
+        (
+            "rolling episode reward: IQM over seeds, band 25-75 %",
+            "reward",
+            bands_of(&|r| r.curve.clone()),
+            (-110.0, 460.0),
+            "seeds.png",
+        ),
+        (
+            "greedy validation success (%): IQM over seeds, band 25-75 %",
+            "%",
+            bands_of(&|r| r.validation.iter().map(|p| (p.0, p.1 * 100.0)).collect()),
+            (0.0, 100.0),
+            "seeds-validation.png",
+        ),
+    ];
+    for (title, y, bands, range, file) in plots {
+        let path = a.out.join(file);
+        if let Err(e) = plot::band_plot(title, "wall time (s)", y, &bands, range, &path) {
+            eprintln!("{file} not written: {e:#}");
+        }
+    }
 }
 
 fn write_csv(path: &Path, results: &[RunResult]) -> Result<()> {
@@ -594,82 +764,76 @@ fn write_csv(path: &Path, results: &[RunResult]) -> Result<()> {
     std::fs::write(path, csv).doing_with(|| format!("cannot write {}", path.display()))
 }
 
-fn write_md(a: &SeedsArgs, stats: &[serde_json::Value], pairs: &[serde_json::Value], results: &[RunResult]) -> Result<()> {
-    let f = |v: &serde_json::Value| v.as_f64().map_or("—".to_string(), |x| format!("{x:.1}"));
-    let ci = |v: &serde_json::Value| format!("[{}, {}]", f(&v[0]), f(&v[1]));
-    let p = |v: &serde_json::Value| v.as_f64().map_or("—".to_string(), |x| format!("{:.1}", x * 100.0));
+/// `seeds.md`: how the runs were made, each arm's statistics, the pairs'
+/// probabilities of improvement, and every run's scores.
+fn write_md(
+    a: &SeedsArgs,
+    stats: &[ArmStats],
+    pairs: &[Pair],
+    results: &[RunResult],
+) -> Result<()> {
     let mut md = String::from("# Seeds\n\n");
     let how = if a.deterministic_steps > 0 {
         format!("deterministic, {} agent-steps", a.deterministic_steps)
     } else {
         format!("free-running, {:.0} s wall budget, no early stop", a.budget_s)
     };
+    let test_set = a
+        .test_arena
+        .as_ref()
+        .map_or("the config's held-out test set".to_string(), |p| format!("`{}`", p.display()));
     writeln!(
         md,
-        "Runs: {how}; interleaved A B / B A by seed; unconverged runs count at the budget. Test success: the run's result on {} over {} episodes, pooled; the reactive rule on the same. Learning: agent-steps (and seconds) until a greedy validation first reached the target. Intervals: 95 % percentile bootstrap ({} resamples).\n",
-        a.test_arena.as_ref().map_or("the config's held-out test set".to_string(), |p| format!("`{}`", p.display())),
-        a.test_episodes,
-        a.resamples
+        "Runs: {how}; interleaved A B / B A by seed; unconverged runs count at the budget. \
+         Test success: the run's result on {test_set} over {} episodes, pooled; the reactive \
+         rule on the same. Learning: agent-steps (and seconds) until a greedy validation first \
+         reached the target. Intervals: 95 % percentile bootstrap ({} resamples).\n",
+        a.test_episodes, a.resamples
     )?;
     writeln!(
         md,
-        "| arm | reached target | median agent-steps to target | median time to target (s) | test success min / median / IQM (%) | reactive rule (%) | converged | median time to threshold (s) | IQM (s) [95 % CI] | epsilon at threshold | max collapse (best − final validation, points) | agent-steps/s | updates/s |"
+        "| arm | reached target | median agent-steps to target | median time to target (s) \
+         | test success min / median / IQM (%) | reactive rule (%) | converged \
+         | median time to threshold (s) | IQM (s) [95 % CI] | epsilon at threshold \
+         | max collapse (best − final validation, points) | agent-steps/s | updates/s |"
     )?;
     writeln!(md, "|---|---|---|---|---|---|---|---|---|---|---|---|---|")?;
     for s in stats {
-        let tests: Vec<f64> = s["test_success"].as_array().map_or(vec![], |v| v.iter().filter_map(|x| x.as_f64()).collect());
-        writeln!(
-            md,
-            "| {} | {}/{} | {} | {} | {} / {} / {} | {} | {}/{} | {} {} | {} {} | {} | {} | {} | {} |",
-            s["name"].as_str().unwrap_or("?"),
-            s["reached_target"],
-            s["runs"],
-            s["median_env_steps_to_target"].as_f64().map_or("—".to_string(), |x| format!("{x:.0}")),
-            f(&s["median_time_to_target_s"]),
-            p(&s["test_success_min"]),
-            p(&json!(median(&tests))),
-            p(&s["test_success_iqm"]),
-            p(&s["reactive_test_success"]),
-            s["converged"],
-            s["runs"],
-            f(&s["median_time_s"]),
-            ci(&s["median_time_ci"]),
-            f(&s["iqm_time_s"]),
-            ci(&s["iqm_time_ci"]),
-            s["median_epsilon_at_threshold"].as_f64().map_or("—".to_string(), |x| format!("{x:.2}")),
-            p(&s["collapse_max"]),
-            f(&s["env_steps_per_s"]),
-            f(&s["updates_per_s"]),
-        )?;
+        writeln!(md, "{}", s.md_row())?;
     }
     if !pairs.is_empty() {
         writeln!(
             md,
-            "\nProbability that a run of b reaches the threshold sooner than a run of a (rliable's probability of improvement; 0.5 = no difference):\n"
+            "\nProbability that a run of b reaches the threshold sooner than a run of a \
+             (rliable's probability of improvement; 0.5 = no difference):\n"
         )?;
-        writeln!(md, "| a | b | P(b sooner to threshold) | 95 % CI | P(b sooner to validation target) | 95 % CI |")?;
+        writeln!(
+            md,
+            "| a | b | P(b sooner to threshold) | 95 % CI | P(b sooner to validation target) \
+             | 95 % CI |"
+        )?;
         writeln!(md, "|---|---|---|---|---|---|")?;
-        let n = |v: &serde_json::Value| v.as_f64().unwrap_or(f64::NAN);
         for q in pairs {
             writeln!(
                 md,
                 "| {} | {} | {:.2} | [{:.2}, {:.2}] | {:.2} | [{:.2}, {:.2}] |",
-                q["a"].as_str().unwrap_or("?"),
-                q["b"].as_str().unwrap_or("?"),
-                n(&q["p"]),
-                n(&q["ci"][0]),
-                n(&q["ci"][1]),
-                n(&q["p_target"]),
-                n(&q["ci_target"][0]),
-                n(&q["ci_target"][1])
+                q.a, q.b, q.p, q.ci[0], q.ci[1], q.p_target, q.ci_target[0], q.ci_target[1]
             )?;
         }
     }
-    writeln!(md, "\n| arm | seed | time to threshold (s) | time to target (s) | validation best / final / result (%) | test (%) | agent-steps/s |")?;
+    writeln!(
+        md,
+        "\n| arm | seed | time to threshold (s) | time to target (s) \
+         | validation best / final / result (%) | test (%) | agent-steps/s |"
+    )?;
     writeln!(md, "|---|---|---|---|---|---|---|")?;
     for r in results {
         let [t, g, best, last, result, test] = r.cells();
-        writeln!(md, "| {} | {} | {t} | {g} | {best} / {last} / {result} | {test} | {:.0} |", r.arm, r.seed, r.env_steps_per_s)?;
+        writeln!(
+            md,
+            "| {} | {} | {t} | {g} | {best} / {last} / {result} | {test} | {:.0} |",
+            r.arm, r.seed, r.env_steps_per_s
+        )?;
     }
     let path = a.out.join("seeds.md");
     std::fs::write(&path, md).doing_with(|| format!("cannot write {}", path.display()))
@@ -685,7 +849,10 @@ mod tests {
         assert_eq!(parse_seeds("3,1,9").unwrap(), vec![3, 1, 9]);
         assert!(parse_seeds("4-1").is_err() && parse_seeds("x").is_err());
         let arm = parse_arm("fast:learner.n_step=3, learner.gamma=0.95").unwrap();
-        assert_eq!((arm.name.as_str(), arm.set), ("fast", vec!["learner.n_step=3".to_string(), "learner.gamma=0.95".to_string()]));
+        assert_eq!(
+            (arm.name.as_str(), arm.set),
+            ("fast", vec!["learner.n_step=3".to_string(), "learner.gamma=0.95".to_string()])
+        );
         assert!(parse_arm("old").unwrap().set.is_empty());
         assert!(parse_arm(":a=1").unwrap_err().to_string().contains("name"));
         assert!(parse_arm("x:nonsense").unwrap_err().to_string().contains("key=value"));

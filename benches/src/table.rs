@@ -10,9 +10,9 @@ use std::process::Command;
 
 use crate::error::{BenchError, Doing, Result, usage};
 use serde::Deserialize;
-use serde_json::{Value, json};
+use serde_json::json;
 
-use crate::seeds::median;
+use crate::stats::median;
 use rotorhive_records::rows::{MetricsKind, MetricsRow};
 
 #[derive(Debug, Deserialize)]
@@ -53,36 +53,90 @@ fn paper(mode: &str, envs: usize, agents: usize) -> Option<(&'static str, u32, u
 }
 
 fn load(path: &Path) -> Result<TableConfig> {
-    let text = std::fs::read_to_string(path).doing_with(|| format!("table config {}: cannot read", path.display()))?;
-    let c: TableConfig = toml::from_str(&text).map_err(|e| BenchError::Usage(format!("table config {}: {}", path.display(), e.to_string().trim_end())))?;
+    let text = std::fs::read_to_string(path)
+        .doing_with(|| format!("table config {}: cannot read", path.display()))?;
+    let c: TableConfig = toml::from_str(&text).map_err(|e| {
+        BenchError::Usage(format!("table config {}: {}", path.display(), e.to_string().trim_end()))
+    })?;
     if !(c.budget_s.is_finite() && c.budget_s > 0.0) {
-        usage!("table config {}: key `budget_s` must be positive, got {}", path.display(), c.budget_s);
+        usage!(
+            "table config {}: key `budget_s` must be positive, got {}",
+            path.display(),
+            c.budget_s
+        );
     }
     if c.seeds.is_empty() || c.cells.is_empty() || c.modes.is_empty() {
-        usage!("table config {}: keys `seeds`, `cells` and `modes` must not be empty", path.display());
+        usage!(
+            "table config {}: keys `seeds`, `cells` and `modes` must not be empty",
+            path.display()
+        );
     }
     if let Some(m) = c.modes.iter().find(|m| !["batched", "non-batched"].contains(&m.as_str())) {
-        usage!("table config {}: key `modes`: {m:?} is neither \"batched\" nor \"non-batched\"", path.display());
+        usage!(
+            "table config {}: key `modes`: {m:?} is neither \"batched\" nor \"non-batched\"",
+            path.display()
+        );
     }
     if c.deterministic_env_steps > 0 && c.split_hosts {
-        usage!("table config {}: `deterministic_env_steps` cannot be combined with `split_hosts` (deterministic runs are one host's)", path.display());
+        usage!(
+            "table config {}: `deterministic_env_steps` cannot be combined with `split_hosts` (deterministic runs are one host's)",
+            path.display()
+        );
     }
     if let Some(cell) = c.cells.iter().find(|c| c[0] == 0 || c[1] == 0) {
-        usage!("table config {}: key `cells`: {cell:?} has zero environments or agents", path.display());
+        usage!(
+            "table config {}: key `cells`: {cell:?} has zero environments or agents",
+            path.display()
+        );
     }
     Ok(c)
 }
 
-/// The bottleneck of a cell's run as the table shows it: `learner-0 forward (52 %)`.
-fn bottleneck_cell(r: &Value) -> String {
-    match (r["bottleneck"].as_str(), r["bottleneck_busy_pct"].as_f64()) {
-        (Some(b), Some(p)) => format!("{b} ({p:.0} %)"),
-        _ => "—".to_string(),
+/// One run of the grid: the row of `agent-table.csv` and of the JSON's
+/// `rows`, read from the run's typed summary and profile (`None` where the
+/// run wrote no summary).
+#[derive(Debug, Clone, serde::Serialize)]
+struct CellRow {
+    mode: String,
+    envs: usize,
+    agents: usize,
+    agents_total: usize,
+    seed: u64,
+    hosts: usize,
+    converged: bool,
+    time_to_threshold_s: Option<f64>,
+    wall_s: Option<f64>,
+    env_steps_per_s: Option<f64>,
+    updates_per_s: Option<f64>,
+    cpu_util_mean_pct: Option<f64>,
+    gpu_util_mean_pct: Option<f64>,
+    gpu_power_mean_w: Option<f64>,
+    /// The role and stage that set the pace: `learner-0 forward`.
+    bottleneck: Option<String>,
+    bottleneck_busy_pct: Option<f64>,
+    rolling_reward: Option<f64>,
+    peak_rss_mb: Option<f64>,
+    failure: Option<String>,
+    run_dir: String,
+}
+
+impl CellRow {
+    /// The bottleneck as the table shows it: `learner-0 forward (52 %)`.
+    fn bottleneck_cell(&self) -> String {
+        match (&self.bottleneck, self.bottleneck_busy_pct) {
+            (Some(b), Some(p)) => format!("{b} ({p:.0} %)"),
+            _ => "—".to_string(),
+        }
     }
 }
 
-fn fmt_opt(v: &Value, digits: usize) -> String {
-    v.as_f64().map_or("—".to_string(), |x| format!("{x:.digits$}"))
+fn fmt_opt(v: Option<f64>, digits: usize) -> String {
+    v.map_or("—".to_string(), |x| format!("{x:.digits$}"))
+}
+
+/// An optional value for CSV: empty when absent.
+fn csv_opt(v: Option<f64>, digits: usize) -> String {
+    v.map_or(String::new(), |x| format!("{x:.digits$}"))
 }
 
 /// One cell of the grid over its seeds.
@@ -114,24 +168,33 @@ fn distinct<T: PartialEq>(it: impl IntoIterator<Item = T>) -> Vec<T> {
 
 /// The cells of `rows` in order of first appearance, with the medians over
 /// their seeds; a run that missed the threshold counts as slower than any.
-fn cell_medians(rows: &[Value]) -> Vec<CellMedian> {
-    distinct(rows.iter().map(|r| (r["mode"].as_str().unwrap_or(""), r["envs"].as_u64().unwrap_or(0), r["agents"].as_u64().unwrap_or(0))))
+fn cell_medians(rows: &[CellRow]) -> Vec<CellMedian> {
+    distinct(rows.iter().map(|r| (r.mode.as_str(), r.envs, r.agents)))
         .into_iter()
         .map(|(mode, envs, agents)| {
-            let of: Vec<&Value> = rows.iter().filter(|r| r["mode"] == mode && r["envs"] == envs && r["agents"] == agents).collect();
-            let times: Vec<f64> = of.iter().map(|r| r["time_to_threshold_s"].as_f64().unwrap_or(f64::INFINITY)).collect();
-            let of_key = |k: &str| median(&of.iter().filter_map(|r| r[k].as_f64()).collect::<Vec<_>>());
-            let named: Vec<&str> = of.iter().filter_map(|r| r["bottleneck"].as_str()).collect();
-            let bottleneck = named.iter().max_by_key(|b| named.iter().filter(|x| x == b).count()).map(|b| b.to_string());
+            let of: Vec<&CellRow> = rows
+                .iter()
+                .filter(|r| r.mode == mode && r.envs == envs && r.agents == agents)
+                .collect();
+            let times: Vec<f64> =
+                of.iter().map(|r| r.time_to_threshold_s.unwrap_or(f64::INFINITY)).collect();
+            let med = |f: fn(&CellRow) -> Option<f64>| {
+                median(&of.iter().filter_map(|r| f(r)).collect::<Vec<_>>())
+            };
+            let named: Vec<&str> = of.iter().filter_map(|r| r.bottleneck.as_deref()).collect();
+            let bottleneck = named
+                .iter()
+                .max_by_key(|b| named.iter().filter(|x| x == b).count())
+                .map(|b| b.to_string());
             CellMedian {
                 mode: mode.to_string(),
-                envs,
-                agents,
+                envs: envs as u64,
+                agents: agents as u64,
                 runs: of.len(),
                 converged: times.iter().filter(|t| t.is_finite()).count(),
                 time: median(&times),
-                steps_per_s: of_key("env_steps_per_s"),
-                updates_per_s: of_key("updates_per_s"),
+                steps_per_s: med(|r| r.env_steps_per_s),
+                updates_per_s: med(|r| r.updates_per_s),
                 bottleneck,
             }
         })
@@ -146,8 +209,14 @@ fn fmt_time(t: f64, budget_s: f64) -> String {
 /// median time to it, a run that missed it counting as slower than the budget
 /// (one seed's time swings by tens of seconds; the median reads the trend).
 fn medians(md: &mut String, cells: &[CellMedian], budget_s: f64) -> Result<()> {
-    writeln!(md, "\nMedian over seeds (a run that missed the threshold counts as slower than the budget):\n")?;
-    writeln!(md, "| observations | envs | agents | converged | median time to 300 (s) | median agent-steps/s | median updates/s | bottleneck |")?;
+    writeln!(
+        md,
+        "\nMedian over seeds (a run that missed the threshold counts as slower than the budget):\n"
+    )?;
+    writeln!(
+        md,
+        "| observations | envs | agents | converged | median time to 300 (s) | median agent-steps/s | median updates/s | bottleneck |"
+    )?;
     writeln!(md, "|---|---|---|---|---|---|---|---|")?;
     for c in cells {
         writeln!(
@@ -189,11 +258,18 @@ fn trend(md: &mut String, cells: &[CellMedian], budget_s: f64) -> Result<()> {
             .iter()
             .map(|c| {
                 let n = c.envs * c.agents;
-                format!("{n} agent{} {} s", if n == 1 { "" } else { "s" }, fmt_time(c.time, budget_s))
+                format!(
+                    "{n} agent{} {} s",
+                    if n == 1 { "" } else { "s" },
+                    fmt_time(c.time, budget_s)
+                )
             })
             .collect();
-        let flat: Vec<(&CellMedian, &CellMedian)> =
-            of.windows(2).map(|w| (w[0], w[1])).filter(|(a, b)| b.time.partial_cmp(&a.time) != Some(std::cmp::Ordering::Less)).collect();
+        let flat: Vec<(&CellMedian, &CellMedian)> = of
+            .windows(2)
+            .map(|w| (w[0], w[1]))
+            .filter(|(a, b)| b.time.partial_cmp(&a.time) != Some(std::cmp::Ordering::Less))
+            .collect();
         if of.len() < 2 {
             writeln!(md, "- {mode}: {} (one cell, no trend).", path.join(""))?;
         } else if flat.is_empty() {
@@ -204,13 +280,29 @@ fn trend(md: &mut String, cells: &[CellMedian], budget_s: f64) -> Result<()> {
                 .map(|(a, b)| {
                     let pace = pace_change(a, b);
                     let same = if pace.abs() <= SAME_PACE { ", same pace" } else { "" };
-                    format!("{} → {} agents ({:+.0} % agent-steps/s{same})", a.envs * a.agents, b.envs * b.agents, pace * 100.0)
+                    format!(
+                        "{} → {} agents ({:+.0} % agent-steps/s{same})",
+                        a.envs * a.agents,
+                        b.envs * b.agents,
+                        pace * 100.0
+                    )
                 })
                 .collect();
-            writeln!(md, "- {mode}: {}: **does not fall** at {}.", path.join(" → "), pairs.join(", "))?;
+            writeln!(
+                md,
+                "- {mode}: {}: **does not fall** at {}.",
+                path.join(" → "),
+                pairs.join(", ")
+            )?;
             if flat.iter().all(|(a, b)| pace_change(a, b).abs() <= SAME_PACE) {
-                let named = distinct(flat.iter().flat_map(|(a, b)| [a, b]).filter_map(|c| c.bottleneck.as_deref()));
-                let by = if named.is_empty() { String::new() } else { format!(" (bottleneck: {})", named.join(", ")) };
+                let named = distinct(
+                    flat.iter().flat_map(|(a, b)| [a, b]).filter_map(|c| c.bottleneck.as_deref()),
+                );
+                let by = if named.is_empty() {
+                    String::new()
+                } else {
+                    format!(" (bottleneck: {})", named.join(", "))
+                };
                 writeln!(
                     md,
                     "  Where it does not fall, the larger cell ran no more agent-steps per second than the smaller{by}: this machine gives both the same work per second, so the extra agents cannot shorten the run and the difference is run-to-run spread. More cores or a GPU learner raise that ceiling."
@@ -232,18 +324,27 @@ fn run_cell(
     [envs, agents]: [usize; 2],
     seed: u64,
     of: (usize, usize),
-) -> Result<(Value, (String, Vec<(f64, f64)>))> {
+) -> Result<(CellRow, (String, Vec<(f64, f64)>))> {
     let name = format!("{mode}-{envs}x{agents}-seed{seed}");
     let dir = out.join(&name);
     let _ = std::fs::remove_dir_all(&dir);
     eprintln!("[{}/{}] {name}: up to {:.0} s", of.0, of.1, tc.budget_s);
     let hosts = if tc.split_hosts { envs } else { 1 };
     let mut cmd = Command::new(exe);
-    let endpoint = format!("tcp/127.0.0.1:{}", std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port());
+    let endpoint = format!(
+        "tcp/127.0.0.1:{}",
+        std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port()
+    );
     if hosts > 1 {
         cmd.args(["--domain", "table-host0"]);
     }
-    cmd.arg("train").arg(&tc.config).arg("--quiet").arg("--run-dir").arg(&dir).arg("--max-seconds").arg(tc.budget_s.to_string());
+    cmd.arg("train")
+        .arg(&tc.config)
+        .arg("--quiet")
+        .arg("--run-dir")
+        .arg(&dir)
+        .arg("--max-seconds")
+        .arg(tc.budget_s.to_string());
     let mut sets = vec![
         format!("sim.envs={}", if hosts > 1 { 1 } else { envs }),
         format!("sim.agents={agents}"),
@@ -251,7 +352,10 @@ fn run_cell(
         format!("seed={seed}"),
     ];
     if tc.deterministic_env_steps > 0 {
-        sets.extend(["deterministic=true".to_string(), format!("max_env_steps={}", tc.deterministic_env_steps)]);
+        sets.extend([
+            "deterministic=true".to_string(),
+            format!("max_env_steps={}", tc.deterministic_env_steps),
+        ]);
     }
     if hosts > 1 {
         cmd.args(["--listen", &endpoint]);
@@ -265,7 +369,8 @@ fn run_cell(
     for h in 1..hosts {
         let mut w = Command::new(exe);
         w.args(["--domain", &format!("table-host{h}"), "worker", "--connect", &endpoint]);
-        w.args(["--agents", &agents.to_string(), "--name", &format!("host{h}"), "--run-dir"]).arg(dir.join(format!("worker-{h}")));
+        w.args(["--agents", &agents.to_string(), "--name", &format!("host{h}"), "--run-dir"])
+            .arg(dir.join(format!("worker-{h}")));
         w.stdout(std::process::Stdio::null());
         workers.push(w.spawn().doing_with(|| format!("cell {name}: cannot start hive worker"))?);
     }
@@ -273,106 +378,154 @@ fn run_cell(
     for mut w in workers {
         let _ = w.wait();
     }
-    // The cell's result, read through the typed summary `hive train` writes.
-    let summary = match rotorhive_records::Summary::read(&dir) {
-        Ok(s) => serde_json::to_value(&s)?,
-        Err(e) => json!({ "failure": format!("hive train exited with {status}: {e:#}") }),
-    };
-    let curve: Vec<(f64, f64)> = rotorhive_records::rows::read::<MetricsRow>(&dir.join("metrics.csv"))
-        .unwrap_or_default()
-        .into_iter()
-        .filter(|r| r.kind == MetricsKind::Tick)
-        .filter_map(|r| Some((r.wall_s, r.rolling_reward?)))
-        .filter(|p| p.1.is_finite())
-        .collect();
-    // The paper's finding per cell: which role set the pace.
-    let (bottleneck, busy) = match rotorhive_records::profile::analyse(&dir) {
-        Ok(p) => p.bottleneck.map_or((Value::Null, Value::Null), |b| (json!(format!("{} {}", b.role, b.stage)), json!(b.busy * 100.0))),
-        Err(_) => (Value::Null, Value::Null),
-    };
-    let row = json!({
-        "mode": mode, "envs": envs, "agents": agents, "agents_total": envs * agents, "seed": seed, "hosts": hosts,
-        "converged": summary["converged"], "time_to_threshold_s": summary["time_to_threshold_s"],
-        "wall_s": summary["wall_s"], "env_steps_per_s": summary["env_steps_per_s"], "updates_per_s": summary["updates_per_s"],
-        "cpu_util_mean_pct": summary["cpu_util_mean_pct"], "gpu_util_mean_pct": summary["gpu_util_mean_pct"], "gpu_power_mean_w": summary["gpu_power_mean_w"],
-        "bottleneck": bottleneck, "bottleneck_busy_pct": busy,
-        "rolling_reward": summary["rolling_reward"], "peak_rss_mb": summary["peak_rss_mb"], "failure": summary["failure"],
-        "run_dir": dir.display().to_string(),
-    });
+    let curve: Vec<(f64, f64)> =
+        rotorhive_records::rows::read::<MetricsRow>(&dir.join("metrics.csv"))
+            .unwrap_or_default()
+            .into_iter()
+            .filter(|r| r.kind == MetricsKind::Tick)
+            .filter_map(|r| Some((r.wall_s, r.rolling_reward?)))
+            .filter(|p| p.1.is_finite())
+            .collect();
+    let row = CellRow::read(&dir, (mode, [envs, agents], seed, hosts), status);
     Ok((row, (format!("{mode} {envs}x{agents} s{seed}"), curve)))
 }
 
+impl CellRow {
+    /// The row of a finished run in `dir`: (mode, [envs, agents], seed,
+    /// hosts) and what its summary and profile say; `status` is `hive
+    /// train`'s exit, named when the run wrote no summary.
+    fn read(
+        dir: &Path,
+        (mode, [envs, agents], seed, hosts): (&str, [usize; 2], u64, usize),
+        status: std::process::ExitStatus,
+    ) -> Self {
+        // The cell's result, read through the typed summary `hive train` writes.
+        let summary = rotorhive_records::Summary::read(dir);
+        let s = summary.as_ref().ok();
+        let failure = match &summary {
+            Ok(s) => s.failure.clone(),
+            Err(e) => Some(format!("hive train exited with {status}: {e:#}")),
+        };
+        // The paper's finding per cell: which role set the pace.
+        let bottleneck = rotorhive_records::profile::analyse(dir).ok().and_then(|p| p.bottleneck);
+        Self {
+            mode: mode.to_string(),
+            envs,
+            agents,
+            agents_total: envs * agents,
+            seed,
+            hosts,
+            converged: s.is_some_and(|s| s.converged),
+            time_to_threshold_s: s.and_then(|s| s.time_to_threshold_s),
+            wall_s: s.map(|s| s.wall_s),
+            env_steps_per_s: s.map(|s| s.env_steps_per_s),
+            updates_per_s: s.map(|s| s.updates_per_s),
+            cpu_util_mean_pct: s.and_then(|s| s.cpu_util_mean_pct),
+            gpu_util_mean_pct: s.and_then(|s| s.gpu_util_mean_pct),
+            gpu_power_mean_w: s.and_then(|s| s.gpu_power_mean_w),
+            bottleneck: bottleneck.as_ref().map(|b| format!("{} {}", b.role, b.stage)),
+            bottleneck_busy_pct: bottleneck.map(|b| b.busy * 100.0),
+            rolling_reward: s.and_then(|s| s.rolling_reward),
+            peak_rss_mb: s.map(|s| s.peak_rss_mb),
+            failure,
+            run_dir: dir.display().to_string(),
+        }
+    }
+}
+
 /// The table as markdown (its header and one line per cell) and as CSV.
-fn table_text(tc: &TableConfig, rows: &[Value]) -> Result<(String, String)> {
+fn table_text(tc: &TableConfig, rows: &[CellRow]) -> Result<(String, String)> {
     let mut md = String::new();
     writeln!(md, "# Agent-count table (the paper's Table II) on this machine\n")?;
     if tc.deterministic_env_steps > 0 {
         writeln!(
             md,
-            "Every cell is a deterministic run of {} agent-steps (`deterministic = true`): the same episodes and weights every time.\n",
+            "Every cell is a deterministic run of {} agent-steps (`deterministic = true`): \
+             the same episodes and weights every time.\n",
             tc.deterministic_env_steps
         )?;
     }
     writeln!(
         md,
-        "Budget {:.0} s per cell; threshold: rolling mean of the last 50 episodes ≥ the config's threshold. Paper: i7-11700K + RTX 2070 Super, AirSim.\n",
+        "Budget {:.0} s per cell; threshold: rolling mean of the last 50 episodes ≥ the config's \
+         threshold. Paper: i7-11700K + RTX 2070 Super, AirSim.\n",
         tc.budget_s
     )?;
     writeln!(
         md,
-        "| observations | envs | agents | total | seed | time to 300 (s) | agent-steps/s | updates/s | CPU % | bottleneck | GPU % | GPU W | paper time | paper CPU % | paper GPU % | paper GPU W |"
+        "| observations | envs | agents | total | seed | time to 300 (s) | agent-steps/s \
+         | updates/s | CPU % | bottleneck | GPU % | GPU W | paper time | paper CPU % \
+         | paper GPU % | paper GPU W |"
     )?;
     writeln!(md, "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")?;
     let mut csv = String::from(
-        "mode,envs,agents,agents_total,seed,converged,time_to_threshold_s,wall_s,env_steps_per_s,updates_per_s,cpu_util_mean_pct,bottleneck,bottleneck_busy_pct,gpu_util_mean_pct,gpu_power_mean_w,paper_time,paper_cpu_pct,paper_gpu_pct,paper_gpu_w\n",
+        "mode,envs,agents,agents_total,seed,converged,time_to_threshold_s,wall_s,\
+         env_steps_per_s,updates_per_s,cpu_util_mean_pct,bottleneck,bottleneck_busy_pct,\
+         gpu_util_mean_pct,gpu_power_mean_w,paper_time,paper_cpu_pct,paper_gpu_pct,paper_gpu_w\n",
     );
     for r in rows {
-        let (mode, envs, agents) = (r["mode"].as_str().unwrap_or(""), r["envs"].as_u64().unwrap_or(0) as usize, r["agents"].as_u64().unwrap_or(0) as usize);
-        let p = paper(mode, envs, agents);
-        let time = match r["time_to_threshold_s"].as_f64() {
-            Some(t) => format!("{t:.0}"),
-            None => format!("> {}", fmt_opt(&r["wall_s"], 0)),
-        };
-        let pc = |f: fn(&(&str, u32, u32, u32)) -> String| p.as_ref().map_or("—".to_string(), f);
-        let envs_cell = if r["hosts"].as_u64().unwrap_or(1) > 1 { format!("{envs} (hosts)") } else { envs.to_string() };
-        writeln!(
-            md,
-            "| {mode} | {envs_cell} | {agents} | {} | {} | {time} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
-            envs * agents,
-            r["seed"],
-            fmt_opt(&r["env_steps_per_s"], 0),
-            fmt_opt(&r["updates_per_s"], 0),
-            fmt_opt(&r["cpu_util_mean_pct"], 0),
-            bottleneck_cell(r),
-            fmt_opt(&r["gpu_util_mean_pct"], 0),
-            fmt_opt(&r["gpu_power_mean_w"], 0),
-            pc(|p| p.0.to_string()),
-            pc(|p| p.1.to_string()),
-            pc(|p| p.2.to_string()),
-            pc(|p| p.3.to_string()),
-        )?;
-        writeln!(
-            csv,
-            "{mode},{envs},{agents},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
-            envs * agents,
-            r["seed"],
-            r["converged"],
-            r["time_to_threshold_s"].as_f64().map_or(String::new(), |v| format!("{v:.1}")),
-            fmt_opt(&r["wall_s"], 1),
-            fmt_opt(&r["env_steps_per_s"], 0),
-            fmt_opt(&r["updates_per_s"], 1),
-            fmt_opt(&r["cpu_util_mean_pct"], 1),
-            r["bottleneck"].as_str().unwrap_or(""),
-            r["bottleneck_busy_pct"].as_f64().map_or(String::new(), |v| format!("{v:.0}")),
-            r["gpu_util_mean_pct"].as_f64().map_or(String::new(), |v| format!("{v:.1}")),
-            r["gpu_power_mean_w"].as_f64().map_or(String::new(), |v| format!("{v:.1}")),
-            pc(|p| p.0.to_string()),
-            pc(|p| p.1.to_string()),
-            pc(|p| p.2.to_string()),
-            pc(|p| p.3.to_string()),
-        )?;
+        writeln!(md, "{}", r.md_line())?;
+        writeln!(csv, "{}", r.csv_line())?;
     }
     Ok((md, csv))
+}
+
+impl CellRow {
+    /// The paper's (time, CPU %, GPU %, GPU W) for this cell, as text.
+    fn paper_cells(&self) -> [String; 4] {
+        match paper(&self.mode, self.envs, self.agents) {
+            Some(p) => [p.0.to_string(), p.1.to_string(), p.2.to_string(), p.3.to_string()],
+            None => std::array::from_fn(|_| "—".to_string()),
+        }
+    }
+
+    /// Its line of `agent-table.md`.
+    fn md_line(&self) -> String {
+        let time = match self.time_to_threshold_s {
+            Some(t) => format!("{t:.0}"),
+            None => format!("> {}", fmt_opt(self.wall_s, 0)),
+        };
+        let envs =
+            if self.hosts > 1 { format!("{} (hosts)", self.envs) } else { self.envs.to_string() };
+        let [pt, pc, pg, pw] = self.paper_cells();
+        format!(
+            "| {} | {envs} | {} | {} | {} | {time} | {} | {} | {} | {} | {} | {} | {pt} | {pc} \
+             | {pg} | {pw} |",
+            self.mode,
+            self.agents,
+            self.agents_total,
+            self.seed,
+            fmt_opt(self.env_steps_per_s, 0),
+            fmt_opt(self.updates_per_s, 0),
+            fmt_opt(self.cpu_util_mean_pct, 0),
+            self.bottleneck_cell(),
+            fmt_opt(self.gpu_util_mean_pct, 0),
+            fmt_opt(self.gpu_power_mean_w, 0),
+        )
+    }
+
+    /// Its line of `agent-table.csv`.
+    fn csv_line(&self) -> String {
+        let [pt, pc, pg, pw] = self.paper_cells();
+        format!(
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{pt},{pc},{pg},{pw}",
+            self.mode,
+            self.envs,
+            self.agents,
+            self.agents_total,
+            self.seed,
+            self.converged,
+            csv_opt(self.time_to_threshold_s, 1),
+            fmt_opt(self.wall_s, 1),
+            fmt_opt(self.env_steps_per_s, 0),
+            fmt_opt(self.updates_per_s, 1),
+            fmt_opt(self.cpu_util_mean_pct, 1),
+            self.bottleneck.as_deref().unwrap_or(""),
+            csv_opt(self.bottleneck_busy_pct, 0),
+            csv_opt(self.gpu_util_mean_pct, 1),
+            csv_opt(self.gpu_power_mean_w, 1),
+        )
+    }
 }
 
 pub fn run(config: &Path, train_config: Option<&Path>, out: &Path, json_out: bool) -> Result<()> {
@@ -390,7 +543,8 @@ pub fn run(config: &Path, train_config: Option<&Path>, out: &Path, json_out: boo
         for &[envs, agents] in &tc.cells {
             for &seed in &tc.seeds {
                 k += 1;
-                let (row, curve) = run_cell(&tc, out, &exe, mode, [envs, agents], seed, (k, total))?;
+                let (row, curve) =
+                    run_cell(&tc, out, &exe, mode, [envs, agents], seed, (k, total))?;
                 rows.push(row);
                 curves.push(curve);
             }
@@ -402,7 +556,7 @@ pub fn run(config: &Path, train_config: Option<&Path>, out: &Path, json_out: boo
         medians(&mut md, &cells, tc.budget_s)?;
     }
     trend(&mut md, &cells, tc.budget_s)?;
-    if rows.iter().all(|r| r["gpu_util_mean_pct"].is_null()) {
+    if rows.iter().all(|r| r.gpu_util_mean_pct.is_none()) {
         writeln!(md, "\nGPU columns are empty: no NVIDIA GPU was seen (NVML).")?;
     }
     if tc.split_hosts {
@@ -414,26 +568,54 @@ pub fn run(config: &Path, train_config: Option<&Path>, out: &Path, json_out: boo
     writeln!(md, "\nRuns: {}.", out.display())?;
     std::fs::write(out.join("agent-table.md"), &md)?;
     std::fs::write(out.join("agent-table.csv"), &csv)?;
-    rotorhive_records::plot::lines_plot("rolling reward per cell", "wall time (s)", "rolling reward (50 episodes)", &curves, &out.join("agent-table.png"))?;
+    rotorhive_records::plot::lines_plot(
+        "rolling reward per cell",
+        "wall time (s)",
+        "rolling reward (50 episodes)",
+        &curves,
+        &out.join("agent-table.png"),
+    )?;
     print!("{md}");
     println!("written: {}/agent-table.{{md,csv,png}}", out.display());
     if json_out {
-        println!("{}", json!({ "budget_s": tc.budget_s, "rows": rows, "table": out.join("agent-table.md").display().to_string() }));
+        println!(
+            "{}",
+            json!({ "budget_s": tc.budget_s, "rows": rows, "table": out.join("agent-table.md").display().to_string() })
+        );
     }
     Ok(())
 }
 
 #[cfg(test)]
 mod tests {
-    use super::{cell_medians, trend};
-    use serde_json::{Value, json};
+    use super::{CellRow, cell_medians, trend};
 
-    fn row(agents: u64, seed: u64, time: Option<f64>, steps: f64) -> Value {
-        json!({ "mode": "batched", "envs": 1, "agents": agents, "seed": seed, "time_to_threshold_s": time,
-                "env_steps_per_s": steps, "updates_per_s": 100.0, "bottleneck": "learner-0 forward" })
+    fn row(agents: usize, seed: u64, time: Option<f64>, steps: f64) -> CellRow {
+        CellRow {
+            mode: "batched".into(),
+            envs: 1,
+            agents,
+            agents_total: agents,
+            seed,
+            hosts: 1,
+            converged: time.is_some(),
+            time_to_threshold_s: time,
+            wall_s: Some(220.0),
+            env_steps_per_s: Some(steps),
+            updates_per_s: Some(100.0),
+            cpu_util_mean_pct: None,
+            gpu_util_mean_pct: None,
+            gpu_power_mean_w: None,
+            bottleneck: Some("learner-0 forward".into()),
+            bottleneck_busy_pct: Some(90.0),
+            rolling_reward: None,
+            peak_rss_mb: None,
+            failure: None,
+            run_dir: String::new(),
+        }
     }
 
-    fn trend_of(rows: &[Value]) -> String {
+    fn trend_of(rows: &[CellRow]) -> String {
         let mut md = String::new();
         trend(&mut md, &cell_medians(rows), 220.0).unwrap();
         md
@@ -441,7 +623,12 @@ mod tests {
 
     #[test]
     fn medians_count_a_missed_threshold_as_slowest() {
-        let rows = [row(1, 1, Some(140.0), 2000.0), row(1, 2, Some(150.0), 2200.0), row(25, 1, None, 4000.0), row(25, 2, Some(90.0), 3800.0)];
+        let rows = [
+            row(1, 1, Some(140.0), 2000.0),
+            row(1, 2, Some(150.0), 2200.0),
+            row(25, 1, None, 4000.0),
+            row(25, 2, Some(90.0), 3800.0),
+        ];
         let cells = cell_medians(&rows);
         assert_eq!(cells.len(), 2);
         assert_eq!((cells[0].time, cells[0].converged, cells[0].steps_per_s), (145.0, 2, 2100.0));
@@ -452,15 +639,26 @@ mod tests {
 
     #[test]
     fn trend_says_whether_times_fall_and_names_same_pace_cells() {
-        let falling = [row(1, 1, Some(140.0), 2000.0), row(25, 1, Some(90.0), 3800.0), row(50, 1, Some(80.0), 5000.0)];
+        let falling = [
+            row(1, 1, Some(140.0), 2000.0),
+            row(25, 1, Some(90.0), 3800.0),
+            row(50, 1, Some(80.0), 5000.0),
+        ];
         let md = trend_of(&falling);
         assert!(md.contains("falls at every step"), "{md}");
         assert!(!md.contains("does not fall"), "{md}");
 
         // 25 → 50 agents: slower, at the same agent-steps/s (+5 %).
-        let flat = [row(1, 1, Some(140.0), 2000.0), row(25, 1, Some(80.0), 3800.0), row(50, 1, None, 3990.0)];
+        let flat = [
+            row(1, 1, Some(140.0), 2000.0),
+            row(25, 1, Some(80.0), 3800.0),
+            row(50, 1, None, 3990.0),
+        ];
         let md = trend_of(&flat);
-        assert!(md.contains("**does not fall** at 25 → 50 agents (+5 % agent-steps/s, same pace)"), "{md}");
+        assert!(
+            md.contains("**does not fall** at 25 → 50 agents (+5 % agent-steps/s, same pace)"),
+            "{md}"
+        );
         assert!(md.contains("no more agent-steps per second"), "{md}");
         assert!(md.contains("learner-0 forward"), "{md}");
 

@@ -30,7 +30,10 @@ pub fn run(a: CertsArgs) -> Result<()> {
         bail!("--workers must be from 1 to 1000, got {}", a.workers);
     }
     if a.out.join("ca.pem").exists() && !a.force {
-        bail!("{} already holds a CA: a new one would lock out every host that has the old one (--force to replace it)", a.out.display());
+        bail!(
+            "{} already holds a CA: a new one would lock out every host that has the old one (--force to replace it)",
+            a.out.display()
+        );
     }
     let mut names = vec![crate::supervisor::host_name()];
     names.extend(a.head_names.iter().cloned());

@@ -80,11 +80,17 @@ pub fn run(a: EvalArgs) -> Result<()> {
     match (policy, &a.checkpoint) {
         (PolicyKind::Greedy, Some(c)) => net.load(c)?,
         (PolicyKind::Greedy, None) => bail!("--policy greedy needs --checkpoint"),
-        (PolicyKind::Reactive, Some(_)) => bail!("--policy reactive flies no checkpoint: leave out --checkpoint"),
+        (PolicyKind::Reactive, Some(_)) => {
+            bail!("--policy reactive flies no checkpoint: leave out --checkpoint")
+        }
         (PolicyKind::Reactive, None) => {}
     }
     let (cfg, source) = config(&a)?;
-    let layouts: Vec<Arena> = if a.arena.is_empty() { cfg.test_arenas()? } else { a.arena.iter().map(|p| Arena::load(p)).collect::<Result<_, _>>()? };
+    let layouts: Vec<Arena> = if a.arena.is_empty() {
+        cfg.test_arenas()?
+    } else {
+        a.arena.iter().map(|p| Arena::load(p)).collect::<Result<_, _>>()?
+    };
     let per_layout = a.episodes.div_ceil(layouts.len());
     let pilot = match policy {
         PolicyKind::Greedy => Pilot::Net(&net),
@@ -97,12 +103,21 @@ pub fn run(a: EvalArgs) -> Result<()> {
         format!("{:.1} % [{:.1}, {:.1}]", s.success_rate() * 100.0, lo * 100.0, hi * 100.0)
     };
     let who = match policy {
-        PolicyKind::Greedy => a.checkpoint.as_ref().map_or(String::new(), |c| c.display().to_string()),
+        PolicyKind::Greedy => {
+            a.checkpoint.as_ref().map_or(String::new(), |c| c.display().to_string())
+        }
         PolicyKind::Reactive => "the reactive rule".into(),
     };
     println!("{who}, settings of {source}:");
     for (l, s) in layouts.iter().zip(&stats) {
-        println!("  {}: {} episodes, success {}, collisions {}, mean reward {:.1}", l.name, s.episodes, pct(s), s.collisions, s.mean_reward);
+        println!(
+            "  {}: {} episodes, success {}, collisions {}, mean reward {:.1}",
+            l.name,
+            s.episodes,
+            pct(s),
+            s.collisions,
+            s.mean_reward
+        );
     }
     println!(
         "pooled: {} episodes on {} layouts, success {}, collisions {}, mean reward {:.1}",

@@ -24,6 +24,9 @@ pub fn run(a: ExportArgs) -> Result<()> {
     let net = QNet::new(0, &Device::Cpu)?;
     net.load(&a.checkpoint)?;
     net.to_onnx(&a.out, &[("source", a.checkpoint.display().to_string())])?;
-    println!("{}: inputs depth (B, 2, 32, 32) and velocity (B, 3), output q (B, 2)", a.out.display());
+    println!(
+        "{}: inputs depth (B, 2, 32, 32) and velocity (B, 3), output q (B, 2)",
+        a.out.display()
+    );
     Ok(())
 }

@@ -143,7 +143,9 @@ fn main() -> ExitCode {
         Command::RenderArena(a) => draw::render_arena(a),
         Command::ShowDepth(a) => draw::show_depth(a),
         Command::GenArena(a) => draw::gen_arena(a),
-        Command::Profile { run_dir } => rotorhive_records::profile::run(&run_dir).map_err(Into::into),
+        Command::Profile { run_dir } => {
+            rotorhive_records::profile::run(&run_dir).map_err(Into::into)
+        }
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -62,14 +62,24 @@ pub fn run(a: PlayArgs) -> Result<()> {
     net.load(&a.checkpoint)?;
     let arena = Arena::load(&a.arena)?;
     let start = Instant::now();
-    let file = std::fs::File::create(&a.out).with_context(|| format!("cannot write {}", a.out.display()))?;
-    let mut gif = gif::Encoder::new(std::io::BufWriter::new(file), view::WIDTH as u16, view::HEIGHT as u16, &view::palette())?;
+    let file = std::fs::File::create(&a.out)
+        .with_context(|| format!("cannot write {}", a.out.display()))?;
+    let mut gif = gif::Encoder::new(
+        std::io::BufWriter::new(file),
+        view::WIDTH as u16,
+        view::HEIGHT as u16,
+        &view::palette(),
+    )?;
     gif.set_repeat(gif::Repeat::Infinite)?;
     let delay = (100 / a.fps).max(1);
     let (mut frames, mut goals, mut crashes) = (0usize, 0usize, 0usize);
     let mut still_written = false;
     for round in 0..a.episodes {
-        let mut env = VecEnv::new(SimConfig { agents: a.agents, ..SimConfig::default() }, arena.clone(), a.seed + round as u64)?;
+        let mut env = VecEnv::new(
+            SimConfig { agents: a.agents, ..SimConfig::default() },
+            arena.clone(),
+            a.seed + round as u64,
+        )?;
         env.set_autoreset(Autoreset::Disabled);
         let mut tracks = Tracks::new(&env);
         let obs_len = env.obs_len();
@@ -80,10 +90,17 @@ pub fn run(a: PlayArgs) -> Result<()> {
             let actions: Vec<u8> = q.chunks_exact(2).map(|q| u8::from(q[1] > q[0])).collect();
             let depth = &env.observations()[focus * obs_len..focus * obs_len + obs_len - 3];
             let focus_q = [q[2 * focus], q[2 * focus + 1]];
-            view::draw(&env, &tracks, Focus { agent: focus, depth, q: Some(focus_q), action: Some(actions[focus]) }, &mut canvas);
+            view::draw(
+                &env,
+                &tracks,
+                Focus { agent: focus, depth, q: Some(focus_q), action: Some(actions[focus]) },
+                &mut canvas,
+            );
             write_frame(&mut gif, &canvas, delay)?;
             frames += 1;
-            if let Some(p) = a.still.as_ref().filter(|_| round == 0 && !still_written && (frames == STILL_FRAME || tracks.all_ended())) {
+            if let Some(p) = a.still.as_ref().filter(|_| {
+                round == 0 && !still_written && (frames == STILL_FRAME || tracks.all_ended())
+            }) {
                 write_png(&canvas, p)?;
                 still_written = true;
             }
@@ -99,7 +116,9 @@ pub fn run(a: PlayArgs) -> Result<()> {
                 }
             }
             tracks.record(&env, true);
-            if let Some(next) = (0..a.agents).map(|k| (focus + k) % a.agents).find(|i| !tracks.ended(*i)) {
+            if let Some(next) =
+                (0..a.agents).map(|k| (focus + k) % a.agents).find(|i| !tracks.ended(*i))
+            {
                 focus = next;
             }
         }
@@ -126,11 +145,22 @@ pub fn run(a: PlayArgs) -> Result<()> {
 const STILL_FRAME: usize = 21;
 
 fn write_png(canvas: &Canvas, path: &std::path::Path) -> Result<()> {
-    let img = image::RgbImage::from_raw(view::WIDTH as u32, view::HEIGHT as u32, canvas.rgb()).context("a picture of the right size")?;
+    let img = image::RgbImage::from_raw(view::WIDTH as u32, view::HEIGHT as u32, canvas.rgb())
+        .context("a picture of the right size")?;
     img.save(path).with_context(|| format!("cannot write {}", path.display()))
 }
 
-fn write_frame<W: std::io::Write>(gif: &mut gif::Encoder<W>, canvas: &Canvas, delay: u16) -> Result<()> {
-    let frame = gif::Frame { width: view::WIDTH as u16, height: view::HEIGHT as u16, delay, buffer: Cow::Borrowed(&canvas.px), ..gif::Frame::default() };
+fn write_frame<W: std::io::Write>(
+    gif: &mut gif::Encoder<W>,
+    canvas: &Canvas,
+    delay: u16,
+) -> Result<()> {
+    let frame = gif::Frame {
+        width: view::WIDTH as u16,
+        height: view::HEIGHT as u16,
+        delay,
+        buffer: Cow::Borrowed(&canvas.px),
+        ..gif::Frame::default()
+    };
     gif.write_frame(&frame).context("cannot encode the video")
 }

@@ -39,13 +39,20 @@ pub struct RoleArgs {
 pub fn run(args: &RoleArgs, role: RoleKind, index: usize) -> Result<()> {
     let cfg = Config::load(args.cfg.config.as_deref(), &args.cfg.set)?;
     if matches!(role, RoleKind::Sim | RoleKind::Actor) && index >= cfg.sim.envs {
-        anyhow::bail!("--env {index} is out of range: the config has {} environments", cfg.sim.envs);
+        anyhow::bail!(
+            "--env {index} is out of range: the config has {} environments",
+            cfg.sim.envs
+        );
     }
     let node = rotorhive_roles::node_name(role, index);
     rotorhive_transport::handle_hangup();
     let hub = Hub::<Ipc>::new(&args.prefix, &node).with_context(|| format!("role {node}"))?;
     watch_supervisor(&args.prefix, &node)?;
-    Ok(rotorhive_roles::run_role(Ctx { hub: &hub, cfg: &cfg, run_dir: args.run_dir.as_deref() }, role, index)?)
+    Ok(rotorhive_roles::run_role(
+        Ctx { hub: &hub, cfg: &cfg, run_dir: args.run_dir.as_deref() },
+        role,
+        index,
+    )?)
 }
 
 /// The environment variable through which `hive train` tells its roles its

@@ -39,7 +39,11 @@ pub struct LinkArgs {
 impl LinkArgs {
     /// The link's options (no access control: for checks).
     pub fn options(&self) -> rotorhive_link::LinkOptions {
-        rotorhive_link::LinkOptions { tls: self.tls.clone(), zenoh_config: self.zenoh_config.clone(), peers: Vec::new() }
+        rotorhive_link::LinkOptions {
+            tls: self.tls.clone(),
+            zenoh_config: self.zenoh_config.clone(),
+            peers: Vec::new(),
+        }
     }
 
     /// The head's link options: with TLS, only its `workers` workers'
@@ -62,7 +66,11 @@ impl LinkArgs {
     /// Refuses to listen unencrypted beyond this machine without `--insecure`.
     pub fn check_listen(&self, ep: &str) -> Result<()> {
         self.check(ep)?;
-        if !rotorhive_link::is_tls(ep) && !rotorhive_link::is_loopback(ep) && !self.insecure && self.zenoh_config.is_none() {
+        if !rotorhive_link::is_tls(ep)
+            && !rotorhive_link::is_loopback(ep)
+            && !self.insecure
+            && self.zenoh_config.is_none()
+        {
             bail!(
                 "--listen {ep}: plain TCP beyond this machine lets anyone who reaches the port read the weights and feed the run; \
                  use quic/ with --tls DIR (see `hive certs`), or add --insecure on a network you trust"
@@ -114,19 +122,37 @@ pub fn run(a: WorkerArgs) -> Result<()> {
     if cleaned > 0 {
         tracing::info!("cleaned {cleaned} dead node(s) left in this domain");
     }
-    let name = a.name.clone().unwrap_or_else(|| match std::env::var(rotorhive_transport::DOMAIN_ENV) {
-        Ok(d) if !d.is_empty() => format!("{}/{d}", crate::supervisor::host_name()),
-        _ => crate::supervisor::host_name(),
-    });
+    let name =
+        a.name.clone().unwrap_or_else(|| match std::env::var(rotorhive_transport::DOMAIN_ENV) {
+            Ok(d) if !d.is_empty() => format!("{}/{d}", crate::supervisor::host_name()),
+            _ => crate::supervisor::host_name(),
+        });
     // One directory per host name, so that a worker started again under
     // its name finds its join token.
-    let safe: String = name.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '.' { c } else { '_' }).collect();
-    let run_dir = a.run_dir.clone().unwrap_or_else(|| PathBuf::from("runs").join(format!("worker-{safe}")));
-    std::fs::create_dir_all(&run_dir).with_context(|| format!("cannot create {}", run_dir.display()))?;
+    let safe: String = name
+        .chars()
+        .map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '.' { c } else { '_' })
+        .collect();
+    let run_dir =
+        a.run_dir.clone().unwrap_or_else(|| PathBuf::from("runs").join(format!("worker-{safe}")));
+    std::fs::create_dir_all(&run_dir)
+        .with_context(|| format!("cannot create {}", run_dir.display()))?;
     let run_dir = run_dir.canonicalize()?;
     let token = join_token(&run_dir)?;
-    let hello = Hello { layout: rotorhive_link::layout(rotorhive_model::num_params()), envs: a.envs, agents: a.agents.unwrap_or(0), host: name.clone(), token };
-    let link = Worker::join(&a.connect, &hello, Duration::from_secs_f64(a.join_timeout), &a.link.worker_options(), rotorhive_transport::stop_requested)?;
+    let hello = Hello {
+        layout: rotorhive_link::layout(rotorhive_model::num_params()),
+        envs: a.envs,
+        agents: a.agents.unwrap_or(0),
+        host: name.clone(),
+        token,
+    };
+    let link = Worker::join(
+        &a.connect,
+        &hello,
+        Duration::from_secs_f64(a.join_timeout),
+        &a.link.worker_options(),
+        rotorhive_transport::stop_requested,
+    )?;
     let (cfg, cfg_path) = worker_config(&link, &run_dir, a.envs as usize, a.agents)?;
     println!(
         "joined the run at {} as worker {} ({name}): {} × {} agents, environments {}..{}",
@@ -142,7 +168,12 @@ pub fn run(a: WorkerArgs) -> Result<()> {
     let end = serve(&link, &cfg, &cfg_path, &run_dir, &name, &mut stats, &mut restarts);
     println!(
         "worker {name}: {} transitions in {} batches sent, weights version {} ({} received, {} rejected), {} messages dropped, {restarts} role restarts",
-        stats.transitions, stats.batches, stats.weight_version, stats.weights, stats.rejected, stats.dropped
+        stats.transitions,
+        stats.batches,
+        stats.weight_version,
+        stats.weights,
+        stats.rejected,
+        stats.dropped
     );
     match end? {
         WorkerEnd::RunEnded => {
@@ -157,16 +188,31 @@ pub fn run(a: WorkerArgs) -> Result<()> {
 /// batches, this host's sims and actors as processes of its domain,
 /// launched and restarted as the head's roles are; until the link ends
 /// (the head's end, a stop, a lost head) or a role keeps dying.
-fn serve(link: &Worker, cfg: &Config, cfg_path: &Path, run_dir: &Path, name: &str, stats: &mut WorkerStats, restarts: &mut u32) -> Result<WorkerEnd> {
+fn serve(
+    link: &Worker,
+    cfg: &Config,
+    cfg_path: &Path,
+    run_dir: &Path,
+    name: &str,
+    stats: &mut WorkerStats,
+    restarts: &mut u32,
+) -> Result<WorkerEnd> {
     let prefix = format!("worker-{}", std::process::id());
     let stop = Arc::new(AtomicBool::new(false));
     std::thread::scope(|s| -> Result<WorkerEnd> {
         let (ready_tx, ready_rx) = std::sync::mpsc::channel();
         let bridge = s.spawn(|| -> Result<WorkerEnd> {
             let hub = Hub::<Ipc>::new(&prefix, "link")?.with_stop(stop.clone());
-            Ok(link.bridge(&hub, cfg.sim.envs, roles_of(cfg), rotorhive_model::num_params(), stats, move || {
-                let _ = ready_tx.send(());
-            })?)
+            Ok(link.bridge(
+                &hub,
+                cfg.sim.envs,
+                roles_of(cfg),
+                rotorhive_model::num_params(),
+                stats,
+                move || {
+                    let _ = ready_tx.send(());
+                },
+            )?)
         });
         let give_up = |why: anyhow::Error| {
             stop.store(true, Ordering::SeqCst);
@@ -174,12 +220,16 @@ fn serve(link: &Worker, cfg: &Config, cfg_path: &Path, run_dir: &Path, name: &st
         };
         // Dropping `members` stops them.
         let mut members = match ready_rx.recv() {
-            Ok(()) => Some(Members::start(cfg, false, &prefix, run_dir, cfg_path, env_role_names(cfg)).map_err(give_up)?),
+            Ok(()) => Some(
+                Members::start(cfg, false, &prefix, run_dir, cfg_path, env_role_names(cfg))
+                    .map_err(give_up)?,
+            ),
             Err(_) => None,
         };
         while !bridge.is_finished() {
             if let Some(m) = members.as_mut() {
-                let shutting_down = || stop.load(Ordering::SeqCst) || rotorhive_transport::stop_requested();
+                let shutting_down =
+                    || stop.load(Ordering::SeqCst) || rotorhive_transport::stop_requested();
                 let gave_up = m.check(&shutting_down, &mut |what| {
                     *restarts += 1;
                     eprintln!("worker {name}: {what}");
@@ -207,27 +257,41 @@ fn join_token(run_dir: &std::path::Path) -> Result<String> {
     use std::os::unix::fs::OpenOptionsExt;
     let path = run_dir.join("join-token");
     match std::fs::read_to_string(&path) {
-        Ok(t) if !t.trim().is_empty() && t.trim().len() <= rotorhive_link::wire::MAX_TOKEN => return Ok(t.trim().to_string()),
+        Ok(t) if !t.trim().is_empty() && t.trim().len() <= rotorhive_link::wire::MAX_TOKEN => {
+            return Ok(t.trim().to_string());
+        }
         Ok(_) => bail!("{}: not a join token (delete it to make a new one)", path.display()),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
         Err(e) => return Err(e).with_context(|| format!("cannot read {}", path.display())),
     }
     let token = format!("{:032x}", rand::random::<u128>());
-    let mut f =
-        std::fs::OpenOptions::new().write(true).create_new(true).mode(0o600).open(&path).with_context(|| format!("cannot create {}", path.display()))?;
-    std::io::Write::write_all(&mut f, token.as_bytes()).with_context(|| format!("cannot write {}", path.display()))?;
+    let mut f = std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .mode(0o600)
+        .open(&path)
+        .with_context(|| format!("cannot create {}", path.display()))?;
+    std::io::Write::write_all(&mut f, token.as_bytes())
+        .with_context(|| format!("cannot write {}", path.display()))?;
     Ok(token)
 }
 
 /// This host's config: the head's, with this host's environments and
 /// agents, its own seeds, and the arena it was sent.
-fn worker_config(link: &Worker, run_dir: &std::path::Path, envs: usize, agents: Option<u32>) -> Result<(Config, PathBuf)> {
+fn worker_config(
+    link: &Worker,
+    run_dir: &std::path::Path,
+    envs: usize,
+    agents: Option<u32>,
+) -> Result<(Config, PathBuf)> {
     let head_cfg = run_dir.join("head-config.toml");
-    std::fs::write(&head_cfg, &link.config).with_context(|| format!("cannot write {}", head_cfg.display()))?;
+    std::fs::write(&head_cfg, &link.config)
+        .with_context(|| format!("cannot write {}", head_cfg.display()))?;
     // An empty arena: the head's lanes are all generated.
     let arena = if link.arena.is_empty() { PathBuf::new() } else { run_dir.join("arena.toml") };
     if !link.arena.is_empty() {
-        std::fs::write(&arena, &link.arena).with_context(|| format!("cannot write {}", arena.display()))?;
+        std::fs::write(&arena, &link.arena)
+            .with_context(|| format!("cannot write {}", arena.display()))?;
     }
     let head = Config::load(Some(&head_cfg), &[]).context("the config the head sent")?;
     let agents = agents.map_or(head.sim.agents, |n| n as usize);
@@ -243,6 +307,7 @@ fn worker_config(link: &Worker, run_dir: &std::path::Path, envs: usize, agents: 
     ];
     let cfg = Config::load(Some(&head_cfg), &sets).context("this worker's config")?;
     let path = run_dir.join("config.toml");
-    std::fs::write(&path, cfg.to_toml()).with_context(|| format!("cannot write {}", path.display()))?;
+    std::fs::write(&path, cfg.to_toml())
+        .with_context(|| format!("cannot write {}", path.display()))?;
     Ok((cfg, path))
 }

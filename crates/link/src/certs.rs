@@ -6,7 +6,10 @@
 
 use std::path::{Path, PathBuf};
 
-use rcgen::{BasicConstraints, CertificateParams, CertifiedIssuer, DnType, ExtendedKeyUsagePurpose, IsCa, KeyPair, KeyUsagePurpose};
+use rcgen::{
+    BasicConstraints, CertificateParams, CertifiedIssuer, DnType, ExtendedKeyUsagePurpose, IsCa,
+    KeyPair, KeyUsagePurpose,
+};
 
 use crate::{LinkError, Result};
 
@@ -23,11 +26,16 @@ fn err(what: &str) -> impl FnOnce(rcgen::Error) -> LinkError + '_ {
 /// `head_names`, loopback names always included) and `worker-1/` ..
 /// `worker-N/` under `out`; returns the host directories.
 pub fn make(out: &Path, workers: usize, head_names: &[String]) -> Result<Vec<PathBuf>> {
-    std::fs::create_dir_all(out).map_err(|e| LinkError::Tls(format!("cannot create {}: {e}", out.display())))?;
+    std::fs::create_dir_all(out)
+        .map_err(|e| LinkError::Tls(format!("cannot create {}: {e}", out.display())))?;
     let mut ca = CertificateParams::default();
     ca.is_ca = IsCa::Ca(BasicConstraints::Constrained(0));
     ca.distinguished_name.push(DnType::CommonName, "rotorhive run CA");
-    ca.key_usages = vec![KeyUsagePurpose::KeyCertSign, KeyUsagePurpose::CrlSign, KeyUsagePurpose::DigitalSignature];
+    ca.key_usages = vec![
+        KeyUsagePurpose::KeyCertSign,
+        KeyUsagePurpose::CrlSign,
+        KeyUsagePurpose::DigitalSignature,
+    ];
     let ca_key = KeyPair::generate().map_err(err("a key for the CA"))?;
     let ca_key_pem = ca_key.serialize_pem();
     let ca = CertifiedIssuer::self_signed(ca, ca_key).map_err(err("the CA"))?;
@@ -43,14 +51,17 @@ pub fn make(out: &Path, workers: usize, head_names: &[String]) -> Result<Vec<Pat
     hosts.extend((1..=workers).map(|i| (format!("worker-{i}"), vec![format!("worker-{i}")])));
     let mut dirs = Vec::new();
     for (host, names) in &hosts {
-        let mut p = CertificateParams::new(names.clone()).map_err(|e| LinkError::Tls(format!("names of {host} {names:?}: {e}")))?;
+        let mut p = CertificateParams::new(names.clone())
+            .map_err(|e| LinkError::Tls(format!("names of {host} {names:?}: {e}")))?;
         p.distinguished_name.push(DnType::CommonName, common_name(host));
         p.key_usages = vec![KeyUsagePurpose::DigitalSignature, KeyUsagePurpose::KeyEncipherment];
-        p.extended_key_usages = vec![ExtendedKeyUsagePurpose::ServerAuth, ExtendedKeyUsagePurpose::ClientAuth];
+        p.extended_key_usages =
+            vec![ExtendedKeyUsagePurpose::ServerAuth, ExtendedKeyUsagePurpose::ClientAuth];
         let key = KeyPair::generate().map_err(err("a host key"))?;
         let cert = p.signed_by(&key, &ca).map_err(err("a host certificate"))?;
         let dir = out.join(host);
-        std::fs::create_dir_all(&dir).map_err(|e| LinkError::Tls(format!("cannot create {}: {e}", dir.display())))?;
+        std::fs::create_dir_all(&dir)
+            .map_err(|e| LinkError::Tls(format!("cannot create {}: {e}", dir.display())))?;
         write(&dir.join("ca.pem"), &ca.pem(), false)?;
         write(&dir.join("cert.pem"), &cert.pem(), false)?;
         write(&dir.join("key.pem"), &key.serialize_pem(), true)?;

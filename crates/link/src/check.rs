@@ -7,8 +7,8 @@
 //! whatever the bytes (property-tested below).
 
 use rotorhive_msg::{
-    EPISODE_FIELDS, EpisodeHeader, PACKED_DEPTH, PACKED_LEN, PACKED_SCALARS, RoleKind, Telemetry, TransitionHeader, WeightsHeader, episode_corrupt,
-    scalars_corrupt,
+    EPISODE_FIELDS, EpisodeHeader, PACKED_DEPTH, PACKED_LEN, PACKED_SCALARS, RoleKind, Telemetry,
+    TransitionHeader, WeightsHeader, episode_corrupt, scalars_corrupt,
 };
 
 use crate::Host;
@@ -54,10 +54,14 @@ impl std::fmt::Display for Reject {
         match self {
             Reject::UnknownSender => write!(f, "a key that names no host of the run"),
             Reject::Header => write!(f, "no header of the right size"),
-            Reject::Length { got, want } => write!(f, "{got} bytes where the header's count needs {want}"),
+            Reject::Length { got, want } => {
+                write!(f, "{got} bytes where the header's count needs {want}")
+            }
             Reject::Count(n) => write!(f, "a count of {n}"),
             Reject::Actor(a) => write!(f, "environment {a}, which is not the sender's"),
-            Reject::Role { role, index } => write!(f, "role code {role} index {index}, which the sender does not run"),
+            Reject::Role { role, index } => {
+                write!(f, "role code {role} index {index}, which the sender does not run")
+            }
             Reject::Values(n) => write!(f, "{n} records with non-finite or out-of-range values"),
         }
     }
@@ -94,7 +98,9 @@ impl<'a> Fragments<'a> {
     fn read(&mut self, mut offset: usize, out: &mut [u8]) -> bool {
         let mut done = 0;
         while done < out.len() {
-            let Some(f) = self.frags.get(self.at) else { return false };
+            let Some(f) = self.frags.get(self.at) else {
+                return false;
+            };
             if offset >= self.start + f.len() {
                 self.start += f.len();
                 self.at += 1;
@@ -113,7 +119,11 @@ impl<'a> Fragments<'a> {
 /// Checks a transition batch from `host`: header, exact length, the
 /// sender's environment, and every transition's scalars (the depth words
 /// have no invalid value). The payload stays in its fragments.
-pub fn transitions(host: &Host, attachment: Option<&[u8]>, frags: &[&[u8]]) -> Result<TransitionHeader, Reject> {
+pub fn transitions(
+    host: &Host,
+    attachment: Option<&[u8]>,
+    frags: &[&[u8]],
+) -> Result<TransitionHeader, Reject> {
     let h: TransitionHeader = attachment.and_then(wire::header_from).ok_or(Reject::Header)?;
     if h.count == 0 || h.count as usize > MAX_BATCH {
         return Err(Reject::Count(h.count));
@@ -153,7 +163,11 @@ fn floats(bytes: &[u8]) -> impl Iterator<Item = f32> + '_ {
 
 /// Checks an episodes message from `host`; its header. The payload's bytes
 /// are the records to pass on as they are.
-pub fn episodes(host: &Host, attachment: Option<&[u8]>, payload: &[u8]) -> Result<EpisodeHeader, Reject> {
+pub fn episodes(
+    host: &Host,
+    attachment: Option<&[u8]>,
+    payload: &[u8],
+) -> Result<EpisodeHeader, Reject> {
     let h: EpisodeHeader = attachment.and_then(wire::header_from).ok_or(Reject::Header)?;
     if h.count == 0 || h.count as usize > MAX_EPISODES {
         return Err(Reject::Count(h.count));
@@ -181,7 +195,11 @@ pub fn episodes(host: &Host, attachment: Option<&[u8]>, payload: &[u8]) -> Resul
 
 /// Checks a telemetry sample from `host`: only its sims and actors (by
 /// environment) and its link (by slot), with finite diagnostics.
-pub fn telemetry(host: &Host, attachment: Option<&[u8]>, payload_len: usize) -> Result<Telemetry, Reject> {
+pub fn telemetry(
+    host: &Host,
+    attachment: Option<&[u8]>,
+    payload_len: usize,
+) -> Result<Telemetry, Reject> {
     let t: Telemetry = attachment.and_then(wire::header_from).ok_or(Reject::Header)?;
     if payload_len != 0 {
         return Err(Reject::Length { got: payload_len, want: 0 });
@@ -195,7 +213,10 @@ pub fn telemetry(host: &Host, attachment: Option<&[u8]>, payload_len: usize) -> 
         return Err(Reject::Role { role: t.role, index: t.index });
     }
     let l = &t.learning;
-    if ![l.mean_max_q, l.mean_abs_td, l.terminal_share, l.eps_min, l.eps_max].iter().all(|v| v.is_finite()) {
+    if ![l.mean_max_q, l.mean_abs_td, l.terminal_share, l.eps_min, l.eps_max]
+        .iter()
+        .all(|v| v.is_finite())
+    {
         return Err(Reject::Values(1));
     }
     Ok(t)
@@ -204,7 +225,11 @@ pub fn telemetry(host: &Host, attachment: Option<&[u8]>, payload_len: usize) -> 
 /// Checks weights from the head: the size this build's model has and finite
 /// values (a head never publishes others); its header. The payload's bytes
 /// are the weights to pass on as they are.
-pub fn weights(num_params: usize, attachment: Option<&[u8]>, payload: &[u8]) -> Result<WeightsHeader, Reject> {
+pub fn weights(
+    num_params: usize,
+    attachment: Option<&[u8]>,
+    payload: &[u8],
+) -> Result<WeightsHeader, Reject> {
     let h: WeightsHeader = attachment.and_then(wire::header_from).ok_or(Reject::Header)?;
     let want = num_params * 4;
     if h.len != num_params as u64 || payload.len() != want {
@@ -247,7 +272,10 @@ mod tests {
             let (a, b) = p.split_at(cut);
             assert!(transitions(&host(), Some(&h), &[a, b]).is_ok(), "cut at {cut}");
         }
-        assert_eq!(transitions(&host(), Some(&h), &[&p[1..]]).unwrap_err(), Reject::Length { got: p.len() - 1, want: p.len() });
+        assert_eq!(
+            transitions(&host(), Some(&h), &[&p[1..]]).unwrap_err(),
+            Reject::Length { got: p.len() - 1, want: p.len() }
+        );
         let odd = [&p[..], &[0u8][..]].concat();
         assert!(matches!(transitions(&host(), Some(&h), &[&odd]), Err(Reject::Length { .. })));
         assert_eq!(transitions(&host(), Some(&h[1..]), &[&p]).unwrap_err(), Reject::Header);
@@ -266,31 +294,78 @@ mod tests {
 
     #[test]
     fn episodes_telemetry_and_weights_are_checked() {
-        let eh = |actor, count| EpisodeHeader { actor, count, transitions: 0, epsilon_micro: 100_000, step: 0 };
+        let eh = |actor, count| EpisodeHeader {
+            actor,
+            count,
+            transitions: 0,
+            epsilon_micro: 100_000,
+            step: 0,
+        };
         let rec = |r: [f32; 4]| r.iter().flat_map(|v| v.to_le_bytes()).collect::<Vec<u8>>();
         let good = rec([450.0, 150.0, 2.0, 0.1]);
         assert!(episodes(&host(), Some(wire::header_bytes(&eh(1, 1))), &good).is_ok());
-        assert_eq!(episodes(&host(), Some(wire::header_bytes(&eh(0, 1))), &good).unwrap_err(), Reject::Actor(0));
-        assert!(matches!(episodes(&host(), Some(wire::header_bytes(&eh(1, 2))), &good), Err(Reject::Length { .. })));
-        assert!(matches!(episodes(&host(), Some(wire::header_bytes(&eh(1, 1))), &good[..15]), Err(Reject::Length { .. })));
-        for bad in [[f32::INFINITY, 150.0, 2.0, 0.1], [1.0, 0.0, 2.0, 0.1], [1.0, 1.5, 2.0, 0.1], [1.0, 9.0, 0.0, 0.1], [1.0, 9.0, 2.0, 1.5]] {
-            assert_eq!(episodes(&host(), Some(wire::header_bytes(&eh(1, 1))), &rec(bad)).unwrap_err(), Reject::Values(1), "{bad:?}");
+        assert_eq!(
+            episodes(&host(), Some(wire::header_bytes(&eh(0, 1))), &good).unwrap_err(),
+            Reject::Actor(0)
+        );
+        assert!(matches!(
+            episodes(&host(), Some(wire::header_bytes(&eh(1, 2))), &good),
+            Err(Reject::Length { .. })
+        ));
+        assert!(matches!(
+            episodes(&host(), Some(wire::header_bytes(&eh(1, 1))), &good[..15]),
+            Err(Reject::Length { .. })
+        ));
+        for bad in [
+            [f32::INFINITY, 150.0, 2.0, 0.1],
+            [1.0, 0.0, 2.0, 0.1],
+            [1.0, 1.5, 2.0, 0.1],
+            [1.0, 9.0, 0.0, 0.1],
+            [1.0, 9.0, 2.0, 1.5],
+        ] {
+            assert_eq!(
+                episodes(&host(), Some(wire::header_bytes(&eh(1, 1))), &rec(bad)).unwrap_err(),
+                Reject::Values(1),
+                "{bad:?}"
+            );
         }
-        let t = |role: RoleKind, index| Telemetry { role: role as u32, index, ..Telemetry::default() };
+        let t =
+            |role: RoleKind, index| Telemetry { role: role as u32, index, ..Telemetry::default() };
         assert!(telemetry(&host(), Some(wire::header_bytes(&t(RoleKind::Sim, 2))), 0).is_ok());
         assert!(telemetry(&host(), Some(wire::header_bytes(&t(RoleKind::Link, 1))), 0).is_ok());
-        for (role, index) in [(RoleKind::Sim, 0), (RoleKind::Actor, 3), (RoleKind::Learner, 0), (RoleKind::Replay, 0), (RoleKind::Link, 2)] {
-            assert!(matches!(telemetry(&host(), Some(wire::header_bytes(&t(role, index))), 0), Err(Reject::Role { .. })), "{role:?} {index}");
+        for (role, index) in [
+            (RoleKind::Sim, 0),
+            (RoleKind::Actor, 3),
+            (RoleKind::Learner, 0),
+            (RoleKind::Replay, 0),
+            (RoleKind::Link, 2),
+        ] {
+            assert!(
+                matches!(
+                    telemetry(&host(), Some(wire::header_bytes(&t(role, index))), 0),
+                    Err(Reject::Role { .. })
+                ),
+                "{role:?} {index}"
+            );
         }
         let mut nan = t(RoleKind::Actor, 1);
         nan.learning.eps_max = f32::NAN;
-        assert_eq!(telemetry(&host(), Some(wire::header_bytes(&nan)), 0).unwrap_err(), Reject::Values(1));
+        assert_eq!(
+            telemetry(&host(), Some(wire::header_bytes(&nan)), 0).unwrap_err(),
+            Reject::Values(1)
+        );
         let wh = WeightsHeader { version: 1, len: 3, ..WeightsHeader::default() };
         let w = rec([1.0, 2.0, 3.0, 0.0]);
         assert!(weights(3, Some(wire::header_bytes(&wh)), &w[..12]).is_ok());
-        assert!(matches!(weights(4, Some(wire::header_bytes(&wh)), &w[..12]), Err(Reject::Length { .. })));
+        assert!(matches!(
+            weights(4, Some(wire::header_bytes(&wh)), &w[..12]),
+            Err(Reject::Length { .. })
+        ));
         let w = rec([1.0, f32::NAN, 3.0, 0.0]);
-        assert_eq!(weights(3, Some(wire::header_bytes(&wh)), &w[..12]).unwrap_err(), Reject::Values(1));
+        assert_eq!(
+            weights(3, Some(wire::header_bytes(&wh)), &w[..12]).unwrap_err(),
+            Reject::Values(1)
+        );
     }
 
     #[test]

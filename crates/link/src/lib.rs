@@ -26,7 +26,10 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use iceoryx2::service::Service;
-use rotorhive_msg::{EPISODE_FIELDS, EpisodeHeader, LinkStage, RoleKind, SeqTracker, Telemetry, TransitionHeader, WeightsHeader};
+use rotorhive_msg::{
+    EPISODE_FIELDS, EpisodeHeader, LinkStage, RoleKind, SeqTracker, Telemetry, TransitionHeader,
+    WeightsHeader,
+};
 use rotorhive_transport::{Channel, Hub, TransportError};
 use zenoh::Wait;
 use zenoh::handlers::{FifoChannel, FifoChannelHandler, RingChannel};
@@ -40,7 +43,9 @@ pub use wire::{Hello, Welcome};
 #[derive(Debug, thiserror::Error)]
 pub enum LinkError {
     /// An endpoint that is not `tcp/`, `tls/` or `quic/HOST:PORT`.
-    #[error("endpoint {0:?}: expected tcp/HOST:PORT, tls/HOST:PORT or quic/HOST:PORT (for example quic/192.168.1.10:7447)")]
+    #[error(
+        "endpoint {0:?}: expected tcp/HOST:PORT, tls/HOST:PORT or quic/HOST:PORT (for example quic/192.168.1.10:7447)"
+    )]
     BadEndpoint(String),
     /// A `tls/` endpoint without certificates, or certificates that are not there.
     #[error("{0}")]
@@ -62,7 +67,9 @@ pub enum LinkError {
         message: String,
     },
     /// No head answered a worker in time.
-    #[error("no head answered at {endpoint} within {secs:.0} s (is `hive train --listen {endpoint}` running there, and the port open?)")]
+    #[error(
+        "no head answered at {endpoint} within {secs:.0} s (is `hive train --listen {endpoint}` running there, and the port open?)"
+    )]
     NoHead {
         /// The endpoint tried.
         endpoint: String,
@@ -78,7 +85,9 @@ pub enum LinkError {
         why: String,
     },
     /// Too few workers joined before the timeout.
-    #[error("only {joined} of {wanted} worker hosts joined within {secs:.0} s (`cluster.join_timeout_s`)")]
+    #[error(
+        "only {joined} of {wanted} worker hosts joined within {secs:.0} s (`cluster.join_timeout_s`)"
+    )]
     TooFewWorkers {
         /// Joined.
         joined: usize,
@@ -109,7 +118,11 @@ fn zerr(what: impl Into<String>) -> impl FnOnce(zenoh::Error) -> LinkError {
 /// Checks that `ep` is `tcp/HOST:PORT` or `tls/HOST:PORT`; its host.
 pub fn check_endpoint(ep: &str) -> Result<&str> {
     let bad = || LinkError::BadEndpoint(ep.to_string());
-    let rest = ep.strip_prefix("tcp/").or_else(|| ep.strip_prefix("tls/")).or_else(|| ep.strip_prefix("quic/")).ok_or_else(bad)?;
+    let rest = ep
+        .strip_prefix("tcp/")
+        .or_else(|| ep.strip_prefix("tls/"))
+        .or_else(|| ep.strip_prefix("quic/"))
+        .ok_or_else(bad)?;
     let (host, port) = rest.rsplit_once(':').ok_or_else(bad)?;
     if host.is_empty() || port.parse::<u16>().is_err() {
         return Err(bad());
@@ -155,7 +168,11 @@ impl LinkOptions {
     /// The head's options: `tls` and `zenoh_config`, talking to the
     /// certificates of `hive certs`'s workers 1..=`workers`.
     pub fn for_head(tls: Option<PathBuf>, zenoh_config: Option<PathBuf>, workers: usize) -> Self {
-        Self { tls, zenoh_config, peers: (1..=workers).map(|i| certs::common_name(&format!("worker-{i}"))).collect() }
+        Self {
+            tls,
+            zenoh_config,
+            peers: (1..=workers).map(|i| certs::common_name(&format!("worker-{i}"))).collect(),
+        }
     }
 
     /// A worker's options: `tls` and `zenoh_config`, talking to the head's
@@ -170,7 +187,11 @@ pub fn tls_files(dir: &Path) -> Result<[PathBuf; 3]> {
     let files = ["ca.pem", "cert.pem", "key.pem"].map(|f| dir.join(f));
     for f in &files {
         if !f.is_file() {
-            return Err(LinkError::Tls(format!("--tls {}: {} is missing (make the run's certificates with `hive certs`)", dir.display(), f.display())));
+            return Err(LinkError::Tls(format!(
+                "--tls {}: {} is missing (make the run's certificates with `hive certs`)",
+                dir.display(),
+                f.display()
+            )));
         }
     }
     Ok(files)
@@ -186,7 +207,9 @@ pub fn check_options(ep: &str, opts: &LinkOptions) -> Result<()> {
             tls_files(dir)?;
         }
         None if is_tls(ep) && opts.zenoh_config.is_none() => {
-            return Err(LinkError::Tls(format!("{ep} needs --tls DIR: the run's CA and this host's certificate and key (made by `hive certs`)")));
+            return Err(LinkError::Tls(format!(
+                "{ep} needs --tls DIR: the run's CA and this host's certificate and key (made by `hive certs`)"
+            )));
         }
         None => {}
     }
@@ -208,7 +231,8 @@ pub fn layout(num_params: usize) -> u64 {
 }
 
 fn set(c: &mut zenoh::Config, k: &str, v: &str) -> Result<()> {
-    c.insert_json5(k, v).map_err(|e| LinkError::Zenoh { what: format!("config {k}"), message: e.to_string() })
+    c.insert_json5(k, v)
+        .map_err(|e| LinkError::Zenoh { what: format!("config {k}"), message: e.to_string() })
 }
 
 /// Mutual TLS from a directory of `hive certs`: both ends present their
@@ -251,7 +275,11 @@ fn overlay(c: &mut zenoh::Config, path: &Path) -> Result<()> {
     zenoh::Config::from_file(path).map_err(|e| bad(e.to_string()))?;
     let text = std::fs::read_to_string(path).map_err(|e| bad(e.to_string()))?;
     let value: serde_json::Value = json5::from_str(&text).map_err(|e| bad(e.to_string()))?;
-    fn walk(c: &mut zenoh::Config, at: &str, v: &serde_json::Value) -> std::result::Result<(), String> {
+    fn walk(
+        c: &mut zenoh::Config,
+        at: &str,
+        v: &serde_json::Value,
+    ) -> std::result::Result<(), String> {
         match v {
             serde_json::Value::Object(m) if !m.is_empty() => {
                 for (k, v) in m {
@@ -380,14 +408,17 @@ impl HeadStats {
     /// Counts a dropped message from `slot`; logs the first few of each
     /// host and then every thousandth.
     fn reject(&self, slot: u32, what: &str, why: &check::Reject) {
-        let Ok(mut r) = self.rejected.lock() else { return };
+        let Ok(mut r) = self.rejected.lock() else {
+            return;
+        };
         if r.len() <= slot as usize {
             r.resize(slot as usize + 1, 0);
         }
         r[slot as usize] += 1;
         let n = r[slot as usize];
         if n <= 5 || n % 1000 == 0 {
-            let from = if slot == 0 { "an unknown sender".to_string() } else { format!("worker {slot}") };
+            let from =
+                if slot == 0 { "an unknown sender".to_string() } else { format!("worker {slot}") };
             tracing::warn!("dropped {what} from {from}: {why} ({n} dropped from it so far)");
         }
     }
@@ -418,15 +449,24 @@ type Fifo = zenoh::pubsub::Subscriber<FifoChannelHandler<zenoh::sample::Sample>>
 struct HeadSubscribers {
     transitions: Fifo,
     episodes: Fifo,
-    telemetry: zenoh::pubsub::Subscriber<zenoh::handlers::RingChannelHandler<zenoh::sample::Sample>>,
+    telemetry:
+        zenoh::pubsub::Subscriber<zenoh::handlers::RingChannelHandler<zenoh::sample::Sample>>,
 }
 
 impl Head {
     /// Listens on `endpoint` for the workers of run `run`.
     pub fn listen(endpoint: &str, run: &str, layout: u64, opts: &LinkOptions) -> Result<Self> {
         let session = open(Some(endpoint), None, opts)?;
-        let queryable = session.declare_queryable(JOIN).with(FifoChannel::new(64)).wait().map_err(zerr("declare the join queryable"))?;
-        let token = session.liveliness().declare_token(key(run, "head")).wait().map_err(zerr("declare the head's liveliness"))?;
+        let queryable = session
+            .declare_queryable(JOIN)
+            .with(FifoChannel::new(64))
+            .wait()
+            .map_err(zerr("declare the join queryable"))?;
+        let token = session
+            .liveliness()
+            .declare_token(key(run, "head"))
+            .wait()
+            .map_err(zerr("declare the head's liveliness"))?;
         let decl = |what: &str| zerr(format!("declare {what}"));
         let subs = HeadSubscribers {
             transitions: session
@@ -434,17 +474,42 @@ impl Head {
                 .with(FifoChannel::new(4))
                 .wait()
                 .map_err(decl("the transitions subscriber"))?,
-            episodes: session.declare_subscriber(key(run, "host/*/episodes")).with(FifoChannel::new(256)).wait().map_err(decl("the episodes subscriber"))?,
-            telemetry: session.declare_subscriber(key(run, "host/*/telemetry")).with(RingChannel::new(256)).wait().map_err(decl("the telemetry subscriber"))?,
+            episodes: session
+                .declare_subscriber(key(run, "host/*/episodes"))
+                .with(FifoChannel::new(256))
+                .wait()
+                .map_err(decl("the episodes subscriber"))?,
+            telemetry: session
+                .declare_subscriber(key(run, "host/*/telemetry"))
+                .with(RingChannel::new(256))
+                .wait()
+                .map_err(decl("the telemetry subscriber"))?,
         };
-        Ok(Self { subs, session, run: run.to_string(), layout, queryable, _token: token, hosts: Vec::new(), pending: Vec::new(), default_agents: 1 })
+        Ok(Self {
+            subs,
+            session,
+            run: run.to_string(),
+            layout,
+            queryable,
+            _token: token,
+            hosts: Vec::new(),
+            pending: Vec::new(),
+            default_agents: 1,
+        })
     }
 
     /// Waits for `wanted` workers (at most `timeout`) and places their
     /// environments after the head's `head_envs`, in order of joining. They
     /// wait for their answer until [`Head::admit`].
     /// A worker that asks for 0 agents per environment gets `default_agents`.
-    pub fn gather(&mut self, wanted: usize, head_envs: usize, default_agents: usize, timeout: Duration, stop: impl Fn() -> bool) -> Result<Vec<Host>> {
+    pub fn gather(
+        &mut self,
+        wanted: usize,
+        head_envs: usize,
+        default_agents: usize,
+        timeout: Duration,
+        stop: impl Fn() -> bool,
+    ) -> Result<Vec<Host>> {
         self.default_agents = default_agents as u32;
         let start = Instant::now();
         while self.pending.len() < wanted {
@@ -453,9 +518,16 @@ impl Head {
             }
             let left = timeout.saturating_sub(start.elapsed());
             if left.is_zero() {
-                return Err(LinkError::TooFewWorkers { joined: self.pending.len(), wanted, secs: timeout.as_secs_f64() });
+                return Err(LinkError::TooFewWorkers {
+                    joined: self.pending.len(),
+                    wanted,
+                    secs: timeout.as_secs_f64(),
+                });
             }
-            let Ok(Some(q)) = self.queryable.recv_timeout(left.min(Duration::from_millis(100))) else { continue };
+            let Ok(Some(q)) = self.queryable.recv_timeout(left.min(Duration::from_millis(100)))
+            else {
+                continue;
+            };
             match self.check(&q) {
                 Ok(h) => {
                     if let Some(i) = self.pending.iter().position(|(_, p)| p.host == h.host) {
@@ -463,10 +535,21 @@ impl Head {
                             // The same host asking again (it retried): keep the newest.
                             self.pending[i] = (q, h);
                         } else {
-                            refuse(&q, &format!("host {} has already joined this run (another join token)", h.host));
+                            refuse(
+                                &q,
+                                &format!(
+                                    "host {} has already joined this run (another join token)",
+                                    h.host
+                                ),
+                            );
                         }
                     } else {
-                        tracing::info!("worker {} joined: {} × {} agents", h.host, h.envs, h.agents);
+                        tracing::info!(
+                            "worker {} joined: {} × {} agents",
+                            h.host,
+                            h.envs,
+                            h.agents
+                        );
                         self.pending.push((q, h));
                     }
                 }
@@ -476,7 +559,14 @@ impl Head {
         let mut env_offset = head_envs as u32;
         self.hosts.clear();
         for (i, (_, h)) in self.pending.iter().enumerate() {
-            self.hosts.push(Host { name: h.host.clone(), slot: i as u32 + 1, envs: h.envs, agents: h.agents, env_offset, token: h.token.clone() });
+            self.hosts.push(Host {
+                name: h.host.clone(),
+                slot: i as u32 + 1,
+                envs: h.envs,
+                agents: h.agents,
+                env_offset,
+                token: h.token.clone(),
+            });
             env_offset += h.envs;
         }
         Ok(self.hosts.clone())
@@ -487,7 +577,16 @@ impl Head {
     pub fn admit(&mut self, welcome: impl Fn(&Host) -> (String, String)) {
         for ((q, _), host) in self.pending.drain(..).zip(&self.hosts) {
             let (config, arena) = welcome(host);
-            reply(&q, &Welcome::Joined { slot: host.slot, env_offset: host.env_offset, run: self.run.clone(), config, arena });
+            reply(
+                &q,
+                &Welcome::Joined {
+                    slot: host.slot,
+                    env_offset: host.env_offset,
+                    run: self.run.clone(),
+                    config,
+                    arena,
+                },
+            );
         }
     }
 
@@ -501,10 +600,17 @@ impl Head {
             return Err("message layout mismatch: this worker runs another build of hive (or another model); run the same build on every host".into());
         }
         if h.envs == 0 || h.agents == 0 {
-            return Err(format!("a worker needs at least one environment and one agent, got {} × {}", h.envs, h.agents));
+            return Err(format!(
+                "a worker needs at least one environment and one agent, got {} × {}",
+                h.envs, h.agents
+            ));
         }
         if h.token.is_empty() || h.token.len() > wire::MAX_TOKEN {
-            return Err(format!("a join token of 1 to {} bytes is needed, got {}", wire::MAX_TOKEN, h.token.len()));
+            return Err(format!(
+                "a join token of 1 to {} bytes is needed, got {}",
+                wire::MAX_TOKEN,
+                h.token.len()
+            ));
         }
         Ok(h)
     }
@@ -513,7 +619,14 @@ impl Head {
     /// `S` on this host: a thread that ends (sending the run's end to the
     /// workers) when `stop` is set. `envs` and `roles` size the channels as
     /// the head's roles do; `config_for` gives a returning worker its config.
-    pub fn bridge<S: Service>(self, prefix: String, envs: usize, roles: usize, stop: Arc<AtomicBool>, config_for: ConfigFor) -> Result<HeadLink> {
+    pub fn bridge<S: Service>(
+        self,
+        prefix: String,
+        envs: usize,
+        roles: usize,
+        stop: Arc<AtomicBool>,
+        config_for: ConfigFor,
+    ) -> Result<HeadLink> {
         let stats = Arc::new(HeadStats::default());
         let (st, sp) = (stats.clone(), stop.clone());
         let hosts = self.hosts.clone();
@@ -523,7 +636,10 @@ impl Head {
                 let hub = Hub::<S>::new(&prefix, "link")?.with_stop(sp.clone());
                 head_loop(&self, &hub, envs, roles, &sp, &st, config_for)
             })
-            .map_err(|e| LinkError::Zenoh { what: "start the link thread".into(), message: e.to_string() })?;
+            .map_err(|e| LinkError::Zenoh {
+                what: "start the link thread".into(),
+                message: e.to_string(),
+            })?;
         Ok(HeadLink { thread: Some(thread), stop, stats, hosts })
     }
 }
@@ -563,7 +679,9 @@ impl HeadLink {
         self.stop.store(true, Ordering::SeqCst);
         match self.thread.take().map(|t| t.join()) {
             Some(Ok(r)) => r,
-            Some(Err(_)) => Err(LinkError::Zenoh { what: "link thread".into(), message: "panicked".into() }),
+            Some(Err(_)) => {
+                Err(LinkError::Zenoh { what: "link thread".into(), message: "panicked".into() })
+            }
             None => Ok(()),
         }
     }
@@ -580,8 +698,17 @@ impl Drop for HeadLink {
 type LinkTelemetry<S> = rotorhive_transport::Periodic<S, Telemetry>;
 
 /// The link's telemetry in a run of `roles` roles.
-fn link_telemetry<S: Service>(hub: &Hub<S>, roles: usize, index: usize) -> Result<LinkTelemetry<S>> {
-    let sample = Telemetry { role: RoleKind::Link as u32, index: index as u32, pid: std::process::id(), ..Telemetry::default() };
+fn link_telemetry<S: Service>(
+    hub: &Hub<S>,
+    roles: usize,
+    index: usize,
+) -> Result<LinkTelemetry<S>> {
+    let sample = Telemetry {
+        role: RoleKind::Link as u32,
+        index: index as u32,
+        pid: std::process::id(),
+        ..Telemetry::default()
+    };
     Ok(rotorhive_transport::Periodic::new(hub, &Channel::telemetry(roles), sample)?)
 }
 
@@ -600,17 +727,34 @@ where
     loop {
         match tx.send_with(len, &mut fill) {
             Ok(()) => return Ok(true),
-            Err(TransportError::Stalled { .. }) if !stop.load(Ordering::SeqCst) && !rotorhive_transport::stop_requested() => continue,
+            Err(TransportError::Stalled { .. })
+                if !stop.load(Ordering::SeqCst) && !rotorhive_transport::stop_requested() =>
+            {
+                continue;
+            }
             Err(TransportError::Stalled { .. }) => return Ok(false),
             Err(e) => return Err(e.into()),
         }
     }
 }
 
-fn head_loop<S: Service>(head: &Head, hub: &Hub<S>, envs: usize, roles: usize, stop: &AtomicBool, stats: &HeadStats, config_for: ConfigFor) -> Result<()> {
+fn head_loop<S: Service>(
+    head: &Head,
+    hub: &Hub<S>,
+    envs: usize,
+    roles: usize,
+    stop: &AtomicBool,
+    stats: &HeadStats,
+    config_for: ConfigFor,
+) -> Result<()> {
     let s = &head.session;
     let decl = |what: &str| zerr(format!("declare {what}"));
-    let publisher = |what: &str| s.declare_publisher(key(&head.run, what)).congestion_control(CongestionControl::Block).wait().map_err(decl(what));
+    let publisher = |what: &str| {
+        s.declare_publisher(key(&head.run, what))
+            .congestion_control(CongestionControl::Block)
+            .wait()
+            .map_err(decl(what))
+    };
     let end_pub = publisher("end")?;
     let total_envs = envs + head.hosts.iter().map(|h| h.envs as usize).sum::<usize>();
     let max_batch = rotorhive_msg::PACKED_LEN * check::MAX_BATCH;
@@ -623,7 +767,11 @@ fn head_loop<S: Service>(head: &Head, hub: &Hub<S>, envs: usize, roles: usize, s
         stop,
         w_pub: publisher("weights")?,
         trans_tx: hub.sender(&Channel::transitions(envs), max_batch, Duration::from_millis(200))?,
-        ep_tx: hub.sender(&Channel::episodes(envs), EPISODE_FIELDS * 4096, Duration::from_millis(200))?,
+        ep_tx: hub.sender(
+            &Channel::episodes(envs),
+            EPISODE_FIELDS * 4096,
+            Duration::from_millis(200),
+        )?,
         w_rx: hub.receiver(&Channel::weights(envs))?,
         tel: link_telemetry(hub, roles, 0)?,
         next_seq: SeqTracker::new(total_envs),
@@ -675,7 +823,11 @@ impl<S: Service> HeadBridge<'_, S> {
             if h.version != self.version {
                 self.version = h.version;
                 let bytes = wire::payload_bytes(w.payload()).to_vec();
-                self.w_pub.put(bytes).attachment(wire::header_bytes(&h).to_vec()).wait().map_err(zerr("send weights"))?;
+                self.w_pub
+                    .put(bytes)
+                    .attachment(wire::header_bytes(&h).to_vec())
+                    .wait()
+                    .map_err(zerr("send weights"))?;
                 self.tel.sample.weight_version = self.version;
             }
         }
@@ -691,15 +843,26 @@ impl<S: Service> HeadBridge<'_, S> {
         let t = Instant::now();
         let payload = smp.payload();
         let frags: Vec<&[u8]> = payload.slices().collect();
-        let Some(h) = accept(stats, hosts, smp, run, "transitions", |host, att| check::transitions(host, att, &frags)) else { return Ok(()) };
+        let Some(h) = accept(stats, hosts, smp, run, "transitions", |host, att| {
+            check::transitions(host, att, &frags)
+        }) else {
+            return Ok(());
+        };
         let words = payload.len() / 2;
         let gap = self.next_seq.observe(h.actor as usize, h.seq);
         if gap > 0 {
-            tracing::warn!("head link: actor {} batches {}..{} missing", h.actor, h.seq - gap, h.seq);
+            tracing::warn!(
+                "head link: actor {} batches {}..{} missing",
+                h.actor,
+                h.seq - gap,
+                h.seq
+            );
             stats.lost_batches.fetch_add(gap, Ordering::Relaxed);
             stats.lost_transitions.fetch_add(gap.saturating_mul(h.count as u64), Ordering::Relaxed);
             self.tel.sample.lost = self.tel.sample.lost.saturating_add(gap);
-            if let Some(l) = stats.lost_by_env.lock().ok().as_mut().and_then(|v| v.get_mut(h.actor as usize)) {
+            if let Some(l) =
+                stats.lost_by_env.lock().ok().as_mut().and_then(|v| v.get_mut(h.actor as usize))
+            {
                 *l = l.saturating_add(gap.saturating_mul(h.count as u64));
             }
         }
@@ -731,7 +894,11 @@ impl<S: Service> HeadBridge<'_, S> {
         let t = Instant::now();
         while let Ok(Some(smp)) = self.head.subs.episodes.try_recv() {
             let bytes = smp.payload().to_bytes();
-            let Some(h) = accept(stats, hosts, &smp, run, "episodes", |host, att| check::episodes(host, att, &bytes)) else { continue };
+            let Some(h) = accept(stats, hosts, &smp, run, "episodes", |host, att| {
+                check::episodes(host, att, &bytes)
+            }) else {
+                continue;
+            };
             if self
                 .ep_tx
                 .send_with(bytes.len() / 4, |hdr, p| {
@@ -744,7 +911,9 @@ impl<S: Service> HeadBridge<'_, S> {
             }
         }
         while let Ok(Some(smp)) = self.head.subs.telemetry.try_recv() {
-            if let Some(t) = accept(stats, hosts, &smp, run, "telemetry", |host, att| check::telemetry(host, att, smp.payload().len())) {
+            if let Some(t) = accept(stats, hosts, &smp, run, "telemetry", |host, att| {
+                check::telemetry(host, att, smp.payload().len())
+            }) {
                 self.tel.send(t);
             }
         }
@@ -760,20 +929,36 @@ impl<S: Service> HeadBridge<'_, S> {
                 Ok(h) => match head.hosts.iter().find(|x| x.name == h.host) {
                     Some(x) if !same_token(&x.token, &h.token) => refuse(
                         &q,
-                        &format!("host {} is in this run; only the worker that joined under that name (with its join token) may take its place back", x.name),
+                        &format!(
+                            "host {} is in this run; only the worker that joined under that name (with its join token) may take its place back",
+                            x.name
+                        ),
                     ),
                     Some(x) if x.envs == h.envs && x.agents == h.agents => {
                         let (config, arena) = config_for(x);
-                        reply(&q, &Welcome::Joined { slot: x.slot, env_offset: x.env_offset, run: run.clone(), config, arena });
+                        reply(
+                            &q,
+                            &Welcome::Joined {
+                                slot: x.slot,
+                                env_offset: x.env_offset,
+                                run: run.clone(),
+                                config,
+                                arena,
+                            },
+                        );
                         // Its actors start their sequences afresh.
                         for e in x.env_offset as usize..(x.env_offset + x.envs) as usize {
                             self.next_seq.reset(e);
                         }
                         tracing::info!("worker {} joined again", x.name);
                     }
-                    Some(x) => {
-                        refuse(&q, &format!("host {} joined with {} × {} agents, and comes back with {} × {}", x.name, x.envs, x.agents, h.envs, h.agents))
-                    }
+                    Some(x) => refuse(
+                        &q,
+                        &format!(
+                            "host {} joined with {} × {} agents, and comes back with {} × {}",
+                            x.name, x.envs, x.agents, h.envs, h.agents
+                        ),
+                    ),
                     None => refuse(&q, "the run has all its worker hosts (`cluster.workers`)"),
                 },
                 Err(why) => refuse(&q, &why),
@@ -793,7 +978,9 @@ fn accept<T>(
     what: &str,
     check: impl FnOnce(&Host, Option<&[u8]>) -> std::result::Result<T, check::Reject>,
 ) -> Option<T> {
-    let Some(host) = check::slot_of(smp.key_expr().as_str(), run, what).and_then(|slot| hosts.iter().find(|h| h.slot == slot)) else {
+    let Some(host) = check::slot_of(smp.key_expr().as_str(), run, what)
+        .and_then(|slot| hosts.iter().find(|h| h.slot == slot))
+    else {
         stats.reject(0, what, &check::Reject::UnknownSender);
         return None;
     };
@@ -845,7 +1032,13 @@ pub struct Worker {
 impl Worker {
     /// Connects to the head at `endpoint` and joins its run, asking again
     /// until `timeout` (the head may start later than the worker).
-    pub fn join(endpoint: &str, hello: &Hello, timeout: Duration, opts: &LinkOptions, stop: impl Fn() -> bool) -> Result<Self> {
+    pub fn join(
+        endpoint: &str,
+        hello: &Hello,
+        timeout: Duration,
+        opts: &LinkOptions,
+        stop: impl Fn() -> bool,
+    ) -> Result<Self> {
         let session = open(None, Some(endpoint), opts)?;
         let start = Instant::now();
         while start.elapsed() < timeout {
@@ -853,19 +1046,36 @@ impl Worker {
                 return Err(LinkError::Stopped("the head"));
             }
             let left = timeout.saturating_sub(start.elapsed()).max(Duration::from_millis(100));
-            let replies = session.get(JOIN).payload(hello.encode()).timeout(left.min(Duration::from_secs(5))).wait().map_err(zerr("ask to join"))?;
+            let replies = session
+                .get(JOIN)
+                .payload(hello.encode())
+                .timeout(left.min(Duration::from_secs(5)))
+                .wait()
+                .map_err(zerr("ask to join"))?;
             // Every answer ends the wait; none means nobody is there yet.
             if let Ok(r) = replies.recv() {
                 let bytes = match r.result() {
                     Ok(s) => s.payload().to_bytes().into_owned(),
-                    Err(e) => return Err(LinkError::Refused { endpoint: endpoint.into(), why: String::from_utf8_lossy(&e.payload().to_bytes()).into_owned() }),
+                    Err(e) => {
+                        return Err(LinkError::Refused {
+                            endpoint: endpoint.into(),
+                            why: String::from_utf8_lossy(&e.payload().to_bytes()).into_owned(),
+                        });
+                    }
                 };
                 match Welcome::decode(&bytes) {
                     Some(Welcome::Joined { slot, env_offset, run, config, arena }) => {
                         return Ok(Self { session, slot, env_offset, run, config, arena });
                     }
-                    Some(Welcome::Refused(why)) => return Err(LinkError::Refused { endpoint: endpoint.into(), why }),
-                    None => return Err(LinkError::Refused { endpoint: endpoint.into(), why: "an answer that is not a rotorhive welcome".into() }),
+                    Some(Welcome::Refused(why)) => {
+                        return Err(LinkError::Refused { endpoint: endpoint.into(), why });
+                    }
+                    None => {
+                        return Err(LinkError::Refused {
+                            endpoint: endpoint.into(),
+                            why: "an answer that is not a rotorhive welcome".into(),
+                        });
+                    }
                 }
             }
             // The session keeps trying to connect meanwhile.
@@ -893,13 +1103,26 @@ impl Worker {
         let s = &self.session;
         let run = &self.run;
         let decl = |what: &str| zerr(format!("declare {what}"));
-        let publisher = |what: &str, cc| s.declare_publisher(host_key(run, self.slot, what)).congestion_control(cc).wait().map_err(decl(what));
+        let publisher = |what: &str, cc| {
+            s.declare_publisher(host_key(run, self.slot, what))
+                .congestion_control(cc)
+                .wait()
+                .map_err(decl(what))
+        };
         let mut b = WorkerBridge {
             trans_pub: publisher("transitions", CongestionControl::Block)?,
             ep_pub: publisher("episodes", CongestionControl::Drop)?,
             tel_pub: publisher("telemetry", CongestionControl::Drop)?,
-            w_sub: s.declare_subscriber(key(run, "weights")).with(RingChannel::new(1)).wait().map_err(decl("the weights subscriber"))?,
-            end_sub: s.declare_subscriber(key(run, "end")).with(FifoChannel::new(4)).wait().map_err(decl("the end subscriber"))?,
+            w_sub: s
+                .declare_subscriber(key(run, "weights"))
+                .with(RingChannel::new(1))
+                .wait()
+                .map_err(decl("the weights subscriber"))?,
+            end_sub: s
+                .declare_subscriber(key(run, "end"))
+                .with(FifoChannel::new(4))
+                .wait()
+                .map_err(decl("the end subscriber"))?,
             head_sub: s
                 .liveliness()
                 .declare_subscriber(key(run, "head"))
@@ -919,7 +1142,11 @@ impl Worker {
             envs,
             num_params,
         };
-        let _token = s.liveliness().declare_token(key(run, &format!("host/{}", self.slot))).wait().map_err(decl("this host's liveliness"))?;
+        let _token = s
+            .liveliness()
+            .declare_token(key(run, &format!("host/{}", self.slot)))
+            .wait()
+            .map_err(decl("this host's liveliness"))?;
         // Zenoh drops what no subscriber matches: send nothing before the
         // head's transitions subscriber is known here.
         let t = Instant::now();
@@ -986,7 +1213,13 @@ impl<S: Service> WorkerBridge<S> {
                     // busy machine, up to a few hundred ms): look for 1 s.
                     let t = Instant::now();
                     while t.elapsed() < Duration::from_secs(1) {
-                        if self.end_sub.recv_timeout(Duration::from_millis(50)).ok().flatten().is_some() {
+                        if self
+                            .end_sub
+                            .recv_timeout(Duration::from_millis(50))
+                            .ok()
+                            .flatten()
+                            .is_some()
+                        {
                             return Some(Ok(WorkerEnd::RunEnded));
                         }
                     }
@@ -1003,10 +1236,18 @@ impl<S: Service> WorkerBridge<S> {
         let t = Instant::now();
         if let Ok(Some(smp)) = self.w_sub.try_recv() {
             let bytes = smp.payload().to_bytes();
-            match check::weights(self.num_params, smp.attachment().map(|a| a.to_bytes()).as_deref(), &bytes) {
+            match check::weights(
+                self.num_params,
+                smp.attachment().map(|a| a.to_bytes()).as_deref(),
+                &bytes,
+            ) {
                 Ok(h) => {
                     if self.w_tx.is_none() {
-                        self.w_tx = Some(hub.sender::<f32, WeightsHeader>(&Channel::weights(self.envs), self.num_params, Duration::from_millis(200))?);
+                        self.w_tx = Some(hub.sender::<f32, WeightsHeader>(
+                            &Channel::weights(self.envs),
+                            self.num_params,
+                            Duration::from_millis(200),
+                        )?);
                     }
                     if let Some(tx) = self.w_tx.as_mut() {
                         tx.send_with(self.num_params, |hdr, p| {
@@ -1039,10 +1280,19 @@ impl<S: Service> WorkerBridge<S> {
         let mut h = *m.user_header();
         let gap = self.wseq.observe(h.actor as usize, h.seq);
         if gap > 0 {
-            tracing::warn!("worker link: actor {} batches {}..{} missing in shared memory", h.actor, h.seq - gap, h.seq);
+            tracing::warn!(
+                "worker link: actor {} batches {}..{} missing in shared memory",
+                h.actor,
+                h.seq - gap,
+                h.seq
+            );
         }
         h.actor += self.off;
-        self.trans_pub.put(wire::payload_bytes(m.payload()).to_vec()).attachment(wire::header_bytes(&h).to_vec()).wait().map_err(zerr("send transitions"))?;
+        self.trans_pub
+            .put(wire::payload_bytes(m.payload()).to_vec())
+            .attachment(wire::header_bytes(&h).to_vec())
+            .wait()
+            .map_err(zerr("send transitions"))?;
         stats.batches += 1;
         stats.transitions += h.count as u64;
         self.tel.sample.work += h.count as u64;
@@ -1058,7 +1308,13 @@ impl<S: Service> WorkerBridge<S> {
         while let Some(m) = self.ep_rx.try_recv()? {
             let mut h = *m.user_header();
             h.actor += self.off;
-            if self.ep_pub.put(wire::payload_bytes(m.payload()).to_vec()).attachment(wire::header_bytes(&h).to_vec()).wait().is_err() {
+            if self
+                .ep_pub
+                .put(wire::payload_bytes(m.payload()).to_vec())
+                .attachment(wire::header_bytes(&h).to_vec())
+                .wait()
+                .is_err()
+            {
                 stats.dropped += 1;
             }
         }
@@ -1071,7 +1327,13 @@ impl<S: Service> WorkerBridge<S> {
             }
             // A process id means nothing on the head's host.
             t.pid = 0;
-            if self.tel_pub.put(Vec::new()).attachment(wire::header_bytes(&t).to_vec()).wait().is_err() {
+            if self
+                .tel_pub
+                .put(Vec::new())
+                .attachment(wire::header_bytes(&t).to_vec())
+                .wait()
+                .is_err()
+            {
                 stats.dropped += 1;
             }
         }

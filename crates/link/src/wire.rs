@@ -116,7 +116,13 @@ impl Hello {
         if r.take(4)? != HELLO {
             return None;
         }
-        Some(Self { layout: r.u64()?, envs: r.u32()?, agents: r.u32()?, host: r.str()?, token: r.str()? })
+        Some(Self {
+            layout: r.u64()?,
+            envs: r.u32()?,
+            agents: r.u32()?,
+            host: r.str()?,
+            token: r.str()?,
+        })
     }
 }
 
@@ -148,7 +154,13 @@ impl Welcome {
             return None;
         }
         match r.u32()? {
-            0 => Some(Welcome::Joined { slot: r.u32()?, env_offset: r.u32()?, run: r.str()?, config: r.str()?, arena: r.str()? }),
+            0 => Some(Welcome::Joined {
+                slot: r.u32()?,
+                env_offset: r.u32()?,
+                run: r.str()?,
+                config: r.str()?,
+                arena: r.str()?,
+            }),
             1 => Some(Welcome::Refused(r.str()?)),
             _ => None,
         }
@@ -178,7 +190,13 @@ mod tests {
         let hello = Hello { layout: 42, envs: 2, agents: 37, host: "b".into(), token: "t".into() };
         assert_eq!(Hello::decode(&hello.encode()), Some(hello.clone()));
         assert!(Hello::decode(&hello.encode()[..10]).is_none());
-        let w = Welcome::Joined { slot: 1, env_offset: 1, run: "r".into(), config: "seed = 1".into(), arena: "x".into() };
+        let w = Welcome::Joined {
+            slot: 1,
+            env_offset: 1,
+            run: "r".into(),
+            config: "seed = 1".into(),
+            arena: "x".into(),
+        };
         assert_eq!(Welcome::decode(&w.encode()), Some(w));
         assert!(Welcome::decode(&hello.encode()).is_none());
         let p = [1.5f32, -2.0];

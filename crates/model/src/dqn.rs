@@ -112,11 +112,16 @@ impl Adam {
     /// One step with the gradients of every parameter, flat in canonical order.
     fn step(&mut self, net: &QNet, grads: &[f32]) -> Result<()> {
         self.t += 1;
-        let hyper = AdamHyper { lr: self.lr_at(self.t), beta1: 0.9, beta2: 0.999, eps: 1e-8, t: self.t };
+        let hyper =
+            AdamHyper { lr: self.lr_at(self.t), beta1: 0.9, beta2: 0.999, eps: 1e-8, t: self.t };
         for (i, ((var, m), v)) in net.vars().iter().zip(&mut self.m).zip(&mut self.v).enumerate() {
             let g = &grads[OFFSETS[i]..OFFSETS[i + 1]];
             if var.device().is_cpu() {
-                var.as_tensor().inplace_op1(&AdamStep { grad: g, moments: Mutex::new((m.as_mut_slice(), v.as_mut_slice())), hyper })?;
+                var.as_tensor().inplace_op1(&AdamStep {
+                    grad: g,
+                    moments: Mutex::new((m.as_mut_slice(), v.as_mut_slice())),
+                    hyper,
+                })?;
             } else {
                 let mut p = var.as_tensor().flatten_all()?.to_vec1::<f32>()?;
                 adam(&mut p, g, m, v, hyper);
@@ -158,7 +163,11 @@ pub struct Dqn {
 }
 
 /// The gradients [`Dqn::compute_gradients`] left, flat in canonical order.
-fn gradients_in<'a>(fused: bool, generic: &'a mut [f32], work: &'a mut [Mutex<Workspace>]) -> Result<&'a mut [f32]> {
+fn gradients_in<'a>(
+    fused: bool,
+    generic: &'a mut [f32],
+    work: &'a mut [Mutex<Workspace>],
+) -> Result<&'a mut [f32]> {
     match (fused, work.first_mut()) {
         (true, Some(ws)) => Ok(&mut ws.get_mut().map_err(poisoned)?.grads[..OFFSETS[10]]),
         (true, None) => Err(ModelError::Device("no gradients computed yet".into())),
@@ -169,12 +178,20 @@ fn gradients_in<'a>(fused: bool, generic: &'a mut [f32], work: &'a mut [Mutex<Wo
 /// Checks a minibatch's size and actions; returns its rows.
 fn rows_of(batch: &[f32]) -> Result<usize> {
     if batch.is_empty() || !batch.len().is_multiple_of(TRANSITION_LEN) {
-        return Err(ModelError::Shape { what: "minibatch", expected: TRANSITION_LEN, got: batch.len() });
+        return Err(ModelError::Shape {
+            what: "minibatch",
+            expected: TRANSITION_LEN,
+            got: batch.len(),
+        });
     }
     for t in batch.chunks_exact(TRANSITION_LEN) {
         let a = t[2 * OBS_LEN];
         if !(a >= 0.0 && (a as usize) < ACTIONS && a.fract() == 0.0) {
-            return Err(ModelError::Shape { what: "minibatch action (0 or 1)", expected: ACTIONS, got: a as usize });
+            return Err(ModelError::Shape {
+                what: "minibatch action (0 or 1)",
+                expected: ACTIONS,
+                got: a as usize,
+            });
         }
     }
     Ok(batch.len() / TRANSITION_LEN)
@@ -273,19 +290,42 @@ impl Dqn {
 
     /// [`Dqn::loss`] of a checked minibatch of `n` rows, each row's Huber
     /// loss multiplied by its importance weight; also each row's |TD error|.
-    fn loss_generic(&self, batch: &[f32], n: usize, weights: Option<&[f32]>) -> Result<(Tensor, Vec<f32>)> {
+    fn loss_generic(
+        &self,
+        batch: &[f32],
+        n: usize,
+        weights: Option<&[f32]>,
+    ) -> Result<(Tensor, Vec<f32>)> {
         let dev = self.online.device();
-        let column = |from: usize, len: usize| -> Vec<f32> { batch.chunks_exact(TRANSITION_LEN).flat_map(|t| t[from..from + len].to_vec()).collect() };
+        let column = |from: usize, len: usize| -> Vec<f32> {
+            batch.chunks_exact(TRANSITION_LEN).flat_map(|t| t[from..from + len].to_vec()).collect()
+        };
         let s2 = Tensor::from_vec(column(OBS_LEN, OBS_LEN), (n, OBS_LEN), dev)?;
-        let q_target = self.target.forward_generic(&s2)?.detach().flatten_all()?.to_vec1::<f32>()?;
-        let q_online = if self.cfg.double { self.online.forward_generic(&s2)?.detach().flatten_all()?.to_vec1::<f32>()? } else { q_target.clone() };
+        let q_target =
+            self.target.forward_generic(&s2)?.detach().flatten_all()?.to_vec1::<f32>()?;
+        let q_online = if self.cfg.double {
+            self.online.forward_generic(&s2)?.detach().flatten_all()?.to_vec1::<f32>()?
+        } else {
+            q_target.clone()
+        };
         let y: Vec<f32> = batch
             .chunks_exact(TRANSITION_LEN)
             .enumerate()
-            .map(|(i, t)| self.target_of(t, &q_target[i * ACTIONS..(i + 1) * ACTIONS], &q_online[i * ACTIONS..(i + 1) * ACTIONS]))
+            .map(|(i, t)| {
+                self.target_of(
+                    t,
+                    &q_target[i * ACTIONS..(i + 1) * ACTIONS],
+                    &q_online[i * ACTIONS..(i + 1) * ACTIONS],
+                )
+            })
             .collect();
-        let actions: Vec<u32> = batch.chunks_exact(TRANSITION_LEN).map(|t| t[2 * OBS_LEN] as u32).collect();
-        let q = self.online.forward_generic(&Tensor::from_vec(column(0, OBS_LEN), (n, OBS_LEN), dev)?)?;
+        let actions: Vec<u32> =
+            batch.chunks_exact(TRANSITION_LEN).map(|t| t[2 * OBS_LEN] as u32).collect();
+        let q = self.online.forward_generic(&Tensor::from_vec(
+            column(0, OBS_LEN),
+            (n, OBS_LEN),
+            dev,
+        )?)?;
         let a = Tensor::from_vec(actions, (n, 1), dev)?;
         let y = Tensor::from_vec(y, (n, 1), dev)?;
         let abs = (q.gather(&a, D::Minus1)? - y)?.abs()?;
@@ -303,7 +343,13 @@ impl Dqn {
     /// of a minibatch of `denom` rows, on the fused path: the target network
     /// on `s'`, the online network on `s` (and `s'` in the same batch for
     /// double DQN), the loss's gradient on the taken actions, backward.
-    fn shard_fused(&self, part: &[f32], weights: Option<&[f32]>, denom: usize, ws: &mut Workspace) -> Result<Shard> {
+    fn shard_fused(
+        &self,
+        part: &[f32],
+        weights: Option<&[f32]>,
+        denom: usize,
+        ws: &mut Workspace,
+    ) -> Result<Shard> {
         let t0 = Instant::now();
         let n = part.len() / TRANSITION_LEN;
         let s = Rows { data: part, stride: TRANSITION_LEN, offset: 0, n };
@@ -321,13 +367,20 @@ impl Dqn {
             let mut stats = UpdateStats { rows: n as u32, ..UpdateStats::default() };
             for (i, t) in part.chunks_exact(TRANSITION_LEN).enumerate() {
                 let qt = &q_target[i * ACTIONS..(i + 1) * ACTIONS];
-                let y = self.target_of(t, qt, if self.cfg.double { &q[(n + i) * ACTIONS..(n + i + 1) * ACTIONS] } else { qt });
+                let y = self.target_of(
+                    t,
+                    qt,
+                    if self.cfg.double { &q[(n + i) * ACTIONS..(n + i + 1) * ACTIONS] } else { qt },
+                );
                 let at = i * ACTIONS + t[2 * OBS_LEN] as usize;
                 let (l, g) = self.huber(q[at] - y);
                 let w = weights.map_or(1.0, |w| w[i]);
                 loss += l * w;
                 dq[at] = g * w / denom as f32;
-                stats.max_q_sum += q[i * ACTIONS..(i + 1) * ACTIONS].iter().fold(f32::NEG_INFINITY, |m, v| m.max(*v)) as f64;
+                stats.max_q_sum += q[i * ACTIONS..(i + 1) * ACTIONS]
+                    .iter()
+                    .fold(f32::NEG_INFINITY, |m, v| m.max(*v))
+                    as f64;
                 stats.abs_td_sum += (q[at] - y).abs() as f64;
                 stats.terminal += (t[2 * OBS_LEN + 2] != 0.0) as u32;
                 td.push((q[at] - y).abs());
@@ -335,7 +388,12 @@ impl Dqn {
             ws.td = td;
             let t1 = Instant::now();
             ws.backward(w, n)?;
-            Ok(Shard { loss: loss / denom as f32, forward_ns: (t1 - t0).as_nanos() as u64, backward_ns: t1.elapsed().as_nanos() as u64, stats })
+            Ok(Shard {
+                loss: loss / denom as f32,
+                forward_ns: (t1 - t0).as_nanos() as u64,
+                backward_ns: t1.elapsed().as_nanos() as u64,
+                stats,
+            })
         })
     }
 
@@ -354,7 +412,11 @@ impl Dqn {
         if let Some(w) = weights
             && w.len() != n
         {
-            return Err(ModelError::Shape { what: "importance weights (one per row)", expected: n, got: w.len() });
+            return Err(ModelError::Shape {
+                what: "importance weights (one per row)",
+                expected: n,
+                got: w.len(),
+            });
         }
         if !self.online.fused() {
             let t0 = Instant::now();
@@ -364,14 +426,23 @@ impl Dqn {
             let store = loss.backward()?;
             self.grads.clear();
             for v in self.online.vars() {
-                let g = store.get(v.as_tensor()).ok_or_else(|| ModelError::Device("a parameter got no gradient".into()))?;
+                let g = store
+                    .get(v.as_tensor())
+                    .ok_or_else(|| ModelError::Device("a parameter got no gradient".into()))?;
                 self.grads.extend(g.flatten_all()?.to_vec1::<f32>()?);
             }
             // The generic path (off the CPU) reports the row and terminal
             // counts only.
-            let terminal = batch.chunks_exact(TRANSITION_LEN).filter(|t| t[2 * OBS_LEN + 2] != 0.0).count() as u32;
+            let terminal =
+                batch.chunks_exact(TRANSITION_LEN).filter(|t| t[2 * OBS_LEN + 2] != 0.0).count()
+                    as u32;
             let stats = UpdateStats { rows: n as u32, terminal, ..UpdateStats::default() };
-            return Ok(Shard { loss: loss.to_scalar::<f32>()?, forward_ns: (t1 - t0).as_nanos() as u64, backward_ns: t1.elapsed().as_nanos() as u64, stats });
+            return Ok(Shard {
+                loss: loss.to_scalar::<f32>()?,
+                forward_ns: (t1 - t0).as_nanos() as u64,
+                backward_ns: t1.elapsed().as_nanos() as u64,
+                stats,
+            });
         }
         let shards = self.shards.min(n / 8).max(1);
         while self.work.len() < shards {
@@ -379,8 +450,16 @@ impl Dqn {
         }
         let rows_per = n.div_ceil(shards);
         let parts: Vec<&[f32]> = batch.chunks(rows_per * TRANSITION_LEN).collect();
-        let part_weights = |i: usize| weights.map(|w| &w[i * rows_per..((i + 1) * rows_per).min(n)]);
-        let results = crate::ops::sharded(parts.len(), |i| self.shard_fused(parts[i], part_weights(i), n, &mut *self.work[i].lock().map_err(poisoned)?));
+        let part_weights =
+            |i: usize| weights.map(|w| &w[i * rows_per..((i + 1) * rows_per).min(n)]);
+        let results = crate::ops::sharded(parts.len(), |i| {
+            self.shard_fused(
+                parts[i],
+                part_weights(i),
+                n,
+                &mut *self.work[i].lock().map_err(poisoned)?,
+            )
+        });
         // The other shards' gradients are added into the first's.
         let mut results = results.into_iter();
         let Some(first) = results.next() else { unreachable!("a non-empty batch has a shard") };
@@ -438,7 +517,11 @@ impl Dqn {
         if self.updates.is_multiple_of(self.cfg.target_update) {
             self.sync_target()?;
         }
-        self.timing = UpdateTiming { forward_ns: total.forward_ns, backward_ns: total.backward_ns, optimiser_ns: t2.elapsed().as_nanos() as u64 };
+        self.timing = UpdateTiming {
+            forward_ns: total.forward_ns,
+            backward_ns: total.backward_ns,
+            optimiser_ns: t2.elapsed().as_nanos() as u64,
+        };
         Ok(total.loss)
     }
 
@@ -447,7 +530,13 @@ impl Dqn {
     pub fn save_state(&self, path: &Path) -> Result<()> {
         let dev = candle_core::Device::Cpu;
         let mut map: HashMap<String, Tensor> = HashMap::new();
-        for ((name, shape), ((o, t), (m, v))) in PARAMS.iter().zip(self.online.vars().iter().zip(self.target.vars()).zip(self.opt.m.iter().zip(&self.opt.v))) {
+        for ((name, shape), ((o, t), (m, v))) in PARAMS.iter().zip(
+            self.online
+                .vars()
+                .iter()
+                .zip(self.target.vars())
+                .zip(self.opt.m.iter().zip(&self.opt.v)),
+        ) {
             map.insert(format!("online.{name}"), o.as_tensor().to_device(&dev)?);
             map.insert(format!("target.{name}"), t.as_tensor().to_device(&dev)?);
             map.insert(format!("adam_m.{name}"), Tensor::from_slice(m, *shape, &dev)?);
@@ -455,8 +544,15 @@ impl Dqn {
         }
         map.insert("adam_t".into(), Tensor::new(&[self.opt.t as i64], &dev)?);
         map.insert("updates".into(), Tensor::new(&[self.updates as i64], &dev)?);
-        let bad = |e: std::io::Error| ModelError::Checkpoint { file: path.display().to_string(), message: format!("cannot write: {e}") };
-        rotorhive_msg::durable::atomic_write(path, |tmp| Ok(candle_core::safetensors::save(&map, tmp)?), bad)
+        let bad = |e: std::io::Error| ModelError::Checkpoint {
+            file: path.display().to_string(),
+            message: format!("cannot write: {e}"),
+        };
+        rotorhive_msg::durable::atomic_write(
+            path,
+            |tmp| Ok(candle_core::safetensors::save(&map, tmp)?),
+            bad,
+        )
     }
 
     /// Restores a state written by [`Dqn::save_state`], checking every tensor.
@@ -464,9 +560,13 @@ impl Dqn {
         let file = path.display().to_string();
         let bad = |message: String| ModelError::Checkpoint { file: file.clone(), message };
         let bytes = std::fs::read(path).map_err(|e| bad(format!("cannot read: {e}")))?;
-        let map = candle_core::safetensors::load_buffer(&bytes, &candle_core::Device::Cpu).map_err(|e| bad(format!("not a valid safetensors file: {e}")))?;
-        let sub =
-            |prefix: &str| -> HashMap<String, Tensor> { map.iter().filter_map(|(k, v)| k.strip_prefix(prefix).map(|n| (n.to_string(), v.clone()))).collect() };
+        let map = candle_core::safetensors::load_buffer(&bytes, &candle_core::Device::Cpu)
+            .map_err(|e| bad(format!("not a valid safetensors file: {e}")))?;
+        let sub = |prefix: &str| -> HashMap<String, Tensor> {
+            map.iter()
+                .filter_map(|(k, v)| k.strip_prefix(prefix).map(|n| (n.to_string(), v.clone())))
+                .collect()
+        };
         let counter = |name: &str| -> Result<u64> {
             let t = map.get(name).ok_or_else(|| bad(format!("tensor `{name}` is missing")))?;
             let v = t.to_dtype(DType::I64)?.flatten_all()?.to_vec1::<i64>()?;
@@ -481,9 +581,14 @@ impl Dqn {
             let part = sub(prefix);
             let mut vecs = Vec::new();
             for (name, shape) in PARAMS {
-                let x = part.get(name).ok_or_else(|| bad(format!("tensor `{prefix}{name}` is missing")))?;
+                let x = part
+                    .get(name)
+                    .ok_or_else(|| bad(format!("tensor `{prefix}{name}` is missing")))?;
                 if x.dims() != shape {
-                    return Err(bad(format!("tensor `{prefix}{name}` has shape {:?}, the network needs {shape:?}", x.dims())));
+                    return Err(bad(format!(
+                        "tensor `{prefix}{name}` has shape {:?}, the network needs {shape:?}",
+                        x.dims()
+                    )));
                 }
                 vecs.push(x.to_dtype(DType::F32)?.flatten_all()?.to_vec1::<f32>()?);
             }

@@ -30,7 +30,9 @@
 use multiversion::multiversion;
 
 use crate::ops::{View, matmul};
-use crate::{ACTIONS, C1, C2, FEAT, FRAMES, H1, H2, HID, HP, K1, K2, OBS_LEN, S1, SIDE, VEL, VEL_H};
+use crate::{
+    ACTIONS, C1, C2, FEAT, FRAMES, H1, H2, HID, HP, K1, K2, OBS_LEN, S1, SIDE, VEL, VEL_H,
+};
 
 /// Columns of conv1's patch matrix: (frame, ky, kx).
 const P1: usize = FRAMES * K1 * K1;
@@ -44,7 +46,8 @@ pub(crate) struct Weights<'a>(pub(crate) [&'a [f32]; 10]);
 
 /// Offsets of each parameter in the flat gradient vector.
 pub(crate) const OFFSETS: [usize; 11] = {
-    let sizes = [C1 * P1, C1, C2 * P2, C2, VEL_H * VEL, VEL_H, HID * F, HID, ACTIONS * HID, ACTIONS];
+    let sizes =
+        [C1 * P1, C1, C2 * P2, C2, VEL_H * VEL, VEL_H, HID * F, HID, ACTIONS * HID, ACTIONS];
     let mut off = [0; 11];
     let mut i = 0;
     while i < 10 {
@@ -336,7 +339,8 @@ impl Workspace {
         bias_relu::<HID>(h, b3);
         for (q, h) in self.q[..n * ACTIONS].chunks_exact_mut(ACTIONS).zip(h.chunks_exact(HID)) {
             for (a, q) in q.iter_mut().enumerate() {
-                *q = b4[a] + w4[a * HID..(a + 1) * HID].iter().zip(h).map(|(w, x)| w * x).sum::<f32>();
+                *q = b4[a]
+                    + w4[a * HID..(a + 1) * HID].iter().zip(h).map(|(w, x)| w * x).sum::<f32>();
             }
         }
         Ok(n)
@@ -381,7 +385,9 @@ impl Workspace {
         }
         // fc2 (2 outputs): by hand.
         let (dq, h, dh) = (&self.dq[..n * ACTIONS], &self.h[..n * HID], &mut self.dh[..n * HID]);
-        for ((dq, h), dh) in dq.chunks_exact(ACTIONS).zip(h.chunks_exact(HID)).zip(dh.chunks_exact_mut(HID)) {
+        for ((dq, h), dh) in
+            dq.chunks_exact(ACTIONS).zip(h.chunks_exact(HID)).zip(dh.chunks_exact_mut(HID))
+        {
             dh.fill(0.0);
             for (a, &d) in dq.iter().enumerate() {
                 gb4[a] += d;

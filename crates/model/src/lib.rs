@@ -47,14 +47,18 @@ pub fn device(kind: DeviceKind) -> Result<Device> {
     match kind {
         DeviceKind::Cpu => Ok(Device::Cpu),
         DeviceKind::Cuda if cfg!(feature = "cuda") => Ok(Device::new_cuda(0)?),
-        DeviceKind::Cuda => Err(ModelError::Device("device \"cuda\" needs a build with `--features cuda`".into())),
+        DeviceKind::Cuda => {
+            Err(ModelError::Device("device \"cuda\" needs a build with `--features cuda`".into()))
+        }
     }
 }
 
 // The observation and transition layout, defined once in `rotorhive-msg`
 // (without its iceoryx2 feature): depth side, frames, velocity components,
 // floats per observation, actions, floats per transition.
-pub use rotorhive_msg::{DEPTH_SIDE as SIDE, FRAMES, NUM_ACTIONS as ACTIONS, OBS_LEN, TRANSITION_LEN, VEL_DIM as VEL};
+pub use rotorhive_msg::{
+    DEPTH_SIDE as SIDE, FRAMES, NUM_ACTIONS as ACTIONS, OBS_LEN, TRANSITION_LEN, VEL_DIM as VEL,
+};
 
 const C1: usize = 16; // conv1 channels
 const K1: usize = 6;
@@ -166,7 +170,13 @@ impl QNet {
             let data: Vec<f32> = (0..n).map(|_| rng.random_range(-bound..bound)).collect();
             params.push(Var::from_tensor(&Tensor::from_vec(data, *shape, device)?)?);
         }
-        Ok(Self { params, scratch: Arc::default(), device: device.clone(), fused: device.is_cpu(), threads: 1 })
+        Ok(Self {
+            params,
+            scratch: Arc::default(),
+            device: device.clone(),
+            fused: device.is_cpu(),
+            threads: 1,
+        })
     }
 
     /// The device the network lives on.
@@ -217,7 +227,8 @@ impl QNet {
 
     /// Runs `f` on the parameters' CPU slices (read-locked for its duration).
     pub(crate) fn with_weights<R>(&self, f: impl FnOnce(&Weights) -> Result<R>) -> Result<R> {
-        let guards: Vec<_> = self.params.iter().map(|v| v.as_tensor().storage_and_layout()).collect();
+        let guards: Vec<_> =
+            self.params.iter().map(|v| v.as_tensor().storage_and_layout()).collect();
         let mut w: [&[f32]; 10] = [&[]; 10];
         for (slot, (storage, layout)) in w.iter_mut().zip(&guards) {
             let candle_core::Storage::Cpu(cpu) = &**storage else {
@@ -237,11 +248,20 @@ impl QNet {
         let b = obs.dim(0)?;
         let img = obs.narrow(1, 0, FRAMES * SIDE * SIDE)?.reshape((b, FRAMES, SIDE, SIDE))?;
         let w1 = self.p(0).reshape((C1, FRAMES, K1, K1))?;
-        let x = img.conv2d(&w1, 0, S1, 1, 1)?.broadcast_add(&self.p(1).reshape((1, C1, 1, 1))?)?.relu()?;
+        let x = img
+            .conv2d(&w1, 0, S1, 1, 1)?
+            .broadcast_add(&self.p(1).reshape((1, C1, 1, 1))?)?
+            .relu()?;
         let w2 = self.p(2).reshape((C2, K2, K2, C1))?.permute((0, 3, 1, 2))?.contiguous()?;
-        let x = x.conv2d(&w2, 0, 1, 1, 1)?.broadcast_add(&self.p(3).reshape((1, C2, 1, 1))?)?.relu()?;
+        let x =
+            x.conv2d(&w2, 0, 1, 1, 1)?.broadcast_add(&self.p(3).reshape((1, C2, 1, 1))?)?.relu()?;
         // 2×2 max-pool as two reductions over a split view, then channels-last.
-        let x = x.reshape((b, C2, HP, 2, HP, 2))?.max(5)?.max(3)?.permute((0, 2, 3, 1))?.reshape((b, FEAT))?;
+        let x = x
+            .reshape((b, C2, HP, 2, HP, 2))?
+            .max(5)?
+            .max(3)?
+            .permute((0, 2, 3, 1))?
+            .reshape((b, FEAT))?;
         let v = obs.narrow(1, FRAMES * SIDE * SIDE, VEL)?;
         let v = v.matmul(&self.p(4).t()?)?.broadcast_add(self.p(5))?.relu()?;
         let h = Tensor::cat(&[&x, &v], 1)?;
@@ -260,7 +280,11 @@ impl QNet {
     /// [`QNet::q_values`] in `shards` data-parallel parts.
     pub fn q_values_sharded(&self, obs: &[f32], shards: usize) -> Result<Vec<f32>> {
         if !obs.len().is_multiple_of(OBS_LEN) || obs.is_empty() {
-            return Err(ModelError::Shape { what: "observation batch", expected: OBS_LEN, got: obs.len() });
+            return Err(ModelError::Shape {
+                what: "observation batch",
+                expected: OBS_LEN,
+                got: obs.len(),
+            });
         }
         let n = obs.len() / OBS_LEN;
         if !self.fused {
@@ -268,7 +292,8 @@ impl QNet {
             return Ok(self.forward_generic(&t)?.flatten_all()?.to_vec1::<f32>()?);
         }
         let parts: Vec<&[f32]> = obs.chunks(n.div_ceil(shards.max(1)) * OBS_LEN).collect();
-        let mut spaces: Vec<Mutex<Workspace>> = parts.iter().map(|_| Mutex::new(self.scratch.take())).collect();
+        let mut spaces: Vec<Mutex<Workspace>> =
+            parts.iter().map(|_| Mutex::new(self.scratch.take())).collect();
         let done = self.with_weights(|w| {
             ops::sharded(parts.len(), |i| {
                 let mut ws = spaces[i].lock().map_err(kernels::poisoned)?;
@@ -309,7 +334,11 @@ impl QNet {
     /// from each variable's storage on the CPU).
     pub fn write_flat(&self, into: &mut [f32]) -> Result<()> {
         if into.len() != num_params() {
-            return Err(ModelError::Shape { what: "weights buffer", expected: num_params(), got: into.len() });
+            return Err(ModelError::Shape {
+                what: "weights buffer",
+                expected: num_params(),
+                got: into.len(),
+            });
         }
         if !self.device.is_cpu() {
             into.copy_from_slice(&self.to_flat()?);
@@ -329,7 +358,11 @@ impl QNet {
     /// on the CPU: one copy into each variable's storage).
     pub fn load_flat(&self, flat: &[f32]) -> Result<()> {
         if flat.len() != num_params() {
-            return Err(ModelError::Shape { what: "weights", expected: num_params(), got: flat.len() });
+            return Err(ModelError::Shape {
+                what: "weights",
+                expected: num_params(),
+                got: flat.len(),
+            });
         }
         let mut off = 0;
         for (v, (_, shape)) in self.params.iter().zip(PARAMS) {
@@ -355,17 +388,28 @@ impl QNet {
 
     /// The weights by name.
     pub fn named(&self) -> HashMap<String, Tensor> {
-        PARAMS.iter().zip(&self.params).map(|((n, _), v)| (n.to_string(), v.as_tensor().clone())).collect()
+        PARAMS
+            .iter()
+            .zip(&self.params)
+            .map(|((n, _), v)| (n.to_string(), v.as_tensor().clone()))
+            .collect()
     }
 
     /// Loads weights by name, checking every name and shape.
     pub fn load_named(&self, tensors: &HashMap<String, Tensor>, file: &str) -> Result<()> {
         for ((name, shape), v) in PARAMS.iter().zip(&self.params) {
-            let t = tensors.get(*name).ok_or_else(|| ModelError::Checkpoint { file: file.into(), message: format!("tensor `{name}` is missing") })?;
+            let t = tensors.get(*name).ok_or_else(|| ModelError::Checkpoint {
+                file: file.into(),
+                message: format!("tensor `{name}` is missing"),
+            })?;
             if t.dims() != *shape {
                 return Err(ModelError::Checkpoint {
                     file: file.into(),
-                    message: format!("tensor `{name}` has shape {:?}, the network needs {:?}", t.dims(), shape),
+                    message: format!(
+                        "tensor `{name}` has shape {:?}, the network needs {:?}",
+                        t.dims(),
+                        shape
+                    ),
                 });
             }
             v.set(&t.to_dtype(DType::F32)?.to_device(&self.device)?)?;
@@ -385,9 +429,14 @@ impl QNet {
         let mut meta = checkpoint_metadata();
         meta.extend(extra.iter().map(|(k, v)| (k.to_string(), v.clone())));
         let named = self.named();
-        let cpu: Vec<(String, Tensor)> = named.into_iter().map(|(k, t)| Ok((k, t.to_device(&Device::Cpu)?.contiguous()?))).collect::<Result<_>>()?;
-        let bad = |message: String| ModelError::Checkpoint { file: path.display().to_string(), message };
-        let mut bytes = safetensors::serialize(cpu, Some(meta)).map_err(|e| bad(format!("cannot write: {e}")))?;
+        let cpu: Vec<(String, Tensor)> = named
+            .into_iter()
+            .map(|(k, t)| Ok((k, t.to_device(&Device::Cpu)?.contiguous()?)))
+            .collect::<Result<_>>()?;
+        let bad =
+            |message: String| ModelError::Checkpoint { file: path.display().to_string(), message };
+        let mut bytes = safetensors::serialize(cpu, Some(meta))
+            .map_err(|e| bad(format!("cannot write: {e}")))?;
         sort_header(&mut bytes);
         rotorhive_msg::durable::atomic_write(
             path,
@@ -404,17 +453,27 @@ impl QNet {
         meta.extend(extra.iter().map(|(k, v)| (k.to_string(), v.clone())));
         meta.sort();
         let bytes = onnx::model(&self.named(), &meta)?;
-        std::fs::write(path, bytes).map_err(|e| ModelError::Checkpoint { file: path.display().to_string(), message: format!("cannot write: {e}") })
+        std::fs::write(path, bytes).map_err(|e| ModelError::Checkpoint {
+            file: path.display().to_string(),
+            message: format!("cannot write: {e}"),
+        })
     }
 
     /// Loads weights saved by [`QNet::save`], with a clear error for a missing,
     /// truncated or mismatched file, or one written in another layout.
     pub fn load(&self, path: &Path) -> Result<()> {
         let file = path.display().to_string();
-        let bytes = std::fs::read(path).map_err(|e| ModelError::Checkpoint { file: file.clone(), message: format!("cannot read: {e}") })?;
+        let bytes = std::fs::read(path).map_err(|e| ModelError::Checkpoint {
+            file: file.clone(),
+            message: format!("cannot read: {e}"),
+        })?;
         check_layout(&bytes, &file)?;
-        let tensors = candle_core::safetensors::load_buffer(&bytes, &self.device)
-            .map_err(|e| ModelError::Checkpoint { file: file.clone(), message: format!("not a valid safetensors file: {e}") })?;
+        let tensors = candle_core::safetensors::load_buffer(&bytes, &self.device).map_err(|e| {
+            ModelError::Checkpoint {
+                file: file.clone(),
+                message: format!("not a valid safetensors file: {e}"),
+            }
+        })?;
         self.load_named(&tensors, &file)
     }
 }
@@ -429,7 +488,12 @@ pub const CHECKPOINT_LAYOUT: &str = "rotorhive-qnet/1";
 pub fn checkpoint_metadata() -> HashMap<String, String> {
     HashMap::from([
         ("layout".to_string(), CHECKPOINT_LAYOUT.to_string()),
-        ("observation".to_string(), format!("depth {FRAMES}x{SIDE}x{SIDE} in [0, 1], then velocity {VEL} (m/s, body frame)")),
+        (
+            "observation".to_string(),
+            format!(
+                "depth {FRAMES}x{SIDE}x{SIDE} in [0, 1], then velocity {VEL} (m/s, body frame)"
+            ),
+        ),
         ("obs_len".to_string(), OBS_LEN.to_string()),
         ("actions".to_string(), ACTIONS.to_string()),
     ])
@@ -441,10 +505,20 @@ pub fn checkpoint_metadata() -> HashMap<String, String> {
 /// runs are compared byte for byte). The header keeps its length: the same
 /// entries, written compactly by the same serializer.
 fn sort_header(bytes: &mut [u8]) {
-    let Some(len) = bytes.get(..8).map(|b| u64::from_le_bytes(b.try_into().expect("eight bytes")) as usize) else { return };
-    let Some(header) = bytes.get(8..8 + len) else { return };
-    let Ok(value) = serde_json::from_slice::<serde_json::Value>(header) else { return };
-    let Ok(sorted) = serde_json::to_vec(&value) else { return };
+    let Some(len) =
+        bytes.get(..8).map(|b| u64::from_le_bytes(b.try_into().expect("eight bytes")) as usize)
+    else {
+        return;
+    };
+    let Some(header) = bytes.get(8..8 + len) else {
+        return;
+    };
+    let Ok(value) = serde_json::from_slice::<serde_json::Value>(header) else {
+        return;
+    };
+    let Ok(sorted) = serde_json::to_vec(&value) else {
+        return;
+    };
     let text = String::from_utf8_lossy(header);
     if sorted.len() == text.trim_end().len() {
         bytes[8..8 + sorted.len()].copy_from_slice(&sorted);
@@ -455,17 +529,29 @@ fn sort_header(bytes: &mut [u8]) {
 /// each difference; a header without these entries (a checkpoint of an
 /// earlier build) is left to the name and shape checks.
 fn check_layout(bytes: &[u8], file: &str) -> Result<()> {
-    let Ok((_, header)) = safetensors::SafeTensors::read_metadata(bytes) else { return Ok(()) };
-    let Some(theirs) = header.metadata() else { return Ok(()) };
+    let Ok((_, header)) = safetensors::SafeTensors::read_metadata(bytes) else {
+        return Ok(());
+    };
+    let Some(theirs) = header.metadata() else {
+        return Ok(());
+    };
     let ours = checkpoint_metadata();
     let diffs: Vec<String> = ["layout", "obs_len", "actions"]
         .iter()
-        .filter_map(|k| theirs.get(*k).filter(|v| Some(*v) != ours.get(*k)).map(|v| format!("{k} {v} (this build: {})", ours[*k])))
+        .filter_map(|k| {
+            theirs
+                .get(*k)
+                .filter(|v| Some(*v) != ours.get(*k))
+                .map(|v| format!("{k} {v} (this build: {})", ours[*k]))
+        })
         .collect();
     if diffs.is_empty() {
         Ok(())
     } else {
-        Err(ModelError::Checkpoint { file: file.into(), message: format!("written for another network: {}", diffs.join(", ")) })
+        Err(ModelError::Checkpoint {
+            file: file.into(),
+            message: format!("written for another network: {}", diffs.join(", ")),
+        })
     }
 }
 

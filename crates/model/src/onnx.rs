@@ -26,7 +26,10 @@ const OPSET: u64 = 17;
 
 /// The ONNX model of weights given by name (as [`crate::QNet::named`]),
 /// with `metadata` as its metadata properties.
-pub(crate) fn model(named: &HashMap<String, Tensor>, metadata: &[(String, String)]) -> Result<Vec<u8>> {
+pub(crate) fn model(
+    named: &HashMap<String, Tensor>,
+    metadata: &[(String, String)],
+) -> Result<Vec<u8>> {
     let mut weights: HashMap<&str, Vec<f32>> = HashMap::new();
     for (name, _) in PARAMS {
         weights.insert(name, named[name].flatten_all()?.to_vec1::<f32>()?);
@@ -54,9 +57,21 @@ pub(crate) fn model(named: &HashMap<String, Tensor>, metadata: &[(String, String
     let init = |name: &str, dims: &[usize], data: &[f32]| tensor(name, dims, data);
     let mut graph = Vec::new();
     for n in [
-        node("Conv", &["depth", "conv1.weight", "conv1.bias"], "c1", &[("kernel_shape", &[K1, K1]), ("strides", &[S1, S1])], None),
+        node(
+            "Conv",
+            &["depth", "conv1.weight", "conv1.bias"],
+            "c1",
+            &[("kernel_shape", &[K1, K1]), ("strides", &[S1, S1])],
+            None,
+        ),
         node("Relu", &["c1"], "r1", &[], None),
-        node("Conv", &["r1", "conv2.weight", "conv2.bias"], "c2", &[("kernel_shape", &[K2, K2])], None),
+        node(
+            "Conv",
+            &["r1", "conv2.weight", "conv2.bias"],
+            "c2",
+            &[("kernel_shape", &[K2, K2])],
+            None,
+        ),
         node("Relu", &["c2"], "r2", &[], None),
         node("MaxPool", &["r2"], "p", &[("kernel_shape", &[2, 2]), ("strides", &[2, 2])], None),
         node("Flatten", &["p"], "features", &[], Some(("axis", 1))),
@@ -107,7 +122,13 @@ pub(crate) fn model(named: &HashMap<String, Tensor>, metadata: &[(String, String
 
 /// A `NodeProto`: inputs, one output, the operator, `ints` attributes and
 /// at most one `int` attribute.
-fn node(op: &str, inputs: &[&str], output: &str, ints: &[(&str, &[usize])], one: Option<(&str, i64)>) -> Vec<u8> {
+fn node(
+    op: &str,
+    inputs: &[&str],
+    output: &str,
+    ints: &[(&str, &[usize])],
+    one: Option<(&str, i64)>,
+) -> Vec<u8> {
     let mut n = Vec::new();
     for i in inputs {
         bytes(&mut n, 1, i.as_bytes());

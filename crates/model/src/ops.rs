@@ -72,7 +72,15 @@ fn parallelism() -> gemm::Parallelism {
 }
 
 /// `dst[m×n] (+)= a[m×k] · b[k×n]`, `dst` row-major and contiguous.
-pub(crate) fn matmul(m: usize, n: usize, k: usize, a: View, b: View, dst: &mut [f32], accumulate: bool) -> candle_core::Result<()> {
+pub(crate) fn matmul(
+    m: usize,
+    n: usize,
+    k: usize,
+    a: View,
+    b: View,
+    dst: &mut [f32],
+    accumulate: bool,
+) -> candle_core::Result<()> {
     if !a.fits(m, k) || !b.fits(k, n) || dst.len() < m * n {
         bail!("matmul {m}×{k} · {k}×{n}: an operand is too small");
     }
@@ -132,8 +140,14 @@ pub(crate) fn adam(p: &mut [f32], g: &[f32], m: &mut [f32], v: &mut [f32], h: Ad
 }
 
 /// The `f32` slice of a contiguous CPU parameter, for the in-place ops.
-fn param_slice<'a>(ps: &'a mut CpuStorage, pl: &Layout, op: &str) -> candle_core::Result<&'a mut [f32]> {
-    let Some((start, end)) = pl.contiguous_offsets() else { bail!("{op} needs a contiguous parameter") };
+fn param_slice<'a>(
+    ps: &'a mut CpuStorage,
+    pl: &Layout,
+    op: &str,
+) -> candle_core::Result<&'a mut [f32]> {
+    let Some((start, end)) = pl.contiguous_offsets() else {
+        bail!("{op} needs a contiguous parameter")
+    };
     let CpuStorage::F32(p) = ps else { bail!("{op} needs f32 parameters") };
     Ok(&mut p[start..end])
 }
@@ -172,7 +186,10 @@ impl InplaceOp1 for AdamStep<'_> {
 
     fn cpu_fwd(&self, ps: &mut CpuStorage, pl: &Layout) -> candle_core::Result<()> {
         let p = param_slice(ps, pl, "adam")?;
-        let mut guard = self.moments.lock().map_err(|_| candle_core::Error::Msg("adam moments poisoned".into()))?;
+        let mut guard = self
+            .moments
+            .lock()
+            .map_err(|_| candle_core::Error::Msg("adam moments poisoned".into()))?;
         let (m, v) = &mut *guard;
         if self.grad.len() != p.len() || m.len() != p.len() || v.len() != p.len() {
             bail!("adam: parameter {}, gradient {}, moments {}", p.len(), self.grad.len(), m.len());

@@ -41,7 +41,13 @@ fn cfg(double: bool) -> DqnConfig {
 /// Gradients through candle's autograd over stock ops (the reference), flat.
 fn autograd(dqn: &Dqn, batch: &[f32]) -> Vec<f32> {
     let grads = dqn.loss(batch).unwrap().backward().unwrap();
-    dqn.online.vars().iter().flat_map(|v| grads.get(v.as_tensor()).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap()).collect()
+    dqn.online
+        .vars()
+        .iter()
+        .flat_map(|v| {
+            grads.get(v.as_tensor()).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap()
+        })
+        .collect()
 }
 
 /// The slice of parameter `i` in a flat vector.
@@ -62,10 +68,12 @@ fn forward_matches_stock_candle_convolutions() {
     let dev = Device::Cpu;
     for seed in [1, 2, 3] {
         let net = QNet::new(seed, &dev).unwrap();
-        let obs = Tensor::from_vec(random(5 * OBS_LEN, seed + 10, 0.0, 1.0), (5, OBS_LEN), &dev).unwrap();
+        let obs =
+            Tensor::from_vec(random(5 * OBS_LEN, seed + 10, 0.0, 1.0), (5, OBS_LEN), &dev).unwrap();
         assert!(net.fused());
         let a = net.forward(&obs).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
-        let b = generic(&net).forward(&obs).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        let b =
+            generic(&net).forward(&obs).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
         close(&a, &b, 1e-4, "q-values");
     }
 }
@@ -100,13 +108,22 @@ fn adam_matches_candle_nn() {
     use candle_nn::optim::{AdamW, Optimizer, ParamsAdamW};
     let mut dqn = Dqn::new(cfg(false), 5, &Device::Cpu).unwrap();
     let reference = Dqn::new(cfg(false), 5, &Device::Cpu).unwrap();
-    let mut opt = AdamW::new(reference.online.vars().to_vec(), ParamsAdamW { lr: 1e-3, beta1: 0.9, beta2: 0.999, eps: 1e-8, weight_decay: 0.0 }).unwrap();
+    let mut opt = AdamW::new(
+        reference.online.vars().to_vec(),
+        ParamsAdamW { lr: 1e-3, beta1: 0.9, beta2: 0.999, eps: 1e-8, weight_decay: 0.0 },
+    )
+    .unwrap();
     for step in 0..5 {
         let batch = transitions(4, 30 + step);
         opt.step(&reference.loss(&batch).unwrap().backward().unwrap()).unwrap();
         let grads = autograd(&dqn, &batch);
         dqn.opt_step(&grads).unwrap();
-        close(&dqn.online.to_flat().unwrap(), &reference.online.to_flat().unwrap(), 1e-4, "weights after adam");
+        close(
+            &dqn.online.to_flat().unwrap(),
+            &reference.online.to_flat().unwrap(),
+            1e-4,
+            "weights after adam",
+        );
     }
 }
 
@@ -206,7 +223,8 @@ fn gradients_match_finite_differences() {
                 })
                 .collect();
             dqn.online.load_flat(&flat).unwrap();
-            let ok = fds.iter().any(|fd| (fd - g[i]).abs() <= 2e-3 + 0.05 * fd.abs().max(g[i].abs()));
+            let ok =
+                fds.iter().any(|fd| (fd - g[i]).abs() <= 2e-3 + 0.05 * fd.abs().max(g[i].abs()));
             assert!(ok, "{name}[{i}]: backward {} vs finite differences {fds:?}", g[i]);
             checked += 1;
         }
@@ -248,7 +266,10 @@ fn flat_weights_and_checkpoints_round_trip() {
     std::fs::write(&path, &bytes[..bytes.len() / 2]).unwrap();
     let e = c.load(&path).unwrap_err().to_string();
     assert!(e.contains("w.safetensors") && e.contains("valid"), "{e}");
-    let other = HashMap::from([("conv1.weight".to_string(), Tensor::zeros((3, 3), DType::F32, &dev).unwrap())]);
+    let other = HashMap::from([(
+        "conv1.weight".to_string(),
+        Tensor::zeros((3, 3), DType::F32, &dev).unwrap(),
+    )]);
     candle_core::safetensors::save(&other, &path).unwrap();
     let e = c.load(&path).unwrap_err().to_string();
     assert!(e.contains("shape") || e.contains("missing"), "{e}");
@@ -273,7 +294,10 @@ fn flat_weights_and_checkpoints_round_trip() {
     let tensors: Vec<(String, Tensor)> = a.named().into_iter().collect();
     safetensors::serialize_to_file(tensors, Some(foreign), &path).unwrap();
     let e = c.load(&path).unwrap_err().to_string();
-    assert!(e.contains("layout rotorhive-qnet/0") && e.contains("actions 3 (this build: 2)"), "{e}");
+    assert!(
+        e.contains("layout rotorhive-qnet/0") && e.contains("actions 3 (this build: 2)"),
+        "{e}"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -343,7 +367,12 @@ fn the_reward_scale_scales_the_td_target() {
     let dev = Device::Cpu;
     let batch = transitions(16, 9);
     let stats_with = |scale: f32| {
-        let mut d = Dqn::new(DqnConfig { gamma: 0.0, huber_delta: 1e6, reward_scale: scale, ..cfg(false) }, 4, &dev).unwrap();
+        let mut d = Dqn::new(
+            DqnConfig { gamma: 0.0, huber_delta: 1e6, reward_scale: scale, ..cfg(false) },
+            4,
+            &dev,
+        )
+        .unwrap();
         d.update(&batch).unwrap();
         d.stats()
     };
@@ -395,7 +424,10 @@ fn importance_weights_scale_each_rows_gradient_on_both_paths() {
     let ones = vec![1.0; 16];
     fused.update_weighted(&batch, Some(&ones)).unwrap();
     plain.update(&batch).unwrap();
-    assert!(fused.online.to_flat().unwrap() == plain.online.to_flat().unwrap(), "weights of 1 must change nothing");
+    assert!(
+        fused.online.to_flat().unwrap() == plain.online.to_flat().unwrap(),
+        "weights of 1 must change nothing"
+    );
     assert_eq!(fused.td_abs().len(), 16);
     let (mut a, mut b) = (Dqn::new(cfg(true), 8, &dev).unwrap(), generic);
     a.set_threads(2);
@@ -404,5 +436,10 @@ fn importance_weights_scale_each_rows_gradient_on_both_paths() {
     assert!((la - lb).abs() <= 1e-4 * lb.abs().max(1.0), "{la} vs {lb}");
     close(a.td_abs(), b.td_abs(), 1e-4, "td");
     close(&a.first_moments(), &b.first_moments(), 1e-3, "weighted gradients");
-    assert!(a.update_weighted(&batch, Some(&w[..3])).unwrap_err().to_string().contains("importance weights"));
+    assert!(
+        a.update_weighted(&batch, Some(&w[..3]))
+            .unwrap_err()
+            .to_string()
+            .contains("importance weights")
+    );
 }

@@ -18,7 +18,11 @@ pub fn tmp_path(path: &Path) -> PathBuf {
 /// write; then [`commit`]s it. On any failure the temporary file is
 /// removed and `path` is left as it was; `io` turns an I/O error of the
 /// commit into the caller's error (naming the file).
-pub fn atomic_write<E>(path: &Path, write: impl FnOnce(&Path) -> Result<(), E>, io: impl FnOnce(std::io::Error) -> E) -> Result<(), E> {
+pub fn atomic_write<E>(
+    path: &Path,
+    write: impl FnOnce(&Path) -> Result<(), E>,
+    io: impl FnOnce(std::io::Error) -> E,
+) -> Result<(), E> {
     let tmp = tmp_path(path);
     let done = write(&tmp).and_then(|()| commit(&tmp, path).map_err(io));
     if done.is_err() {

@@ -131,8 +131,18 @@ pub fn dequantize_depth(q: u16) -> f32 {
 
 /// Packs one transition given as its parts (`s` and `s'` of `OBS_LEN`
 /// floats each) into `out` (`PACKED_LEN` words).
-pub fn pack_transition(s: &[f32], next: &[f32], action: f32, reward: f32, done: f32, out: &mut [u16]) {
-    assert!(s.len() == OBS_LEN && next.len() == OBS_LEN && out.len() == PACKED_LEN, "pack_transition: wrong lengths");
+pub fn pack_transition(
+    s: &[f32],
+    next: &[f32],
+    action: f32,
+    reward: f32,
+    done: f32,
+    out: &mut [u16],
+) {
+    assert!(
+        s.len() == OBS_LEN && next.len() == OBS_LEN && out.len() == PACKED_LEN,
+        "pack_transition: wrong lengths"
+    );
     let fd = FRAMES * DEPTH_PIXELS;
     let (depth, scalars) = out.split_at_mut(PACKED_DEPTH);
     for (o, v) in depth[..fd].iter_mut().zip(&s[..fd]) {
@@ -163,7 +173,9 @@ pub fn packed_scalar(p: &[u16], i: usize) -> f32 {
 /// (16-bit depth has no invalid value to look for).
 pub fn scalars_corrupt(scalars: &[f32; PACKED_SCALARS]) -> bool {
     let flag = |v: f32| v == 0.0 || v == 1.0;
-    !flag(scalars[2 * VEL_DIM]) || !flag(scalars[2 * VEL_DIM + 2]) || scalars.iter().any(|v| !v.is_finite())
+    !flag(scalars[2 * VEL_DIM])
+        || !flag(scalars[2 * VEL_DIM + 2])
+        || scalars.iter().any(|v| !v.is_finite())
 }
 
 /// Corrupt transitions (by [`scalars_corrupt`]) in a batch of packed ones.
@@ -183,7 +195,10 @@ pub fn corrupt_transitions(batch: &[u16]) -> u64 {
 /// Unpacks one transition (`PACKED_LEN` words) into `out` (`TRANSITION_LEN`
 /// floats, the learner's layout).
 pub fn unpack_transition(p: &[u16], out: &mut [f32]) {
-    assert!(p.len() == PACKED_LEN && out.len() == TRANSITION_LEN, "unpack_transition: wrong lengths");
+    assert!(
+        p.len() == PACKED_LEN && out.len() == TRANSITION_LEN,
+        "unpack_transition: wrong lengths"
+    );
     let fd = FRAMES * DEPTH_PIXELS;
     let (s, rest) = out.split_at_mut(OBS_LEN);
     let (next, tail) = rest.split_at_mut(OBS_LEN);
@@ -324,7 +339,9 @@ pub const EPISODE_FIELDS: usize = 4;
 /// whole number from 1 to 2^24, a done code other than collision, goal or
 /// timeout, or an exploration rate outside 0..=1.
 pub fn episode_corrupt(record: &[f32]) -> bool {
-    let [ret, steps, done, eps] = record else { return true };
+    let [ret, steps, done, eps] = record else {
+        return true;
+    };
     !ret.is_finite()
         || !(1.0..=16_777_216.0).contains(steps)
         || steps.fract() != 0.0
@@ -593,7 +610,9 @@ impl SeqTracker {
     /// (0 when none, or when `actor` is out of range: the message's own
     /// check names that).
     pub fn observe(&mut self, actor: usize, seq: u64) -> u64 {
-        let Some(slot) = self.next.get_mut(actor) else { return 0 };
+        let Some(slot) = self.next.get_mut(actor) else {
+            return 0;
+        };
         let gap = match *slot {
             Some(want) if seq > want => seq - want,
             _ => 0,
@@ -646,16 +665,27 @@ mod tests {
     fn what_an_honest_actor_never_writes_is_corrupt() {
         let obs = vec![0.5f32; OBS_LEN];
         let mut batch = vec![0u16; 5 * PACKED_LEN];
-        for (t, (a, r, d)) in
-            batch.chunks_exact_mut(PACKED_LEN).zip([(1.0, 3.0, 0.0), (0.5, 3.0, 0.0), (0.0, f32::NAN, 1.0), (0.0, -100.0, 2.0), (0.0, -100.0, 1.0)])
-        {
+        for (t, (a, r, d)) in batch.chunks_exact_mut(PACKED_LEN).zip([
+            (1.0, 3.0, 0.0),
+            (0.5, 3.0, 0.0),
+            (0.0, f32::NAN, 1.0),
+            (0.0, -100.0, 2.0),
+            (0.0, -100.0, 1.0),
+        ]) {
             pack_transition(&obs, &obs, a, r, d, t);
         }
         assert_eq!(corrupt_transitions(&batch[..PACKED_LEN]), 0);
         assert_eq!(corrupt_transitions(&batch), 3);
         assert!(!episode_corrupt(&[-100.0, 12.0, 1.0, 0.4]));
         assert!(!episode_corrupt(&[450.0, 150.0, 3.0, 0.0]));
-        for bad in [[f32::NAN, 1.0, 1.0, 0.1], [1.0, 0.0, 1.0, 0.1], [1.0, 2.5, 1.0, 0.1], [1.0, 2.0, 0.0, 0.1], [1.0, 2.0, 4.0, 0.1], [1.0, 2.0, 1.0, -0.1]] {
+        for bad in [
+            [f32::NAN, 1.0, 1.0, 0.1],
+            [1.0, 0.0, 1.0, 0.1],
+            [1.0, 2.5, 1.0, 0.1],
+            [1.0, 2.0, 0.0, 0.1],
+            [1.0, 2.0, 4.0, 0.1],
+            [1.0, 2.0, 1.0, -0.1],
+        ] {
             assert!(episode_corrupt(&bad), "{bad:?}");
         }
         assert!(episode_corrupt(&[1.0, 2.0, 1.0]));
@@ -663,14 +693,28 @@ mod tests {
 
     #[test]
     fn packed_transitions_round_trip_within_the_fixed_point_step() {
-        let s: Vec<f32> = (0..OBS_LEN).map(|i| if i < FRAMES * DEPTH_PIXELS { (i as f32 * 0.618).fract() } else { -1.5 + i as f32 }).collect();
-        let next: Vec<f32> = (0..OBS_LEN).map(|i| if i < FRAMES * DEPTH_PIXELS { 1.0 - (i as f32 * 0.377).fract() } else { 0.25 * i as f32 }).collect();
+        let s: Vec<f32> = (0..OBS_LEN)
+            .map(|i| {
+                if i < FRAMES * DEPTH_PIXELS { (i as f32 * 0.618).fract() } else { -1.5 + i as f32 }
+            })
+            .collect();
+        let next: Vec<f32> = (0..OBS_LEN)
+            .map(|i| {
+                if i < FRAMES * DEPTH_PIXELS {
+                    1.0 - (i as f32 * 0.377).fract()
+                } else {
+                    0.25 * i as f32
+                }
+            })
+            .collect();
         let mut p = vec![0u16; PACKED_LEN];
         pack_transition(&s, &next, 1.0, -100.0, 1.0, &mut p);
         let mut t = vec![0f32; TRANSITION_LEN];
         unpack_transition(&p, &mut t);
         let fd = FRAMES * DEPTH_PIXELS;
-        for (a, b) in t[..fd].iter().zip(&s[..fd]).chain(t[OBS_LEN..OBS_LEN + fd].iter().zip(&next[..fd])) {
+        for (a, b) in
+            t[..fd].iter().zip(&s[..fd]).chain(t[OBS_LEN..OBS_LEN + fd].iter().zip(&next[..fd]))
+        {
             assert!((a - b).abs() <= 0.5 / 65535.0 + 1e-7, "{a} vs {b}");
             assert!((0.0..=1.0).contains(a));
         }
@@ -678,7 +722,10 @@ mod tests {
         assert_eq!(&t[fd..OBS_LEN], &s[fd..]);
         assert_eq!(&t[OBS_LEN + fd..2 * OBS_LEN], &next[fd..]);
         assert_eq!(&t[2 * OBS_LEN..], &[1.0, -100.0, 1.0]);
-        assert_eq!((dequantize_depth(quantize_depth(0.0)), dequantize_depth(quantize_depth(1.0))), (0.0, 1.0));
+        assert_eq!(
+            (dequantize_depth(quantize_depth(0.0)), dequantize_depth(quantize_depth(1.0))),
+            (0.0, 1.0)
+        );
         assert_eq!(quantize_depth(7.0), u16::MAX);
     }
 

@@ -14,7 +14,8 @@ use std::time::Instant;
 
 use numpy::ndarray::{Array2, Array3};
 use numpy::{
-    IntoPyArray, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyReadwriteArray1, PyReadwriteArray2, PyReadwriteArray4, PyUntypedArrayMethods,
+    IntoPyArray, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyReadwriteArray1,
+    PyReadwriteArray2, PyReadwriteArray4, PyUntypedArrayMethods,
 };
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
@@ -48,12 +49,19 @@ struct Source<'a> {
 fn lanes(cfg: &Config, src: Source<'_>) -> PyResult<Vec<Arena>> {
     let params = cfg.generator().unwrap_or_default();
     let base = match (src.arena, src.arena_seed) {
-        (Some(_), Some(_)) => return Err(value_error("give `arena` (a file) or `arena_seed` (a generated arena), not both")),
+        (Some(_), Some(_)) => {
+            return Err(value_error(
+                "give `arena` (a file) or `arena_seed` (a generated arena), not both",
+            ));
+        }
         (Some(p), None) => Arena::load(Path::new(p)).map_err(value_error)?,
         (None, Some(s)) => Arena::generate(&format!("generated-{s}"), s, &params),
         // A level without an arena file trains on its generated lanes alone.
-        (None, None) if cfg.sim.arena.as_os_str().is_empty() => return cfg.lane_arenas(0).map_err(value_error),
-        (None, None) => Arena::parse(TRAIN_ARENA, "configs/arenas/train.toml").expect("the shipped arena is valid"),
+        (None, None) if cfg.sim.arena.as_os_str().is_empty() => {
+            return cfg.lane_arenas(0).map_err(value_error);
+        }
+        (None, None) => Arena::parse(TRAIN_ARENA, "configs/arenas/train.toml")
+            .expect("the shipped arena is valid"),
     };
     Ok(cfg.lanes_around(base, 0))
 }
@@ -61,7 +69,12 @@ fn lanes(cfg: &Config, src: Source<'_>) -> PyResult<Vec<Arena>> {
 /// Builds the environment as `hive sim --env 0` does for the config that
 /// the level (or the built-in defaults) and `overrides` (`sim.key=value`)
 /// give.
-fn build_env(agents: usize, seed: u64, src: Source<'_>, overrides: &[String]) -> PyResult<(VecEnv, usize)> {
+fn build_env(
+    agents: usize,
+    seed: u64,
+    src: Source<'_>,
+    overrides: &[String],
+) -> PyResult<(VecEnv, usize)> {
     if agents == 0 {
         return Err(value_error("`num_envs` must be at least 1"));
     }
@@ -72,11 +85,14 @@ fn build_env(agents: usize, seed: u64, src: Source<'_>, overrides: &[String]) ->
         Some(l) => Config::level(l, &ov),
         None => Config::load(None, &ov),
     };
-    let cfg = cfg.map_err(|e| value_error(format!("{e:#}").replace("config defaults (configs/default.toml): ", "")))?;
+    let cfg = cfg.map_err(|e| {
+        value_error(format!("{e:#}").replace("config defaults (configs/default.toml): ", ""))
+    })?;
     let arenas = lanes(&cfg, src)?;
     let lanes = arenas.len();
-    let env = VecEnv::new_lanes(cfg.sim_config(), &arenas, rotorhive_roles::seeds::sim(cfg.seed, 0))
-        .map_err(|e| PyRuntimeError::new_err(format!("the simulator could not start: {e}")))?;
+    let env =
+        VecEnv::new_lanes(cfg.sim_config(), &arenas, rotorhive_roles::seeds::sim(cfg.seed, 0))
+            .map_err(|e| PyRuntimeError::new_err(format!("the simulator could not start: {e}")))?;
     Ok((env, lanes))
 }
 
@@ -90,7 +106,9 @@ fn parse_autoreset(mode: &str) -> PyResult<Autoreset> {
         "next" => Ok(Autoreset::NextStep),
         "same" => Ok(Autoreset::SameStep),
         "disabled" => Ok(Autoreset::Disabled),
-        other => Err(value_error(format!("autoreset {other:?} is not \"next\", \"same\" or \"disabled\""))),
+        other => Err(value_error(format!(
+            "autoreset {other:?} is not \"next\", \"same\" or \"disabled\""
+        ))),
     }
 }
 
@@ -104,7 +122,10 @@ fn check_len(what: &str, got: usize, want: usize) -> PyResult<()> {
 fn check_actions(actions: &[u8], agents: usize) -> PyResult<()> {
     check_len("actions", actions.len(), agents)?;
     if let Some(i) = actions.iter().position(|a| *a > 1) {
-        return Err(value_error(format!("actions[{i}] = {} is out of range: the action space is Discrete(2)", actions[i])));
+        return Err(value_error(format!(
+            "actions[{i}] = {} is out of range: the action space is Discrete(2)",
+            actions[i]
+        )));
     }
     Ok(())
 }
@@ -124,7 +145,14 @@ impl Sim {
     /// `overrides` are `sim.key=value` strings, as `hive train --set`.
     #[new]
     #[pyo3(signature = (agents, seed=0, arena=None, arena_seed=None, overrides=Vec::new(), level=None))]
-    fn new(agents: usize, seed: u64, arena: Option<String>, arena_seed: Option<u64>, overrides: Vec<String>, level: Option<String>) -> PyResult<Self> {
+    fn new(
+        agents: usize,
+        seed: u64,
+        arena: Option<String>,
+        arena_seed: Option<u64>,
+        overrides: Vec<String>,
+        level: Option<String>,
+    ) -> PyResult<Self> {
         let src = Source { arena: arena.as_deref(), arena_seed, level: level.as_deref() };
         let (mut env, lanes) = build_env(agents, seed, src, &overrides)?;
         env.drop_observation_buffer();
@@ -205,7 +233,12 @@ impl Sim {
         let (d, v) = (depth.as_slice_mut()?, velocity.as_slice_mut()?);
         let (r, k) = (rewards.as_slice_mut()?, dones.as_slice_mut()?);
         let (er, el) = (ep_return.as_slice_mut()?, ep_length.as_slice_mut()?);
-        for (what, len) in [("rewards", r.len()), ("dones", k.len()), ("ep_return", er.len()), ("ep_length", el.len())] {
+        for (what, len) in [
+            ("rewards", r.len()),
+            ("dones", k.len()),
+            ("ep_return", er.len()),
+            ("ep_length", el.len()),
+        ] {
             check_len(what, len, n)?;
         }
         let (env, tracks) = (&mut self.env, &mut self.tracks);
@@ -258,19 +291,33 @@ impl Sim {
     #[pyo3(signature = (agent=0))]
     fn render<'py>(&self, py: Python<'py>, agent: usize) -> PyResult<Bound<'py, PyArray3<u8>>> {
         if agent >= self.env.agents() {
-            return Err(value_error(format!("agent {agent} is out of range: there are {}", self.env.agents())));
+            return Err(value_error(format!(
+                "agent {agent} is out of range: there are {}",
+                self.env.agents()
+            )));
         }
         let len = self.env.obs_len();
         let mut row = vec![0.0; len];
         self.env.write_observations(agent, &mut row);
         let mut canvas = Canvas::default();
-        let focus = Focus { agent, depth: &row[..len - 3], q: None, action: self.last_actions.get(agent).copied() };
+        let focus = Focus {
+            agent,
+            depth: &row[..len - 3],
+            q: None,
+            action: self.last_actions.get(agent).copied(),
+        };
         view::draw(&self.env, &self.tracks, focus, &mut canvas);
-        Ok(Array3::from_shape_vec((view::HEIGHT, view::WIDTH, 3), canvas.rgb()).expect("an RGB picture").into_pyarray(py))
+        Ok(Array3::from_shape_vec((view::HEIGHT, view::WIDTH, 3), canvas.rgb())
+            .expect("an RGB picture")
+            .into_pyarray(py))
     }
 
     /// Writes every agent's current observation.
-    fn observe(&self, mut depth: PyReadwriteArray4<'_, f32>, mut velocity: PyReadwriteArray2<'_, f32>) -> PyResult<()> {
+    fn observe(
+        &self,
+        mut depth: PyReadwriteArray4<'_, f32>,
+        mut velocity: PyReadwriteArray2<'_, f32>,
+    ) -> PyResult<()> {
         write_obs(&self.env, depth.as_slice_mut()?, velocity.as_slice_mut()?)
     }
 }
@@ -306,13 +353,18 @@ fn rust_agent_steps_per_second(
     env.drop_observation_buffer();
     match parse_autoreset(autoreset)? {
         // Never restarted, ended agents would fly on unscored.
-        Autoreset::Disabled => return Err(value_error("the bench's autoreset is \"next\" or \"same\"")),
+        Autoreset::Disabled => {
+            return Err(value_error("the bench's autoreset is \"next\" or \"same\""));
+        }
         mode => env.set_autoreset(mode),
     }
     let rows: Vec<u8> = match &actions {
         Some(a) => {
             if a.shape()[1] != agents || a.shape()[0] == 0 {
-                return Err(value_error(format!("actions must have shape (K, {agents}), got {:?}", a.shape())));
+                return Err(value_error(format!(
+                    "actions must have shape (K, {agents}), got {:?}",
+                    a.shape()
+                )));
             }
             a.as_array().iter().copied().collect()
         }
@@ -369,7 +421,8 @@ fn reference_rollout<'py>(
         let a: Vec<u8> = acts.row(s).to_vec();
         check_actions(&a, n)?;
         env.step(&a).map_err(render_error)?;
-        obs.as_slice_mut().expect("contiguous")[(s + 1) * n * len..(s + 2) * n * len].copy_from_slice(env.observations());
+        obs.as_slice_mut().expect("contiguous")[(s + 1) * n * len..(s + 2) * n * len]
+            .copy_from_slice(env.observations());
         rewards.row_mut(s).as_slice_mut().expect("contiguous").copy_from_slice(env.rewards());
         for (k, d) in dones.row_mut(s).iter_mut().zip(env.dones()) {
             *k = *d as u8;
@@ -434,14 +487,23 @@ impl QNetwork {
 
     /// Q-values `(B, 2)` of flat observations `(B, 2051)`: the previous and
     /// the current depth frame, row-major, then the body-frame velocity.
-    fn q_values<'py>(&self, py: Python<'py>, obs: PyReadonlyArray2<'py, f32>) -> PyResult<Bound<'py, PyArray2<f32>>> {
+    fn q_values<'py>(
+        &self,
+        py: Python<'py>,
+        obs: PyReadonlyArray2<'py, f32>,
+    ) -> PyResult<Bound<'py, PyArray2<f32>>> {
         let b = obs.shape()[0];
         if obs.shape()[1] != OBS_LEN || b == 0 {
-            return Err(value_error(format!("observations must have shape (B, {OBS_LEN}) with B >= 1, got {:?}", obs.shape())));
+            return Err(value_error(format!(
+                "observations must have shape (B, {OBS_LEN}) with B >= 1, got {:?}",
+                obs.shape()
+            )));
         }
         let flat: Vec<f32> = obs.as_array().iter().copied().collect();
         let q = self.net.q_values(&flat).map_err(model_error)?;
-        Ok(Array2::from_shape_vec((b, 2), q).expect("two Q-values per observation").into_pyarray(py))
+        Ok(Array2::from_shape_vec((b, 2), q)
+            .expect("two Q-values per observation")
+            .into_pyarray(py))
     }
 
     /// The weights in rotorhive's layout, by name (see `rotorhive.net` for
@@ -450,8 +512,12 @@ impl QNetwork {
         let d = PyDict::new(py);
         let named = self.net.named();
         for (name, shape) in PARAMS {
-            let data: Vec<f32> = named[name].flatten_all().and_then(|t| t.to_vec1()).map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
-            let a = numpy::ndarray::ArrayD::from_shape_vec(shape.to_vec(), data).expect("the parameter's shape");
+            let data: Vec<f32> = named[name]
+                .flatten_all()
+                .and_then(|t| t.to_vec1())
+                .map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+            let a = numpy::ndarray::ArrayD::from_shape_vec(shape.to_vec(), data)
+                .expect("the parameter's shape");
             d.set_item(name, a.into_pyarray(py))?;
         }
         Ok(d)

@@ -47,7 +47,16 @@ impl Member {
 
     /// Reads the word in the files.
     pub fn parse(s: &str) -> Option<Self> {
-        [Member::Sim, Member::Actor, Member::Replay, Member::Learner, Member::Link, Member::Supervisor].into_iter().find(|m| m.name() == s)
+        [
+            Member::Sim,
+            Member::Actor,
+            Member::Replay,
+            Member::Learner,
+            Member::Link,
+            Member::Supervisor,
+        ]
+        .into_iter()
+        .find(|m| m.name() == s)
     }
 }
 
@@ -109,7 +118,14 @@ mod tests {
 
     #[test]
     fn members_read_back_what_they_write() {
-        for m in [Member::Sim, Member::Actor, Member::Replay, Member::Learner, Member::Link, Member::Supervisor] {
+        for m in [
+            Member::Sim,
+            Member::Actor,
+            Member::Replay,
+            Member::Learner,
+            Member::Link,
+            Member::Supervisor,
+        ] {
             assert_eq!(Member::parse(m.name()), Some(m));
             assert_eq!(serde_json::to_value(m).unwrap(), m.name());
         }

@@ -71,7 +71,10 @@ pub type Result<T> = std::result::Result<T, RecordsError>;
 
 impl RecordsError {
     /// An I/O error of `action` ("read", "write") on `file`.
-    pub fn io<'a>(action: &'static str, file: &'a std::path::Path) -> impl FnOnce(std::io::Error) -> Self + 'a {
+    pub fn io<'a>(
+        action: &'static str,
+        file: &'a std::path::Path,
+    ) -> impl FnOnce(std::io::Error) -> Self + 'a {
         move |err| RecordsError::Io { action, file: file.display().to_string(), err }
     }
 }

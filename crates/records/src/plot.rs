@@ -29,7 +29,13 @@ pub fn plot_err<E: std::fmt::Display>(e: E) -> RecordsError {
 /// Draws rolling episode reward against wall time, with the threshold, and
 /// below it the greedy validation success of each evaluation (the kept
 /// result marked), so that a policy that got worse after its peak shows.
-pub fn reward_plot(points: &[(f64, f64)], threshold: f64, validation: &[(f64, f64)], result_at: Option<f64>, out: &Path) -> Result<()> {
+pub fn reward_plot(
+    points: &[(f64, f64)],
+    threshold: f64,
+    validation: &[(f64, f64)],
+    result_at: Option<f64>,
+    out: &Path,
+) -> Result<()> {
     font();
     let root = BitMapBackend::new(out, (800, 640)).into_drawing_area();
     root.fill(&WHITE).map_err(plot_err)?;
@@ -45,8 +51,12 @@ pub fn reward_plot(points: &[(f64, f64)], threshold: f64, validation: &[(f64, f6
         .build_cartesian_2d(0f64..tmax, lo..hi)
         .map_err(plot_err)?;
     chart.configure_mesh().x_desc("wall time (s)").y_desc("reward").draw().map_err(plot_err)?;
-    chart.draw_series(LineSeries::new(points.iter().copied(), BLUE.stroke_width(2))).map_err(plot_err)?;
-    chart.draw_series(LineSeries::new([(0.0, threshold), (tmax, threshold)], RED.mix(0.6))).map_err(plot_err)?;
+    chart
+        .draw_series(LineSeries::new(points.iter().copied(), BLUE.stroke_width(2)))
+        .map_err(plot_err)?;
+    chart
+        .draw_series(LineSeries::new([(0.0, threshold), (tmax, threshold)], RED.mix(0.6)))
+        .map_err(plot_err)?;
     let mut val = ChartBuilder::on(&bottom)
         .caption("greedy validation success (%); ring: the run's result", ("sans-serif", 16))
         .margin(12)
@@ -103,8 +113,12 @@ fn with_legend_panel<'a>(out: &'a Path, names: &[&str]) -> Result<(Area<'a>, Are
     for (i, name) in names.iter().enumerate() {
         let y = 40 + 22 * i as i32;
         let c = series_color(i);
-        legend.draw(&PathElement::new(vec![(6, y), (30, y)], c.stroke_width(3))).map_err(plot_err)?;
-        legend.draw(&Text::new(name.to_string(), (36, y - 8), ("sans-serif", 15))).map_err(plot_err)?;
+        legend
+            .draw(&PathElement::new(vec![(6, y), (30, y)], c.stroke_width(3)))
+            .map_err(plot_err)?;
+        legend
+            .draw(&Text::new(name.to_string(), (36, y - 8), ("sans-serif", 15)))
+            .map_err(plot_err)?;
     }
     Ok((plot, legend))
 }
@@ -114,7 +128,14 @@ fn with_legend_panel<'a>(out: &'a Path, names: &[&str]) -> Result<(Area<'a>, Are
 pub type Band = (String, Vec<(f64, f64, f64, f64)>);
 
 /// Curves with shaded bands, one per arm (`hive bench seeds`).
-pub fn band_plot(title: &str, x_desc: &str, y_desc: &str, bands: &[Band], y_range: (f64, f64), out: &Path) -> Result<()> {
+pub fn band_plot(
+    title: &str,
+    x_desc: &str,
+    y_desc: &str,
+    bands: &[Band],
+    y_range: (f64, f64),
+    out: &Path,
+) -> Result<()> {
     font();
     let names: Vec<&str> = bands.iter().map(|b| b.0.as_str()).collect();
     let (root, legend) = with_legend_panel(out, &names)?;
@@ -129,9 +150,12 @@ pub fn band_plot(title: &str, x_desc: &str, y_desc: &str, bands: &[Band], y_rang
     chart.configure_mesh().x_desc(x_desc).y_desc(y_desc).draw().map_err(plot_err)?;
     for (i, (_, pts)) in bands.iter().enumerate() {
         let c = series_color(i);
-        let area: Vec<(f64, f64)> = pts.iter().map(|p| (p.0, p.3)).chain(pts.iter().rev().map(|p| (p.0, p.2))).collect();
+        let area: Vec<(f64, f64)> =
+            pts.iter().map(|p| (p.0, p.3)).chain(pts.iter().rev().map(|p| (p.0, p.2))).collect();
         chart.draw_series([Polygon::new(area, c.mix(0.15).filled())]).map_err(plot_err)?;
-        chart.draw_series(LineSeries::new(pts.iter().map(|p| (p.0, p.1)), c.stroke_width(2))).map_err(plot_err)?;
+        chart
+            .draw_series(LineSeries::new(pts.iter().map(|p| (p.0, p.1)), c.stroke_width(2)))
+            .map_err(plot_err)?;
     }
     root.present().map_err(plot_err)?;
     legend.present().map_err(plot_err)?;
@@ -139,7 +163,13 @@ pub fn band_plot(title: &str, x_desc: &str, y_desc: &str, bands: &[Band], y_rang
 }
 
 /// A line chart of several named series (e.g. milliseconds against agents).
-pub fn lines_plot(title: &str, x_desc: &str, y_desc: &str, series: &[(String, Vec<(f64, f64)>)], out: &Path) -> Result<()> {
+pub fn lines_plot(
+    title: &str,
+    x_desc: &str,
+    y_desc: &str,
+    series: &[(String, Vec<(f64, f64)>)],
+    out: &Path,
+) -> Result<()> {
     font();
     let names: Vec<&str> = series.iter().map(|s| s.0.as_str()).collect();
     let (root, legend) = with_legend_panel(out, &names)?;
@@ -156,7 +186,9 @@ pub fn lines_plot(title: &str, x_desc: &str, y_desc: &str, series: &[(String, Ve
     chart.configure_mesh().x_desc(x_desc).y_desc(y_desc).draw().map_err(plot_err)?;
     for (i, (_, s)) in series.iter().enumerate() {
         let c = series_color(i);
-        chart.draw_series(LineSeries::new(s.iter().copied(), c.stroke_width(2))).map_err(plot_err)?;
+        chart
+            .draw_series(LineSeries::new(s.iter().copied(), c.stroke_width(2)))
+            .map_err(plot_err)?;
         chart.draw_series(s.iter().map(|p| Circle::new(*p, 3, c.filled()))).map_err(plot_err)?;
     }
     root.present().map_err(plot_err)?;

@@ -78,16 +78,32 @@ pub fn analyse(run_dir: &Path) -> Result<Profile> {
     }
     let mut roles = Vec::new();
     let mut machine = Vec::new();
-    let supervisor_cpu = rows.get(&(Member::Supervisor, 0)).map(|r| mean(r.iter().map(|x| x.cpu_pct)));
-    let policy_lag = rows.get(&(Member::Learner, 0)).map(|r| mean(r.iter().filter_map(|x| x.policy_lag))).filter(|v| v.is_finite());
+    let supervisor_cpu =
+        rows.get(&(Member::Supervisor, 0)).map(|r| mean(r.iter().map(|x| x.cpu_pct)));
+    let policy_lag = rows
+        .get(&(Member::Learner, 0))
+        .map(|r| mean(r.iter().filter_map(|x| x.policy_lag)))
+        .filter(|v| v.is_finite());
     let learner_rows = rows.get(&(Member::Learner, 0)).map(Vec::as_slice).unwrap_or(&[]);
     let learning: Vec<(f64, f64, f64, f64)> = learner_rows
         .iter()
-        .filter_map(|x| x.learning.map(|l| (x.wall_s, l.mean_max_q as f64, l.mean_abs_td as f64, l.terminal_share as f64)))
+        .filter_map(|x| {
+            x.learning.map(|l| {
+                (x.wall_s, l.mean_max_q as f64, l.mean_abs_td as f64, l.terminal_share as f64)
+            })
+        })
         .filter(|l| l.1 != 0.0)
         .collect();
-    let skipped_updates = learner_rows.iter().filter_map(|x| x.learning).map(|l| l.skipped_updates).max().unwrap_or(0);
-    let ends = rows.iter().filter(|((role, _), _)| *role == Member::Actor).filter_map(|(_, r)| r.last()?.learning);
+    let skipped_updates = learner_rows
+        .iter()
+        .filter_map(|x| x.learning)
+        .map(|l| l.skipped_updates)
+        .max()
+        .unwrap_or(0);
+    let ends = rows
+        .iter()
+        .filter(|((role, _), _)| *role == Member::Actor)
+        .filter_map(|(_, r)| r.last()?.learning);
     let epsilon_spread = ends.fold(None, |acc: Option<(f64, f64)>, l| {
         let (lo, hi) = (l.eps_min as f64, l.eps_max as f64);
         Some(acc.map_or((lo, hi), |(a, b)| (a.min(lo), b.max(hi))))
@@ -101,7 +117,8 @@ pub fn analyse(run_dir: &Path) -> Result<Profile> {
         if span_ms <= 0.0 {
             continue;
         }
-        let share: [f64; 4] = std::array::from_fn(|k| (last.stage_ms[k] - first.stage_ms[k]) / span_ms);
+        let share: [f64; 4] =
+            std::array::from_fn(|k| (last.stage_ms[k] - first.stage_ms[k]) / span_ms);
         machine.extend(r.iter().map(|x| x.machine_cpu_pct));
         // The waiting stage: transport for every role, idle for the replay.
         let wait = match kind {
@@ -118,10 +135,23 @@ pub fn analyse(run_dir: &Path) -> Result<Profile> {
         });
     }
     let bottleneck = roles.iter().min_by(|a, b| a.wait.total_cmp(&b.wait)).map(|r| {
-        let (stage, busy) = r.stages.iter().filter(|(n, _)| *n != "transport_wait" && *n != "idle").fold(("", -1.0), |a, b| if b.1 > a.1 { *b } else { a });
+        let (stage, busy) = r
+            .stages
+            .iter()
+            .filter(|(n, _)| *n != "transport_wait" && *n != "idle")
+            .fold(("", -1.0), |a, b| if b.1 > a.1 { *b } else { a });
         Bottleneck { role: r.name.clone(), stage, busy, wait: r.wait }
     });
-    Ok(Profile { roles, machine_cpu: mean(machine.into_iter()), bottleneck, supervisor_cpu, policy_lag, learning, skipped_updates, epsilon_spread })
+    Ok(Profile {
+        roles,
+        machine_cpu: mean(machine.into_iter()),
+        bottleneck,
+        supervisor_cpu,
+        policy_lag,
+        learning,
+        skipped_updates,
+        epsilon_spread,
+    })
 }
 
 /// The report as Markdown text.
@@ -129,27 +159,55 @@ pub fn report(run_dir: &Path) -> Result<String> {
     let p = analyse(run_dir)?;
     let mut out = String::new();
     writeln!(out, "# Profile of {}\n", run_dir.display())?;
-    writeln!(out, "| role | CPU % (mean) | share of CPU | {} |", ["stage 0", "stage 1", "stage 2", "stage 3"].join(" | "))?;
+    writeln!(
+        out,
+        "| role | CPU % (mean) | share of CPU | {} |",
+        ["stage 0", "stage 1", "stage 2", "stage 3"].join(" | ")
+    )?;
     writeln!(out, "|---|---|---|---|---|---|---|")?;
-    let total_cpu: f64 = p.roles.iter().map(|r| r.cpu).chain(p.supervisor_cpu).filter(|v| v.is_finite()).sum();
+    let total_cpu: f64 =
+        p.roles.iter().map(|r| r.cpu).chain(p.supervisor_cpu).filter(|v| v.is_finite()).sum();
     for r in &p.roles {
-        let cells: Vec<String> = r.stages.iter().map(|(n, s)| format!("{n} {:.0} %", s * 100.0)).collect();
+        let cells: Vec<String> =
+            r.stages.iter().map(|(n, s)| format!("{n} {:.0} %", s * 100.0)).collect();
         if r.cpu.is_finite() {
-            writeln!(out, "| {} | {:.0} | {:.0} % | {} |", r.name, r.cpu, r.cpu / total_cpu * 100.0, cells.join(" | "))?;
+            writeln!(
+                out,
+                "| {} | {:.0} | {:.0} % | {} |",
+                r.name,
+                r.cpu,
+                r.cpu / total_cpu * 100.0,
+                cells.join(" | ")
+            )?;
         } else {
             // Roles of other hosts: their CPU is not this machine's to read.
             writeln!(out, "| {} | — (other host) | — | {} |", r.name, cells.join(" | "))?;
         }
     }
     if let Some(cpu) = p.supervisor_cpu.filter(|c| c.is_finite()) {
-        writeln!(out, "| supervisor (monitor, evaluator, link) | {cpu:.0} | {:.0} % | — | — | — | — |", cpu / total_cpu * 100.0)?;
+        writeln!(
+            out,
+            "| supervisor (monitor, evaluator, link) | {cpu:.0} | {:.0} % | — | — | — | — |",
+            cpu / total_cpu * 100.0
+        )?;
     }
-    writeln!(out, "\nStage columns: share of the role's wall time spent in each stage; `transport_wait` / `idle` is time spent waiting on another process.")?;
+    writeln!(
+        out,
+        "\nStage columns: share of the role's wall time spent in each stage; `transport_wait` / `idle` is time spent waiting on another process."
+    )?;
     if let Some(lag) = p.policy_lag {
-        writeln!(out, "Policy lag: the learner trained on transitions acted {lag:.1} weight versions behind its own, on average.")?;
+        writeln!(
+            out,
+            "Policy lag: the learner trained on transitions acted {lag:.1} weight versions behind its own, on average."
+        )?;
     }
     learning_section(&mut out, &p)?;
-    writeln!(out, "Machine CPU: {:.0} % on average over {} cores.", p.machine_cpu, std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1))?;
+    writeln!(
+        out,
+        "Machine CPU: {:.0} % on average over {} cores.",
+        p.machine_cpu,
+        std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)
+    )?;
     if let Some(b) = &p.bottleneck {
         writeln!(
             out,
@@ -160,7 +218,11 @@ pub fn report(run_dir: &Path) -> Result<String> {
             b.wait * 100.0
         )?;
         if p.saturated() {
-            writeln!(out, "The machine's CPU is saturated ({:.0} %): the roles compete for cores, so the run is CPU-bound, as in the paper.", p.machine_cpu)?;
+            writeln!(
+                out,
+                "The machine's CPU is saturated ({:.0} %): the roles compete for cores, so the run is CPU-bound, as in the paper.",
+                p.machine_cpu
+            )?;
         }
     }
     Ok(out)
@@ -172,12 +234,17 @@ pub fn report(run_dir: &Path) -> Result<String> {
 fn learning_section(out: &mut String, p: &Profile) -> Result<()> {
     if !p.learning.is_empty() {
         writeln!(out, "\nLearning (learner telemetry; values in reward units):\n")?;
-        writeln!(out, "| wall (s) | mean max-Q | mean abs TD error | terminal share of minibatches |")?;
+        writeln!(
+            out,
+            "| wall (s) | mean max-Q | mean abs TD error | terminal share of minibatches |"
+        )?;
         writeln!(out, "|---|---|---|---|")?;
         // About eight rows spread over the run, the last one included.
         let step = p.learning.len().div_ceil(8).max(1);
         let last = p.learning.len() - 1;
-        for (_, (t, q, td, term)) in p.learning.iter().enumerate().filter(|(i, _)| i % step == 0 || *i == last) {
+        for (_, (t, q, td, term)) in
+            p.learning.iter().enumerate().filter(|(i, _)| i % step == 0 || *i == last)
+        {
             writeln!(out, "| {t:.0} | {q:.2} | {td:.3} | {:.2} % |", term * 100.0)?;
         }
         writeln!(out)?;
@@ -186,7 +253,10 @@ fn learning_section(out: &mut String, p: &Profile) -> Result<()> {
         writeln!(out, "Skipped updates (non-finite loss or gradient): {}.", p.skipped_updates)?;
     }
     if let Some((lo, hi)) = p.epsilon_spread {
-        writeln!(out, "Exploration at the end: epsilon from {lo:.4} to {hi:.3} across the agents.")?;
+        writeln!(
+            out,
+            "Exploration at the end: epsilon from {lo:.4} to {hi:.3} across the agents."
+        )?;
     }
     Ok(())
 }

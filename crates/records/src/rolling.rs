@@ -22,7 +22,14 @@ pub struct Rolling {
 impl Rolling {
     /// A window of `window` episodes, converged at a mean of `threshold`.
     pub fn new(window: usize, threshold: f64, max_epsilon: Option<f32>) -> Self {
-        Self { window, threshold, max_epsilon, returns: VecDeque::with_capacity(window), successes: VecDeque::with_capacity(window), crossed_at: None }
+        Self {
+            window,
+            threshold,
+            max_epsilon,
+            returns: VecDeque::with_capacity(window),
+            successes: VecDeque::with_capacity(window),
+            crossed_at: None,
+        }
     }
 
     /// Whether an episode acted with exploration rate `epsilon` counts.
@@ -42,7 +49,10 @@ impl Rolling {
         }
         self.returns.push_back(ret);
         self.successes.push_back(success);
-        if self.crossed_at.is_none() && self.returns.len() == self.window && self.mean() >= self.threshold {
+        if self.crossed_at.is_none()
+            && self.returns.len() == self.window
+            && self.mean() >= self.threshold
+        {
             self.crossed_at = Some(wall);
             return true;
         }
@@ -51,12 +61,18 @@ impl Rolling {
 
     /// Mean return of the window (NaN before any episode).
     pub fn mean(&self) -> f64 {
-        if self.returns.is_empty() { f64::NAN } else { self.returns.iter().map(|v| *v as f64).sum::<f64>() / self.returns.len() as f64 }
+        if self.returns.is_empty() {
+            f64::NAN
+        } else {
+            self.returns.iter().map(|v| *v as f64).sum::<f64>() / self.returns.len() as f64
+        }
     }
 
     /// Share of the window's episodes that reached the goal.
     pub fn success_rate(&self) -> Option<f64> {
-        (!self.successes.is_empty()).then(|| self.successes.iter().filter(|s| **s).count() as f64 / self.successes.len() as f64)
+        (!self.successes.is_empty()).then(|| {
+            self.successes.iter().filter(|s| **s).count() as f64 / self.successes.len() as f64
+        })
     }
 }
 

@@ -26,7 +26,8 @@ pub enum MetricsKind {
 }
 
 /// The header of `metrics.csv`.
-pub const METRICS_HEADER: &str = "kind,wall_s,env_steps,episodes,episode_reward,rolling_reward,epsilon,updates,replay_size";
+pub const METRICS_HEADER: &str =
+    "kind,wall_s,env_steps,episodes,episode_reward,rolling_reward,epsilon,updates,replay_size";
 
 /// One row of `metrics.csv`; `restart` and `resume` rows carry only their
 /// kind and time.
@@ -71,8 +72,7 @@ impl MetricsRow {
 }
 
 /// The header of `evals.csv`.
-pub const EVALS_HEADER: &str =
-    "wall_s,updates,version,episodes,success_rate,mean_reward,best,confirmed_episodes,confirmed_success_rate,confirmed_mean_reward,env_steps";
+pub const EVALS_HEADER: &str = "wall_s,updates,version,episodes,success_rate,mean_reward,best,confirmed_episodes,confirmed_success_rate,confirmed_mean_reward,env_steps";
 
 /// One greedy validation of `evals.csv`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -124,10 +124,21 @@ pub fn line<R: Serialize>(row: &R) -> Result<String> {
 pub fn read<R: DeserializeOwned>(path: &Path) -> Result<Vec<R>> {
     let mut r = match csv::ReaderBuilder::new().flexible(false).from_path(path) {
         Ok(r) => r,
-        Err(e) if matches!(e.kind(), csv::ErrorKind::Io(io) if io.kind() == std::io::ErrorKind::NotFound) => return Ok(Vec::new()),
-        Err(e) => return Err(RecordsError::Table { file: path.display().to_string(), message: e.to_string() }),
+        Err(e) if matches!(e.kind(), csv::ErrorKind::Io(io) if io.kind() == std::io::ErrorKind::NotFound) =>
+        {
+            return Ok(Vec::new());
+        }
+        Err(e) => {
+            return Err(RecordsError::Table {
+                file: path.display().to_string(),
+                message: e.to_string(),
+            });
+        }
     };
-    let bad = |e: csv::Error| RecordsError::Table { file: path.display().to_string(), message: e.to_string() };
+    let bad = |e: csv::Error| RecordsError::Table {
+        file: path.display().to_string(),
+        message: e.to_string(),
+    };
     let header = r.headers().map_err(bad)?.clone();
     let mut out = Vec::new();
     for rec in r.records() {
@@ -174,7 +185,12 @@ mod tests {
             },
             MetricsRow::mark(MetricsKind::Restart, 2.0004),
         ];
-        let text = format!("{METRICS_HEADER}\n{}{}{METRICS_HEADER}\n{}", line(&m[0]).unwrap(), line(&m[1]).unwrap(), line(&m[0]).unwrap());
+        let text = format!(
+            "{METRICS_HEADER}\n{}{}{METRICS_HEADER}\n{}",
+            line(&m[0]).unwrap(),
+            line(&m[1]).unwrap(),
+            line(&m[0]).unwrap()
+        );
         assert!(text.contains("restart,2.0,,,,,,,\n"), "{text}");
         std::fs::write(dir.join("metrics.csv"), text).unwrap();
         let back: Vec<MetricsRow> = read(&dir.join("metrics.csv")).unwrap();
@@ -194,10 +210,12 @@ mod tests {
             confirmed_mean_reward: None,
             env_steps: Some(12_000),
         };
-        std::fs::write(dir.join("evals.csv"), format!("{EVALS_HEADER}\n{}", line(&e).unwrap())).unwrap();
+        std::fs::write(dir.join("evals.csv"), format!("{EVALS_HEADER}\n{}", line(&e).unwrap()))
+            .unwrap();
         assert_eq!(read::<EvalRow>(&dir.join("evals.csv")).unwrap(), vec![e]);
         // A row of another shape names the file and what is wrong.
-        std::fs::write(dir.join("evals.csv"), format!("{EVALS_HEADER}\n1,x,2,3,0.5,1,0,,,,\n")).unwrap();
+        std::fs::write(dir.join("evals.csv"), format!("{EVALS_HEADER}\n1,x,2,3,0.5,1,0,,,,\n"))
+            .unwrap();
         let err = read::<EvalRow>(&dir.join("evals.csv")).unwrap_err().to_string();
         assert!(err.contains("evals.csv") && err.contains("updates"), "{err}");
         assert!(read::<EvalRow>(&dir.join("none.csv")).unwrap().is_empty());

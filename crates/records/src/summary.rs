@@ -143,14 +143,16 @@ impl Summary {
     pub fn write(&self, run_dir: &Path) -> Result<()> {
         let path = run_dir.join("summary.json");
         let text = serde_json::to_string_pretty(self).map_err(RecordsError::Encode)? + "\n";
-        rotorhive_msg::durable::atomic_write(&path, |tmp| std::fs::write(tmp, &text), |e| e).map_err(RecordsError::io("write", &path))
+        rotorhive_msg::durable::atomic_write(&path, |tmp| std::fs::write(tmp, &text), |e| e)
+            .map_err(RecordsError::io("write", &path))
     }
 
     /// Reads `RUN_DIR/summary.json`; the error names the file.
     pub fn read(run_dir: &Path) -> Result<Self> {
         let path = run_dir.join("summary.json");
         let text = std::fs::read_to_string(&path).map_err(RecordsError::io("read", &path))?;
-        serde_json::from_str(&text).map_err(|err| RecordsError::Summary { file: path.display().to_string(), err })
+        serde_json::from_str(&text)
+            .map_err(|err| RecordsError::Summary { file: path.display().to_string(), err })
     }
 }
 
@@ -219,7 +221,9 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         s.write(&dir).unwrap();
         assert_eq!(Summary::read(&dir).unwrap(), s);
-        let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap())
+                .unwrap();
         for key in [
             "converged",
             "time_to_threshold_s",

@@ -188,7 +188,11 @@ impl From<Flat> for TelemetryRow {
 pub fn read(run_dir: &Path) -> Result<Vec<TelemetryRow>> {
     let path = run_dir.join("telemetry.csv");
     if !path.exists() {
-        return Err(RecordsError::Io { action: "read", file: path.display().to_string(), err: std::io::ErrorKind::NotFound.into() });
+        return Err(RecordsError::Io {
+            action: "read",
+            file: path.display().to_string(),
+            err: std::io::ErrorKind::NotFound.into(),
+        });
     }
     Ok(crate::rows::read::<Flat>(&path)?.into_iter().map(TelemetryRow::from).collect())
 }
@@ -227,19 +231,33 @@ mod tests {
         };
         let dir = std::env::temp_dir().join(format!("rotorhive-telemetry-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
-        let gpu = TelemetryRow { gpu: Some([50.0, 1024.0, 80.0]), policy_lag: None, cpu_pct: f64::NAN, ..row.clone() };
+        let gpu = TelemetryRow {
+            gpu: Some([50.0, 1024.0, 80.0]),
+            policy_lag: None,
+            cpu_pct: f64::NAN,
+            ..row.clone()
+        };
         let plain = TelemetryRow { learning: None, role: Member::Supervisor, ..row.clone() };
-        let lines: Vec<String> = [&row, &gpu, &plain].iter().map(|r| r.to_line().unwrap()).collect();
+        let lines: Vec<String> =
+            [&row, &gpu, &plain].iter().map(|r| r.to_line().unwrap()).collect();
         assert_eq!(lines[0].trim_end().split(',').count(), HEADER.split(',').count());
         // A resumed run's file: a second header inside.
-        std::fs::write(dir.join("telemetry.csv"), format!("{HEADER}\n{}{}{HEADER}\n{}", lines[0], lines[1], lines[2])).unwrap();
+        std::fs::write(
+            dir.join("telemetry.csv"),
+            format!("{HEADER}\n{}{}{HEADER}\n{}", lines[0], lines[1], lines[2]),
+        )
+        .unwrap();
         let back = read(&dir).unwrap();
         assert_eq!(back.len(), 3);
         assert_eq!(back[0], TelemetryRow { rss_mb: 310.4, ..row.clone() });
         assert_eq!((back[1].gpu, back[1].policy_lag), (gpu.gpu, None));
         assert!(back[1].cpu_pct.is_nan());
         assert_eq!((back[2].learning, back[2].role), (None, Member::Supervisor));
-        std::fs::write(dir.join("telemetry.csv"), format!("{HEADER}\n{}", lines[0].replace(",2400,", ",many,"))).unwrap();
+        std::fs::write(
+            dir.join("telemetry.csv"),
+            format!("{HEADER}\n{}", lines[0].replace(",2400,", ",many,")),
+        )
+        .unwrap();
         let e = read(&dir).unwrap_err().to_string();
         assert!(e.contains("telemetry.csv") && e.contains("work"), "{e}");
         std::fs::write(dir.join("telemetry.csv"), format!("{HEADER}\n1,2,3\n")).unwrap();

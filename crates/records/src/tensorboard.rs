@@ -28,8 +28,13 @@ impl EventWriter {
     /// run adds a file beside the old ones, which TensorBoard reads together.
     pub fn create(dir: &Path, host: &str) -> std::io::Result<Self> {
         std::fs::create_dir_all(dir)?;
-        let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default();
-        let path = dir.join(format!("events.out.tfevents.{}.{host}.{}", now.as_secs(), std::process::id()));
+        let now =
+            std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default();
+        let path = dir.join(format!(
+            "events.out.tfevents.{}.{host}.{}",
+            now.as_secs(),
+            std::process::id()
+        ));
         let mut w = Self { out: BufWriter::new(File::create(&path)?), path };
         let mut event = Vec::new();
         event_head(&mut event, now.as_secs_f64(), 0);
@@ -46,7 +51,12 @@ impl EventWriter {
 
     /// One event at `step` holding every `(tag, value)` scalar; non-finite
     /// values are left out (TensorBoard draws them as gaps anyway).
-    pub fn scalars(&mut self, step: i64, wall_time: f64, values: &[(&str, f64)]) -> std::io::Result<()> {
+    pub fn scalars(
+        &mut self,
+        step: i64,
+        wall_time: f64,
+        values: &[(&str, f64)],
+    ) -> std::io::Result<()> {
         let mut summary = Vec::new();
         for (tag, v) in values.iter().filter(|(_, v)| v.is_finite()) {
             let mut value = Vec::with_capacity(tag.len() + 8);
@@ -132,9 +142,15 @@ mod tests {
         let mut records = 0;
         while at < bytes.len() {
             let len = u64::from_le_bytes(bytes[at..at + 8].try_into().unwrap()) as usize;
-            assert_eq!(u32::from_le_bytes(bytes[at + 8..at + 12].try_into().unwrap()), masked_crc(&bytes[at..at + 8]));
+            assert_eq!(
+                u32::from_le_bytes(bytes[at + 8..at + 12].try_into().unwrap()),
+                masked_crc(&bytes[at..at + 8])
+            );
             let data = &bytes[at + 12..at + 12 + len];
-            assert_eq!(u32::from_le_bytes(bytes[at + 12 + len..at + 16 + len].try_into().unwrap()), masked_crc(data));
+            assert_eq!(
+                u32::from_le_bytes(bytes[at + 12 + len..at + 16 + len].try_into().unwrap()),
+                masked_crc(data)
+            );
             at += 16 + len;
             records += 1;
         }

@@ -34,7 +34,12 @@ impl Journal {
     /// (empty) when there is no file. A journal of another capacity keeps its
     /// newest transitions; a snapshot of the older format (written whole by
     /// [`Replay::save`]) is read and turned into a journal.
-    pub fn open(path: &Path, capacity: usize, width: usize, seed: u64) -> Result<(Replay, Journal), SnapshotError> {
+    pub fn open(
+        path: &Path,
+        capacity: usize,
+        width: usize,
+        seed: u64,
+    ) -> Result<(Replay, Journal), SnapshotError> {
         let file_name = path.display().to_string();
         let io = |source| SnapshotError::Io { file: file_name.clone(), source };
         let bad = |message: String| SnapshotError::Format { file: file_name.clone(), message };
@@ -54,13 +59,17 @@ impl Journal {
         }
         let mut words = [0u8; 40];
         file.read_exact_at(&mut words, 8).map_err(|_| bad("truncated header".into()))?;
-        let word = |i: usize| u64::from_le_bytes(words[8 * i..8 * i + 8].try_into().expect("8 bytes")) as usize;
+        let word = |i: usize| {
+            u64::from_le_bytes(words[8 * i..8 * i + 8].try_into().expect("8 bytes")) as usize
+        };
         let (w, cap, head, len, inserted) = (word(0), word(1), word(2), word(3), word(4) as u64);
         if w != width {
             return Err(bad(format!("transitions of {w} words, expected {width}")));
         }
         if cap == 0 || head >= cap || len > cap {
-            return Err(bad(format!("inconsistent header (capacity {cap}, head {head}, len {len})")));
+            return Err(bad(format!(
+                "inconsistent header (capacity {cap}, head {head}, len {len})"
+            )));
         }
         let expected = HEADER + (cap * width * 2) as u64;
         let size = file.metadata().map_err(io)?.len();
@@ -91,7 +100,13 @@ impl Journal {
     fn create(path: &Path, mem: &Replay) -> Result<Self, SnapshotError> {
         let tmp = path.with_extension("tmp");
         let io = |source| SnapshotError::Io { file: path.display().to_string(), source };
-        let file = std::fs::OpenOptions::new().read(true).write(true).create(true).truncate(true).open(&tmp).map_err(io)?;
+        let file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(true)
+            .open(&tmp)
+            .map_err(io)?;
         file.set_len(HEADER + (mem.capacity * mem.width * 2) as u64).map_err(io)?;
         file.write_all_at(JOURNAL_MAGIC, 0).map_err(io)?;
         let j = Self { file, path: path.to_path_buf(), width: mem.width, capacity: mem.capacity };
@@ -99,7 +114,8 @@ impl Journal {
             j.file.write_all_at(&(v as u64).to_le_bytes(), 8 + 8 * w as u64).map_err(io)?;
         }
         if mem.len > 0 {
-            write_words(&j.file, HEADER, &mem.data[..mem.len.max(mem.head) * mem.width]).map_err(io)?;
+            write_words(&j.file, HEADER, &mem.data[..mem.len.max(mem.head) * mem.width])
+                .map_err(io)?;
         }
         j.write_header(mem)?;
         rotorhive_msg::durable::commit(&tmp, path).map_err(io)?;
@@ -109,15 +125,23 @@ impl Journal {
     /// Records the last `rows` transitions inserted into `mem` (call it after
     /// every [`Replay::insert`]).
     pub fn record(&mut self, mem: &Replay, rows: usize) -> Result<(), SnapshotError> {
-        debug_assert!(mem.width == self.width && mem.capacity == self.capacity, "a journal records the memory it was opened with");
+        debug_assert!(
+            mem.width == self.width && mem.capacity == self.capacity,
+            "a journal records the memory it was opened with"
+        );
         let io = |source| SnapshotError::Io { file: self.path.display().to_string(), source };
         let k = rows.min(self.capacity);
         let (w, head) = (self.width, mem.head);
         // The k newest rows end at `head` (exclusive), wrapping at most once.
-        let runs = if head >= k { [(head - k, head), (0, 0)] } else { [(self.capacity - (k - head), self.capacity), (0, head)] };
+        let runs = if head >= k {
+            [(head - k, head), (0, 0)]
+        } else {
+            [(self.capacity - (k - head), self.capacity), (0, head)]
+        };
         for (a, b) in runs {
             if b > a {
-                write_words(&self.file, HEADER + (a * w * 2) as u64, &mem.data[a * w..b * w]).map_err(io)?;
+                write_words(&self.file, HEADER + (a * w * 2) as u64, &mem.data[a * w..b * w])
+                    .map_err(io)?;
             }
         }
         self.write_header(mem)
@@ -128,13 +152,17 @@ impl Journal {
         for (i, v) in [mem.head as u64, mem.len as u64, mem.inserted].into_iter().enumerate() {
             h[8 * i..8 * i + 8].copy_from_slice(&v.to_le_bytes());
         }
-        self.file.write_all_at(&h, 24).map_err(|source| SnapshotError::Io { file: self.path.display().to_string(), source })
+        self.file
+            .write_all_at(&h, 24)
+            .map_err(|source| SnapshotError::Io { file: self.path.display().to_string(), source })
     }
 
     /// Asks the kernel to put the file on disk (a process crash loses nothing
     /// without it; a machine crash loses what was not synced).
     pub fn sync(&self) -> Result<(), SnapshotError> {
-        self.file.sync_data().map_err(|source| SnapshotError::Io { file: self.path.display().to_string(), source })
+        self.file
+            .sync_data()
+            .map_err(|source| SnapshotError::Io { file: self.path.display().to_string(), source })
     }
 
     /// The journal's file.

@@ -136,7 +136,9 @@ impl Replay {
     /// range; true when applied. Without prioritized sampling it does nothing.
     pub fn set_priority(&mut self, pick: &Pick) -> bool {
         let r = pick.row as usize;
-        let Some(p) = &mut self.prio else { return false };
+        let Some(p) = &mut self.prio else {
+            return false;
+        };
         if r >= self.len || self.stamps[r] != pick.stamp || !pick.value.is_finite() {
             return false;
         }
@@ -179,7 +181,11 @@ impl Replay {
     /// [`Replay::insert`] of transitions acted with weight version `version`
     /// (0: unknown), which [`Replay::sample_into`] reports for the policy lag.
     pub fn insert_acted(&mut self, transitions: &[u16], version: u64) {
-        assert_eq!(transitions.len() % self.width, 0, "transition batch is not a whole number of transitions");
+        assert_eq!(
+            transitions.len() % self.width,
+            0,
+            "transition batch is not a whole number of transitions"
+        );
         let version = u32::try_from(version).unwrap_or(u32::MAX);
         for t in transitions.chunks_exact(self.width) {
             self.data[self.head * self.width..(self.head + 1) * self.width].copy_from_slice(t);
@@ -220,7 +226,10 @@ impl Replay {
         let end = (s.next + max_rows).min(s.rows);
         for i in s.next..end {
             let r = self.row(i);
-            let bytes: Vec<u8> = self.data[r * self.width..(r + 1) * self.width].iter().flat_map(|v| v.to_le_bytes()).collect();
+            let bytes: Vec<u8> = self.data[r * self.width..(r + 1) * self.width]
+                .iter()
+                .flat_map(|v| v.to_le_bytes())
+                .collect();
             s.out.write_all(&bytes).map_err(io)?;
         }
         s.next = end;
@@ -241,7 +250,12 @@ impl Replay {
 
     /// Reads a snapshot into a memory of `capacity` transitions (the newest
     /// ones kept when the snapshot holds more).
-    pub fn load(path: &Path, capacity: usize, width: usize, seed: u64) -> Result<Self, SnapshotError> {
+    pub fn load(
+        path: &Path,
+        capacity: usize,
+        width: usize,
+        seed: u64,
+    ) -> Result<Self, SnapshotError> {
         let file = path.display().to_string();
         let io = |source| SnapshotError::Io { file: file.clone(), source };
         let bad = |message: String| SnapshotError::Format { file: file.clone(), message };
@@ -269,7 +283,8 @@ impl Replay {
         let mut buf = vec![0u8; width * 2];
         let mut row = vec![0u16; width];
         for i in 0..len {
-            r.read_exact(&mut buf).map_err(|_| bad(format!("truncated: {i} of {len} transitions")))?;
+            r.read_exact(&mut buf)
+                .map_err(|_| bad(format!("truncated: {i} of {len} transitions")))?;
             for (v, b) in row.iter_mut().zip(buf.chunks_exact(2)) {
                 *v = u16::from_le_bytes([b[0], b[1]]);
             }
@@ -295,7 +310,8 @@ impl Replay {
                 None => (self.rng.random_range(0..self.len), 1.0),
                 Some(p) => {
                     let seg = p.tree.total() / rows as f64;
-                    let i = p.tree.find(seg * (k as f64 + self.rng.random::<f64>())).min(self.len - 1);
+                    let i =
+                        p.tree.find(seg * (k as f64 + self.rng.random::<f64>())).min(self.len - 1);
                     let prob = p.tree.get(i) / p.tree.total();
                     (i, (self.len as f64 * prob).powf(-beta))
                 }
@@ -412,7 +428,10 @@ mod tests {
         let mut picks = vec![Pick::default(); 32];
         r.sample_into(&mut out, &mut picks, 0.4);
         // All at the same priority: every weight is 1, every pick names its row.
-        assert!(picks.iter().zip(&out).all(|(p, v)| p.value == 1.0 && p.row as u16 == *v), "{picks:?}");
+        assert!(
+            picks.iter().zip(&out).all(|(p, v)| p.value == 1.0 && p.row as u16 == *v),
+            "{picks:?}"
+        );
         // Row 3 gets priority 9, the others 1: it is drawn 9 times in 12.
         let mut all = Pick { row: 0, stamp: r.stamps[0], value: 1.0 };
         for row in 0..4 {

@@ -71,7 +71,10 @@ mod tests {
         }
         assert_eq!(t.total(), 10.0);
         // Ranges: leaf 0 [0, 1), leaf 2 [1, 3), leaf 3 [3, 6), leaf 4 [6, 10).
-        let found: Vec<usize> = [0.0, 0.99, 1.0, 2.5, 3.0, 5.99, 6.0, 9.99, 10.0, 50.0].iter().map(|u| t.find(*u)).collect();
+        let found: Vec<usize> = [0.0, 0.99, 1.0, 2.5, 3.0, 5.99, 6.0, 9.99, 10.0, 50.0]
+            .iter()
+            .map(|u| t.find(*u))
+            .collect();
         assert_eq!(found, vec![0, 0, 2, 2, 3, 3, 4, 4, 4, 4]);
         t.set(4, 0.0);
         assert_eq!((t.total(), t.find(9.0)), (6.0, 3), "an empty leaf is never found");

@@ -10,7 +10,8 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use rotorhive_model::QNet;
 use rotorhive_msg::{
-    ActionHeader, ActorStage, EPISODE_FIELDS, OBS_LEN, ObsHeader, PACKED_LEN, RoleKind, Telemetry, TransitionHeader, WeightsHeader, pack_transition,
+    ActionHeader, ActorStage, EPISODE_FIELDS, OBS_LEN, ObsHeader, PACKED_LEN, RoleKind, Telemetry,
+    TransitionHeader, WeightsHeader, pack_transition,
 };
 use rotorhive_transport::Channel;
 
@@ -51,11 +52,18 @@ pub fn agent_epsilons(cfg: &Config, e: usize, transitions: u64, out: &mut [f64])
     let a = &cfg.actor;
     match a.exploration {
         crate::Exploration::Decay => out.fill(epsilon(cfg, transitions)),
-        crate::Exploration::PerActor if transitions <= cfg.replay.min_fill as u64 => out.fill(a.eps_start),
+        crate::Exploration::PerActor if transitions <= cfg.replay.min_fill as u64 => {
+            out.fill(a.eps_start)
+        }
         crate::Exploration::PerActor => {
             let first = (cfg.cluster.env_offset + e) * cfg.sim.agents;
             for (i, o) in out.iter_mut().enumerate() {
-                *o = per_actor_epsilon(a.per_actor_base, a.per_actor_alpha, first + i, cfg.agents_total());
+                *o = per_actor_epsilon(
+                    a.per_actor_base,
+                    a.per_actor_alpha,
+                    first + i,
+                    cfg.agents_total(),
+                );
             }
         }
     }
@@ -67,7 +75,8 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, e: usize) -> Result<()> {
     if e >= cfg.sim.envs {
         config_err!("--env {e} is out of range: the config has {} environments", cfg.sim.envs);
     }
-    let mut obs_rx = hub.receiver::<f32, ObsHeader>(&Channel::obs(e, cfg.obs_messages_per_step()))?;
+    let mut obs_rx =
+        hub.receiver::<f32, ObsHeader>(&Channel::obs(e, cfg.obs_messages_per_step()))?;
     let mut a = Actor::new(cfg, hub, e)?;
     let mut gather = Gather::new(a.n);
     if a.schedule.is_some() && !a.wait_for_receivers() {
@@ -85,8 +94,16 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, e: usize) -> Result<()> {
         let Some(msg) = msg else { continue };
         let h = *msg.user_header();
         let n = a.n;
-        if h.total as usize != n || h.first as usize + h.agents as usize > n || msg.payload().len() != rotorhive_msg::obs_batch_len(h.agents as usize) {
-            protocol_err!("observation batch from sim {e} has agents {}..{} of {}, the config says {n}", h.first, h.first + h.agents, h.total);
+        if h.total as usize != n
+            || h.first as usize + h.agents as usize > n
+            || msg.payload().len() != rotorhive_msg::obs_batch_len(h.agents as usize)
+        {
+            protocol_err!(
+                "observation batch from sim {e} has agents {}..{} of {}, the config says {n}",
+                h.first,
+                h.first + h.agents,
+                h.total
+            );
         }
         if a.schedule.is_some_and(|s| h.step > s.rounds()) {
             // A deterministic run's budget is spent: nothing more to act on.
@@ -163,15 +180,26 @@ struct Actor<'a, S: Service> {
 impl<'a, S: Service> Actor<'a, S> {
     fn new(cfg: &'a Config, hub: &'a rotorhive_transport::Hub<S>, e: usize) -> Result<Self> {
         let (n, envs) = (cfg.sim.agents, cfg.sim.envs);
-        let mut net = QNet::new(crate::seeds::network(cfg.seed), &rotorhive_model::device(cfg.actor.device.kind())?)?;
+        let mut net = QNet::new(
+            crate::seeds::network(cfg.seed),
+            &rotorhive_model::device(cfg.actor.device.kind())?,
+        )?;
         net.set_threads(cfg.actor.threads);
         let steps_n = cfg.learner.n_step;
         Ok(Self {
             act_tx: hub.sender::<u8, ActionHeader>(&Channel::actions(e), n, STALL_TIMEOUT)?,
             // An episode's end can release up to n transitions of one agent.
-            trans_tx: hub.sender::<u16, TransitionHeader>(&Channel::transitions(envs), steps_n * n * PACKED_LEN, STALL_TIMEOUT)?,
+            trans_tx: hub.sender::<u16, TransitionHeader>(
+                &Channel::transitions(envs),
+                steps_n * n * PACKED_LEN,
+                STALL_TIMEOUT,
+            )?,
             w_rx: hub.receiver::<f32, WeightsHeader>(&Channel::weights(envs))?,
-            ep_tx: hub.sender::<f32, EpisodeHeader>(&episodes_channel(envs), EPISODE_FIELDS * n, STALL_TIMEOUT)?,
+            ep_tx: hub.sender::<f32, EpisodeHeader>(
+                &episodes_channel(envs),
+                EPISODE_FIELDS * n,
+                STALL_TIMEOUT,
+            )?,
             tel: crate::counters(hub, RoleKind::Actor, e, roles_of(cfg))?,
             rng: Pcg64Mcg::seed_from_u64(crate::seeds::actor(cfg.seed, cfg.cluster.env_offset + e)),
             schedule: cfg.deterministic.then(|| Schedule::new(cfg)),
@@ -235,7 +263,8 @@ impl<'a, S: Service> Actor<'a, S> {
         let greedy = self.net.greedy(obs)?;
         for (i, g) in greedy.into_iter().enumerate() {
             let eps = self.eps[i];
-            self.actions[i] = if self.rng.random::<f64>() < eps { self.rng.random_range(0..2u8) } else { g };
+            self.actions[i] =
+                if self.rng.random::<f64>() < eps { self.rng.random_range(0..2u8) } else { g };
             // An agent whose episode ended acts on its next episode's first
             // observation (same-step reset).
             if dones[i] != 0.0 {
@@ -255,10 +284,17 @@ impl<'a, S: Service> Actor<'a, S> {
         }
         // Every environment of the run, on every host, acts at about this
         // actor's pace.
-        agent_epsilons(self.cfg, self.e, self.transitions * self.cfg.envs_total() as u64, &mut self.eps);
-        let (lo, hi) = self.eps.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), v| (lo.min(*v), hi.max(*v)));
+        agent_epsilons(
+            self.cfg,
+            self.e,
+            self.transitions * self.cfg.envs_total() as u64,
+            &mut self.eps,
+        );
+        let (lo, hi) =
+            self.eps.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), v| (lo.min(*v), hi.max(*v)));
         self.tel.sample.value_milli = (hi * 1000.0) as i64;
-        (self.tel.sample.learning.eps_min, self.tel.sample.learning.eps_max) = (lo as f32, hi as f32);
+        (self.tel.sample.learning.eps_min, self.tel.sample.learning.eps_max) =
+            (lo as f32, hi as f32);
         self.tel.sample.time_stage(ActorStage::Assemble, t);
         self.nstep.store(obs);
         self.prev_actions.copy_from_slice(&self.actions);
@@ -272,16 +308,27 @@ impl<'a, S: Service> Actor<'a, S> {
     /// the learner has made exactly the schedule's updates: waits for them.
     /// False when the run stopped meanwhile.
     fn wait_weights(&mut self, step: u64) -> Result<bool> {
-        let Some(s) = &self.schedule else { return Ok(true) };
+        let Some(s) = &self.schedule else {
+            return Ok(true);
+        };
         let need = s.updates_for_step(step);
         while self.weights_updates != need {
             if self.weights_updates > need {
-                protocol_err!("actor {}: weights of update {} arrived before step {step} needed those of update {need}", self.e, self.weights_updates);
+                protocol_err!(
+                    "actor {}: weights of update {} arrived before step {step} needed those of update {need}",
+                    self.e,
+                    self.weights_updates
+                );
             }
             if self.hub.shutdown_requested() {
                 return Ok(false);
             }
-            if !take_weights(&mut self.w_rx, &self.net, &mut self.version, &mut self.weights_updates)? {
+            if !take_weights(
+                &mut self.w_rx,
+                &self.net,
+                &mut self.version,
+                &mut self.weights_updates,
+            )? {
                 std::thread::sleep(std::time::Duration::from_micros(200));
             }
             self.tel.sample.weight_version = self.version;
@@ -300,12 +347,24 @@ impl<'a, S: Service> Actor<'a, S> {
             return Ok(());
         }
         let (e, nstep) = (self.e, &self.nstep);
-        let header = TransitionHeader { actor: e as u32, count: count as u32, seq: self.seq, weight_version: self.version };
+        let header = TransitionHeader {
+            actor: e as u32,
+            count: count as u32,
+            seq: self.seq,
+            weight_version: self.version,
+        };
         let sent = self.trans_tx.send_with(count * PACKED_LEN, |th, out| {
             *th = header;
             for (o, t) in out.chunks_exact_mut(PACKED_LEN).zip(&nstep.out) {
                 let next = &obs[t.agent * OBS_LEN..(t.agent + 1) * OBS_LEN];
-                pack_transition(nstep.obs(t.slot, t.agent), next, t.action as f32, t.ret, if t.done { 1.0 } else { 0.0 }, o);
+                pack_transition(
+                    nstep.obs(t.slot, t.agent),
+                    next,
+                    t.action as f32,
+                    t.ret,
+                    if t.done { 1.0 } else { 0.0 },
+                    o,
+                );
             }
         });
         match sent {
@@ -313,7 +372,9 @@ impl<'a, S: Service> Actor<'a, S> {
                 self.seq += 1;
                 self.transitions += count as u64;
             }
-            Err(err) if self.schedule.is_some() => protocol_err!("actor {e}: a deterministic run cannot lose transitions: {err}"),
+            Err(err) if self.schedule.is_some() => {
+                protocol_err!("actor {e}: a deterministic run cannot lose transitions: {err}")
+            }
             Err(err) => {
                 tracing::warn!("actor {e}: {err}");
                 self.tel.sample.lost += 1;
@@ -332,7 +393,12 @@ impl<'a, S: Service> Actor<'a, S> {
             self.returns[i] += rewards[i];
             self.lengths[i] += 1;
             if dones[i] != 0.0 {
-                self.finished.extend_from_slice(&[self.returns[i], self.lengths[i] as f32, dones[i], self.ended_eps[i] as f32]);
+                self.finished.extend_from_slice(&[
+                    self.returns[i],
+                    self.lengths[i] as f32,
+                    dones[i],
+                    self.ended_eps[i] as f32,
+                ]);
                 self.returns[i] = 0.0;
                 self.lengths[i] = 0;
                 self.episodes += 1;
@@ -342,7 +408,13 @@ impl<'a, S: Service> Actor<'a, S> {
             return Ok(());
         }
         let count = (self.finished.len() / EPISODE_FIELDS) as u32;
-        let header = EpisodeHeader { actor: self.e as u32, count, transitions: self.transitions, epsilon_micro: (eps * 1e6) as u64, step };
+        let header = EpisodeHeader {
+            actor: self.e as u32,
+            count,
+            transitions: self.transitions,
+            epsilon_micro: (eps * 1e6) as u64,
+            step,
+        };
         let finished = &self.finished;
         let sent = self.ep_tx.send_with(finished.len(), |eh, out| {
             *eh = header;
@@ -358,8 +430,15 @@ impl<'a, S: Service> Actor<'a, S> {
 /// `version` (any other version is newer: a restarted learner goes on from
 /// its saved update count, which never lies behind), recording their
 /// version and update count; true when it did.
-fn take_weights<S: Service>(rx: &mut Receiver<S, f32, WeightsHeader>, net: &QNet, version: &mut u64, updates: &mut u64) -> Result<bool> {
-    let Some(w) = rx.latest().doing("reading weights")? else { return Ok(false) };
+fn take_weights<S: Service>(
+    rx: &mut Receiver<S, f32, WeightsHeader>,
+    net: &QNet,
+    version: &mut u64,
+    updates: &mut u64,
+) -> Result<bool> {
+    let Some(w) = rx.latest().doing("reading weights")? else {
+        return Ok(false);
+    };
     let h = *w.user_header();
     if h.version == *version {
         return Ok(false);
@@ -405,7 +484,15 @@ pub struct NStep {
 impl NStep {
     /// n-step returns with discount `gamma` for `agents` agents.
     pub fn new(n: usize, gamma: f32, agents: usize) -> Self {
-        Self { n, gamma, agents, ring: vec![0.0; (n + 1) * agents * OBS_LEN], slot: 0, queue: vec![Default::default(); agents], out: Vec::new() }
+        Self {
+            n,
+            gamma,
+            agents,
+            ring: vec![0.0; (n + 1) * agents * OBS_LEN],
+            slot: 0,
+            queue: vec![Default::default(); agents],
+            out: Vec::new(),
+        }
     }
 
     /// Forgets every pending step (the sim restarted).
@@ -434,14 +521,28 @@ impl NStep {
         for i in 0..self.agents {
             let q = &mut self.queue[i];
             q.push_back((self.slot, actions[i], rewards[i]));
-            let ret = |q: &std::collections::VecDeque<(usize, u8, f32)>, from: usize| q.iter().skip(from).rev().fold(0.0f32, |acc, e| e.2 + self.gamma * acc);
+            let ret = |q: &std::collections::VecDeque<(usize, u8, f32)>, from: usize| {
+                q.iter().skip(from).rev().fold(0.0f32, |acc, e| e.2 + self.gamma * acc)
+            };
             if dones[i] != 0.0 {
                 for k in 0..q.len() {
-                    self.out.push(Ready { agent: i, slot: q[k].0, action: q[k].1, ret: ret(q, k), done: true });
+                    self.out.push(Ready {
+                        agent: i,
+                        slot: q[k].0,
+                        action: q[k].1,
+                        ret: ret(q, k),
+                        done: true,
+                    });
                 }
                 q.clear();
             } else if q.len() == self.n {
-                self.out.push(Ready { agent: i, slot: q[0].0, action: q[0].1, ret: ret(q, 0), done: false });
+                self.out.push(Ready {
+                    agent: i,
+                    slot: q[0].0,
+                    action: q[0].1,
+                    ret: ret(q, 0),
+                    done: false,
+                });
                 q.pop_front();
             }
         }
@@ -492,7 +593,13 @@ impl Gather {
 
 /// Publishes one action batch answering observation step `step`; a failed
 /// send is reported and counted, and the sim will publish the step again.
-fn send_actions<S: Service>(tx: &mut Sender<S, u8, ActionHeader>, e: usize, step: u64, actions: &[u8], lost: &mut u64) {
+fn send_actions<S: Service>(
+    tx: &mut Sender<S, u8, ActionHeader>,
+    e: usize,
+    step: u64,
+    actions: &[u8],
+    lost: &mut u64,
+) {
     let n = actions.len();
     if let Err(err) = tx.send_with(n, |ah, out| {
         *ah = ActionHeader { step };
@@ -560,7 +667,8 @@ mod tests {
         let mut one = NStep::new(1, 0.99, 2);
         one.store(&[obs(5.0), obs(6.0)].concat());
         one.push(&[0, 1], &[3.0, -100.0], &[0.0, 1.0]);
-        let got: Vec<_> = one.out.iter().map(|t| (t.agent, one.obs(t.slot, t.agent)[0], t.ret, t.done)).collect();
+        let got: Vec<_> =
+            one.out.iter().map(|t| (t.agent, one.obs(t.slot, t.agent)[0], t.ret, t.done)).collect();
         assert_eq!(got, vec![(0, 5.0, 3.0, false), (1, 6.0, -100.0, true)]);
     }
 }

@@ -8,7 +8,9 @@ use std::path::{Path, PathBuf};
 use crate::error::{Doing, Result, RoleError, config_err};
 use serde::{Deserialize, Serialize};
 
-use rotorhive_sim::{Arena, CameraSpec, GenParams, Noise, PhysicsKind, Randomize, RendererKind, SimConfig};
+use rotorhive_sim::{
+    Arena, CameraSpec, GenParams, Noise, PhysicsKind, Randomize, RendererKind, SimConfig,
+};
 
 /// `sim.observation_mode`: the records' enum, so that `summary.json` names
 /// the mode with the config's own word.
@@ -110,7 +112,13 @@ pub struct ClusterSection {
 
 impl Default for ClusterSection {
     fn default() -> Self {
-        Self { workers: 0, join_timeout_s: 60.0, envs_elsewhere: 0, agents_elsewhere: 0, env_offset: 0 }
+        Self {
+            workers: 0,
+            join_timeout_s: 60.0,
+            envs_elsewhere: 0,
+            agents_elsewhere: 0,
+            env_offset: 0,
+        }
     }
 }
 
@@ -501,7 +509,11 @@ impl Config {
 
     pub fn load(path: Option<&Path>, overrides: &[String]) -> Result<Self> {
         let (text, source) = match path {
-            Some(p) => (std::fs::read_to_string(p).doing_with(|| format!("config {}: cannot read", p.display()))?, p.display().to_string()),
+            Some(p) => (
+                std::fs::read_to_string(p)
+                    .doing_with(|| format!("config {}: cannot read", p.display()))?,
+                p.display().to_string(),
+            ),
             // The defaults are `configs/default.toml`, built in.
             None => (DEFAULT_TOML.to_string(), "defaults (configs/default.toml)".to_string()),
         };
@@ -518,12 +530,15 @@ impl Config {
     /// Parses config TOML (`source` names it in messages), applies
     /// overrides and validates.
     pub fn parse(text: &str, source: &str, overrides: &[String]) -> Result<Self> {
-        let mut table: toml::Table = toml::from_str(text).map_err(|e| RoleError::Config(format!("config {source}: {}", e.to_string().trim_end())))?;
+        let mut table: toml::Table = toml::from_str(text).map_err(|e| {
+            RoleError::Config(format!("config {source}: {}", e.to_string().trim_end()))
+        })?;
         for o in overrides {
             apply_override(&mut table, o)?;
         }
-        let cfg: Config =
-            Config::deserialize(toml::Value::Table(table)).map_err(|e| RoleError::Config(format!("config {source}: {}", e.to_string().trim_end())))?;
+        let cfg: Config = Config::deserialize(toml::Value::Table(table)).map_err(|e| {
+            RoleError::Config(format!("config {source}: {}", e.to_string().trim_end()))
+        })?;
         cfg.validate().doing_with(|| format!("config {source}"))?;
         Ok(cfg)
     }
@@ -540,22 +555,32 @@ impl Config {
         positive("max_seconds", self.max_seconds)?;
         if self.deterministic {
             if self.max_env_steps == 0 {
-                config_err!("key `deterministic` needs a budget: set `max_env_steps` (agent-steps) above 0");
+                config_err!(
+                    "key `deterministic` needs a budget: set `max_env_steps` (agent-steps) above 0"
+                );
             }
             if self.replay.samples_per_insert <= 0.0 {
-                config_err!("key `deterministic` needs `replay.samples_per_insert` above 0 (the schedule follows it)");
+                config_err!(
+                    "key `deterministic` needs `replay.samples_per_insert` above 0 (the schedule follows it)"
+                );
             }
             if self.learner.max_rate_hz != 0.0 {
-                config_err!("key `deterministic` needs `learner.max_rate_hz = 0` (the schedule sets the pace)");
+                config_err!(
+                    "key `deterministic` needs `learner.max_rate_hz = 0` (the schedule sets the pace)"
+                );
             }
             if self.cluster.workers > 0 || self.cluster.envs_elsewhere > 0 {
-                config_err!("key `deterministic` is not supported across hosts yet (`cluster.workers` is {})", self.cluster.workers);
+                config_err!(
+                    "key `deterministic` is not supported across hosts yet (`cluster.workers` is {})",
+                    self.cluster.workers
+                );
             }
         }
         positive("cluster.join_timeout_s", self.cluster.join_timeout_s)?;
         positive("rolling_window", self.rolling_window as f64)?;
         let e = &self.eval;
-        for (k, v) in [("eval.every_s", e.every_s), ("eval.after_threshold_s", e.after_threshold_s)] {
+        for (k, v) in [("eval.every_s", e.every_s), ("eval.after_threshold_s", e.after_threshold_s)]
+        {
             if !(v.is_finite() && v >= 0.0) {
                 config_err!("key `{k}` must be 0 or positive, got {v}");
             }
@@ -563,7 +588,10 @@ impl Config {
         positive("eval.episodes", e.episodes as f64)?;
         positive("eval.validation_arenas", e.validation_arenas as f64)?;
         if !(0.0..=1.0).contains(&e.target_success) {
-            config_err!("key `eval.target_success` must be a rate between 0 and 1, got {}", e.target_success);
+            config_err!(
+                "key `eval.target_success` must be a rate between 0 and 1, got {}",
+                e.target_success
+            );
         }
         Ok(())
     }
@@ -579,13 +607,21 @@ impl Config {
         positive("sim.depth_range", s.depth_range as f64)?;
         positive("sim.render_threads", s.render_threads as f64)?;
         if s.physics_dt > s.action_period {
-            config_err!("key `sim.physics_dt` ({}) must not exceed `sim.action_period` ({})", s.physics_dt, s.action_period);
+            config_err!(
+                "key `sim.physics_dt` ({}) must not exceed `sim.action_period` ({})",
+                s.physics_dt,
+                s.action_period
+            );
         }
         if s.generated_lanes > 256 {
             config_err!("key `sim.generated_lanes` must be at most 256, got {}", s.generated_lanes);
         }
         if s.envs > 64 || s.agents > 4096 {
-            config_err!("keys `sim.envs` ({}) and `sim.agents` ({}) must be at most 64 and 4096", s.envs, s.agents);
+            config_err!(
+                "keys `sim.envs` ({}) and `sim.agents` ({}) must be at most 64 and 4096",
+                s.envs,
+                s.agents
+            );
         }
         self.validate_task()
     }
@@ -597,7 +633,11 @@ impl Config {
         positive("sim.forward_speed", s.forward_speed as f64)?;
         positive("sim.lateral_step", s.lateral_step as f64)?;
         if !(s.max_lateral_speed.is_finite() && s.max_lateral_speed >= s.lateral_step) {
-            config_err!("key `sim.max_lateral_speed` must be at least `sim.lateral_step` ({}), got {}", s.lateral_step, s.max_lateral_speed);
+            config_err!(
+                "key `sim.max_lateral_speed` must be at least `sim.lateral_step` ({}), got {}",
+                s.lateral_step,
+                s.max_lateral_speed
+            );
         }
         if !(s.drone_radius > 0.0 && s.drone_radius <= 2.0) {
             config_err!("key `sim.drone_radius` must lie in (0, 2] m, got {}", s.drone_radius);
@@ -613,32 +653,52 @@ impl Config {
             }
         }
         if let Some(g) = &s.generator {
-            g.validate().map_err(|e| RoleError::Config(format!("key `sim.generator.{}`: {}", e.key, e.message)))?;
+            g.validate().map_err(|e| {
+                RoleError::Config(format!("key `sim.generator.{}`: {}", e.key, e.message))
+            })?;
         }
         if s.arena.as_os_str().is_empty() && (s.generator.is_none() || s.generated_lanes == 0) {
-            config_err!("key `sim.arena` is empty: training then needs `[sim.generator]` and `sim.generated_lanes` above 0");
+            config_err!(
+                "key `sim.arena` is empty: training then needs `[sim.generator]` and `sim.generated_lanes` above 0"
+            );
         }
-        s.noise.validate().map_err(|(k, m)| RoleError::Config(format!("key `sim.noise.{k}` {m}")))?;
-        s.randomize.validate().map_err(|(k, m)| RoleError::Config(format!("key `sim.randomize.{k}` {m}")))?;
+        s.noise
+            .validate()
+            .map_err(|(k, m)| RoleError::Config(format!("key `sim.noise.{k}` {m}")))?;
+        s.randomize
+            .validate()
+            .map_err(|(k, m)| RoleError::Config(format!("key `sim.randomize.{k}` {m}")))?;
         let latency = s.noise.latency_s != [0.0, 0.0];
         if s.physics == PhysicsKind::Rapier && (latency || s.randomize.dynamics()) {
-            config_err!("keys `sim.noise.latency_s` and the dynamics of `[sim.randomize]` need `sim.physics = \"direct\"` (the rapier path is the reference)");
+            config_err!(
+                "keys `sim.noise.latency_s` and the dynamics of `[sim.randomize]` need `sim.physics = \"direct\"` (the rapier path is the reference)"
+            );
         }
         if s.noise.latency_s[1] >= s.action_period {
-            config_err!("key `sim.noise.latency_s` must stay below `sim.action_period` ({} s), got {:?}", s.action_period, s.noise.latency_s);
+            config_err!(
+                "key `sim.noise.latency_s` must stay below `sim.action_period` ({} s), got {:?}",
+                s.action_period,
+                s.noise.latency_s
+            );
         }
         if let Some(c) = &s.curriculum {
             if c.stages == 0 || c.over_env_steps == 0 {
-                config_err!("keys `sim.curriculum.stages` and `sim.curriculum.over_env_steps` must be positive");
+                config_err!(
+                    "keys `sim.curriculum.stages` and `sim.curriculum.over_env_steps` must be positive"
+                );
             }
             if s.generator.is_none() || s.generated_lanes == 0 {
-                config_err!("key `sim.curriculum` ramps a key of `[sim.generator]` over the generated lanes: give both");
+                config_err!(
+                    "key `sim.curriculum` ramps a key of `[sim.generator]` over the generated lanes: give both"
+                );
             }
             self.generator_at_stage(0)?;
         }
         let e = &self.eval;
         if e.test_arenas.is_empty() && e.test_layouts == 0 {
-            config_err!("keys `eval.test_arenas` and `eval.test_layouts`: a config needs at least one test arena or layout");
+            config_err!(
+                "keys `eval.test_arenas` and `eval.test_layouts`: a config needs at least one test arena or layout"
+            );
         }
         if e.test_layouts > 64 {
             config_err!("key `eval.test_layouts` must be at most 64, got {}", e.test_layouts);
@@ -659,16 +719,28 @@ impl Config {
             config_err!("key `actor.per_actor_base` must lie in (0, 1], got {}", a.per_actor_base);
         }
         if !(a.per_actor_alpha.is_finite() && a.per_actor_alpha >= 0.0) {
-            config_err!("key `actor.per_actor_alpha` must be 0 or positive, got {}", a.per_actor_alpha);
+            config_err!(
+                "key `actor.per_actor_alpha` must be 0 or positive, got {}",
+                a.per_actor_alpha
+            );
         }
         if !(1..=16).contains(&self.learner.n_step) {
-            config_err!("key `learner.n_step` must be between 1 and 16, got {}", self.learner.n_step);
+            config_err!(
+                "key `learner.n_step` must be between 1 and 16, got {}",
+                self.learner.n_step
+            );
         }
         if !(self.replay.snapshot_every_s.is_finite() && self.replay.snapshot_every_s >= 0.0) {
-            config_err!("key `replay.snapshot_every_s` must be 0 (off) or positive, got {}", self.replay.snapshot_every_s);
+            config_err!(
+                "key `replay.snapshot_every_s` must be 0 (off) or positive, got {}",
+                self.replay.snapshot_every_s
+            );
         }
         if !(self.replay.samples_per_insert.is_finite() && self.replay.samples_per_insert >= 0.0) {
-            config_err!("key `replay.samples_per_insert` must be 0 (off) or positive, got {}", self.replay.samples_per_insert);
+            config_err!(
+                "key `replay.samples_per_insert` must be 0 (off) or positive, got {}",
+                self.replay.samples_per_insert
+            );
         }
         for (k, v) in [("actor.device", &a.device), ("learner.device", &self.learner.device)] {
             rotorhive_model::device(v.kind()).doing_with(|| format!("key `{k}`"))?;
@@ -678,16 +750,26 @@ impl Config {
         positive("replay.batch", r.batch as f64)?;
         positive("replay.prefetch", r.prefetch as f64)?;
         if r.batch > r.capacity {
-            config_err!("key `replay.batch` ({}) is larger than `replay.capacity` ({})", r.batch, r.capacity);
+            config_err!(
+                "key `replay.batch` ({}) is larger than `replay.capacity` ({})",
+                r.batch,
+                r.capacity
+            );
         }
-        for (k, v) in [("replay.priority_alpha", r.priority_alpha), ("replay.priority_beta", r.priority_beta)] {
+        for (k, v) in
+            [("replay.priority_alpha", r.priority_alpha), ("replay.priority_beta", r.priority_beta)]
+        {
             if !(0.0..=1.0).contains(&v) {
                 config_err!("key `{k}` must lie in [0, 1], got {v}");
             }
         }
         positive("replay.priority_eps", r.priority_eps)?;
         if r.min_fill > r.capacity {
-            config_err!("key `replay.min_fill` ({}) is larger than `replay.capacity` ({})", r.min_fill, r.capacity);
+            config_err!(
+                "key `replay.min_fill` ({}) is larger than `replay.capacity` ({})",
+                r.min_fill,
+                r.capacity
+            );
         }
         let l = &self.learner;
         positive("learner.lr", l.lr)?;
@@ -702,10 +784,16 @@ impl Config {
         positive("learner.huber_delta", l.huber_delta)?;
         positive("learner.reward_scale", l.reward_scale)?;
         if !(l.max_grad_norm.is_finite() && l.max_grad_norm >= 0.0) {
-            config_err!("key `learner.max_grad_norm` must be 0 (off) or positive, got {}", l.max_grad_norm);
+            config_err!(
+                "key `learner.max_grad_norm` must be 0 (off) or positive, got {}",
+                l.max_grad_norm
+            );
         }
         if !(l.max_rate_hz.is_finite() && l.max_rate_hz >= 0.0) {
-            config_err!("key `learner.max_rate_hz` must be 0 (unlimited) or positive, got {}", l.max_rate_hz);
+            config_err!(
+                "key `learner.max_rate_hz` must be 0 (unlimited) or positive, got {}",
+                l.max_rate_hz
+            );
         }
         Ok(())
     }
@@ -723,7 +811,10 @@ impl Config {
     /// `[sim.generator]` with the run's drone radius, where the config
     /// has one.
     pub fn generator(&self) -> Option<GenParams> {
-        self.sim.generator.as_ref().map(|g| GenParams { drone_radius: self.sim.drone_radius, ..g.clone() })
+        self.sim
+            .generator
+            .as_ref()
+            .map(|g| GenParams { drone_radius: self.sim.drone_radius, ..g.clone() })
     }
 
     /// Parameters of generated arenas: `[sim.generator]`, else the paper's
@@ -751,24 +842,41 @@ impl Config {
     /// ramped key set between `from` and the generator's own value.
     pub fn generator_at_stage(&self, stage: u32) -> Result<GenParams> {
         let p = self.gen_params()?;
-        let Some(c) = &self.sim.curriculum else { return Ok(p) };
-        let mut table = toml::Table::try_from(&p).map_err(|e| RoleError::Config(format!("key `sim.generator`: {e}")))?;
-        let Some(to) = table.get(&c.key).and_then(|v| v.as_float().or_else(|| v.as_integer().map(|i| i as f64))) else {
-            config_err!("key `sim.curriculum.key`: `{}` is not a number of `[sim.generator]`", c.key);
+        let Some(c) = &self.sim.curriculum else {
+            return Ok(p);
+        };
+        let mut table = toml::Table::try_from(&p)
+            .map_err(|e| RoleError::Config(format!("key `sim.generator`: {e}")))?;
+        let Some(to) = table
+            .get(&c.key)
+            .and_then(|v| v.as_float().or_else(|| v.as_integer().map(|i| i as f64)))
+        else {
+            config_err!(
+                "key `sim.curriculum.key`: `{}` is not a number of `[sim.generator]`",
+                c.key
+            );
         };
         let t = (stage.min(c.stages) as f64) / c.stages as f64;
         let value = c.from + (to - c.from) * t;
-        let v = if table[&c.key].is_integer() { toml::Value::Integer(value.round() as i64) } else { toml::Value::Float(value) };
+        let v = if table[&c.key].is_integer() {
+            toml::Value::Integer(value.round() as i64)
+        } else {
+            toml::Value::Float(value)
+        };
         table.insert(c.key.clone(), v);
-        let q: GenParams = GenParams::deserialize(toml::Value::Table(table)).map_err(|e| RoleError::Config(format!("key `sim.curriculum`: {e}")))?;
-        q.validate().map_err(|e| RoleError::Config(format!("key `sim.curriculum` at stage {stage}: {e}")))?;
+        let q: GenParams = GenParams::deserialize(toml::Value::Table(table))
+            .map_err(|e| RoleError::Config(format!("key `sim.curriculum`: {e}")))?;
+        q.validate().map_err(|e| {
+            RoleError::Config(format!("key `sim.curriculum` at stage {stage}: {e}"))
+        })?;
         Ok(GenParams { drone_radius: self.sim.drone_radius, ..q })
     }
 
     /// The curriculum stage at `env_steps` agent-steps of the run.
     pub fn curriculum_stage(&self, env_steps: u64) -> u32 {
         match &self.sim.curriculum {
-            Some(c) => (env_steps.saturating_mul(c.stages as u64) / c.over_env_steps).min(c.stages as u64) as u32,
+            Some(c) => (env_steps.saturating_mul(c.stages as u64) / c.over_env_steps)
+                .min(c.stages as u64) as u32,
             None => 0,
         }
     }
@@ -816,7 +924,9 @@ impl Config {
         }
         if self.eval.test_layouts > 0 {
             let p = self.gen_params()?;
-            v.extend((0..self.eval.test_layouts).map(|k| Arena::generate(&format!("test-layout-{}", k + 1), crate::seeds::test_layout(k), &p)));
+            v.extend((0..self.eval.test_layouts).map(|k| {
+                Arena::generate(&format!("test-layout-{}", k + 1), crate::seeds::test_layout(k), &p)
+            }));
         }
         Ok(v)
     }
@@ -829,7 +939,11 @@ impl Config {
             return Ok(vec![Arena::load(Path::new(&self.eval.arena))?]);
         }
         let p = self.gen_params()?;
-        Ok((0..self.eval.validation_arenas).map(|k| Arena::generate(&format!("validation-{k}"), crate::seeds::validation_arena(k), &p)).collect())
+        Ok((0..self.eval.validation_arenas)
+            .map(|k| {
+                Arena::generate(&format!("validation-{k}"), crate::seeds::validation_arena(k), &p)
+            })
+            .collect())
     }
 
     /// The simulator settings for one environment.
@@ -908,9 +1022,21 @@ mod tests {
         // What `hive train` without a config resolves to, against the file
         // the README trains with and against the built-in defaults.
         let none = Config::load(None, &[]).unwrap().to_toml();
-        let file = Config::load(Some(&std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../configs/default.toml")), &[]).unwrap().to_toml();
+        let file = Config::load(
+            Some(
+                &std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+                    .join("../../configs/default.toml"),
+            ),
+            &[],
+        )
+        .unwrap()
+        .to_toml();
         assert_eq!(none, file);
-        assert_eq!(Config::default().to_toml(), none, "Config::default() and configs/default.toml disagree");
+        assert_eq!(
+            Config::default().to_toml(),
+            none,
+            "Config::default() and configs/default.toml disagree"
+        );
     }
 
     #[test]
@@ -923,11 +1049,22 @@ mod tests {
 
     #[test]
     fn overrides_apply_and_bad_values_are_named() {
-        let c = Config::load(None, &["sim.agents=7".into(), "learner.lr=0.01".into(), "sim.observation_mode=batched".into()]).unwrap();
+        let c = Config::load(
+            None,
+            &[
+                "sim.agents=7".into(),
+                "learner.lr=0.01".into(),
+                "sim.observation_mode=batched".into(),
+            ],
+        )
+        .unwrap();
         assert_eq!(c.sim.agents, 7);
         assert_eq!(c.learner.lr, 0.01);
         assert_eq!(c.sim.observation_mode, ObservationMode::Batched);
-        let e = format!("{:#}", Config::load(None, &["sim.observation_mode=sideways".into()]).unwrap_err());
+        let e = format!(
+            "{:#}",
+            Config::load(None, &["sim.observation_mode=sideways".into()]).unwrap_err()
+        );
         assert!(e.contains("sim.observation_mode"), "{e}");
         let e = format!("{:#}", Config::load(None, &["sim.agents=0".into()]).unwrap_err());
         assert!(e.contains("sim.agents"), "{e}");
@@ -936,8 +1073,23 @@ mod tests {
         let e = format!("{:#}", Config::load(None, &["replay.batch=300000".into()]).unwrap_err());
         assert!(e.contains("replay.batch"), "{e}");
         // The task's keys and sections, named when wrong.
-        let c = Config::load(None, &["sim.forward_speed=2.0".into(), "sim.generator.spacing=3.0".into(), "sim.noise.dropout=0.02".into()]).unwrap();
-        assert_eq!((c.sim_config().forward_speed, c.gen_params().unwrap().spacing, c.sim_config().noise.dropout), (2.0, 3.0, 0.02));
+        let c = Config::load(
+            None,
+            &[
+                "sim.forward_speed=2.0".into(),
+                "sim.generator.spacing=3.0".into(),
+                "sim.noise.dropout=0.02".into(),
+            ],
+        )
+        .unwrap();
+        assert_eq!(
+            (
+                c.sim_config().forward_speed,
+                c.gen_params().unwrap().spacing,
+                c.sim_config().noise.dropout
+            ),
+            (2.0, 3.0, 0.02)
+        );
         for (set, key) in [
             ("sim.generator.per_row=9", "sim.generator.per_row"),
             ("sim.generator.spacnig=3", "spacnig"),
@@ -950,7 +1102,11 @@ mod tests {
             assert!(e.contains(key), "{set}: {e}");
         }
         // Randomised dynamics live on the direct path only.
-        let e = format!("{:#}", Config::load(None, &["sim.physics=\"rapier\"".into(), "sim.randomize.wind=0.5".into()]).unwrap_err());
+        let e = format!(
+            "{:#}",
+            Config::load(None, &["sim.physics=\"rapier\"".into(), "sim.randomize.wind=0.5".into()])
+                .unwrap_err()
+        );
         assert!(e.contains("direct"), "{e}");
         // A curriculum ramps a generator key between stages.
         let c = Config::load(
@@ -966,7 +1122,10 @@ mod tests {
         .unwrap();
         let at = |s| c.generator_at_stage(s).unwrap().spacing;
         assert_eq!((at(0), at(1), at(3)), (6.0, 5.0, 3.0));
-        assert_eq!((c.curriculum_stage(0), c.curriculum_stage(40_000), c.curriculum_stage(10_000_000)), (0, 1, 3));
+        assert_eq!(
+            (c.curriculum_stage(0), c.curriculum_stage(40_000), c.curriculum_stage(10_000_000)),
+            (0, 1, 3)
+        );
         let e = format!(
             "{:#}",
             Config::load(

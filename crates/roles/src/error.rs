@@ -89,10 +89,15 @@ mod tests {
 
     #[test]
     fn the_cause_is_named_once_with_what_the_role_was_doing() {
-        let e: Result<()> = Err(std::io::Error::other("disk full")).doing("writing a checkpoint").doing_with(|| "role learner".into());
+        let e: Result<()> = Err(std::io::Error::other("disk full"))
+            .doing("writing a checkpoint")
+            .doing_with(|| "role learner".into());
         let e = e.unwrap_err();
         assert_eq!(format!("{e}"), "role learner: writing a checkpoint: disk full");
         // anyhow's `{:#}` walks `source()`: the cause must not appear twice.
-        assert_eq!(format!("{:#}", anyhow::Error::from(e)), "role learner: writing a checkpoint: disk full");
+        assert_eq!(
+            format!("{:#}", anyhow::Error::from(e)),
+            "role learner: writing a checkpoint: disk full"
+        );
     }
 }

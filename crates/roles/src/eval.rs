@@ -98,7 +98,9 @@ pub fn reactive(obs: &[f32], side: usize) -> u8 {
     let px = side * side;
     let cur = &obs[px..2 * px];
     let rows = (side * 10 / 32)..(side * 22 / 32).max(side * 10 / 32 + 1);
-    let nearest: Vec<f32> = (0..side).map(|c| rows.clone().map(|r| cur[r * side + c]).fold(f32::INFINITY, f32::min)).collect();
+    let nearest: Vec<f32> = (0..side)
+        .map(|c| rows.clone().map(|r| cur[r * side + c]).fold(f32::INFINITY, f32::min))
+        .collect();
     let w = REACTIVE_WINDOW;
     // Beyond the image's edges reads as an obstacle at 0.
     let clear: Vec<f32> = (0..side)
@@ -127,12 +129,24 @@ pub fn reactive(obs: &[f32], side: usize) -> u8 {
 /// Flies `episodes` greedy episodes at once, one per agent, each agent's
 /// first episode counted; with several arenas, side by side, each agent in
 /// one drawn at random (the same ones for the same seed).
-pub fn fly_greedy(net: &QNet, sim: SimConfig, arenas: &[Arena], episodes: usize, seed: u64) -> Result<EvalStats> {
+pub fn fly_greedy(
+    net: &QNet,
+    sim: SimConfig,
+    arenas: &[Arena],
+    episodes: usize,
+    seed: u64,
+) -> Result<EvalStats> {
     fly(Pilot::Net(net), sim, arenas, episodes, seed)
 }
 
 /// [`fly_greedy`] with any pilot.
-pub fn fly(pilot: Pilot<'_>, sim: SimConfig, arenas: &[Arena], episodes: usize, seed: u64) -> Result<EvalStats> {
+pub fn fly(
+    pilot: Pilot<'_>,
+    sim: SimConfig,
+    arenas: &[Arena],
+    episodes: usize,
+    seed: u64,
+) -> Result<EvalStats> {
     let n = episodes;
     let mut env = VecEnv::new_lanes(SimConfig { agents: n, ..sim }, arenas, seed)?;
     let mut result: Vec<Option<(f32, Done)>> = vec![None; n];
@@ -159,8 +173,20 @@ pub fn fly(pilot: Pilot<'_>, sim: SimConfig, arenas: &[Arena], episodes: usize, 
 
 /// Flies `episodes` episodes in every layout on its own (the held-out test
 /// set): one result per layout, in order.
-pub fn fly_layouts(pilot: Pilot<'_>, sim: &SimConfig, layouts: &[Arena], episodes: usize, seed: u64) -> Result<Vec<EvalStats>> {
-    layouts.iter().enumerate().map(|(k, a)| fly(pilot, sim.clone(), std::slice::from_ref(a), episodes, seed.wrapping_add(k as u64))).collect()
+pub fn fly_layouts(
+    pilot: Pilot<'_>,
+    sim: &SimConfig,
+    layouts: &[Arena],
+    episodes: usize,
+    seed: u64,
+) -> Result<Vec<EvalStats>> {
+    layouts
+        .iter()
+        .enumerate()
+        .map(|(k, a)| {
+            fly(pilot, sim.clone(), std::slice::from_ref(a), episodes, seed.wrapping_add(k as u64))
+        })
+        .collect()
 }
 
 #[cfg(test)]
@@ -206,16 +232,19 @@ mod tests {
 
     #[test]
     fn the_reactive_rule_beats_a_random_policy_on_the_paper_test_arena() {
-        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/arenas/test.toml");
+        let root =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/arenas/test.toml");
         let arena = Arena::load(&root).unwrap();
         let sim = SimConfig::default();
-        let reactive = fly(Pilot::Reactive, sim.clone(), std::slice::from_ref(&arena), 100, 5).unwrap();
+        let reactive =
+            fly(Pilot::Reactive, sim.clone(), std::slice::from_ref(&arena), 100, 5).unwrap();
         // A uniformly random policy, flown the same way.
         let mut env = VecEnv::new(SimConfig { agents: 100, ..sim }, arena, 5).unwrap();
         let mut rng = rand_pcg::Pcg64Mcg::new(9);
         let mut first: Vec<Option<Done>> = vec![None; 100];
         for _ in 0..401 {
-            let actions: Vec<u8> = (0..100).map(|_| rand::Rng::random_range(&mut rng, 0..2u8)).collect();
+            let actions: Vec<u8> =
+                (0..100).map(|_| rand::Rng::random_range(&mut rng, 0..2u8)).collect();
             env.step(&actions).unwrap();
             for ep in env.finished() {
                 first[ep.agent].get_or_insert(ep.done);
@@ -223,6 +252,10 @@ mod tests {
         }
         let random = first.iter().filter(|d| **d == Some(Done::Goal)).count();
         assert!(reactive.success_rate() > 0.5, "reactive {}", reactive.success_rate());
-        assert!((reactive.successes as f64) > 5.0 * random as f64 + 10.0, "reactive {} against random {random}", reactive.successes);
+        assert!(
+            (reactive.successes as f64) > 5.0 * random as f64 + 10.0,
+            "reactive {} against random {random}",
+            reactive.successes
+        );
     }
 }

@@ -8,7 +8,8 @@ use std::time::{Duration, Instant};
 use crate::error::{Doing, Result, RoleError, protocol_err};
 use rotorhive_model::{Dqn, DqnConfig, QNet, num_params};
 use rotorhive_msg::{
-    LearnerStage, MinibatchHeader, PACKED_LEN, PICK_WORDS, Pick, PriorityHeader, RoleKind, TRANSITION_LEN, Telemetry, WeightsHeader, unpack_transition,
+    LearnerStage, MinibatchHeader, PACKED_LEN, PICK_WORDS, Pick, PriorityHeader, RoleKind,
+    TRANSITION_LEN, Telemetry, WeightsHeader, unpack_transition,
 };
 use rotorhive_transport::Channel;
 
@@ -48,18 +49,33 @@ fn save_state_atomic(dqn: &Dqn, path: &Path) -> Result<()> {
 /// resumed) one goes on from its last saved state at `state_path`:
 /// weights, target, Adam moments and counters.
 fn restore(cfg: &crate::config::Config, state_path: &Path) -> Result<Dqn> {
-    let mut dqn = Dqn::new(dqn_config(cfg), crate::seeds::network(cfg.seed), &rotorhive_model::device(cfg.learner.device.kind())?)?;
+    let mut dqn = Dqn::new(
+        dqn_config(cfg),
+        crate::seeds::network(cfg.seed),
+        &rotorhive_model::device(cfg.learner.device.kind())?,
+    )?;
     dqn.set_threads(cfg.learner.threads);
     if state_path.exists() {
-        dqn.load_state(state_path).doing_with(|| format!("restoring the learner from {}", state_path.display()))?;
-        tracing::info!("learner restored from {} at update {}", state_path.display(), dqn.updates());
+        dqn.load_state(state_path)
+            .doing_with(|| format!("restoring the learner from {}", state_path.display()))?;
+        tracing::info!(
+            "learner restored from {} at update {}",
+            state_path.display(),
+            dqn.updates()
+        );
     }
     Ok(dqn)
 }
 
 /// Saves the newest weights and the whole learner state, counting the
 /// saves and their time in `saves`.
-fn checkpoint(dqn: &Dqn, ckpt_dir: &Path, state_path: &Path, tags: &[(&str, String)], saves: &mut (u32, Duration)) -> Result<()> {
+fn checkpoint(
+    dqn: &Dqn,
+    ckpt_dir: &Path,
+    state_path: &Path,
+    tags: &[(&str, String)],
+    saves: &mut (u32, Duration),
+) -> Result<()> {
     let t = Instant::now();
     save_atomic(&dqn.online, &ckpt_dir.join("latest.safetensors"), tags)?;
     save_state_atomic(dqn, state_path)?;
@@ -73,17 +89,27 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     let (cfg, hub) = (cx.cfg, cx.hub);
     let run_dir = cx.run_dir.map_or_else(|| PathBuf::from("."), Path::to_path_buf);
     let ckpt_dir = run_dir.join("checkpoints");
-    std::fs::create_dir_all(&ckpt_dir).doing_with(|| format!("cannot create {}", ckpt_dir.display()))?;
+    std::fs::create_dir_all(&ckpt_dir)
+        .doing_with(|| format!("cannot create {}", ckpt_dir.display()))?;
     let state_path = ckpt_dir.join("learner-state.safetensors");
     let mut dqn = restore(cfg, &state_path)?;
-    let mut rx = hub.receiver::<u16, MinibatchHeader>(&Channel::minibatches(cfg.replay.prefetch))?;
+    let mut rx =
+        hub.receiver::<u16, MinibatchHeader>(&Channel::minibatches(cfg.replay.prefetch))?;
     let mut mb_in = Minibatch::new(hub, cfg)?;
-    let mut w_tx = hub.sender::<f32, WeightsHeader>(&Channel::weights(cfg.sim.envs), num_params(), STALL_TIMEOUT)?;
+    let mut w_tx = hub.sender::<f32, WeightsHeader>(
+        &Channel::weights(cfg.sim.envs),
+        num_params(),
+        STALL_TIMEOUT,
+    )?;
     let mut tel = crate::counters(hub, RoleKind::Learner, 0, roles_of(cfg))?;
     // Versions go on increasing across restarts.
     let mut version = dqn.updates();
     publish(&mut w_tx, &dqn, &mut version)?;
-    let min_period = if cfg.learner.max_rate_hz > 0.0 { Duration::from_secs_f64(1.0 / cfg.learner.max_rate_hz) } else { Duration::ZERO };
+    let min_period = if cfg.learner.max_rate_hz > 0.0 {
+        Duration::from_secs_f64(1.0 / cfg.learner.max_rate_hz)
+    } else {
+        Duration::ZERO
+    };
     let mut last_ckpt = Instant::now();
     let mut saves = (0u32, Duration::ZERO);
     let mut last_update = Instant::now();
@@ -128,7 +154,11 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     }
     if saves.0 > 0 {
         // What a checkpoint costs the learner (it saves every `checkpoint_every_s`).
-        tracing::info!("learner: {} checkpoints, {:.2} ms each on average", saves.0, saves.1.as_secs_f64() * 1e3 / saves.0 as f64);
+        tracing::info!(
+            "learner: {} checkpoints, {:.2} ms each on average",
+            saves.0,
+            saves.1.as_secs_f64() * 1e3 / saves.0 as f64
+        );
     }
     save_atomic(&dqn.online, &run_dir.join("final.safetensors"), &cfg.checkpoint_tags())?;
     save_state_atomic(&dqn, &state_path)?;
@@ -140,7 +170,11 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
 /// publishes nothing (no zero weights under a new version), and neither do
 /// weights that are not all finite: the actors keep acting with the last
 /// good ones, and the version is not spent.
-fn publish<S: Service>(w_tx: &mut rotorhive_transport::Sender<S, f32, WeightsHeader>, dqn: &Dqn, version: &mut u64) -> Result<()> {
+fn publish<S: Service>(
+    w_tx: &mut rotorhive_transport::Sender<S, f32, WeightsHeader>,
+    dqn: &Dqn,
+    version: &mut u64,
+) -> Result<()> {
     let v = *version + 1;
     let updates = dqn.updates();
     let net = &dqn.online;
@@ -173,7 +207,11 @@ struct Minibatch<S: Service> {
 impl<S: Service> Minibatch<S> {
     fn new(hub: &rotorhive_transport::Hub<S>, cfg: &Config) -> Result<Self> {
         let prio_tx = if cfg.replay.prioritized {
-            Some(hub.sender::<u16, PriorityHeader>(&Channel::priorities(cfg.replay.prefetch), cfg.replay.batch * PICK_WORDS, STALL_TIMEOUT)?)
+            Some(hub.sender::<u16, PriorityHeader>(
+                &Channel::priorities(cfg.replay.prefetch),
+                cfg.replay.batch * PICK_WORDS,
+                STALL_TIMEOUT,
+            )?)
         } else {
             None
         };
@@ -182,8 +220,16 @@ impl<S: Service> Minibatch<S> {
 
     /// One update on the minibatch in hand (importance-weighted, with its
     /// TD errors sent back as priorities, under prioritized replay); the loss.
-    fn learn(&mut self, dqn: &mut Dqn, seq: u64, deterministic: bool, lost: &mut u64) -> Result<f32> {
-        let Some(tx) = &mut self.prio_tx else { return dqn.update(&self.batch).doing("learner update") };
+    fn learn(
+        &mut self,
+        dqn: &mut Dqn,
+        seq: u64,
+        deterministic: bool,
+        lost: &mut u64,
+    ) -> Result<f32> {
+        let Some(tx) = &mut self.prio_tx else {
+            return dqn.update(&self.batch).doing("learner update");
+        };
         self.weights.clear();
         self.weights.extend(self.picks.iter().map(|p| p.value));
         let loss = dqn.update_weighted(&self.batch, Some(&self.weights)).doing("learner update")?;
@@ -210,14 +256,24 @@ impl Gauges {
     /// Adds an update's loss and its minibatch's policy lag: the learner's
     /// weight version minus the mean version the transitions were acted
     /// with (those restored from a snapshot have none).
-    fn add(&mut self, loss: f32, mb: &MinibatchHeader, version: u64, tel: &mut rotorhive_msg::Telemetry) {
+    fn add(
+        &mut self,
+        loss: f32,
+        mb: &MinibatchHeader,
+        version: u64,
+        tel: &mut rotorhive_msg::Telemetry,
+    ) {
         if loss.is_finite() {
             self.loss = (self.loss.0 + loss as f64, self.loss.1 + 1);
             tel.value_milli = (self.loss.0 / self.loss.1 as f64 * 1e6) as i64;
         }
         if mb.acted > 0 {
-            self.lag = (self.lag.0 + version as f64 - mb.acted_version_sum as f64 / mb.acted as f64, self.lag.1 + 1);
-            tel.policy_lag_milli = (self.lag.0 / self.lag.1 as f64 * 1e3).clamp(0.0, u32::MAX as f64) as u32;
+            self.lag = (
+                self.lag.0 + version as f64 - mb.acted_version_sum as f64 / mb.acted as f64,
+                self.lag.1 + 1,
+            );
+            tel.policy_lag_milli =
+                (self.lag.0 / self.lag.1 as f64 * 1e3).clamp(0.0, u32::MAX as f64) as u32;
         }
     }
 }
@@ -232,7 +288,8 @@ impl Gauges {
             return;
         }
         (self.max_q, self.td) = (self.max_q + st.max_q_sum, self.td + st.abs_td_sum);
-        (self.terminal, self.rows) = (self.terminal + st.terminal as u64, self.rows + st.rows as u64);
+        (self.terminal, self.rows) =
+            (self.terminal + st.terminal as u64, self.rows + st.rows as u64);
         let rows = self.rows as f64;
         tel.learning.mean_max_q = (self.max_q / rows / reward_scale) as f32;
         tel.learning.mean_abs_td = (self.td / rows / reward_scale) as f32;
@@ -243,9 +300,18 @@ impl Gauges {
 /// Unpacks a minibatch of `rows` packed transitions and their picks into
 /// `out`, the learner's float layout (`TRANSITION_LEN` per transition), and
 /// `picks` (each row's place and importance weight).
-fn unpack_batch(packed: &[u16], rows: usize, out: &mut Vec<f32>, picks: &mut Vec<Pick>) -> Result<()> {
+fn unpack_batch(
+    packed: &[u16],
+    rows: usize,
+    out: &mut Vec<f32>,
+    picks: &mut Vec<Pick>,
+) -> Result<()> {
     if rows == 0 || packed.len() != rows * (PACKED_LEN + PICK_WORDS) {
-        protocol_err!("a minibatch of {} words is not {rows} packed transitions and their picks ({} words each)", packed.len(), PACKED_LEN + PICK_WORDS);
+        protocol_err!(
+            "a minibatch of {} words is not {rows} packed transitions and their picks ({} words each)",
+            packed.len(),
+            PACKED_LEN + PICK_WORDS
+        );
     }
     let (data, tail) = packed.split_at(rows * PACKED_LEN);
     out.resize(rows * TRANSITION_LEN, 0.0);

@@ -20,7 +20,9 @@ pub fn names() -> Vec<&'static str> {
 /// The config text of level `name`; an unknown name is refused with the
 /// list of known ones.
 pub fn text(name: &str) -> Result<&'static str> {
-    LEVELS.iter().find(|l| l.0 == name).map(|l| l.2).ok_or_else(|| RoleError::Config(format!("unknown level `{name}`: the levels are {}", names().join(", "))))
+    LEVELS.iter().find(|l| l.0 == name).map(|l| l.2).ok_or_else(|| {
+        RoleError::Config(format!("unknown level `{name}`: the levels are {}", names().join(", ")))
+    })
 }
 
 #[cfg(test)]
@@ -34,7 +36,10 @@ mod tests {
         std::env::set_current_dir(&root).unwrap();
         for name in names() {
             let c = Config::level(name, &[]).unwrap_or_else(|e| panic!("level {name}: {e:#}"));
-            assert!(c.test_arenas().unwrap().len() >= 5, "level {name} has at least 5 test layouts");
+            assert!(
+                c.test_arenas().unwrap().len() >= 5,
+                "level {name} has at least 5 test layouts"
+            );
         }
         assert_eq!(Config::level("paper", &[]).unwrap().to_toml(), Config::default().to_toml());
         let e = Config::level("lava", &[]).unwrap_err().to_string();

@@ -63,7 +63,10 @@ pub fn roles_of(cfg: &Config) -> usize {
 /// The roles of a run, by node name and what starts them: the learner, the
 /// replay, and an actor and a sim per environment.
 pub fn role_names(cfg: &Config) -> Vec<(String, RoleKind, usize)> {
-    let mut v = vec![(node_name(RoleKind::Learner, 0), RoleKind::Learner, 0), (node_name(RoleKind::Replay, 0), RoleKind::Replay, 0)];
+    let mut v = vec![
+        (node_name(RoleKind::Learner, 0), RoleKind::Learner, 0),
+        (node_name(RoleKind::Replay, 0), RoleKind::Replay, 0),
+    ];
     for e in 0..cfg.sim.envs {
         v.push((node_name(RoleKind::Actor, e), RoleKind::Actor, e));
         v.push((node_name(RoleKind::Sim, e), RoleKind::Sim, e));
@@ -87,21 +90,31 @@ pub fn run_role<S: Service>(cx: Ctx<'_, S>, role: RoleKind, index: usize) -> Res
         RoleKind::Actor => actor::run(cx, index),
         RoleKind::Replay => replay::run(cx),
         RoleKind::Learner => learner::run(cx),
-        RoleKind::Link => protocol_err!("the link is not a role of its own: it runs inside `hive train --listen` and `hive worker`"),
+        RoleKind::Link => protocol_err!(
+            "the link is not a role of its own: it runs inside `hive train --listen` and `hive worker`"
+        ),
     }
 }
 
 /// Serial mode: every role of the run as a thread of this process, over
 /// iceoryx2's `local` service (run `prefix`). Returns each thread's name and
 /// handle; setting `stop` (or `rotorhive_transport::request_stop`) ends them.
-pub fn spawn_serial(cfg: &Config, prefix: &str, run_dir: &Path, stop: &Arc<AtomicBool>) -> Result<Vec<(String, JoinHandle<Result<()>>)>> {
+pub fn spawn_serial(
+    cfg: &Config,
+    prefix: &str,
+    run_dir: &Path,
+    stop: &Arc<AtomicBool>,
+) -> Result<Vec<(String, JoinHandle<Result<()>>)>> {
     spawn_threads(cfg, prefix, run_dir, stop, role_names(cfg))
 }
 
 /// The sims and actors of a host without the learner and replay (a worker
 /// host, whose link carries their transitions to the head).
 pub fn env_role_names(cfg: &Config) -> Vec<(String, RoleKind, usize)> {
-    role_names(cfg).into_iter().filter(|(_, r, _)| matches!(r, RoleKind::Sim | RoleKind::Actor)).collect()
+    role_names(cfg)
+        .into_iter()
+        .filter(|(_, r, _)| matches!(r, RoleKind::Sim | RoleKind::Actor))
+        .collect()
 }
 
 /// Runs `roles` as threads of this process over iceoryx2's `local` service.
@@ -114,13 +127,17 @@ pub fn spawn_threads(
 ) -> Result<Vec<(String, JoinHandle<Result<()>>)>> {
     let mut out = Vec::new();
     for (name, role, index) in roles {
-        let (cfg, prefix, dir): (Config, String, PathBuf) = (cfg.clone(), prefix.to_string(), run_dir.to_path_buf());
+        let (cfg, prefix, dir): (Config, String, PathBuf) =
+            (cfg.clone(), prefix.to_string(), run_dir.to_path_buf());
         let (node, stop) = (name.clone(), stop.clone());
         let h = std::thread::Builder::new()
             .name(name.clone())
             .spawn(move || {
-                let hub = Hub::<Local>::new(&prefix, &node).doing_with(|| format!("role {node}"))?.with_stop(stop);
-                run_role(Ctx { hub: &hub, cfg: &cfg, run_dir: Some(&dir) }, role, index).doing_with(|| format!("role {node}"))
+                let hub = Hub::<Local>::new(&prefix, &node)
+                    .doing_with(|| format!("role {node}"))?
+                    .with_stop(stop);
+                run_role(Ctx { hub: &hub, cfg: &cfg, run_dir: Some(&dir) }, role, index)
+                    .doing_with(|| format!("role {node}"))
             })
             .doing_with(|| format!("cannot start the {name} thread"))?;
         out.push((name, h));
@@ -148,7 +165,17 @@ pub fn join_threads(threads: Vec<(String, JoinHandle<Result<()>>)>) -> Option<St
 pub type Counters<S> = Periodic<S, Telemetry>;
 
 /// The counters of role `role` number `index` in a run of `roles` roles.
-pub fn counters<S: Service>(hub: &Hub<S>, role: RoleKind, index: usize, roles: usize) -> Result<Counters<S>> {
-    let sample = Telemetry { role: role as u32, index: index as u32, pid: std::process::id(), ..Telemetry::default() };
+pub fn counters<S: Service>(
+    hub: &Hub<S>,
+    role: RoleKind,
+    index: usize,
+    roles: usize,
+) -> Result<Counters<S>> {
+    let sample = Telemetry {
+        role: role as u32,
+        index: index as u32,
+        pid: std::process::id(),
+        ..Telemetry::default()
+    };
     Ok(Periodic::new(hub, &Channel::telemetry(roles), sample)?)
 }

@@ -6,7 +6,10 @@ use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
 use crate::error::{Doing, Result, protocol_err};
-use rotorhive_msg::{MinibatchHeader, PACKED_LEN, PICK_WORDS, PriorityHeader, ReplayStage, RoleKind, SeqTracker, Telemetry, TransitionHeader};
+use rotorhive_msg::{
+    MinibatchHeader, PACKED_LEN, PICK_WORDS, PriorityHeader, ReplayStage, RoleKind, SeqTracker,
+    Telemetry, TransitionHeader,
+};
 use rotorhive_replay::{Acted, Journal, Pick, Replay};
 use rotorhive_transport::{Channel, TransportError};
 
@@ -15,85 +18,141 @@ use iceoryx2::service::Service;
 use crate::schedule::Schedule;
 use crate::{Counters, Ctx, roles_of};
 
+/// The replay role's state: the memory and its journal, the channels in and
+/// out, its counters and the learner's priority feedback.
+struct Memory<'a, S: Service> {
+    cfg: &'a crate::config::Config,
+    hub: &'a rotorhive_transport::Hub<S>,
+    mem: Replay,
+    journal: Option<Journal>,
+    rx: rotorhive_transport::Receiver<S, u16, TransitionHeader>,
+    tx: rotorhive_transport::Sender<S, u16, MinibatchHeader>,
+    tel: Counters<S>,
+    prio: Feedback<S>,
+    picks: Vec<Pick>,
+    last_sync: Instant,
+}
+
 /// Runs the replay memory until the run stops.
 pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     let (cfg, hub) = (cx.cfg, cx.hub);
     let r = &cfg.replay;
-    let (mut mem, mut journal) = open_memory(cfg, cx.run_dir)?;
+    let (mut mem, journal) = open_memory(cfg, cx.run_dir)?;
     if r.prioritized {
         mem.set_prioritized(r.priority_alpha, r.priority_eps);
     }
-    let mut prio = Feedback::new(hub, cfg)?;
+    let prio = Feedback::new(hub, cfg)?;
     let mut rx = hub.receiver::<u16, TransitionHeader>(&Channel::transitions(cfg.sim.envs))?;
     // Transitions are throughput, not latency: sleep at once when idle.
     rx.set_spin(Duration::ZERO);
     // A full learner queue is normal (the learner is busy): the send gives up
     // after a millisecond and the replay goes back to inserting.
-    let mut tx = hub.sender::<u16, MinibatchHeader>(&Channel::minibatches(r.prefetch), minibatch_len(r.batch), Duration::from_millis(1))?;
-    let mut tel = crate::counters(hub, RoleKind::Replay, 0, roles_of(cfg))?;
+    let tx = hub.sender::<u16, MinibatchHeader>(
+        &Channel::minibatches(r.prefetch),
+        minibatch_len(r.batch),
+        Duration::from_millis(1),
+    )?;
+    let tel = crate::counters(hub, RoleKind::Replay, 0, roles_of(cfg))?;
+    let picks = vec![Pick::default(); r.batch];
+    let last_sync = Instant::now();
+    let mut m = Memory { cfg, hub, mem, journal, rx, tx, tel, prio, picks, last_sync };
     if cfg.deterministic {
-        return run_scheduled(cfg, hub, &mut mem, journal.as_mut(), &mut rx, &mut tx, &mut tel, &mut prio);
+        m.run_scheduled()?
+    } else {
+        m.run_free()?
     }
-    // Actors of other hosts come through the link with indexes after ours.
-    let mut next_seq = SeqTracker::new(cfg.envs_total());
-    let mut mb_seq = 0u64;
-    let mut backoff_until = Instant::now();
-    let mut limit = SampleLimit::new(cfg);
-    let mut last_sync = Instant::now();
-    let mut picks = vec![Pick::default(); r.batch];
-    loop {
-        if hub.shutdown_requested() {
-            break;
-        }
-        prio.apply_all(&mut mem, &mut tel.sample.learning)?;
-        let mut got = false;
-        let t = Instant::now();
-        // A bounded number of batches per loop, so minibatches keep flowing
-        // to the learner even while producers flood the memory.
-        for _ in 0..INGEST_PER_LOOP {
-            let Some(m) = rx.try_recv().doing("receiving transitions")? else { break };
-            ingest(&m, &mut mem, journal.as_mut(), &mut next_seq, &mut tel.sample.lost)?;
-            got = true;
-        }
-        tel.sample.time_stage(ReplayStage::Insert, t);
-        let ready = mem.len() >= r.min_fill.max(r.batch);
-        let mut sent = false;
-        if ready && limit.allows(mb_seq, mem.inserted()) && Instant::now() >= backoff_until {
-            let t = Instant::now();
-            let res = tx.send_with(minibatch_len(r.batch), |h, out| {
-                let acted = sample(&mut mem, out, &mut picks, r.priority_beta);
-                *h = minibatch_header(r.batch, mb_seq, acted);
-            });
-            tel.sample.time_stage(ReplayStage::Sample, t);
-            match res {
-                Ok(()) => {
-                    mb_seq += 1;
-                    sent = true;
-                }
-                Err(TransportError::Stalled { .. }) => backoff_until = Instant::now() + Duration::from_millis(2),
-                Err(e) => return Err(e).doing("sending a minibatch"),
-            }
-        }
-        sync_due(journal.as_ref(), &mut last_sync, cfg)?;
-        tel.sample.work = mem.inserted();
-        tel.sample.work2 = mb_seq;
-        tel.sample.value_milli = mem.len() as i64;
-        tel.tick(false, Telemetry::beat);
-        if !got && !sent {
-            let t = Instant::now();
-            // Nothing to do: sleep on the transitions channel.
-            let wait = if ready { Duration::from_millis(2) } else { crate::POLL };
-            if let Some(m) = rx.recv_timeout(wait).doing("waiting for transitions")? {
-                ingest(&m, &mut mem, journal.as_mut(), &mut next_seq, &mut tel.sample.lost)?;
-            }
-            tel.sample.time_stage(ReplayStage::Idle, t);
-        }
-    }
-    if let Some(j) = &journal {
+    if let Some(j) = &m.journal {
         j.sync()?;
     }
-    tel.tick(true, Telemetry::beat);
+    m.tel.tick(true, Telemetry::beat);
     Ok(())
+}
+
+impl<S: Service> Memory<'_, S> {
+    /// The free-running replay: inserts what comes, and samples while the
+    /// learner takes minibatches and the sample limit allows.
+    fn run_free(&mut self) -> Result<()> {
+        let r = &self.cfg.replay;
+        // Actors of other hosts come through the link with indexes after ours.
+        let mut next_seq = SeqTracker::new(self.cfg.envs_total());
+        let mut mb_seq = 0u64;
+        let mut backoff_until = Instant::now();
+        let mut limit = SampleLimit::new(self.cfg);
+        while !self.hub.shutdown_requested() {
+            self.prio.apply_all(&mut self.mem, &mut self.tel.sample.learning)?;
+            let mut got = false;
+            let t = Instant::now();
+            // A bounded number of batches per loop, so minibatches keep flowing
+            // to the learner even while producers flood the memory.
+            for _ in 0..INGEST_PER_LOOP {
+                let Some(m) = self.rx.try_recv().doing("receiving transitions")? else {
+                    break;
+                };
+                let lost = &mut self.tel.sample.lost;
+                ingest(&m, &mut self.mem, self.journal.as_mut(), &mut next_seq, lost)?;
+                got = true;
+            }
+            self.tel.sample.time_stage(ReplayStage::Insert, t);
+            let ready = self.mem.len() >= r.min_fill.max(r.batch);
+            let mut sent = false;
+            if ready && limit.allows(mb_seq, self.mem.inserted()) && Instant::now() >= backoff_until
+            {
+                match self.send_fresh(mb_seq)? {
+                    true => {
+                        mb_seq += 1;
+                        sent = true;
+                    }
+                    false => backoff_until = Instant::now() + Duration::from_millis(2),
+                }
+            }
+            self.housekeep(mb_seq)?;
+            if !got && !sent {
+                let t = Instant::now();
+                // Nothing to do: sleep on the transitions channel.
+                let wait = if ready { Duration::from_millis(2) } else { crate::POLL };
+                if let Some(m) = self.rx.recv_timeout(wait).doing("waiting for transitions")? {
+                    let lost = &mut self.tel.sample.lost;
+                    ingest(&m, &mut self.mem, self.journal.as_mut(), &mut next_seq, lost)?;
+                }
+                self.tel.sample.time_stage(ReplayStage::Idle, t);
+            }
+        }
+        Ok(())
+    }
+
+    /// Samples minibatch `seq` straight into a loan and sends it; false when
+    /// the learner's queue stayed full.
+    fn send_fresh(&mut self, seq: u64) -> Result<bool> {
+        let (batch, beta) = (self.cfg.replay.batch, self.cfg.replay.priority_beta);
+        let t = Instant::now();
+        let (mem, picks) = (&mut self.mem, &mut self.picks);
+        let res = self.tx.send_with(minibatch_len(batch), |h, out| {
+            let acted = sample(mem, out, picks, beta);
+            *h = minibatch_header(batch, seq, acted);
+        });
+        self.tel.sample.time_stage(ReplayStage::Sample, t);
+        sent_or_stalled(res)
+    }
+
+    /// Syncs the journal when due and publishes the counters.
+    fn housekeep(&mut self, minibatches: u64) -> Result<()> {
+        sync_due(self.journal.as_ref(), &mut self.last_sync, self.cfg)?;
+        self.tel.sample.work = self.mem.inserted();
+        self.tel.sample.work2 = minibatches;
+        self.tel.sample.value_milli = self.mem.len() as i64;
+        self.tel.tick(false, Telemetry::beat);
+        Ok(())
+    }
+}
+
+/// A send's outcome: true when sent, false when the receiver's queue stayed
+/// full (a stall is normal back-pressure), an error otherwise.
+fn sent_or_stalled(res: std::result::Result<(), TransportError>) -> Result<bool> {
+    match res {
+        Ok(()) => Ok(true),
+        Err(TransportError::Stalled { .. }) => Ok(false),
+        Err(e) => Err(e).doing("sending a minibatch"),
+    }
 }
 
 /// Words of a minibatch message of `batch` rows: the packed rows, then a
@@ -129,13 +188,19 @@ struct Feedback<S: Service> {
 
 impl<S: Service> Feedback<S> {
     fn new(hub: &rotorhive_transport::Hub<S>, cfg: &crate::config::Config) -> Result<Self> {
-        let rx = if cfg.replay.prioritized { Some(hub.receiver::<u16, PriorityHeader>(&Channel::priorities(cfg.replay.prefetch))?) } else { None };
+        let rx = if cfg.replay.prioritized {
+            Some(hub.receiver::<u16, PriorityHeader>(&Channel::priorities(cfg.replay.prefetch))?)
+        } else {
+            None
+        };
         Ok(Self { rx, held: Default::default(), applied: 0, lag: cfg.replay.prefetch as u64 })
     }
 
     /// Applies every priority that has arrived (free-running).
     fn apply_all(&mut self, mem: &mut Replay, counts: &mut rotorhive_msg::Learning) -> Result<()> {
-        let Some(rx) = &mut self.rx else { return Ok(()) };
+        let Some(rx) = &mut self.rx else {
+            return Ok(());
+        };
         while let Some(m) = rx.try_recv().doing("receiving priorities")? {
             apply(mem, m.payload(), counts);
         }
@@ -145,14 +210,23 @@ impl<S: Service> Feedback<S> {
     /// A deterministic run, before it samples minibatch `next`: the
     /// feedback of every minibatch before `next − prefetch`, applied in
     /// order. False while some of it has not arrived yet.
-    fn ready_for(&mut self, next: u64, mem: &mut Replay, counts: &mut rotorhive_msg::Learning) -> Result<bool> {
-        let Some(rx) = &mut self.rx else { return Ok(true) };
+    fn ready_for(
+        &mut self,
+        next: u64,
+        mem: &mut Replay,
+        counts: &mut rotorhive_msg::Learning,
+    ) -> Result<bool> {
+        let Some(rx) = &mut self.rx else {
+            return Ok(true);
+        };
         while let Some(m) = rx.try_recv().doing("receiving priorities")? {
             self.held.insert(m.user_header().seq, m.payload().to_vec());
         }
         let need = next.saturating_sub(self.lag);
         while self.applied < need {
-            let Some(words) = self.held.remove(&self.applied) else { return Ok(false) };
+            let Some(words) = self.held.remove(&self.applied) else {
+                return Ok(false);
+            };
             apply(mem, &words, counts);
             self.applied += 1;
         }
@@ -174,13 +248,26 @@ fn apply(mem: &mut Replay, words: &[u16], counts: &mut rotorhive_msg::Learning) 
 
 /// The memory, written through to RUN_DIR/replay.bin as it changes: a
 /// restarted (or resumed) replay starts with every transition it had.
-fn open_memory(cfg: &crate::config::Config, run_dir: Option<&std::path::Path>) -> Result<(Replay, Option<Journal>)> {
+fn open_memory(
+    cfg: &crate::config::Config,
+    run_dir: Option<&std::path::Path>,
+) -> Result<(Replay, Option<Journal>)> {
     let r = &cfg.replay;
     Ok(match run_dir {
         Some(d) if r.snapshot_every_s > 0.0 => {
-            let (m, j) = Journal::open(&d.join("replay.bin"), r.capacity, PACKED_LEN, crate::seeds::replay(cfg.seed)).doing("restoring the replay memory")?;
+            let (m, j) = Journal::open(
+                &d.join("replay.bin"),
+                r.capacity,
+                PACKED_LEN,
+                crate::seeds::replay(cfg.seed),
+            )
+            .doing("restoring the replay memory")?;
             if !m.is_empty() {
-                tracing::info!("replay restored {} transitions from {}", m.len(), j.path().display());
+                tracing::info!(
+                    "replay restored {} transitions from {}",
+                    m.len(),
+                    j.path().display()
+                );
             }
             (m, Some(j))
         }
@@ -208,106 +295,107 @@ impl SampleLimit {
     fn new(cfg: &crate::config::Config) -> Self {
         let r = &cfg.replay;
         let queued = (r.prefetch as u64 + cfg.learner.publish_every + 2) as f64;
-        Self { per_insert: r.samples_per_insert, batch: r.batch as f64, buffer: 2.0 * queued * r.batch as f64, base: None }
+        Self {
+            per_insert: r.samples_per_insert,
+            batch: r.batch as f64,
+            buffer: 2.0 * queued * r.batch as f64,
+            base: None,
+        }
     }
 
     /// Whether minibatch number `sent` (from 0) may go out.
     fn allows(&mut self, sent: u64, inserted: u64) -> bool {
         let base = *self.base.get_or_insert(inserted);
-        self.per_insert <= 0.0 || (sent + 1) as f64 * self.batch <= self.per_insert * inserted.saturating_sub(base) as f64 + self.buffer
+        self.per_insert <= 0.0
+            || (sent + 1) as f64 * self.batch
+                <= self.per_insert * inserted.saturating_sub(base) as f64 + self.buffer
     }
 }
 
-/// The replay of a deterministic run ([`Schedule`]): transition batches wait
-/// per environment until every environment's batch of the next round is in,
-/// then go in environment by environment; after round `k` exactly
-/// `minibatches_after(k)` minibatches have gone out, each sampled (from the
-/// seeded generator) before the next round goes in, and offered until the
-/// learner takes it.
-#[allow(clippy::too_many_arguments)]
-fn run_scheduled<S: Service>(
-    cfg: &crate::config::Config,
-    hub: &rotorhive_transport::Hub<S>,
-    mem: &mut Replay,
-    mut journal: Option<&mut Journal>,
-    rx: &mut rotorhive_transport::Receiver<S, u16, TransitionHeader>,
-    tx: &mut rotorhive_transport::Sender<S, u16, MinibatchHeader>,
-    tel: &mut Counters<S>,
-    prio: &mut Feedback<S>,
-) -> Result<()> {
-    let schedule = Schedule::new(cfg);
-    let batch = cfg.replay.batch;
-    let mut pending: Vec<VecDeque<(u64, Vec<u16>)>> = vec![VecDeque::new(); cfg.sim.envs];
-    let mut next_seq = SeqTracker::new(cfg.sim.envs);
-    let (mut rounds, mut sent) = (0u64, 0u64);
-    // The next minibatch, sampled once and offered until the learner takes it.
-    let (mut minibatch, mut drawn, mut acted) = (vec![0u16; minibatch_len(batch)], false, Acted::default());
-    let mut picks = vec![Pick::default(); batch];
-    let mut last_sync = Instant::now();
-    // A minibatch sent before the learner subscribes would be lost.
-    while tx.receivers() == 0 && !hub.shutdown_requested() {
-        std::thread::sleep(Duration::from_millis(10));
-    }
-    while !hub.shutdown_requested() {
-        let t = Instant::now();
-        let mut busy = false;
-        while let Some(m) = rx.try_recv().doing("receiving transitions")? {
-            enqueue(&m, &mut pending, &mut next_seq, &mut tel.sample.lost)?;
-            busy = true;
+impl<S: Service> Memory<'_, S> {
+    /// The replay of a deterministic run ([`Schedule`]): transition batches
+    /// wait per environment until every environment's batch of the next round
+    /// is in, then go in environment by environment; after round `k` exactly
+    /// `minibatches_after(k)` minibatches have gone out, each sampled (from
+    /// the seeded generator) before the next round goes in, and offered until
+    /// the learner takes it.
+    fn run_scheduled(&mut self) -> Result<()> {
+        let (cfg, batch) = (self.cfg, self.cfg.replay.batch);
+        let schedule = Schedule::new(cfg);
+        let mut pending: Vec<VecDeque<(u64, Vec<u16>)>> = vec![VecDeque::new(); cfg.sim.envs];
+        let mut next_seq = SeqTracker::new(cfg.sim.envs);
+        let (mut rounds, mut sent) = (0u64, 0u64);
+        // The next minibatch, sampled once and offered until the learner takes it.
+        let mut minibatch = vec![0u16; minibatch_len(batch)];
+        let mut drawn: Option<Acted> = None;
+        // A minibatch sent before the learner subscribes would be lost.
+        while self.tx.receivers() == 0 && !self.hub.shutdown_requested() {
+            std::thread::sleep(Duration::from_millis(10));
         }
-        tel.sample.time_stage(ReplayStage::Insert, t);
-        // The minibatches owed after the rounds in, one at a time (each
-        // waiting for its priorities under prioritized replay), then the
-        // next round.
-        let owed = sent < schedule.minibatches_after(rounds);
-        if !drawn && owed && prio.ready_for(sent, mem, &mut tel.sample.learning)? {
-            acted = sample(mem, &mut minibatch, &mut picks, cfg.replay.priority_beta);
-            drawn = true;
-        }
-        if drawn {
+        while !self.hub.shutdown_requested() {
             let t = Instant::now();
-            let res = tx.send_with(minibatch.len(), |h, o| {
-                o.copy_from_slice(&minibatch);
-                *h = minibatch_header(batch, sent, acted);
-            });
-            tel.sample.time_stage(ReplayStage::Sample, t);
-            match res {
-                Ok(()) => {
+            let mut busy = false;
+            while let Some(m) = self.rx.try_recv().doing("receiving transitions")? {
+                enqueue(&m, &mut pending, &mut next_seq, &mut self.tel.sample.lost)?;
+                busy = true;
+            }
+            self.tel.sample.time_stage(ReplayStage::Insert, t);
+            // The minibatches owed after the rounds in, one at a time (each
+            // waiting for its priorities under prioritized replay), then the
+            // next round.
+            let owed = sent < schedule.minibatches_after(rounds);
+            if drawn.is_none()
+                && owed
+                && self.prio.ready_for(sent, &mut self.mem, &mut self.tel.sample.learning)?
+            {
+                let beta = cfg.replay.priority_beta;
+                drawn = Some(sample(&mut self.mem, &mut minibatch, &mut self.picks, beta));
+            }
+            if let Some(acted) = drawn {
+                if self.send_copy(&minibatch, sent, acted)? {
                     sent += 1;
-                    drawn = false;
+                    drawn = None;
                     busy = true;
                 }
-                Err(TransportError::Stalled { .. }) => {}
-                Err(e) => return Err(e).doing("sending a minibatch"),
+            } else if !owed && rounds < schedule.rounds() && pending.iter().all(|q| !q.is_empty()) {
+                insert_round(&mut pending, &mut self.mem, self.journal.as_mut())?;
+                rounds += 1;
+                busy = true;
             }
-        } else if !owed && rounds < schedule.rounds() && pending.iter().all(|q| !q.is_empty()) {
-            insert_round(&mut pending, mem, journal.as_deref_mut())?;
-            rounds += 1;
-            busy = true;
-        }
-        sync_due(journal.as_deref(), &mut last_sync, cfg)?;
-        tel.sample.work = mem.inserted();
-        tel.sample.work2 = sent;
-        tel.sample.value_milli = mem.len() as i64;
-        tel.tick(false, Telemetry::beat);
-        if !busy {
-            let t = Instant::now();
-            if let Some(m) = rx.recv_timeout(Duration::from_millis(1)).doing("waiting for transitions")? {
-                enqueue(&m, &mut pending, &mut next_seq, &mut tel.sample.lost)?;
+            self.housekeep(sent)?;
+            if !busy {
+                let t = Instant::now();
+                let wait = Duration::from_millis(1);
+                if let Some(m) = self.rx.recv_timeout(wait).doing("waiting for transitions")? {
+                    enqueue(&m, &mut pending, &mut next_seq, &mut self.tel.sample.lost)?;
+                }
+                self.tel.sample.time_stage(ReplayStage::Idle, t);
             }
-            tel.sample.time_stage(ReplayStage::Idle, t);
         }
+        Ok(())
     }
-    if let Some(j) = &journal {
-        j.sync()?;
+
+    /// Offers a drawn minibatch (number `seq`); false when the learner's
+    /// queue stayed full.
+    fn send_copy(&mut self, minibatch: &[u16], seq: u64, acted: Acted) -> Result<bool> {
+        let batch = self.cfg.replay.batch;
+        let t = Instant::now();
+        let res = self.tx.send_with(minibatch.len(), |h, o| {
+            o.copy_from_slice(minibatch);
+            *h = minibatch_header(batch, seq, acted);
+        });
+        self.tel.sample.time_stage(ReplayStage::Sample, t);
+        sent_or_stalled(res)
     }
-    tel.tick(true, Telemetry::beat);
-    Ok(())
 }
 
 /// Inserts a deterministic run's next round: each environment's oldest
 /// pending batch, in environment order.
-fn insert_round(pending: &mut [VecDeque<(u64, Vec<u16>)>], mem: &mut Replay, mut journal: Option<&mut Journal>) -> Result<()> {
+fn insert_round(
+    pending: &mut [VecDeque<(u64, Vec<u16>)>],
+    mem: &mut Replay,
+    mut journal: Option<&mut Journal>,
+) -> Result<()> {
     for q in pending {
         let (version, batch) = q.pop_front().unwrap_or_default();
         store(mem, journal.as_deref_mut(), &batch, version)?;
@@ -339,7 +427,11 @@ fn enqueue<S: Service>(
 /// when the batch is clean (a batch with any corrupt transition, or whose
 /// length is not whole transitions, is not stored: poison never reaches the
 /// learner).
-fn check<S: Service>(m: &rotorhive_transport::Msg<S, u16, TransitionHeader>, next_seq: &mut SeqTracker, lost: &mut u64) -> bool {
+fn check<S: Service>(
+    m: &rotorhive_transport::Msg<S, u16, TransitionHeader>,
+    next_seq: &mut SeqTracker,
+    lost: &mut u64,
+) -> bool {
     let h = m.user_header();
     *lost += next_seq.observe(h.actor as usize, h.seq);
     let bad = rotorhive_msg::corrupt_transitions(m.payload());
@@ -372,7 +464,11 @@ fn ingest<S: Service>(
 }
 
 /// Syncs the journal to disk every `replay.snapshot_every_s`.
-fn sync_due(journal: Option<&Journal>, last_sync: &mut Instant, cfg: &crate::config::Config) -> Result<()> {
+fn sync_due(
+    journal: Option<&Journal>,
+    last_sync: &mut Instant,
+    cfg: &crate::config::Config,
+) -> Result<()> {
     if let Some(j) = journal
         && last_sync.elapsed().as_secs_f64() >= cfg.replay.snapshot_every_s.max(1e-3)
     {
@@ -384,7 +480,12 @@ fn sync_due(journal: Option<&Journal>, last_sync: &mut Instant, cfg: &crate::con
 
 /// Inserts a transition batch acted with weight version `version` and
 /// records it in the journal.
-fn store(mem: &mut Replay, journal: Option<&mut Journal>, batch: &[u16], version: u64) -> Result<()> {
+fn store(
+    mem: &mut Replay,
+    journal: Option<&mut Journal>,
+    batch: &[u16],
+    version: u64,
+) -> Result<()> {
     if batch.is_empty() {
         return Ok(());
     }
@@ -397,7 +498,12 @@ fn store(mem: &mut Replay, journal: Option<&mut Journal>, batch: &[u16], version
 
 /// The header of minibatch `seq` of `batch` transitions just sampled.
 fn minibatch_header(batch: usize, seq: u64, acted: Acted) -> MinibatchHeader {
-    MinibatchHeader { batch: batch as u32, acted: acted.known, seq, acted_version_sum: acted.version_sum }
+    MinibatchHeader {
+        batch: batch as u32,
+        acted: acted.known,
+        seq,
+        acted_version_sum: acted.version_sum,
+    }
 }
 
 #[cfg(test)]

@@ -29,7 +29,10 @@ pub fn replay(seed: u64) -> u64 {
 /// Generated training lane `lane` of environment `env`: seeds no shipped
 /// arena uses.
 pub fn lane(seed: u64, env: usize, lane: usize) -> u64 {
-    LANE_BASE.wrapping_add(seed.wrapping_mul(LANE_SEED_STRIDE)).wrapping_add(env as u64 * LANE_ENV_STRIDE).wrapping_add(lane as u64)
+    LANE_BASE
+        .wrapping_add(seed.wrapping_mul(LANE_SEED_STRIDE))
+        .wrapping_add(env as u64 * LANE_ENV_STRIDE)
+        .wrapping_add(lane as u64)
 }
 
 /// Generated validation arena `k`: the same for every seed, so that
@@ -89,7 +92,8 @@ mod tests {
             // make two of them draw the same numbers.
             let mut spawns = vec![validation(seed)];
             spawns.extend((1..5).map(|n| confirmation(seed, n)));
-            let mut arenas: Vec<u64> = (0..16).map(validation_arena).chain((0..64).map(test_layout)).collect();
+            let mut arenas: Vec<u64> =
+                (0..16).map(validation_arena).chain((0..64).map(test_layout)).collect();
             let mut sampling = vec![replay(seed)];
             for e in 0..64 {
                 spawns.push(sim(seed, e));
@@ -102,7 +106,13 @@ mod tests {
             }
         }
         // The formulas runs have always used (recorded results depend on them).
-        assert_eq!((sim(3, 2), actor(3, 2), replay(3), lane(3, 2, 1)), (3002, 3 ^ 0xac72, 3 ^ 0x5e1a, 1_302_001));
-        assert_eq!((validation(3), confirmation(3, 2), validation_arena(1)), (7780, 2_000_009, 4243));
+        assert_eq!(
+            (sim(3, 2), actor(3, 2), replay(3), lane(3, 2, 1)),
+            (3002, 3 ^ 0xac72, 3 ^ 0x5e1a, 1_302_001)
+        );
+        assert_eq!(
+            (validation(3), confirmation(3, 2), validation_arena(1)),
+            (7780, 2_000_009, 4243)
+        );
     }
 }

@@ -4,7 +4,9 @@
 use std::time::Instant;
 
 use crate::error::{Doing, Result, config_err};
-use rotorhive_msg::{ActionHeader, OBS_LEN, ObsHeader, RoleKind, SimStage, Telemetry, WeightsHeader, obs_batch_len};
+use rotorhive_msg::{
+    ActionHeader, OBS_LEN, ObsHeader, RoleKind, SimStage, Telemetry, WeightsHeader, obs_batch_len,
+};
 use rotorhive_sim::VecEnv;
 use rotorhive_transport::Channel;
 
@@ -20,17 +22,28 @@ const RESEND: std::time::Duration = std::time::Duration::from_millis(1000);
 pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
     let (cfg, hub) = (cx.cfg, cx.hub);
     if env_index >= cfg.sim.envs {
-        config_err!("--env {env_index} is out of range: the config has {} environments", cfg.sim.envs);
+        config_err!(
+            "--env {env_index} is out of range: the config has {} environments",
+            cfg.sim.envs
+        );
     }
     let arenas = cfg.lane_arenas(env_index)?;
     let n = cfg.sim.agents;
-    let mut env =
-        VecEnv::new_lanes(cfg.sim_config(), &arenas, crate::seeds::sim(cfg.seed, cfg.cluster.env_offset + env_index)).doing("starting the simulator")?;
+    let mut env = VecEnv::new_lanes(
+        cfg.sim_config(),
+        &arenas,
+        crate::seeds::sim(cfg.seed, cfg.cluster.env_offset + env_index),
+    )
+    .doing("starting the simulator")?;
     let batched = cfg.batched();
     assert_eq!(env.obs_len(), OBS_LEN, "simulator and message layouts disagree");
     // Observations are assembled straight into the loaned sample (send_obs).
     env.drop_observation_buffer();
-    let mut obs_tx = hub.sender::<f32, ObsHeader>(&Channel::obs(env_index, cfg.obs_messages_per_step()), obs_batch_len(n), STALL_TIMEOUT)?;
+    let mut obs_tx = hub.sender::<f32, ObsHeader>(
+        &Channel::obs(env_index, cfg.obs_messages_per_step()),
+        obs_batch_len(n),
+        STALL_TIMEOUT,
+    )?;
     let mut act_rx = hub.receiver::<u8, ActionHeader>(&Channel::actions(env_index))?;
     let mut tel = crate::counters(hub, RoleKind::Sim, env_index, roles_of(cfg))?;
     let mut limiter = RateLimiter::new(hub, cfg)?;
@@ -98,11 +111,18 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
 /// A curriculum's next stage: new training lanes, once the run's
 /// agent-steps (as this sim sees them: its own steps times every host's
 /// agents) reach it.
-fn follow_curriculum(cfg: &crate::Config, env: &mut VecEnv, env_index: usize, step: u64, stage: &mut u32) -> Result<()> {
+fn follow_curriculum(
+    cfg: &crate::Config,
+    env: &mut VecEnv,
+    env_index: usize,
+    step: u64,
+    stage: &mut u32,
+) -> Result<()> {
     let now = cfg.curriculum_stage(step.saturating_mul(cfg.agents_total() as u64));
     if now != *stage {
         *stage = now;
-        env.replace_arenas(&cfg.lane_arenas_at(env_index, now)?).doing("changing the training lanes")?;
+        env.replace_arenas(&cfg.lane_arenas_at(env_index, now)?)
+            .doing("changing the training lanes")?;
         tracing::info!("sim {env_index}: curriculum stage {now}");
     }
     Ok(())
@@ -154,7 +174,8 @@ impl<S: Service> RateLimiter<S> {
             per_update,
             // n-step transitions leave up to n steps after their step, and
             // updates are published every `publish_every`.
-            slack: (cfg.learner.n_step + 1) as f64 * agents + cfg.learner.publish_every as f64 * per_update,
+            slack: (cfg.learner.n_step + 1) as f64 * agents
+                + cfg.learner.publish_every as f64 * per_update,
             updates: 0,
             base: None,
             starved_at: None,
@@ -167,10 +188,15 @@ impl<S: Service> RateLimiter<S> {
     /// so the limit is off until its update count moves again: it never
     /// deadlocks the run nor slows a refill.
     pub fn wait(&mut self, hub: &Hub<S>, steps: u64) -> Result<()> {
-        let Some(rx) = &mut self.weights else { return Ok(()) };
+        let Some(rx) = &mut self.weights else {
+            return Ok(());
+        };
         let start = std::time::Instant::now();
         let mut progress = start;
-        let mut latest = rx.latest().doing("reading the learner's update count")?.map(|m| m.user_header().updates);
+        let mut latest = rx
+            .latest()
+            .doing("reading the learner's update count")?
+            .map(|m| m.user_header().updates);
         loop {
             if let Some(u) = latest.take() {
                 if u > self.updates {
@@ -204,20 +230,34 @@ impl<S: Service> RateLimiter<S> {
             if inserted <= allowed || hub.shutdown_requested() {
                 return Ok(());
             }
-            latest = rx.recv_timeout(POLL).doing("waiting for the learner")?.map(|m| m.user_header().updates);
+            latest = rx
+                .recv_timeout(POLL)
+                .doing("waiting for the learner")?
+                .map(|m| m.user_header().updates);
         }
     }
 }
 
 /// Publishes the observations of a step: one message for all agents
 /// (batched), or one message per agent (non-batched, the old path on purpose).
-pub fn send_obs<S: Service>(tx: &mut Sender<S, f32, ObsHeader>, env: &VecEnv, step: u64, batched: bool) -> rotorhive_transport::Result<()> {
+pub fn send_obs<S: Service>(
+    tx: &mut Sender<S, f32, ObsHeader>,
+    env: &VecEnv,
+    step: u64,
+    batched: bool,
+) -> rotorhive_transport::Result<()> {
     let total = env.agents();
     let per = if batched { total } else { 1 };
     for first in (0..total).step_by(per) {
         let n = per.min(total - first);
         tx.send_with(obs_batch_len(n), |h, p| {
-            *h = ObsHeader { agents: n as u32, first: first as u32, total: total as u32, reserved: 0, step };
+            *h = ObsHeader {
+                agents: n as u32,
+                first: first as u32,
+                total: total as u32,
+                reserved: 0,
+                step,
+            };
             let (obs, rest) = p.split_at_mut(n * OBS_LEN);
             env.write_observations(first, obs);
             let (rew, done) = rest.split_at_mut(n);

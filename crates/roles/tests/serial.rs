@@ -26,7 +26,10 @@ impl Report {
     }
 
     fn get(&self, role: RoleKind, index: u32) -> Telemetry {
-        *self.latest.get(&(role as u32, index)).unwrap_or_else(|| panic!("no telemetry of {role:?} {index}"))
+        *self
+            .latest
+            .get(&(role as u32, index))
+            .unwrap_or_else(|| panic!("no telemetry of {role:?} {index}"))
     }
 }
 
@@ -62,11 +65,18 @@ fn run_serial(name: &str, cfg: &Config, updates: u64, per_env: u64) -> Report {
     let start = Instant::now();
     let envs = cfg.sim.envs as u32;
     let behind = |r: &Report| {
-        let feeding = (0..envs).all(|e| [RoleKind::Sim, RoleKind::Actor].iter().all(|&k| r.latest.get(&(k as u32, e)).is_some_and(|t| t.work > per_env)));
+        let feeding = (0..envs).all(|e| {
+            [RoleKind::Sim, RoleKind::Actor]
+                .iter()
+                .all(|&k| r.latest.get(&(k as u32, e)).is_some_and(|t| t.work > per_env))
+        });
         r.work(RoleKind::Learner) < updates || !feeding
     };
     while behind(&report) {
-        assert!(start.elapsed() < Duration::from_secs(60), "watchdog: {name} made too few updates or steps in 60 s");
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "watchdog: {name} made too few updates or steps in 60 s"
+        );
         if let Some((n, _)) = threads.iter().find(|(_, h)| h.is_finished()) {
             panic!("{name}: role {n} stopped early");
         }
@@ -88,7 +98,10 @@ fn run_serial(name: &str, cfg: &Config, updates: u64, per_env: u64) -> Report {
         let t = *m.user_header();
         report.latest.insert((t.role, t.index), t);
     }
-    assert!(dir.join("final.safetensors").exists() && dir.join("replay.bin").exists(), "{name}: the run directory lacks its files");
+    assert!(
+        dir.join("final.safetensors").exists() && dir.join("replay.bin").exists(),
+        "{name}: the run directory lacks its files"
+    );
     let _ = std::fs::remove_dir_all(&dir);
     report
 }
@@ -99,11 +112,22 @@ fn two_environments_non_batched_n_step_prioritized_with_the_rate_limit() {
     // 3-step returns, and the rate limit on both sides: every transition is
     // sampled about once.
     // Prioritized replay too: the learner's TD errors come back as priorities.
-    let cfg = config(&["sim.envs=2", "sim.observation_mode=\"non-batched\"", "learner.n_step=3", "replay.samples_per_insert=1.0", "replay.prioritized=true"]);
+    let cfg = config(&[
+        "sim.envs=2",
+        "sim.observation_mode=\"non-batched\"",
+        "learner.n_step=3",
+        "replay.samples_per_insert=1.0",
+        "replay.prioritized=true",
+    ]);
     let r = run_serial("two-envs", &cfg, 60, 50);
     for e in 0..2 {
         let (sim, actor) = (r.get(RoleKind::Sim, e), r.get(RoleKind::Actor, e));
-        assert!(sim.work > 50 && actor.work > 50, "env {e}: sim steps {}, actor transitions {}", sim.work, actor.work);
+        assert!(
+            sim.work > 50 && actor.work > 50,
+            "env {e}: sim steps {}, actor transitions {}",
+            sim.work,
+            actor.work
+        );
         assert_eq!(actor.lost, 0, "actor {e} lost observation steps");
         assert!(actor.weight_version > 1, "actor {e} never took newer weights");
     }
@@ -115,18 +139,34 @@ fn two_environments_non_batched_n_step_prioritized_with_the_rate_limit() {
     // replay's last read (into the channel's buffer, then to no receiver):
     // that tail is not loss (seen: 229 of 5,479 on a loaded machine).
     let produced = r.get(RoleKind::Actor, 0).work + r.get(RoleKind::Actor, 1).work;
-    assert!(replay.work * 10 >= produced * 9 && replay.work <= produced, "replay inserted {}, actors produced {produced}", replay.work);
+    assert!(
+        replay.work * 10 >= produced * 9 && replay.work <= produced,
+        "replay inserted {}, actors produced {produced}",
+        replay.work
+    );
     // The sample side of the limit: minibatches × batch stay within the
     // transitions inserted since sampling began, plus its buffer.
-    let buffer = 2 * (cfg.replay.prefetch as u64 + cfg.learner.publish_every + 2) * cfg.replay.batch as u64;
+    let buffer =
+        2 * (cfg.replay.prefetch as u64 + cfg.learner.publish_every + 2) * cfg.replay.batch as u64;
     let sampled = replay.work2 * cfg.replay.batch as u64;
-    assert!(sampled <= replay.work - cfg.replay.min_fill as u64 + buffer, "sampled {sampled} of {} inserted", replay.work);
+    assert!(
+        sampled <= replay.work - cfg.replay.min_fill as u64 + buffer,
+        "sampled {sampled} of {} inserted",
+        replay.work
+    );
     assert!(r.episodes > 0, "no episodes reached the supervisor's channel");
     // The priorities of (nearly) every minibatch row came back and were
     // applied; the few stale ones are rows overwritten since.
-    let (applied, stale) = (replay.learning.priority_updates as u64, replay.learning.stale_priorities as u64);
-    assert!(applied + stale > 0 && applied >= (applied + stale) / 2, "priorities applied {applied}, stale {stale}");
-    assert!(applied + stale <= replay.work2 * cfg.replay.batch as u64, "more priorities than rows sampled");
+    let (applied, stale) =
+        (replay.learning.priority_updates as u64, replay.learning.stale_priorities as u64);
+    assert!(
+        applied + stale > 0 && applied >= (applied + stale) / 2,
+        "priorities applied {applied}, stale {stale}"
+    );
+    assert!(
+        applied + stale <= replay.work2 * cfg.replay.batch as u64,
+        "more priorities than rows sampled"
+    );
 }
 
 #[test]
@@ -134,14 +174,25 @@ fn one_environment_batched_without_the_rate_limit_with_ape_x_exploration() {
     // Also Ape-X's per-agent epsilons, a reward scale and gradient clipping:
     // the actor's telemetry shows the spread of its agents' rates, and the
     // learner's its diagnostics.
-    let ape_x = ["actor.exploration=\"per-actor\"", "learner.reward_scale=0.01", "learner.max_grad_norm=10", "learner.n_step=3"];
+    let ape_x = [
+        "actor.exploration=\"per-actor\"",
+        "learner.reward_scale=0.01",
+        "learner.max_grad_norm=10",
+        "learner.n_step=3",
+    ];
     let cfg = config(&[&["replay.samples_per_insert=0.0"][..], &ape_x].concat());
     let r = run_serial("batched", &cfg, 100, 4 * 50);
-    let (sim, actor, replay) = (r.get(RoleKind::Sim, 0), r.get(RoleKind::Actor, 0), r.get(RoleKind::Replay, 0));
+    let (sim, actor, replay) =
+        (r.get(RoleKind::Sim, 0), r.get(RoleKind::Actor, 0), r.get(RoleKind::Replay, 0));
     assert!(sim.work >= 4 * 50, "sim agent-steps {}", sim.work);
     assert_eq!(actor.lost + replay.lost, 0);
     assert!(r.work(RoleKind::Learner) >= 100);
-    assert!(replay.work2 >= 100 && r.episodes > 0, "minibatches {}, episodes {}", replay.work2, r.episodes);
+    assert!(
+        replay.work2 >= 100 && r.episodes > 0,
+        "minibatches {}, episodes {}",
+        replay.work2,
+        r.episodes
+    );
     // Four agents: 0.4, 0.4^(1+7/3), 0.4^(1+14/3), 0.4^8.
     let l = actor.learning;
     assert!((l.eps_max - 0.4).abs() < 1e-6 && (l.eps_min - 0.4f32.powi(8)).abs() < 1e-6, "{l:?}");

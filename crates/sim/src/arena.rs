@@ -85,7 +85,9 @@ impl Obstacle {
     pub fn aabb(&self) -> ([f32; 3], [f32; 3]) {
         let (c, h) = match self {
             Obstacle::Box { center, half_extents } => (*center, *half_extents),
-            Obstacle::Cylinder { center, radius, half_height } => (*center, [*radius, *radius, *half_height]),
+            Obstacle::Cylinder { center, radius, half_height } => {
+                (*center, [*radius, *radius, *half_height])
+            }
         };
         ([c[0] - h[0], c[1] - h[1], c[2] - h[2]], [c[0] + h[0], c[1] + h[1], c[2] + h[2]])
     }
@@ -142,7 +144,12 @@ impl Lanes {
         })?;
         if arenas.len() == 1 {
             let hw = first.width / 2.0;
-            return Ok(Self { world: first.clone(), offsets: vec![0.0], spawns: vec![first.spawn.clone()], bounds: vec![[-hw, hw]] });
+            return Ok(Self {
+                world: first.clone(),
+                offsets: vec![0.0],
+                spawns: vec![first.spawn.clone()],
+                bounds: vec![[-hw, hw]],
+            });
         }
         for a in arenas {
             if a.length != first.length || a.height != first.height {
@@ -150,7 +157,10 @@ impl Lanes {
                     file: a.name.clone(),
                     what: format!("arena {:?}", a.name),
                     field: "length/height".into(),
-                    message: format!("lanes must share length and height ({} × {} against {} × {})", a.length, a.height, first.length, first.height),
+                    message: format!(
+                        "lanes must share length and height ({} × {} against {} × {})",
+                        a.length, a.height, first.length, first.height
+                    ),
                 });
             }
         }
@@ -165,24 +175,44 @@ impl Lanes {
             bounds.push([off - a.width / 2.0, off + a.width / 2.0]);
             for o in &a.obstacles {
                 obstacles.push(match *o {
-                    Obstacle::Box { center, half_extents } => Obstacle::Box { center: [center[0], center[1] + off, center[2]], half_extents },
-                    Obstacle::Cylinder { center, radius, half_height } => {
-                        Obstacle::Cylinder { center: [center[0], center[1] + off, center[2]], radius, half_height }
-                    }
+                    Obstacle::Box { center, half_extents } => Obstacle::Box {
+                        center: [center[0], center[1] + off, center[2]],
+                        half_extents,
+                    },
+                    Obstacle::Cylinder { center, radius, half_height } => Obstacle::Cylinder {
+                        center: [center[0], center[1] + off, center[2]],
+                        radius,
+                        half_height,
+                    },
                 });
             }
             // The lane's own walls, longer than the camera sees past either end.
             let hl = a.length / 2.0 + 40.0;
             for side in [-1.0f32, 1.0] {
                 obstacles.push(Obstacle::Box {
-                    center: [a.length / 2.0, off + side * (a.width / 2.0 + LANE_WALL / 2.0), a.height / 2.0],
+                    center: [
+                        a.length / 2.0,
+                        off + side * (a.width / 2.0 + LANE_WALL / 2.0),
+                        a.height / 2.0,
+                    ],
                     half_extents: [hl, LANE_WALL / 2.0, a.height / 2.0],
                 });
             }
         }
-        let world =
-            Arena { name: format!("{} lanes", arenas.len()), length: first.length, width: total, height: first.height, spawn: first.spawn.clone(), obstacles };
-        Ok(Self { world, offsets, spawns: arenas.iter().map(|a| a.spawn.clone()).collect(), bounds })
+        let world = Arena {
+            name: format!("{} lanes", arenas.len()),
+            length: first.length,
+            width: total,
+            height: first.height,
+            spawn: first.spawn.clone(),
+            obstacles,
+        };
+        Ok(Self {
+            world,
+            offsets,
+            spawns: arenas.iter().map(|a| a.spawn.clone()).collect(),
+            bounds,
+        })
     }
 }
 
@@ -190,13 +220,17 @@ impl Arena {
     /// Reads and validates an arena file.
     pub fn load(path: &Path) -> Result<Self, ArenaError> {
         let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|source| ArenaError::Io { file: file.clone(), source })?;
+        let text = std::fs::read_to_string(path)
+            .map_err(|source| ArenaError::Io { file: file.clone(), source })?;
         Self::parse(&text, &file)
     }
 
     /// Parses and validates arena TOML; `file` names the source in messages.
     pub fn parse(text: &str, file: &str) -> Result<Self, ArenaError> {
-        let arena: Arena = toml::from_str(text).map_err(|e| ArenaError::Parse { file: file.to_string(), message: e.to_string().trim_end().to_string() })?;
+        let arena: Arena = toml::from_str(text).map_err(|e| ArenaError::Parse {
+            file: file.to_string(),
+            message: e.to_string().trim_end().to_string(),
+        })?;
         arena.validate(file)?;
         Ok(arena)
     }
@@ -208,9 +242,15 @@ impl Arena {
 
     /// Checks sizes, the spawn region and that every obstacle lies inside the arena.
     pub fn validate(&self, file: &str) -> Result<(), ArenaError> {
-        let bad = |what: String, field: &str, message: String| ArenaError::Invalid { file: file.to_string(), what, field: field.to_string(), message };
+        let bad = |what: String, field: &str, message: String| ArenaError::Invalid {
+            file: file.to_string(),
+            what,
+            field: field.to_string(),
+            message,
+        };
         let arena = || "arena".to_string();
-        for (field, v) in [("length", self.length), ("width", self.width), ("height", self.height)] {
+        for (field, v) in [("length", self.length), ("width", self.width), ("height", self.height)]
+        {
             if !(v.is_finite() && v > 0.0) {
                 return Err(bad(arena(), field, format!("must be a positive number, got {v}")));
             }
@@ -218,13 +258,25 @@ impl Arena {
         let hw = self.width / 2.0;
         let s = &self.spawn;
         if !(s.x.is_finite() && s.x >= 0.0 && s.x < self.length) {
-            return Err(bad(arena(), "spawn.x", format!("must lie in [0, length = {}), got {}", self.length, s.x)));
+            return Err(bad(
+                arena(),
+                "spawn.x",
+                format!("must lie in [0, length = {}), got {}", self.length, s.x),
+            ));
         }
         if !(s.y[0] <= s.y[1] && s.y[0] > -hw && s.y[1] < hw) {
-            return Err(bad(arena(), "spawn.y", format!("must be an ordered range inside (-{hw}, {hw}), got {:?}", s.y)));
+            return Err(bad(
+                arena(),
+                "spawn.y",
+                format!("must be an ordered range inside (-{hw}, {hw}), got {:?}", s.y),
+            ));
         }
         if !(s.z > 0.0 && s.z < self.height) {
-            return Err(bad(arena(), "spawn.z", format!("must lie in (0, height = {}), got {}", self.height, s.z)));
+            return Err(bad(
+                arena(),
+                "spawn.z",
+                format!("must lie in (0, height = {}), got {}", self.height, s.z),
+            ));
         }
         const EPS: f32 = 1e-3;
         for (i, o) in self.obstacles.iter().enumerate() {
@@ -239,7 +291,11 @@ impl Arena {
             match o {
                 Obstacle::Box { half_extents, .. } => {
                     if half_extents.iter().any(|h| !(h.is_finite() && *h > 0.0)) {
-                        return Err(bad(what, "half_extents", format!("must be positive, got {half_extents:?}")));
+                        return Err(bad(
+                            what,
+                            "half_extents",
+                            format!("must be positive, got {half_extents:?}"),
+                        ));
                     }
                 }
                 Obstacle::Cylinder { radius, half_height, .. } => {
@@ -247,7 +303,11 @@ impl Arena {
                         return Err(bad(what, "radius", format!("must be positive, got {radius}")));
                     }
                     if !(half_height.is_finite() && *half_height > 0.0) {
-                        return Err(bad(what, "half_height", format!("must be positive, got {half_height}")));
+                        return Err(bad(
+                            what,
+                            "half_height",
+                            format!("must be positive, got {half_height}"),
+                        ));
                     }
                 }
             }
@@ -256,7 +316,13 @@ impl Arena {
                 return Err(bad(what, "center", format!("must be finite, got {c:?}")));
             }
             let (lo, hi) = o.aabb();
-            if lo[0] < -EPS || hi[0] > self.length + EPS || lo[1] < -hw - EPS || hi[1] > hw + EPS || lo[2] < -EPS || hi[2] > self.height + EPS {
+            if lo[0] < -EPS
+                || hi[0] > self.length + EPS
+                || lo[1] < -hw - EPS
+                || hi[1] > hw + EPS
+                || lo[2] < -EPS
+                || hi[2] > self.height + EPS
+            {
                 return Err(bad(
                     what,
                     "center",
@@ -279,15 +345,23 @@ impl Arena {
 
 /// Scans y in 5 cm steps across the corridor and returns the first y whose
 /// straight line along +x meets no obstacle (widened by the drone radius) before `reach`.
-pub(crate) fn first_unblocked_line(obstacles: &[Obstacle], width: f32, drone_radius: f32, reach: f32) -> Option<f32> {
+pub(crate) fn first_unblocked_line(
+    obstacles: &[Obstacle],
+    width: f32,
+    drone_radius: f32,
+    reach: f32,
+) -> Option<f32> {
     let hw = width / 2.0;
     let steps = (width / 0.05) as i32;
-    (0..=steps).map(|i| -hw + drone_radius + i as f32 * 0.05).filter(|y| *y <= hw - drone_radius).find(|&y| {
-        !obstacles.iter().any(|o| {
-            let (lo, hi) = o.aabb();
-            lo[0] < reach && y > lo[1] - drone_radius && y < hi[1] + drone_radius
+    (0..=steps)
+        .map(|i| -hw + drone_radius + i as f32 * 0.05)
+        .filter(|y| *y <= hw - drone_radius)
+        .find(|&y| {
+            !obstacles.iter().any(|o| {
+                let (lo, hi) = o.aabb();
+                lo[0] < reach && y > lo[1] - drone_radius && y < hi[1] + drone_radius
+            })
         })
-    })
 }
 
 #[cfg(test)]

@@ -29,7 +29,13 @@ pub struct QuadParams {
 
 impl Default for QuadParams {
     fn default() -> Self {
-        Self { mass: 1.0, inertia: [0.01, 0.01, 0.018], arm: 0.15, max_rotor_thrust: 7.0, torque_coeff: 0.016 }
+        Self {
+            mass: 1.0,
+            inertia: [0.01, 0.01, 0.018],
+            arm: 0.15,
+            max_rotor_thrust: 7.0,
+            torque_coeff: 0.016,
+        }
     }
 }
 
@@ -54,7 +60,15 @@ pub struct Gains {
 
 impl Default for Gains {
     fn default() -> Self {
-        Self { vel_xy: 2.5, vel_z: 4.0, alt: 1.5, max_acc_xy: 6.0, att: 9.0, att_yaw: 3.0, rate: 22.0 }
+        Self {
+            vel_xy: 2.5,
+            vel_z: 4.0,
+            alt: 1.5,
+            max_acc_xy: 6.0,
+            att: 9.0,
+            att_yaw: 3.0,
+            rate: 22.0,
+        }
     }
 }
 
@@ -87,18 +101,38 @@ pub struct RotorCommand {
 /// Rotor positions in the body frame (X configuration) and their spin sense.
 fn rotors(arm: f32) -> ([Vector; 4], [f32; 4]) {
     let l = arm / std::f32::consts::SQRT_2;
-    ([Vector::new(l, l, 0.0), Vector::new(-l, l, 0.0), Vector::new(-l, -l, 0.0), Vector::new(l, -l, 0.0)], [1.0, -1.0, 1.0, -1.0])
+    (
+        [
+            Vector::new(l, l, 0.0),
+            Vector::new(-l, l, 0.0),
+            Vector::new(-l, -l, 0.0),
+            Vector::new(l, -l, 0.0),
+        ],
+        [1.0, -1.0, 1.0, -1.0],
+    )
 }
 
 /// Runs the cascade once: velocity setpoint (world frame, z ignored) and
 /// altitude setpoint in, rotor thrusts out.
-pub fn control(p: &QuadParams, g: &Gains, s: &DroneState, vel_sp: Vector, alt_sp: f32) -> RotorCommand {
+pub fn control(
+    p: &QuadParams,
+    g: &Gains,
+    s: &DroneState,
+    vel_sp: Vector,
+    alt_sp: f32,
+) -> RotorCommand {
     let r = s.rotation;
     let axes = [r * Vector::X, r * Vector::Y, r * Vector::Z];
-    let f = rotor_thrusts(p, g, s.position, s.velocity, axes, r.inverse() * s.angvel, vel_sp, alt_sp);
+    let f =
+        rotor_thrusts(p, g, s.position, s.velocity, axes, r.inverse() * s.angvel, vel_sp, alt_sp);
     let (arms, spin) = rotors(p.arm);
     let yaw = p.torque_coeff * (spin[0] * f[0] + spin[1] * f[1] + spin[2] * f[2] + spin[3] * f[3]);
-    RotorCommand { thrusts: f, arms_world: arms.map(|a| r * a), thrust_dir: axes[2], yaw_torque: axes[2] * yaw }
+    RotorCommand {
+        thrusts: f,
+        arms_world: arms.map(|a| r * a),
+        thrust_dir: axes[2],
+        yaw_torque: axes[2] * yaw,
+    }
 }
 
 /// The cascade itself: position, velocity, the body axes in the world frame
@@ -118,7 +152,17 @@ pub fn rotor_thrusts(
     alt_sp: f32,
 ) -> [f32; 4] {
     let v3 = |v: Vector| v.to_array();
-    thrusts(p, g, g.vel_xy, v3(position), v3(velocity), [v3(bx), v3(by), v3(bz)], v3(w_body), [vel_sp.x, vel_sp.y], alt_sp)
+    thrusts(
+        p,
+        g,
+        g.vel_xy,
+        v3(position),
+        v3(velocity),
+        [v3(bx), v3(by), v3(bz)],
+        v3(w_body),
+        [vel_sp.x, vel_sp.y],
+        alt_sp,
+    )
 }
 
 /// [`rotor_thrusts`] over any [`Lane`] type: one drone (`f32`) or a group
@@ -157,7 +201,11 @@ pub(crate) fn thrusts<T: Lane>(
     // Attitude error e = ½ vee(R_dᵀR − RᵀR_d) in the body frame (Lee et al.);
     // with M = R_dᵀR, M_ij = bd_i · b_j.
     let half = c(0.5);
-    let e = [half * (dot(bz_d, by) - dot(by_d, bz)), half * (dot(bx_d, bz) - dot(bz_d, bx)), half * (dot(by_d, bx) - dot(bx_d, by))];
+    let e = [
+        half * (dot(bz_d, by) - dot(by_d, bz)),
+        half * (dot(bx_d, bz) - dot(bz_d, bx)),
+        half * (dot(by_d, bx) - dot(bx_d, by)),
+    ];
     let rate_sp = [c(-g.att) * e[0], c(-g.att) * e[1], c(-g.att_yaw) * e[2]];
     let j = p.inertia.map(c);
     let gyro = cross(w, [j[0] * w[0], j[1] * w[1], j[2] * w[2]]);
@@ -165,8 +213,14 @@ pub(crate) fn thrusts<T: Lane>(
 
     // Mixer for the X frame (see `rotors`), then the rotors' limits.
     let l = p.arm / std::f32::consts::SQRT_2;
-    let (t4, x4, y4, z4) = (collective / c(4.0), tau[0] / c(4.0 * l), tau[1] / c(4.0 * l), tau[2] / c(4.0 * p.torque_coeff));
-    [t4 + x4 - y4 + z4, t4 + x4 + y4 - z4, t4 - x4 + y4 + z4, t4 - x4 - y4 - z4].map(|f| f.max(c(0.0)).min(c(p.max_rotor_thrust)))
+    let (t4, x4, y4, z4) = (
+        collective / c(4.0),
+        tau[0] / c(4.0 * l),
+        tau[1] / c(4.0 * l),
+        tau[2] / c(4.0 * p.torque_coeff),
+    );
+    [t4 + x4 - y4 + z4, t4 + x4 + y4 - z4, t4 - x4 + y4 + z4, t4 - x4 - y4 - z4]
+        .map(|f| f.max(c(0.0)).min(c(p.max_rotor_thrust)))
 }
 
 /// What four rotor thrusts do to the body: the total thrust along body z (N)
@@ -181,7 +235,11 @@ pub fn body_wrench(p: &QuadParams, f: [f32; 4]) -> (f32, Vector) {
 #[inline(always)]
 pub(crate) fn wrench<T: Lane>(p: &QuadParams, f: [T; 4]) -> (T, [T; 3]) {
     let l = T::splat(p.arm / std::f32::consts::SQRT_2);
-    let torque = [l * (f[0] + f[1] - f[2] - f[3]), l * (f[1] + f[2] - f[0] - f[3]), T::splat(p.torque_coeff) * (f[0] - f[1] + f[2] - f[3])];
+    let torque = [
+        l * (f[0] + f[1] - f[2] - f[3]),
+        l * (f[1] + f[2] - f[0] - f[3]),
+        T::splat(p.torque_coeff) * (f[0] - f[1] + f[2] - f[3]),
+    ];
     (f[0] + f[1] + f[2] + f[3], torque)
 }
 
@@ -195,7 +253,12 @@ mod tests {
     #[test]
     fn hover_thrust_balances_gravity() {
         let p = QuadParams::default();
-        let s = DroneState { position: Vector::new(0.0, 0.0, 2.0), velocity: Vector::ZERO, rotation: Rotation::IDENTITY, angvel: Vector::ZERO };
+        let s = DroneState {
+            position: Vector::new(0.0, 0.0, 2.0),
+            velocity: Vector::ZERO,
+            rotation: Rotation::IDENTITY,
+            angvel: Vector::ZERO,
+        };
         let c = control(&p, &Gains::default(), &s, Vector::ZERO, 2.0);
         let total: f32 = c.thrusts.iter().sum();
         assert!((total - 9.81).abs() < 1e-3, "{total}");
@@ -205,7 +268,12 @@ mod tests {
     #[test]
     fn a_forward_setpoint_tilts_the_thrust_forward() {
         let p = QuadParams::default();
-        let s = DroneState { position: Vector::new(0.0, 0.0, 2.0), velocity: Vector::ZERO, rotation: Rotation::IDENTITY, angvel: Vector::ZERO };
+        let s = DroneState {
+            position: Vector::new(0.0, 0.0, 2.0),
+            velocity: Vector::ZERO,
+            rotation: Rotation::IDENTITY,
+            angvel: Vector::ZERO,
+        };
         let c = control(&p, &Gains::default(), &s, Vector::new(1.0, 0.0, 0.0), 2.0);
         // Pitching forward (nose down) is a positive rotation about body y:
         // the rear rotors (1, 2) must push harder than the front ones.
@@ -216,9 +284,20 @@ mod tests {
     fn the_body_wrench_is_the_torque_of_the_rotor_forces_at_their_arms() {
         let p = QuadParams::default();
         let r = Rotation::from_euler(rapier3d::glamx::EulerRot::XYZ, 0.1, -0.2, 0.3);
-        let s = DroneState { position: Vector::new(1.0, 2.0, 2.5), velocity: Vector::new(0.5, -1.0, 0.1), rotation: r, angvel: Vector::new(0.2, -0.1, 0.3) };
+        let s = DroneState {
+            position: Vector::new(1.0, 2.0, 2.5),
+            velocity: Vector::new(0.5, -1.0, 0.1),
+            rotation: r,
+            angvel: Vector::new(0.2, -0.1, 0.3),
+        };
         let c = control(&p, &Gains::default(), &s, Vector::new(1.0, 2.0, 0.0), 2.0);
-        let world: Vector = c.thrusts.iter().zip(c.arms_world).map(|(f, a)| a.cross(c.thrust_dir * *f)).sum::<Vector>() + c.yaw_torque;
+        let world: Vector = c
+            .thrusts
+            .iter()
+            .zip(c.arms_world)
+            .map(|(f, a)| a.cross(c.thrust_dir * *f))
+            .sum::<Vector>()
+            + c.yaw_torque;
         let (total, body) = body_wrench(&p, c.thrusts);
         assert!((r * body - world).length() < 1e-5, "{:?} vs {:?}", r * body, world);
         assert!((total - c.thrusts.iter().sum::<f32>()).abs() < 1e-6);

@@ -214,10 +214,22 @@ struct World {
 
 impl World {
     fn new(cfg: &SimConfig, arena: &Arena, bounds: &[[f32; 2]]) -> Result<Self, GpuError> {
-        let flight = Flight { quad: cfg.quad, gains: cfg.gains, dt: cfg.physics_dt, forward_speed: cfg.forward_speed, altitude: arena.spawn.z };
+        let flight = Flight {
+            quad: cfg.quad,
+            gains: cfg.gains,
+            dt: cfg.physics_dt,
+            forward_speed: cfg.forward_speed,
+            altitude: arena.spawn.z,
+        };
         let physics = match cfg.physics {
             PhysicsKind::Direct => Physics::Direct(Geometry::new(arena)),
-            PhysicsKind::Rapier => Physics::Rapier(Box::new(RapierFlight::new(arena, cfg.agents, &flight, cfg.drone_radius, cfg.interactive))),
+            PhysicsKind::Rapier => Physics::Rapier(Box::new(RapierFlight::new(
+                arena,
+                cfg.agents,
+                &flight,
+                cfg.drone_radius,
+                cfg.interactive,
+            ))),
         };
         let mut scene = Scene::new(arena);
         scene.set_lanes(bounds);
@@ -295,7 +307,8 @@ impl VecEnv {
     }
 
     fn with_lanes(cfg: SimConfig, lanes: Lanes, seed: u64) -> Result<Self, GpuError> {
-        let Lanes { world: arena, offsets: lane_offsets, spawns: lane_spawns, bounds: lane_bounds } = lanes;
+        let Lanes { world: arena, offsets: lane_offsets, spawns: lane_spawns, bounds: lane_bounds } =
+            lanes;
         assert!(cfg.agents > 0, "a VecEnv needs at least one agent");
         let World { flight, physics, scene, gpu } = World::new(&cfg, &arena, &lane_bounds)?;
         let n = cfg.agents;
@@ -413,7 +426,10 @@ impl VecEnv {
     /// Places a drone at a pose with a velocity, for tests and tools.
     pub fn place(&mut self, agent: usize, position: [f32; 3], velocity: [f32; 3]) {
         let d = &mut self.drones[agent];
-        *d = Drone { lateral_sp: velocity[1], ..Drone::at(Vector::from(position), Vector::from(velocity), self.flight.nominal()) };
+        *d = Drone {
+            lateral_sp: velocity[1],
+            ..Drone::at(Vector::from(position), Vector::from(velocity), self.flight.nominal())
+        };
         if let Physics::Rapier(r) = &mut self.physics {
             r.load(agent, d);
         }
@@ -465,7 +481,11 @@ impl VecEnv {
                 if pool.threads() == 1 || self.drones.len() <= PHYSICS_CHUNK {
                     work(&mut self.drones, &mut self.path);
                 } else {
-                    let queue = Mutex::new(self.drones.chunks_mut(PHYSICS_CHUNK).zip(self.path.chunks_mut(PHYSICS_CHUNK * stride)));
+                    let queue = Mutex::new(
+                        self.drones
+                            .chunks_mut(PHYSICS_CHUNK)
+                            .zip(self.path.chunks_mut(PHYSICS_CHUNK * stride)),
+                    );
                     pool.run(&|_| {
                         loop {
                             let next = queue.lock().unwrap_or_else(PoisonError::into_inner).next();
@@ -495,7 +515,8 @@ impl VecEnv {
         let cfg = &self.cfg;
         for (d, a) in self.drones.iter_mut().zip(actions) {
             let delta = if *a == 0 { -cfg.lateral_step } else { cfg.lateral_step };
-            d.lateral_sp = (d.lateral_sp + delta).clamp(-cfg.max_lateral_speed, cfg.max_lateral_speed);
+            d.lateral_sp =
+                (d.lateral_sp + delta).clamp(-cfg.max_lateral_speed, cfg.max_lateral_speed);
             d.collided = false;
         }
         let substeps = ((cfg.action_period / cfg.physics_dt).round() as usize).max(1);
@@ -528,7 +549,12 @@ impl VecEnv {
             self.rewards[i] = reward;
             self.dones[i] = done;
             if done != Done::Running {
-                self.finished.push(Episode { agent: i, reward: self.returns[i], steps: self.steps[i], done });
+                self.finished.push(Episode {
+                    agent: i,
+                    reward: self.returns[i],
+                    steps: self.steps[i],
+                    done,
+                });
                 if self.autoreset == Autoreset::SameStep {
                     self.reset_agent(i);
                     self.restarted[i] = true;
@@ -552,15 +578,23 @@ impl VecEnv {
         self.assemble_obs();
         self.total_steps += 1;
         let t4 = Instant::now();
-        self.timing =
-            StepTiming { physics_ns: (t1 - t0).as_nanos() as u64, render_ns: (t3 - t2).as_nanos() as u64, reset_ns: ((t2 - t1) + (t4 - t3)).as_nanos() as u64 };
+        self.timing = StepTiming {
+            physics_ns: (t1 - t0).as_nanos() as u64,
+            render_ns: (t3 - t2).as_nanos() as u64,
+            reset_ns: ((t2 - t1) + (t4 - t3)).as_nanos() as u64,
+        };
         Ok(())
     }
 
     fn reset_agent(&mut self, i: usize) {
-        let lane = if self.lane_offsets.len() > 1 { self.rng.random_range(0..self.lane_offsets.len()) } else { 0 };
+        let lane = if self.lane_offsets.len() > 1 {
+            self.rng.random_range(0..self.lane_offsets.len())
+        } else {
+            0
+        };
         let s = &self.lane_spawns[lane];
-        let y = self.lane_offsets[lane] + if s.y[1] > s.y[0] { self.rng.random_range(s.y[0]..s.y[1]) } else { s.y[0] };
+        let y = self.lane_offsets[lane]
+            + if s.y[1] > s.y[0] { self.rng.random_range(s.y[0]..s.y[1]) } else { s.y[0] };
         let (sx, sz) = (s.x, s.z);
         let body = self.draw_body();
         self.drones[i] = Drone::at(Vector::new(sx, y, sz), Vector::new(body.fwd, 0.0, 0.0), body);
@@ -584,9 +618,15 @@ impl VecEnv {
             return nominal;
         }
         let rng = &mut self.rng;
-        let (mass, gain, wind) = (symmetric(rng, r.mass), symmetric(rng, r.vel_gain), symmetric(rng, r.wind));
+        let (mass, gain, wind) =
+            (symmetric(rng, r.mass), symmetric(rng, r.vel_gain), symmetric(rng, r.wind));
         let scale = within(rng, r.forward_speed_scale);
-        Body { fwd: nominal.fwd * scale, mass: nominal.mass * (1.0 + mass), vel_gain: nominal.vel_gain * (1.0 + gain), push: WIND_DRAG * wind }
+        Body {
+            fwd: nominal.fwd * scale,
+            mass: nominal.mass * (1.0 + mass),
+            vel_gain: nominal.vel_gain * (1.0 + gain),
+            push: WIND_DRAG * wind,
+        }
     }
 
     /// The rest of a new episode's draws: spawn x, heading and lateral
@@ -628,7 +668,12 @@ impl VecEnv {
                 self.returns[i] += self.cfg.reward_timeout - self.rewards[i];
                 self.rewards[i] = self.cfg.reward_timeout;
                 self.dones[i] = Done::Timeout;
-                self.finished.push(Episode { agent: i, reward: self.returns[i], steps: self.steps[i], done: Done::Timeout });
+                self.finished.push(Episode {
+                    agent: i,
+                    reward: self.returns[i],
+                    steps: self.steps[i],
+                    done: Done::Timeout,
+                });
             }
             // Every agent starts again in the new lanes (those that ended in
             // this step had been placed in the old ones).
@@ -652,7 +697,10 @@ impl VecEnv {
     fn render(&mut self) -> Result<(), GpuError> {
         let cams: Vec<CameraPose> = (0..self.cfg.agents).map(|i| self.camera_at(i)).collect();
         let positions: Vec<Vector> = cams.iter().map(|c| c.position).collect();
-        let drones = self.cfg.interactive.then_some(Drones { positions: &positions, radius: self.cfg.drone_radius });
+        let drones = self
+            .cfg
+            .interactive
+            .then_some(Drones { positions: &positions, radius: self.cfg.drone_radius });
         let px = self.cfg.camera.side * self.cfg.camera.side;
         match (&mut self.gpu, self.cfg.batched) {
             (Some(g), true) => g.render(&cams, &self.agent_ids, drones, &mut self.cur)?,
@@ -689,7 +737,10 @@ impl VecEnv {
     pub fn write_observations(&self, first: usize, out: &mut [f32]) {
         let px = self.cfg.camera.side * self.cfg.camera.side;
         let len = 2 * px + 3;
-        assert!(out.len().is_multiple_of(len) && first + out.len() / len <= self.cfg.agents, "observation rows out of range");
+        assert!(
+            out.len().is_multiple_of(len) && first + out.len() / len <= self.cfg.agents,
+            "observation rows out of range"
+        );
         for (j, o) in out.chunks_exact_mut(len).enumerate() {
             let i = first + j;
             o[..px].copy_from_slice(&self.prev[i * px..(i + 1) * px]);
@@ -710,7 +761,8 @@ impl VecEnv {
     /// and observations.
     pub fn reset_agents(&mut self, mask: &[bool]) -> Result<(), GpuError> {
         assert_eq!(mask.len(), self.cfg.agents, "one flag per agent");
-        let reset: Vec<usize> = mask.iter().enumerate().filter(|(_, m)| **m).map(|(i, _)| i).collect();
+        let reset: Vec<usize> =
+            mask.iter().enumerate().filter(|(_, m)| **m).map(|(i, _)| i).collect();
         if reset.is_empty() {
             return Ok(());
         }
@@ -752,8 +804,13 @@ impl VecEnv {
     pub fn write_observations_split(&self, depth: &mut [f32], velocity: &mut [f32]) {
         let px = self.cfg.camera.side * self.cfg.camera.side;
         let n = self.cfg.agents;
-        assert!(depth.len() == n * 2 * px && velocity.len() == n * 3, "observation buffers of the wrong size");
-        for (i, (d, v)) in depth.chunks_exact_mut(2 * px).zip(velocity.chunks_exact_mut(3)).enumerate() {
+        assert!(
+            depth.len() == n * 2 * px && velocity.len() == n * 3,
+            "observation buffers of the wrong size"
+        );
+        for (i, (d, v)) in
+            depth.chunks_exact_mut(2 * px).zip(velocity.chunks_exact_mut(3)).enumerate()
+        {
             d[..px].copy_from_slice(&self.prev[i * px..(i + 1) * px]);
             d[px..].copy_from_slice(&self.cur[i * px..(i + 1) * px]);
             v.copy_from_slice(&self.body_velocity(i));
@@ -763,7 +820,8 @@ impl VecEnv {
     fn camera(&self, agent: usize) -> CameraPose {
         let d = &self.drones[agent];
         let pitch = self.pitch[agent];
-        let rotation = if pitch == 0.0 { d.q } else { d.q * rapier3d::math::Rotation::from_rotation_y(pitch) };
+        let rotation =
+            if pitch == 0.0 { d.q } else { d.q * rapier3d::math::Rotation::from_rotation_y(pitch) };
         CameraPose { position: d.p, rotation }
     }
 

@@ -77,7 +77,15 @@ pub(crate) struct Body {
 impl Drone {
     /// At rest in the identity attitude at `p` with velocity `v`.
     pub(crate) fn at(p: Vector, v: Vector, body: Body) -> Self {
-        Self { p, v, q: Rotation::IDENTITY, w: Vector::ZERO, lateral_sp: 0.0, collided: false, body }
+        Self {
+            p,
+            v,
+            q: Rotation::IDENTITY,
+            w: Vector::ZERO,
+            lateral_sp: 0.0,
+            collided: false,
+            body,
+        }
     }
 
     /// Angular velocity in the world frame.
@@ -99,7 +107,12 @@ pub(crate) struct Flight {
 impl Flight {
     /// The parameters of a drone without randomisation.
     pub(crate) fn nominal(&self) -> Body {
-        Body { fwd: self.forward_speed, mass: self.quad.mass, vel_gain: self.gains.vel_xy, push: 0.0 }
+        Body {
+            fwd: self.forward_speed,
+            mass: self.quad.mass,
+            vel_gain: self.gains.vel_xy,
+            push: 0.0,
+        }
     }
 
     /// One physics step of one drone: the same kernel as one lane of
@@ -156,7 +169,8 @@ impl Flight {
         let q = &self.quad;
         let c = T::splat;
         let axes = axes(s.q);
-        let f = thrusts(q, &self.gains, s.gain, s.p, s.v, axes, s.w, [s.fwd, s.lat], c(self.altitude));
+        let f =
+            thrusts(q, &self.gains, s.gain, s.p, s.v, axes, s.w, [s.fwd, s.lat], c(self.altitude));
         let (thrust, torque) = wrench(q, f);
         let per_mass = thrust / s.mass;
         let bz = axes[2];
@@ -191,7 +205,12 @@ const PAD_FROM: usize = 6;
 /// The arithmetic the flight kernel needs, for one drone (`f32`) or a
 /// group of [`LANES`] ([`Wide`]), lane by lane the same operations.
 pub(crate) trait Lane:
-    Copy + std::ops::Add<Output = Self> + std::ops::Sub<Output = Self> + std::ops::Mul<Output = Self> + std::ops::Div<Output = Self> + std::ops::Neg<Output = Self>
+    Copy
+    + std::ops::Add<Output = Self>
+    + std::ops::Sub<Output = Self>
+    + std::ops::Mul<Output = Self>
+    + std::ops::Div<Output = Self>
+    + std::ops::Neg<Output = Self>
 {
     fn splat(x: f32) -> Self;
     fn sqrt(self) -> Self;
@@ -350,7 +369,10 @@ fn put<T>(d: &mut Drone, s: &State<T>, lane: impl Fn(&T) -> f32) {
 /// [`LANES`] drones flown `steps` physics steps, their positions written
 /// into `path` (`steps + 1` per drone). Compiled for AVX-512 and AVX2 beside
 /// the baseline and picked at run time.
-#[multiversion::multiversion(targets("x86_64+avx512f+avx512vl+avx512dq+avx2+fma+avx", "x86_64+avx2+fma+avx"))]
+#[multiversion::multiversion(targets(
+    "x86_64+avx512f+avx512vl+avx512dq+avx2+fma+avx",
+    "x86_64+avx2+fma+avx"
+))]
 fn fly_group(flight: &Flight, drones: &mut [Drone], path: &mut [Vector], steps: usize) {
     let stride = steps + 1;
     let mut s = State::<Wide>::gather(drones);
@@ -371,7 +393,8 @@ fn fly_group(flight: &Flight, drones: &mut [Drone], path: &mut [Vector], steps: 
 #[inline(always)]
 fn axes<T: Lane>([x, y, z, w]: [T; 4]) -> [[T; 3]; 3] {
     let (one, two) = (T::splat(1.0), T::splat(2.0));
-    let (xx, yy, zz, xy, xz, yz, wx, wy, wz) = (x * x, y * y, z * z, x * y, x * z, y * z, w * x, w * y, w * z);
+    let (xx, yy, zz, xy, xz, yz, wx, wy, wz) =
+        (x * x, y * y, z * z, x * y, x * z, y * z, w * x, w * y, w * z);
     [
         [one - two * (yy + zz), two * (xy + wz), two * (xz - wy)],
         [two * (xy - wz), one - two * (xx + zz), two * (yz + wx)],
@@ -402,7 +425,12 @@ pub(crate) fn normalize_or<T: Lane>(v: [T; 3], fallback: [T; 3]) -> [T; 3] {
 /// after `q`, unnormalised.
 #[inline(always)]
 fn mul_q<T: Lane>([x, y, z, w]: [T; 4], [a, b, c]: [T; 3]) -> [T; 4] {
-    [w * a + x + y * c - z * b, w * b - x * c + y + z * a, w * c + x * b - y * a + z, w - (x * a + y * b + z * c)]
+    [
+        w * a + x + y * c - z * b,
+        w * b - x * c + y + z * a,
+        w * c + x * b - y * a + z,
+        w - (x * a + y * b + z * c),
+    ]
 }
 
 #[inline(always)]
@@ -431,11 +459,18 @@ pub(crate) fn solids(arena: &Arena) -> Vec<(Pose, SharedShape)> {
         .obstacles
         .iter()
         .map(|o| match *o {
-            Obstacle::Box { center, half_extents: h } => (Pose::from_translation(Vector::from(center)), SharedShape::cuboid(h[0], h[1], h[2])),
+            Obstacle::Box { center, half_extents: h } => (
+                Pose::from_translation(Vector::from(center)),
+                SharedShape::cuboid(h[0], h[1], h[2]),
+            ),
             // Parry's cylinders stand along y; turn them upright.
-            Obstacle::Cylinder { center, radius, half_height } => {
-                (Pose::from_parts(Vector::from(center), Rotation::from_rotation_x(std::f32::consts::FRAC_PI_2)), SharedShape::cylinder(half_height, radius))
-            }
+            Obstacle::Cylinder { center, radius, half_height } => (
+                Pose::from_parts(
+                    Vector::from(center),
+                    Rotation::from_rotation_x(std::f32::consts::FRAC_PI_2),
+                ),
+                SharedShape::cylinder(half_height, radius),
+            ),
         })
         .collect();
     let (l, hw, h) = (arena.length, arena.width / 2.0, arena.height);
@@ -445,7 +480,11 @@ pub(crate) fn solids(arena: &Arena) -> Vec<(Pose, SharedShape)> {
         (Vector::new(l / 2.0, 0.0, -0.5), Vector::new(l / 2.0 + 5.0, hw + 1.0, 0.5)),
         (Vector::new(l / 2.0, 0.0, h + 0.5), Vector::new(l / 2.0 + 5.0, hw + 1.0, 0.5)),
     ];
-    out.extend(slabs.into_iter().map(|(c, e)| (Pose::from_translation(c), SharedShape::cuboid(e.x, e.y, e.z))));
+    out.extend(
+        slabs
+            .into_iter()
+            .map(|(c, e)| (Pose::from_translation(c), SharedShape::cuboid(e.x, e.y, e.z))),
+    );
     out
 }
 
@@ -462,17 +501,23 @@ impl Geometry {
     /// than half the radius, points are added so that none of the path is
     /// skipped.
     pub(crate) fn path_hits(&self, path: &[Vector], radius: f32) -> bool {
-        let Some(first) = path.first() else { return false };
+        let Some(first) = path.first() else {
+            return false;
+        };
         let (lo, hi) = path.iter().fold((*first, *first), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
         let query = Aabb::new(lo - Vector::splat(radius), hi + Vector::splat(radius));
-        let touches = |pose: &Pose, shape: &SharedShape, p: Vector| shape.distance_to_point(pose, p, true) <= radius;
+        let touches = |pose: &Pose, shape: &SharedShape, p: Vector| {
+            shape.distance_to_point(pose, p, true) <= radius
+        };
         self.bvh.intersect_aabb(&query).any(|leaf| {
             let (pose, shape) = &self.shapes[leaf as usize];
             let mut prev = *first;
             path.iter().any(|p| {
                 let gap = (*p - prev).length();
                 let extra = (gap / (0.5 * radius)).ceil() as usize;
-                let hit = (1..extra).any(|k| touches(pose, shape, prev.lerp(*p, k as f32 / extra as f32))) || touches(pose, shape, *p);
+                let hit = (1..extra)
+                    .any(|k| touches(pose, shape, prev.lerp(*p, k as f32 / extra as f32)))
+                    || touches(pose, shape, *p);
                 prev = *p;
                 hit
             })
@@ -497,12 +542,26 @@ mod tests {
             .map(|i| {
                 let t = i as f32;
                 let body = if varied {
-                    Body { fwd: 0.8 + 0.02 * t, mass: 0.8 + 0.011 * t, vel_gain: 1.75 + 0.04 * t, push: 0.5 - 0.03 * t }
+                    Body {
+                        fwd: 0.8 + 0.02 * t,
+                        mass: 0.8 + 0.011 * t,
+                        vel_gain: 1.75 + 0.04 * t,
+                        push: 0.5 - 0.03 * t,
+                    }
                 } else {
                     flight.nominal()
                 };
-                let mut d = Drone::at(Vector::new(t, 0.3 * t, 2.0 + 0.01 * t), Vector::new(3.0, 0.1 * (t - 18.0), -0.05 * t), body);
-                d.q = Rotation::from_euler(rapier3d::glamx::EulerRot::XYZ, 0.01 * t, -0.02 * t, 0.005 * t);
+                let mut d = Drone::at(
+                    Vector::new(t, 0.3 * t, 2.0 + 0.01 * t),
+                    Vector::new(3.0, 0.1 * (t - 18.0), -0.05 * t),
+                    body,
+                );
+                d.q = Rotation::from_euler(
+                    rapier3d::glamx::EulerRot::XYZ,
+                    0.01 * t,
+                    -0.02 * t,
+                    0.005 * t,
+                );
                 d.w = Vector::new(0.1, -0.05 * t, 0.02);
                 d.lateral_sp = if i % 2 == 0 { 1.5 } else { -1.5 };
                 d
@@ -512,7 +571,13 @@ mod tests {
 
     #[test]
     fn a_drone_flies_the_same_to_the_bit_alone_or_in_a_group() {
-        let flight = Flight { quad: QuadParams::default(), gains: Gains::default(), dt: 0.02, forward_speed: 3.0, altitude: 2.0 };
+        let flight = Flight {
+            quad: QuadParams::default(),
+            gains: Gains::default(),
+            dt: 0.02,
+            forward_speed: 3.0,
+            altitude: 2.0,
+        };
         let steps = 50;
         // Two groups and five left over (one by one); two groups and 13
         // left over (a padded group).
@@ -537,22 +602,37 @@ mod tests {
             }
             let bits = |d: &Drone| [d.p, d.v, d.w].map(|v| v.to_array().map(f32::to_bits));
             assert_eq!(bits(flown), bits(&alone), "drone {i}");
-            assert_eq!(flown.q.to_array().map(f32::to_bits), alone.q.to_array().map(f32::to_bits), "drone {i}");
+            assert_eq!(
+                flown.q.to_array().map(f32::to_bits),
+                alone.q.to_array().map(f32::to_bits),
+                "drone {i}"
+            );
         }
         // They did fly: every drone moved and turned.
-        assert!(group.iter().zip(drones(flight, n, varied)).all(|(a, b)| (a.p - b.p).length() > 1.0 && a.q != b.q));
+        assert!(
+            group
+                .iter()
+                .zip(drones(flight, n, varied))
+                .all(|(a, b)| (a.p - b.p).length() > 1.0 && a.q != b.q)
+        );
     }
 
     #[test]
     fn a_path_touches_what_lies_within_the_radius_and_nothing_else() {
-        let g = Geometry::new(&arena(vec![Obstacle::Box { center: [10.0, 0.0, 2.0], half_extents: [0.5, 0.5, 2.0] }]));
+        let g = Geometry::new(&arena(vec![Obstacle::Box {
+            center: [10.0, 0.0, 2.0],
+            half_extents: [0.5, 0.5, 2.0],
+        }]));
         let z = 2.0;
         // Ends 0.31 m before the box's face at x = 9.5: clear.
         assert!(!g.path_hits(&[Vector::new(8.0, 0.0, z), Vector::new(9.19, 0.0, z)], 0.3));
         // Ends 0.29 m before it: touching.
         assert!(g.path_hits(&[Vector::new(8.0, 0.0, z), Vector::new(9.21, 0.0, z)], 0.3));
         // Jumps clean over a thin box in one long step: the added points see it.
-        let thin = Geometry::new(&arena(vec![Obstacle::Box { center: [10.0, 0.0, 2.0], half_extents: [0.001, 3.0, 2.0] }]));
+        let thin = Geometry::new(&arena(vec![Obstacle::Box {
+            center: [10.0, 0.0, 2.0],
+            half_extents: [0.001, 3.0, 2.0],
+        }]));
         assert!(thin.path_hits(&[Vector::new(5.0, 0.0, z), Vector::new(15.0, 0.0, z)], 0.3));
         // The floor slab is a solid too.
         assert!(g.path_hits(&[Vector::new(3.0, 0.0, 0.2)], 0.3));

@@ -117,13 +117,24 @@ impl GenParams {
     /// Checks every value the generator relies on.
     pub fn validate(&self) -> Result<(), GenParamError> {
         let bad = |key, message: String| Err(GenParamError { key, message });
-        for (key, v) in [("length", self.length), ("width", self.width), ("height", self.height), ("spacing", self.spacing)] {
+        for (key, v) in [
+            ("length", self.length),
+            ("width", self.width),
+            ("height", self.height),
+            ("spacing", self.spacing),
+        ] {
             if !(v.is_finite() && v > 0.0) {
                 return bad(key, format!("must be positive, got {v}"));
             }
         }
         if !(self.length >= self.first_x + 10.0 && self.first_x >= 4.0) {
-            return bad("length", format!("must exceed first_x + 10 = {} m (first_x at least 4 m)", self.first_x + 10.0));
+            return bad(
+                "length",
+                format!(
+                    "must exceed first_x + 10 = {} m (first_x at least 4 m)",
+                    self.first_x + 10.0
+                ),
+            );
         }
         if self.mode == GenMode::Rows && self.spacing < 0.5 {
             return bad("spacing", format!("must be at least 0.5 m, got {}", self.spacing));
@@ -138,23 +149,44 @@ impl GenParams {
             ("forest_radius", self.forest_radius, self.width / 4.0),
             ("door_width", self.door_width, self.width - 1.0),
         ] {
-            if !(r[0].is_finite() && r[1].is_finite() && r[0] > 0.0 && r[0] <= r[1] && r[1] <= most) {
-                return bad(key, format!("must be an ordered range of positive sizes up to {most} m, got {r:?}"));
+            if !(r[0].is_finite() && r[1].is_finite() && r[0] > 0.0 && r[0] <= r[1] && r[1] <= most)
+            {
+                return bad(
+                    key,
+                    format!("must be an ordered range of positive sizes up to {most} m, got {r:?}"),
+                );
             }
         }
         if !(self.forest_density.is_finite() && (0.0..=0.5).contains(&self.forest_density)) {
-            return bad("forest_density", format!("must lie in [0, 0.5] per m², got {}", self.forest_density));
+            return bad(
+                "forest_density",
+                format!("must lie in [0, 0.5] per m², got {}", self.forest_density),
+            );
         }
-        for (key, v) in [("door_every", self.door_every), ("block_within", self.block_within), ("min_gap", self.min_gap)] {
+        for (key, v) in [
+            ("door_every", self.door_every),
+            ("block_within", self.block_within),
+            ("min_gap", self.min_gap),
+        ] {
             if !(v.is_finite() && v >= 0.0) {
                 return bad(key, format!("must be 0 or positive, got {v}"));
             }
         }
         if self.door_every > 0.0 && self.door_every < 4.0 {
-            return bad("door_every", format!("must be 0 (none) or at least 4 m, got {}", self.door_every));
+            return bad(
+                "door_every",
+                format!("must be 0 (none) or at least 4 m, got {}", self.door_every),
+            );
         }
         if self.min_gap > self.width / 2.0 {
-            return bad("min_gap", format!("must be at most half the width ({} m), got {}", self.width / 2.0, self.min_gap));
+            return bad(
+                "min_gap",
+                format!(
+                    "must be at most half the width ({} m), got {}",
+                    self.width / 2.0,
+                    self.min_gap
+                ),
+            );
         }
         if !(self.path_slope.is_finite() && self.path_slope > 0.0 && self.path_slope <= 3.0) {
             return bad("path_slope", format!("must lie in (0, 3], got {}", self.path_slope));
@@ -191,7 +223,8 @@ impl Arena {
             }
             arena = layout(name, &mut rng, params);
         }
-        while !arena.has_path(params.clearance(), params.path_slope) && !arena.obstacles.is_empty() {
+        while !arena.has_path(params.clearance(), params.path_slope) && !arena.obstacles.is_empty()
+        {
             let k = rng.random_range(0..arena.obstacles.len());
             arena.obstacles.remove(k);
         }
@@ -236,7 +269,9 @@ impl Arena {
                 }
             })
         };
-        let mut reach: Vec<bool> = (0..cells).map(|j| (self.spawn.y[0] - 1e-3..=self.spawn.y[1] + 1e-3).contains(&y_of(j))).collect();
+        let mut reach: Vec<bool> = (0..cells)
+            .map(|j| (self.spawn.y[0] - 1e-3..=self.spawn.y[1] + 1e-3).contains(&y_of(j)))
+            .collect();
         let spread = ((slope * DX / DY).floor() as usize).max(1);
         let steps = ((self.length - self.spawn.x) / DX).ceil() as usize;
         let mut next = vec![false; cells];
@@ -287,10 +322,17 @@ fn layout(name: &str, rng: &mut Pcg64Mcg, params: &GenParams) -> Arena {
         if rng.random_bool(0.5) {
             let hx = draw(rng, params.box_half_x);
             let hy = draw(rng, params.box_half_y);
-            Obstacle::Box { center: [x, y.clamp(-hw + hy, hw - hy), hz], half_extents: [hx, hy, hz] }
+            Obstacle::Box {
+                center: [x, y.clamp(-hw + hy, hw - hy), hz],
+                half_extents: [hx, hy, hz],
+            }
         } else {
             let r = draw(rng, params.cylinder_radius);
-            Obstacle::Cylinder { center: [x, y.clamp(-hw + r, hw - r), hz], radius: r, half_height: hz }
+            Obstacle::Cylinder {
+                center: [x, y.clamp(-hw + r, hw - r), hz],
+                radius: r,
+                half_height: hz,
+            }
         }
     };
     let end = params.length - 4.0;
@@ -310,12 +352,17 @@ fn layout(name: &str, rng: &mut Pcg64Mcg, params: &GenParams) -> Arena {
             }
         }
         GenMode::Forest => {
-            let count = (params.forest_density * (end - params.first_x) * params.width).round() as usize;
+            let count =
+                (params.forest_density * (end - params.first_x) * params.width).round() as usize;
             for _ in 0..count {
                 let r = draw(rng, params.forest_radius);
                 let x = rng.random_range(params.first_x..end);
                 let y = rng.random_range(-hw + r..hw - r);
-                obstacles.push(Obstacle::Cylinder { center: [x, y, hz], radius: r, half_height: hz });
+                obstacles.push(Obstacle::Cylinder {
+                    center: [x, y, hz],
+                    radius: r,
+                    half_height: hz,
+                });
             }
         }
     }
@@ -326,7 +373,10 @@ fn layout(name: &str, rng: &mut Pcg64Mcg, params: &GenParams) -> Arena {
             let c = rng.random_range(-hw + w / 2.0..=hw - w / 2.0);
             for (lo, hi) in [(-hw, c - w / 2.0), (c + w / 2.0, hw)] {
                 if hi - lo > 0.05 {
-                    obstacles.push(Obstacle::Box { center: [x, (lo + hi) / 2.0, hz], half_extents: [0.25, (hi - lo) / 2.0, hz] });
+                    obstacles.push(Obstacle::Box {
+                        center: [x, (lo + hi) / 2.0, hz],
+                        half_extents: [0.25, (hi - lo) / 2.0, hz],
+                    });
                 }
             }
             x += params.door_every;
@@ -337,13 +387,24 @@ fn layout(name: &str, rng: &mut Pcg64Mcg, params: &GenParams) -> Arena {
         // Close every lateral line that no obstacle within reach blocks yet.
         let reach = (spawn.x + params.block_within).min(end);
         for _ in 0..200 {
-            let Some(gap) = first_unblocked_line(&obstacles, params.width, params.drone_radius, reach) else { break };
+            let Some(gap) =
+                first_unblocked_line(&obstacles, params.width, params.drone_radius, reach)
+            else {
+                break;
+            };
             let x = rng.random_range(params.first_x..reach - 2.0);
             obstacles.push(random_obstacle(rng, x, gap));
         }
     }
     obstacles.sort_by(|a, b| a.center()[0].total_cmp(&b.center()[0]));
-    Arena { name: name.to_string(), length: params.length, width: params.width, height: params.height, spawn, obstacles }
+    Arena {
+        name: name.to_string(),
+        length: params.length,
+        width: params.width,
+        height: params.height,
+        spawn,
+        obstacles,
+    }
 }
 
 #[cfg(test)]
@@ -367,7 +428,12 @@ mod tests {
         let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/arenas");
         for (file, seed) in [("train.toml", 101), ("test.toml", 202)] {
             let shipped = Arena::load(&root.join(file)).unwrap();
-            let p = GenParams { length: shipped.length, width: shipped.width, height: shipped.height, ..GenParams::default() };
+            let p = GenParams {
+                length: shipped.length,
+                width: shipped.width,
+                height: shipped.height,
+                ..GenParams::default()
+            };
             let again = Arena::generate(&shipped.name, seed, &p);
             assert_eq!(again.obstacles, shipped.obstacles, "{file}");
         }
@@ -376,14 +442,30 @@ mod tests {
     #[test]
     fn the_path_check_finds_a_closed_corridor_and_a_door() {
         let wall = |door: Option<(f32, f32)>| {
-            let mut a = Arena::generate("w", 1, &GenParams { block_within: 0.0, spacing: 1000.0, first_x: 4.0, length: 60.0, ..GenParams::default() });
+            let mut a = Arena::generate(
+                "w",
+                1,
+                &GenParams {
+                    block_within: 0.0,
+                    spacing: 1000.0,
+                    first_x: 4.0,
+                    length: 60.0,
+                    ..GenParams::default()
+                },
+            );
             a.obstacles.clear();
             let hw = a.width / 2.0;
             match door {
-                None => a.obstacles.push(Obstacle::Box { center: [10.0, 0.0, 3.0], half_extents: [0.25, hw, 3.0] }),
+                None => a.obstacles.push(Obstacle::Box {
+                    center: [10.0, 0.0, 3.0],
+                    half_extents: [0.25, hw, 3.0],
+                }),
                 Some((c, dw)) => {
                     for (lo, hi) in [(-hw, c - dw / 2.0), (c + dw / 2.0, hw)] {
-                        a.obstacles.push(Obstacle::Box { center: [10.0, (lo + hi) / 2.0, 3.0], half_extents: [0.25, (hi - lo) / 2.0, 3.0] });
+                        a.obstacles.push(Obstacle::Box {
+                            center: [10.0, (lo + hi) / 2.0, 3.0],
+                            half_extents: [0.25, (hi - lo) / 2.0, 3.0],
+                        });
                     }
                 }
             }
@@ -401,9 +483,23 @@ mod tests {
 
     #[test]
     fn every_level_layout_has_a_path() {
-        let dense = GenParams { spacing: 3.0, per_row: 2, box_half_y: [0.6, 1.8], min_gap: 1.2, require_path: true, ..GenParams::default() };
-        let forest =
-            GenParams { mode: GenMode::Forest, length: 300.0, width: 16.0, forest_density: 0.08, min_gap: 0.8, require_path: true, ..GenParams::default() };
+        let dense = GenParams {
+            spacing: 3.0,
+            per_row: 2,
+            box_half_y: [0.6, 1.8],
+            min_gap: 1.2,
+            require_path: true,
+            ..GenParams::default()
+        };
+        let forest = GenParams {
+            mode: GenMode::Forest,
+            length: 300.0,
+            width: 16.0,
+            forest_density: 0.08,
+            min_gap: 0.8,
+            require_path: true,
+            ..GenParams::default()
+        };
         for p in [dense, forest] {
             p.validate().unwrap();
             for seed in 0..20 {
@@ -418,7 +514,8 @@ mod tests {
     fn bad_parameters_are_named() {
         let e = GenParams { per_row: 9, ..GenParams::default() }.validate().unwrap_err();
         assert_eq!(e.key, "per_row");
-        let e = GenParams { forest_radius: [0.5, 0.1], ..GenParams::default() }.validate().unwrap_err();
+        let e =
+            GenParams { forest_radius: [0.5, 0.1], ..GenParams::default() }.validate().unwrap_err();
         assert_eq!(e.key, "forest_radius");
         let e = GenParams { spacing: f32::NAN, ..GenParams::default() }.validate().unwrap_err();
         assert_eq!(e.key, "spacing");

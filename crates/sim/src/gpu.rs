@@ -23,7 +23,9 @@ use crate::render::{CameraPose, CameraSpec, Drones, Scene, Shape, frustum_floor_
 #[derive(Debug, thiserror::Error)]
 pub enum GpuError {
     /// No Vulkan adapter (install `mesa-vulkan-drivers` for the CPU one).
-    #[error("no GPU adapter found for the wgpu renderer ({0}); on a machine without a GPU install Mesa's lavapipe (Debian: mesa-vulkan-drivers)")]
+    #[error(
+        "no GPU adapter found for the wgpu renderer ({0}); on a machine without a GPU install Mesa's lavapipe (Debian: mesa-vulkan-drivers)"
+    )]
     NoAdapter(String),
     /// The adapter refused the device.
     #[error("the wgpu device could not be created: {0}")]
@@ -136,14 +138,18 @@ pub struct GpuDepthRenderer {
 
 impl std::fmt::Debug for GpuDepthRenderer {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("GpuDepthRenderer").field("adapter", &self.adapter).field("submissions", &self.submissions).finish()
+        f.debug_struct("GpuDepthRenderer")
+            .field("adapter", &self.adapter)
+            .field("submissions", &self.submissions)
+            .finish()
     }
 }
 
 /// The first adapter wgpu finds (a GPU, or lavapipe on the CPU), its device
 /// and queue, and its name.
 fn open_device() -> Result<(wgpu::Device, wgpu::Queue, String), GpuError> {
-    let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+    let instance =
+        wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
     let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
         power_preference: wgpu::PowerPreference::HighPerformance,
         force_fallback_adapter: false,
@@ -165,12 +171,21 @@ fn open_device() -> Result<(wgpu::Device, wgpu::Queue, String), GpuError> {
 
 /// The bind group layout and the two render pipelines (scene, with back
 /// faces culled, and drones) of the depth shader.
-fn pipelines(device: &wgpu::Device) -> (wgpu::BindGroupLayout, wgpu::RenderPipeline, wgpu::RenderPipeline) {
-    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor { label: Some("depth"), source: wgpu::ShaderSource::Wgsl(SHADER.into()) });
+fn pipelines(
+    device: &wgpu::Device,
+) -> (wgpu::BindGroupLayout, wgpu::RenderPipeline, wgpu::RenderPipeline) {
+    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some("depth"),
+        source: wgpu::ShaderSource::Wgsl(SHADER.into()),
+    });
     let storage = |binding| wgpu::BindGroupLayoutEntry {
         binding,
         visibility: wgpu::ShaderStages::VERTEX,
-        ty: wgpu::BindingType::Buffer { ty: wgpu::BufferBindingType::Storage { read_only: true }, has_dynamic_offset: false, min_binding_size: None },
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Storage { read_only: true },
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
         count: None,
     };
     let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -180,14 +195,21 @@ fn pipelines(device: &wgpu::Device) -> (wgpu::BindGroupLayout, wgpu::RenderPipel
             wgpu::BindGroupLayoutEntry {
                 binding: 1,
                 visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
-                ty: wgpu::BindingType::Buffer { ty: wgpu::BufferBindingType::Uniform, has_dynamic_offset: false, min_binding_size: None },
+                ty: wgpu::BindingType::Buffer {
+                    ty: wgpu::BufferBindingType::Uniform,
+                    has_dynamic_offset: false,
+                    min_binding_size: None,
+                },
                 count: None,
             },
             storage(2),
         ],
     });
-    let pipeline_layout =
-        device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor { label: Some("depth"), bind_group_layouts: &[Some(&layout)], immediate_size: 0 });
+    let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+        label: Some("depth"),
+        bind_group_layouts: &[Some(&layout)],
+        immediate_size: 0,
+    });
     let pipeline = |entry: &str, cull_mode: Option<wgpu::Face>| {
         device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
             label: Some(entry),
@@ -215,7 +237,11 @@ fn pipelines(device: &wgpu::Device) -> (wgpu::BindGroupLayout, wgpu::RenderPipel
                 module: &module,
                 entry_point: Some("fs"),
                 compilation_options: Default::default(),
-                targets: &[Some(wgpu::ColorTargetState { format: wgpu::TextureFormat::R32Float, blend: None, write_mask: wgpu::ColorWrites::ALL })],
+                targets: &[Some(wgpu::ColorTargetState {
+                    format: wgpu::TextureFormat::R32Float,
+                    blend: None,
+                    write_mask: wgpu::ColorWrites::ALL,
+                })],
             }),
             multiview_mask: None,
             cache: None,
@@ -289,13 +315,19 @@ impl GpuDepthRenderer {
 
     /// Makes sure the atlas and buffers hold `cameras` cameras and `drones` drones.
     fn ensure_frame(&mut self, cameras: u32, drones: u32) {
-        let fits = self.frame.as_ref().is_some_and(|f| f.cameras >= cameras && f.drone_capacity >= drones);
+        let fits =
+            self.frame.as_ref().is_some_and(|f| f.cameras >= cameras && f.drone_capacity >= drones);
         if !fits {
             let cameras = cameras.max(self.frame.as_ref().map_or(0, |f| f.cameras));
-            let drone_capacity = drones.max(1).max(self.frame.as_ref().map_or(0, |f| f.drone_capacity));
+            let drone_capacity =
+                drones.max(1).max(self.frame.as_ref().map_or(0, |f| f.drone_capacity));
             let side = self.spec.side as u32;
             let rows = cameras.div_ceil(COLS);
-            let size = wgpu::Extent3d { width: COLS * side, height: rows * side, depth_or_array_layers: 1 };
+            let size = wgpu::Extent3d {
+                width: COLS * side,
+                height: rows * side,
+                depth_or_array_layers: 1,
+            };
             let texture = |format, usage, label| {
                 self.device.create_texture(&wgpu::TextureDescriptor {
                     label: Some(label),
@@ -308,14 +340,39 @@ impl GpuDepthRenderer {
                     view_formats: &[],
                 })
             };
-            let color = texture(wgpu::TextureFormat::R32Float, wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC, "depth atlas");
-            let depth = texture(wgpu::TextureFormat::Depth32Float, wgpu::TextureUsages::RENDER_ATTACHMENT, "z buffer");
-            let buffer =
-                |label, size: u64, usage| self.device.create_buffer(&wgpu::BufferDescriptor { label: Some(label), size, usage, mapped_at_creation: false });
-            let readback = buffer("readback", u64::from(COLS * side * 4 * rows * side), wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST);
-            let cams =
-                buffer("cameras", u64::from(cameras) * std::mem::size_of::<GpuCamera>() as u64, wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST);
-            let drone_buf = buffer("drones", u64::from(drone_capacity) * 16, wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST);
+            let color = texture(
+                wgpu::TextureFormat::R32Float,
+                wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
+                "depth atlas",
+            );
+            let depth = texture(
+                wgpu::TextureFormat::Depth32Float,
+                wgpu::TextureUsages::RENDER_ATTACHMENT,
+                "z buffer",
+            );
+            let buffer = |label, size: u64, usage| {
+                self.device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some(label),
+                    size,
+                    usage,
+                    mapped_at_creation: false,
+                })
+            };
+            let readback = buffer(
+                "readback",
+                u64::from(COLS * side * 4 * rows * side),
+                wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            );
+            let cams = buffer(
+                "cameras",
+                u64::from(cameras) * std::mem::size_of::<GpuCamera>() as u64,
+                wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            );
+            let drone_buf = buffer(
+                "drones",
+                u64::from(drone_capacity) * 16,
+                wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            );
             let bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("depth"),
                 layout: &self.layout,
@@ -325,7 +382,16 @@ impl GpuDepthRenderer {
                     wgpu::BindGroupEntry { binding: 2, resource: drone_buf.as_entire_binding() },
                 ],
             });
-            self.frame = Some(Frame { cameras, color, depth, readback, cams, drones: drone_buf, drone_capacity, bind });
+            self.frame = Some(Frame {
+                cameras,
+                color,
+                depth,
+                readback,
+                cams,
+                drones: drone_buf,
+                drone_capacity,
+                bind,
+            });
         }
     }
 
@@ -333,7 +399,13 @@ impl GpuDepthRenderer {
     /// row-major, top row first, normalised to [0, 1] by the range): one
     /// render pass, one submission, one read-back. `agents[i]` names the
     /// drone camera `i` sits on, so it does not see itself.
-    pub fn render(&mut self, cameras: &[CameraPose], agents: &[u32], drones: Option<Drones<'_>>, out: &mut [f32]) -> Result<(), GpuError> {
+    pub fn render(
+        &mut self,
+        cameras: &[CameraPose],
+        agents: &[u32],
+        drones: Option<Drones<'_>>,
+        out: &mut [f32],
+    ) -> Result<(), GpuError> {
         let side = self.spec.side;
         let px = side * side;
         assert_eq!(out.len(), cameras.len() * px, "depth buffer has the wrong size");
@@ -346,7 +418,9 @@ impl GpuDepthRenderer {
         let f = self.frame.as_ref().expect("frame");
         let rows = n.div_ceil(COLS);
         let s = side as u32;
-        let mut enc = self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("depth") });
+        let mut enc = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("depth") });
         {
             let color_view = f.color.create_view(&Default::default());
             let depth_view = f.depth.create_view(&Default::default());
@@ -356,11 +430,17 @@ impl GpuDepthRenderer {
                     view: &color_view,
                     depth_slice: None,
                     resolve_target: None,
-                    ops: wgpu::Operations { load: wgpu::LoadOp::Clear(wgpu::Color { r: 1.0, g: 0.0, b: 0.0, a: 1.0 }), store: wgpu::StoreOp::Store },
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color { r: 1.0, g: 0.0, b: 0.0, a: 1.0 }),
+                        store: wgpu::StoreOp::Store,
+                    },
                 })],
                 depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
                     view: &depth_view,
-                    depth_ops: Some(wgpu::Operations { load: wgpu::LoadOp::Clear(1.0), store: wgpu::StoreOp::Discard }),
+                    depth_ops: Some(wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(1.0),
+                        store: wgpu::StoreOp::Discard,
+                    }),
                     stencil_ops: None,
                 }),
                 timestamp_writes: None,
@@ -392,10 +472,19 @@ impl GpuDepthRenderer {
         }
         let row_bytes = COLS * s * 4;
         enc.copy_texture_to_buffer(
-            wgpu::TexelCopyTextureInfo { texture: &f.color, mip_level: 0, origin: wgpu::Origin3d::ZERO, aspect: wgpu::TextureAspect::All },
+            wgpu::TexelCopyTextureInfo {
+                texture: &f.color,
+                mip_level: 0,
+                origin: wgpu::Origin3d::ZERO,
+                aspect: wgpu::TextureAspect::All,
+            },
             wgpu::TexelCopyBufferInfo {
                 buffer: &f.readback,
-                layout: wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(row_bytes), rows_per_image: None },
+                layout: wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(row_bytes),
+                    rows_per_image: None,
+                },
             },
             wgpu::Extent3d { width: COLS * s, height: rows * s, depth_or_array_layers: 1 },
         );
@@ -407,7 +496,13 @@ impl GpuDepthRenderer {
     /// Writes the cameras, the shader's parameters and the drones'
     /// positions into the frame's buffers (made or grown for `n` cameras
     /// first); returns the number of drones drawn.
-    fn upload(&mut self, cameras: &[CameraPose], agents: &[u32], drones: Option<Drones<'_>>, n: u32) -> u32 {
+    fn upload(
+        &mut self,
+        cameras: &[CameraPose],
+        agents: &[u32],
+        drones: Option<Drones<'_>>,
+        n: u32,
+    ) -> u32 {
         let nd = drones.map_or(0, |d| d.positions.len() as u32);
         self.staging.clear();
         self.staging.extend(cameras.iter().zip(agents).map(|(c, &agent)| {
@@ -421,8 +516,14 @@ impl GpuDepthRenderer {
             }
         }));
         let tan = (self.spec.fov_deg.to_radians() / 2.0).tan();
-        let params =
-            Params { inv_tan: 1.0 / tan, near: NEAR, far: self.spec.range, drones: nd.max(1), radius: drones.map_or(0.0, |d| d.radius), _pad: [0.0; 3] };
+        let params = Params {
+            inv_tan: 1.0 / tan,
+            near: NEAR,
+            far: self.spec.range,
+            drones: nd.max(1),
+            radius: drones.map_or(0.0, |d| d.radius),
+            _pad: [0.0; 3],
+        };
         self.ensure_frame(n, nd);
         let f = self.frame.as_ref().expect("frame");
         self.queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
@@ -447,8 +548,12 @@ impl GpuDepthRenderer {
         slice.map_async(wgpu::MapMode::Read, move |r| {
             let _ = tx.send(r);
         });
-        self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Readback(e.to_string()))?;
-        rx.recv().map_err(|e| GpuError::Readback(e.to_string()))?.map_err(|e| GpuError::Readback(e.to_string()))?;
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        rx.recv()
+            .map_err(|e| GpuError::Readback(e.to_string()))?
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
         {
             let data = slice.get_mapped_range().map_err(|e| GpuError::Readback(e.to_string()))?;
             let texels: &[f32] = bytemuck::cast_slice(&data);
@@ -505,7 +610,12 @@ impl SceneLayout {
         let mut margin = 0.0f32;
         for sh in &scene.shapes {
             let (cx, cy, ex, ey) = match *sh {
-                Shape::Box { min, max } => ((min.x + max.x) / 2.0, (min.y + max.y) / 2.0, (max.x - min.x) / 2.0, (max.y - min.y) / 2.0),
+                Shape::Box { min, max } => (
+                    (min.x + max.x) / 2.0,
+                    (min.y + max.y) / 2.0,
+                    (max.x - min.x) / 2.0,
+                    (max.y - min.y) / 2.0,
+                ),
                 Shape::Cylinder { cx, cy, r2, .. } => (cx, cy, r2.sqrt(), r2.sqrt()),
             };
             let tris = shape_triangles(sh, h);
@@ -598,8 +708,16 @@ fn shape_triangles(sh: &Shape, h: f32) -> Vec<[f32; 3]> {
     let mut t = Vec::new();
     match *sh {
         Shape::Box { min, max } => {
-            let c = |i: usize| [if i & 1 == 0 { min.x } else { max.x }, if i & 2 == 0 { min.y } else { max.y }, if i & 4 == 0 { min.z } else { max.z }];
-            for [a, b, cc, d] in [[0, 1, 3, 2], [4, 5, 7, 6], [0, 1, 5, 4], [2, 3, 7, 6], [0, 2, 6, 4], [1, 3, 7, 5]] {
+            let c = |i: usize| {
+                [
+                    if i & 1 == 0 { min.x } else { max.x },
+                    if i & 2 == 0 { min.y } else { max.y },
+                    if i & 4 == 0 { min.z } else { max.z },
+                ]
+            };
+            for [a, b, cc, d] in
+                [[0, 1, 3, 2], [4, 5, 7, 6], [0, 1, 5, 4], [2, 3, 7, 6], [0, 2, 6, 4], [1, 3, 7, 5]]
+            {
                 quad(&mut t, c(a), c(b), c(cc), c(d));
             }
             let mid = [(min.x + max.x) / 2.0, (min.y + max.y) / 2.0, (min.z + max.z) / 2.0];
@@ -677,9 +795,12 @@ fn sphere_triangles() -> Vec<[f32; 3]> {
         let l = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
         [a[0] / l, a[1] / l, a[2] / l]
     };
-    let mut tris: Vec<[[f32; 3]; 3]> = f.iter().map(|t| [norm(v[t[0]]), norm(v[t[1]]), norm(v[t[2]])]).collect();
+    let mut tris: Vec<[[f32; 3]; 3]> =
+        f.iter().map(|t| [norm(v[t[0]]), norm(v[t[1]]), norm(v[t[2]])]).collect();
     for _ in 0..2 {
-        let mid = |a: [f32; 3], b: [f32; 3]| norm([(a[0] + b[0]) / 2.0, (a[1] + b[1]) / 2.0, (a[2] + b[2]) / 2.0]);
+        let mid = |a: [f32; 3], b: [f32; 3]| {
+            norm([(a[0] + b[0]) / 2.0, (a[1] + b[1]) / 2.0, (a[2] + b[2]) / 2.0])
+        };
         tris = tris
             .iter()
             .flat_map(|&[a, b, c]| {

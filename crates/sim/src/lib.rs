@@ -17,7 +17,9 @@ pub mod render;
 pub mod view;
 
 pub use arena::{Arena, ArenaError, Lanes, Obstacle, Spawn};
-pub use env::{Autoreset, Done, Episode, LanesError, PhysicsKind, RendererKind, SimConfig, StepTiming, VecEnv};
+pub use env::{
+    Autoreset, Done, Episode, LanesError, PhysicsKind, RendererKind, SimConfig, StepTiming, VecEnv,
+};
 pub use generate::{GenMode, GenParamError, GenParams};
 pub use gpu::{GpuDepthRenderer, GpuError};
 pub use realism::{Noise, Randomize};

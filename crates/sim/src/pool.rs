@@ -55,14 +55,22 @@ impl Pool {
     /// workers); an error when a worker cannot be started.
     pub(crate) fn new(threads: usize) -> std::io::Result<Self> {
         let shared = Arc::new(Shared {
-            state: Mutex::new(State { generation: 0, job: None, pending: 0, panic: None, quit: false }),
+            state: Mutex::new(State {
+                generation: 0,
+                job: None,
+                pending: 0,
+                panic: None,
+                quit: false,
+            }),
             work: Condvar::new(),
             done: Condvar::new(),
         });
         let mut workers = Vec::new();
         for index in 1..threads.max(1) {
             let sh = shared.clone();
-            let spawned = std::thread::Builder::new().name(format!("render-{index}")).spawn(move || worker(&sh, index));
+            let spawned = std::thread::Builder::new()
+                .name(format!("render-{index}"))
+                .spawn(move || worker(&sh, index));
             match spawned {
                 Ok(h) => workers.push(h),
                 Err(e) => {
@@ -93,7 +101,9 @@ impl Pool {
             // cleared below before this function returns, and every worker has
             // finished with it by then (`pending` reached zero).
             let ptr: *const (dyn Fn(usize) + Sync + '_) = job;
-            st.job = Some(JobPtr(unsafe { std::mem::transmute::<*const (dyn Fn(usize) + Sync + '_), *const Job>(ptr) }));
+            st.job = Some(JobPtr(unsafe {
+                std::mem::transmute::<*const (dyn Fn(usize) + Sync + '_), *const Job>(ptr)
+            }));
             st.pending = self.workers.len();
             st.generation += 1;
         }
@@ -176,7 +186,8 @@ mod tests {
     #[test]
     fn a_panicking_worker_is_reported_to_the_caller_and_the_pool_goes_on() {
         let pool = Pool::new(2).unwrap();
-        let r = catch_unwind(AssertUnwindSafe(|| pool.run(&|i| assert!(i != 1, "worker one fails"))));
+        let r =
+            catch_unwind(AssertUnwindSafe(|| pool.run(&|i| assert!(i != 1, "worker one fails"))));
         assert!(r.is_err());
         let n = AtomicUsize::new(0);
         pool.run(&|_| {

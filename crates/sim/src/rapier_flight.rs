@@ -29,13 +29,21 @@ impl std::fmt::Debug for RapierFlight {
 
 impl RapierFlight {
     /// The arena's solids as fixed colliders and one body per agent.
-    pub(crate) fn new(arena: &Arena, agents: usize, flight: &Flight, radius: f32, interactive: bool) -> Self {
+    pub(crate) fn new(
+        arena: &Arena,
+        agents: usize,
+        flight: &Flight,
+        radius: f32,
+        interactive: bool,
+    ) -> Self {
         let mut world = PhysicsWorld::new();
         world.gravity = Vector::new(0.0, 0.0, -crate::dynamics::GRAVITY);
         world.integration_parameters.dt = flight.dt;
         let fixed = InteractionGroups::new(GROUP_WORLD, Group::ALL, InteractionTestMode::And);
         for (pose, shape) in solids(arena) {
-            world.colliders.insert(ColliderBuilder::new(shape).position(pose).collision_groups(fixed));
+            world
+                .colliders
+                .insert(ColliderBuilder::new(shape).position(pose).collision_groups(fixed));
         }
         let filter = if interactive { GROUP_WORLD | GROUP_DRONE } else { GROUP_WORLD };
         let groups = InteractionGroups::new(GROUP_DRONE, filter, InteractionTestMode::And);
@@ -44,7 +52,11 @@ impl RapierFlight {
         let mut colliders = Vec::with_capacity(agents);
         for _ in 0..agents {
             let body = RigidBodyBuilder::dynamic()
-                .additional_mass_properties(MassProperties::new(Vector::ZERO, q.mass, Vector::from(q.inertia)))
+                .additional_mass_properties(MassProperties::new(
+                    Vector::ZERO,
+                    q.mass,
+                    Vector::from(q.inertia),
+                ))
                 .linear_damping(LINEAR_DAMPING)
                 .can_sleep(false);
             // A sensor: it reports contact without bouncing, since a contact
@@ -52,7 +64,9 @@ impl RapierFlight {
             let collider = ColliderBuilder::ball(radius)
                 .density(0.0)
                 .sensor(true)
-                .active_collision_types(ActiveCollisionTypes::default() | ActiveCollisionTypes::DYNAMIC_DYNAMIC)
+                .active_collision_types(
+                    ActiveCollisionTypes::default() | ActiveCollisionTypes::DYNAMIC_DYNAMIC,
+                )
                 .collision_groups(groups);
             let (b, c) = world.insert(body, collider);
             bodies.push(b);
@@ -76,7 +90,12 @@ impl RapierFlight {
     pub(crate) fn step(&mut self, flight: &Flight, drones: &mut [Drone]) {
         for (d, h) in drones.iter().zip(&self.bodies) {
             let b = &mut self.world.bodies[*h];
-            let s = DroneState { position: b.translation(), velocity: b.linvel(), rotation: *b.rotation(), angvel: b.angvel() };
+            let s = DroneState {
+                position: b.translation(),
+                velocity: b.linvel(),
+                rotation: *b.rotation(),
+                angvel: b.angvel(),
+            };
             let sp = Vector::new(flight.forward_speed, d.lateral_sp, 0.0);
             let cmd = control(&flight.quad, &flight.gains, &s, sp, flight.altitude);
             b.reset_forces(false);

@@ -90,7 +90,10 @@ impl Noise {
         }
         let [lo, hi] = self.latency_s;
         if !(lo >= 0.0 && lo <= hi && hi <= 5.0) {
-            return Err(("latency_s", format!("must be an ordered range within [0, 5] s, got {:?}", self.latency_s)));
+            return Err((
+                "latency_s",
+                format!("must be an ordered range within [0, 5] s, got {:?}", self.latency_s),
+            ));
         }
         Ok(())
     }
@@ -104,7 +107,10 @@ impl Randomize {
 
     /// Whether the dynamics themselves vary (not only the spawn).
     pub fn dynamics(&self) -> bool {
-        self.mass != 0.0 || self.vel_gain != 0.0 || self.forward_speed_scale != [1.0, 1.0] || self.wind != 0.0
+        self.mass != 0.0
+            || self.vel_gain != 0.0
+            || self.forward_speed_scale != [1.0, 1.0]
+            || self.wind != 0.0
     }
 
     /// Checks the ranges; the key (under `[sim.randomize]`) and what is wrong.
@@ -124,7 +130,13 @@ impl Randomize {
         }
         let [lo, hi] = self.forward_speed_scale;
         if !(lo > 0.0 && lo <= hi && hi <= 5.0) {
-            return Err(("forward_speed_scale", format!("must be an ordered range of positive factors up to 5, got {:?}", self.forward_speed_scale)));
+            return Err((
+                "forward_speed_scale",
+                format!(
+                    "must be an ordered range of positive factors up to 5, got {:?}",
+                    self.forward_speed_scale
+                ),
+            ));
         }
         Ok(())
     }
@@ -177,7 +189,10 @@ fn fmix32(mut h: u32) -> u32 {
     h ^ (h >> 16)
 }
 
-#[multiversion::multiversion(targets("x86_64+avx512f+avx512vl+avx512dq+avx2+fma+avx", "x86_64+avx2+fma+avx"))]
+#[multiversion::multiversion(targets(
+    "x86_64+avx512f+avx512vl+avx512dq+avx2+fma+avx",
+    "x86_64+avx2+fma+avx"
+))]
 fn corrupt(key: u32, k: f32, drop: u32, img: &mut [f32]) {
     const U16: f32 = 1.0 / 65536.0;
     for (i, px) in img.iter_mut().enumerate() {
@@ -207,9 +222,11 @@ mod tests {
             rng.apply(&noise, range, &mut img);
             let dropped = img.iter().filter(|p| **p == 0.0).count() as f32 / n as f32;
             assert!((dropped - 0.05).abs() < 0.004, "dropout {dropped}");
-            let kept: Vec<f32> = img.iter().copied().filter(|p| *p != 0.0).map(|p| p * range).collect();
+            let kept: Vec<f32> =
+                img.iter().copied().filter(|p| *p != 0.0).map(|p| p * range).collect();
             let mean = kept.iter().sum::<f32>() / kept.len() as f32;
-            let sd = (kept.iter().map(|x| (x - mean).powi(2)).sum::<f32>() / kept.len() as f32).sqrt();
+            let sd =
+                (kept.iter().map(|x| (x - mean).powi(2)).sum::<f32>() / kept.len() as f32).sqrt();
             let want = 0.002 * depth_m * depth_m;
             assert!((mean - depth_m).abs() < 0.01 * depth_m, "mean {mean} at {depth_m} m");
             assert!((sd - want).abs() < 0.05 * want, "sd {sd} against {want} at {depth_m} m");
@@ -219,9 +236,21 @@ mod tests {
     #[test]
     fn bad_ranges_are_named() {
         assert_eq!(Noise { dropout: 0.9, ..Noise::default() }.validate().unwrap_err().0, "dropout");
-        assert_eq!(Noise { latency_s: [0.3, 0.1], ..Noise::default() }.validate().unwrap_err().0, "latency_s");
-        assert_eq!(Randomize { mass: -0.1, ..Randomize::default() }.validate().unwrap_err().0, "mass");
-        assert_eq!(Randomize { forward_speed_scale: [0.0, 1.0], ..Randomize::default() }.validate().unwrap_err().0, "forward_speed_scale");
+        assert_eq!(
+            Noise { latency_s: [0.3, 0.1], ..Noise::default() }.validate().unwrap_err().0,
+            "latency_s"
+        );
+        assert_eq!(
+            Randomize { mass: -0.1, ..Randomize::default() }.validate().unwrap_err().0,
+            "mass"
+        );
+        assert_eq!(
+            Randomize { forward_speed_scale: [0.0, 1.0], ..Randomize::default() }
+                .validate()
+                .unwrap_err()
+                .0,
+            "forward_speed_scale"
+        );
         assert!(Noise::default().is_off() && Randomize::default().is_off());
     }
 }

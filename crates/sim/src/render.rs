@@ -96,9 +96,13 @@ impl Scene {
                     let h = Vector::from(half_extents);
                     Shape::Box { min: c - h, max: c + h }
                 }
-                Obstacle::Cylinder { center, radius, half_height } => {
-                    Shape::Cylinder { cx: center[0], cy: center[1], r2: radius * radius, zmin: center[2] - half_height, zmax: center[2] + half_height }
-                }
+                Obstacle::Cylinder { center, radius, half_height } => Shape::Cylinder {
+                    cx: center[0],
+                    cy: center[1],
+                    r2: radius * radius,
+                    zmin: center[2] - half_height,
+                    zmax: center[2] + half_height,
+                },
             })
             .collect();
         let hw = arena.width / 2.0;
@@ -117,7 +121,18 @@ impl Scene {
                 }
             }
         }
-        Self { shapes, nx, ny, x0, y0, cells, half_width: hw, height: arena.height, x_extent: (0.0, arena.length), lanes: Vec::new() }
+        Self {
+            shapes,
+            nx,
+            ny,
+            x0,
+            y0,
+            cells,
+            half_width: hw,
+            height: arena.height,
+            x_extent: (0.0, arena.length),
+            lanes: Vec::new(),
+        }
     }
 
     /// Tells the scene where its lanes lie along y (see
@@ -196,7 +211,8 @@ impl DepthRenderer {
     /// A renderer with the given camera and thread count (at least 1; fewer
     /// when the system refuses to start more threads).
     pub fn new(spec: CameraSpec, threads: usize) -> Self {
-        let pool = Pool::new(threads.max(1)).unwrap_or_else(|_| Pool::new(1).expect("a pool of one starts no thread"));
+        let pool = Pool::new(threads.max(1))
+            .unwrap_or_else(|_| Pool::new(1).expect("a pool of one starts no thread"));
         let scratch = (0..pool.threads()).map(|_| Mutex::new(Scratch::default())).collect();
         Self { spec, pool, scratch }
     }
@@ -221,7 +237,14 @@ impl DepthRenderer {
     /// cameras when there are enough of them to share, else bands of rows
     /// of each), handed out as threads come free, and the call returns when
     /// all are drawn.
-    pub fn render(&mut self, scene: &Scene, cameras: &[CameraPose], first_agent: usize, drones: Option<Drones<'_>>, out: &mut [f32]) {
+    pub fn render(
+        &mut self,
+        scene: &Scene,
+        cameras: &[CameraPose],
+        first_agent: usize,
+        drones: Option<Drones<'_>>,
+        out: &mut [f32],
+    ) {
         let n = self.spec.side;
         let px = n * n;
         assert_eq!(out.len(), cameras.len() * px, "depth buffer has the wrong size");
@@ -247,26 +270,47 @@ impl DepthRenderer {
         // bands would only repeat each band's obstacle gathering).
         let bands = threads.div_ceil(cameras.len()).min(n);
         let rows = n.div_ceil(bands);
-        let pieces = out.chunks_mut(px).enumerate().flat_map(|(c, img)| img.chunks_mut(rows * n).enumerate().map(move |(b, part)| (c, b * rows, part)));
+        let pieces = out.chunks_mut(px).enumerate().flat_map(|(c, img)| {
+            img.chunks_mut(rows * n).enumerate().map(move |(b, part)| (c, b * rows, part))
+        });
         let queue = Mutex::new(pieces);
         let scratch = &self.scratch;
         self.pool.run(&|t| {
             let mut s = scratch[t].lock().unwrap_or_else(PoisonError::into_inner);
             loop {
                 let next = queue.lock().unwrap_or_else(PoisonError::into_inner).next();
-                let Some((c, first_row, part)) = next else { break };
-                render_rows(scene, &spec, &cameras[c], drones.map(|d| (d, first_agent + c)), &mut s, part, first_row);
+                let Some((c, first_row, part)) = next else {
+                    break;
+                };
+                render_rows(
+                    scene,
+                    &spec,
+                    &cameras[c],
+                    drones.map(|d| (d, first_agent + c)),
+                    &mut s,
+                    part,
+                    first_row,
+                );
             }
         });
     }
 }
 
 /// Draws rows `first_row..` of one camera's image into `img` (whole rows).
-fn render_rows(scene: &Scene, spec: &CameraSpec, cam: &CameraPose, drones: Option<(Drones<'_>, usize)>, s: &mut Scratch, img: &mut [f32], first_row: usize) {
+fn render_rows(
+    scene: &Scene,
+    spec: &CameraSpec,
+    cam: &CameraPose,
+    drones: Option<(Drones<'_>, usize)>,
+    s: &mut Scratch,
+    img: &mut [f32],
+    first_row: usize,
+) {
     let view = View::new(spec, cam);
     let n = view.n;
     let (r0, r1) = (first_row, first_row + img.len() / n);
-    let (mut lo, mut hi) = floor_plan_of(view.o, view.fwd, view.left, view.up, view.tan, view.range);
+    let (mut lo, mut hi) =
+        floor_plan_of(view.o, view.fwd, view.left, view.up, view.tan, view.range);
     // The side walls bounding this camera's view: its lane's, or the arena's.
     let walls = scene.lane_of(view.o.y).unwrap_or([-scene.half_width, scene.half_width]);
     lo[1] = lo[1].max(walls[0]);
@@ -287,7 +331,9 @@ fn render_rows(scene: &Scene, spec: &CameraSpec, cam: &CameraPose, drones: Optio
     // Each obstacle is tested only by the rays inside its projected bounding
     // rectangle: a ray outside it cannot reach the obstacle. The result is
     // the same minimum as testing every ray against every obstacle.
-    let clip = |(u0, u1, v0, v1): Rect| -> Option<Rect> { (v0 < r1 && v1 >= r0).then(|| (u0, u1, v0.max(r0), v1.min(r1 - 1))) };
+    let clip = |(u0, u1, v0, v1): Rect| -> Option<Rect> {
+        (v0 < r1 && v1 >= r0).then(|| (u0, u1, v0.max(r0), v1.min(r1 - 1)))
+    };
     for &ci in &s.candidates {
         let shape = &scene.shapes[ci as usize];
         let (min, max) = shape.aabb();
@@ -295,10 +341,16 @@ fn render_rows(scene: &Scene, spec: &CameraSpec, cam: &CameraPose, drones: Optio
         if max.y <= walls[0] || min.y >= walls[1] {
             continue;
         }
-        let Some(rect) = view.rect(min, max).and_then(clip) else { continue };
+        let Some(rect) = view.rect(min, max).and_then(clip) else {
+            continue;
+        };
         match *shape {
-            Shape::Box { min, max } => view.fill(rect, img, r0, |o, d, t| hit_box(min, max, o, d, t)),
-            Shape::Cylinder { cx, cy, r2, zmin, zmax } => view.fill(rect, img, r0, |o, d, t| hit_cylinder(cx, cy, r2, zmin, zmax, o, d, t)),
+            Shape::Box { min, max } => {
+                view.fill(rect, img, r0, |o, d, t| hit_box(min, max, o, d, t))
+            }
+            Shape::Cylinder { cx, cy, r2, zmin, zmax } => {
+                view.fill(rect, img, r0, |o, d, t| hit_cylinder(cx, cy, r2, zmin, zmax, o, d, t))
+            }
         }
     }
     if let Some((dr, me)) = drones {
@@ -307,7 +359,9 @@ fn render_rows(scene: &Scene, spec: &CameraSpec, cam: &CameraPose, drones: Optio
             if k == me {
                 continue;
             }
-            let Some(rect) = view.rect(*c - r, *c + r).and_then(clip) else { continue };
+            let Some(rect) = view.rect(*c - r, *c + r).and_then(clip) else {
+                continue;
+            };
             view.fill(rect, img, r0, |o, d, t| hit_sphere(*c, dr.radius, o, d, t));
         }
     }
@@ -359,10 +413,14 @@ impl View {
     fn rect(&self, min: Vector, max: Vector) -> Option<Rect> {
         let mut near = f32::INFINITY;
         let mut far = f32::NEG_INFINITY;
-        let (mut a0, mut a1, mut b0, mut b1) = (f32::INFINITY, f32::NEG_INFINITY, f32::INFINITY, f32::NEG_INFINITY);
+        let (mut a0, mut a1, mut b0, mut b1) =
+            (f32::INFINITY, f32::NEG_INFINITY, f32::INFINITY, f32::NEG_INFINITY);
         for k in 0..8 {
-            let p =
-                Vector::new(if k & 1 == 0 { min.x } else { max.x }, if k & 2 == 0 { min.y } else { max.y }, if k & 4 == 0 { min.z } else { max.z }) - self.o;
+            let p = Vector::new(
+                if k & 1 == 0 { min.x } else { max.x },
+                if k & 2 == 0 { min.y } else { max.y },
+                if k & 4 == 0 { min.z } else { max.z },
+            ) - self.o;
             let x = p.dot(self.fwd);
             near = near.min(x);
             far = far.max(x);
@@ -401,7 +459,13 @@ impl View {
     /// hit tests, `multiversion` per row) measured 12.6 against 6.3 µs of
     /// rendering per agent-step (`taskset -c 0 hive bench sim --agents 50`).
     #[inline]
-    fn fill(&self, (u0, u1, v0, v1): Rect, img: &mut [f32], first_row: usize, hit: impl Fn(Vector, Vector, f32) -> f32) {
+    fn fill(
+        &self,
+        (u0, u1, v0, v1): Rect,
+        img: &mut [f32],
+        first_row: usize,
+        hit: impl Fn(Vector, Vector, f32) -> f32,
+    ) {
         for v in v0..=v1 {
             let row = &mut img[(v - first_row) * self.n..(v - first_row + 1) * self.n];
             for (u, px) in row.iter_mut().enumerate().take(u1 + 1).skip(u0) {
@@ -413,7 +477,10 @@ impl View {
 
 /// Planar depth in metres to normalised depth: divided by the range,
 /// clipped to [0, 1].
-#[multiversion::multiversion(targets("x86_64+avx512f+avx512vl+avx2+fma+avx", "x86_64+avx2+fma+avx"))]
+#[multiversion::multiversion(targets(
+    "x86_64+avx512f+avx512vl+avx2+fma+avx",
+    "x86_64+avx2+fma+avx"
+))]
 fn normalise(img: &mut [f32], range: f32) {
     for px in img.iter_mut() {
         *px = (*px / range).clamp(0.0, 1.0);
@@ -424,11 +491,25 @@ fn normalise(img: &mut [f32], range: f32) {
 /// fan of the four corner rays out to the range (planar depth ≤ range), so
 /// the bounding box of the origin and the four far corners holds it.
 pub(crate) fn frustum_floor_plan(cam: &CameraPose, tan: f32, range: f32) -> ([f32; 2], [f32; 2]) {
-    floor_plan_of(cam.position, cam.rotation * Vector::X, cam.rotation * Vector::Y, cam.rotation * Vector::Z, tan, range)
+    floor_plan_of(
+        cam.position,
+        cam.rotation * Vector::X,
+        cam.rotation * Vector::Y,
+        cam.rotation * Vector::Z,
+        tan,
+        range,
+    )
 }
 
 /// [`frustum_floor_plan`] from a camera basis already at hand.
-fn floor_plan_of(o: Vector, fwd: Vector, left: Vector, up: Vector, tan: f32, range: f32) -> ([f32; 2], [f32; 2]) {
+fn floor_plan_of(
+    o: Vector,
+    fwd: Vector,
+    left: Vector,
+    up: Vector,
+    tan: f32,
+    range: f32,
+) -> ([f32; 2], [f32; 2]) {
     let mut lo = [o.x, o.y];
     let mut hi = [o.x, o.y];
     for (a, b) in [(-1.0, -1.0), (-1.0, 1.0), (1.0, -1.0), (1.0, 1.0)] {
@@ -442,7 +523,10 @@ fn floor_plan_of(o: Vector, fwd: Vector, left: Vector, up: Vector, tan: f32, ran
 /// Row `v` of a camera's image drawn with the corridor's planes alone,
 /// clipped at the range. Compiled for AVX-512 and AVX2 beside the baseline
 /// (picked at run time), the pixels of a row a vector at a time.
-#[multiversion::multiversion(targets("x86_64+avx512f+avx512vl+avx2+fma+avx", "x86_64+avx2+fma+avx"))]
+#[multiversion::multiversion(targets(
+    "x86_64+avx512f+avx512vl+avx2+fma+avx",
+    "x86_64+avx2+fma+avx"
+))]
 fn corridor_row(view: &View, walls: [f32; 2], height: f32, v: usize, row: &mut [f32]) {
     for (u, px) in row.iter_mut().enumerate() {
         *px = view.range.min(planes(walls, height, view.o, view.dir(u, v)));
@@ -476,7 +560,9 @@ fn planes([y0, y1]: [f32; 2], height: f32, o: Vector, d: Vector) -> f32 {
 fn hit_shape(shape: &Shape, o: Vector, d: Vector, tmax: f32) -> f32 {
     match *shape {
         Shape::Box { min, max } => hit_box(min, max, o, d, tmax),
-        Shape::Cylinder { cx, cy, r2, zmin, zmax } => hit_cylinder(cx, cy, r2, zmin, zmax, o, d, tmax),
+        Shape::Cylinder { cx, cy, r2, zmin, zmax } => {
+            hit_cylinder(cx, cy, r2, zmin, zmax, o, d, tmax)
+        }
     }
 }
 
@@ -494,7 +580,16 @@ fn hit_box(min: Vector, max: Vector, o: Vector, d: Vector, tmax: f32) -> f32 {
 /// Ray parameter of the first hit of a vertical cylinder, or `tmax`.
 #[allow(clippy::too_many_arguments)]
 #[inline]
-fn hit_cylinder(cx: f32, cy: f32, r2: f32, zmin: f32, zmax: f32, o: Vector, d: Vector, tmax: f32) -> f32 {
+fn hit_cylinder(
+    cx: f32,
+    cy: f32,
+    r2: f32,
+    zmin: f32,
+    zmax: f32,
+    o: Vector,
+    d: Vector,
+    tmax: f32,
+) -> f32 {
     let ox = o.x - cx;
     let oy = o.y - cy;
     let a = d.x * d.x + d.y * d.y;
@@ -554,14 +649,22 @@ mod tests {
     use crate::arena::Spawn;
 
     fn arena(obstacles: Vec<Obstacle>) -> Arena {
-        Arena { name: "t".into(), length: 100.0, width: 40.0, height: 10.0, spawn: Spawn { x: 1.0, y: [0.0, 0.0], z: 5.0 }, obstacles }
+        Arena {
+            name: "t".into(),
+            length: 100.0,
+            width: 40.0,
+            height: 10.0,
+            spawn: Spawn { x: 1.0, y: [0.0, 0.0], z: 5.0 },
+            obstacles,
+        }
     }
 
     #[test]
     fn a_camera_in_a_lane_sees_the_same_with_or_without_the_lane_cut() {
         use crate::{GenParams, Lanes};
         let p = GenParams { length: 60.0, width: 12.0, height: 8.0, ..GenParams::default() };
-        let arenas: Vec<Arena> = (0..5).map(|k| Arena::generate(&format!("l{k}"), 40 + k, &p)).collect();
+        let arenas: Vec<Arena> =
+            (0..5).map(|k| Arena::generate(&format!("l{k}"), 40 + k, &p)).collect();
         let lanes = Lanes::new(&arenas).unwrap();
         let spec = CameraSpec::default();
         let full = Scene::new(&lanes.world);
@@ -571,7 +674,11 @@ mod tests {
         let mut cams = Vec::new();
         for (k, off) in lanes.offsets.iter().enumerate() {
             for (j, yaw) in [0.0f32, 0.7, -0.7, 1.3].iter().enumerate() {
-                let pos = Vector::new(3.0 + 9.0 * j as f32, off + (j as f32 - 1.5) * 1.5, 2.0 + 0.5 * k as f32);
+                let pos = Vector::new(
+                    3.0 + 9.0 * j as f32,
+                    off + (j as f32 - 1.5) * 1.5,
+                    2.0 + 0.5 * k as f32,
+                );
                 cams.push(CameraPose { position: pos, rotation: Rotation::from_rotation_z(*yaw) });
             }
         }
@@ -597,8 +704,15 @@ mod tests {
     fn a_wall_at_distance_d_reads_d() {
         let spec = CameraSpec { range: 30.0, ..CameraSpec::default() };
         for d in [1.0f32, 3.5, 12.25] {
-            let wall = Obstacle::Box { center: [10.0 + d + 0.5, 0.0, 5.0], half_extents: [0.5, 19.0, 4.9] };
-            let img = render(&arena(vec![wall]), CameraPose { position: Vector::new(10.0, 0.0, 5.0), rotation: Rotation::IDENTITY }, spec);
+            let wall = Obstacle::Box {
+                center: [10.0 + d + 0.5, 0.0, 5.0],
+                half_extents: [0.5, 19.0, 4.9],
+            };
+            let img = render(
+                &arena(vec![wall]),
+                CameraPose { position: Vector::new(10.0, 0.0, 5.0), rotation: Rotation::IDENTITY },
+                spec,
+            );
             // Planar depth of a wall facing the camera is the same at every
             // pixel that sees it; the central 8×8 see it at every distance here.
             for v in 12..20 {
@@ -614,7 +728,11 @@ mod tests {
     fn cylinder_depth_matches_the_analytic_distance() {
         let spec = CameraSpec { range: 30.0, ..CameraSpec::default() };
         let cyl = Obstacle::Cylinder { center: [20.0, 0.0, 5.0], radius: 1.0, half_height: 5.0 };
-        let img = render(&arena(vec![cyl]), CameraPose { position: Vector::new(10.0, 0.0, 5.0), rotation: Rotation::IDENTITY }, spec);
+        let img = render(
+            &arena(vec![cyl]),
+            CameraPose { position: Vector::new(10.0, 0.0, 5.0), rotation: Rotation::IDENTITY },
+            spec,
+        );
         // Pixel column 16 has its ray at a small angle off the axis: solve exactly.
         let tan = 1.0f32;
         let su = (16.0 + 0.5 - 16.0) / 16.0 * tan;
@@ -635,7 +753,10 @@ mod tests {
         // Yawed 90° left, the camera at y = 0 faces the wall at y = +20.
         let img = render(
             &arena(vec![]),
-            CameraPose { position: Vector::new(50.0, 0.0, 5.0), rotation: Rotation::from_rotation_z(std::f32::consts::FRAC_PI_2) },
+            CameraPose {
+                position: Vector::new(50.0, 0.0, 5.0),
+                rotation: Rotation::from_rotation_z(std::f32::consts::FRAC_PI_2),
+            },
             spec,
         );
         let centre = img[15 * 32 + 15];
@@ -664,12 +785,23 @@ mod tests {
 
     /// Every ray against every candidate: what the rectangle culling of
     /// `render_one` must reproduce exactly.
-    fn brute_force(scene: &Scene, spec: &CameraSpec, cam: &CameraPose, drones: Option<(Drones<'_>, usize)>, img: &mut [f32]) {
+    fn brute_force(
+        scene: &Scene,
+        spec: &CameraSpec,
+        cam: &CameraPose,
+        drones: Option<(Drones<'_>, usize)>,
+        img: &mut [f32],
+    ) {
         let view = View::new(spec, cam);
         for v in 0..view.n {
             for u in 0..view.n {
                 let d = view.dir(u, v);
-                let mut t = view.range.min(planes([-scene.half_width, scene.half_width], scene.height, view.o, d));
+                let mut t = view.range.min(planes(
+                    [-scene.half_width, scene.half_width],
+                    scene.height,
+                    view.o,
+                    d,
+                ));
                 for shape in &scene.shapes {
                     t = t.min(hit_shape(shape, view.o, d, t));
                 }
@@ -724,7 +856,12 @@ mod tests {
             let mut slow = vec![0.0; px];
             for (i, cam) in cams.iter().enumerate() {
                 brute_force(&scene, &spec, cam, Some((drones, i)), &mut slow);
-                assert_eq!(&fast[i * px..(i + 1) * px], &slow[..], "camera {i} at {:?}", cam.position);
+                assert_eq!(
+                    &fast[i * px..(i + 1) * px],
+                    &slow[..],
+                    "camera {i} at {:?}",
+                    cam.position
+                );
                 assert_eq!(&banded[i * px..(i + 1) * px], &slow[..], "camera {i} alone, in bands");
                 seen += slow.iter().filter(|v| **v < 1.0).count();
             }
@@ -738,9 +875,18 @@ mod tests {
         let a = arena(vec![]);
         let scene = Scene::new(&a);
         let positions = [Vector::new(10.0, 0.0, 5.0), Vector::new(14.0, 0.0, 5.0)];
-        let cams: Vec<CameraPose> = positions.iter().map(|p| CameraPose { position: *p, rotation: Rotation::IDENTITY }).collect();
+        let cams: Vec<CameraPose> = positions
+            .iter()
+            .map(|p| CameraPose { position: *p, rotation: Rotation::IDENTITY })
+            .collect();
         let mut out = vec![0.0; 2 * 1024];
-        DepthRenderer::new(spec, 1).render(&scene, &cams, 0, Some(Drones { positions: &positions, radius: 0.5 }), &mut out);
+        DepthRenderer::new(spec, 1).render(
+            &scene,
+            &cams,
+            0,
+            Some(Drones { positions: &positions, radius: 0.5 }),
+            &mut out,
+        );
         let centre = out[15 * 32 + 15] * spec.range;
         assert!((centre - 3.5).abs() < 0.05, "{centre}");
         // Drone 1 looks away from drone 0 and must not see its own sphere.

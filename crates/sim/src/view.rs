@@ -39,7 +39,16 @@ const GREY: u8 = 64;
 /// The palette, as RGB triples, index by index (256 entries).
 pub fn palette() -> Vec<u8> {
     let mut p = vec![0u8; 256 * 3];
-    let fixed: [[u8; 3]; 8] = [[250, 250, 247], [96, 99, 110], [30, 30, 34], [236, 236, 240], [214, 39, 40], [44, 160, 44], [160, 160, 170], [255, 127, 14]];
+    let fixed: [[u8; 3]; 8] = [
+        [250, 250, 247],
+        [96, 99, 110],
+        [30, 30, 34],
+        [236, 236, 240],
+        [214, 39, 40],
+        [44, 160, 44],
+        [160, 160, 170],
+        [255, 127, 14],
+    ];
     let agents: [[u8; 3]; AGENT_COLOURS] = [
         [31, 119, 180],
         [148, 103, 189],
@@ -75,7 +84,10 @@ pub struct Tracks {
 impl Tracks {
     /// Starts every agent's path at its position now.
     pub fn new(env: &VecEnv) -> Self {
-        Self { paths: env.positions().iter().map(|p| vec![[p[0], p[1]]]).collect(), ends: vec![None; env.agents()] }
+        Self {
+            paths: env.positions().iter().map(|p| vec![[p[0], p[1]]]).collect(),
+            ends: vec![None; env.agents()],
+        }
     }
 
     /// Adds the positions after a step. An agent whose episode ended in it
@@ -177,7 +189,12 @@ impl Canvas {
     }
 
     fn disk(&mut self, cx: f32, cy: f32, r: f32, c: u8, right: usize) {
-        let (x0, x1, y0, y1) = ((cx - r).floor() as i32, (cx + r).ceil() as i32, (cy - r).floor() as i32, (cy + r).ceil() as i32);
+        let (x0, x1, y0, y1) = (
+            (cx - r).floor() as i32,
+            (cx + r).ceil() as i32,
+            (cy - r).floor() as i32,
+            (cy + r).ceil() as i32,
+        );
         for y in y0..=y1 {
             for x in x0..=x1 {
                 let (dx, dy) = (x as f32 + 0.5 - cx, y as f32 + 0.5 - cy);
@@ -226,7 +243,13 @@ pub fn draw(env: &VecEnv, tracks: &Tracks, focus: Focus<'_>, canvas: &mut Canvas
             _ => c,
         };
         let r = (0.3 * scale).max(2.0);
-        canvas.disk(px, py, if i == focus.agent { r + 1.5 } else { r }, if i == focus.agent { CHOSEN } else { mark }, TOP);
+        canvas.disk(
+            px,
+            py,
+            if i == focus.agent { r + 1.5 } else { r },
+            if i == focus.agent { CHOSEN } else { mark },
+            TOP,
+        );
         if i == focus.agent {
             canvas.disk(px, py, r, mark, TOP);
         }
@@ -234,7 +257,12 @@ pub fn draw(env: &VecEnv, tracks: &Tracks, focus: Focus<'_>, canvas: &mut Canvas
     depth_panel(canvas, focus, env.config().camera.side);
 }
 
-fn top_view(canvas: &mut Canvas, arena: &Arena, to_px: &impl Fn(f32, f32) -> (f32, f32), scale: f32) {
+fn top_view(
+    canvas: &mut Canvas,
+    arena: &Arena,
+    to_px: &impl Fn(f32, f32) -> (f32, f32),
+    scale: f32,
+) {
     let (lx, ty) = to_px(0.0, arena.width / 2.0);
     let (rx, by) = to_px(arena.length, -arena.width / 2.0);
     // Walls above and below the flying space, the finish line at the end.
@@ -247,7 +275,14 @@ fn top_view(canvas: &mut Canvas, arena: &Arena, to_px: &impl Fn(f32, f32) -> (f3
             Obstacle::Box { center: c, half_extents: h } => {
                 let (ax, ay) = to_px(c[0] - h[0], c[1] + h[1]);
                 let (bx, by) = to_px(c[0] + h[0], c[1] - h[1]);
-                canvas.rect(ax.floor() as i32, ay.floor() as i32, (bx.ceil() as i32).max(ax as i32 + 1), (by.ceil() as i32).max(ay as i32 + 1), OBSTACLE, TOP);
+                canvas.rect(
+                    ax.floor() as i32,
+                    ay.floor() as i32,
+                    (bx.ceil() as i32).max(ax as i32 + 1),
+                    (by.ceil() as i32).max(ay as i32 + 1),
+                    OBSTACLE,
+                    TOP,
+                );
             }
             Obstacle::Cylinder { center: c, radius, .. } => {
                 let (x, y) = to_px(c[0], c[1]);
@@ -267,7 +302,14 @@ fn depth_panel(canvas: &mut Canvas, focus: Focus<'_>, side: usize) {
             for (j, d) in frame.iter().enumerate() {
                 let g = GREY + (d.clamp(0.0, 1.0) * 63.0).round() as u8;
                 let (u, v) = (j % side, j / side);
-                canvas.rect((ox + u * zoom) as i32, (12 + v * zoom) as i32, (ox + (u + 1) * zoom) as i32, (12 + (v + 1) * zoom) as i32, g, WIDTH);
+                canvas.rect(
+                    (ox + u * zoom) as i32,
+                    (12 + v * zoom) as i32,
+                    (ox + (u + 1) * zoom) as i32,
+                    (12 + (v + 1) * zoom) as i32,
+                    g,
+                    WIDTH,
+                );
             }
         }
     }
@@ -296,8 +338,13 @@ mod tests {
 
     #[test]
     fn a_picture_shows_obstacles_drones_paths_and_the_depth_frames() {
-        let arena = Arena::load(std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../configs/arenas/train.toml"))).unwrap();
-        let mut env = VecEnv::new(SimConfig { agents: 3, ..SimConfig::default() }, arena, 2).unwrap();
+        let arena = Arena::load(std::path::Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../configs/arenas/train.toml"
+        )))
+        .unwrap();
+        let mut env =
+            VecEnv::new(SimConfig { agents: 3, ..SimConfig::default() }, arena, 2).unwrap();
         let mut tracks = Tracks::new(&env);
         for t in 0..4 {
             env.step(&[0, 1, (t % 2) as u8]).unwrap();
@@ -306,12 +353,20 @@ mod tests {
         let mut canvas = Canvas::default();
         let mut depth = vec![0.0; 3 * 2 * 32 * 32];
         env.write_observations_split(&mut depth, &mut [0.0; 9]);
-        draw(&env, &tracks, Focus { agent: 0, depth: &depth[..2 * 32 * 32], q: Some([1.0, 2.0]), action: Some(1) }, &mut canvas);
+        draw(
+            &env,
+            &tracks,
+            Focus { agent: 0, depth: &depth[..2 * 32 * 32], q: Some([1.0, 2.0]), action: Some(1) },
+            &mut canvas,
+        );
         let count = |c: u8| canvas.px.iter().filter(|p| **p == c).count();
         assert!(count(OBSTACLE) > 100, "obstacles drawn");
         assert!(count(WALL) > 100, "walls drawn");
         assert!(count(AGENT + 1) > 10 && count(AGENT + 2) > 10, "paths drawn");
-        assert!(canvas.px.iter().filter(|p| **p >= GREY).count() >= 2 * 32 * 32, "depth frames drawn");
+        assert!(
+            canvas.px.iter().filter(|p| **p >= GREY).count() >= 2 * 32 * 32,
+            "depth frames drawn"
+        );
         assert!(count(CHOSEN) > 60 * 20, "the chosen action's bar drawn");
         assert_eq!(canvas.rgb().len(), WIDTH * HEIGHT * 3);
     }

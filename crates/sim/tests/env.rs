@@ -6,7 +6,14 @@ use std::path::PathBuf;
 use rotorhive_sim::{Arena, Autoreset, Done, Obstacle, SimConfig, Spawn, VecEnv};
 
 fn open_arena(length: f32, obstacles: Vec<Obstacle>) -> Arena {
-    Arena { name: "open".into(), length, width: 20.0, height: 8.0, spawn: Spawn { x: 2.0, y: [0.0, 0.0], z: 3.0 }, obstacles }
+    Arena {
+        name: "open".into(),
+        length,
+        width: 20.0,
+        height: 8.0,
+        spawn: Spawn { x: 2.0, y: [0.0, 0.0], z: 3.0 },
+        obstacles,
+    }
 }
 
 fn cfg(agents: usize) -> SimConfig {
@@ -19,7 +26,9 @@ fn arena_file(name: &str) -> PathBuf {
 
 #[test]
 fn hover_holds_altitude() {
-    let mut env = VecEnv::new(SimConfig { forward_speed: 0.0, ..cfg(1) }, open_arena(100.0, vec![]), 1).unwrap();
+    let mut env =
+        VecEnv::new(SimConfig { forward_speed: 0.0, ..cfg(1) }, open_arena(100.0, vec![]), 1)
+            .unwrap();
     env.place(0, [10.0, 0.0, 3.0], [0.0, 0.0, 0.0]);
     for _ in 0..10 {
         env.fly(&[0.0], 1.0);
@@ -32,7 +41,12 @@ fn hover_holds_altitude() {
 #[test]
 fn velocity_setpoint_is_tracked_within_ten_percent_after_two_seconds() {
     for (forward, lateral) in [(1.0f32, 0.0f32), (1.0, 1.0), (1.0, -0.75), (0.0, 2.0)] {
-        let mut env = VecEnv::new(SimConfig { forward_speed: forward, ..cfg(1) }, open_arena(200.0, vec![]), 1).unwrap();
+        let mut env = VecEnv::new(
+            SimConfig { forward_speed: forward, ..cfg(1) },
+            open_arena(200.0, vec![]),
+            1,
+        )
+        .unwrap();
         env.place(0, [10.0, 0.0, 3.0], [0.0, 0.0, 0.0]);
         env.fly(&[lateral], 2.0);
         let v = env.state(0).velocity;
@@ -86,17 +100,23 @@ fn flying_into_an_obstacle_is_a_collision_and_resets_only_that_agent() {
     env.step(&[0, 0]).unwrap();
     assert!(env.observations().is_empty());
     env.write_observations(0, &mut all);
-    assert_ne!(&all[len + 1024..len + 2048], &rows[1024..2048], "agent 1 flew on: its view changed");
+    assert_ne!(
+        &all[len + 1024..len + 2048],
+        &rows[1024..2048],
+        "agent 1 flew on: its view changed"
+    );
 }
 
 #[test]
 fn agents_pass_through_and_do_not_see_each_other_unless_interactive() {
     // Two drones on crossing paths at the same spot.
     let run = |interactive: bool| {
-        let mut env = VecEnv::new(SimConfig { interactive, ..cfg(2) }, open_arena(100.0, vec![]), 5).unwrap();
+        let mut env =
+            VecEnv::new(SimConfig { interactive, ..cfg(2) }, open_arena(100.0, vec![]), 5).unwrap();
         env.place(0, [10.0, -1.5, 3.0], [1.0, 0.0, 0.0]);
         env.place(1, [10.0, 1.5, 3.0], [1.0, 0.0, 0.0]);
-        let front_depth_of_1 = |env: &VecEnv| env.observations()[env.obs_len() + 1024..env.obs_len() + 2048].to_vec();
+        let front_depth_of_1 =
+            |env: &VecEnv| env.observations()[env.obs_len() + 1024..env.obs_len() + 2048].to_vec();
         let mut saw_other = false;
         let mut collided = false;
         let mut clear_view = front_depth_of_1(&env);
@@ -127,7 +147,9 @@ fn non_interactive_depth_ignores_other_drones() {
     alone.step(&[0]).unwrap();
     assert_eq!(&env.observations()[1024..2048], &alone.observations()[1024..2048]);
 
-    let mut inter = VecEnv::new(SimConfig { interactive: true, ..cfg(2) }, open_arena(100.0, vec![]), 5).unwrap();
+    let mut inter =
+        VecEnv::new(SimConfig { interactive: true, ..cfg(2) }, open_arena(100.0, vec![]), 5)
+            .unwrap();
     inter.place(0, [10.0, 0.0, 3.0], [1.0, 0.0, 0.0]);
     inter.place(1, [13.0, 0.0, 3.0], [1.0, 0.0, 0.0]);
     inter.step(&[0, 1]).unwrap();
@@ -156,7 +178,12 @@ fn same_seed_same_trajectory() {
 
 #[test]
 fn timeout_ends_an_episode_with_its_penalty() {
-    let mut env = VecEnv::new(SimConfig { max_steps: 5, forward_speed: 0.0, ..cfg(1) }, open_arena(100.0, vec![]), 1).unwrap();
+    let mut env = VecEnv::new(
+        SimConfig { max_steps: 5, forward_speed: 0.0, ..cfg(1) },
+        open_arena(100.0, vec![]),
+        1,
+    )
+    .unwrap();
     for _ in 0..4 {
         env.step(&[(env.total_steps() % 2) as u8]).unwrap();
         assert_eq!(env.dones()[0], Done::Running);
@@ -186,7 +213,9 @@ fn reaching_the_end_is_a_goal() {
 fn shipped_arenas_punish_trivial_policies() {
     for name in ["train.toml", "test.toml"] {
         let arena = Arena::load(&arena_file(name)).unwrap();
-        let spawns: Vec<f32> = (0..9).map(|k| arena.spawn.y[0] + (arena.spawn.y[1] - arena.spawn.y[0]) * k as f32 / 8.0).collect();
+        let spawns: Vec<f32> = (0..9)
+            .map(|k| arena.spawn.y[0] + (arena.spawn.y[1] - arena.spawn.y[0]) * k as f32 / 8.0)
+            .collect();
         let n = spawns.len();
         for policy in ["straight", "always-left", "always-right"] {
             let mut env = VecEnv::new(cfg(n), arena.clone(), 9).unwrap();
@@ -209,7 +238,9 @@ fn shipped_arenas_punish_trivial_policies() {
                 }
             }
             for (i, e) in ended.iter().enumerate() {
-                let r = e.unwrap_or_else(|| panic!("{name}: {policy} from y = {} never crashed", spawns[i]));
+                let r = e.unwrap_or_else(|| {
+                    panic!("{name}: {policy} from y = {} never crashed", spawns[i])
+                });
                 assert!(r < 300.0, "{name}: {policy} from y = {} earned {r}", spawns[i]);
             }
         }
@@ -223,7 +254,10 @@ fn shipped_arenas_punish_trivial_policies() {
 fn lanes_put_arenas_side_by_side_and_keep_them_apart() {
     use rotorhive_sim::{CameraPose, CameraSpec, DepthRenderer, Lanes, Scene};
     let a = open_arena(100.0, vec![]);
-    let b = open_arena(100.0, vec![Obstacle::Box { center: [30.0, 0.0, 4.0], half_extents: [1.0, 1.0, 4.0] }]);
+    let b = open_arena(
+        100.0,
+        vec![Obstacle::Box { center: [30.0, 0.0, 4.0], half_extents: [1.0, 1.0, 4.0] }],
+    );
     let lanes = Lanes::new(&[a.clone(), b.clone()]).unwrap();
     assert_eq!(lanes.offsets.len(), 2);
     assert!((lanes.offsets[1] - lanes.offsets[0] - 21.0).abs() < 1e-4, "{:?}", lanes.offsets);
@@ -232,7 +266,11 @@ fn lanes_put_arenas_side_by_side_and_keep_them_apart() {
     let env = VecEnv::new_lanes(cfg(16), &[a.clone(), b], 3).unwrap();
     let mut used = [false; 2];
     for p in env.positions() {
-        let k = lanes.offsets.iter().position(|o| (p[1] - o).abs() < 10.0).expect("agent outside every lane");
+        let k = lanes
+            .offsets
+            .iter()
+            .position(|o| (p[1] - o).abs() < 10.0)
+            .expect("agent outside every lane");
         used[k] = true;
     }
     assert_eq!(used, [true, true]);
@@ -254,7 +292,10 @@ fn lanes_put_arenas_side_by_side_and_keep_them_apart() {
 
 #[test]
 fn without_autoreset_an_ended_agent_keeps_its_last_frames_until_it_is_reset() {
-    let arena = open_arena(100.0, vec![Obstacle::Box { center: [30.0, 0.0, 4.0], half_extents: [0.5, 10.0, 4.0] }]);
+    let arena = open_arena(
+        100.0,
+        vec![Obstacle::Box { center: [30.0, 0.0, 4.0], half_extents: [0.5, 10.0, 4.0] }],
+    );
     let mut env = VecEnv::new(SimConfig { max_steps: 3, ..cfg(2) }, arena, 7).unwrap();
     env.set_autoreset(Autoreset::Disabled);
     let start = env.observations().to_vec();
@@ -281,8 +322,10 @@ fn without_autoreset_an_ended_agent_keeps_its_last_frames_until_it_is_reset() {
     assert_eq!(&after[n..2 * n], &ended[n..2 * n], "agent 1's observation is unchanged");
     assert_eq!(&after[..px], &after[px..2 * px], "a reset agent's two frames are its first view");
     // Reseeding makes the spawns reproducible.
-    let mut a = VecEnv::new(SimConfig { max_steps: 3, ..cfg(2) }, open_arena(100.0, vec![]), 1).unwrap();
-    let mut b = VecEnv::new(SimConfig { max_steps: 3, ..cfg(2) }, open_arena(100.0, vec![]), 2).unwrap();
+    let mut a =
+        VecEnv::new(SimConfig { max_steps: 3, ..cfg(2) }, open_arena(100.0, vec![]), 1).unwrap();
+    let mut b =
+        VecEnv::new(SimConfig { max_steps: 3, ..cfg(2) }, open_arena(100.0, vec![]), 2).unwrap();
     for e in [&mut a, &mut b] {
         e.reseed(42);
         e.reset_agents(&[true, true]).unwrap();
@@ -311,7 +354,11 @@ fn resetting_ended_agents_by_hand_matches_autoreset_step_for_step() {
         // Before the reset, an ended agent's observation is its last view.
         for (i, m) in mask.iter().enumerate() {
             if *m {
-                assert_ne!(&by_hand.observations()[i * n..(i + 1) * n], &auto.observations()[i * n..(i + 1) * n], "step {t} agent {i}");
+                assert_ne!(
+                    &by_hand.observations()[i * n..(i + 1) * n],
+                    &auto.observations()[i * n..(i + 1) * n],
+                    "step {t} agent {i}"
+                );
             }
         }
         ended += mask.iter().filter(|m| **m).count();
@@ -375,22 +422,29 @@ fn next_step_autoreset_starts_the_next_episode_one_step_later() {
 fn randomised_dynamics_vary_per_drone_and_are_off_by_default() {
     use rotorhive_sim::Randomize;
     let fly = |r: Randomize| {
-        let mut env = VecEnv::new(SimConfig { randomize: r, ..cfg(20) }, open_arena(200.0, vec![]), 3).unwrap();
+        let mut env =
+            VecEnv::new(SimConfig { randomize: r, ..cfg(20) }, open_arena(200.0, vec![]), 3)
+                .unwrap();
         for t in 0..8 {
             env.step(&[(t % 2) as u8; 20]).unwrap();
         }
         env.positions()
     };
-    let x_spread = |p: &[[f32; 3]]| p.iter().map(|q| q[0]).fold(f32::MIN, f32::max) - p.iter().map(|q| q[0]).fold(f32::MAX, f32::min);
+    let x_spread = |p: &[[f32; 3]]| {
+        p.iter().map(|q| q[0]).fold(f32::MIN, f32::max)
+            - p.iter().map(|q| q[0]).fold(f32::MAX, f32::min)
+    };
     // Off: every drone flies the same course (same actions, same spawn x).
     assert!(x_spread(&fly(Randomize::default())) < 1e-3);
     // Forward speeds of 0.8-1.5 m/s: after 8 s their x differ by metres.
-    let spread = x_spread(&fly(Randomize { forward_speed_scale: [0.8, 1.5], ..Randomize::default() }));
+    let spread =
+        x_spread(&fly(Randomize { forward_speed_scale: [0.8, 1.5], ..Randomize::default() }));
     assert!(spread > 2.0, "x spread {spread}");
     // Wind alone pushes drones sideways apart.
     let p = fly(Randomize { wind: 0.5, ..Randomize::default() });
     let y: Vec<f32> = p.iter().map(|q| q[1]).collect();
-    let y_spread = y.iter().copied().fold(f32::MIN, f32::max) - y.iter().copied().fold(f32::MAX, f32::min);
+    let y_spread =
+        y.iter().copied().fold(f32::MIN, f32::max) - y.iter().copied().fold(f32::MAX, f32::min);
     assert!(y_spread > 0.2, "y spread {y_spread}");
 }
 

@@ -4,7 +4,14 @@
 use rotorhive_sim::{Arena, Autoreset, Done, Obstacle, PhysicsKind, SimConfig, Spawn, VecEnv};
 
 fn open_arena(length: f32, width: f32, obstacles: Vec<Obstacle>) -> Arena {
-    Arena { name: "open".into(), length, width, height: 8.0, spawn: Spawn { x: 2.0, y: [0.0, 0.0], z: 3.0 }, obstacles }
+    Arena {
+        name: "open".into(),
+        length,
+        width,
+        height: 8.0,
+        spawn: Spawn { x: 2.0, y: [0.0, 0.0], z: 3.0 },
+        obstacles,
+    }
 }
 
 /// Action sequences of every kind a policy flies: held one way, alternating,
@@ -23,7 +30,12 @@ fn direct_flight_follows_the_rapier_reference() {
     let agents = 12;
     let arena = open_arena(400.0, 400.0, vec![]);
     let make = |physics| {
-        let mut env = VecEnv::new(SimConfig { agents, physics, max_steps: 1000, ..SimConfig::default() }, arena.clone(), 5).unwrap();
+        let mut env = VecEnv::new(
+            SimConfig { agents, physics, max_steps: 1000, ..SimConfig::default() },
+            arena.clone(),
+            5,
+        )
+        .unwrap();
         env.set_autoreset(Autoreset::Disabled);
         for i in 0..agents {
             env.place(i, [2.0, i as f32 * 20.0 - 110.0, 3.0], [1.0, 0.0, 0.0]);
@@ -44,8 +56,15 @@ fn direct_flight_follows_the_rapier_reference() {
             worst_att = worst_att.max(a.rotation.angle_between(b.rotation).to_degrees());
         }
     }
-    eprintln!("agent 0 at {:?} / {:?}, agent 3 at {:?}", direct.state(0).position, rapier.state(0).position, rapier.state(3).position);
-    eprintln!("after 40 actions of 12 agents: position {worst_pos:.6} m, velocity {worst_vel:.6} m/s, attitude {worst_att:.3} degrees apart at worst");
+    eprintln!(
+        "agent 0 at {:?} / {:?}, agent 3 at {:?}",
+        direct.state(0).position,
+        rapier.state(0).position,
+        rapier.state(3).position
+    );
+    eprintln!(
+        "after 40 actions of 12 agents: position {worst_pos:.6} m, velocity {worst_vel:.6} m/s, attitude {worst_att:.3} degrees apart at worst"
+    );
     // Over 40 s of flight and up to 3 m/s of lateral speed (measured: 4 µm,
     // 3 µm/s and 0.04 degrees; the attitude differs by the frame in which
     // the torque is held over a step).
@@ -83,7 +102,8 @@ fn nothing_tunnels_through_the_thinnest_wall_at_the_highest_speed() {
     for t in 0..6 {
         // +lateral_step holds the even agents at the top lateral speed; the
         // odd ones alternate and fly straight.
-        let actions: Vec<u8> = (0..agents).map(|i| if i % 2 == 0 { 1 } else { (t % 2) as u8 }).collect();
+        let actions: Vec<u8> =
+            (0..agents).map(|i| if i % 2 == 0 { 1 } else { (t % 2) as u8 }).collect();
         env.step(&actions).unwrap();
         for (i, d) in env.dones().iter().enumerate() {
             if *d != Done::Running && ended[i].is_none() {
@@ -97,7 +117,10 @@ fn nothing_tunnels_through_the_thinnest_wall_at_the_highest_speed() {
         // wall it touched until the action ends, so only the timing shows
         // that the touch was seen when it happened.
         let latest = if i % 2 == 0 { 1 } else { 3 };
-        assert!(matches!(e, Some((Done::Collision, t)) if *t <= latest), "agent {i} ended as {e:?}");
+        assert!(
+            matches!(e, Some((Done::Collision, t)) if *t <= latest),
+            "agent {i} ended as {e:?}"
+        );
     }
     // Without the walls, the same flights are not collisions.
     let mut clear = VecEnv::new(cfg, open_arena(200.0, 30.0, vec![]), 9).unwrap();
@@ -109,9 +132,18 @@ fn nothing_tunnels_through_the_thinnest_wall_at_the_highest_speed() {
 
 #[test]
 fn physics_on_the_shared_render_threads_flies_exactly_as_on_one() {
-    let arena = Arena::load(std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../configs/arenas/train.toml"))).unwrap();
+    let arena = Arena::load(std::path::Path::new(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../configs/arenas/train.toml"
+    )))
+    .unwrap();
     let run = |threads| {
-        let mut env = VecEnv::new(SimConfig { agents: 150, render_threads: threads, ..SimConfig::default() }, arena.clone(), 4).unwrap();
+        let mut env = VecEnv::new(
+            SimConfig { agents: 150, render_threads: threads, ..SimConfig::default() },
+            arena.clone(),
+            4,
+        )
+        .unwrap();
         let mut ends = 0;
         for t in 0..30 {
             let actions: Vec<u8> = (0..150).map(|i| action(i, t)).collect();

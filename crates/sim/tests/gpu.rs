@@ -11,7 +11,8 @@ use rotorhive_sim::render::Drones;
 use rotorhive_sim::{Arena, CameraPose, CameraSpec, DepthRenderer, GpuDepthRenderer, Scene};
 
 fn arena() -> Arena {
-    Arena::load(&PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../configs/arenas/train.toml")).expect("train arena")
+    Arena::load(&PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../configs/arenas/train.toml"))
+        .expect("train arena")
 }
 
 fn gpu(spec: CameraSpec, scene: &Scene) -> GpuDepthRenderer {
@@ -23,7 +24,11 @@ fn random_views(arena: &Arena, n: usize, seed: u64) -> Vec<CameraPose> {
     let hw = arena.width / 2.0;
     let mut views = Vec::new();
     while views.len() < n {
-        let position = Vector::new(rng.random_range(0.0..arena.length), rng.random_range(-hw + 0.7..hw - 0.7), rng.random_range(0.8..arena.height - 0.8));
+        let position = Vector::new(
+            rng.random_range(0.0..arena.length),
+            rng.random_range(-hw + 0.7..hw - 0.7),
+            rng.random_range(0.8..arena.height - 0.8),
+        );
         let rotation = Rotation::from_rotation_z(rng.random_range(-1.0..1.0))
             * Rotation::from_rotation_y(rng.random_range(-0.2..0.2))
             * Rotation::from_rotation_x(rng.random_range(-0.2..0.2));
@@ -97,7 +102,8 @@ fn wgpu_matches_cpu_on_random_views() {
     let mut g = gpu(spec, &scene);
     g.render(&cams, &agents, None, &mut out).unwrap();
     let (mae, off) = compare(&cpu, &out, spec);
-    let all = cpu.iter().zip(&out).map(|(a, b)| ((a - b).abs() * spec.range) as f64).sum::<f64>() / cpu.len() as f64;
+    let all = cpu.iter().zip(&out).map(|(a, b)| ((a - b).abs() * spec.range) as f64).sum::<f64>()
+        / cpu.len() as f64;
     println!(
         "adapter {}: mean |wgpu − cpu| {:.2} mm over non-edge pixels ({:.2} mm over all), {:.2} % of pixels off by > 5 cm",
         g.adapter(),
@@ -153,7 +159,11 @@ fn wgpu_shows_other_drones_only_in_interactive_mode() {
     g.render(&cams, &[0, 1], None, &mut hidden).unwrap();
     let centre = (spec.side / 2) * spec.side + spec.side / 2;
     let expect = 2.5 / spec.range;
-    assert!((cpu[centre] - expect).abs() < 0.01, "cpu sees the drone at {}", cpu[centre] * spec.range);
+    assert!(
+        (cpu[centre] - expect).abs() < 0.01,
+        "cpu sees the drone at {}",
+        cpu[centre] * spec.range
+    );
     assert!(
         (out[centre] - cpu[centre]).abs() * spec.range < 0.02,
         "wgpu sees the drone at {} m, cpu at {} m",
@@ -167,7 +177,10 @@ fn wgpu_shows_other_drones_only_in_interactive_mode() {
 
 fn save16(path: &std::path::Path, img: &[f32], side: usize) {
     let data: Vec<u16> = img.iter().map(|d| (d.clamp(0.0, 1.0) * 65535.0).round() as u16).collect();
-    image::ImageBuffer::<image::Luma<u16>, _>::from_raw(side as u32, side as u32, data).expect("size").save(path).expect("write png");
+    image::ImageBuffer::<image::Luma<u16>, _>::from_raw(side as u32, side as u32, data)
+        .expect("size")
+        .save(path)
+        .expect("write png");
 }
 
 /// A fixed view of the training arena against `tests/golden/train_view.png`
@@ -179,7 +192,10 @@ fn golden_image() {
     let arena = arena();
     let scene = Scene::new(&arena);
     let spec = CameraSpec::default();
-    let cam = CameraPose { position: Vector::new(8.0, 0.5, 2.0), rotation: Rotation::from_rotation_z(0.15) };
+    let cam = CameraPose {
+        position: Vector::new(8.0, 0.5, 2.0),
+        rotation: Rotation::from_rotation_z(0.15),
+    };
     let px = spec.side * spec.side;
     let mut cpu = vec![0.0; px];
     DepthRenderer::new(spec, 1).render(&scene, &[cam], 0, None, &mut cpu);
@@ -191,7 +207,9 @@ fn golden_image() {
         save16(&golden_path, &cpu, spec.side);
     }
     let golden: Vec<f32> = image::open(&golden_path)
-        .unwrap_or_else(|e| panic!("golden image {}: {e} (ROTORHIVE_BLESS=1 writes it)", golden_path.display()))
+        .unwrap_or_else(|e| {
+            panic!("golden image {}: {e} (ROTORHIVE_BLESS=1 writes it)", golden_path.display())
+        })
         .to_luma16()
         .into_raw()
         .into_iter()
@@ -204,10 +222,16 @@ fn golden_image() {
         if mae >= 0.01 {
             std::fs::create_dir_all(&out_dir).expect("golden output dir");
             save16(&out_dir.join(format!("actual_{name}.png")), img, spec.side);
-            let diff: Vec<f32> = img.iter().zip(&golden).map(|(a, b)| ((a - b).abs() * 10.0).min(1.0)).collect();
+            let diff: Vec<f32> =
+                img.iter().zip(&golden).map(|(a, b)| ((a - b).abs() * 10.0).min(1.0)).collect();
             save16(&out_dir.join(format!("diff_{name}.png")), &diff, spec.side);
             failures.push(format!("{name}: mean error {:.1} mm", mae * 1000.0));
         }
     }
-    assert!(failures.is_empty(), "golden image mismatch ({}); actual and diff images in {}", failures.join(", "), out_dir.display());
+    assert!(
+        failures.is_empty(),
+        "golden image mismatch ({}); actual and diff images in {}",
+        failures.join(", "),
+        out_dir.display()
+    );
 }

@@ -103,45 +103,104 @@ impl Channel {
     /// Observations of sim `env` to its actor, `per_step` messages a step
     /// (1 batched, one per agent non-batched): room for two steps.
     pub fn obs(env: usize, per_step: usize) -> Self {
-        Self { name: format!("obs.{env}"), publishers: 1, subscribers: 1, buffer: 2 * per_step.max(1), overflow: false, history: 0 }
+        Self {
+            name: format!("obs.{env}"),
+            publishers: 1,
+            subscribers: 1,
+            buffer: 2 * per_step.max(1),
+            overflow: false,
+            history: 0,
+        }
     }
     /// Action batches of actor `env` to its sim.
     pub fn actions(env: usize) -> Self {
-        Self { name: format!("act.{env}"), publishers: 1, subscribers: 1, buffer: 2, overflow: false, history: 0 }
+        Self {
+            name: format!("act.{env}"),
+            publishers: 1,
+            subscribers: 1,
+            buffer: 2,
+            overflow: false,
+            history: 0,
+        }
     }
     /// Transition batches from every actor of this host (and the host's
     /// link, which brings other hosts' batches) to the replay memory.
     pub fn transitions(envs: usize) -> Self {
-        Self { name: "transitions".into(), publishers: envs + 1, subscribers: 1, buffer: 8, overflow: false, history: 0 }
+        Self {
+            name: "transitions".into(),
+            publishers: envs + 1,
+            subscribers: 1,
+            buffer: 8,
+            overflow: false,
+            history: 0,
+        }
     }
     /// Finished episodes from every actor of this host (and its link) to the supervisor.
     pub fn episodes(envs: usize) -> Self {
-        Self { name: "episodes".into(), publishers: envs + 1, subscribers: 1, buffer: 256, overflow: false, history: 0 }
+        Self {
+            name: "episodes".into(),
+            publishers: envs + 1,
+            subscribers: 1,
+            buffer: 256,
+            overflow: false,
+            history: 0,
+        }
     }
     /// Minibatches from the replay memory to the learner.
     pub fn minibatches(prefetch: usize) -> Self {
-        Self { name: "minibatches".into(), publishers: 1, subscribers: 1, buffer: prefetch, overflow: false, history: 0 }
+        Self {
+            name: "minibatches".into(),
+            publishers: 1,
+            subscribers: 1,
+            buffer: prefetch,
+            overflow: false,
+            history: 0,
+        }
     }
     /// Priorities from the learner back to the replay (prioritized replay):
     /// one message per minibatch; room for every minibatch in flight.
     pub fn priorities(prefetch: usize) -> Self {
-        Self { name: "priorities".into(), publishers: 1, subscribers: 1, buffer: 2 * prefetch + 8, overflow: false, history: 0 }
+        Self {
+            name: "priorities".into(),
+            publishers: 1,
+            subscribers: 1,
+            buffer: 2 * prefetch + 8,
+            overflow: false,
+            history: 0,
+        }
     }
     /// Weights from the learner to every actor (and to every sim, which reads
     /// the update count for rate limiting): only the newest matters, and a
     /// late subscriber gets the last published version. On a worker host the
     /// link is the publisher; on the head it is one more subscriber.
     pub fn weights(envs: usize) -> Self {
-        Self { name: "weights".into(), publishers: 1, subscribers: 2 * envs + 3, buffer: 1, overflow: true, history: 1 }
+        Self {
+            name: "weights".into(),
+            publishers: 1,
+            subscribers: 2 * envs + 3,
+            buffer: 1,
+            overflow: true,
+            history: 1,
+        }
     }
     /// Telemetry from every role to the supervisor; old samples may be overwritten.
     pub fn telemetry(roles: usize) -> Self {
-        Self { name: "telemetry".into(), publishers: roles + 3, subscribers: 2, buffer: 64, overflow: true, history: 0 }
+        Self {
+            name: "telemetry".into(),
+            publishers: roles + 3,
+            subscribers: 2,
+            buffer: 64,
+            overflow: true,
+            history: 0,
+        }
     }
 }
 
 /// The publish-subscribe service of a channel and its event service.
-type Services<S, T, H> = (iceoryx2::service::port_factory::publish_subscribe::PortFactory<S, [T], H>, iceoryx2::service::port_factory::event::PortFactory<S>);
+type Services<S, T, H> = (
+    iceoryx2::service::port_factory::publish_subscribe::PortFactory<S, [T], H>,
+    iceoryx2::service::port_factory::event::PortFactory<S>,
+);
 
 /// A role's handle on its run: the iceoryx2 node and the run's name prefix.
 pub struct Hub<S: Service> {
@@ -153,9 +212,16 @@ pub struct Hub<S: Service> {
 impl<S: Service> Hub<S> {
     /// Creates this process's node for the run `prefix`.
     pub fn new(prefix: &str, node_name: &str) -> Result<Self> {
-        let err = |e: &dyn Debug| TransportError::Node { node: node_name.to_string(), message: format!("{e:?}") };
+        let err = |e: &dyn Debug| TransportError::Node {
+            node: node_name.to_string(),
+            message: format!("{e:?}"),
+        };
         let name = NodeName::new(node_name).map_err(|e| err(&e))?;
-        let node = NodeBuilder::new().name(&name).config(domain_config()).create::<S>().map_err(|e| err(&e))?;
+        let node = NodeBuilder::new()
+            .name(&name)
+            .config(domain_config())
+            .create::<S>()
+            .map_err(|e| err(&e))?;
         Ok(Self { node, prefix: prefix.to_string(), stop: Arc::new(AtomicBool::new(false)) })
     }
 
@@ -189,7 +255,11 @@ impl<S: Service> Hub<S> {
 
     fn service_name(&self, ch: &Channel) -> Result<ServiceName> {
         let full = format!("rotorhive/{}/{}", self.prefix, ch.name);
-        ServiceName::new(&full).map_err(|e| TransportError::Open { channel: full.clone(), op: "name service", message: format!("{e:?}") })
+        ServiceName::new(&full).map_err(|e| TransportError::Open {
+            channel: full.clone(),
+            op: "name service",
+            message: format!("{e:?}"),
+        })
     }
 
     fn open<T, H>(&self, ch: &Channel) -> Result<Services<S, T, H>>
@@ -198,7 +268,11 @@ impl<S: Service> Hub<S> {
         H: Debug + ZeroCopySend + Default + 'static,
     {
         let name = self.service_name(ch)?;
-        let open_err = |op, e: &dyn Debug| TransportError::Open { channel: ch.name.clone(), op, message: format!("{e:?}") };
+        let open_err = |op, e: &dyn Debug| TransportError::Open {
+            channel: ch.name.clone(),
+            op,
+            message: format!("{e:?}"),
+        };
         let ps = self
             .node
             .service_builder(&name)
@@ -224,13 +298,22 @@ impl<S: Service> Hub<S> {
 
     /// A sender on a channel; `max_len` is the largest payload it will send.
     /// Back-pressure waits at most `stall_timeout` per message.
-    pub fn sender<T, H>(&self, ch: &Channel, max_len: usize, stall_timeout: Duration) -> Result<Sender<S, T, H>>
+    pub fn sender<T, H>(
+        &self,
+        ch: &Channel,
+        max_len: usize,
+        stall_timeout: Duration,
+    ) -> Result<Sender<S, T, H>>
     where
         T: Plain,
         H: Debug + ZeroCopySend + Default + 'static,
     {
         let (ps, ev) = self.open::<T, H>(ch)?;
-        let open_err = |op, e: &dyn Debug| TransportError::Open { channel: ch.name.clone(), op, message: format!("{e:?}") };
+        let open_err = |op, e: &dyn Debug| TransportError::Open {
+            channel: ch.name.clone(),
+            op,
+            message: format!("{e:?}"),
+        };
         let stalls = Arc::new(AtomicU64::new(0));
         let counter = stalls.clone();
         let publisher = ps
@@ -250,8 +333,17 @@ impl<S: Service> Hub<S> {
             })
             .create()
             .map_err(|e| open_err("create publisher", &e))?;
-        let notifier = ev.notifier_builder().create().map_err(|e| open_err("create notifier", &e))?;
-        Ok(Sender { publisher, notifier, service: ps, channel: ch.name.clone(), stalls, stall_timeout, sent: 0 })
+        let notifier =
+            ev.notifier_builder().create().map_err(|e| open_err("create notifier", &e))?;
+        Ok(Sender {
+            publisher,
+            notifier,
+            service: ps,
+            channel: ch.name.clone(),
+            stalls,
+            stall_timeout,
+            sent: 0,
+        })
     }
 
     /// A receiver on a channel.
@@ -261,15 +353,22 @@ impl<S: Service> Hub<S> {
         H: Debug + ZeroCopySend + Default + 'static,
     {
         let (ps, ev) = self.open::<T, H>(ch)?;
-        let open_err = |op, e: &dyn Debug| TransportError::Open { channel: ch.name.clone(), op, message: format!("{e:?}") };
-        let subscriber = ps.subscriber_builder().create().map_err(|e| open_err("create subscriber", &e))?;
-        let listener = ev.listener_builder().create().map_err(|e| open_err("create listener", &e))?;
+        let open_err = |op, e: &dyn Debug| TransportError::Open {
+            channel: ch.name.clone(),
+            op,
+            message: format!("{e:?}"),
+        };
+        let subscriber =
+            ps.subscriber_builder().create().map_err(|e| open_err("create subscriber", &e))?;
+        let listener =
+            ev.listener_builder().create().map_err(|e| open_err("create listener", &e))?;
         Ok(Receiver { subscriber, listener, channel: ch.name.clone(), spin: spin() })
     }
 }
 
 /// The sending side of a channel.
-pub struct Sender<S: Service, T: Debug + ZeroCopySend + 'static, H: Debug + ZeroCopySend + 'static> {
+pub struct Sender<S: Service, T: Debug + ZeroCopySend + 'static, H: Debug + ZeroCopySend + 'static>
+{
     publisher: Publisher<S, [T], H>,
     notifier: Notifier<S>,
     service: iceoryx2::service::port_factory::publish_subscribe::PortFactory<S, [T], H>,
@@ -296,9 +395,18 @@ impl<S: Service, T: Plain, H: Debug + ZeroCopySend + Default + 'static> Sender<S
     /// As [`Sender::send_with`], with a fill that may fail: when it does, the
     /// loan is given back unsent and its error returned inside `Ok`, so a
     /// half-written message is never published.
-    pub fn try_send_with<E>(&mut self, len: usize, fill: impl FnOnce(&mut H, &mut [T]) -> std::result::Result<(), E>) -> Result<std::result::Result<(), E>> {
-        let io = |op, e: &dyn Debug, ch: &str| TransportError::Io { channel: ch.to_string(), op, message: format!("{e:?}") };
-        let uninit = self.publisher.loan_slice_uninit(len).map_err(|e| io("loan", &e, &self.channel))?;
+    pub fn try_send_with<E>(
+        &mut self,
+        len: usize,
+        fill: impl FnOnce(&mut H, &mut [T]) -> std::result::Result<(), E>,
+    ) -> Result<std::result::Result<(), E>> {
+        let io = |op, e: &dyn Debug, ch: &str| TransportError::Io {
+            channel: ch.to_string(),
+            op,
+            message: format!("{e:?}"),
+        };
+        let uninit =
+            self.publisher.loan_slice_uninit(len).map_err(|e| io("loan", &e, &self.channel))?;
         let mut sample = if std::any::type_name::<S>() == std::any::type_name::<Ipc>() {
             // SAFETY: with the `ipc` service the payload lies in a
             // shared-memory segment mapped from a file descriptor: its bytes
@@ -328,7 +436,10 @@ impl<S: Service, T: Plain, H: Debug + ZeroCopySend + Default + 'static> Sender<S
             Ok(_) => {}
             Err(e) => {
                 if self.stalls.load(Ordering::Relaxed) > before {
-                    return Err(TransportError::Stalled { channel: self.channel.clone(), timeout: self.stall_timeout });
+                    return Err(TransportError::Stalled {
+                        channel: self.channel.clone(),
+                        timeout: self.stall_timeout,
+                    });
                 }
                 return Err(io("send", &e, &self.channel));
             }
@@ -352,7 +463,11 @@ impl<S: Service, T: Plain, H: Debug + ZeroCopySend + Default + 'static> Sender<S
 }
 
 /// The receiving side of a channel.
-pub struct Receiver<S: Service, T: Debug + ZeroCopySend + 'static, H: Debug + ZeroCopySend + 'static> {
+pub struct Receiver<
+    S: Service,
+    T: Debug + ZeroCopySend + 'static,
+    H: Debug + ZeroCopySend + 'static,
+> {
     subscriber: Subscriber<S, [T], H>,
     listener: Listener<S>,
     channel: String,
@@ -390,10 +505,19 @@ fn wait_slice(remaining: Duration) -> Duration {
 /// A received message, read in place from shared memory.
 pub type Msg<S, T, H> = Sample<S, [T], H>;
 
-impl<S: Service, T: Debug + ZeroCopySend + Default + Copy + 'static, H: Debug + ZeroCopySend + Default + 'static> Receiver<S, T, H> {
+impl<
+    S: Service,
+    T: Debug + ZeroCopySend + Default + Copy + 'static,
+    H: Debug + ZeroCopySend + Default + 'static,
+> Receiver<S, T, H>
+{
     /// The next message, if one is waiting.
     pub fn try_recv(&mut self) -> Result<Option<Msg<S, T, H>>> {
-        self.subscriber.receive().map_err(|e| TransportError::Io { channel: self.channel.clone(), op: "receive", message: format!("{e:?}") })
+        self.subscriber.receive().map_err(|e| TransportError::Io {
+            channel: self.channel.clone(),
+            op: "receive",
+            message: format!("{e:?}"),
+        })
     }
 
     /// The next message, sleeping on the channel's event for at most
@@ -426,8 +550,16 @@ impl<S: Service, T: Debug + ZeroCopySend + Default + Copy + 'static, H: Debug + 
                 Ok(_) => {}
                 // A signal (SIGTERM from the supervisor, Ctrl-C) ends the wait
                 // early; the caller checks for shutdown next.
-                Err(iceoryx2::port::listener::ListenerWaitError::InterruptSignal) => return self.try_recv(),
-                Err(e) => return Err(TransportError::Io { channel: self.channel.clone(), op: "wait", message: format!("{e:?}") }),
+                Err(iceoryx2::port::listener::ListenerWaitError::InterruptSignal) => {
+                    return self.try_recv();
+                }
+                Err(e) => {
+                    return Err(TransportError::Io {
+                        channel: self.channel.clone(),
+                        op: "wait",
+                        message: format!("{e:?}"),
+                    });
+                }
             }
         }
     }
@@ -490,7 +622,10 @@ pub const DOMAIN_ENV: &str = "ROTORHIVE_DOMAIN";
 
 /// Checks a domain name: 1 to 32 letters, digits, `-` or `_`.
 pub fn check_domain(name: &str) -> std::result::Result<(), String> {
-    if name.is_empty() || name.len() > 32 || !name.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_') {
+    if name.is_empty()
+        || name.len() > 32
+        || !name.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+    {
         return Err(format!("domain {name:?}: use 1 to 32 letters, digits, '-' or '_'"));
     }
     Ok(())
@@ -512,7 +647,8 @@ pub fn domain_config() -> &'static Config {
         let mut c = Config::global_config().clone();
         // Both were checked: short, and only characters valid in file names.
         c.global.prefix = FileName::new(format!("rh_{name}_").as_bytes()).ok()?;
-        c.global.set_root_path(&Path::new(format!("/tmp/iceoryx2/rotorhive-{name}/").as_bytes()).ok()?);
+        c.global
+            .set_root_path(&Path::new(format!("/tmp/iceoryx2/rotorhive-{name}/").as_bytes()).ok()?);
         Some(c)
     });
     own.as_ref().unwrap_or_else(|| Config::global_config())

@@ -27,14 +27,24 @@ impl Board {
     /// A new event file in `RUN_DIR/tb/`.
     pub(super) fn open(run_dir: &Path, host: &str) -> Result<Self> {
         let dir = run_dir.join("tb");
-        let writer = EventWriter::create(&dir, host).with_context(|| format!("cannot write TensorBoard logs in {}", dir.display()))?;
+        let writer = EventWriter::create(&dir, host)
+            .with_context(|| format!("cannot write TensorBoard logs in {}", dir.display()))?;
         Ok(Self { writer, last: None, evals: 0 })
     }
 
     /// One tick's scalars (and any new validation), flushed.
-    pub(super) fn tick(&mut self, wall: f64, counts: Counts, progress: &Progress, rows: &[TelemetryRow], evals: &[EvalPoint]) -> Result<()> {
+    pub(super) fn tick(
+        &mut self,
+        wall: f64,
+        counts: Counts,
+        progress: &Progress,
+        rows: &[TelemetryRow],
+        evals: &[EvalPoint],
+    ) -> Result<()> {
         let (steps, updates, replay) = counts;
-        let unix = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64());
+        let unix = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0.0, |d| d.as_secs_f64());
         let mut v: Vec<(String, f64)> = vec![
             ("rollout/rolling_reward".into(), progress.rolling()),
             ("rollout/epsilon".into(), progress.epsilon),
@@ -65,7 +75,11 @@ impl Board {
         if let Some(r) = rows.first() {
             v.push(("cpu/machine".into(), r.machine_cpu_pct));
             if let Some([util, mem, power]) = r.gpu {
-                v.extend([("gpu/util_pct".into(), util), ("gpu/mem_mb".into(), mem), ("gpu/power_w".into(), power)]);
+                v.extend([
+                    ("gpu/util_pct".into(), util),
+                    ("gpu/mem_mb".into(), mem),
+                    ("gpu/power_w".into(), power),
+                ]);
             }
         }
         for e in &evals[self.evals.min(evals.len())..] {
@@ -78,6 +92,9 @@ impl Board {
         self.evals = evals.len();
         let named: Vec<(&str, f64)> = v.iter().map(|(k, x)| (k.as_str(), *x)).collect();
         let path = self.writer.path().display().to_string();
-        self.writer.scalars(steps as i64, unix, &named).and_then(|()| self.writer.flush()).with_context(|| format!("cannot write {path}"))
+        self.writer
+            .scalars(steps as i64, unix, &named)
+            .and_then(|()| self.writer.flush())
+            .with_context(|| format!("cannot write {path}"))
     }
 }

@@ -67,8 +67,6 @@ impl EvalPoint {
     }
 }
 
-/// The best evaluation by score: highest success rate, then highest mean
-/// reward (the earliest of equals, as the evaluator keeps it).
 /// The evaluations of `evals.csv` (none when it does not exist); a row that
 /// does not parse names the file, the line and the column.
 fn read_evals(path: &std::path::Path) -> Result<Vec<EvalPoint>> {
@@ -86,8 +84,14 @@ fn read_evals(path: &std::path::Path) -> Result<Vec<EvalPoint>> {
         .collect())
 }
 
+/// The best evaluation by score: highest success rate, then highest mean
+/// reward (the earliest of equals, as the evaluator keeps it).
 fn best_of(evals: &[EvalPoint], confirming: bool) -> Option<EvalPoint> {
-    evals.iter().copied().filter(|e| e.score(confirming).is_some()).reduce(|a, b| if b.score(confirming) > a.score(confirming) { b } else { a })
+    evals
+        .iter()
+        .copied()
+        .filter(|e| e.score(confirming).is_some())
+        .reduce(|a, b| if b.score(confirming) > a.score(confirming) { b } else { a })
 }
 
 /// How far below the best confirmed success a screening may fall and still
@@ -116,12 +120,18 @@ impl Cadence {
     fn new(cfg: &Config) -> Self {
         let every = (cfg.eval.every_s > 0.0).then(|| Duration::from_secs_f64(cfg.eval.every_s));
         let every_steps = (cfg.eval.every_env_steps > 0).then_some(cfg.eval.every_env_steps);
-        Self { every, next: every.map(|e| Instant::now() + e), every_steps, next_steps: every_steps }
+        Self {
+            every,
+            next: every.map(|e| Instant::now() + e),
+            every_steps,
+            next_steps: every_steps,
+        }
     }
 
     /// Whether either clock has come round, at `steps` agent-steps.
     fn due(&self, steps: u64) -> bool {
-        self.next.is_some_and(|t| Instant::now() >= t) || self.next_steps.is_some_and(|s| steps >= s)
+        self.next.is_some_and(|t| Instant::now() >= t)
+            || self.next_steps.is_some_and(|s| steps >= s)
     }
 
     /// No new weights to fly: the wall clock tries again in half a
@@ -142,13 +152,10 @@ impl Cadence {
     }
 }
 
-/// Flies the newest published weights greedily every `eval.every_s` seconds,
-/// every `eval.every_env_steps` agent-steps (or when asked through `now`),
-/// on its own iceoryx2 node, and keeps the best weights as
-/// `checkpoints/best.safetensors`. Every evaluation uses the same spawn
-/// positions, so they compare.
-#[allow(clippy::too_many_arguments)]
-fn fly<S: Service>(
+/// What the evaluator thread is given: the run, its clocks, the stop flag,
+/// the channel that asks for an evaluation now and the one that reports
+/// them, and a resumed run's best score.
+struct Job {
     prefix: String,
     cfg: Config,
     run_dir: PathBuf,
@@ -156,30 +163,32 @@ fn fly<S: Service>(
     stop: Arc<AtomicBool>,
     now: mpsc::Receiver<()>,
     out: mpsc::Sender<EvalPoint>,
-    (resumed, prior_best): (bool, Option<(f64, f64)>),
-) -> Result<()> {
-    let start = clocks.start;
-    let hub = Hub::<S>::new(&prefix, "eval")?;
+    resumed: bool,
+    prior_best: Option<(f64, f64)>,
+}
+
+/// Flies the newest published weights greedily every `eval.every_s` seconds,
+/// every `eval.every_env_steps` agent-steps (or when asked through `now`),
+/// on its own iceoryx2 node, and keeps the best weights as
+/// `checkpoints/best.safetensors`. Every evaluation uses the same spawn
+/// positions, so they compare.
+fn fly<S: Service>(job: Job) -> Result<()> {
+    let cfg = &job.cfg;
+    let hub = Hub::<S>::new(&job.prefix, "eval")?;
     let mut rx = hub.receiver::<f32, WeightsHeader>(&Channel::weights(cfg.sim.envs))?;
     let mut net = QNet::new(0, &Device::Cpu)?;
     net.set_threads(1);
-    let arenas = cfg.eval_arenas()?;
-    let mut cadence = Cadence::new(&cfg);
+    let mut judge = Judge { arenas: cfg.eval_arenas()?, confirmations: 0 };
+    let mut cadence = Cadence::new(cfg);
     // A resumed run goes on from its best score (so `best.safetensors` only
     // ever improves) and appends to its table.
-    let mut best: Option<(f64, f64)> = prior_best;
-    let mut confirmations = 0u64;
-    let path = run_dir.join("evals.csv");
-    let append = resumed && path.exists();
-    let mut csv = std::fs::OpenOptions::new().create(true).append(append).write(true).truncate(!append).open(&path)?;
-    if !append {
-        writeln!(csv, "{}", rows::EVALS_HEADER)?;
-    }
-    let ckpt_dir = run_dir.join("checkpoints");
+    let mut best: Option<(f64, f64)> = job.prior_best;
+    let mut csv = open_table(&job.run_dir.join("evals.csv"), job.resumed)?;
+    let ckpt_dir = job.run_dir.join("checkpoints");
     std::fs::create_dir_all(&ckpt_dir)?;
-    while !stop.load(Ordering::Relaxed) {
-        let asked = now.try_recv().is_ok();
-        let steps = clocks.steps.load(Ordering::Relaxed);
+    while !job.stop.load(Ordering::Relaxed) {
+        let asked = job.now.try_recv().is_ok();
+        let steps = job.clocks.steps.load(Ordering::Relaxed);
         if !asked && !cadence.due(steps) {
             std::thread::sleep(Duration::from_millis(50));
             continue;
@@ -193,17 +202,9 @@ fn fly<S: Service>(
         let h = *m.user_header();
         net.load_flat(m.payload()).context("loading weights to evaluate")?;
         drop(m);
-        let st = crate::eval::fly_greedy(&net, cfg.sim_config(), &arenas, cfg.eval.episodes, rotorhive_roles::seeds::validation(cfg.seed))?;
-        let (success, mean_reward) = (st.success_rate(), st.mean_reward);
+        let (st, confirmed) = judge.fly(&net, cfg, best)?;
         let k = cfg.eval.confirm_episodes;
-        let confirmed = if k > 0 && best.is_none_or(|b| success + CANDIDATE_SLACK >= b.0) {
-            // Fresh spawns for every confirmation.
-            confirmations += 1;
-            let c = crate::eval::fly_greedy(&net, cfg.sim_config(), &arenas, k, rotorhive_roles::seeds::confirmation(cfg.seed, confirmations))?;
-            Some((c.success_rate(), c.mean_reward))
-        } else {
-            None
-        };
+        let (success, mean_reward) = (st.success_rate(), st.mean_reward);
         let score = if k > 0 { confirmed } else { Some((success, mean_reward)) };
         let better = score.is_some_and(|s| best.is_none_or(|b| s > b));
         if better {
@@ -211,14 +212,63 @@ fn fly<S: Service>(
             // Atomically: `QNet::save_with` goes through `rotorhive_msg::durable`.
             net.save_with(&ckpt_dir.join("best.safetensors"), &cfg.checkpoint_tags())?;
         }
-        let wall = start.elapsed().as_secs_f64();
-        let point = EvalPoint { wall, updates: h.updates, env_steps: Some(steps), success, mean_reward, confirmed };
+        let wall = job.clocks.start.elapsed().as_secs_f64();
+        let env_steps = Some(steps);
+        let point =
+            EvalPoint { wall, updates: h.updates, env_steps, success, mean_reward, confirmed };
         csv.write_all(rows::line(&point.row(h.version, st.episodes, better, k))?.as_bytes())?;
         csv.flush()?;
-        let _ = out.send(point);
+        let _ = job.out.send(point);
         cadence.flown(steps);
     }
     Ok(())
+}
+
+/// `evals.csv`, appended to where a resumed run has one, else new with its
+/// header.
+fn open_table(path: &std::path::Path, resumed: bool) -> Result<std::fs::File> {
+    let append = resumed && path.exists();
+    let mut csv = std::fs::OpenOptions::new()
+        .create(true)
+        .append(append)
+        .write(true)
+        .truncate(!append)
+        .open(path)?;
+    if !append {
+        writeln!(csv, "{}", rows::EVALS_HEADER)?;
+    }
+    Ok(csv)
+}
+
+/// The evaluation arenas and the confirmations flown so far.
+struct Judge {
+    arenas: Vec<rotorhive_sim::Arena>,
+    confirmations: u64,
+}
+
+impl Judge {
+    /// Screens `net` on the fixed spawns and, when that makes it a candidate
+    /// against `best`, confirms it on fresh spawns: the screening and the
+    /// confirmation's (success, mean reward).
+    fn fly(
+        &mut self,
+        net: &QNet,
+        cfg: &Config,
+        best: Option<(f64, f64)>,
+    ) -> Result<(rotorhive_roles::eval::EvalStats, Option<(f64, f64)>)> {
+        let seed = rotorhive_roles::seeds::validation(cfg.seed);
+        let st =
+            crate::eval::fly_greedy(net, cfg.sim_config(), &self.arenas, cfg.eval.episodes, seed)?;
+        let k = cfg.eval.confirm_episodes;
+        if k == 0 || best.is_some_and(|b| st.success_rate() + CANDIDATE_SLACK < b.0) {
+            return Ok((st, None));
+        }
+        // Fresh spawns for every confirmation.
+        self.confirmations += 1;
+        let seed = rotorhive_roles::seeds::confirmation(cfg.seed, self.confirmations);
+        let c = crate::eval::fly_greedy(net, cfg.sim_config(), &self.arenas, k, seed)?;
+        Ok((st, Some((c.success_rate(), c.mean_reward))))
+    }
 }
 
 /// The evaluator thread of a run, and the evaluations it has reported.
@@ -254,9 +304,19 @@ impl Evaluator {
         let prior_best = best_of(&evals, confirming).and_then(|b| b.score(confirming));
         let mut thread = None;
         if cfg.eval.every_s > 0.0 || cfg.eval.every_env_steps > 0 {
-            let (p, c, d, st) = (prefix.to_string(), cfg.clone(), run_dir.to_path_buf(), stop.clone());
-            let clocks = Clocks { start, steps };
-            thread = Some(std::thread::Builder::new().name("eval".into()).spawn(move || fly::<S>(p, c, d, clocks, st, now_rx, tx, (resumed, prior_best)))?);
+            let job = Job {
+                prefix: prefix.to_string(),
+                cfg: cfg.clone(),
+                run_dir: run_dir.to_path_buf(),
+                clocks: Clocks { start, steps },
+                stop: stop.clone(),
+                now: now_rx,
+                out: tx,
+                resumed,
+                prior_best,
+            };
+            let spawn = std::thread::Builder::new().name("eval".into());
+            thread = Some(spawn.spawn(move || fly::<S>(job))?);
         }
         Ok(Self { thread, stop, now, rx, evals, confirming })
     }

@@ -113,7 +113,9 @@ impl Children {
             loop {
                 match r.child.try_wait() {
                     Ok(Some(_)) => break,
-                    Ok(None) if Instant::now() < deadline => std::thread::sleep(Duration::from_millis(20)),
+                    Ok(None) if Instant::now() < deadline => {
+                        std::thread::sleep(Duration::from_millis(20))
+                    }
                     _ => {
                         let _ = r.child.kill();
                         let _ = r.child.wait();
@@ -134,7 +136,10 @@ impl Drop for Children {
 }
 
 pub(super) fn timestamp() -> String {
-    let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
+    let secs = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs())
+        .unwrap_or(0);
     // UTC date and time without pulling in a calendar crate.
     let (d, s) = (secs / 86_400, secs % 86_400);
     let (y, m, dd) = civil_from_days(d as i64);
@@ -169,7 +174,9 @@ pub(super) fn lock_run_dir(dir: &Path) -> Result<File> {
         .with_context(|| format!("cannot open {}", path.display()))?;
     match f.try_lock() {
         Ok(()) => {
-            f.set_len(0).and_then(|_| writeln!(f, "{}", std::process::id())).with_context(|| format!("cannot write {}", path.display()))?;
+            f.set_len(0)
+                .and_then(|_| writeln!(f, "{}", std::process::id()))
+                .with_context(|| format!("cannot write {}", path.display()))?;
             Ok(f)
         }
         Err(std::fs::TryLockError::WouldBlock) => {
@@ -181,7 +188,9 @@ pub(super) fn lock_run_dir(dir: &Path) -> Result<File> {
                 if holder.is_empty() { "unknown" } else { holder }
             )
         }
-        Err(std::fs::TryLockError::Error(e)) => Err(e).with_context(|| format!("cannot lock {}", path.display())),
+        Err(std::fs::TryLockError::Error(e)) => {
+            Err(e).with_context(|| format!("cannot lock {}", path.display()))
+        }
     }
 }
 
@@ -195,23 +204,46 @@ fn last_error(log: &Path) -> Option<String> {
 /// The roles of a run (or of a worker host): child processes (restarted
 /// when they die), or, in serial mode, threads of this process.
 pub(crate) enum Members {
-    Processes { launcher: Launcher, children: Children },
-    Threads { stop: Arc<AtomicBool>, threads: Vec<(String, std::thread::JoinHandle<rotorhive_roles::error::Result<()>>)> },
+    Processes {
+        launcher: Launcher,
+        children: Children,
+    },
+    Threads {
+        stop: Arc<AtomicBool>,
+        threads: Vec<(String, std::thread::JoinHandle<rotorhive_roles::error::Result<()>>)>,
+    },
 }
 
 impl Members {
     /// Starts `roles` (all of a run's, or a worker host's sims and actors):
     /// threads over `local` in serial mode, else one `hive` process per
     /// role reading `cfg_path`, logging to `run_dir/logs`.
-    pub(crate) fn start(cfg: &Config, serial: bool, prefix: &str, run_dir: &Path, cfg_path: &Path, roles: Vec<(String, RoleKind, usize)>) -> Result<Self> {
+    pub(crate) fn start(
+        cfg: &Config,
+        serial: bool,
+        prefix: &str,
+        run_dir: &Path,
+        cfg_path: &Path,
+        roles: Vec<(String, RoleKind, usize)>,
+    ) -> Result<Self> {
         let logs = run_dir.join("logs");
-        std::fs::create_dir_all(&logs).with_context(|| format!("cannot create {}", logs.display()))?;
+        std::fs::create_dir_all(&logs)
+            .with_context(|| format!("cannot create {}", logs.display()))?;
         if serial {
             let stop = Arc::new(AtomicBool::new(false));
-            return Ok(Members::Threads { threads: rotorhive_roles::spawn_threads(cfg, prefix, run_dir, &stop, roles)?, stop });
+            return Ok(Members::Threads {
+                threads: rotorhive_roles::spawn_threads(cfg, prefix, run_dir, &stop, roles)?,
+                stop,
+            });
         }
         let exe = std::env::current_exe().context("cannot find the hive executable")?;
-        let launcher = Launcher { exe, cfg_path: cfg_path.to_path_buf(), prefix: prefix.to_string(), run_dir: run_dir.to_path_buf(), logs };
+        let launcher = Launcher {
+            exe,
+            cfg_path: cfg_path.to_path_buf(),
+            prefix: prefix.to_string(),
+            run_dir: run_dir.to_path_buf(),
+            logs,
+        };
         let mut children = Children { roles: Vec::new() };
         for (name, role, index) in roles {
             let mut args = vec![role.name().to_string()];
@@ -232,7 +264,9 @@ impl Members {
     /// The processes whose CPU and memory are the roles'.
     pub(crate) fn pids(&self) -> Vec<Pid> {
         match self {
-            Members::Processes { children, .. } => children.roles.iter().map(|r| Pid::from_u32(r.child.id())).collect(),
+            Members::Processes { children, .. } => {
+                children.roles.iter().map(|r| Pid::from_u32(r.child.id())).collect()
+            }
             Members::Threads { .. } => vec![Pid::from_u32(std::process::id())],
         }
     }
@@ -241,14 +275,25 @@ impl Members {
     /// started again (the learner from its last saved state), and
     /// `restarted` hears of it; one that keeps dying, or a role thread that
     /// ended, stops the run: the reason is returned.
-    pub(crate) fn check(&mut self, shutting_down: &dyn Fn() -> bool, restarted: &mut dyn FnMut(String) -> Result<()>) -> Result<Option<String>> {
+    pub(crate) fn check(
+        &mut self,
+        shutting_down: &dyn Fn() -> bool,
+        restarted: &mut dyn FnMut(String) -> Result<()>,
+    ) -> Result<Option<String>> {
         let (launcher, children) = match self {
             // A role thread ends only with an error (or a stop).
-            Members::Threads { threads, .. } => return Ok(threads.iter().find(|(_, h)| h.is_finished()).map(|(name, _)| format!("role {name} stopped"))),
+            Members::Threads { threads, .. } => {
+                return Ok(threads
+                    .iter()
+                    .find(|(_, h)| h.is_finished())
+                    .map(|(name, _)| format!("role {name} stopped")));
+            }
             Members::Processes { launcher, children } => (launcher, children),
         };
         for r in &mut children.roles {
-            let Some(status) = r.child.try_wait()? else { continue };
+            let Some(status) = r.child.try_wait()? else {
+                continue;
+            };
             if shutting_down() {
                 break;
             }
@@ -271,7 +316,10 @@ impl Members {
             tracing::warn!("role {} exited ({status}); restarting", r.name);
             r.child = launcher.spawn(&r.name, &r.args, true)?;
             r.restarts.push_back(now);
-            restarted(format!("role {} exited ({status}); cleaned {cleaned} dead node(s), restarting", r.name))?;
+            restarted(format!(
+                "role {} exited ({status}); cleaned {cleaned} dead node(s), restarting",
+                r.name
+            ))?;
         }
         Ok(None)
     }
@@ -293,5 +341,9 @@ impl Members {
 
 /// This machine's name.
 pub fn host_name() -> String {
-    std::fs::read_to_string("/proc/sys/kernel/hostname").map(|s| s.trim().to_string()).ok().filter(|s| !s.is_empty()).unwrap_or_else(|| "localhost".into())
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .map(|s| s.trim().to_string())
+        .ok()
+        .filter(|s| !s.is_empty())
+        .unwrap_or_else(|| "localhost".into())
 }

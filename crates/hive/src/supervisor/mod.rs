@@ -26,7 +26,9 @@ use rotorhive_msg::{EpisodeHeader, RoleKind, Telemetry};
 use rotorhive_records::Summary;
 use rotorhive_roles::schedule::Schedule;
 use rotorhive_roles::{Config, episodes_channel, roles_of};
-use rotorhive_transport::{Channel, Hub, Ipc, Local, Receiver, cleanup_dead_nodes, services_of_run};
+use rotorhive_transport::{
+    Channel, Hub, Ipc, Local, Receiver, cleanup_dead_nodes, services_of_run,
+};
 
 use crate::role_cmd::ConfigArgs;
 use board::Board;
@@ -75,13 +77,21 @@ pub fn run(a: TrainArgs) -> Result<()> {
         a.link.check_listen(ep)?;
     }
     let mut cfg = resolve_config(&a)?;
-    let run_dir = a.resume.clone().or_else(|| a.run_dir.clone()).unwrap_or_else(|| PathBuf::from("runs").join(timestamp()));
-    std::fs::create_dir_all(&run_dir).with_context(|| format!("cannot create run directory {}", run_dir.display()))?;
+    let run_dir = a
+        .resume
+        .clone()
+        .or_else(|| a.run_dir.clone())
+        .unwrap_or_else(|| PathBuf::from("runs").join(timestamp()));
+    std::fs::create_dir_all(&run_dir)
+        .with_context(|| format!("cannot create run directory {}", run_dir.display()))?;
     let run_dir = run_dir.canonicalize()?;
     // Nothing of the run directory is written before its lock is held.
     let _lock = lock_run_dir(&run_dir)?;
     resolve_paths(&mut cfg)?;
-    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.subsec_nanos()).unwrap_or(0);
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.subsec_nanos())
+        .unwrap_or(0);
     let prefix = format!("run-{}-{nanos:x}", std::process::id());
     rotorhive_transport::handle_hangup();
     // The head's environments come first in the run.
@@ -91,7 +101,10 @@ pub fn run(a: TrainArgs) -> Result<()> {
             let opts = a.link.head_options(cfg.cluster.workers);
             Some(gather_workers(ep, &prefix, &mut cfg, &opts)?)
         }
-        None if cfg.cluster.workers > 0 => bail!("key `cluster.workers` = {} needs --listen tcp/ADDR:PORT for the workers to join", cfg.cluster.workers),
+        None if cfg.cluster.workers > 0 => bail!(
+            "key `cluster.workers` = {} needs --listen tcp/ADDR:PORT for the workers to join",
+            cfg.cluster.workers
+        ),
         None => {
             cfg.cluster.envs_elsewhere = 0;
             cfg.cluster.agents_elsewhere = 0;
@@ -99,7 +112,8 @@ pub fn run(a: TrainArgs) -> Result<()> {
         }
     };
     let cfg_path = run_dir.join("config.toml");
-    std::fs::write(&cfg_path, cfg.to_toml()).with_context(|| format!("cannot write {}", cfg_path.display()))?;
+    std::fs::write(&cfg_path, cfg.to_toml())
+        .with_context(|| format!("cannot write {}", cfg_path.display()))?;
     let link = match head {
         Some(mut head) => {
             // The workers get the config every role of this run reads, and the arena.
@@ -107,7 +121,8 @@ pub fn run(a: TrainArgs) -> Result<()> {
             let arena = if cfg.sim.arena.as_os_str().is_empty() {
                 String::new()
             } else {
-                std::fs::read_to_string(&cfg.sim.arena).with_context(|| format!("arena {}", cfg.sim.arena.display()))?
+                std::fs::read_to_string(&cfg.sim.arena)
+                    .with_context(|| format!("arena {}", cfg.sim.arena.display()))?
             };
             let text = (cfg.to_toml(), arena);
             let t = text.clone();
@@ -140,13 +155,20 @@ fn resolve_config(a: &TrainArgs) -> Result<Config> {
     let mut cfg = match &a.resume {
         Some(dir) => {
             if a.cfg.config.is_some() {
-                bail!("--resume takes the config of the run it continues; drop the CONFIG argument (use --set to change keys)");
+                bail!(
+                    "--resume takes the config of the run it continues; drop the CONFIG argument (use --set to change keys)"
+                );
             }
             let state = dir.join("checkpoints/learner-state.safetensors");
             if !state.exists() {
-                bail!("--resume {}: no learner state ({}) to continue from", dir.display(), state.display());
+                bail!(
+                    "--resume {}: no learner state ({}) to continue from",
+                    dir.display(),
+                    state.display()
+                );
             }
-            Config::load(Some(&dir.join("config.toml")), &a.cfg.set).with_context(|| format!("--resume {}", dir.display()))?
+            Config::load(Some(&dir.join("config.toml")), &a.cfg.set)
+                .with_context(|| format!("--resume {}", dir.display()))?
         }
         None => Config::load(a.cfg.config.as_deref(), &a.cfg.set)?,
     };
@@ -167,13 +189,22 @@ fn resolve_config(a: &TrainArgs) -> Result<Config> {
 /// Roles read the arenas relative to their working directory: resolve them.
 fn resolve_paths(cfg: &mut Config) -> Result<()> {
     if !cfg.sim.arena.as_os_str().is_empty() {
-        cfg.sim.arena = cfg.sim.arena.canonicalize().with_context(|| format!("arena {}", cfg.sim.arena.display()))?;
+        cfg.sim.arena = cfg
+            .sim
+            .arena
+            .canonicalize()
+            .with_context(|| format!("arena {}", cfg.sim.arena.display()))?;
     }
     for t in &mut cfg.eval.test_arenas {
-        *t = t.canonicalize().with_context(|| format!("key `eval.test_arenas`: {}", t.display()))?;
+        *t =
+            t.canonicalize().with_context(|| format!("key `eval.test_arenas`: {}", t.display()))?;
     }
     if !cfg.eval.arena.is_empty() {
-        cfg.eval.arena = Path::new(&cfg.eval.arena).canonicalize().with_context(|| format!("key `eval.arena`: {}", cfg.eval.arena))?.display().to_string();
+        cfg.eval.arena = Path::new(&cfg.eval.arena)
+            .canonicalize()
+            .with_context(|| format!("key `eval.arena`: {}", cfg.eval.arena))?
+            .display()
+            .to_string();
         cfg.eval_arenas()?;
     }
     Ok(())
@@ -181,18 +212,44 @@ fn resolve_paths(cfg: &mut Config) -> Result<()> {
 
 /// Listens on `ep` and waits for `cluster.workers` worker hosts; their
 /// environments and agents go into `cfg.cluster`.
-fn gather_workers(ep: &str, prefix: &str, cfg: &mut Config, opts: &rotorhive_link::LinkOptions) -> Result<rotorhive_link::Head> {
-    let mut head = rotorhive_link::Head::listen(ep, prefix, rotorhive_link::layout(rotorhive_model::num_params()), opts)?;
+fn gather_workers(
+    ep: &str,
+    prefix: &str,
+    cfg: &mut Config,
+    opts: &rotorhive_link::LinkOptions,
+) -> Result<rotorhive_link::Head> {
+    let mut head = rotorhive_link::Head::listen(
+        ep,
+        prefix,
+        rotorhive_link::layout(rotorhive_model::num_params()),
+        opts,
+    )?;
     let wanted = cfg.cluster.workers;
     if wanted > 0 {
-        say(&format!("listening on {ep}: waiting for {wanted} worker host(s), at most {:.0} s", cfg.cluster.join_timeout_s));
+        say(&format!(
+            "listening on {ep}: waiting for {wanted} worker host(s), at most {:.0} s",
+            cfg.cluster.join_timeout_s
+        ));
     }
     let timeout = Duration::from_secs_f64(cfg.cluster.join_timeout_s);
-    let hosts = head.gather(wanted, cfg.sim.envs, cfg.sim.agents, timeout, rotorhive_transport::stop_requested)?;
+    let hosts = head.gather(
+        wanted,
+        cfg.sim.envs,
+        cfg.sim.agents,
+        timeout,
+        rotorhive_transport::stop_requested,
+    )?;
     cfg.cluster.envs_elsewhere = hosts.iter().map(|h| h.envs as usize).sum();
     cfg.cluster.agents_elsewhere = hosts.iter().map(|h| (h.envs * h.agents) as usize).sum();
     for h in &hosts {
-        say(&format!("worker {} joined: {} × {} agents (environments {}..{})", h.name, h.envs, h.agents, h.env_offset, h.env_offset + h.envs));
+        say(&format!(
+            "worker {} joined: {} × {} agents (environments {}..{})",
+            h.name,
+            h.envs,
+            h.agents,
+            h.env_offset,
+            h.env_offset + h.envs
+        ));
     }
     Ok(head)
 }
@@ -242,22 +299,43 @@ struct Supervisor<'a> {
 }
 
 /// Supervises the run `prefix` until it ends, then writes its records.
-fn supervise<S: Service>(a: &TrainArgs, cfg: Config, run_dir: &Path, cfg_path: &Path, prefix: String, link: HeadLink) -> Result<()> {
+fn supervise<S: Service>(
+    a: &TrainArgs,
+    cfg: Config,
+    run_dir: &Path,
+    cfg_path: &Path,
+    prefix: String,
+    link: HeadLink,
+) -> Result<()> {
     let hub = Hub::<S>::new(&prefix, &rotorhive_transport::supervisor_node_name(&prefix))?;
     let episodes_rx = hub.receiver::<f32, EpisodeHeader>(&episodes_channel(cfg.sim.envs))?;
     let telemetry_rx = hub.receiver::<u8, Telemetry>(&Channel::telemetry(roles_of(&cfg)))?;
     let mut ports = Ports { hub, episodes_rx, telemetry_rx };
-    let members = Members::start(&cfg, a.serial, &prefix, run_dir, cfg_path, rotorhive_roles::role_names(&cfg))?;
+    let members = Members::start(
+        &cfg,
+        a.serial,
+        &prefix,
+        run_dir,
+        cfg_path,
+        rotorhive_roles::role_names(&cfg),
+    )?;
     let link = match link {
-        Some((head, text)) => {
-            Some(head.bridge::<S>(prefix.clone(), cfg.sim.envs, roles_of(&cfg), Arc::new(AtomicBool::new(false)), Box::new(move |_| text.clone()))?)
-        }
+        Some((head, text)) => Some(head.bridge::<S>(
+            prefix.clone(),
+            cfg.sim.envs,
+            roles_of(&cfg),
+            Arc::new(AtomicBool::new(false)),
+            Box::new(move |_| text.clone()),
+        )?),
         None => None,
     };
     // A resumed run appends to its tables (wall time starts again at 0).
     let resumed = a.resume.is_some();
     let bar = if a.quiet { ProgressBar::hidden() } else { ProgressBar::new_spinner() };
-    bar.set_style(ProgressStyle::with_template("{spinner} [{elapsed_precise}] {msg}").expect("valid template"));
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {msg}")
+            .expect("valid template"),
+    );
     bar.enable_steady_tick(Duration::from_millis(200));
     let start = Instant::now();
     let steps = Arc::new(AtomicU64::new(0));
@@ -266,7 +344,11 @@ fn supervise<S: Service>(a: &TrainArgs, cfg: Config, run_dir: &Path, cfg_path: &
         monitor: Monitor::open(run_dir, resumed)?,
         evaluator: Evaluator::start::<S>(&cfg, &prefix, run_dir, (start, steps.clone()), resumed)?,
         steps,
-        board: if cfg.tensorboard { Some(Board::open(run_dir, &launcher::host_name())?) } else { None },
+        board: if cfg.tensorboard {
+            Some(Board::open(run_dir, &launcher::host_name())?)
+        } else {
+            None
+        },
         schedule: cfg.deterministic.then(|| Schedule::new(&cfg)),
         order: EpisodeOrder::new(cfg.sim.envs, cfg.deterministic),
         a,
@@ -325,7 +407,10 @@ impl Supervisor<'_> {
 
     /// Episodes from every actor into `metrics.csv`; a deterministic run's
     /// in (step, environment) order, with its schedule's counts.
-    fn take_episodes<S: Service>(&mut self, rx: &mut Receiver<S, f32, EpisodeHeader>) -> Result<()> {
+    fn take_episodes<S: Service>(
+        &mut self,
+        rx: &mut Receiver<S, f32, EpisodeHeader>,
+    ) -> Result<()> {
         while let Some(m) = rx.try_recv()? {
             self.order.push(*m.user_header(), m.payload());
         }
@@ -333,14 +418,20 @@ impl Supervisor<'_> {
             let counts: Counts = match &self.schedule {
                 Some(s) => {
                     let steps = h.step * self.cfg.agents_total() as u64;
-                    (steps, s.minibatches_after(h.step), steps.min(self.cfg.replay.capacity as u64) as i64)
+                    (
+                        steps,
+                        s.minibatches_after(h.step),
+                        steps.min(self.cfg.replay.capacity as u64) as i64,
+                    )
                 }
                 None => self.monitor.counts(),
             };
             // At the crossing an evaluation is asked for, unless they run
             // on the agent-step clock (the learning metric must not be
             // timed by the crossing).
-            if self.progress.record(&h, &payload, counts, self.wall())? && self.cfg.eval.every_env_steps == 0 {
+            if self.progress.record(&h, &payload, counts, self.wall())?
+                && self.cfg.eval.every_env_steps == 0
+            {
                 self.evaluator.ask_now();
             }
         }
@@ -355,10 +446,14 @@ impl Supervisor<'_> {
         if let Some(s) = &self.schedule {
             return self.order.through() >= s.rounds() && learner >= s.total_updates();
         }
-        if self.cfg.max_env_steps > 0 && self.monitor.sum_work(RoleKind::Sim) >= self.cfg.max_env_steps {
+        if self.cfg.max_env_steps > 0
+            && self.monitor.sum_work(RoleKind::Sim) >= self.cfg.max_env_steps
+        {
             return true;
         }
-        let Some(t) = self.progress.time_to_threshold else { return false };
+        let Some(t) = self.progress.time_to_threshold else {
+            return false;
+        };
         if !self.cfg.early_stop {
             return false;
         }
@@ -400,8 +495,11 @@ impl Supervisor<'_> {
         let (steps, updates, _) = counts;
         // Across hosts: each host's share of the agent-steps.
         let hosts = self.link.as_ref().map_or(String::new(), |l| {
-            let mut parts = vec![format!("here {}", self.monitor.steps_of(0, self.cfg.sim.envs as u32))];
-            parts.extend(l.hosts.iter().map(|h| format!("{} {}", h.name, self.monitor.steps_of(h.env_offset, h.env_offset + h.envs))));
+            let mut parts =
+                vec![format!("here {}", self.monitor.steps_of(0, self.cfg.sim.envs as u32))];
+            parts.extend(l.hosts.iter().map(|h| {
+                format!("{} {}", h.name, self.monitor.steps_of(h.env_offset, h.env_offset + h.envs))
+            }));
             format!(" | hosts: {}", parts.join(", "))
         });
         self.bar.set_message(format!(
@@ -419,7 +517,11 @@ impl Supervisor<'_> {
     }
 
     /// Stops the evaluator, the link and the roles; the run's hosts.
-    fn stop<S: Service>(&mut self, p: &mut Ports<S>, ending: &mut Ending) -> Result<Vec<rotorhive_records::HostSummary>> {
+    fn stop<S: Service>(
+        &mut self,
+        p: &mut Ports<S>,
+        ending: &mut Ending,
+    ) -> Result<Vec<rotorhive_records::HostSummary>> {
         self.bar.finish_and_clear();
         // Last counters before the roles go.
         self.monitor.receive(&mut p.telemetry_rx)?;
@@ -443,18 +545,26 @@ impl Supervisor<'_> {
     }
 
     /// Writes the records of the run; its failure, if any, as the error.
-    fn finish(self, ending: Ending, hosts: Vec<rotorhive_records::HostSummary>, leftover: Vec<String>) -> Result<()> {
+    fn finish(
+        self,
+        ending: Ending,
+        hosts: Vec<rotorhive_records::HostSummary>,
+        leftover: Vec<String>,
+    ) -> Result<()> {
         let wall = ending.wall;
         let summary = self.summary(wall, hosts, &ending, leftover.clone());
         if let Err(e) = summary.write(self.run_dir) {
-            let also = ending.failure.map_or(String::new(), |f| format!(" (the run had failed: {f})"));
+            let also =
+                ending.failure.map_or(String::new(), |f| format!(" (the run had failed: {f})"));
             bail!("{e:#}{also}");
         }
         self.pictures();
         say(&format!(
             "run {}: {} in {wall:.1} s, {} episodes, rolling reward {:.1}, {} agent-steps, {} updates",
             self.run_dir.display(),
-            summary.time_to_threshold_s.map_or("did not converge".to_string(), |t| format!("converged at {t:.1} s")),
+            summary
+                .time_to_threshold_s
+                .map_or("did not converge".to_string(), |t| format!("converged at {t:.1} s")),
             summary.episodes,
             self.progress.rolling(),
             summary.env_steps,
@@ -471,10 +581,21 @@ impl Supervisor<'_> {
     }
 
     /// `summary.json` of the run.
-    fn summary(&self, wall: f64, hosts: Vec<rotorhive_records::HostSummary>, ending: &Ending, leftover: Vec<String>) -> Summary {
-        let (env_steps, updates) = (self.monitor.sum_work(RoleKind::Sim), self.monitor.sum_work(RoleKind::Learner));
+    fn summary(
+        &self,
+        wall: f64,
+        hosts: Vec<rotorhive_records::HostSummary>,
+        ending: &Ending,
+        leftover: Vec<String>,
+    ) -> Summary {
+        let (env_steps, updates) =
+            (self.monitor.sum_work(RoleKind::Sim), self.monitor.sum_work(RoleKind::Learner));
         let final_ckpt = self.run_dir.join("final.safetensors");
-        let last = if final_ckpt.exists() { Some(final_ckpt) } else { Some(self.run_dir.join("checkpoints/latest.safetensors")).filter(|p| p.exists()) };
+        let last = if final_ckpt.exists() {
+            Some(final_ckpt)
+        } else {
+            Some(self.run_dir.join("checkpoints/latest.safetensors")).filter(|p| p.exists())
+        };
         // The run's result is the best greedy policy seen, else the last weights.
         let best_ckpt = self.run_dir.join("checkpoints/best.safetensors");
         let checkpoint = if best_ckpt.exists() { Some(best_ckpt) } else { last.clone() };
@@ -516,15 +637,30 @@ impl Supervisor<'_> {
             best_eval_mean_reward: best.map(|b| b.mean_reward),
             best_eval_at_s: best.map(|b| b.wall),
             best_eval_updates: best.map(|b| b.updates),
-            time_to_target_success_s: self.evaluator.first_at(cfg.eval.target_success).map(|e| e.wall),
+            time_to_target_success_s: self
+                .evaluator
+                .first_at(cfg.eval.target_success)
+                .map(|e| e.wall),
             env_steps_at_threshold: self.progress.at_threshold.map(|a| a.0),
             updates_at_threshold: self.progress.at_threshold.map(|a| a.1),
             epsilon_at_threshold: self.progress.at_threshold.map(|a| a.2),
-            env_steps_to_target: self.evaluator.first_at(cfg.eval.target_success).and_then(|e| e.env_steps),
+            env_steps_to_target: self
+                .evaluator
+                .first_at(cfg.eval.target_success)
+                .and_then(|e| e.env_steps),
             result_validation_success: self.evaluator.best_score().map(|s| s.0),
-            result_validation_episodes: best.map(|_| if cfg.eval.confirm_episodes > 0 { cfg.eval.confirm_episodes } else { cfg.eval.episodes }),
+            result_validation_episodes: best.map(|_| {
+                if cfg.eval.confirm_episodes > 0 {
+                    cfg.eval.confirm_episodes
+                } else {
+                    cfg.eval.episodes
+                }
+            }),
             final_validation_success: self.evaluator.evals.last().map(|e| e.success),
-            skipped_updates: m.latest.get(&(RoleKind::Learner as u32, 0)).map_or(0, |t| t.learning.skipped_updates as u64),
+            skipped_updates: m
+                .latest
+                .get(&(RoleKind::Learner as u32, 0))
+                .map_or(0, |t| t.learning.skipped_updates as u64),
             interrupted: ending.interrupted,
             resumed: self.a.resume.is_some(),
             failure: ending.failure.clone(),
@@ -535,16 +671,29 @@ impl Supervisor<'_> {
     /// `utilisation.png` and `reward.png`: a plot that cannot be drawn
     /// costs the picture, not the run's result.
     fn pictures(&self) {
-        let series: Vec<(String, Vec<(f64, f64)>)> = self.monitor.util.iter().map(|(k, v)| (k.clone(), v.points.clone())).collect();
-        if let Err(e) =
-            rotorhive_records::plot::lines_plot("utilisation (% of the machine)", "wall time (s)", "%", &series, &self.run_dir.join("utilisation.png"))
-        {
+        let series: Vec<(String, Vec<(f64, f64)>)> =
+            self.monitor.util.iter().map(|(k, v)| (k.clone(), v.points.clone())).collect();
+        if let Err(e) = rotorhive_records::plot::lines_plot(
+            "utilisation (% of the machine)",
+            "wall time (s)",
+            "%",
+            &series,
+            &self.run_dir.join("utilisation.png"),
+        ) {
             tracing::warn!("utilisation.png not written: {e:#}");
         }
-        let curve: Vec<(f64, f64)> = self.progress.curve.points.iter().copied().filter(|p| p.1.is_finite()).collect();
-        let validation: Vec<(f64, f64)> = self.evaluator.evals.iter().map(|e| (e.wall, e.success)).collect();
+        let curve: Vec<(f64, f64)> =
+            self.progress.curve.points.iter().copied().filter(|p| p.1.is_finite()).collect();
+        let validation: Vec<(f64, f64)> =
+            self.evaluator.evals.iter().map(|e| (e.wall, e.success)).collect();
         let result_at = self.evaluator.best().map(|b| b.wall);
-        if let Err(e) = rotorhive_records::plot::reward_plot(&curve, self.cfg.threshold, &validation, result_at, &self.run_dir.join("reward.png")) {
+        if let Err(e) = rotorhive_records::plot::reward_plot(
+            &curve,
+            self.cfg.threshold,
+            &validation,
+            result_at,
+            &self.run_dir.join("reward.png"),
+        ) {
             tracing::warn!("reward.png not written: {e:#}");
         }
     }

@@ -52,9 +52,15 @@ impl Monitor {
     /// Opens `telemetry.csv` (appended to when the run is resumed).
     pub(super) fn open(run_dir: &Path, resumed: bool) -> Result<Self> {
         Ok(Self {
-            table: Table::open(run_dir, "telemetry.csv", rotorhive_records::telemetry::HEADER, resumed)?,
+            table: Table::open(
+                run_dir,
+                "telemetry.csv",
+                rotorhive_records::telemetry::HEADER,
+                resumed,
+            )?,
             latest: BTreeMap::new(),
-            sys: System::new().map_err(|e| anyhow::anyhow!("cannot read system statistics: {e}"))?,
+            sys: System::new()
+                .map_err(|e| anyhow::anyhow!("cannot read system statistics: {e}"))?,
             gpu: GpuMonitor::new(),
             cpu: Mean::default(),
             gpu_util: Mean::default(),
@@ -67,7 +73,10 @@ impl Monitor {
     }
 
     /// Takes every telemetry sample waiting.
-    pub(super) fn receive<S: Service>(&mut self, rx: &mut Receiver<S, u8, Telemetry>) -> Result<()> {
+    pub(super) fn receive<S: Service>(
+        &mut self,
+        rx: &mut Receiver<S, u8, Telemetry>,
+    ) -> Result<()> {
         while let Some(m) = rx.try_recv()? {
             let t = *m.user_header();
             self.latest.insert((t.role, t.index), t);
@@ -82,19 +91,29 @@ impl Monitor {
 
     /// Agent-steps, learner updates and replay size, from the telemetry.
     pub(super) fn counts(&self) -> Counts {
-        let replay = self.latest.get(&(RoleKind::Replay as u32, 0)).map(|t| t.value_milli).unwrap_or(0);
+        let replay =
+            self.latest.get(&(RoleKind::Replay as u32, 0)).map(|t| t.value_milli).unwrap_or(0);
         (self.sum_work(RoleKind::Sim), self.sum_work(RoleKind::Learner), replay)
     }
 
     /// Agent-steps of the sims of environments `from..to`.
     pub(super) fn steps_of(&self, from: u32, to: u32) -> u64 {
-        self.latest.values().filter(|t| t.role == RoleKind::Sim as u32 && (from..to).contains(&t.index)).map(|t| t.work).sum()
+        self.latest
+            .values()
+            .filter(|t| t.role == RoleKind::Sim as u32 && (from..to).contains(&t.index))
+            .map(|t| t.work)
+            .sum()
     }
 
     /// Reads CPU, memory and GPU and writes one row per role to
     /// `telemetry.csv`, plus the supervisor's own row when the roles are
     /// processes of their own (in serial mode its CPU is the whole run's).
-    pub(super) fn sample(&mut self, wall: f64, mut pids: Vec<Pid>, processes: bool) -> Result<Reading> {
+    pub(super) fn sample(
+        &mut self,
+        wall: f64,
+        mut pids: Vec<Pid>,
+        processes: bool,
+    ) -> Result<Reading> {
         let me = Pid::from_u32(std::process::id());
         // The link runs in this process: its telemetry carries this pid.
         pids.push(me);
@@ -111,9 +130,14 @@ impl Monitor {
         }
         self.util.entry("machine CPU".into()).or_default().push((wall, machine));
         let cores = self.sys.cpus().len().max(1) as f64;
-        let mut rows: Vec<TelemetryRow> = self.latest.values().map(|t| role_row(t, wall, machine, gpu)).collect();
+        let mut rows: Vec<TelemetryRow> =
+            self.latest.values().map(|t| role_row(t, wall, machine, gpu)).collect();
         if processes {
-            rows.push(TelemetryRow { role: Member::Supervisor, pid: me.as_u32(), ..role_row(&Telemetry::default(), wall, machine, gpu) });
+            rows.push(TelemetryRow {
+                role: Member::Supervisor,
+                pid: me.as_u32(),
+                ..role_row(&Telemetry::default(), wall, machine, gpu)
+            });
         }
         let mut rss_total = 0.0;
         for row in &mut rows {
@@ -134,8 +158,17 @@ impl Monitor {
 
     /// `summary.json`'s `hosts`: this host, then every worker host, with the
     /// agent-steps their sims reported and the transitions lost on the way.
-    pub(super) fn hosts(&self, cfg: &Config, link: Option<&(Arc<rotorhive_link::HeadStats>, Vec<rotorhive_link::Host>)>) -> Vec<HostSummary> {
-        let lost_here = self.latest.values().filter(|t| t.role == RoleKind::Replay as u32).map(|t| t.lost).sum::<u64>();
+    pub(super) fn hosts(
+        &self,
+        cfg: &Config,
+        link: Option<&(Arc<rotorhive_link::HeadStats>, Vec<rotorhive_link::Host>)>,
+    ) -> Vec<HostSummary> {
+        let lost_here = self
+            .latest
+            .values()
+            .filter(|t| t.role == RoleKind::Replay as u32)
+            .map(|t| t.lost)
+            .sum::<u64>();
         let envs = cfg.sim.envs as u32;
         let mut out = vec![HostSummary {
             name: super::launcher::host_name(),
@@ -156,7 +189,9 @@ impl Monitor {
                     envs: h.envs,
                     agents: h.agents,
                     env_steps: self.steps_of(a, b),
-                    lost_transitions: lost.get(a as usize..b as usize).map_or(0, |l| l.iter().sum::<u64>()),
+                    lost_transitions: lost
+                        .get(a as usize..b as usize)
+                        .map_or(0, |l| l.iter().sum::<u64>()),
                     rejected_messages: stats.rejected_from(h.slot),
                 });
             }
@@ -200,8 +235,10 @@ fn role_row(t: &Telemetry, wall: f64, machine: f64, gpu: Option<GpuReading>) -> 
         stage_ms: std::array::from_fn(|i| t.stage_ns[i] as f64 / 1e6),
         gpu: gpu.map(|g| [g.util_pct, g.mem_mb, g.power_w]),
         value: gauge(t),
-        policy_lag: (role == Some(RoleKind::Learner) && t.policy_lag_milli > 0).then(|| t.policy_lag_milli as f64 / 1e3),
-        learning: matches!(role, Some(RoleKind::Learner | RoleKind::Actor | RoleKind::Replay)).then_some(t.learning),
+        policy_lag: (role == Some(RoleKind::Learner) && t.policy_lag_milli > 0)
+            .then(|| t.policy_lag_milli as f64 / 1e3),
+        learning: matches!(role, Some(RoleKind::Learner | RoleKind::Actor | RoleKind::Replay))
+            .then_some(t.learning),
     }
 }
 

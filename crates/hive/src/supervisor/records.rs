@@ -59,7 +59,9 @@ impl Table {
         }
         let row = line.to_string();
         self.written += row.len() as u64;
-        self.file.write_all(row.as_bytes()).with_context(|| format!("cannot write {}", self.path.display()))
+        self.file
+            .write_all(row.as_bytes())
+            .with_context(|| format!("cannot write {}", self.path.display()))
     }
 
     /// Writes one typed row (`rotorhive_records::rows`).
@@ -70,8 +72,10 @@ impl Table {
 
     fn rotate(&mut self) -> Result<()> {
         let old = self.path.with_extension("csv.1");
-        std::fs::rename(&self.path, &old).with_context(|| format!("cannot move {} to {}", self.path.display(), old.display()))?;
-        self.file = File::create(&self.path).with_context(|| format!("cannot write {}", self.path.display()))?;
+        std::fs::rename(&self.path, &old)
+            .with_context(|| format!("cannot move {} to {}", self.path.display(), old.display()))?;
+        self.file = File::create(&self.path)
+            .with_context(|| format!("cannot write {}", self.path.display()))?;
         self.written = 0;
         let header = self.header.clone();
         writeln!(self, "{header}")
@@ -152,7 +156,8 @@ pub(super) struct Progress {
 /// (`actor.eps_end`), so that "time to 300" keeps its meaning; with the one
 /// schedule, every episode.
 pub(super) fn rolling_floor(cfg: &Config) -> Option<f32> {
-    (cfg.actor.exploration == rotorhive_roles::Exploration::PerActor).then_some(cfg.actor.eps_end as f32)
+    (cfg.actor.exploration == rotorhive_roles::Exploration::PerActor)
+        .then_some(cfg.actor.eps_end as f32)
 }
 
 /// The counters an episode row carries: agent-steps, learner updates and
@@ -190,7 +195,13 @@ impl Progress {
     /// Records one episodes message (records of `EPISODE_FIELDS`: return,
     /// length, done, the agent's epsilon); true when the rolling reward has
     /// just reached the threshold. The `epsilon` column is the episode's own.
-    pub(super) fn record(&mut self, h: &EpisodeHeader, payload: &[f32], counts: Counts, wall: f64) -> Result<bool> {
+    pub(super) fn record(
+        &mut self,
+        h: &EpisodeHeader,
+        payload: &[f32],
+        counts: Counts,
+        wall: f64,
+    ) -> Result<bool> {
         self.epsilon = h.epsilon_micro as f64 / 1e6;
         let mut crossed = false;
         for e in payload.chunks_exact(EPISODE_FIELDS) {
@@ -261,7 +272,10 @@ impl EpisodeOrder {
         if let Some(l) = self.latest.get_mut(h.actor as usize) {
             *l = Some(l.map_or(h.step, |v| v.max(h.step)));
         }
-        self.held.entry((if self.ordered { h.step } else { 0 }, if self.ordered { h.actor } else { 0 })).or_default().push((h, payload.to_vec()));
+        self.held
+            .entry((if self.ordered { h.step } else { 0 }, if self.ordered { h.actor } else { 0 }))
+            .or_default()
+            .push((h, payload.to_vec()));
     }
 
     /// The step every environment has reported (0 before all have).
@@ -303,7 +317,13 @@ mod tests {
 
     #[test]
     fn a_deterministic_run_writes_episodes_by_step_then_environment() {
-        let h = |actor: u32, step: u64| EpisodeHeader { actor, count: 1, transitions: 0, epsilon_micro: 0, step };
+        let h = |actor: u32, step: u64| EpisodeHeader {
+            actor,
+            count: 1,
+            transitions: 0,
+            epsilon_micro: 0,
+            step,
+        };
         let mut o = EpisodeOrder::new(2, true);
         o.push(h(1, 3), &[1.0, 1.0, 1.0, 0.1]);
         o.push(h(1, 4), &[2.0, 1.0, 1.0, 0.1]);
@@ -314,7 +334,10 @@ mod tests {
         assert_eq!(got, vec![(0, 3), (1, 3)]);
         assert_eq!(o.through(), 3);
         o.push(h(0, 4), &[]);
-        assert_eq!(o.ready().iter().map(|(h, _)| (h.actor, h.step)).collect::<Vec<_>>(), vec![(0, 4), (1, 4)]);
+        assert_eq!(
+            o.ready().iter().map(|(h, _)| (h.actor, h.step)).collect::<Vec<_>>(),
+            vec![(0, 4), (1, 4)]
+        );
         // Free-running: as they come.
         let mut o = EpisodeOrder::new(2, false);
         o.push(h(1, 9), &[]);
