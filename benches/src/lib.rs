@@ -388,37 +388,11 @@ fn bench_render(
     };
     let mut adapter =
         format!("cpu ray casting, {threads} thread{}", if threads == 1 { "" } else { "s" });
-    // (render, render + transport) ms per step.
+    let setup = RenderSetup { kind, threads, steps, arena: &arena };
     let mut measure = |n: usize, batched: bool| -> Result<(f64, f64)> {
-        let cfg = SimConfig {
-            agents: n,
-            renderer: kind,
-            batched,
-            render_threads: threads,
-            ..SimConfig::default()
-        };
-        let mut env = VecEnv::new(cfg, arena.clone(), 1)?;
-        // As in `hive sim`: observations are assembled in the loaned sample.
-        env.drop_observation_buffer();
-        if let Some(g) = env.gpu() {
-            adapter = g.adapter().to_string();
-        }
-        let mut hop = ObsHop::new(n, batched)?;
-        let actions = |t: usize| -> Vec<u8> {
-            (0..n).map(|i| (((t * 31 + i * 17) >> 2) % 2) as u8).collect()
-        };
-        let (mut render, mut total) = (0u64, 0u64);
-        for t in 0..steps + 2 {
-            env.step(&actions(t))?;
-            let hop_ns = hop.carry(&env, t as u64, batched)?;
-            if t >= 2 {
-                render += env.timing().render_ns;
-                total += env.timing().render_ns + hop_ns;
-            }
-        }
-        hop.finish()?;
-        let ms = |ns: u64| ns as f64 / 1e6 / steps as f64;
-        Ok((ms(render), ms(total)))
+        let (render, total, gpu) = setup.measure(n, batched)?;
+        adapter = gpu.unwrap_or(adapter.clone());
+        Ok((render, total))
     };
     println!(
         "{:>7} {:>12} {:>15} {:>8}   {:>17} {:>20}",
@@ -458,6 +432,48 @@ fn bench_render(
         );
     }
     Ok(())
+}
+
+/// What every measurement of `bench render` shares.
+struct RenderSetup<'a> {
+    kind: RendererKind,
+    threads: usize,
+    steps: usize,
+    arena: &'a Arena,
+}
+
+impl RenderSetup<'_> {
+    /// `n` agents batched or not: (render, render + transport) ms per step,
+    /// and the GPU adapter's name where the renderer has one.
+    fn measure(&self, n: usize, batched: bool) -> Result<(f64, f64, Option<String>)> {
+        let cfg = SimConfig {
+            agents: n,
+            renderer: self.kind,
+            batched,
+            render_threads: self.threads,
+            ..SimConfig::default()
+        };
+        let mut env = VecEnv::new(cfg, self.arena.clone(), 1)?;
+        // As in `hive sim`: observations are assembled in the loaned sample.
+        env.drop_observation_buffer();
+        let adapter = env.gpu().map(|g| g.adapter().to_string());
+        let mut hop = ObsHop::new(n, batched)?;
+        let actions = |t: usize| -> Vec<u8> {
+            (0..n).map(|i| (((t * 31 + i * 17) >> 2) % 2) as u8).collect()
+        };
+        let (mut render, mut total) = (0u64, 0u64);
+        for t in 0..self.steps + 2 {
+            env.step(&actions(t))?;
+            let hop_ns = hop.carry(&env, t as u64, batched)?;
+            if t >= 2 {
+                render += env.timing().render_ns;
+                total += env.timing().render_ns + hop_ns;
+            }
+        }
+        hop.finish()?;
+        let ms = |ns: u64| ns as f64 / 1e6 / self.steps as f64;
+        Ok((ms(render), ms(total), adapter))
+    }
 }
 
 /// Carries a sim's observations of one step to a receiving thread through

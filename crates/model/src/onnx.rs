@@ -8,14 +8,16 @@
 //! `(out, in, kh, kw)` and fc1's pooled columns `(y, x, c)` become
 //! `(c, y, x)`, as `rotorhive.net.torch_layout` does.
 //!
-//! The protobuf is written by hand (a few message types, no crate needed:
-//! the `onnx` crates on crates.io carry whole generated schemas and a
-//! protobuf runtime for what is here about a hundred lines); onnxruntime
-//! and `onnx.checker` read it back in the Python tests.
+//! The protobuf is written by hand through `rotorhive_msg::protobuf` (a few
+//! message types, no crate needed: the `onnx` crates on crates.io carry
+//! whole generated schemas and a protobuf runtime for what is here about a
+//! hundred lines); onnxruntime and `onnx.checker` read it back in the
+//! Python tests.
 
 use std::collections::HashMap;
 
 use candle_core::Tensor;
+use rotorhive_msg::protobuf::{bytes, int};
 
 use crate::{C1, C2, FEAT, FRAMES, HP, K1, K2, PARAMS, Result, S1, SIDE, VEL};
 
@@ -34,54 +36,11 @@ pub(crate) fn model(
     for (name, _) in PARAMS {
         weights.insert(name, named[name].flatten_all()?.to_vec1::<f32>()?);
     }
-    let conv2 = &weights["conv2.weight"];
-    let conv2: Vec<f32> = (0..C2 * C1 * K2 * K2)
-        .map(|i| {
-            let (o, rest) = (i / (C1 * K2 * K2), i % (C1 * K2 * K2));
-            let (c, ky, kx) = (rest / (K2 * K2), rest % (K2 * K2) / K2, rest % K2);
-            conv2[((o * K2 + ky) * K2 + kx) * C1 + c]
-        })
-        .collect();
-    let fc1 = &weights["fc1.weight"];
+    let (conv2, fc1) = torch_layout(&weights["conv2.weight"], &weights["fc1.weight"]);
     let cols = FEAT + crate::VEL_H;
-    let fc1: Vec<f32> = (0..crate::HID * cols)
-        .map(|i| {
-            let (r, j) = (i / cols, i % cols);
-            if j >= FEAT {
-                return fc1[r * cols + j];
-            }
-            let (c, y, x) = (j / (HP * HP), j % (HP * HP) / HP, j % HP);
-            fc1[r * cols + (y * HP + x) * C2 + c]
-        })
-        .collect();
     let init = |name: &str, dims: &[usize], data: &[f32]| tensor(name, dims, data);
     let mut graph = Vec::new();
-    for n in [
-        node(
-            "Conv",
-            &["depth", "conv1.weight", "conv1.bias"],
-            "c1",
-            &[("kernel_shape", &[K1, K1]), ("strides", &[S1, S1])],
-            None,
-        ),
-        node("Relu", &["c1"], "r1", &[], None),
-        node(
-            "Conv",
-            &["r1", "conv2.weight", "conv2.bias"],
-            "c2",
-            &[("kernel_shape", &[K2, K2])],
-            None,
-        ),
-        node("Relu", &["c2"], "r2", &[], None),
-        node("MaxPool", &["r2"], "p", &[("kernel_shape", &[2, 2]), ("strides", &[2, 2])], None),
-        node("Flatten", &["p"], "features", &[], Some(("axis", 1))),
-        node("Gemm", &["velocity", "vel.weight", "vel.bias"], "v1", &[], Some(("transB", 1))),
-        node("Relu", &["v1"], "v", &[], None),
-        node("Concat", &["features", "v"], "joined", &[], Some(("axis", 1))),
-        node("Gemm", &["joined", "fc1.weight", "fc1.bias"], "h1", &[], Some(("transB", 1))),
-        node("Relu", &["h1"], "h", &[], None),
-        node("Gemm", &["h", "fc2.weight", "fc2.bias"], "q", &[], Some(("transB", 1))),
-    ] {
+    for n in nodes() {
         bytes(&mut graph, 1, &n);
     }
     bytes(&mut graph, 2, b"rotorhive_qnet");
@@ -118,6 +77,60 @@ pub(crate) fn model(
         bytes(&mut m, 14, &entry);
     }
     Ok(m)
+}
+
+/// conv2's `(out, kh, kw, in)` as `(out, in, kh, kw)`, and fc1's pooled
+/// columns `(y, x, c)` as `(c, y, x)`: PyTorch's (ONNX's) layouts.
+fn torch_layout(conv2: &[f32], fc1: &[f32]) -> (Vec<f32>, Vec<f32>) {
+    let conv2: Vec<f32> = (0..C2 * C1 * K2 * K2)
+        .map(|i| {
+            let (o, rest) = (i / (C1 * K2 * K2), i % (C1 * K2 * K2));
+            let (c, ky, kx) = (rest / (K2 * K2), rest % (K2 * K2) / K2, rest % K2);
+            conv2[((o * K2 + ky) * K2 + kx) * C1 + c]
+        })
+        .collect();
+    let cols = FEAT + crate::VEL_H;
+    let fc1: Vec<f32> = (0..crate::HID * cols)
+        .map(|i| {
+            let (r, j) = (i / cols, i % cols);
+            if j >= FEAT {
+                return fc1[r * cols + j];
+            }
+            let (c, y, x) = (j / (HP * HP), j % (HP * HP) / HP, j % HP);
+            fc1[r * cols + (y * HP + x) * C2 + c]
+        })
+        .collect();
+    (conv2, fc1)
+}
+
+/// The graph's nodes, in order.
+fn nodes() -> [Vec<u8>; 12] {
+    [
+        node(
+            "Conv",
+            &["depth", "conv1.weight", "conv1.bias"],
+            "c1",
+            &[("kernel_shape", &[K1, K1]), ("strides", &[S1, S1])],
+            None,
+        ),
+        node("Relu", &["c1"], "r1", &[], None),
+        node(
+            "Conv",
+            &["r1", "conv2.weight", "conv2.bias"],
+            "c2",
+            &[("kernel_shape", &[K2, K2])],
+            None,
+        ),
+        node("Relu", &["c2"], "r2", &[], None),
+        node("MaxPool", &["r2"], "p", &[("kernel_shape", &[2, 2]), ("strides", &[2, 2])], None),
+        node("Flatten", &["p"], "features", &[], Some(("axis", 1))),
+        node("Gemm", &["velocity", "vel.weight", "vel.bias"], "v1", &[], Some(("transB", 1))),
+        node("Relu", &["v1"], "v", &[], None),
+        node("Concat", &["features", "v"], "joined", &[], Some(("axis", 1))),
+        node("Gemm", &["joined", "fc1.weight", "fc1.bias"], "h1", &[], Some(("transB", 1))),
+        node("Relu", &["h1"], "h", &[], None),
+        node("Gemm", &["h", "fc2.weight", "fc2.bias"], "q", &[], Some(("transB", 1))),
+    ]
 }
 
 /// A `NodeProto`: inputs, one output, the operator, `ints` attributes and
@@ -189,23 +202,4 @@ fn value_info(name: &str, dims: &[Option<usize>]) -> Vec<u8> {
     bytes(&mut v, 1, name.as_bytes());
     bytes(&mut v, 2, &ty);
     v
-}
-
-fn bytes(out: &mut Vec<u8>, field: u32, data: &[u8]) {
-    varint(out, u64::from(field << 3 | 2));
-    varint(out, data.len() as u64);
-    out.extend_from_slice(data);
-}
-
-fn int(out: &mut Vec<u8>, field: u32, v: u64) {
-    varint(out, u64::from(field << 3));
-    varint(out, v);
-}
-
-fn varint(out: &mut Vec<u8>, mut v: u64) {
-    while v >= 0x80 {
-        out.push((v as u8 & 0x7f) | 0x80);
-        v >>= 7;
-    }
-    out.push(v as u8);
 }

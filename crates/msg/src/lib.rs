@@ -16,6 +16,7 @@
 use iceoryx2::prelude::ZeroCopySend;
 
 pub mod durable;
+pub mod protobuf;
 
 /// Side of one square depth image, in pixels.
 pub const DEPTH_SIDE: usize = 32;

@@ -1,7 +1,7 @@
 //! TensorBoard event files (`RUN_DIR/tb/events.out.tfevents.*`), written by
-//! hand: no maintained Rust crate writes them (the `tensorboard-rs` crate
-//! was last released in 2020 on protobuf 2), and scalars need only a few
-//! bytes of protobuf.
+//! hand through `rotorhive_msg::protobuf`: no maintained Rust crate writes
+//! them (the `tensorboard-rs` crate, last released in 2022 on protobuf 2,
+//! says it is not active), and scalars need only a few bytes of protobuf.
 //!
 //! A file is a sequence of records, each `u64` length, its masked CRC-32C,
 //! the data, and the data's masked CRC-32C (TFRecord). Each record's data
@@ -14,6 +14,8 @@
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
+
+use rotorhive_msg::protobuf;
 
 /// Appends scalar events to one new event file of a directory.
 #[derive(Debug)]
@@ -38,7 +40,7 @@ impl EventWriter {
         let mut w = Self { out: BufWriter::new(File::create(&path)?), path };
         let mut event = Vec::new();
         event_head(&mut event, now.as_secs_f64(), 0);
-        bytes_field(&mut event, 3, b"brain.Event:2");
+        protobuf::bytes(&mut event, 3, b"brain.Event:2");
         w.record(&event)?;
         w.flush()?;
         Ok(w)
@@ -60,17 +62,16 @@ impl EventWriter {
         let mut summary = Vec::new();
         for (tag, v) in values.iter().filter(|(_, v)| v.is_finite()) {
             let mut value = Vec::with_capacity(tag.len() + 8);
-            bytes_field(&mut value, 1, tag.as_bytes());
-            value.push(2 << 3 | 5);
-            value.extend_from_slice(&(*v as f32).to_le_bytes());
-            bytes_field(&mut summary, 1, &value);
+            protobuf::bytes(&mut value, 1, tag.as_bytes());
+            protobuf::float(&mut value, 2, *v as f32);
+            protobuf::bytes(&mut summary, 1, &value);
         }
         if summary.is_empty() {
             return Ok(());
         }
         let mut event = Vec::with_capacity(summary.len() + 24);
         event_head(&mut event, wall_time, step);
-        bytes_field(&mut event, 5, &summary);
+        protobuf::bytes(&mut event, 5, &summary);
         self.record(&event)
     }
 
@@ -95,27 +96,10 @@ fn masked_crc(bytes: &[u8]) -> u32 {
     c.rotate_right(15).wrapping_add(0xa282_ead8)
 }
 
-/// `wall_time` (field 1, fixed64) and `step` (field 2, varint).
+/// `wall_time` (field 1, double) and `step` (field 2, varint).
 fn event_head(out: &mut Vec<u8>, wall_time: f64, step: i64) {
-    out.push(1 << 3 | 1);
-    out.extend_from_slice(&wall_time.to_le_bytes());
-    out.push(2 << 3);
-    varint(out, step as u64);
-}
-
-/// A length-delimited field (wire type 2).
-fn bytes_field(out: &mut Vec<u8>, field: u8, bytes: &[u8]) {
-    out.push(field << 3 | 2);
-    varint(out, bytes.len() as u64);
-    out.extend_from_slice(bytes);
-}
-
-fn varint(out: &mut Vec<u8>, mut v: u64) {
-    while v >= 0x80 {
-        out.push((v as u8 & 0x7f) | 0x80);
-        v >>= 7;
-    }
-    out.push(v as u8);
+    protobuf::double(out, 1, wall_time);
+    protobuf::int(out, 2, step as u64);
 }
 
 #[cfg(test)]
@@ -127,7 +111,7 @@ mod tests {
         // CRC-32C of "123456789" is 0xE3069283 (RFC 3720's check value).
         assert_eq!(crc32c::crc32c(b"123456789"), 0xe306_9283);
         let mut v = Vec::new();
-        varint(&mut v, 300);
+        protobuf::varint(&mut v, 300);
         assert_eq!(v, [0xac, 0x02]);
     }
 

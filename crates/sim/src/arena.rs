@@ -278,60 +278,64 @@ impl Arena {
                 format!("must lie in (0, height = {}), got {}", self.height, s.z),
             ));
         }
-        const EPS: f32 = 1e-3;
         for (i, o) in self.obstacles.iter().enumerate() {
-            let what = format!(
-                "obstacle {} ({})",
-                i + 1,
-                match o {
-                    Obstacle::Box { .. } => "box",
-                    Obstacle::Cylinder { .. } => "cylinder",
+            self.validate_obstacle(i, o)
+                .map_err(|(what, field, message)| bad(what, field, message))?;
+        }
+        Ok(())
+    }
+
+    /// Checks obstacle `i`'s sizes and that it lies inside the arena: the
+    /// obstacle, the field and the message of what is wrong.
+    fn validate_obstacle(
+        &self,
+        i: usize,
+        o: &Obstacle,
+    ) -> Result<(), (String, &'static str, String)> {
+        const EPS: f32 = 1e-3;
+        let kind = match o {
+            Obstacle::Box { .. } => "box",
+            Obstacle::Cylinder { .. } => "cylinder",
+        };
+        let what = format!("obstacle {} ({kind})", i + 1);
+        let positive = |field: &'static str, v: f32| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err((what.clone(), field, format!("must be positive, got {v}")))
+            }
+        };
+        match o {
+            Obstacle::Box { half_extents, .. } => {
+                if half_extents.iter().any(|h| !(h.is_finite() && *h > 0.0)) {
+                    let message = format!("must be positive, got {half_extents:?}");
+                    return Err((what, "half_extents", message));
                 }
+            }
+            Obstacle::Cylinder { radius, half_height, .. } => {
+                positive("radius", *radius)?;
+                positive("half_height", *half_height)?;
+            }
+        }
+        let c = o.center();
+        if c.iter().any(|v| !v.is_finite()) {
+            return Err((what, "center", format!("must be finite, got {c:?}")));
+        }
+        let (lo, hi) = o.aabb();
+        let hw = self.width / 2.0;
+        if lo[0] < -EPS
+            || hi[0] > self.length + EPS
+            || lo[1] < -hw - EPS
+            || hi[1] > hw + EPS
+            || lo[2] < -EPS
+            || hi[2] > self.height + EPS
+        {
+            let message = format!(
+                "obstacle spans x {:.2}..{:.2}, y {:.2}..{:.2}, z {:.2}..{:.2}, outside the arena \
+                 (x 0..{}, y -{hw}..{hw}, z 0..{})",
+                lo[0], hi[0], lo[1], hi[1], lo[2], hi[2], self.length, self.height
             );
-            match o {
-                Obstacle::Box { half_extents, .. } => {
-                    if half_extents.iter().any(|h| !(h.is_finite() && *h > 0.0)) {
-                        return Err(bad(
-                            what,
-                            "half_extents",
-                            format!("must be positive, got {half_extents:?}"),
-                        ));
-                    }
-                }
-                Obstacle::Cylinder { radius, half_height, .. } => {
-                    if !(radius.is_finite() && *radius > 0.0) {
-                        return Err(bad(what, "radius", format!("must be positive, got {radius}")));
-                    }
-                    if !(half_height.is_finite() && *half_height > 0.0) {
-                        return Err(bad(
-                            what,
-                            "half_height",
-                            format!("must be positive, got {half_height}"),
-                        ));
-                    }
-                }
-            }
-            let c = o.center();
-            if c.iter().any(|v| !v.is_finite()) {
-                return Err(bad(what, "center", format!("must be finite, got {c:?}")));
-            }
-            let (lo, hi) = o.aabb();
-            if lo[0] < -EPS
-                || hi[0] > self.length + EPS
-                || lo[1] < -hw - EPS
-                || hi[1] > hw + EPS
-                || lo[2] < -EPS
-                || hi[2] > self.height + EPS
-            {
-                return Err(bad(
-                    what,
-                    "center",
-                    format!(
-                        "obstacle spans x {:.2}..{:.2}, y {:.2}..{:.2}, z {:.2}..{:.2}, outside the arena (x 0..{}, y -{hw}..{hw}, z 0..{})",
-                        lo[0], hi[0], lo[1], hi[1], lo[2], hi[2], self.length, self.height
-                    ),
-                ));
-            }
+            return Err((what, "center", message));
         }
         Ok(())
     }

@@ -415,61 +415,77 @@ impl GpuDepthRenderer {
         }
         let n = cameras.len() as u32;
         let nd = self.upload(cameras, agents, drones, n);
-        let f = self.frame.as_ref().expect("frame");
         let rows = n.div_ceil(COLS);
-        let s = side as u32;
         let mut enc = self
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("depth") });
-        {
-            let color_view = f.color.create_view(&Default::default());
-            let depth_view = f.depth.create_view(&Default::default());
-            let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("depth"),
-                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                    view: &color_view,
-                    depth_slice: None,
-                    resolve_target: None,
-                    ops: wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(wgpu::Color { r: 1.0, g: 0.0, b: 0.0, a: 1.0 }),
-                        store: wgpu::StoreOp::Store,
-                    },
-                })],
-                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
-                    view: &depth_view,
-                    depth_ops: Some(wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(1.0),
-                        store: wgpu::StoreOp::Discard,
-                    }),
-                    stencil_ops: None,
+        self.draw(&mut enc, cameras, nd);
+        self.copy_out(&mut enc, rows);
+        self.queue.submit([enc.finish()]);
+        self.submissions += 1;
+        self.read_back(rows, out)
+    }
+
+    /// Records the depth pass of every camera (camera `i` in tile `i` of the
+    /// frame), with `nd` drones per camera.
+    fn draw(&mut self, enc: &mut wgpu::CommandEncoder, cameras: &[CameraPose], nd: u32) {
+        let f = self.frame.as_ref().expect("frame");
+        let s = self.spec.side as u32;
+        let n = cameras.len() as u32;
+        let color_view = f.color.create_view(&Default::default());
+        let depth_view = f.depth.create_view(&Default::default());
+        let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+            label: Some("depth"),
+            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                view: &color_view,
+                depth_slice: None,
+                resolve_target: None,
+                ops: wgpu::Operations {
+                    load: wgpu::LoadOp::Clear(wgpu::Color { r: 1.0, g: 0.0, b: 0.0, a: 1.0 }),
+                    store: wgpu::StoreOp::Store,
+                },
+            })],
+            depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                view: &depth_view,
+                depth_ops: Some(wgpu::Operations {
+                    load: wgpu::LoadOp::Clear(1.0),
+                    store: wgpu::StoreOp::Discard,
                 }),
-                timestamp_writes: None,
-                occlusion_query_set: None,
-                multiview_mask: None,
-            });
-            pass.set_bind_group(0, &f.bind, &[]);
-            let tan = (self.spec.fov_deg.to_radians() / 2.0).tan();
-            for (i, cam) in (0..n).zip(cameras) {
-                let (x, y) = ((i % COLS) * s, (i / COLS) * s);
-                pass.set_viewport(x as f32, y as f32, s as f32, s as f32, 0.0, 1.0);
-                pass.set_scissor_rect(x, y, s, s);
-                pass.set_pipeline(&self.scene_pipeline);
-                pass.set_vertex_buffer(0, self.scene_vertices.slice(..));
-                pass.set_index_buffer(self.scene_indices.slice(..), wgpu::IndexFormat::Uint32);
-                pass.draw_indexed(0..self.layout_cull.always, 0, i..i + 1);
-                // Only the obstacles the camera's view (to its range) can reach.
-                let (lo, hi) = frustum_floor_plan(cam, tan, self.spec.range);
-                self.layout_cull.visible(lo, hi, &mut self.ranges);
-                for r in &self.ranges {
-                    pass.draw_indexed(r.clone(), 0, i..i + 1);
-                }
-                if nd > 0 {
-                    pass.set_pipeline(&self.drone_pipeline);
-                    pass.set_vertex_buffer(0, self.sphere_vertices.slice(..));
-                    pass.draw(0..self.sphere_count, i * nd..(i + 1) * nd);
-                }
+                stencil_ops: None,
+            }),
+            timestamp_writes: None,
+            occlusion_query_set: None,
+            multiview_mask: None,
+        });
+        pass.set_bind_group(0, &f.bind, &[]);
+        let tan = (self.spec.fov_deg.to_radians() / 2.0).tan();
+        for (i, cam) in (0..n).zip(cameras) {
+            let (x, y) = ((i % COLS) * s, (i / COLS) * s);
+            pass.set_viewport(x as f32, y as f32, s as f32, s as f32, 0.0, 1.0);
+            pass.set_scissor_rect(x, y, s, s);
+            pass.set_pipeline(&self.scene_pipeline);
+            pass.set_vertex_buffer(0, self.scene_vertices.slice(..));
+            pass.set_index_buffer(self.scene_indices.slice(..), wgpu::IndexFormat::Uint32);
+            pass.draw_indexed(0..self.layout_cull.always, 0, i..i + 1);
+            // Only the obstacles the camera's view (to its range) can reach.
+            let (lo, hi) = frustum_floor_plan(cam, tan, self.spec.range);
+            self.layout_cull.visible(lo, hi, &mut self.ranges);
+            for r in &self.ranges {
+                pass.draw_indexed(r.clone(), 0, i..i + 1);
+            }
+            if nd > 0 {
+                pass.set_pipeline(&self.drone_pipeline);
+                pass.set_vertex_buffer(0, self.sphere_vertices.slice(..));
+                pass.draw(0..self.sphere_count, i * nd..(i + 1) * nd);
             }
         }
+    }
+
+    /// Records the copy of the frame's first `rows` rows of tiles into the
+    /// read-back buffer.
+    fn copy_out(&self, enc: &mut wgpu::CommandEncoder, rows: u32) {
+        let f = self.frame.as_ref().expect("frame");
+        let s = self.spec.side as u32;
         let row_bytes = COLS * s * 4;
         enc.copy_texture_to_buffer(
             wgpu::TexelCopyTextureInfo {
@@ -488,9 +504,6 @@ impl GpuDepthRenderer {
             },
             wgpu::Extent3d { width: COLS * s, height: rows * s, depth_or_array_layers: 1 },
         );
-        self.queue.submit([enc.finish()]);
-        self.submissions += 1;
-        self.read_back(rows, out)
     }
 
     /// Writes the cameras, the shader's parameters and the drones'
