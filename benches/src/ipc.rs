@@ -294,11 +294,7 @@ pub fn run(iters: usize, json_out: bool) -> Result<()> {
     if iters == 0 {
         usage!("--iters must be positive");
     }
-    let nanos = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.subsec_nanos())
-        .unwrap_or(0);
-    let prefix = format!("bench-ipc-{}-{nanos:x}", std::process::id());
+    let prefix = rotorhive_transport::unique_prefix("bench-ipc");
     let hub = Hub::<Ipc>::new(&prefix, "bench")?;
     let max = kinds().iter().map(|k| k.1).max().unwrap_or(1);
     let mut tx = hub.sender::<f32, ObsHeader>(&request_channel(), max, TIMEOUT)?;

@@ -491,7 +491,7 @@ struct ObsHop {
 impl ObsHop {
     fn new(n: usize, batched: bool) -> Result<Self> {
         use rotorhive_transport::{Channel, Hub, Ipc};
-        let prefix = format!("bench-render-{}-{n}-{batched}", std::process::id());
+        let prefix = rotorhive_transport::unique_prefix(&format!("bench-render-{n}-{batched}"));
         let ch = Channel::obs(0, if batched { 1 } else { n });
         let hub = Hub::<Ipc>::new(&prefix, "bench-render-sim")?;
         let tx = hub.sender::<f32, rotorhive_msg::ObsHeader>(

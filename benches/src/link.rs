@@ -66,58 +66,16 @@ pub fn run(seconds: f64, batch: usize, with_tls: bool, json_out: bool) -> Result
     } else {
         None
     };
-    let (link_rate, lost, got, sent, ep) =
-        (plain.rate, plain.lost, plain.got, plain.sent.clone(), plain.endpoint.clone());
     let (base_got, base_secs) = msgpack_tcp(seconds, batch)?;
     let base_rate = base_got as f64 / base_secs;
-    let mb = |r: f64| r * (PACKED_LEN * 2) as f64 / 1e6;
-    println!("{:<32} {:>14} {:>10} {:>8}", "path", "transitions/s", "MB/s", "lost");
-    println!(
-        "{:<32} {:>14.0} {:>10.0} {:>8}",
-        "link: shm → zenoh/TCP → shm",
-        link_rate,
-        mb(link_rate),
-        lost
-    );
-    if let Some((tls, quic)) = &secure {
-        println!(
-            "{:<32} {:>14.0} {:>10.0} {:>8}",
-            "link: shm → zenoh/mTLS → shm",
-            tls.rate,
-            mb(tls.rate),
-            tls.lost
-        );
-        println!(
-            "{:<32} {:>14.0} {:>10.0} {:>8}",
-            "link: shm → zenoh/QUIC → shm",
-            quic.rate,
-            mb(quic.rate),
-            quic.lost
-        );
-    }
-    println!(
-        "{:<32} {:>14.0} {:>10.0} {:>8}",
-        "msgpack over TCP (baseline)",
-        base_rate,
-        mb(base_rate),
-        "-"
-    );
-    println!(
-        "ratio {:.1}× the baseline{}; batches of {batch} transitions ({} bytes each), {seconds} s per path; worker sent {} transitions",
-        link_rate / base_rate,
-        secure.as_ref().map_or(String::new(), |(t, q)| format!(
-            ", TLS {:.2}× and QUIC {:.2}× plain",
-            t.rate / link_rate,
-            q.rate / link_rate
-        )),
-        PACKED_LEN * 2,
-        sent
-    );
+    print_table(&plain, secure.as_ref(), base_rate, batch, seconds);
     if json_out {
+        let link_rate = plain.rate;
         let mut out = json!({
-            "transitions_per_s": link_rate, "lost": lost, "received": got, "sent": sent,
-            "baseline_transitions_per_s": base_rate, "ratio": link_rate / base_rate,
-            "batch": batch, "seconds": seconds, "bytes_per_transition": PACKED_LEN * 2, "endpoint": ep,
+            "transitions_per_s": link_rate, "lost": plain.lost, "received": plain.got,
+            "sent": plain.sent, "baseline_transitions_per_s": base_rate,
+            "ratio": link_rate / base_rate, "batch": batch, "seconds": seconds,
+            "bytes_per_transition": PACKED_LEN * 2, "endpoint": plain.endpoint,
         });
         if let Some((tls, quic)) = &secure {
             for (k, p) in [("tls", tls), ("quic", quic)] {
@@ -132,19 +90,48 @@ pub fn run(seconds: f64, batch: usize, with_tls: bool, json_out: bool) -> Result
     Ok(())
 }
 
+/// The paths' rates side by side, the baseline last.
+fn print_table(
+    plain: &Pair,
+    secure: Option<&(Pair, Pair)>,
+    base_rate: f64,
+    batch: usize,
+    seconds: f64,
+) {
+    let mb = |r: f64| r * (PACKED_LEN * 2) as f64 / 1e6;
+    let mut rows = vec![("link: shm → zenoh/TCP → shm", plain.rate, plain.lost.to_string())];
+    if let Some((tls, quic)) = secure {
+        rows.push(("link: shm → zenoh/mTLS → shm", tls.rate, tls.lost.to_string()));
+        rows.push(("link: shm → zenoh/QUIC → shm", quic.rate, quic.lost.to_string()));
+    }
+    rows.push(("msgpack over TCP (baseline)", base_rate, "-".to_string()));
+    println!("{:<32} {:>14} {:>10} {:>8}", "path", "transitions/s", "MB/s", "lost");
+    for (path, rate, lost) in rows {
+        println!("{path:<32} {rate:>14.0} {:>10.0} {lost:>8}", mb(rate));
+    }
+    let secure_ratios = secure.map_or(String::new(), |(t, q)| {
+        format!(", TLS {:.2}× and QUIC {:.2}× plain", t.rate / plain.rate, q.rate / plain.rate)
+    });
+    println!(
+        "ratio {:.1}× the baseline{secure_ratios}; batches of {batch} transitions ({} bytes \
+         each), {seconds} s per path; worker sent {} transitions",
+        plain.rate / base_rate,
+        PACKED_LEN * 2,
+        plain.sent
+    );
+}
+
 /// What one pair of link sides measured.
 struct Pair {
     rate: f64,
     lost: u64,
     got: u64,
-    sent: serde_json::Value,
+    sent: u64,
     endpoint: String,
     /// Tries it took (over TLS, see [`secure_pair`]).
     attempts: u32,
 }
 
-/// A head side and a worker side in two domains, over plain TCP or (with a
-/// directory of `certs::make`) mutual TLS.
 /// A path over mutual TLS, tried up to three times: Zenoh 1.10's `tls/`
 /// link drops its session under two-way load now and then (zenoh issue
 /// #2557; about one run in ten here), which ends that path's worker. Each
@@ -167,6 +154,25 @@ fn secure_pair(seconds: f64, batch: usize, certs: &std::path::Path, kind: &str) 
     }
 }
 
+/// The last line of the head side: transitions received in `seconds`, and
+/// transitions the link counted lost.
+#[derive(serde::Serialize, serde::Deserialize)]
+struct HeadSide {
+    transitions: u64,
+    seconds: f64,
+    lost: u64,
+}
+
+/// The last line of the worker side: transitions the link sent and the
+/// producer made.
+#[derive(serde::Serialize, serde::Deserialize)]
+struct WorkerSide {
+    sent: u64,
+    produced: u64,
+}
+
+/// A head side and a worker side in two domains, over plain TCP or (with a
+/// directory of `certs::make`) mutual TLS.
 fn link_pair(seconds: f64, batch: usize, tls: Option<(&std::path::Path, &str)>) -> Result<Pair> {
     let port = std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();
     let kind = tls.map_or("tcp", |t| t.1);
@@ -187,20 +193,18 @@ fn link_pair(seconds: f64, batch: usize, tls: Option<(&std::path::Path, &str)>) 
     let worker = side("worker", format!("linkbench-{kind}-worker"), "worker-1")?;
     let w = worker.wait_with_output()?;
     let h = head.wait_with_output()?;
-    let last = |o: &std::process::Output| -> Result<serde_json::Value> {
+    fn last<T: serde::de::DeserializeOwned>(o: &std::process::Output, ep: &str) -> Result<T> {
         let out = String::from_utf8_lossy(&o.stdout);
         let line = out.lines().last().unwrap_or("");
         serde_json::from_str(line)
             .doing_with(|| format!("a side of the link bench on {ep} failed ({}): {out}", o.status))
-    };
-    let (hj, wj) = (last(&h)?, last(&w)?);
-    let got = hj["transitions"].as_u64().unwrap_or(0);
-    let secs = hj["seconds"].as_f64().unwrap_or(f64::NAN);
+    }
+    let (hs, ws): (HeadSide, WorkerSide) = (last(&h, &ep)?, last(&w, &ep)?);
     Ok(Pair {
-        rate: got as f64 / secs,
-        lost: hj["lost"].as_u64().unwrap_or(0),
-        got,
-        sent: wj["sent"].clone(),
+        rate: hs.transitions as f64 / hs.seconds,
+        lost: hs.lost,
+        got: hs.transitions,
+        sent: ws.sent,
         endpoint: ep,
         attempts: 1,
     })
@@ -280,7 +284,7 @@ fn head_side(
         st.lost_batches.load(Ordering::Relaxed),
         st.dropped.load(Ordering::Relaxed)
     );
-    println!("{}", json!({"transitions": got, "seconds": secs, "lost": lost}));
+    println!("{}", serde_json::to_string(&HeadSide { transitions: got, seconds: secs, lost })?);
     Ok(())
 }
 
@@ -354,7 +358,8 @@ fn worker_side(
     let produced =
         producer.join().map_err(|_| BenchError::Failed("producer panicked".into()))??;
     end?;
-    println!("{}", json!({"sent": stats.transitions, "produced": produced}));
+    let report = WorkerSide { sent: stats.transitions, produced: produced as u64 };
+    println!("{}", serde_json::to_string(&report)?);
     Ok(())
 }
 

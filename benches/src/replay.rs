@@ -123,52 +123,46 @@ struct Variant {
     prioritized: bool,
 }
 
+/// The settings measured, the default config's replay first.
+fn variants() -> Vec<Variant> {
+    let variant = |name, samples_per_insert, journal, prioritized| Variant {
+        name,
+        samples_per_insert,
+        journal,
+        prioritized,
+    };
+    let mut variants = vec![
+        variant("uniform, journal on, limiter off", 0.0, true, false),
+        variant("prioritized + feedback, journal on, limiter off", 0.0, true, true),
+        variant("uniform, journal off, limiter off", 0.0, false, false),
+        variant("prioritized + feedback, journal off, limiter off", 0.0, false, true),
+        variant("uniform, journal on, limiter on (samples_per_insert = 1)", 1.0, true, false),
+        variant("prioritized + feedback, journal on, limiter on", 1.0, true, true),
+    ];
+    if rotorhive_roles::Config::default().replay.prioritized {
+        variants.swap(0, 1);
+    }
+    variants
+}
+
+/// One setting's rates: a row of the JSON's `rows`.
+#[derive(Debug, serde::Serialize)]
+struct ReplayRow {
+    name: &'static str,
+    samples_per_insert: f64,
+    journal: bool,
+    prioritized: bool,
+    /// Priorities the replay says it applied.
+    priority_updates: u64,
+    inserts_per_s: f64,
+    samples_per_s: f64,
+    together_inserts_per_s: f64,
+    together_samples_per_s: f64,
+}
+
 pub fn run(producers: usize, seconds: f64, json_out: bool) -> Result<()> {
     if producers == 0 || !(seconds.is_finite() && seconds > 0.0) {
         usage!("--producers and --seconds must be positive");
-    }
-    // The first row is the default config's replay: its sampling and journal.
-    let default_prioritized = rotorhive_roles::Config::default().replay.prioritized;
-    let mut variants = vec![
-        Variant {
-            name: "uniform, journal on, limiter off",
-            samples_per_insert: 0.0,
-            journal: true,
-            prioritized: false,
-        },
-        Variant {
-            name: "prioritized + feedback, journal on, limiter off",
-            samples_per_insert: 0.0,
-            journal: true,
-            prioritized: true,
-        },
-        Variant {
-            name: "uniform, journal off, limiter off",
-            samples_per_insert: 0.0,
-            journal: false,
-            prioritized: false,
-        },
-        Variant {
-            name: "prioritized + feedback, journal off, limiter off",
-            samples_per_insert: 0.0,
-            journal: false,
-            prioritized: true,
-        },
-        Variant {
-            name: "uniform, journal on, limiter on (samples_per_insert = 1)",
-            samples_per_insert: 1.0,
-            journal: true,
-            prioritized: false,
-        },
-        Variant {
-            name: "prioritized + feedback, journal on, limiter on",
-            samples_per_insert: 1.0,
-            journal: true,
-            prioritized: true,
-        },
-    ];
-    if default_prioritized {
-        variants.swap(0, 1);
     }
     let mut rows = Vec::new();
     println!(
@@ -179,30 +173,32 @@ pub fn run(producers: usize, seconds: f64, json_out: bool) -> Result<()> {
         "inserts/s (together)",
         "samples/s (together)"
     );
-    for v in &variants {
+    for v in &variants() {
         let r = measure(producers, seconds, v)?;
         println!(
             "{:<58} {:>16.0} {:>16.0} {:>22.0} {:>22.0}",
             v.name,
-            r["inserts_per_s"].as_f64().unwrap_or(f64::NAN),
-            r["samples_per_s"].as_f64().unwrap_or(f64::NAN),
-            r["together_inserts_per_s"].as_f64().unwrap_or(f64::NAN),
-            r["together_samples_per_s"].as_f64().unwrap_or(f64::NAN)
+            r.inserts_per_s,
+            r.samples_per_s,
+            r.together_inserts_per_s,
+            r.together_samples_per_s
         );
         rows.push(r);
     }
     println!(
-        "{producers} producers; packed transitions of {PACKED_LEN} u16 words ({:.1} KiB: 16-bit depth), {PER_MSG} per message; minibatches of 32; the first row is the default config's replay; cpprb (in-process, Python) on this machine: 538,000 inserts/s, 15,500 samples/s",
+        "{producers} producers; packed transitions of {PACKED_LEN} u16 words ({:.1} KiB: 16-bit \
+         depth), {PER_MSG} per message; minibatches of 32; the first row is the default config's \
+         replay; cpprb (in-process, Python) on this machine: 538,000 inserts/s, 15,500 samples/s",
         PACKED_LEN as f64 * 2.0 / 1024.0
     );
     let top = &rows[0];
     let out = json!({
         "bench": "replay",
         "producers": producers,
-        "inserts_per_s": top["inserts_per_s"],
-        "samples_per_s": top["samples_per_s"],
-        "together_inserts_per_s": top["together_inserts_per_s"],
-        "together_samples_per_s": top["together_samples_per_s"],
+        "inserts_per_s": top.inserts_per_s,
+        "samples_per_s": top.samples_per_s,
+        "together_inserts_per_s": top.together_inserts_per_s,
+        "together_samples_per_s": top.together_samples_per_s,
         "transition_bytes": PACKED_LEN * 2,
         "batch": 32,
         "rows": rows,
@@ -214,12 +210,8 @@ pub fn run(producers: usize, seconds: f64, json_out: bool) -> Result<()> {
 }
 
 /// Runs one replay process with the setting `v` through the three phases.
-fn measure(producers: usize, seconds: f64, v: &Variant) -> Result<serde_json::Value> {
-    let nanos = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.subsec_nanos())
-        .unwrap_or(0);
-    let prefix = format!("bench-replay-{}-{nanos:x}", std::process::id());
+fn measure(producers: usize, seconds: f64, v: &Variant) -> Result<ReplayRow> {
+    let prefix = rotorhive_transport::unique_prefix("bench-replay");
     let dir = std::env::temp_dir().join(&prefix);
     std::fs::create_dir_all(&dir)?;
     // Phase 1 fills the memory exactly: no sampling can start before it is full.
@@ -257,7 +249,7 @@ fn measure(producers: usize, seconds: f64, v: &Variant) -> Result<serde_json::Va
         };
     let mut tel = hub.receiver::<u8, Telemetry>(&Channel::telemetry(2 * producers + 2))?;
     let procs = Procs(vec![start_replay(&cfg_path, &prefix, &dir)?]);
-    let result = (|| -> Result<serde_json::Value> {
+    let result = (|| -> Result<ReplayRow> {
         let inserts_per_s = fill(&prefix, producers, per_producer, &mut tel, &mut rx)?;
         // Phase 2: sampling alone (the memory is full now).
         let (n, secs) = sample_for(&mut rx, seconds, &mut feed_back)?;
@@ -272,17 +264,17 @@ fn measure(producers: usize, seconds: f64, v: &Variant) -> Result<serde_json::Va
             failed!("the replay applied none of the priorities sent back");
         }
         let mixed_samples = got as f64 / mixed_secs;
-        Ok(json!({
-            "name": v.name,
-            "samples_per_insert": v.samples_per_insert,
-            "journal": v.journal,
-            "prioritized": v.prioritized,
-            "priority_updates": priority_updates,
-            "inserts_per_s": inserts_per_s,
-            "samples_per_s": samples_per_s,
-            "together_inserts_per_s": mixed_inserts,
-            "together_samples_per_s": mixed_samples,
-        }))
+        Ok(ReplayRow {
+            name: v.name,
+            samples_per_insert: v.samples_per_insert,
+            journal: v.journal,
+            prioritized: v.prioritized,
+            priority_updates,
+            inserts_per_s,
+            samples_per_s,
+            together_inserts_per_s: mixed_inserts,
+            together_samples_per_s: mixed_samples,
+        })
     })();
     drop(procs);
     drop(feed_back);

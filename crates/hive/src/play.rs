@@ -71,58 +71,12 @@ pub fn run(a: PlayArgs) -> Result<()> {
         &view::palette(),
     )?;
     gif.set_repeat(gif::Repeat::Infinite)?;
-    let delay = (100 / a.fps).max(1);
-    let (mut frames, mut goals, mut crashes) = (0usize, 0usize, 0usize);
-    let mut still_written = false;
+    let delay = (100 / a.fps).max(1) as u16;
+    let mut rec = Recording { gif, delay, frames: 0, goals: 0, crashes: 0, still_written: false };
     for round in 0..a.episodes {
-        let mut env = VecEnv::new(
-            SimConfig { agents: a.agents, ..SimConfig::default() },
-            arena.clone(),
-            a.seed + round as u64,
-        )?;
-        env.set_autoreset(Autoreset::Disabled);
-        let mut tracks = Tracks::new(&env);
-        let obs_len = env.obs_len();
-        let mut canvas = Canvas::default();
-        let mut focus = a.focus;
-        for _ in 0..=env.config().max_steps {
-            let q = net.q_values(env.observations())?;
-            let actions: Vec<u8> = q.chunks_exact(2).map(|q| u8::from(q[1] > q[0])).collect();
-            let depth = &env.observations()[focus * obs_len..focus * obs_len + obs_len - 3];
-            let focus_q = [q[2 * focus], q[2 * focus + 1]];
-            view::draw(
-                &env,
-                &tracks,
-                Focus { agent: focus, depth, q: Some(focus_q), action: Some(actions[focus]) },
-                &mut canvas,
-            );
-            write_frame(&mut gif, &canvas, delay)?;
-            frames += 1;
-            if let Some(p) = a.still.as_ref().filter(|_| {
-                round == 0 && !still_written && (frames == STILL_FRAME || tracks.all_ended())
-            }) {
-                write_png(&canvas, p)?;
-                still_written = true;
-            }
-            if tracks.all_ended() {
-                break;
-            }
-            env.step(&actions)?;
-            for e in env.finished() {
-                match e.done {
-                    rotorhive_sim::Done::Goal => goals += 1,
-                    rotorhive_sim::Done::Collision => crashes += 1,
-                    _ => {}
-                }
-            }
-            tracks.record(&env, true);
-            if let Some(next) =
-                (0..a.agents).map(|k| (focus + k) % a.agents).find(|i| !tracks.ended(*i))
-            {
-                focus = next;
-            }
-        }
+        rec.round(&a, &net, &arena, round)?;
     }
+    let Recording { gif, frames, goals, crashes, .. } = rec;
     drop(gif);
     let bytes = std::fs::metadata(&a.out).map(|m| m.len()).unwrap_or(0);
     let secs = start.elapsed().as_secs_f64();
@@ -139,6 +93,68 @@ pub fn run(a: PlayArgs) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// The video being written and what it has shown so far.
+struct Recording<W: std::io::Write> {
+    gif: gif::Encoder<W>,
+    /// Hundredths of a second per frame.
+    delay: u16,
+    frames: usize,
+    goals: usize,
+    crashes: usize,
+    still_written: bool,
+}
+
+impl<W: std::io::Write> Recording<W> {
+    /// Flies round `round` (`--agents` drones, one episode each, seeded
+    /// `seed + round`) to its end, a frame per action step, following the
+    /// focused drone and then the next one still flying.
+    fn round(&mut self, a: &PlayArgs, net: &QNet, arena: &Arena, round: usize) -> Result<()> {
+        let cfg = SimConfig { agents: a.agents, ..SimConfig::default() };
+        let mut env = VecEnv::new(cfg, arena.clone(), a.seed + round as u64)?;
+        env.set_autoreset(Autoreset::Disabled);
+        let mut tracks = Tracks::new(&env);
+        let obs_len = env.obs_len();
+        let mut canvas = Canvas::default();
+        let mut focus = a.focus;
+        for _ in 0..=env.config().max_steps {
+            let q = net.q_values(env.observations())?;
+            let actions: Vec<u8> = q.chunks_exact(2).map(|q| u8::from(q[1] > q[0])).collect();
+            let depth = &env.observations()[focus * obs_len..focus * obs_len + obs_len - 3];
+            let focus_q = [q[2 * focus], q[2 * focus + 1]];
+            let shown =
+                Focus { agent: focus, depth, q: Some(focus_q), action: Some(actions[focus]) };
+            view::draw(&env, &tracks, shown, &mut canvas);
+            write_frame(&mut self.gif, &canvas, self.delay)?;
+            self.frames += 1;
+            let still_due = self.frames == STILL_FRAME || tracks.all_ended();
+            if let Some(p) =
+                a.still.as_ref().filter(|_| round == 0 && !self.still_written && still_due)
+            {
+                write_png(&canvas, p)?;
+                self.still_written = true;
+            }
+            if tracks.all_ended() {
+                break;
+            }
+            env.step(&actions)?;
+            for e in env.finished() {
+                match e.done {
+                    rotorhive_sim::Done::Goal => self.goals += 1,
+                    rotorhive_sim::Done::Collision => self.crashes += 1,
+                    _ => {}
+                }
+            }
+            tracks.record(&env, true);
+            if let Some(next) =
+                (0..a.agents).map(|k| (focus + k) % a.agents).find(|i| !tracks.ended(*i))
+            {
+                focus = next;
+            }
+        }
+        Ok(())
+    }
 }
 
 /// The frame `--still` writes.

@@ -197,7 +197,7 @@ fn serve(
     stats: &mut WorkerStats,
     restarts: &mut u32,
 ) -> Result<WorkerEnd> {
-    let prefix = format!("worker-{}", std::process::id());
+    let prefix = rotorhive_transport::unique_prefix("worker");
     let stop = Arc::new(AtomicBool::new(false));
     std::thread::scope(|s| -> Result<WorkerEnd> {
         let (ready_tx, ready_rx) = std::sync::mpsc::channel();

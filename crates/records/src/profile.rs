@@ -109,30 +109,10 @@ pub fn analyse(run_dir: &Path) -> Result<Profile> {
         Some(acc.map_or((lo, hi), |(a, b)| (a.min(lo), b.max(hi))))
     });
     for ((role, index), r) in &rows {
-        let Some(kind) = role.role() else { continue };
-        let names = stage_names(kind);
-        // Cumulative timings: the difference over the run, after the first second.
-        let (first, last) = (&r[0], &r[r.len() - 1]);
-        let span_ms = (last.wall_s - first.wall_s) * 1e3;
-        if span_ms <= 0.0 {
-            continue;
+        if let Some(p) = role_profile(*role, *index, r) {
+            machine.extend(r.iter().map(|x| x.machine_cpu_pct));
+            roles.push(p);
         }
-        let share: [f64; 4] =
-            std::array::from_fn(|k| (last.stage_ms[k] - first.stage_ms[k]) / span_ms);
-        machine.extend(r.iter().map(|x| x.machine_cpu_pct));
-        // The waiting stage: transport for every role, idle for the replay.
-        let wait = match kind {
-            RoleKind::Replay => share[2] + share[3],
-            // A link waits for the network (receive) or for its receiver (send_wait).
-            RoleKind::Link => share[0] + share[3],
-            _ => share[3],
-        };
-        roles.push(RoleProfile {
-            name: format!("{role}-{index}"),
-            cpu: mean(r.iter().map(|x| x.cpu_pct)),
-            stages: std::array::from_fn(|k| (names[k], share[k])),
-            wait,
-        });
     }
     let bottleneck = roles.iter().min_by(|a, b| a.wait.total_cmp(&b.wait)).map(|r| {
         let (stage, busy) = r
@@ -151,6 +131,33 @@ pub fn analyse(run_dir: &Path) -> Result<Profile> {
         learning,
         skipped_updates,
         epsilon_spread,
+    })
+}
+
+/// A role's share of its wall time in each stage (cumulative timings: the
+/// difference over its rows) and how much of it it waited on others; none
+/// for a member that is not a role or whose rows span no time.
+fn role_profile(role: Member, index: u32, r: &[TelemetryRow]) -> Option<RoleProfile> {
+    let kind = role.role()?;
+    let names = stage_names(kind);
+    let (first, last) = (r.first()?, r.last()?);
+    let span_ms = (last.wall_s - first.wall_s) * 1e3;
+    if span_ms <= 0.0 {
+        return None;
+    }
+    let share: [f64; 4] = std::array::from_fn(|k| (last.stage_ms[k] - first.stage_ms[k]) / span_ms);
+    // The waiting stage: transport for every role, idle for the replay.
+    let wait = match kind {
+        RoleKind::Replay => share[2] + share[3],
+        // A link waits for the network (receive) or for its receiver (send_wait).
+        RoleKind::Link => share[0] + share[3],
+        _ => share[3],
+    };
+    Some(RoleProfile {
+        name: format!("{role}-{index}"),
+        cpu: mean(r.iter().map(|x| x.cpu_pct)),
+        stages: std::array::from_fn(|k| (names[k], share[k])),
+        wait,
     })
 }
 

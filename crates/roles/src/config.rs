@@ -708,6 +708,13 @@ impl Config {
 
     /// The actor's, replay's and learner's keys.
     fn validate_learning(&self) -> Result<()> {
+        self.validate_actor()?;
+        self.validate_replay()?;
+        self.validate_learner()
+    }
+
+    /// The actor's keys, the n-step return, and both devices.
+    fn validate_actor(&self) -> Result<()> {
         let a = &self.actor;
         for (k, v) in [("actor.eps_start", a.eps_start), ("actor.eps_end", a.eps_end)] {
             if !(0.0..=1.0).contains(&v) {
@@ -745,6 +752,11 @@ impl Config {
         for (k, v) in [("actor.device", &a.device), ("learner.device", &self.learner.device)] {
             rotorhive_model::device(v.kind()).doing_with(|| format!("key `{k}`"))?;
         }
+        Ok(())
+    }
+
+    /// The replay's keys.
+    fn validate_replay(&self) -> Result<()> {
         let r = &self.replay;
         positive("replay.capacity", r.capacity as f64)?;
         positive("replay.batch", r.batch as f64)?;
@@ -771,6 +783,11 @@ impl Config {
                 r.capacity
             );
         }
+        Ok(())
+    }
+
+    /// The learner's keys.
+    fn validate_learner(&self) -> Result<()> {
         let l = &self.learner;
         positive("learner.lr", l.lr)?;
         positive("learner.lr_final", l.lr_final)?;

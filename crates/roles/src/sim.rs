@@ -21,20 +21,8 @@ const RESEND: std::time::Duration = std::time::Duration::from_millis(1000);
 /// Runs simulator `env_index` until the run stops.
 pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
     let (cfg, hub) = (cx.cfg, cx.hub);
-    if env_index >= cfg.sim.envs {
-        config_err!(
-            "--env {env_index} is out of range: the config has {} environments",
-            cfg.sim.envs
-        );
-    }
-    let arenas = cfg.lane_arenas(env_index)?;
     let n = cfg.sim.agents;
-    let mut env = VecEnv::new_lanes(
-        cfg.sim_config(),
-        &arenas,
-        crate::seeds::sim(cfg.seed, cfg.cluster.env_offset + env_index),
-    )
-    .doing("starting the simulator")?;
+    let mut env = open_env(cfg, env_index)?;
     let batched = cfg.batched();
     assert_eq!(env.obs_len(), OBS_LEN, "simulator and message layouts disagree");
     // Observations are assembled straight into the loaned sample (send_obs).
@@ -91,12 +79,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
         env.step(msg.payload()).doing("stepping the simulator")?;
         drop(msg);
         step += 1;
-        let tm = env.timing();
-        tel.sample.add_stage(SimStage::Physics, tm.physics_ns);
-        tel.sample.add_stage(SimStage::Render, tm.render_ns);
-        tel.sample.add_stage(SimStage::Reset, tm.reset_ns);
-        tel.sample.work += n as u64;
-        tel.sample.work2 += env.finished().len() as u64;
+        count_step(&mut tel.sample, &env, n);
         need_send = true;
         follow_curriculum(cfg, &mut env, env_index, step, &mut stage)?;
         let t = Instant::now();
@@ -106,6 +89,31 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
     }
     tel.tick(true, Telemetry::beat);
     Ok(())
+}
+
+/// Simulator `env_index`'s environment: its lanes, seeded for its place
+/// among every host's environments.
+fn open_env(cfg: &crate::Config, env_index: usize) -> Result<VecEnv> {
+    if env_index >= cfg.sim.envs {
+        config_err!(
+            "--env {env_index} is out of range: the config has {} environments",
+            cfg.sim.envs
+        );
+    }
+    let arenas = cfg.lane_arenas(env_index)?;
+    let seed = crate::seeds::sim(cfg.seed, cfg.cluster.env_offset + env_index);
+    VecEnv::new_lanes(cfg.sim_config(), &arenas, seed).doing("starting the simulator")
+}
+
+/// Counts a step of `n` agents: its stages' times, its agent-steps and
+/// the episodes it finished.
+fn count_step(sample: &mut Telemetry, env: &VecEnv, n: usize) {
+    let tm = env.timing();
+    sample.add_stage(SimStage::Physics, tm.physics_ns);
+    sample.add_stage(SimStage::Render, tm.render_ns);
+    sample.add_stage(SimStage::Reset, tm.reset_ns);
+    sample.work += n as u64;
+    sample.work2 += env.finished().len() as u64;
 }
 
 /// A curriculum's next stage: new training lanes, once the run's

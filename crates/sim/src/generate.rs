@@ -313,74 +313,18 @@ impl Arena {
     }
 }
 
-/// One layout drawn from `rng`.
+/// One layout drawn from `rng`: obstacles in rows or a forest, then the
+/// walls with their doors, then obstacles that close every straight line
+/// within `block_within`.
 fn layout(name: &str, rng: &mut Pcg64Mcg, params: &GenParams) -> Arena {
-    let hw = params.width / 2.0;
-    let hz = params.height / 2.0;
-    let mut obstacles = Vec::new();
-    let random_obstacle = |rng: &mut Pcg64Mcg, x: f32, y: f32| -> Obstacle {
-        if rng.random_bool(0.5) {
-            let hx = draw(rng, params.box_half_x);
-            let hy = draw(rng, params.box_half_y);
-            Obstacle::Box {
-                center: [x, y.clamp(-hw + hy, hw - hy), hz],
-                half_extents: [hx, hy, hz],
-            }
-        } else {
-            let r = draw(rng, params.cylinder_radius);
-            Obstacle::Cylinder {
-                center: [x, y.clamp(-hw + r, hw - r), hz],
-                radius: r,
-                half_height: hz,
-            }
-        }
-    };
+    let (hw, hz) = (params.width / 2.0, params.height / 2.0);
     let end = params.length - 4.0;
-    match params.mode {
-        GenMode::Rows => {
-            let mut x = params.first_x;
-            while x < end {
-                let y = rng.random_range(-hw..hw);
-                obstacles.push(random_obstacle(rng, x, y));
-                if params.per_row > 1 {
-                    for _ in 0..rng.random_range(0..params.per_row) {
-                        let y = rng.random_range(-hw..hw);
-                        obstacles.push(random_obstacle(rng, x, y));
-                    }
-                }
-                x += params.spacing * rng.random_range(0.6..1.4);
-            }
-        }
-        GenMode::Forest => {
-            let count =
-                (params.forest_density * (end - params.first_x) * params.width).round() as usize;
-            for _ in 0..count {
-                let r = draw(rng, params.forest_radius);
-                let x = rng.random_range(params.first_x..end);
-                let y = rng.random_range(-hw + r..hw - r);
-                obstacles.push(Obstacle::Cylinder {
-                    center: [x, y, hz],
-                    radius: r,
-                    half_height: hz,
-                });
-            }
-        }
-    }
+    let mut obstacles = match params.mode {
+        GenMode::Rows => rows(rng, params, end),
+        GenMode::Forest => forest(rng, params, end),
+    };
     if params.door_every > 0.0 {
-        let mut x = params.first_x + params.door_every / 2.0;
-        while x < end {
-            let w = draw(rng, params.door_width);
-            let c = rng.random_range(-hw + w / 2.0..=hw - w / 2.0);
-            for (lo, hi) in [(-hw, c - w / 2.0), (c + w / 2.0, hw)] {
-                if hi - lo > 0.05 {
-                    obstacles.push(Obstacle::Box {
-                        center: [x, (lo + hi) / 2.0, hz],
-                        half_extents: [0.25, (hi - lo) / 2.0, hz],
-                    });
-                }
-            }
-            x += params.door_every;
-        }
+        walls(rng, params, end, &mut obstacles);
     }
     let spawn = Spawn { x: 2.0, y: [-hw * 0.5, hw * 0.5], z: hz.min(2.0) };
     if params.block_within > 0.0 {
@@ -393,7 +337,7 @@ fn layout(name: &str, rng: &mut Pcg64Mcg, params: &GenParams) -> Arena {
                 break;
             };
             let x = rng.random_range(params.first_x..reach - 2.0);
-            obstacles.push(random_obstacle(rng, x, gap));
+            obstacles.push(random_obstacle(rng, params, x, gap));
         }
     }
     obstacles.sort_by(|a, b| a.center()[0].total_cmp(&b.center()[0]));
@@ -404,6 +348,71 @@ fn layout(name: &str, rng: &mut Pcg64Mcg, params: &GenParams) -> Arena {
         height: params.height,
         spawn,
         obstacles,
+    }
+}
+
+/// A box or a cylinder (even odds) at (`x`, `y`), kept inside the walls.
+fn random_obstacle(rng: &mut Pcg64Mcg, params: &GenParams, x: f32, y: f32) -> Obstacle {
+    let (hw, hz) = (params.width / 2.0, params.height / 2.0);
+    if rng.random_bool(0.5) {
+        let hx = draw(rng, params.box_half_x);
+        let hy = draw(rng, params.box_half_y);
+        Obstacle::Box { center: [x, y.clamp(-hw + hy, hw - hy), hz], half_extents: [hx, hy, hz] }
+    } else {
+        let r = draw(rng, params.cylinder_radius);
+        Obstacle::Cylinder { center: [x, y.clamp(-hw + r, hw - r), hz], radius: r, half_height: hz }
+    }
+}
+
+/// Rows `spacing` apart (±40 %) up to `end`, of 1 to `per_row` obstacles.
+fn rows(rng: &mut Pcg64Mcg, params: &GenParams, end: f32) -> Vec<Obstacle> {
+    let hw = params.width / 2.0;
+    let mut obstacles = Vec::new();
+    let mut x = params.first_x;
+    while x < end {
+        let y = rng.random_range(-hw..hw);
+        obstacles.push(random_obstacle(rng, params, x, y));
+        if params.per_row > 1 {
+            for _ in 0..rng.random_range(0..params.per_row) {
+                let y = rng.random_range(-hw..hw);
+                obstacles.push(random_obstacle(rng, params, x, y));
+            }
+        }
+        x += params.spacing * rng.random_range(0.6..1.4);
+    }
+    obstacles
+}
+
+/// Trunks placed uniformly at `forest_density` per square metre up to `end`.
+fn forest(rng: &mut Pcg64Mcg, params: &GenParams, end: f32) -> Vec<Obstacle> {
+    let (hw, hz) = (params.width / 2.0, params.height / 2.0);
+    let count = (params.forest_density * (end - params.first_x) * params.width).round() as usize;
+    (0..count)
+        .map(|_| {
+            let r = draw(rng, params.forest_radius);
+            let x = rng.random_range(params.first_x..end);
+            let y = rng.random_range(-hw + r..hw - r);
+            Obstacle::Cylinder { center: [x, y, hz], radius: r, half_height: hz }
+        })
+        .collect()
+}
+
+/// A wall every `door_every` metres up to `end`, each with one door.
+fn walls(rng: &mut Pcg64Mcg, params: &GenParams, end: f32, obstacles: &mut Vec<Obstacle>) {
+    let (hw, hz) = (params.width / 2.0, params.height / 2.0);
+    let mut x = params.first_x + params.door_every / 2.0;
+    while x < end {
+        let w = draw(rng, params.door_width);
+        let c = rng.random_range(-hw + w / 2.0..=hw - w / 2.0);
+        for (lo, hi) in [(-hw, c - w / 2.0), (c + w / 2.0, hw)] {
+            if hi - lo > 0.05 {
+                obstacles.push(Obstacle::Box {
+                    center: [x, (lo + hi) / 2.0, hz],
+                    half_extents: [0.25, (hi - lo) / 2.0, hz],
+                });
+            }
+        }
+        x += params.door_every;
     }
 }
 

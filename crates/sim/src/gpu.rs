@@ -169,6 +169,26 @@ fn open_device() -> Result<(wgpu::Device, wgpu::Queue, String), GpuError> {
     Ok((device, queue, adapter_name))
 }
 
+/// The depth shader's bindings: cameras (0, storage), parameters (1,
+/// uniform) and drones (2, storage).
+fn bind_group_layout(device: &wgpu::Device) -> wgpu::BindGroupLayout {
+    let buffer = |binding, ty, visibility| wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility,
+        ty: wgpu::BindingType::Buffer { ty, has_dynamic_offset: false, min_binding_size: None },
+        count: None,
+    };
+    let storage = wgpu::BufferBindingType::Storage { read_only: true };
+    device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+        label: Some("depth"),
+        entries: &[
+            buffer(0, storage, wgpu::ShaderStages::VERTEX),
+            buffer(1, wgpu::BufferBindingType::Uniform, wgpu::ShaderStages::VERTEX_FRAGMENT),
+            buffer(2, storage, wgpu::ShaderStages::VERTEX),
+        ],
+    })
+}
+
 /// The bind group layout and the two render pipelines (scene, with back
 /// faces culled, and drones) of the depth shader.
 fn pipelines(
@@ -178,33 +198,7 @@ fn pipelines(
         label: Some("depth"),
         source: wgpu::ShaderSource::Wgsl(SHADER.into()),
     });
-    let storage = |binding| wgpu::BindGroupLayoutEntry {
-        binding,
-        visibility: wgpu::ShaderStages::VERTEX,
-        ty: wgpu::BindingType::Buffer {
-            ty: wgpu::BufferBindingType::Storage { read_only: true },
-            has_dynamic_offset: false,
-            min_binding_size: None,
-        },
-        count: None,
-    };
-    let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-        label: Some("depth"),
-        entries: &[
-            storage(0),
-            wgpu::BindGroupLayoutEntry {
-                binding: 1,
-                visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
-                ty: wgpu::BindingType::Buffer {
-                    ty: wgpu::BufferBindingType::Uniform,
-                    has_dynamic_offset: false,
-                    min_binding_size: None,
-                },
-                count: None,
-            },
-            storage(2),
-        ],
-    });
+    let layout = bind_group_layout(device);
     let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
         label: Some("depth"),
         bind_group_layouts: &[Some(&layout)],

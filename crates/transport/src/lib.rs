@@ -673,6 +673,18 @@ extern "C" fn on_hangup(_: libc::c_int) {
     STOP.store(true, Ordering::SeqCst);
 }
 
+/// A service-name prefix no other run on this machine uses: `kind`, this
+/// process's id and the clock's nanoseconds (`run-4242-1a2b3c`), so that a
+/// run started again by the same pid after a crash does not meet the first
+/// one's leftovers.
+pub fn unique_prefix(kind: &str) -> String {
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.subsec_nanos())
+        .unwrap_or(0);
+    format!("{kind}-{}-{nanos:x}", std::process::id())
+}
+
 /// Makes SIGHUP (a closed terminal, a dropped SSH session) a request to stop
 /// cleanly, like SIGINT and SIGTERM, instead of killing the process with its
 /// shared memory left behind.

@@ -88,11 +88,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
     // Nothing of the run directory is written before its lock is held.
     let _lock = lock_run_dir(&run_dir)?;
     resolve_paths(&mut cfg)?;
-    let nanos = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.subsec_nanos())
-        .unwrap_or(0);
-    let prefix = format!("run-{}-{nanos:x}", std::process::id());
+    let prefix = rotorhive_transport::unique_prefix("run");
     rotorhive_transport::handle_hangup();
     // The head's environments come first in the run.
     cfg.cluster.env_offset = 0;
@@ -580,6 +576,20 @@ impl Supervisor<'_> {
         Ok(())
     }
 
+    /// The run's result (the best greedy policy seen, else the last
+    /// weights) and its last weights, where they were written.
+    fn checkpoints(&self) -> (Option<PathBuf>, Option<PathBuf>) {
+        let final_ckpt = self.run_dir.join("final.safetensors");
+        let last = if final_ckpt.exists() {
+            Some(final_ckpt)
+        } else {
+            Some(self.run_dir.join("checkpoints/latest.safetensors")).filter(|p| p.exists())
+        };
+        let best_ckpt = self.run_dir.join("checkpoints/best.safetensors");
+        let checkpoint = if best_ckpt.exists() { Some(best_ckpt) } else { last.clone() };
+        (checkpoint, last)
+    }
+
     /// `summary.json` of the run.
     fn summary(
         &self,
@@ -590,17 +600,10 @@ impl Supervisor<'_> {
     ) -> Summary {
         let (env_steps, updates) =
             (self.monitor.sum_work(RoleKind::Sim), self.monitor.sum_work(RoleKind::Learner));
-        let final_ckpt = self.run_dir.join("final.safetensors");
-        let last = if final_ckpt.exists() {
-            Some(final_ckpt)
-        } else {
-            Some(self.run_dir.join("checkpoints/latest.safetensors")).filter(|p| p.exists())
-        };
-        // The run's result is the best greedy policy seen, else the last weights.
-        let best_ckpt = self.run_dir.join("checkpoints/best.safetensors");
-        let checkpoint = if best_ckpt.exists() { Some(best_ckpt) } else { last.clone() };
+        let (checkpoint, last) = self.checkpoints();
         let (m, best, cfg) = (&self.monitor, self.evaluator.best(), &self.cfg);
         let roll = self.progress.rolling();
+        let at_target = self.evaluator.first_at(cfg.eval.target_success);
         Summary {
             converged: self.progress.time_to_threshold.is_some(),
             threshold: cfg.threshold,
@@ -637,17 +640,11 @@ impl Supervisor<'_> {
             best_eval_mean_reward: best.map(|b| b.mean_reward),
             best_eval_at_s: best.map(|b| b.wall),
             best_eval_updates: best.map(|b| b.updates),
-            time_to_target_success_s: self
-                .evaluator
-                .first_at(cfg.eval.target_success)
-                .map(|e| e.wall),
+            time_to_target_success_s: at_target.map(|e| e.wall),
             env_steps_at_threshold: self.progress.at_threshold.map(|a| a.0),
             updates_at_threshold: self.progress.at_threshold.map(|a| a.1),
             epsilon_at_threshold: self.progress.at_threshold.map(|a| a.2),
-            env_steps_to_target: self
-                .evaluator
-                .first_at(cfg.eval.target_success)
-                .and_then(|e| e.env_steps),
+            env_steps_to_target: at_target.and_then(|e| e.env_steps),
             result_validation_success: self.evaluator.best_score().map(|s| s.0),
             result_validation_episodes: best.map(|_| {
                 if cfg.eval.confirm_episodes > 0 {
