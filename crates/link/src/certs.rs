@@ -11,7 +11,7 @@ use rcgen::{
     KeyPair, KeyUsagePurpose,
 };
 
-use crate::{LinkError, Result};
+use crate::error::{LinkError, Result};
 
 /// The common name of a host's certificate (access-control rules name it).
 pub fn common_name(host: &str) -> String {

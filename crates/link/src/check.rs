@@ -11,7 +11,7 @@ use rotorhive_msg::{
     TransitionHeader, WeightsHeader, episode_corrupt, scalars_corrupt,
 };
 
-use crate::Host;
+use crate::host::Host;
 use crate::wire;
 
 /// The most transitions one batch may carry (an actor sends one batch per
@@ -67,20 +67,6 @@ impl std::fmt::Display for Reject {
     }
 }
 
-/// The slot a worker's key names: `rotorhive/RUN/host/SLOT/WHAT`.
-pub fn slot_of(key: &str, run: &str, what: &str) -> Option<u32> {
-    let rest = key.strip_prefix("rotorhive/")?.strip_prefix(run)?.strip_prefix("/host/")?;
-    let (slot, tail) = rest.split_once('/')?;
-    if tail != what || slot.is_empty() || !slot.bytes().all(|b| b.is_ascii_digit()) {
-        return None;
-    }
-    slot.parse().ok()
-}
-
-fn owns(host: &Host, env: u32) -> bool {
-    env >= host.env_offset && (env - host.env_offset) < host.envs
-}
-
 /// A payload in the fragments Zenoh received it in, read at increasing
 /// offsets without gathering it into one buffer.
 struct Fragments<'a> {
@@ -133,7 +119,7 @@ pub fn transitions(
     if got != want {
         return Err(Reject::Length { got, want });
     }
-    if !owns(host, h.actor) {
+    if !host.owns(h.actor) {
         return Err(Reject::Actor(h.actor));
     }
     let mut cur = Fragments::new(frags);
@@ -176,7 +162,7 @@ pub fn episodes(
     if payload.len() != want {
         return Err(Reject::Length { got: payload.len(), want });
     }
-    if !owns(host, h.actor) {
+    if !host.owns(h.actor) {
         return Err(Reject::Actor(h.actor));
     }
     let bad = payload
@@ -205,7 +191,7 @@ pub fn telemetry(
         return Err(Reject::Length { got: payload_len, want: 0 });
     }
     let mine = match RoleKind::from_code(t.role) {
-        Some(RoleKind::Sim | RoleKind::Actor) => owns(host, t.index),
+        Some(RoleKind::Sim | RoleKind::Actor) => host.owns(t.index),
         Some(RoleKind::Link) => t.index == host.slot,
         _ => false,
     };
@@ -368,19 +354,6 @@ mod tests {
         );
     }
 
-    #[test]
-    fn only_a_hosts_own_key_names_its_slot() {
-        assert_eq!(slot_of("rotorhive/run-1/host/2/transitions", "run-1", "transitions"), Some(2));
-        for k in [
-            "rotorhive/run-1/host/2/episodes",
-            "rotorhive/run-2/host/2/transitions",
-            "rotorhive/run-1/host/+2/transitions",
-            "rotorhive/run-1/host//transitions",
-        ] {
-            assert_eq!(slot_of(k, "run-1", "transitions"), None, "{k}");
-        }
-    }
-
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(2000))]
         /// Arbitrary bytes never panic a decoder or a check.
@@ -394,7 +367,7 @@ mod tests {
             let _ = weights(3, Some(&att), &p);
             let _ = wire::Hello::decode(&p);
             let _ = wire::Welcome::decode(&p);
-            let _ = slot_of(&String::from_utf8_lossy(&p), "r", "transitions");
+            let _ = crate::host::slot_of(&String::from_utf8_lossy(&p), "r", "transitions");
         }
 
         /// A header that fits, with arbitrary counts, indexes and payloads.

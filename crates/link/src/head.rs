@@ -1,0 +1,260 @@
+//! The head's end of the link: the join queryable, the hosts it admitted
+//! and its counts of refused messages.
+
+use std::sync::atomic::AtomicU64;
+use std::time::{Duration, Instant};
+
+use zenoh::Wait;
+use zenoh::handlers::{FifoChannel, FifoChannelHandler, RingChannel};
+use zenoh::query::Query;
+
+use crate::error::{LinkError, Result, zerr};
+use crate::host::{Host, same_token};
+use crate::options::{LinkOptions, open};
+use crate::shared::{Fifo, JOIN, key};
+use crate::wire::{Hello, Welcome};
+use crate::{check, wire};
+
+/// Counters of the head's link, shared with the supervisor.
+#[derive(Debug, Default)]
+pub struct HeadStats {
+    /// Transition batches brought in.
+    pub batches: AtomicU64,
+    /// Transitions brought in.
+    pub transitions: AtomicU64,
+    /// Transition batches lost between hosts (per-actor sequence gaps).
+    pub lost_batches: AtomicU64,
+    /// Transitions in the lost batches, estimated at the batch size seen.
+    pub lost_transitions: AtomicU64,
+    /// The same, per environment of the run (index = actor).
+    pub lost_by_env: std::sync::Mutex<Vec<u64>>,
+    /// Episode or telemetry messages that could not be delivered.
+    pub dropped: AtomicU64,
+    /// Messages that failed a check ([`check`]) and were dropped, per
+    /// slot (0: keys that name no host of the run).
+    pub rejected: std::sync::Mutex<Vec<u64>>,
+}
+
+impl HeadStats {
+    /// Counts a dropped message from `slot`; logs the first few of each
+    /// host and then every thousandth.
+    pub(crate) fn reject(&self, slot: u32, what: &str, why: &check::Reject) {
+        let Ok(mut r) = self.rejected.lock() else {
+            return;
+        };
+        if r.len() <= slot as usize {
+            r.resize(slot as usize + 1, 0);
+        }
+        r[slot as usize] += 1;
+        let n = r[slot as usize];
+        if n <= 5 || n % 1000 == 0 {
+            let from =
+                if slot == 0 { "an unknown sender".to_string() } else { format!("worker {slot}") };
+            tracing::warn!("dropped {what} from {from}: {why} ({n} dropped from it so far)");
+        }
+    }
+
+    /// Messages dropped from `slot`.
+    pub fn rejected_from(&self, slot: u32) -> u64 {
+        self.rejected.lock().ok().and_then(|r| r.get(slot as usize).copied()).unwrap_or(0)
+    }
+}
+
+/// The head's end of the link: listens, admits workers, then bridges.
+pub struct Head {
+    pub(crate) session: zenoh::Session,
+    pub(crate) run: String,
+    layout: u64,
+    pub(crate) queryable: zenoh::query::Queryable<FifoChannelHandler<Query>>,
+    _token: zenoh::liveliness::LivelinessToken,
+    pub(crate) hosts: Vec<Host>,
+    pending: Vec<(Query, Hello)>,
+    default_agents: u32,
+    pub(crate) subs: HeadSubscribers,
+}
+
+/// The head's subscribers, declared before any worker is admitted, so that
+/// a worker's first batch already has somewhere to go.
+pub(crate) struct HeadSubscribers {
+    pub(crate) transitions: Fifo,
+    pub(crate) episodes: Fifo,
+    pub(crate) telemetry:
+        zenoh::pubsub::Subscriber<zenoh::handlers::RingChannelHandler<zenoh::sample::Sample>>,
+}
+
+impl Head {
+    /// Listens on `endpoint` for the workers of run `run`.
+    pub fn listen(endpoint: &str, run: &str, layout: u64, opts: &LinkOptions) -> Result<Self> {
+        let session = open(Some(endpoint), None, opts)?;
+        let queryable = session
+            .declare_queryable(JOIN)
+            .with(FifoChannel::new(64))
+            .wait()
+            .map_err(zerr("declare the join queryable"))?;
+        let token = session
+            .liveliness()
+            .declare_token(key(run, "head"))
+            .wait()
+            .map_err(zerr("declare the head's liveliness"))?;
+        let decl = |what: &str| zerr(format!("declare {what}"));
+        let subs = HeadSubscribers {
+            transitions: session
+                .declare_subscriber(key(run, "host/*/transitions"))
+                .with(FifoChannel::new(4))
+                .wait()
+                .map_err(decl("the transitions subscriber"))?,
+            episodes: session
+                .declare_subscriber(key(run, "host/*/episodes"))
+                .with(FifoChannel::new(256))
+                .wait()
+                .map_err(decl("the episodes subscriber"))?,
+            telemetry: session
+                .declare_subscriber(key(run, "host/*/telemetry"))
+                .with(RingChannel::new(256))
+                .wait()
+                .map_err(decl("the telemetry subscriber"))?,
+        };
+        Ok(Self {
+            subs,
+            session,
+            run: run.to_string(),
+            layout,
+            queryable,
+            _token: token,
+            hosts: Vec::new(),
+            pending: Vec::new(),
+            default_agents: 1,
+        })
+    }
+
+    /// Waits for `wanted` workers (at most `timeout`) and places their
+    /// environments after the head's `head_envs`, in order of joining. They
+    /// wait for their answer until [`Head::admit`].
+    /// A worker that asks for 0 agents per environment gets `default_agents`.
+    pub fn gather(
+        &mut self,
+        wanted: usize,
+        head_envs: usize,
+        default_agents: usize,
+        timeout: Duration,
+        stop: impl Fn() -> bool,
+    ) -> Result<Vec<Host>> {
+        self.default_agents = default_agents as u32;
+        let start = Instant::now();
+        while self.pending.len() < wanted {
+            if stop() {
+                return Err(LinkError::Stopped("worker hosts"));
+            }
+            let left = timeout.saturating_sub(start.elapsed());
+            if left.is_zero() {
+                return Err(LinkError::TooFewWorkers {
+                    joined: self.pending.len(),
+                    wanted,
+                    secs: timeout.as_secs_f64(),
+                });
+            }
+            let Ok(Some(q)) = self.queryable.recv_timeout(left.min(Duration::from_millis(100)))
+            else {
+                continue;
+            };
+            match self.check(&q) {
+                Ok(h) => {
+                    if let Some(i) = self.pending.iter().position(|(_, p)| p.host == h.host) {
+                        if same_token(&self.pending[i].1.token, &h.token) {
+                            // The same host asking again (it retried): keep the newest.
+                            self.pending[i] = (q, h);
+                        } else {
+                            refuse(
+                                &q,
+                                &format!(
+                                    "host {} has already joined this run (another join token)",
+                                    h.host
+                                ),
+                            );
+                        }
+                    } else {
+                        tracing::info!(
+                            "worker {} joined: {} × {} agents",
+                            h.host,
+                            h.envs,
+                            h.agents
+                        );
+                        self.pending.push((q, h));
+                    }
+                }
+                Err(why) => refuse(&q, &why),
+            }
+        }
+        let mut env_offset = head_envs as u32;
+        self.hosts.clear();
+        for (i, (_, h)) in self.pending.iter().enumerate() {
+            self.hosts.push(Host {
+                name: h.host.clone(),
+                slot: i as u32 + 1,
+                envs: h.envs,
+                agents: h.agents,
+                env_offset,
+                token: h.token.clone(),
+            });
+            env_offset += h.envs;
+        }
+        Ok(self.hosts.clone())
+    }
+
+    /// Answers the gathered workers: each gets its place, the config
+    /// `welcome` gives it and the arena.
+    pub fn admit(&mut self, welcome: impl Fn(&Host) -> (String, String)) {
+        for ((q, _), host) in self.pending.drain(..).zip(&self.hosts) {
+            let (config, arena) = welcome(host);
+            reply(
+                &q,
+                &Welcome::Joined {
+                    slot: host.slot,
+                    env_offset: host.env_offset,
+                    run: self.run.clone(),
+                    config,
+                    arena,
+                },
+            );
+        }
+    }
+
+    pub(crate) fn check(&self, q: &Query) -> std::result::Result<Hello, String> {
+        let bytes = q.payload().map(|p| p.to_bytes().into_owned()).unwrap_or_default();
+        let mut h = Hello::decode(&bytes).ok_or("not a rotorhive worker's join request")?;
+        if h.agents == 0 {
+            h.agents = self.default_agents;
+        }
+        if h.layout != self.layout {
+            return Err("message layout mismatch: this worker runs another build of hive (or another model); run the same build on every host".into());
+        }
+        if h.envs == 0 || h.agents == 0 {
+            return Err(format!(
+                "a worker needs at least one environment and one agent, got {} × {}",
+                h.envs, h.agents
+            ));
+        }
+        if h.token.is_empty() || h.token.len() > wire::MAX_TOKEN {
+            return Err(format!(
+                "a join token of 1 to {} bytes is needed, got {}",
+                wire::MAX_TOKEN,
+                h.token.len()
+            ));
+        }
+        Ok(h)
+    }
+}
+
+/// Gives a worker that joins again its config and arena.
+pub type ConfigFor = Box<dyn Fn(&Host) -> (String, String) + Send>;
+
+pub(crate) fn reply(q: &Query, w: &Welcome) {
+    if let Err(e) = q.reply(JOIN, w.encode()).wait() {
+        tracing::warn!("cannot answer a worker: {e}");
+    }
+}
+
+pub(crate) fn refuse(q: &Query, why: &str) {
+    tracing::warn!("refused a worker: {why}");
+    reply(q, &Welcome::Refused(why.to_string()));
+}

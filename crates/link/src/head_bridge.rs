@@ -1,0 +1,339 @@
+//! The head's bridge between Zenoh and its shared memory ([`HeadLink`], a
+//! thread): weights out to every worker, transitions, episodes and
+//! telemetry in, each message checked ([`crate::check`]) before any byte of
+//! it reaches shared memory, and the hosts that join again.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use iceoryx2::service::Service;
+use rotorhive_msg::{
+    EPISODE_FIELDS, EpisodeHeader, LinkStage, SeqTracker, Telemetry, TransitionHeader,
+    WeightsHeader,
+};
+use rotorhive_transport::{Channel, Hub};
+use zenoh::Wait;
+use zenoh::qos::CongestionControl;
+
+use crate::error::{LinkError, Result, zerr};
+use crate::head::{ConfigFor, Head, HeadStats, refuse, reply};
+use crate::host::{Host, same_token};
+use crate::shared::{LinkTelemetry, key, link_telemetry, send_retrying};
+use crate::wire::Welcome;
+use crate::{check, wire};
+
+impl Head {
+    /// Starts bridging for the roles of run `prefix` over iceoryx2 service
+    /// `S` on this host: a thread that ends (sending the run's end to the
+    /// workers) when `stop` is set. `envs` and `roles` size the channels as
+    /// the head's roles do; `config_for` gives a returning worker its config.
+    pub fn bridge<S: Service>(
+        self,
+        prefix: String,
+        envs: usize,
+        roles: usize,
+        stop: Arc<AtomicBool>,
+        config_for: ConfigFor,
+    ) -> Result<HeadLink> {
+        let stats = Arc::new(HeadStats::default());
+        let (st, sp) = (stats.clone(), stop.clone());
+        let hosts = self.hosts.clone();
+        let thread = std::thread::Builder::new()
+            .name("link".into())
+            .spawn(move || {
+                let hub = Hub::<S>::new(&prefix, "link")?.with_stop(sp.clone());
+                head_loop(&self, &hub, envs, roles, &sp, &st, config_for)
+            })
+            .map_err(|e| LinkError::Zenoh {
+                what: "start the link thread".into(),
+                message: e.to_string(),
+            })?;
+        Ok(HeadLink { thread: Some(thread), stop, stats, hosts })
+    }
+}
+
+/// The running head link.
+pub struct HeadLink {
+    thread: Option<std::thread::JoinHandle<Result<()>>>,
+    pub(crate) stop: Arc<AtomicBool>,
+    /// Its counters.
+    pub stats: Arc<HeadStats>,
+    /// The workers that joined at the start.
+    pub hosts: Vec<Host>,
+}
+
+impl HeadLink {
+    /// Whether the thread ended (with an error: it runs until stopped).
+    pub fn is_finished(&self) -> bool {
+        self.thread.as_ref().is_none_or(|t| t.is_finished())
+    }
+
+    /// Ends the run on the workers and stops the thread; returns its error.
+    pub fn stop(&mut self) -> Result<()> {
+        self.stop.store(true, Ordering::SeqCst);
+        match self.thread.take().map(|t| t.join()) {
+            Some(Ok(r)) => r,
+            Some(Err(_)) => {
+                Err(LinkError::Zenoh { what: "link thread".into(), message: "panicked".into() })
+            }
+            None => Ok(()),
+        }
+    }
+}
+
+impl Drop for HeadLink {
+    fn drop(&mut self) {
+        let _ = self.stop();
+    }
+}
+
+pub(crate) fn head_loop<S: Service>(
+    head: &Head,
+    hub: &Hub<S>,
+    envs: usize,
+    roles: usize,
+    stop: &AtomicBool,
+    stats: &HeadStats,
+    config_for: ConfigFor,
+) -> Result<()> {
+    let s = &head.session;
+    let decl = |what: &str| zerr(format!("declare {what}"));
+    let publisher = |what: &str| {
+        s.declare_publisher(key(&head.run, what))
+            .congestion_control(CongestionControl::Block)
+            .wait()
+            .map_err(decl(what))
+    };
+    let end_pub = publisher("end")?;
+    let total_envs = envs + head.hosts.iter().map(|h| h.envs as usize).sum::<usize>();
+    let max_batch = rotorhive_msg::PACKED_LEN * check::MAX_BATCH;
+    if let Ok(mut l) = stats.lost_by_env.lock() {
+        *l = vec![0; total_envs];
+    }
+    let mut b = HeadBridge {
+        head,
+        stats,
+        stop,
+        w_pub: publisher("weights")?,
+        trans_tx: hub.sender(&Channel::transitions(envs), max_batch, Duration::from_millis(200))?,
+        ep_tx: hub.sender(
+            &Channel::episodes(envs),
+            EPISODE_FIELDS * 4096,
+            Duration::from_millis(200),
+        )?,
+        w_rx: hub.receiver(&Channel::weights(envs))?,
+        tel: link_telemetry(hub, roles, 0)?,
+        next_seq: SeqTracker::new(total_envs),
+        version: 0,
+    };
+    while !stop.load(Ordering::SeqCst) && !hub.shutdown_requested() {
+        b.weights_out()?;
+        // Transitions in, loss-free: the FIFO is bounded and the send waits.
+        let t = Instant::now();
+        let got = head.subs.transitions.recv_timeout(Duration::from_millis(5)).ok().flatten();
+        b.tel.sample.time_stage(LinkStage::Receive, t);
+        if let Some(smp) = got {
+            b.transitions_in(&smp)?;
+        }
+        b.episodes_and_telemetry_in();
+        b.rejoins(&config_for);
+        b.tel.tick(false, Telemetry::beat);
+    }
+    // The run's end, so the workers exit 0 instead of reporting a lost head.
+    let _ = end_pub.put(b"end".to_vec()).wait();
+    // Let the message leave before the session closes.
+    std::thread::sleep(Duration::from_millis(200));
+    Ok(())
+}
+
+/// The head's link at work: what it sends and receives on the head's
+/// shared memory, and what it keeps between rounds.
+struct HeadBridge<'a, S: Service> {
+    head: &'a Head,
+    stats: &'a HeadStats,
+    pub(crate) stop: &'a AtomicBool,
+    w_pub: zenoh::pubsub::Publisher<'static>,
+    trans_tx: rotorhive_transport::Sender<S, u16, TransitionHeader>,
+    ep_tx: rotorhive_transport::Sender<S, f32, EpisodeHeader>,
+    w_rx: rotorhive_transport::Receiver<S, f32, WeightsHeader>,
+    pub(crate) tel: LinkTelemetry<S>,
+    /// The batches seen from each actor of the run.
+    next_seq: SeqTracker,
+    /// The newest weight version sent.
+    pub(crate) version: u64,
+}
+
+impl<S: Service> HeadBridge<'_, S> {
+    /// Weights out: the newest version, once per host (zenoh fans out).
+    fn weights_out(&mut self) -> Result<()> {
+        let t = Instant::now();
+        if let Some(w) = self.w_rx.latest()? {
+            let h = *w.user_header();
+            if h.version != self.version {
+                self.version = h.version;
+                let bytes = wire::payload_bytes(w.payload()).to_vec();
+                self.w_pub
+                    .put(bytes)
+                    .attachment(wire::header_bytes(&h).to_vec())
+                    .wait()
+                    .map_err(zerr("send weights"))?;
+                self.tel.sample.weight_version = self.version;
+            }
+        }
+        self.tel.sample.time_stage(LinkStage::Weights, t);
+        Ok(())
+    }
+
+    /// One transition batch from a worker: checked, its sequence gap
+    /// counted, then into the replay's channel (the send retried while the
+    /// replay is full).
+    fn transitions_in(&mut self, smp: &zenoh::sample::Sample) -> Result<()> {
+        let (stats, hosts, run) = (self.stats, &self.head.hosts, &self.head.run);
+        let t = Instant::now();
+        let payload = smp.payload();
+        let frags: Vec<&[u8]> = payload.slices().collect();
+        let Some(h) = accept(stats, hosts, smp, run, "transitions", |host, att| {
+            check::transitions(host, att, &frags)
+        }) else {
+            return Ok(());
+        };
+        let words = payload.len() / 2;
+        let gap = self.next_seq.observe(h.actor as usize, h.seq);
+        if gap > 0 {
+            tracing::warn!(
+                "head link: actor {} batches {}..{} missing",
+                h.actor,
+                h.seq - gap,
+                h.seq
+            );
+            stats.lost_batches.fetch_add(gap, Ordering::Relaxed);
+            stats.lost_transitions.fetch_add(gap.saturating_mul(h.count as u64), Ordering::Relaxed);
+            self.tel.sample.lost = self.tel.sample.lost.saturating_add(gap);
+            if let Some(l) =
+                stats.lost_by_env.lock().ok().as_mut().and_then(|v| v.get_mut(h.actor as usize))
+            {
+                *l = l.saturating_add(gap.saturating_mul(h.count as u64));
+            }
+        }
+        let sent = send_retrying(&mut self.trans_tx, words, self.stop, |hdr, p| {
+            *hdr = h;
+            // Zenoh's fragments straight into the loaned sample (their
+            // total is the sample's length: checked above).
+            let out = wire::payload_bytes_mut(p);
+            let mut at = 0;
+            for frag in &frags {
+                out[at..at + frag.len()].copy_from_slice(frag);
+                at += frag.len();
+            }
+        })?;
+        if sent {
+            stats.batches.fetch_add(1, Ordering::Relaxed);
+            stats.transitions.fetch_add(h.count as u64, Ordering::Relaxed);
+            self.tel.sample.work += h.count as u64;
+            self.tel.sample.work2 += payload.len() as u64;
+        }
+        self.tel.sample.time_stage(LinkStage::SendWait, t);
+        Ok(())
+    }
+
+    /// The workers' episodes and telemetry, checked, into the head's
+    /// records (episodes that find the channel full are counted dropped).
+    fn episodes_and_telemetry_in(&mut self) {
+        let (stats, hosts, run) = (self.stats, &self.head.hosts, &self.head.run);
+        let t = Instant::now();
+        while let Ok(Some(smp)) = self.head.subs.episodes.try_recv() {
+            let bytes = smp.payload().to_bytes();
+            let Some(h) = accept(stats, hosts, &smp, run, "episodes", |host, att| {
+                check::episodes(host, att, &bytes)
+            }) else {
+                continue;
+            };
+            if self
+                .ep_tx
+                .send_with(bytes.len() / 4, |hdr, p| {
+                    *hdr = h;
+                    wire::payload_bytes_mut(p).copy_from_slice(&bytes);
+                })
+                .is_err()
+            {
+                stats.dropped.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+        while let Ok(Some(smp)) = self.head.subs.telemetry.try_recv() {
+            if let Some(t) = accept(stats, hosts, &smp, run, "telemetry", |host, att| {
+                check::telemetry(host, att, smp.payload().len())
+            }) {
+                self.tel.send(t);
+            }
+        }
+        self.tel.sample.time_stage(LinkStage::Forward, t);
+    }
+
+    /// A worker that comes back (restarted) with its join token gets its
+    /// old place; anyone else is refused.
+    fn rejoins(&mut self, config_for: &ConfigFor) {
+        let (head, run) = (self.head, &self.head.run);
+        while let Ok(Some(q)) = head.queryable.try_recv() {
+            match head.check(&q) {
+                Ok(h) => match head.hosts.iter().find(|x| x.name == h.host) {
+                    Some(x) if !same_token(&x.token, &h.token) => refuse(
+                        &q,
+                        &format!(
+                            "host {} is in this run; only the worker that joined under that name (with its join token) may take its place back",
+                            x.name
+                        ),
+                    ),
+                    Some(x) if x.envs == h.envs && x.agents == h.agents => {
+                        let (config, arena) = config_for(x);
+                        reply(
+                            &q,
+                            &Welcome::Joined {
+                                slot: x.slot,
+                                env_offset: x.env_offset,
+                                run: run.clone(),
+                                config,
+                                arena,
+                            },
+                        );
+                        // Its actors start their sequences afresh.
+                        for e in x.env_offset as usize..(x.env_offset + x.envs) as usize {
+                            self.next_seq.reset(e);
+                        }
+                        tracing::info!("worker {} joined again", x.name);
+                    }
+                    Some(x) => refuse(
+                        &q,
+                        &format!(
+                            "host {} joined with {} × {} agents, and comes back with {} × {}",
+                            x.name, x.envs, x.agents, h.envs, h.agents
+                        ),
+                    ),
+                    None => refuse(&q, "the run has all its worker hosts (`cluster.workers`)"),
+                },
+                Err(why) => refuse(&q, &why),
+            }
+        }
+    }
+}
+
+/// A message `what` from another host, checked by `check` against the
+/// joined host its key names, with its attachment; one that fails (or
+/// whose key names no host: slot 0) is counted against its sender and `None`.
+fn accept<T>(
+    stats: &HeadStats,
+    hosts: &[Host],
+    smp: &zenoh::sample::Sample,
+    run: &str,
+    what: &str,
+    check: impl FnOnce(&Host, Option<&[u8]>) -> std::result::Result<T, check::Reject>,
+) -> Option<T> {
+    let Some(host) = crate::host::slot_of(smp.key_expr().as_str(), run, what)
+        .and_then(|slot| hosts.iter().find(|h| h.slot == slot))
+    else {
+        stats.reject(0, what, &check::Reject::UnknownSender);
+        return None;
+    };
+    let att = smp.attachment().map(|a| a.to_bytes());
+    check(host, att.as_deref()).map_err(|why| stats.reject(host.slot, what, &why)).ok()
+}

@@ -1,0 +1,87 @@
+//! What both ends of the link share: the key names, the bounds on a
+//! message, the layout fingerprint, the link's telemetry and the retrying
+//! send into shared memory.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use iceoryx2::service::Service;
+use rotorhive_msg::{EPISODE_FIELDS, RoleKind, Telemetry};
+use rotorhive_transport::{Channel, Hub, TransportError};
+use zenoh::handlers::FifoChannelHandler;
+
+use crate::check;
+use crate::error::Result;
+
+/// The largest message a host accepts: a full transition batch (1,024 ×
+/// 8,228 bytes) with room to spare; Zenoh's default is 1 GiB.
+pub const MAX_MESSAGE_BYTES: usize = 16 << 20;
+/// The largest episodes message (4,096 records) and telemetry sample the
+/// head accepts, by Zenoh's low-pass filter, so that its queues of them stay
+/// bounded in bytes.
+pub(crate) const MAX_EPISODES_BYTES: usize = check::MAX_EPISODES * EPISODE_FIELDS * 4 + 4096;
+pub(crate) const MAX_TELEMETRY_BYTES: usize = 4096;
+
+/// The layout this build sends: the message layout and the model's size.
+pub fn layout(num_params: usize) -> u64 {
+    rotorhive_msg::layout_fingerprint() ^ (num_params as u64).rotate_left(17)
+}
+
+pub(crate) fn key(run: &str, what: &str) -> String {
+    format!("rotorhive/{run}/{what}")
+}
+
+/// The key a worker in `slot` puts `what` on: the head knows the sender by
+/// it (with mutual TLS and an access-control rule, only that host may).
+pub(crate) fn host_key(run: &str, slot: u32, what: &str) -> String {
+    format!("rotorhive/{run}/host/{slot}/{what}")
+}
+
+/// The key of the join queryable.
+pub(crate) const JOIN: &str = "rotorhive/join";
+
+/// Telemetry of a link: stages `receive`, `forward`, `weights`, `send_wait`
+/// ([`LinkStage`]), published by the transport's periodic publisher.
+pub(crate) type LinkTelemetry<S> = rotorhive_transport::Periodic<S, Telemetry>;
+
+/// The link's telemetry in a run of `roles` roles.
+pub(crate) fn link_telemetry<S: Service>(
+    hub: &Hub<S>,
+    roles: usize,
+    index: usize,
+) -> Result<LinkTelemetry<S>> {
+    let sample = Telemetry {
+        role: RoleKind::Link as u32,
+        index: index as u32,
+        pid: std::process::id(),
+        ..Telemetry::default()
+    };
+    Ok(rotorhive_transport::Periodic::new(hub, &Channel::telemetry(roles), sample)?)
+}
+
+/// Sends into shared memory, retrying while the receiver is full (bounded
+/// back-pressure, never a loss) until `stop`.
+pub(crate) fn send_retrying<S: Service, T, H>(
+    tx: &mut rotorhive_transport::Sender<S, T, H>,
+    len: usize,
+    stop: &AtomicBool,
+    mut fill: impl FnMut(&mut H, &mut [T]),
+) -> Result<bool>
+where
+    T: rotorhive_transport::Plain,
+    H: std::fmt::Debug + iceoryx2::prelude::ZeroCopySend + Default + 'static,
+{
+    loop {
+        match tx.send_with(len, &mut fill) {
+            Ok(()) => return Ok(true),
+            Err(TransportError::Stalled { .. })
+                if !stop.load(Ordering::SeqCst) && !rotorhive_transport::stop_requested() =>
+            {
+                continue;
+            }
+            Err(TransportError::Stalled { .. }) => return Ok(false),
+            Err(e) => return Err(e.into()),
+        }
+    }
+}
+
+pub(crate) type Fifo = zenoh::pubsub::Subscriber<FifoChannelHandler<zenoh::sample::Sample>>;

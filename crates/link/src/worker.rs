@@ -1,0 +1,108 @@
+//! The worker's end of the link: the join, and the running bridge between
+//! its shared memory and the head.
+
+use std::time::{Duration, Instant};
+
+use zenoh::Wait;
+
+use crate::error::{LinkError, Result, zerr};
+use crate::options::{LinkOptions, open};
+use crate::shared::JOIN;
+use crate::wire::{Hello, Welcome};
+
+/// How a worker's link ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum WorkerEnd {
+    /// The head ended the run.
+    RunEnded,
+    /// This process was asked to stop.
+    Stopped,
+}
+
+/// Counters of a worker's link.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct WorkerStats {
+    /// Transition batches sent.
+    pub batches: u64,
+    /// Transitions sent.
+    pub transitions: u64,
+    /// Weight versions received.
+    pub weights: u64,
+    /// Newest weight version received.
+    pub weight_version: u64,
+    /// Episode or telemetry messages dropped.
+    pub dropped: u64,
+    /// Weights from the head that failed their check and were dropped.
+    pub rejected: u64,
+}
+
+/// A worker's end of the link.
+pub struct Worker {
+    pub(crate) session: zenoh::Session,
+    /// The head's answer.
+    pub slot: u32,
+    /// Index of this host's first environment in the run.
+    pub env_offset: u32,
+    /// The run's name.
+    pub run: String,
+    /// The head's resolved config (TOML).
+    pub config: String,
+    /// The training arena (TOML).
+    pub arena: String,
+}
+
+impl Worker {
+    /// Connects to the head at `endpoint` and joins its run, asking again
+    /// until `timeout` (the head may start later than the worker).
+    pub fn join(
+        endpoint: &str,
+        hello: &Hello,
+        timeout: Duration,
+        opts: &LinkOptions,
+        stop: impl Fn() -> bool,
+    ) -> Result<Self> {
+        let session = open(None, Some(endpoint), opts)?;
+        let start = Instant::now();
+        while start.elapsed() < timeout {
+            if stop() {
+                return Err(LinkError::Stopped("the head"));
+            }
+            let left = timeout.saturating_sub(start.elapsed()).max(Duration::from_millis(100));
+            let replies = session
+                .get(JOIN)
+                .payload(hello.encode())
+                .timeout(left.min(Duration::from_secs(5)))
+                .wait()
+                .map_err(zerr("ask to join"))?;
+            // Every answer ends the wait; none means nobody is there yet.
+            if let Ok(r) = replies.recv() {
+                let bytes = match r.result() {
+                    Ok(s) => s.payload().to_bytes().into_owned(),
+                    Err(e) => {
+                        return Err(LinkError::Refused {
+                            endpoint: endpoint.into(),
+                            why: String::from_utf8_lossy(&e.payload().to_bytes()).into_owned(),
+                        });
+                    }
+                };
+                match Welcome::decode(&bytes) {
+                    Some(Welcome::Joined { slot, env_offset, run, config, arena }) => {
+                        return Ok(Self { session, slot, env_offset, run, config, arena });
+                    }
+                    Some(Welcome::Refused(why)) => {
+                        return Err(LinkError::Refused { endpoint: endpoint.into(), why });
+                    }
+                    None => {
+                        return Err(LinkError::Refused {
+                            endpoint: endpoint.into(),
+                            why: "an answer that is not a rotorhive welcome".into(),
+                        });
+                    }
+                }
+            }
+            // The session keeps trying to connect meanwhile.
+            std::thread::sleep(Duration::from_millis(200));
+        }
+        Err(LinkError::NoHead { endpoint: endpoint.into(), secs: timeout.as_secs_f64() })
+    }
+}

@@ -1,0 +1,291 @@
+//! The worker's bridge between its shared memory and Zenoh: weights in,
+//! transitions, episodes and telemetry out, and the head's liveliness.
+
+use std::time::{Duration, Instant};
+
+use iceoryx2::service::Service;
+use rotorhive_msg::{
+    EpisodeHeader, LinkStage, RoleKind, SeqTracker, Telemetry, TransitionHeader, WeightsHeader,
+};
+use rotorhive_transport::{Channel, Hub};
+use zenoh::Wait;
+use zenoh::handlers::{FifoChannel, RingChannel};
+use zenoh::qos::CongestionControl;
+use zenoh::sample::SampleKind;
+
+use crate::error::{LinkError, Result, zerr};
+use crate::shared::{Fifo, LinkTelemetry, host_key, key, link_telemetry};
+use crate::worker::{Worker, WorkerEnd, WorkerStats};
+use crate::{check, wire};
+
+impl Worker {
+    /// Bridges this host's sims and actors (run `prefix` over service `S`,
+    /// `envs` environments, `roles` telemetry publishers) to the head until
+    /// the head ends the run, the head is lost, or this process stops.
+    /// `on_ready` runs once the link takes this host's batches and the head
+    /// takes the link's: start the actors then, or their first batches go
+    /// nowhere.
+    /// Weights that are not `num_params` finite floats are dropped.
+    pub fn bridge<S: Service>(
+        &self,
+        hub: &Hub<S>,
+        envs: usize,
+        roles: usize,
+        num_params: usize,
+        stats: &mut WorkerStats,
+        on_ready: impl FnOnce(),
+    ) -> Result<WorkerEnd> {
+        let s = &self.session;
+        let decl = |what: &str| zerr(format!("declare {what}"));
+        let mut b = WorkerBridge::open(self, hub, [envs, roles, num_params])?;
+        let _token = s
+            .liveliness()
+            .declare_token(key(&self.run, &format!("host/{}", self.slot)))
+            .wait()
+            .map_err(decl("this host's liveliness"))?;
+        // Zenoh drops what no subscriber matches: send nothing before the
+        // head's transitions subscriber is known here.
+        let t = Instant::now();
+        while !b.trans_pub.matching_status().wait().map_err(zerr("matching status"))?.matching() {
+            if t.elapsed() > Duration::from_secs(20) {
+                return Err(LinkError::LostHead);
+            }
+            if hub.shutdown_requested() {
+                return Ok(WorkerEnd::Stopped);
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        on_ready();
+        loop {
+            if hub.shutdown_requested() {
+                return Ok(WorkerEnd::Stopped);
+            }
+            if let Some(end) = b.head_end() {
+                return end;
+            }
+            b.weights_in(hub, stats)?;
+            b.transitions_out(stats)?;
+            b.episodes_and_telemetry_out(stats)?;
+            b.tel.tick(false, Telemetry::beat);
+        }
+    }
+}
+
+/// A worker's link at work: its Zenoh publishers and subscribers, its
+/// host's shared-memory channels, and what it keeps between rounds.
+pub(crate) struct WorkerBridge<S: Service> {
+    pub(crate) trans_pub: zenoh::pubsub::Publisher<'static>,
+    ep_pub: zenoh::pubsub::Publisher<'static>,
+    tel_pub: zenoh::pubsub::Publisher<'static>,
+    w_sub: zenoh::pubsub::Subscriber<zenoh::handlers::RingChannelHandler<zenoh::sample::Sample>>,
+    end_sub: Fifo,
+    head_sub: Fifo,
+    trans_rx: rotorhive_transport::Receiver<S, u16, TransitionHeader>,
+    ep_rx: rotorhive_transport::Receiver<S, f32, EpisodeHeader>,
+    tel_rx: rotorhive_transport::Receiver<S, u8, Telemetry>,
+    w_tx: Option<rotorhive_transport::Sender<S, f32, WeightsHeader>>,
+    pub(crate) tel: LinkTelemetry<S>,
+    /// The batches seen from each actor of this host.
+    wseq: SeqTracker,
+    head_seen: bool,
+    off: u32,
+    pub(crate) slot: u32,
+    pub(crate) envs: usize,
+    num_params: usize,
+}
+
+impl<S: Service> WorkerBridge<S> {
+    /// Declares the worker's publishers and subscribers and opens its
+    /// host's channels, for [`envs`, `roles` telemetry publishers,
+    /// `num_params` weights].
+    pub(crate) fn open(
+        worker: &Worker,
+        hub: &Hub<S>,
+        [envs, roles, num_params]: [usize; 3],
+    ) -> Result<Self> {
+        let s = &worker.session;
+        let run = &worker.run;
+        let decl = |what: &str| zerr(format!("declare {what}"));
+        let publisher = |what: &str, cc| {
+            s.declare_publisher(host_key(run, worker.slot, what))
+                .congestion_control(cc)
+                .wait()
+                .map_err(decl(what))
+        };
+        Ok(WorkerBridge {
+            trans_pub: publisher("transitions", CongestionControl::Block)?,
+            ep_pub: publisher("episodes", CongestionControl::Drop)?,
+            tel_pub: publisher("telemetry", CongestionControl::Drop)?,
+            w_sub: s
+                .declare_subscriber(key(run, "weights"))
+                .with(RingChannel::new(1))
+                .wait()
+                .map_err(decl("the weights subscriber"))?,
+            end_sub: s
+                .declare_subscriber(key(run, "end"))
+                .with(FifoChannel::new(4))
+                .wait()
+                .map_err(decl("the end subscriber"))?,
+            head_sub: s
+                .liveliness()
+                .declare_subscriber(key(run, "head"))
+                .history(true)
+                .with(FifoChannel::new(16))
+                .wait()
+                .map_err(decl("the head's liveliness"))?,
+            trans_rx: hub.receiver(&Channel::transitions(envs))?,
+            ep_rx: hub.receiver(&Channel::episodes(envs))?,
+            tel_rx: hub.receiver(&Channel::telemetry(roles))?,
+            w_tx: None,
+            tel: link_telemetry(hub, roles, 0)?,
+            wseq: SeqTracker::new(envs),
+            head_seen: false,
+            off: worker.env_offset,
+            slot: worker.slot,
+            envs,
+            num_params,
+        })
+    }
+
+    /// The run's end, or the head lost (its liveliness token gone without
+    /// the end message right behind it); none while the head is there.
+    pub(crate) fn head_end(&mut self) -> Option<Result<WorkerEnd>> {
+        if self.end_sub.try_recv().ok().flatten().is_some() {
+            return Some(Ok(WorkerEnd::RunEnded));
+        }
+        while let Ok(Some(l)) = self.head_sub.try_recv() {
+            match l.kind() {
+                SampleKind::Put => self.head_seen = true,
+                SampleKind::Delete if self.head_seen => {
+                    // The end message may be right behind (over TLS on a
+                    // busy machine, up to a few hundred ms): look for 1 s.
+                    let t = Instant::now();
+                    while t.elapsed() < Duration::from_secs(1) {
+                        if self
+                            .end_sub
+                            .recv_timeout(Duration::from_millis(50))
+                            .ok()
+                            .flatten()
+                            .is_some()
+                        {
+                            return Some(Ok(WorkerEnd::RunEnded));
+                        }
+                    }
+                    return Some(Err(LinkError::LostHead));
+                }
+                SampleKind::Delete => {}
+            }
+        }
+        None
+    }
+
+    /// The newest weights in, checked, republished on this host.
+    pub(crate) fn weights_in(&mut self, hub: &Hub<S>, stats: &mut WorkerStats) -> Result<()> {
+        let t = Instant::now();
+        if let Ok(Some(smp)) = self.w_sub.try_recv() {
+            let bytes = smp.payload().to_bytes();
+            match check::weights(
+                self.num_params,
+                smp.attachment().map(|a| a.to_bytes()).as_deref(),
+                &bytes,
+            ) {
+                Ok(h) => {
+                    if self.w_tx.is_none() {
+                        self.w_tx = Some(hub.sender::<f32, WeightsHeader>(
+                            &Channel::weights(self.envs),
+                            self.num_params,
+                            Duration::from_millis(200),
+                        )?);
+                    }
+                    if let Some(tx) = self.w_tx.as_mut() {
+                        tx.send_with(self.num_params, |hdr, p| {
+                            *hdr = h;
+                            wire::payload_bytes_mut(p).copy_from_slice(&bytes);
+                        })?;
+                    }
+                    stats.weights += 1;
+                    stats.weight_version = h.version;
+                    self.tel.sample.weight_version = h.version;
+                }
+                Err(why) => {
+                    stats.rejected += 1;
+                    tracing::warn!("dropped weights from the head: {why}");
+                }
+            }
+        }
+        self.tel.sample.time_stage(LinkStage::Weights, t);
+        Ok(())
+    }
+
+    /// One transition batch out, if there is one: a blocking put, so a busy
+    /// head slows the actors.
+    pub(crate) fn transitions_out(&mut self, stats: &mut WorkerStats) -> Result<()> {
+        let t = Instant::now();
+        let m = self.trans_rx.recv_timeout(Duration::from_millis(5))?;
+        self.tel.sample.time_stage(LinkStage::Receive, t);
+        let Some(m) = m else { return Ok(()) };
+        let t = Instant::now();
+        let mut h = *m.user_header();
+        let gap = self.wseq.observe(h.actor as usize, h.seq);
+        if gap > 0 {
+            tracing::warn!(
+                "worker link: actor {} batches {}..{} missing in shared memory",
+                h.actor,
+                h.seq - gap,
+                h.seq
+            );
+        }
+        h.actor += self.off;
+        self.trans_pub
+            .put(wire::payload_bytes(m.payload()).to_vec())
+            .attachment(wire::header_bytes(&h).to_vec())
+            .wait()
+            .map_err(zerr("send transitions"))?;
+        stats.batches += 1;
+        stats.transitions += h.count as u64;
+        self.tel.sample.work += h.count as u64;
+        self.tel.sample.work2 += std::mem::size_of_val(m.payload()) as u64;
+        self.tel.sample.time_stage(LinkStage::SendWait, t);
+        Ok(())
+    }
+
+    /// Episodes and telemetry out (they may drop under load: counted), with
+    /// this host's environment offset and slot.
+    pub(crate) fn episodes_and_telemetry_out(&mut self, stats: &mut WorkerStats) -> Result<()> {
+        let t = Instant::now();
+        while let Some(m) = self.ep_rx.try_recv()? {
+            let mut h = *m.user_header();
+            h.actor += self.off;
+            if self
+                .ep_pub
+                .put(wire::payload_bytes(m.payload()).to_vec())
+                .attachment(wire::header_bytes(&h).to_vec())
+                .wait()
+                .is_err()
+            {
+                stats.dropped += 1;
+            }
+        }
+        while let Some(m) = self.tel_rx.try_recv()? {
+            let mut t = *m.user_header();
+            if t.role == RoleKind::Link as u32 {
+                t.index = self.slot;
+            } else {
+                t.index += self.off;
+            }
+            // A process id means nothing on the head's host.
+            t.pid = 0;
+            if self
+                .tel_pub
+                .put(Vec::new())
+                .attachment(wire::header_bytes(&t).to_vec())
+                .wait()
+                .is_err()
+            {
+                stats.dropped += 1;
+            }
+        }
+        self.tel.sample.time_stage(LinkStage::Forward, t);
+        Ok(())
+    }
+}
