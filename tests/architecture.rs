@@ -275,3 +275,126 @@ fn domain_crates_stay_pure_and_the_transport_knows_no_domain() {
         }
     }
 }
+
+/// A source file's module path inside its crate: `[]` for `lib.rs` and
+/// `main.rs`, `["a"]` for `a.rs` and `a/mod.rs`, `["a", "b"]` for `a/b.rs`.
+fn module_path(src: &Path, file: &Path) -> Vec<String> {
+    let rel = file.strip_prefix(src).unwrap();
+    let mut parts: Vec<String> =
+        rel.iter().map(|p| p.to_string_lossy().trim_end_matches(".rs").to_string()).collect();
+    if matches!(parts.last().map(String::as_str), Some("lib" | "main" | "mod")) {
+        parts.pop();
+    }
+    parts
+}
+
+/// The paths a line names from its crate (`crate::a::b`, `super::c`,
+/// `self::d`), with `use` groups (`crate::{a, b::c}`) spread out; each path
+/// as its segments after `crate` (`super` and `self` resolved from the
+/// line's `module`).
+fn crate_paths(line: &str, module: &[String]) -> Vec<Vec<String>> {
+    fn expand(rest: &str, base: Vec<String>, out: &mut Vec<Vec<String>>) {
+        let mut path = base;
+        let mut chars = rest.trim_start();
+        loop {
+            if let Some(group) = chars.strip_prefix('{') {
+                // Split the group at its top-level commas.
+                let (mut depth, mut start) = (0, 0);
+                for (i, c) in group.char_indices() {
+                    match c {
+                        '{' => depth += 1,
+                        '}' if depth == 0 => {
+                            expand(&group[start..i], path.clone(), out);
+                            return;
+                        }
+                        '}' => depth -= 1,
+                        ',' if depth == 0 => {
+                            expand(&group[start..i], path.clone(), out);
+                            start = i + 1;
+                        }
+                        _ => {}
+                    }
+                }
+                return;
+            }
+            let end =
+                chars.find(|c: char| !(c.is_alphanumeric() || c == '_')).unwrap_or(chars.len());
+            if end == 0 {
+                break;
+            }
+            path.push(chars[..end].to_string());
+            match chars[end..].strip_prefix("::") {
+                Some(r) => chars = r,
+                None => break,
+            }
+        }
+        out.push(path);
+    }
+    let mut out = Vec::new();
+    let parent = module[..module.len().saturating_sub(1)].to_vec();
+    for (key, base) in [("crate::", Vec::new()), ("super::", parent), ("self::", module.to_vec())] {
+        let mut at = 0;
+        while let Some(i) = line[at..].find(key) {
+            let start = at + i;
+            at = start + key.len();
+            // `rotorhive_crate::` or `my_super::` are other names.
+            if line[..start].ends_with(|c: char| c.is_alphanumeric() || c == '_') {
+                continue;
+            }
+            expand(&line[at..], base.clone(), &mut out);
+        }
+    }
+    out
+}
+
+/// Architecture Invariant: no two source files of a crate import each other
+/// (a `use` or a path through `crate::`, `super::` or `self::`; `mod`
+/// declarations and `pub use` re-exports are a module's face, not a
+/// dependency), tests aside.
+#[test]
+fn no_two_source_files_import_each_other() {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let mut dirs: Vec<PathBuf> = std::fs::read_dir(root.join("crates"))
+        .unwrap()
+        .map(|e| e.unwrap().path().join("src"))
+        .collect();
+    dirs.push(root.join("benches/src"));
+    let mut cycles = Vec::new();
+    let mut edges_seen = 0;
+    for src in dirs.iter().filter(|d| d.exists()) {
+        let files = sources(src);
+        let modules: Vec<Vec<String>> = files.iter().map(|f| module_path(src, f)).collect();
+        let mut edges = std::collections::BTreeSet::new();
+        for (f, m) in files.iter().zip(&modules) {
+            for line in non_test_lines(f) {
+                let code = line.trim_start();
+                if code.starts_with("//")
+                    || code.starts_with("pub use ")
+                    || code.starts_with("mod ")
+                    || code.starts_with("pub mod ")
+                {
+                    continue;
+                }
+                for path in crate_paths(code, m) {
+                    // The longest prefix that is a module of this crate.
+                    let target = (0..=path.len())
+                        .rev()
+                        .map(|k| &path[..k])
+                        .find(|p| modules.iter().any(|m| m.as_slice() == *p))
+                        .unwrap_or(&[]);
+                    if target != m.as_slice() {
+                        edges.insert((m.clone(), target.to_vec()));
+                    }
+                }
+            }
+        }
+        edges_seen += edges.len();
+        for (a, b) in &edges {
+            if a < b && edges.contains(&(b.clone(), a.clone())) {
+                cycles.push(format!("{}: {} <-> {}", src.display(), a.join("::"), b.join("::")));
+            }
+        }
+    }
+    assert!(edges_seen > 100, "only {edges_seen} imports found: the scan is broken");
+    assert!(cycles.is_empty(), "source files that import each other: {cycles:#?}");
+}

@@ -7,6 +7,7 @@ mod draw;
 mod eval;
 mod export;
 mod gpu_monitor;
+mod link_args;
 mod play;
 mod role_cmd;
 mod supervisor;

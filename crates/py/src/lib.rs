@@ -140,6 +140,18 @@ struct Sim {
     last_actions: Vec<u8>,
 }
 
+/// The arrays `Sim.step` writes, read by attribute from the package's
+/// buffers object.
+#[derive(FromPyObject)]
+struct StepBuffers<'py> {
+    depth: PyReadwriteArray4<'py, f32>,
+    velocity: PyReadwriteArray2<'py, f32>,
+    rewards: PyReadwriteArray1<'py, f32>,
+    dones: PyReadwriteArray1<'py, u8>,
+    ep_return: PyReadwriteArray1<'py, f32>,
+    ep_length: PyReadwriteArray1<'py, i32>,
+}
+
 #[pymethods]
 impl Sim {
     /// `overrides` are `sim.key=value` strings, as `hive train --set`.
@@ -215,21 +227,26 @@ impl Sim {
     /// Steps every agent (by default without autoreset: an ended agent
     /// keeps its last frames) and writes the observations, rewards, done codes and, for
     /// the agents whose episode ended, its return and length.
-    #[allow(clippy::too_many_arguments)]
+    /// `out` is any object with the arrays as attributes (the package's
+    /// `_Buffers`): `depth`, `velocity`, `rewards`, `dones`, `ep_return`,
+    /// `ep_length`.
     fn step(
         &mut self,
         py: Python<'_>,
         actions: PyReadonlyArray1<'_, u8>,
-        mut depth: PyReadwriteArray4<'_, f32>,
-        mut velocity: PyReadwriteArray2<'_, f32>,
-        mut rewards: PyReadwriteArray1<'_, f32>,
-        mut dones: PyReadwriteArray1<'_, u8>,
-        mut ep_return: PyReadwriteArray1<'_, f32>,
-        mut ep_length: PyReadwriteArray1<'_, i32>,
+        out: StepBuffers<'_>,
     ) -> PyResult<()> {
         let n = self.env.agents();
         let a = actions.as_slice()?;
         check_actions(a, n)?;
+        let StepBuffers {
+            mut depth,
+            mut velocity,
+            mut rewards,
+            mut dones,
+            mut ep_return,
+            mut ep_length,
+        } = out;
         let (d, v) = (depth.as_slice_mut()?, velocity.as_slice_mut()?);
         let (r, k) = (rewards.as_slice_mut()?, dones.as_slice_mut()?);
         let (er, el) = (ep_return.as_slice_mut()?, ep_length.as_slice_mut()?);

@@ -10,7 +10,7 @@
 
 use rapier3d::math::{Rotation, Vector};
 
-use crate::flight::{Lane, cross, dot, normalize_or};
+use crate::lane::{Lane, cross, dot, normalize_or};
 
 /// Physical constants of the quadrotor (an X-frame of about 1 kg).
 #[derive(Debug, Clone, Copy)]
@@ -123,8 +123,14 @@ pub fn control(
 ) -> RotorCommand {
     let r = s.rotation;
     let axes = [r * Vector::X, r * Vector::Y, r * Vector::Z];
-    let f =
-        rotor_thrusts(p, g, s.position, s.velocity, axes, r.inverse() * s.angvel, vel_sp, alt_sp);
+    let v3 = |v: Vector| v.to_array();
+    let k = Kinematics {
+        position: v3(s.position),
+        velocity: v3(s.velocity),
+        axes: axes.map(v3),
+        w: v3(r.inverse() * s.angvel),
+    };
+    let f = thrusts(p, g, g.vel_xy, &k, [vel_sp.x, vel_sp.y], alt_sp);
     let (arms, spin) = rotors(p.arm);
     let yaw = p.torque_coeff * (spin[0] * f[0] + spin[1] * f[1] + spin[2] * f[2] + spin[3] * f[3]);
     RotorCommand {
@@ -135,53 +141,34 @@ pub fn control(
     }
 }
 
-/// The cascade itself: position, velocity, the body axes in the world frame
-/// (`[bx, by, bz]`, the columns of the rotation) and the body-frame angular
-/// velocity in; the four rotor thrusts (N), clamped, out. [`control`] and the
-/// direct flight path (`flight.rs`) both run it.
-#[allow(clippy::too_many_arguments)]
-#[inline]
-pub fn rotor_thrusts(
-    p: &QuadParams,
-    g: &Gains,
-    position: Vector,
-    velocity: Vector,
-    [bx, by, bz]: [Vector; 3],
-    w_body: Vector,
-    vel_sp: Vector,
-    alt_sp: f32,
-) -> [f32; 4] {
-    let v3 = |v: Vector| v.to_array();
-    thrusts(
-        p,
-        g,
-        g.vel_xy,
-        v3(position),
-        v3(velocity),
-        [v3(bx), v3(by), v3(bz)],
-        v3(w_body),
-        [vel_sp.x, vel_sp.y],
-        alt_sp,
-    )
+/// A drone's motion as the cascade reads it: position and velocity (world
+/// frame), the body axes in the world frame (`[bx, by, bz]`, the columns of
+/// the rotation) and the body-frame angular velocity, for one drone (`f32`)
+/// or a group ([`Lane`]). Vectors are `[x, y, z]`.
+#[derive(Clone, Copy)]
+pub(crate) struct Kinematics<T> {
+    pub(crate) position: [T; 3],
+    pub(crate) velocity: [T; 3],
+    pub(crate) axes: [[T; 3]; 3],
+    pub(crate) w: [T; 3],
 }
 
-/// [`rotor_thrusts`] over any [`Lane`] type: one drone (`f32`) or a group
-/// (the direct path's vectorised kernel). Vectors are `[x, y, z]`; the
-/// velocity setpoint is horizontal, `[x, y]`; `vel_gain` stands for
-/// `g.vel_xy` (a drone's own, under domain randomisation).
-#[allow(clippy::too_many_arguments)]
+/// The cascade itself, over any [`Lane`] type: one drone (`f32`, as
+/// [`control`] runs it) or a group (the direct path's vectorised kernel,
+/// `flight.rs`). The horizontal velocity setpoint `vel_sp` (`[x, y]`) and
+/// the altitude setpoint in; the four rotor thrusts (N), clamped, out.
+/// `vel_gain` stands for `g.vel_xy` (a drone's own, under domain
+/// randomisation).
 #[inline(always)]
 pub(crate) fn thrusts<T: Lane>(
     p: &QuadParams,
     g: &Gains,
     vel_gain: T,
-    position: [T; 3],
-    velocity: [T; 3],
-    [bx, by, bz]: [[T; 3]; 3],
-    w: [T; 3],
+    k: &Kinematics<T>,
     vel_sp: [T; 2],
     alt_sp: T,
 ) -> [T; 4] {
+    let Kinematics { position, velocity, axes: [bx, by, bz], w } = *k;
     let c = T::splat;
     // Velocity loop (altitude held by an outer position loop on z).
     let vz_sp = (c(g.alt) * (alt_sp - position[2])).max(c(-2.0)).min(c(2.0));

@@ -192,7 +192,7 @@ pub struct StepTiming {
 
 /// Agents per piece of physics work handed to a pool thread: whole groups
 /// of the vectorised flight kernel.
-const PHYSICS_CHUNK: usize = 2 * crate::flight::LANES;
+const PHYSICS_CHUNK: usize = 2 * crate::lane::LANES;
 
 /// The flight computation of an environment.
 #[derive(Debug)]

@@ -32,7 +32,8 @@ use rapier3d::parry::partitioning::{Bvh, BvhBuildStrategy};
 use rapier3d::parry::shape::SharedShape;
 
 use crate::arena::{Arena, Obstacle};
-use crate::dynamics::{GRAVITY, Gains, QuadParams, thrusts, wrench};
+use crate::dynamics::{GRAVITY, Gains, Kinematics, QuadParams, thrusts, wrench};
+use crate::lane::{LANES, Lane, Wide, cross};
 
 /// Inner integration steps per physics step (rapier's solver substeps).
 pub(crate) const INNER: usize = 4;
@@ -169,8 +170,8 @@ impl Flight {
         let q = &self.quad;
         let c = T::splat;
         let axes = axes(s.q);
-        let f =
-            thrusts(q, &self.gains, s.gain, s.p, s.v, axes, s.w, [s.fwd, s.lat], c(self.altitude));
+        let k = Kinematics { position: s.p, velocity: s.v, axes, w: s.w };
+        let f = thrusts(q, &self.gains, s.gain, &k, [s.fwd, s.lat], c(self.altitude));
         let (thrust, torque) = wrench(q, f);
         let per_mass = thrust / s.mass;
         let bz = axes[2];
@@ -193,107 +194,10 @@ impl Flight {
     }
 }
 
-/// Drones integrated together by [`Flight::fly`]: one AVX-512 register of
-/// `f32` (two of AVX2).
-pub(crate) const LANES: usize = 16;
-
 /// Drones left over from whole groups that still run as a (padded) group:
 /// on the AVX-512 machine a group costs about 2 µs per lane per action and
 /// one drone alone about 6 µs, so from 6 drones a padded group is cheaper.
 const PAD_FROM: usize = 6;
-
-/// The arithmetic the flight kernel needs, for one drone (`f32`) or a
-/// group of [`LANES`] ([`Wide`]), lane by lane the same operations.
-pub(crate) trait Lane:
-    Copy
-    + std::ops::Add<Output = Self>
-    + std::ops::Sub<Output = Self>
-    + std::ops::Mul<Output = Self>
-    + std::ops::Div<Output = Self>
-    + std::ops::Neg<Output = Self>
-{
-    fn splat(x: f32) -> Self;
-    fn sqrt(self) -> Self;
-    fn min(self, o: Self) -> Self;
-    fn max(self, o: Self) -> Self;
-    /// Per lane: `a` where `self > o`, otherwise `b`.
-    fn gt_select(self, o: Self, a: Self, b: Self) -> Self;
-}
-
-impl Lane for f32 {
-    #[inline(always)]
-    fn splat(x: f32) -> Self {
-        x
-    }
-    #[inline(always)]
-    fn sqrt(self) -> Self {
-        f32::sqrt(self)
-    }
-    #[inline(always)]
-    fn min(self, o: Self) -> Self {
-        f32::min(self, o)
-    }
-    #[inline(always)]
-    fn max(self, o: Self) -> Self {
-        f32::max(self, o)
-    }
-    #[inline(always)]
-    fn gt_select(self, o: Self, a: Self, b: Self) -> Self {
-        if self > o { a } else { b }
-    }
-}
-
-/// [`LANES`] drones' values of one quantity; every operation is the `f32`
-/// one lane by lane, which the compiler turns into vector instructions.
-#[derive(Clone, Copy)]
-pub(crate) struct Wide([f32; LANES]);
-
-macro_rules! wide_op {
-    ($tr:ident, $f:ident, $op:tt) => {
-        impl std::ops::$tr for Wide {
-            type Output = Wide;
-            #[inline(always)]
-            fn $f(self, o: Wide) -> Wide {
-                Wide(std::array::from_fn(|i| self.0[i] $op o.0[i]))
-            }
-        }
-    };
-}
-wide_op!(Add, add, +);
-wide_op!(Sub, sub, -);
-wide_op!(Mul, mul, *);
-wide_op!(Div, div, /);
-
-impl std::ops::Neg for Wide {
-    type Output = Wide;
-    #[inline(always)]
-    fn neg(self) -> Wide {
-        Wide(self.0.map(|x| -x))
-    }
-}
-
-impl Lane for Wide {
-    #[inline(always)]
-    fn splat(x: f32) -> Self {
-        Wide([x; LANES])
-    }
-    #[inline(always)]
-    fn sqrt(self) -> Self {
-        Wide(self.0.map(f32::sqrt))
-    }
-    #[inline(always)]
-    fn min(self, o: Self) -> Self {
-        Wide(std::array::from_fn(|i| f32::min(self.0[i], o.0[i])))
-    }
-    #[inline(always)]
-    fn max(self, o: Self) -> Self {
-        Wide(std::array::from_fn(|i| f32::max(self.0[i], o.0[i])))
-    }
-    #[inline(always)]
-    fn gt_select(self, o: Self, a: Self, b: Self) -> Self {
-        Wide(std::array::from_fn(|i| if self.0[i] > o.0[i] { a.0[i] } else { b.0[i] }))
-    }
-}
 
 /// Drones' states as plain numbers: position, velocity, rotation
 /// (`x, y, z, w`), body-frame angular velocity, lateral setpoint, and the
@@ -400,25 +304,6 @@ fn axes<T: Lane>([x, y, z, w]: [T; 4]) -> [[T; 3]; 3] {
         [two * (xy - wz), one - two * (xx + zz), two * (yz + wx)],
         [two * (xz + wy), two * (yz - wx), one - two * (xx + yy)],
     ]
-}
-
-#[inline(always)]
-pub(crate) fn dot<T: Lane>(a: [T; 3], b: [T; 3]) -> T {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-#[inline(always)]
-pub(crate) fn cross<T: Lane>(a: [T; 3], b: [T; 3]) -> [T; 3] {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-}
-
-/// `v / |v|`, or `fallback` where `v` is zero.
-#[inline(always)]
-pub(crate) fn normalize_or<T: Lane>(v: [T; 3], fallback: [T; 3]) -> [T; 3] {
-    let n2 = dot(v, v);
-    let inv = T::splat(1.0) / n2.sqrt();
-    let tiny = T::splat(f32::MIN_POSITIVE);
-    std::array::from_fn(|k| n2.gt_select(tiny, v[k] * inv, fallback[k]))
 }
 
 /// `q ⊗ (a, b, c, 1)`: a rotation by the small angle vector `2 (a, b, c)`

@@ -10,6 +10,7 @@ pub mod env;
 mod flight;
 pub mod generate;
 pub mod gpu;
+mod lane;
 mod pool;
 mod rapier_flight;
 pub mod realism;

@@ -348,9 +348,8 @@ fn render_rows(
             Shape::Box { min, max } => {
                 view.fill(rect, img, r0, |o, d, t| hit_box(min, max, o, d, t))
             }
-            Shape::Cylinder { cx, cy, r2, zmin, zmax } => {
-                view.fill(rect, img, r0, |o, d, t| hit_cylinder(cx, cy, r2, zmin, zmax, o, d, t))
-            }
+            Shape::Cylinder { cx, cy, r2, zmin, zmax } => view
+                .fill(rect, img, r0, |o, d, t| hit_cylinder([cx, cy], r2, [zmin, zmax], o, d, t)),
         }
     }
     if let Some((dr, me)) = drones {
@@ -561,7 +560,7 @@ fn hit_shape(shape: &Shape, o: Vector, d: Vector, tmax: f32) -> f32 {
     match *shape {
         Shape::Box { min, max } => hit_box(min, max, o, d, tmax),
         Shape::Cylinder { cx, cy, r2, zmin, zmax } => {
-            hit_cylinder(cx, cy, r2, zmin, zmax, o, d, tmax)
+            hit_cylinder([cx, cy], r2, [zmin, zmax], o, d, tmax)
         }
     }
 }
@@ -577,15 +576,13 @@ fn hit_box(min: Vector, max: Vector, o: Vector, d: Vector, tmax: f32) -> f32 {
     if tn <= tf && tn < tmax { tn } else { tmax }
 }
 
-/// Ray parameter of the first hit of a vertical cylinder, or `tmax`.
-#[allow(clippy::too_many_arguments)]
+/// Ray parameter of the first hit of a vertical cylinder (axis at `cx, cy`,
+/// squared radius `r2`, from `zmin` to `zmax`), or `tmax`.
 #[inline]
 fn hit_cylinder(
-    cx: f32,
-    cy: f32,
+    [cx, cy]: [f32; 2],
     r2: f32,
-    zmin: f32,
-    zmax: f32,
+    [zmin, zmax]: [f32; 2],
     o: Vector,
     d: Vector,
     tmax: f32,

@@ -66,7 +66,7 @@ pub struct TrainArgs {
     #[arg(long, value_name = "quic/ADDR:PORT")]
     pub listen: Option<String>,
     #[command(flatten)]
-    pub link: crate::worker::LinkArgs,
+    pub link: crate::link_args::LinkArgs,
 }
 
 /// The head's link to its worker hosts, with the texts it hands them.

@@ -267,7 +267,7 @@ class NavigateVectorEnv(VectorEnv):
                 f"agents {left} ended their episodes: reset them with reset(options={{'reset_mask': mask}}) before stepping"
             )
         b = self._b
-        self._sim.step(a, b.depth, b.velocity, b.rewards, b.dones, b.ep_return, b.ep_length)
+        self._sim.step(a, b)
         terminated = (b.dones == COLLISION) | (b.dones == GOAL)
         truncated = b.dones == TIMEOUT
         rewards = b.rewards.astype(np.float64)
@@ -345,7 +345,7 @@ class NavigateEnv(gym.Env):
             raise ValueError(f"action {int(a)} is out of range: the action space is Discrete(2)")
         self._a[0] = int(a)
         b = self._b
-        self._sim.step(self._a, b.depth, b.velocity, b.rewards, b.dones, b.ep_return, b.ep_length)
+        self._sim.step(self._a, b)
         done = int(b.dones[0])
         terminated, truncated = done in (COLLISION, GOAL), done == TIMEOUT
         info: dict[str, Any] = {}
