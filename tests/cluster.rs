@@ -69,12 +69,8 @@ fn assert_little_loss(host: &serde_json::Value, s: &serde_json::Value, h: &Outpu
 }
 
 #[test]
+#[ignore = "slow multi-process test: scripts/test runs it (--include-ignored)"]
 fn a_head_trains_from_a_worker_on_another_domain_over_mutual_tls_without_loss() {
-    if common::skip_slow(
-        "a_head_trains_from_a_worker_on_another_domain_over_mutual_tls_without_loss",
-    ) {
-        return;
-    }
     let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
     let dir = tmp("head");
     let wdir = tmp("worker");
@@ -363,10 +359,8 @@ fn wait_line(
 }
 
 #[test]
+#[ignore = "slow multi-process test: scripts/test runs it (--include-ignored)"]
 fn a_killed_worker_comes_back_and_a_killed_head_is_noticed() {
-    if common::skip_slow("a_killed_worker_comes_back_and_a_killed_head_is_noticed") {
-        return;
-    }
     let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
     let dir = tmp("restart");
     let ep = format!("tcp/127.0.0.1:{}", free_port());
@@ -496,10 +490,8 @@ fn a_killed_worker_comes_back_and_a_killed_head_is_noticed() {
 }
 
 #[test]
+#[ignore = "slow multi-process test: scripts/test runs it (--include-ignored)"]
 fn a_head_held_busy_slows_the_worker_without_loss() {
-    if common::skip_slow("a_head_held_busy_slows_the_worker_without_loss") {
-        return;
-    }
     let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
     let dir = tmp("busy-head");
     let ep = format!("tcp/127.0.0.1:{}", free_port());
@@ -659,10 +651,8 @@ impl Drop for NetPair {
 }
 
 #[test]
+#[ignore = "slow multi-process test: scripts/test runs it (--include-ignored)"]
 fn two_hosts_in_two_network_namespaces_with_their_own_shared_memory() {
-    if common::skip_slow("two_hosts_in_two_network_namespaces_with_their_own_shared_memory") {
-        return;
-    }
     let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
     // SAFETY: geteuid has no preconditions.
     if unsafe { libc::geteuid() } != 0 {

@@ -75,11 +75,8 @@ fn assert_reproducible(name: &str, sets: &[&str], updates: u64, serial: bool) {
 /// at one sample per insert (pinned: the schedule's arithmetic follows it);
 /// the second run in serial mode (every role a thread, iceoryx2 `local`).
 #[test]
+#[ignore = "slow multi-process test: scripts/test runs it (--include-ignored)"]
 fn one_batched_environment_repeats_exactly_in_processes_and_in_serial_mode() {
-    if common::skip_slow("one_batched_environment_repeats_exactly_in_processes_and_in_serial_mode")
-    {
-        return;
-    }
     assert_reproducible(
         "det-one",
         &[
@@ -99,12 +96,8 @@ fn one_batched_environment_repeats_exactly_in_processes_and_in_serial_mode() {
 /// learner's priorities in minibatch order, each before the minibatch
 /// `prefetch` later is sampled.
 #[test]
+#[ignore = "slow multi-process test: scripts/test runs it (--include-ignored)"]
 fn two_non_batched_environments_with_n_step_and_prioritized_replay_repeat_exactly() {
-    if common::skip_slow(
-        "two_non_batched_environments_with_n_step_and_prioritized_replay_repeat_exactly",
-    ) {
-        return;
-    }
     let sets = [
         "max_env_steps=4800",
         "sim.envs=2",

@@ -148,12 +148,8 @@ fn stored_updates(path: &Path) -> u64 {
 }
 
 #[test]
+#[ignore = "slow multi-process test: scripts/test runs it (--include-ignored)"]
 fn sighup_stops_cleanly_a_live_run_directory_is_refused_and_a_killed_learner_loses_little() {
-    if common::skip_slow(
-        "sighup_stops_cleanly_a_live_run_directory_is_refused_and_a_killed_learner_loses_little",
-    ) {
-        return;
-    }
     let _turn = TURN.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
     let dir = tmp("lifecycle");
     let run = start_run(&dir);
@@ -217,10 +213,8 @@ fn sighup_stops_cleanly_a_live_run_directory_is_refused_and_a_killed_learner_los
 }
 
 #[test]
+#[ignore = "slow multi-process test: scripts/test runs it (--include-ignored)"]
 fn no_role_outlives_a_killed_supervisor() {
-    if common::skip_slow("no_role_outlives_a_killed_supervisor") {
-        return;
-    }
     let _turn = TURN.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
     let dir = tmp("orphans");
     let run = start_run(&dir);

@@ -20,10 +20,8 @@ fn role_state(dir: &Path, role: &str) -> Option<(i32, u64)> {
 }
 
 #[test]
+#[ignore = "slow multi-process test: scripts/test runs it (--include-ignored)"]
 fn killed_roles_are_restarted_and_training_goes_on() {
-    if common::skip_slow("killed_roles_are_restarted_and_training_goes_on") {
-        return;
-    }
     let dir = tmp("supervise");
     let child = Command::new(env!("CARGO_BIN_EXE_hive"))
         .current_dir(root())
@@ -108,10 +106,8 @@ unsafe extern "C" {
 /// in the run directory) stops the run with a clear message instead of
 /// restarting forever, and leaves no shared memory behind.
 #[test]
+#[ignore = "slow multi-process test: scripts/test runs it (--include-ignored)"]
 fn a_role_that_keeps_dying_stops_the_run() {
-    if common::skip_slow("a_role_that_keeps_dying_stops_the_run") {
-        return;
-    }
     let dir = tmp("dying");
     std::fs::create_dir_all(&dir).unwrap();
     std::fs::write(dir.join("replay.bin"), b"not a snapshot").unwrap();

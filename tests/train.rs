@@ -28,10 +28,8 @@ fn csv_rows(path: &PathBuf) -> Vec<Vec<String>> {
 static TRAINING: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
 #[test]
+#[ignore = "slow multi-process test: scripts/test runs it (--include-ignored)"]
 fn short_multi_process_training_run() {
-    if common::skip_slow("short_multi_process_training_run") {
-        return;
-    }
     let _turn = TRAINING.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
     let dir = tmp("train");
     let out = hive()
@@ -311,10 +309,8 @@ fn bad_input_is_refused_clearly() {
 /// A stopped run goes on with `--resume`: the learner from its saved state,
 /// the replay from its snapshot.
 #[test]
+#[ignore = "slow multi-process test: scripts/test runs it (--include-ignored)"]
 fn a_stopped_run_resumes() {
-    if common::skip_slow("a_stopped_run_resumes") {
-        return;
-    }
     let _turn = TRAINING.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
     let dir = tmp("resume");
     let small = [

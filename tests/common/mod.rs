@@ -5,18 +5,6 @@
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-/// Whether to skip a slow multi-process test: `ROTORHIVE_QUICK=1 cargo
-/// test --release --workspace` leaves them out during development (each
-/// says it was skipped); `scripts/test` and `.ci/run` never set it, so they
-/// run them all.
-pub fn skip_slow(test: &str) -> bool {
-    let skip = std::env::var_os("ROTORHIVE_QUICK").is_some_and(|v| v == "1");
-    if skip {
-        eprintln!("{test}: skipped (ROTORHIVE_QUICK=1: a slow multi-process test)");
-    }
-    skip
-}
-
 /// The repository root (configs and arenas are read relative to it).
 pub fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")

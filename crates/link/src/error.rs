@@ -4,7 +4,8 @@ use std::path::PathBuf;
 
 use rotorhive_transport::TransportError;
 
-/// Errors of the link, naming the endpoint or the peer.
+/// Errors of the link, naming the endpoint or the peer. A cause is part of
+/// the text and not also `source()`, so `{:#}` names it once.
 #[derive(Debug, thiserror::Error)]
 pub enum LinkError {
     /// An endpoint that is not `tcp/`, `tls/` or `quic/HOST:PORT`.
@@ -24,13 +25,16 @@ pub enum LinkError {
         message: String,
     },
     /// Zenoh refused to open the session or a declaration.
-    #[error("zenoh ({what}): {message}")]
+    #[error("zenoh ({what}): {cause}")]
     Zenoh {
         /// What was attempted.
         what: String,
-        /// Zenoh's error.
-        message: String,
+        /// Zenoh's error, as it came (in the text; not `source()`).
+        cause: zenoh::Error,
     },
+    /// The link's thread could not start, or panicked.
+    #[error("the link thread {0}")]
+    Thread(&'static str),
     /// No head answered a worker in time.
     #[error(
         "no head answered at {endpoint} within {secs:.0} s (is `hive train --listen {endpoint}` running there, and the port open?)"
@@ -77,5 +81,5 @@ pub type Result<T> = std::result::Result<T, LinkError>;
 
 pub(crate) fn zerr(what: impl Into<String>) -> impl FnOnce(zenoh::Error) -> LinkError {
     let what = what.into();
-    move |e| LinkError::Zenoh { what, message: e.to_string() }
+    move |cause| LinkError::Zenoh { what, cause }
 }

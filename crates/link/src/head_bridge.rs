@@ -45,10 +45,7 @@ impl Head {
                 let hub = Hub::<S>::new(&prefix, "link")?.with_stop(sp.clone());
                 head_loop(&self, &hub, envs, roles, &sp, &st, config_for)
             })
-            .map_err(|e| LinkError::Zenoh {
-                what: "start the link thread".into(),
-                message: e.to_string(),
-            })?;
+            .map_err(|_| LinkError::Thread("could not start"))?;
         Ok(HeadLink { thread: Some(thread), stop, stats, hosts })
     }
 }
@@ -74,9 +71,7 @@ impl HeadLink {
         self.stop.store(true, Ordering::SeqCst);
         match self.thread.take().map(|t| t.join()) {
             Some(Ok(r)) => r,
-            Some(Err(_)) => {
-                Err(LinkError::Zenoh { what: "link thread".into(), message: "panicked".into() })
-            }
+            Some(Err(_)) => Err(LinkError::Thread("panicked")),
             None => Ok(()),
         }
     }

@@ -112,8 +112,7 @@ pub fn check_options(ep: &str, opts: &LinkOptions) -> Result<()> {
 }
 
 pub(crate) fn set(c: &mut zenoh::Config, k: &str, v: &str) -> Result<()> {
-    c.insert_json5(k, v)
-        .map_err(|e| LinkError::Zenoh { what: format!("config {k}"), message: e.to_string() })
+    c.insert_json5(k, v).map_err(|cause| LinkError::Zenoh { what: format!("config {k}"), cause })
 }
 
 /// Mutual TLS from a directory of `hive certs`: both ends present their

@@ -170,7 +170,7 @@ fn gradients_in<'a>(
 ) -> Result<&'a mut [f32]> {
     match (fused, work.first_mut()) {
         (true, Some(ws)) => Ok(&mut ws.get_mut().map_err(poisoned)?.grads[..OFFSETS[10]]),
-        (true, None) => Err(ModelError::Device("no gradients computed yet".into())),
+        (true, None) => Err(ModelError::NoGradient("none computed yet")),
         (false, _) => Ok(generic),
     }
 }
@@ -428,7 +428,7 @@ impl Dqn {
             for v in self.online.vars() {
                 let g = store
                     .get(v.as_tensor())
-                    .ok_or_else(|| ModelError::Device("a parameter got no gradient".into()))?;
+                    .ok_or_else(|| ModelError::NoGradient("a parameter got none"))?;
                 self.grads.extend(g.flatten_all()?.to_vec1::<f32>()?);
             }
             // The generic path (off the CPU) reports the row and terminal

@@ -108,7 +108,7 @@ pub(crate) struct Workspace {
 
 /// The error of a workspace whose lock a panicking thread left poisoned.
 pub(crate) fn poisoned<T>(_: T) -> crate::ModelError {
-    crate::ModelError::Device("a workspace was poisoned by a panic".into())
+    crate::ModelError::Poisoned
 }
 
 fn fit(v: &mut Vec<f32>, len: usize) {

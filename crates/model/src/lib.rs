@@ -48,7 +48,7 @@ pub fn device(kind: DeviceKind) -> Result<Device> {
         DeviceKind::Cpu => Ok(Device::Cpu),
         DeviceKind::Cuda if cfg!(feature = "cuda") => Ok(Device::new_cuda(0)?),
         DeviceKind::Cuda => {
-            Err(ModelError::Device("device \"cuda\" needs a build with `--features cuda`".into()))
+            Err(ModelError::Device("device \"cuda\" needs a build with `--features cuda`"))
         }
     }
 }
@@ -94,9 +94,10 @@ pub fn num_params() -> usize {
 /// Errors of the model layer.
 #[derive(Debug, thiserror::Error)]
 pub enum ModelError {
-    /// A candle operation failed.
+    /// A candle operation failed (candle's error, in the text; not
+    /// `source()`, so `{:#}` names it once).
     #[error("tensor operation failed: {0}")]
-    Candle(#[from] candle_core::Error),
+    Candle(candle_core::Error),
     /// A checkpoint or weight vector does not fit the network.
     #[error("checkpoint {file}: {message}")]
     Checkpoint {
@@ -107,7 +108,17 @@ pub enum ModelError {
     },
     /// A device that cannot be used.
     #[error("{0}")]
-    Device(String),
+    Device(&'static str),
+    /// An optimiser step before a backward pass gave every parameter its
+    /// gradient.
+    #[error("no gradient: {0}")]
+    NoGradient(&'static str),
+    /// The fused CPU path cannot take these parameters.
+    #[error("the fused path: {0}")]
+    Fused(&'static str),
+    /// A worker thread's scratch space was left poisoned by a panic.
+    #[error("a workspace was poisoned by a panic")]
+    Poisoned,
     /// A batch has the wrong size.
     #[error("{what}: expected {expected} floats, got {got}")]
     Shape {
@@ -118,6 +129,12 @@ pub enum ModelError {
         /// Actual length.
         got: usize,
     },
+}
+
+impl From<candle_core::Error> for ModelError {
+    fn from(e: candle_core::Error) -> Self {
+        ModelError::Candle(e)
+    }
 }
 
 /// Result of this crate.
@@ -202,7 +219,7 @@ impl QNet {
     /// compare the two; only the generic path runs off the CPU).
     pub fn set_fused(&mut self, fused: bool) -> Result<()> {
         if fused && !self.device.is_cpu() {
-            return Err(ModelError::Device("the fused path runs on the CPU only".into()));
+            return Err(ModelError::Fused("it runs on the CPU only"));
         }
         self.fused = fused;
         Ok(())
@@ -232,10 +249,10 @@ impl QNet {
         let mut w: [&[f32]; 10] = [&[]; 10];
         for (slot, (storage, layout)) in w.iter_mut().zip(&guards) {
             let candle_core::Storage::Cpu(cpu) = &**storage else {
-                return Err(ModelError::Device("the fused path runs on the CPU only".into()));
+                return Err(ModelError::Fused("it runs on the CPU only"));
             };
             let Some((start, end)) = layout.contiguous_offsets() else {
-                return Err(ModelError::Device("a parameter is not contiguous".into()));
+                return Err(ModelError::Fused("a parameter is not contiguous"));
             };
             *slot = &cpu.as_slice::<f32>()?[start..end];
         }

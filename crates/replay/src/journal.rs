@@ -41,7 +41,7 @@ impl Journal {
         seed: u64,
     ) -> Result<(Replay, Journal), SnapshotError> {
         let file_name = path.display().to_string();
-        let io = |source| SnapshotError::Io { file: file_name.clone(), source };
+        let io = |cause| SnapshotError::Io { file: file_name.clone(), cause };
         let bad = |message: String| SnapshotError::Format { file: file_name.clone(), message };
         if !path.exists() {
             let mem = Replay::new(capacity, width, seed);
@@ -99,7 +99,7 @@ impl Journal {
     /// replaces `path`).
     fn create(path: &Path, mem: &Replay) -> Result<Self, SnapshotError> {
         let tmp = path.with_extension("tmp");
-        let io = |source| SnapshotError::Io { file: path.display().to_string(), source };
+        let io = |cause| SnapshotError::Io { file: path.display().to_string(), cause };
         let file = std::fs::OpenOptions::new()
             .read(true)
             .write(true)
@@ -129,7 +129,7 @@ impl Journal {
             mem.width == self.width && mem.capacity == self.capacity,
             "a journal records the memory it was opened with"
         );
-        let io = |source| SnapshotError::Io { file: self.path.display().to_string(), source };
+        let io = |cause| SnapshotError::Io { file: self.path.display().to_string(), cause };
         let k = rows.min(self.capacity);
         let (w, head) = (self.width, mem.head);
         // The k newest rows end at `head` (exclusive), wrapping at most once.
@@ -154,7 +154,7 @@ impl Journal {
         }
         self.file
             .write_all_at(&h, 24)
-            .map_err(|source| SnapshotError::Io { file: self.path.display().to_string(), source })
+            .map_err(|cause| SnapshotError::Io { file: self.path.display().to_string(), cause })
     }
 
     /// Asks the kernel to put the file on disk (a process crash loses nothing
@@ -162,7 +162,7 @@ impl Journal {
     pub fn sync(&self) -> Result<(), SnapshotError> {
         self.file
             .sync_data()
-            .map_err(|source| SnapshotError::Io { file: self.path.display().to_string(), source })
+            .map_err(|cause| SnapshotError::Io { file: self.path.display().to_string(), cause })
     }
 
     /// The journal's file.

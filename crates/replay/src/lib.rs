@@ -26,12 +26,12 @@ const MAGIC_F32: &[u8; 8] = b"RHREPLAY";
 #[derive(Debug, thiserror::Error)]
 pub enum SnapshotError {
     /// Reading or writing the file failed.
-    #[error("replay snapshot {file}: {source}")]
+    #[error("replay snapshot {file}: {cause}")]
     Io {
         /// The file.
         file: String,
-        /// The I/O error.
-        source: std::io::Error,
+        /// The I/O error (in the text; not `source()`).
+        cause: std::io::Error,
     },
     /// The file is not a snapshot of transitions of this width.
     #[error("replay snapshot {file}: {message}")]
@@ -210,7 +210,7 @@ impl Replay {
     /// replaces it when done).
     pub fn begin_snapshot(&self, path: &Path) -> Result<Snapshot, SnapshotError> {
         let tmp = path.with_extension("tmp");
-        let io = |source| SnapshotError::Io { file: path.display().to_string(), source };
+        let io = |cause| SnapshotError::Io { file: path.display().to_string(), cause };
         let mut out = BufWriter::with_capacity(1 << 20, std::fs::File::create(&tmp).map_err(io)?);
         out.write_all(MAGIC).map_err(io)?;
         for v in [self.width as u64, self.len as u64, self.inserted] {
@@ -222,7 +222,7 @@ impl Replay {
     /// Writes up to `max_rows` more rows, oldest first; true when the
     /// snapshot is complete and in place.
     pub fn snapshot_step(&self, s: &mut Snapshot, max_rows: usize) -> Result<bool, SnapshotError> {
-        let io = |source| SnapshotError::Io { file: s.path.display().to_string(), source };
+        let io = |cause| SnapshotError::Io { file: s.path.display().to_string(), cause };
         let end = (s.next + max_rows).min(s.rows);
         for i in s.next..end {
             let r = self.row(i);
@@ -257,7 +257,7 @@ impl Replay {
         seed: u64,
     ) -> Result<Self, SnapshotError> {
         let file = path.display().to_string();
-        let io = |source| SnapshotError::Io { file: file.clone(), source };
+        let io = |cause| SnapshotError::Io { file: file.clone(), cause };
         let bad = |message: String| SnapshotError::Format { file: file.clone(), message };
         let mut r = BufReader::with_capacity(1 << 20, std::fs::File::open(path).map_err(io)?);
         let mut magic = [0u8; 8];

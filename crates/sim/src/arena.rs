@@ -10,12 +10,12 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, thiserror::Error)]
 pub enum ArenaError {
     /// The file could not be read.
-    #[error("arena {file}: cannot read: {source}")]
+    #[error("arena {file}: cannot read: {cause}")]
     Io {
         /// The file.
         file: String,
-        /// The I/O error.
-        source: std::io::Error,
+        /// The I/O error (in the text; not `source()`).
+        cause: std::io::Error,
     },
     /// The file is not valid TOML or does not match the format.
     #[error("arena {file}: {message}")]
@@ -221,7 +221,7 @@ impl Arena {
     pub fn load(path: &Path) -> Result<Self, ArenaError> {
         let file = path.display().to_string();
         let text = std::fs::read_to_string(path)
-            .map_err(|source| ArenaError::Io { file: file.clone(), source })?;
+            .map_err(|cause| ArenaError::Io { file: file.clone(), cause })?;
         Self::parse(&text, &file)
     }
 

@@ -21,19 +21,9 @@ use crate::rapier_flight::RapierFlight;
 use crate::realism::{Noise, PixelNoise, Randomize, WIND_DRAG};
 use crate::render::{CameraPose, CameraSpec, DepthRenderer, Drones, Scene};
 
-/// Why an episode ended (mirrors `rotorhive_msg::DoneKind` codes).
-#[repr(u8)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Done {
-    /// Still flying.
-    Running = 0,
-    /// Touched an obstacle, wall, floor, ceiling or (interactive) another drone.
-    Collision = 1,
-    /// Reached the end of the arena.
-    Goal = 2,
-    /// Ran out of steps.
-    Timeout = 3,
-}
+/// Why an episode ended: the done codes every process shares (one type,
+/// `rotorhive_msg::DoneKind`, so the codes cannot drift apart).
+pub use rotorhive_msg::DoneKind as Done;
 
 /// When an agent whose episode ended starts its next one (Gymnasium's
 /// autoreset modes).

@@ -19,20 +19,25 @@ use wgpu::util::DeviceExt;
 
 use crate::render::{CameraPose, CameraSpec, Drones, Scene, Shape, frustum_floor_plan};
 
-/// Why the GPU renderer could not start or render.
+/// wgpu's error as it came (boxed: wgpu has one type per operation).
+pub type GpuCause = Box<dyn std::error::Error + Send + Sync + 'static>;
+
+/// Why the GPU renderer could not start or render. A cause is part of the
+/// text and not also `source()`, so `{:#}` names it once.
 #[derive(Debug, thiserror::Error)]
 pub enum GpuError {
     /// No Vulkan adapter (install `mesa-vulkan-drivers` for the CPU one).
     #[error(
-        "no GPU adapter found for the wgpu renderer ({0}); on a machine without a GPU install Mesa's lavapipe (Debian: mesa-vulkan-drivers)"
+        "no GPU adapter found for the wgpu renderer ({0}); on a machine without a GPU install \
+         Mesa's lavapipe (Debian: mesa-vulkan-drivers)"
     )]
-    NoAdapter(String),
+    NoAdapter(GpuCause),
     /// The adapter refused the device.
     #[error("the wgpu device could not be created: {0}")]
-    Device(String),
+    Device(GpuCause),
     /// Reading the rendered depth back failed.
     #[error("reading depth back from the GPU failed: {0}")]
-    Readback(String),
+    Readback(GpuCause),
 }
 
 /// Tiles per atlas row: 8 × 32 px × 4 bytes = 1,024 bytes, a multiple of the
@@ -156,7 +161,7 @@ fn open_device() -> Result<(wgpu::Device, wgpu::Queue, String), GpuError> {
         compatible_surface: None,
         ..Default::default()
     }))
-    .map_err(|e| GpuError::NoAdapter(e.to_string()))?;
+    .map_err(|e| GpuError::NoAdapter(e.into()))?;
     let info = adapter.get_info();
     let adapter_name = format!("{} ({:?}, {})", info.name, info.backend, info.driver);
     let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
@@ -165,7 +170,7 @@ fn open_device() -> Result<(wgpu::Device, wgpu::Queue, String), GpuError> {
         required_limits: adapter.limits(),
         ..Default::default()
     }))
-    .map_err(|e| GpuError::Device(e.to_string()))?;
+    .map_err(|e| GpuError::Device(e.into()))?;
     Ok((device, queue, adapter_name))
 }
 
@@ -557,12 +562,12 @@ impl GpuDepthRenderer {
         });
         self.device
             .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| GpuError::Readback(e.to_string()))?;
+            .map_err(|e| GpuError::Readback(e.into()))?;
         rx.recv()
-            .map_err(|e| GpuError::Readback(e.to_string()))?
-            .map_err(|e| GpuError::Readback(e.to_string()))?;
+            .map_err(|e| GpuError::Readback(e.into()))?
+            .map_err(|e| GpuError::Readback(e.into()))?;
         {
-            let data = slice.get_mapped_range().map_err(|e| GpuError::Readback(e.to_string()))?;
+            let data = slice.get_mapped_range().map_err(|e| GpuError::Readback(e.into()))?;
             let texels: &[f32] = bytemuck::cast_slice(&data);
             let stride = (COLS * s) as usize;
             for (i, img) in out.chunks_mut(px).enumerate() {

@@ -31,36 +31,41 @@ use iceoryx2::service::Service;
 pub use iceoryx2::service::ipc::Service as Ipc;
 pub use iceoryx2::service::local::Service as Local;
 
-/// Errors of the transport, naming the channel and the operation.
+/// An iceoryx2 error as it came: the error value itself, boxed (callers may
+/// downcast it), shown in its error's text.
+pub type Cause = Box<dyn std::error::Error + Send + Sync + 'static>;
+
+/// Errors of the transport, naming the channel and the operation. A cause
+/// is part of the text and not also `source()`, so `{:#}` names it once.
 #[derive(Debug, thiserror::Error)]
 pub enum TransportError {
     /// Creating the node failed.
-    #[error("cannot create iceoryx2 node `{node}`: {message}")]
+    #[error("cannot create iceoryx2 node `{node}`: {cause}")]
     Node {
         /// The node name.
         node: String,
-        /// iceoryx2's error.
-        message: String,
+        /// iceoryx2's error (kept as it came, in the text; not `source()`).
+        cause: Cause,
     },
     /// Opening or creating a service or port failed.
-    #[error("channel `{channel}`: cannot {op}: {message}")]
+    #[error("channel `{channel}`: cannot {op}: {cause}")]
     Open {
         /// The channel.
         channel: String,
         /// What was attempted.
         op: &'static str,
-        /// iceoryx2's error.
-        message: String,
+        /// iceoryx2's error (kept as it came, in the text; not `source()`).
+        cause: Cause,
     },
     /// Sending or receiving failed.
-    #[error("channel `{channel}`: {op} failed: {message}")]
+    #[error("channel `{channel}`: {op} failed: {cause}")]
     Io {
         /// The channel.
         channel: String,
         /// What was attempted.
         op: &'static str,
-        /// iceoryx2's error.
-        message: String,
+        /// iceoryx2's error (kept as it came, in the text; not `source()`).
+        cause: Cause,
     },
     /// A message could not be delivered within the stall timeout.
     #[error("channel `{channel}`: receiver did not take the message within {timeout:?}")]
@@ -212,16 +217,13 @@ pub struct Hub<S: Service> {
 impl<S: Service> Hub<S> {
     /// Creates this process's node for the run `prefix`.
     pub fn new(prefix: &str, node_name: &str) -> Result<Self> {
-        let err = |e: &dyn Debug| TransportError::Node {
-            node: node_name.to_string(),
-            message: format!("{e:?}"),
-        };
-        let name = NodeName::new(node_name).map_err(|e| err(&e))?;
+        let err = |e: Cause| TransportError::Node { node: node_name.to_string(), cause: e };
+        let name = NodeName::new(node_name).map_err(|e| err(e.into()))?;
         let node = NodeBuilder::new()
             .name(&name)
             .config(domain_config())
             .create::<S>()
-            .map_err(|e| err(&e))?;
+            .map_err(|e| err(e.into()))?;
         Ok(Self { node, prefix: prefix.to_string(), stop: Arc::new(AtomicBool::new(false)) })
     }
 
@@ -258,7 +260,7 @@ impl<S: Service> Hub<S> {
         ServiceName::new(&full).map_err(|e| TransportError::Open {
             channel: full.clone(),
             op: "name service",
-            message: format!("{e:?}"),
+            cause: e.into(),
         })
     }
 
@@ -268,11 +270,8 @@ impl<S: Service> Hub<S> {
         H: Debug + ZeroCopySend + Default + 'static,
     {
         let name = self.service_name(ch)?;
-        let open_err = |op, e: &dyn Debug| TransportError::Open {
-            channel: ch.name.clone(),
-            op,
-            message: format!("{e:?}"),
-        };
+        let open_err =
+            |op, e: Cause| TransportError::Open { channel: ch.name.clone(), op, cause: e };
         let ps = self
             .node
             .service_builder(&name)
@@ -284,7 +283,7 @@ impl<S: Service> Hub<S> {
             .history_size(ch.history)
             .enable_safe_overflow(ch.overflow)
             .open_or_create()
-            .map_err(|e| open_err("open publish-subscribe service", &e))?;
+            .map_err(|e| open_err("open publish-subscribe service", e.into()))?;
         let ev = self
             .node
             .service_builder(&name)
@@ -292,7 +291,7 @@ impl<S: Service> Hub<S> {
             .max_notifiers(ch.publishers + 1)
             .max_listeners(ch.subscribers + 1)
             .open_or_create()
-            .map_err(|e| open_err("open event service", &e))?;
+            .map_err(|e| open_err("open event service", e.into()))?;
         Ok((ps, ev))
     }
 
@@ -309,11 +308,8 @@ impl<S: Service> Hub<S> {
         H: Debug + ZeroCopySend + Default + 'static,
     {
         let (ps, ev) = self.open::<T, H>(ch)?;
-        let open_err = |op, e: &dyn Debug| TransportError::Open {
-            channel: ch.name.clone(),
-            op,
-            message: format!("{e:?}"),
-        };
+        let open_err =
+            |op, e: Cause| TransportError::Open { channel: ch.name.clone(), op, cause: e };
         let stalls = Arc::new(AtomicU64::new(0));
         let counter = stalls.clone();
         let publisher = ps
@@ -332,9 +328,9 @@ impl<S: Service> Hub<S> {
                 }
             })
             .create()
-            .map_err(|e| open_err("create publisher", &e))?;
+            .map_err(|e| open_err("create publisher", e.into()))?;
         let notifier =
-            ev.notifier_builder().create().map_err(|e| open_err("create notifier", &e))?;
+            ev.notifier_builder().create().map_err(|e| open_err("create notifier", e.into()))?;
         Ok(Sender {
             publisher,
             notifier,
@@ -353,15 +349,14 @@ impl<S: Service> Hub<S> {
         H: Debug + ZeroCopySend + Default + 'static,
     {
         let (ps, ev) = self.open::<T, H>(ch)?;
-        let open_err = |op, e: &dyn Debug| TransportError::Open {
-            channel: ch.name.clone(),
-            op,
-            message: format!("{e:?}"),
-        };
-        let subscriber =
-            ps.subscriber_builder().create().map_err(|e| open_err("create subscriber", &e))?;
+        let open_err =
+            |op, e: Cause| TransportError::Open { channel: ch.name.clone(), op, cause: e };
+        let subscriber = ps
+            .subscriber_builder()
+            .create()
+            .map_err(|e| open_err("create subscriber", e.into()))?;
         let listener =
-            ev.listener_builder().create().map_err(|e| open_err("create listener", &e))?;
+            ev.listener_builder().create().map_err(|e| open_err("create listener", e.into()))?;
         Ok(Receiver { subscriber, listener, channel: ch.name.clone(), spin: spin() })
     }
 }
@@ -400,13 +395,12 @@ impl<S: Service, T: Plain, H: Debug + ZeroCopySend + Default + 'static> Sender<S
         len: usize,
         fill: impl FnOnce(&mut H, &mut [T]) -> std::result::Result<(), E>,
     ) -> Result<std::result::Result<(), E>> {
-        let io = |op, e: &dyn Debug, ch: &str| TransportError::Io {
-            channel: ch.to_string(),
-            op,
-            message: format!("{e:?}"),
-        };
-        let uninit =
-            self.publisher.loan_slice_uninit(len).map_err(|e| io("loan", &e, &self.channel))?;
+        let io =
+            |op, e: Cause, ch: &str| TransportError::Io { channel: ch.to_string(), op, cause: e };
+        let uninit = self
+            .publisher
+            .loan_slice_uninit(len)
+            .map_err(|e| io("loan", e.into(), &self.channel))?;
         let mut sample = if std::any::type_name::<S>() == std::any::type_name::<Ipc>() {
             // SAFETY: with the `ipc` service the payload lies in a
             // shared-memory segment mapped from a file descriptor: its bytes
@@ -441,7 +435,7 @@ impl<S: Service, T: Plain, H: Debug + ZeroCopySend + Default + 'static> Sender<S
                         timeout: self.stall_timeout,
                     });
                 }
-                return Err(io("send", &e, &self.channel));
+                return Err(io("send", e.into(), &self.channel));
             }
         }
         self.sent += 1;
@@ -516,7 +510,7 @@ impl<
         self.subscriber.receive().map_err(|e| TransportError::Io {
             channel: self.channel.clone(),
             op: "receive",
-            message: format!("{e:?}"),
+            cause: e.into(),
         })
     }
 
@@ -557,7 +551,7 @@ impl<
                     return Err(TransportError::Io {
                         channel: self.channel.clone(),
                         op: "wait",
-                        message: format!("{e:?}"),
+                        cause: e.into(),
                     });
                 }
             }
