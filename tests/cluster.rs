@@ -11,6 +11,8 @@
 mod common;
 
 use common::{root, tmp};
+use rotorhive_msg::LinkStage;
+use rotorhive_records::{HostSummary, Member, Summary};
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
@@ -59,13 +61,12 @@ fn text(o: &Output) -> String {
 /// in hundreds of local runs; rmw_zenoh issue #696 reports the same): the
 /// head's link and replay count the sequence gap. At most 1 % of a host's
 /// agent-steps may go missing.
-fn assert_little_loss(host: &serde_json::Value, s: &serde_json::Value, h: &Output, w: &Output) {
-    let lost = host["lost_transitions"].as_u64().unwrap();
-    let steps = host["env_steps"].as_u64().unwrap();
+fn assert_little_loss(host: &HostSummary, s: &Summary, h: &Output, w: &Output) {
+    let (lost, steps) = (host.lost_transitions, host.env_steps);
     if lost > 0 {
-        eprintln!("{} lost {lost} of {steps} transitions", host["name"]);
+        eprintln!("{} lost {lost} of {steps} transitions", host.name);
     }
-    assert!(lost * 100 <= steps, "{s}\nhead: {}\nworker: {}", text(h), text(w));
+    assert!(lost * 100 <= steps, "{s:?}\nhead: {}\nworker: {}", text(h), text(w));
 }
 
 #[test]
@@ -178,35 +179,27 @@ fn a_head_trains_from_a_worker_on_another_domain_over_mutual_tls_without_loss() 
         .unwrap();
     assert!(version > 5, "weights version on the worker: {version}\n{wout}");
 
-    let s: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
-    let hosts = s["hosts"].as_array().unwrap();
-    assert_eq!(hosts.len(), 2, "{s}");
-    assert_eq!(hosts[1]["name"], "second-host");
-    assert_eq!(s["agents_total"], 16);
-    for host in hosts {
+    let s = common::summary(&dir);
+    assert_eq!(s.hosts.len(), 2, "{s:?}");
+    assert_eq!(s.hosts[1].name, "second-host");
+    assert_eq!(s.agents_total, 16);
+    for host in &s.hosts {
         assert_little_loss(host, &s, &h, &w);
-        assert_eq!(host["rejected_messages"], 0, "{s}");
-        assert!(host["env_steps"].as_u64().unwrap() > 1000, "every host stepped: {s}");
+        assert_eq!(host.rejected_messages, 0, "{s:?}");
+        assert!(host.env_steps > 1000, "every host stepped: {s:?}");
     }
-    assert_eq!(s["leftover_services"].as_array().unwrap().len(), 0, "{s}");
-    assert!(s["learner_updates"].as_u64().unwrap() > 50, "{s}");
+    assert!(s.leftover_services.is_empty(), "{s:?}");
+    assert!(s.learner_updates > 50, "{s:?}");
     // The worker's actor (environment 1 of the run) reached the head's
     // records: its telemetry rows count transitions and episodes.
-    let tel = std::fs::read_to_string(dir.join("telemetry.csv")).unwrap();
-    let remote: Vec<&str> = tel
-        .lines()
-        .filter(|l| l.split(',').nth(1) == Some("actor") && l.split(',').nth(2) == Some("1"))
-        .collect();
-    let last =
-        remote.last().unwrap_or_else(|| panic!("no telemetry of the worker's actor:\n{tel}"));
-    let cols: Vec<&str> = last.split(',').collect();
-    assert!(
-        cols[8].parse::<u64>().unwrap() > 1000 && cols[9].parse::<u64>().unwrap() > 10,
-        "{last}"
-    );
+    let tel = common::telemetry(&dir);
+    let last = tel
+        .iter()
+        .rfind(|r| r.role == Member::Actor && r.index == 1)
+        .unwrap_or_else(|| panic!("no telemetry of the worker's actor: {tel:?}"));
+    assert!(last.work > 1000 && last.work2 > 10, "{last:?}");
     // The link is a member with its own telemetry.
-    assert!(tel.lines().any(|l| l.split(',').nth(1) == Some("link")), "{tel}");
+    assert!(tel.iter().any(|r| r.role == Member::Link), "{tel:?}");
     // Nothing of the head's domain is left in shared memory.
     let left: Vec<String> = std::fs::read_dir("/dev/shm")
         .unwrap()
@@ -331,15 +324,9 @@ fn alive(pid: i32) -> bool {
 
 /// The heartbeats of sim `index`'s rows in a run's telemetry table, in
 /// order (they start again at 1 when the sim is a new process).
-fn sim_heartbeats(tel: &std::path::Path, index: u32) -> Vec<u64> {
-    let index = index.to_string();
-    std::fs::read_to_string(tel)
-        .unwrap_or_default()
-        .lines()
-        .map(|l| l.split(',').collect::<Vec<_>>())
-        .filter(|f| f.get(1) == Some(&"sim") && f.get(2) == Some(&index.as_str()))
-        .filter_map(|f| f.get(7)?.parse().ok())
-        .collect()
+fn sim_heartbeats(run_dir: &std::path::Path, index: u32) -> Vec<u64> {
+    let rows = common::telemetry_of(run_dir, Member::Sim);
+    rows.iter().filter(|r| r.index == index).map(|r| r.heartbeat).collect()
 }
 
 fn wait_line(
@@ -467,12 +454,11 @@ fn a_killed_worker_comes_back_and_a_killed_head_is_noticed() {
     // The restarted worker's sim reports to the head: in the head's
     // telemetry, sim 1's heartbeat starts again (a new process; a remote
     // pid means nothing on the head and is sent as 0) and goes on rising.
-    let tel = dir.join("telemetry.csv");
     common::wait_for(
         "the restarted worker's sim in the head's telemetry",
         Duration::from_secs(20),
         || {
-            let beats = sim_heartbeats(&tel, 1);
+            let beats = sim_heartbeats(&dir, 1);
             let restart = beats.windows(2).position(|w| w[1] < w[0]);
             restart.is_some_and(|r| beats[r + 1..].iter().max().is_some_and(|m| *m >= 3))
         },
@@ -529,19 +515,17 @@ fn a_head_held_busy_slows_the_worker_without_loss() {
     let lines = lines_of(&mut worker);
     assert!(wait_line(&lines, "joined the run", Duration::from_secs(30)).is_some());
     // The replay's process id, from the head's telemetry.
-    let tel = dir.join("telemetry.csv");
     let end = Instant::now() + Duration::from_secs(30);
     let pid = loop {
-        let t = std::fs::read_to_string(&tel).unwrap_or_default();
-        if let Some(l) = t.lines().find(|l| l.split(',').nth(1) == Some("replay")) {
-            break l.split(',').nth(3).unwrap().parse::<i32>().unwrap();
+        if let Some(r) = common::telemetry_of(&dir, Member::Replay).first() {
+            break r.pid as i32;
         }
         assert!(Instant::now() < end, "no replay telemetry");
         std::thread::sleep(Duration::from_millis(200));
     };
     // The worker's sim has stepped for a few seconds: its batches flow.
     common::wait_for("the worker's sim at work", Duration::from_secs(30), || {
-        sim_heartbeats(&tel, 1).last().is_some_and(|b| *b >= 5)
+        sim_heartbeats(&dir, 1).last().is_some_and(|b| *b >= 5)
     });
     // Hold the head's replay for 1 s (half the actors' 2 s stall bound,
     // past which an actor gives a batch up and counts it lost): transitions
@@ -556,28 +540,23 @@ fn a_head_held_busy_slows_the_worker_without_loss() {
     let w = worker.wait_with_output().unwrap();
     assert!(h.status.success(), "head: {}", text(&h));
     assert!(w.status.success(), "worker: {}", text(&w));
-    let s: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
-    for host in s["hosts"].as_array().unwrap() {
+    let s = common::summary(&dir);
+    for host in &s.hosts {
         assert_little_loss(host, &s, &h, &w);
     }
     // No actor gave a batch up (a sim may re-publish a step whose actions
     // came late: that loses nothing).
-    let t = std::fs::read_to_string(&tel).unwrap();
-    for l in t.lines().filter(|l| l.split(',').nth(1) == Some("actor")) {
-        assert_eq!(l.split(',').nth(11), Some("0"), "{l}");
+    let tel = common::telemetry(&dir);
+    for r in tel.iter().filter(|r| r.role == Member::Actor) {
+        assert_eq!(r.lost, 0, "{r:?}");
     }
     // The head's link waited on the replay for the time it stood still
-    // (and the worker, behind it, with it).
-    let link = t
-        .lines()
-        .rfind(|l| l.split(',').nth(1) == Some("link") && l.split(',').nth(2) == Some("0"))
-        .unwrap()
-        .to_string();
-    let send_wait_ms: f64 = link.split(',').nth(15).unwrap().parse().unwrap();
+    // (and the worker, behind it, with it): its `send_wait` stage.
+    let link = tel.iter().rfind(|r| r.role == Member::Link && r.index == 0).unwrap();
+    let send_wait_ms = link.stage_ms[LinkStage::SendWait as usize];
     assert!(
         send_wait_ms > 1000.0,
-        "the head's link waited {send_wait_ms} ms on the replay: {link}"
+        "the head's link waited {send_wait_ms} ms on the replay: {link:?}"
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -703,13 +682,11 @@ fn two_hosts_in_two_network_namespaces_with_their_own_shared_memory() {
     let h = head.wait_with_output().unwrap();
     assert!(h.status.success(), "head: {}", text(&h));
     assert!(w.status.success(), "worker: {}", text(&w));
-    let s: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
-    let hosts = s["hosts"].as_array().unwrap();
-    assert_eq!(hosts.len(), 2, "{s}");
-    for host in hosts {
+    let s = common::summary(&dir);
+    assert_eq!(s.hosts.len(), 2, "{s:?}");
+    for host in &s.hosts {
         assert_little_loss(host, &s, &h, &w);
-        assert!(host["env_steps"].as_u64().unwrap() > 1000, "{s}");
+        assert!(host.env_steps > 1000, "{s:?}");
     }
     let _ = std::fs::remove_dir_all(&dir);
 }

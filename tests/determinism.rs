@@ -5,11 +5,13 @@
 mod common;
 
 use common::{root, tmp};
+use rotorhive_records::Summary;
+use rotorhive_records::rows::{MetricsKind, MetricsRow};
 use std::process::Command;
 
 /// A short deterministic run of `sets`; returns its episode rows without
 /// `wall_s`, its final network's bytes and its summary.
-fn run(name: &str, sets: &[&str], serial: bool) -> (Vec<String>, Vec<u8>, serde_json::Value) {
+fn run(name: &str, sets: &[&str], serial: bool) -> (Vec<MetricsRow>, Vec<u8>, Summary) {
     let dir = tmp(name);
     let mut c = Command::new(env!("CARGO_BIN_EXE_hive"));
     c.current_dir(root())
@@ -35,19 +37,13 @@ fn run(name: &str, sets: &[&str], serial: bool) -> (Vec<String>, Vec<u8>, serde_
         String::from_utf8_lossy(&out.stderr),
         String::from_utf8_lossy(&out.stdout)
     );
-    let rows = std::fs::read_to_string(dir.join("metrics.csv"))
-        .unwrap()
-        .lines()
-        .filter(|l| l.starts_with("episode,"))
-        .map(|l| {
-            let mut f: Vec<&str> = l.split(',').collect();
-            f.remove(1);
-            f.join(",")
-        })
+    let rows = common::metrics(&dir)
+        .into_iter()
+        .filter(|r| r.kind == MetricsKind::Episode)
+        .map(|r| MetricsRow { wall_s: 0.0, ..r })
         .collect();
     let weights = std::fs::read(dir.join("final.safetensors")).unwrap();
-    let summary =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    let summary = common::summary(&dir);
     let _ = std::fs::remove_dir_all(&dir);
     (rows, weights, summary)
 }
@@ -59,12 +55,11 @@ fn assert_reproducible(name: &str, sets: &[&str], updates: u64, serial: bool) {
     let (rows_b, weights_b, _) = run(&format!("{name}-b"), sets, serial);
     assert!(rows_a.len() > 20, "{name}: only {} episodes", rows_a.len());
     assert_eq!(
-        summary["learner_updates"].as_u64(),
-        Some(updates),
-        "{name}: the schedule's updates, all made: {summary}"
+        summary.learner_updates, updates,
+        "{name}: the schedule's updates, all made: {summary:?}"
     );
     if let Some(i) = rows_a.iter().zip(&rows_b).position(|(a, b)| a != b) {
-        panic!("{name}: episode row {i} differs:\n{}\n{}", rows_a[i], rows_b[i]);
+        panic!("{name}: episode row {i} differs:\n{:?}\n{:?}", rows_a[i], rows_b[i]);
     }
     assert_eq!(rows_a.len(), rows_b.len(), "{name}: episode counts");
     assert!(weights_a == weights_b, "{name}: the final networks differ");

@@ -8,6 +8,7 @@
 mod common;
 
 use common::{root, tmp, wait_for};
+use rotorhive_records::Member;
 use std::path::Path;
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, SystemTime};
@@ -89,13 +90,13 @@ fn gone(pid: i32) -> bool {
     }
 }
 
+/// The roles of a run.
+const ROLES: [Member; 4] = [Member::Sim, Member::Actor, Member::Replay, Member::Learner];
+
 /// Newest (wall_s, pid, work) of a role from `telemetry.csv`.
-fn role_state(dir: &Path, role: &str) -> Option<(f64, i32, u64)> {
-    let text = std::fs::read_to_string(dir.join("telemetry.csv")).ok()?;
-    let row =
-        text.lines().skip(1).filter(|l| l.split(',').nth(1) == Some(role)).last()?.to_string();
-    let f: Vec<&str> = row.split(',').collect();
-    Some((f[0].parse().ok()?, f[3].parse().ok()?, f[8].parse().ok()?))
+fn role_state(dir: &Path, role: Member) -> Option<(f64, i32, u64)> {
+    let row = common::telemetry_of(dir, role).pop()?;
+    Some((row.wall_s, row.pid as i32, row.work))
 }
 
 fn mtime(p: &Path) -> SystemTime {
@@ -107,7 +108,7 @@ fn mtime(p: &Path) -> SystemTime {
 /// last checkpoint the killed one wrote.
 fn kill_learner_after_checkpoint(dir: &Path, after: Duration) {
     let state = dir.join("checkpoints/learner-state.safetensors");
-    let (_, pid, _) = role_state(dir, "learner").unwrap();
+    let (_, pid, _) = role_state(dir, Member::Learner).unwrap();
     let before = mtime(&state);
     wait_for("a new learner checkpoint", Duration::from_secs(10), || mtime(&state) != before);
     std::thread::sleep(after);
@@ -117,7 +118,7 @@ fn kill_learner_after_checkpoint(dir: &Path, after: Duration) {
     // before it writes.
     let stored = stored_updates(&state);
     wait_for("the learner to come back", Duration::from_secs(30), || {
-        role_state(dir, "learner").is_some_and(|(_, p, _)| p != pid)
+        role_state(dir, Member::Learner).is_some_and(|(_, p, _)| p != pid)
     });
     let log = std::fs::read_to_string(dir.join("logs/learner.log")).unwrap();
     let restored: u64 = log
@@ -154,7 +155,7 @@ fn sighup_stops_cleanly_a_live_run_directory_is_refused_and_a_killed_learner_los
     let dir = tmp("lifecycle");
     let run = start_run(&dir);
     wait_for("the learner to update", Duration::from_secs(60), || {
-        role_state(&dir, "learner").is_some_and(|(_, _, u)| u > 20)
+        role_state(&dir, Member::Learner).is_some_and(|(_, _, u)| u > 20)
     });
     wait_for("a learner checkpoint", Duration::from_secs(20), || {
         dir.join("checkpoints/learner-state.safetensors").exists()
@@ -183,20 +184,19 @@ fn sighup_stops_cleanly_a_live_run_directory_is_refused_and_a_killed_learner_los
     // the updates since then.
     kill_learner_after_checkpoint(&dir, Duration::ZERO);
     kill_learner_after_checkpoint(&dir, Duration::from_millis(850));
-    let (_, _, updates) = role_state(&dir, "learner").unwrap();
+    let (_, _, updates) = role_state(&dir, Member::Learner).unwrap();
     wait_for("updates after the restarts", Duration::from_secs(30), || {
-        role_state(&dir, "learner").is_some_and(|(_, _, u)| u > updates + 5)
+        role_state(&dir, Member::Learner).is_some_and(|(_, _, u)| u > updates + 5)
     });
 
     // The terminal closes: SIGHUP stops the run the clean way.
     let out = run.signal_and_wait(libc::SIGHUP);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "SIGHUP: {stderr}");
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
-    assert_eq!(summary["interrupted"], serde_json::Value::Bool(true), "{summary}");
-    assert_eq!(summary["leftover_services"].as_array().map(Vec::len), Some(0), "{summary}");
-    assert!(summary["restarts"].as_u64().unwrap() >= 2, "{summary}");
+    let summary = common::summary(&dir);
+    assert!(summary.interrupted, "{summary:?}");
+    assert!(summary.leftover_services.is_empty(), "{summary:?}");
+    assert!(summary.restarts >= 2, "{summary:?}");
     for f in ["profile.md", "reward.png", "utilisation.png", "final.safetensors"] {
         assert!(dir.join(f).exists(), "no {f} after SIGHUP");
     }
@@ -219,13 +219,11 @@ fn no_role_outlives_a_killed_supervisor() {
     let dir = tmp("orphans");
     let run = start_run(&dir);
     wait_for("every role to report", Duration::from_secs(60), || {
-        ["sim", "actor", "replay", "learner"].iter().all(|r| role_state(&dir, r).is_some())
-            && role_state(&dir, "learner").is_some_and(|(_, _, u)| u > 5)
+        ROLES.iter().all(|r| role_state(&dir, *r).is_some())
+            && role_state(&dir, Member::Learner).is_some_and(|(_, _, u)| u > 5)
     });
-    let pids: Vec<(&str, i32)> = ["sim", "actor", "replay", "learner"]
-        .iter()
-        .map(|r| (*r, role_state(&dir, r).unwrap().1))
-        .collect();
+    let pids: Vec<(Member, i32)> =
+        ROLES.iter().map(|r| (*r, role_state(&dir, *r).unwrap().1)).collect();
     assert!(pids.iter().all(|(_, p)| !gone(*p)), "{pids:?}");
     let out = run.signal_and_wait(libc::SIGKILL);
     assert!(!out.status.success());
@@ -247,8 +245,7 @@ fn no_role_outlives_a_killed_supervisor() {
     .output()
     .unwrap();
     assert!(out.status.success(), "resume after SIGKILL: {}", String::from_utf8_lossy(&out.stderr));
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
-    assert_eq!(summary["leftover_services"].as_array().map(Vec::len), Some(0), "{summary}");
+    let summary = common::summary(&dir);
+    assert!(summary.leftover_services.is_empty(), "{summary:?}");
     let _ = std::fs::remove_dir_all(&dir);
 }

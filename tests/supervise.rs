@@ -6,17 +6,14 @@
 mod common;
 
 use common::{root, tmp, wait_for};
+use rotorhive_records::Member;
 use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
 /// Newest pid and counter of a role from `telemetry.csv`.
-fn role_state(dir: &Path, role: &str) -> Option<(i32, u64)> {
-    let text = std::fs::read_to_string(dir.join("telemetry.csv")).ok()?;
-    text.lines().skip(1).filter(|l| l.split(',').nth(1) == Some(role)).last().map(|l| {
-        let f: Vec<&str> = l.split(',').collect();
-        (f[3].parse().unwrap(), f[8].parse().unwrap())
-    })
+fn role_state(dir: &Path, role: Member) -> Option<(i32, u64)> {
+    common::telemetry_of(dir, role).pop().map(|r| (r.pid as i32, r.work))
 }
 
 #[test]
@@ -46,7 +43,7 @@ fn killed_roles_are_restarted_and_training_goes_on() {
         .spawn()
         .unwrap();
     wait_for("the learner to update", Duration::from_secs(40), || {
-        role_state(&dir, "learner").is_some_and(|(_, u)| u > 20)
+        role_state(&dir, Member::Learner).is_some_and(|(_, u)| u > 20)
     });
     wait_for("a learner state file", Duration::from_secs(20), || {
         dir.join("checkpoints/learner-state.safetensors").exists()
@@ -66,7 +63,7 @@ fn killed_roles_are_restarted_and_training_goes_on() {
     }
     assert!(segments > 0, "no shared-memory segments found");
     let mut killed = Vec::new();
-    for role in ["actor", "sim", "replay", "learner"] {
+    for role in [Member::Actor, Member::Sim, Member::Replay, Member::Learner] {
         let (pid, before) = role_state(&dir, role).unwrap();
         // SAFETY: kill(2) on a process of this test's run.
         assert_eq!(unsafe { libc_kill(pid, 9) }, 0, "kill {role} {pid}");
@@ -75,25 +72,24 @@ fn killed_roles_are_restarted_and_training_goes_on() {
         wait_for(&format!("{role} to come back"), Duration::from_secs(30), || {
             role_state(&dir, role).is_some_and(|(p, _)| p != pid)
         });
-        let (_, learner_before) = role_state(&dir, "learner").unwrap();
+        let (_, learner_before) = role_state(&dir, Member::Learner).unwrap();
         wait_for(
             &format!("updates after killing {role} ({before})"),
             Duration::from_secs(30),
-            || role_state(&dir, "learner").is_some_and(|(_, u)| u > learner_before + 5),
+            || role_state(&dir, Member::Learner).is_some_and(|(_, u)| u > learner_before + 5),
         );
     }
     // The restored learner went on from its saved update count.
-    let (_, updates) = role_state(&dir, "learner").unwrap();
+    let (_, updates) = role_state(&dir, Member::Learner).unwrap();
     assert!(updates > 20, "learner at {updates} updates after its restart");
     // SAFETY: SIGINT to our own child: stop the run as Ctrl-C would.
     unsafe { libc_kill(child.id() as i32, 2) };
     let out = child.wait_with_output().unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "train failed: {stderr}");
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
-    assert!(summary["restarts"].as_u64().unwrap() >= 4, "{summary} ({killed:?})");
-    assert_eq!(summary["leftover_services"].as_array().map(Vec::len), Some(0), "{summary}");
+    let summary = common::summary(&dir);
+    assert!(summary.restarts >= 4, "{summary:?} ({killed:?})");
+    assert!(summary.leftover_services.is_empty(), "{summary:?}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -124,9 +120,8 @@ fn a_role_that_keeps_dying_stops_the_run() {
     assert!(!stderr.contains("panicked"), "{stderr}");
     let log = std::fs::read_to_string(dir.join("logs/replay.log")).unwrap();
     assert!(log.contains("replay.bin") && log.contains("not a rotorhive replay snapshot"), "{log}");
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
-    assert_eq!(summary["restarts"].as_u64(), Some(3), "{summary}");
-    assert_eq!(summary["leftover_services"].as_array().map(Vec::len), Some(0), "{summary}");
+    let summary = common::summary(&dir);
+    assert_eq!(summary.restarts, 3, "{summary:?}");
+    assert!(summary.leftover_services.is_empty(), "{summary:?}");
     let _ = std::fs::remove_dir_all(&dir);
 }

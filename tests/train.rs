@@ -5,22 +5,14 @@
 mod common;
 
 use common::{root, tmp};
-use std::path::PathBuf;
+use rotorhive_records::rows::{EvalRow, MetricsKind};
+use rotorhive_records::{Member, TelemetryRow};
 use std::process::Command;
 
 fn hive() -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_hive"));
     c.current_dir(root());
     c
-}
-
-fn csv_rows(path: &PathBuf) -> Vec<Vec<String>> {
-    std::fs::read_to_string(path)
-        .unwrap()
-        .lines()
-        .skip(1)
-        .map(|l| l.split(',').map(str::to_string).collect())
-        .collect()
 }
 
 /// The training runs of this file take turns: on a 2-core machine two at once
@@ -58,65 +50,29 @@ fn short_multi_process_training_run() {
         "train failed: {stderr}\n{}",
         String::from_utf8_lossy(&out.stdout)
     );
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
-    for key in [
-        "converged",
-        "threshold",
-        "time_to_threshold_s",
-        "wall_s",
-        "env_steps",
-        "episodes",
-        "learner_updates",
-        "envs",
-        "agents_per_env",
-        "agents_total",
-        "observation_mode",
-        "renderer",
-        "env_steps_per_s",
-        "updates_per_s",
-        "cpu_util_mean_pct",
-        "gpu_util_mean_pct",
-        "gpu_power_mean_w",
-        "peak_rss_mb",
-        "restarts",
-        "checkpoint",
-    ] {
-        assert!(summary.get(key).is_some(), "summary.json lacks {key}: {summary}");
-    }
+    let summary = common::summary(&dir);
     // Real work crossed the processes.
-    assert!(summary["env_steps"].as_u64().unwrap() > 300, "{summary}");
-    assert!(summary["episodes"].as_u64().unwrap() > 0, "{summary}");
-    assert!(summary["learner_updates"].as_u64().unwrap() > 20, "{summary}");
+    assert!(summary.env_steps > 300, "{summary:?}");
+    assert!(summary.episodes > 0, "{summary:?}");
+    assert!(summary.learner_updates > 20, "{summary:?}");
+    assert!(summary.checkpoint.is_some() && summary.env_steps_per_s > 0.0, "{summary:?}");
     // Transitions arrived uncorrupted and in order: no sequence gaps, no bad values.
-    assert_eq!(summary["lost_messages"].as_u64(), Some(0), "{summary}");
+    assert_eq!(summary.lost_messages, 0, "{summary:?}");
     // Nothing left in shared memory.
-    assert_eq!(summary["leftover_services"].as_array().map(Vec::len), Some(0), "{summary}");
+    assert!(summary.leftover_services.is_empty(), "{summary:?}");
     // Weights reached the actor: it acted with a version newer than the first.
-    let tel = csv_rows(&dir.join("telemetry.csv"));
-    let actor_version = tel
-        .iter()
-        .filter(|r| r[1] == "actor")
-        .map(|r| r[10].parse::<u64>().unwrap())
-        .max()
-        .unwrap();
-    let learner_version = tel
-        .iter()
-        .filter(|r| r[1] == "learner")
-        .map(|r| r[10].parse::<u64>().unwrap())
-        .max()
-        .unwrap();
+    let tel = common::telemetry(&dir);
+    let of = |m: Member| tel.iter().filter(move |r| r.role == m);
+    let actor_version = of(Member::Actor).map(|r| r.weight_version).max().unwrap();
+    let learner_version = of(Member::Learner).map(|r| r.weight_version).max().unwrap();
     assert!(
         actor_version > 1 && learner_version > 1,
         "actor {actor_version}, learner {learner_version}"
     );
     // The learner's loss (its telemetry gauge: the mean over each second's
     // updates) falls: the last third of the samples against the first third.
-    let losses: Vec<f64> = tel
-        .iter()
-        .filter(|r| r[1] == "learner" && r[8] != "0")
-        .filter_map(|r| r[19].parse().ok())
-        .collect();
+    let learner_rows: Vec<&TelemetryRow> = of(Member::Learner).filter(|r| r.work != 0).collect();
+    let losses: Vec<f64> = learner_rows.iter().filter_map(|r| r.value.parse().ok()).collect();
     assert!(losses.len() >= 9, "too few learner samples: {losses:?}");
     let third = losses.len() / 3;
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
@@ -127,66 +83,43 @@ fn short_multi_process_training_run() {
     );
     // Telemetry: the learner, busy updating, shows a high CPU share; without
     // an NVIDIA GPU the GPU fields are empty and the summary's GPU keys null.
-    let learner_cpu = tel
-        .iter()
-        .filter(|r| r[1] == "learner")
-        .filter_map(|r| r[4].parse::<f64>().ok())
-        .fold(0.0, f64::max);
+    let learner_cpu = of(Member::Learner).map(|r| r.cpu_pct).fold(0.0, f64::max);
     assert!(learner_cpu > 25.0, "learner CPU {learner_cpu} % of a core");
     // The supervisor's own process has its row (it monitors and evaluates),
     // and the profile shows it.
-    let own: Vec<f64> = tel
-        .iter()
-        .filter(|r| r[1] == "supervisor")
-        .filter_map(|r| r[4].parse::<f64>().ok())
-        .collect();
+    let own: Vec<f64> = of(Member::Supervisor).map(|r| r.cpu_pct).collect();
     assert!(own.len() >= 10 && own.iter().all(|c| c.is_finite()), "supervisor rows: {own:?}");
     let profile = std::fs::read_to_string(dir.join("profile.md")).unwrap();
     assert!(profile.contains("| supervisor (monitor, evaluator, link) |"), "{profile}");
     // The learning diagnostics: the learner's rows carry mean max-Q, mean
     // |TD error| and the terminal share; the actor's its epsilon spread;
     // the profile shows them.
-    let learner_rows: Vec<&Vec<String>> =
-        tel.iter().filter(|r| r[1] == "learner" && r[8] != "0").collect();
+    let learning: Vec<_> = learner_rows.iter().filter_map(|r| r.learning).collect();
+    assert_eq!(learning.len(), learner_rows.len(), "learner rows without diagnostics");
+    assert!(learning.iter().any(|l| l.mean_abs_td > 0.0), "no TD error in the learner's rows");
     assert!(
-        learner_rows.iter().any(|r| r[22].parse::<f64>().is_ok_and(|td| td > 0.0)),
-        "no TD error in the learner's rows"
-    );
-    assert!(
-        learner_rows.iter().all(|r| r[21].parse::<f64>().is_ok_and(f64::is_finite) && r[24] == "0"),
+        learning.iter().all(|l| l.mean_max_q.is_finite() && l.skipped_updates == 0),
         "learner diagnostics"
     );
     assert!(
-        tel.iter()
-            .filter(|r| r[1] == "actor")
-            .all(|r| r[25].parse::<f64>().is_ok() && r[26].parse::<f64>().is_ok()),
+        of(Member::Actor).all(|r| r.learning.is_some_and(|l| l.eps_min <= l.eps_max)),
         "actor epsilon spread"
     );
     assert!(
         profile.contains("mean max-Q") && profile.contains("Exploration at the end"),
         "{profile}"
     );
-    for key in [
-        "time_to_target_success_s",
-        "result_validation_success",
-        "result_validation_episodes",
-        "skipped_updates",
-    ] {
-        assert!(summary.get(key).is_some(), "summary.json lacks {key}: {summary}");
-    }
-    assert_eq!(summary["skipped_updates"].as_u64(), Some(0), "{summary}");
+    assert_eq!(summary.skipped_updates, 0, "{summary:?}");
+    assert!(summary.result_validation_success.is_some(), "{summary:?}");
     if !std::path::Path::new("/dev/nvidiactl").exists() {
         assert!(
-            summary["gpu_util_mean_pct"].is_null() && summary["gpu_power_mean_w"].is_null(),
-            "{summary}"
+            summary.gpu_util_mean_pct.is_none() && summary.gpu_power_mean_w.is_none(),
+            "{summary:?}"
         );
-        assert!(
-            tel.iter().all(|r| r[16].is_empty() && r[17].is_empty() && r[18].is_empty()),
-            "GPU columns filled without a GPU"
-        );
+        assert!(tel.iter().all(|r| r.gpu.is_none()), "GPU columns filled without a GPU");
     }
     // The checkpoint loads and evaluates.
-    let ckpt = summary["checkpoint"].as_str().unwrap().to_string();
+    let ckpt = summary.checkpoint.clone().unwrap();
     let out =
         hive().args(["eval", "--checkpoint", &ckpt, "--episodes", "5", "--json"]).output().unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
@@ -264,7 +197,8 @@ fn bad_input_is_refused_clearly() {
     std::fs::write(
         &bad_arena,
         std::fs::read_to_string(
-            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../configs/arenas/test.toml"),
+            std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+                .join("../../configs/arenas/test.toml"),
         )
         .unwrap()
         .replacen("radius = ", "radius = -", 1),
@@ -338,13 +272,11 @@ fn a_stopped_run_resumes() {
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let first: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
-    let updates = first["learner_updates"].as_u64().unwrap();
-    assert!(updates > 20, "{first}");
+    let updates = common::summary(&dir).learner_updates;
+    assert!(updates > 20, "{updates} updates");
     assert!(dir.join("checkpoints/learner-state.safetensors").exists());
     assert!(dir.join("replay.bin").exists(), "no replay snapshot at the end of the run");
-    let evals_before = csv_rows(&dir.join("evals.csv"));
+    let evals_before = common::evals(&dir);
     assert!(evals_before.len() >= 3, "{evals_before:?}");
     let out = hive()
         .args(["train", "--quiet", "--max-seconds", "10", "--resume"])
@@ -352,28 +284,29 @@ fn a_stopped_run_resumes() {
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let second: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
-    assert_eq!(second["resumed"], true);
+    let second = common::summary(&dir);
+    assert!(second.resumed);
     // The learner's update counter went on from where it stopped.
-    assert!(second["learner_updates"].as_u64().unwrap() > updates, "{second} after {updates}");
+    assert!(second.learner_updates > updates, "{second:?} after {updates}");
     let log = std::fs::read_to_string(dir.join("logs/replay.log")).unwrap();
     assert!(log.contains("restored"), "replay did not restore its memory: {log}");
-    assert_eq!(second["leftover_services"].as_array().map(Vec::len), Some(0));
-    let metrics = std::fs::read_to_string(dir.join("metrics.csv")).unwrap();
-    assert!(metrics.contains("\nresume,"), "metrics.csv was not appended to");
+    assert!(second.leftover_services.is_empty());
+    let metrics = common::metrics(&dir);
+    assert!(
+        metrics.iter().any(|r| r.kind == MetricsKind::Resume),
+        "metrics.csv was not appended to"
+    );
     // evals.csv keeps the first run's rows and adds the new ones, and a row
     // is marked best (its weights written to best.safetensors) only when
     // its confirmed score beats every earlier one, the first run's included.
-    let evals = csv_rows(&dir.join("evals.csv"));
+    let evals = common::evals(&dir);
     assert_eq!(evals[..evals_before.len()], evals_before[..]);
     assert!(evals.len() > evals_before.len(), "the resumed run evaluated nothing: {evals:?}");
-    let score =
-        |r: &Vec<String>| r[8].parse::<f64>().ok().map(|s| (s, r[9].parse::<f64>().unwrap()));
+    let score = |r: &EvalRow| r.confirmed_success_rate.zip(r.confirmed_mean_reward);
     let mut best: Option<(f64, f64)> = None;
     for r in &evals {
         // (Compared as printed: ties at the printed precision may go either way.)
-        let (marked, s) = (r[6] == "1", score(r));
+        let (marked, s) = (r.best == 1, score(r));
         if marked {
             assert!(
                 s.is_some_and(|s| best.is_none_or(|b| s >= b)),

@@ -2,8 +2,11 @@
 //! some of them).
 #![allow(dead_code)]
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
+
+use rotorhive_records::rows::{EvalRow, MetricsRow};
+use rotorhive_records::{Member, Summary, TelemetryRow};
 
 /// The repository root (configs and arenas are read relative to it).
 pub fn root() -> PathBuf {
@@ -24,4 +27,31 @@ pub fn wait_for(what: &str, timeout: Duration, mut f: impl FnMut() -> bool) {
         assert!(t.elapsed() < timeout, "timed out waiting for {what}");
         std::thread::sleep(Duration::from_millis(100));
     }
+}
+
+/// A finished run's `summary.json`, through the records crate's type.
+pub fn summary(run_dir: &Path) -> Summary {
+    Summary::read(run_dir).unwrap_or_else(|e| panic!("{e:#}"))
+}
+
+/// A run's `telemetry.csv`, through the records crate's type (by column
+/// name); empty while the file is missing or its last row half written, so
+/// that a live run can be polled.
+pub fn telemetry(run_dir: &Path) -> Vec<TelemetryRow> {
+    rotorhive_records::telemetry::read(run_dir).unwrap_or_default()
+}
+
+/// The rows of `telemetry.csv` of one member (`Member::Learner`, ...).
+pub fn telemetry_of(run_dir: &Path, member: Member) -> Vec<TelemetryRow> {
+    telemetry(run_dir).into_iter().filter(|r| r.role == member).collect()
+}
+
+/// A run's `metrics.csv`, through the records crate's type.
+pub fn metrics(run_dir: &Path) -> Vec<MetricsRow> {
+    rotorhive_records::rows::read(&run_dir.join("metrics.csv")).unwrap_or_else(|e| panic!("{e:#}"))
+}
+
+/// A run's `evals.csv`, through the records crate's type.
+pub fn evals(run_dir: &Path) -> Vec<EvalRow> {
+    rotorhive_records::rows::read(&run_dir.join("evals.csv")).unwrap_or_else(|e| panic!("{e:#}"))
 }
