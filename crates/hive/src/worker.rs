@@ -233,17 +233,26 @@ fn worker_config(
     }
     let head = Config::load(Some(&head_cfg), &[]).context("the config the head sent")?;
     let agents = agents.map_or(head.sim.agents, |n| n as usize);
-    let sets = [
-        format!("sim.envs={envs}"),
-        format!("sim.agents={agents}"),
-        format!("sim.arena={:?}", arena.display().to_string()),
-        // Seeded as these environments of a one-host run would be.
-        format!("cluster.env_offset={}", link.env_offset),
-        "cluster.workers=0".to_string(),
-        format!("cluster.envs_elsewhere={}", head.envs_total() - envs),
-        format!("cluster.agents_elsewhere={}", head.agents_total() - envs * agents),
-    ];
-    let cfg = Config::load(Some(&head_cfg), &sets).context("this worker's config")?;
+    let (Some(envs_elsewhere), Some(agents_elsewhere)) = (
+        head.envs_total().checked_sub(envs),
+        envs.checked_mul(agents).and_then(|mine| head.agents_total().checked_sub(mine)),
+    ) else {
+        bail!(
+            "the head's run has {} environments and {} agents, fewer than this host's {envs} × {agents}",
+            head.envs_total(),
+            head.agents_total()
+        );
+    };
+    let mut cfg = head;
+    cfg.sim.envs = envs;
+    cfg.sim.agents = agents;
+    cfg.sim.arena = arena;
+    // Seeded as these environments of a one-host run would be.
+    cfg.cluster.env_offset = link.env_offset as usize;
+    cfg.cluster.workers = 0;
+    cfg.cluster.envs_elsewhere = envs_elsewhere;
+    cfg.cluster.agents_elsewhere = agents_elsewhere;
+    cfg.validate().context("this worker's config")?;
     let path = run_dir.join("config.toml");
     std::fs::write(&path, cfg.to_toml())
         .with_context(|| format!("cannot write {}", path.display()))?;

@@ -280,13 +280,7 @@ mod tests {
 
     #[test]
     fn episodes_telemetry_and_weights_are_checked() {
-        let eh = |actor, count| EpisodeHeader {
-            actor,
-            count,
-            transitions: 0,
-            epsilon_micro: 100_000,
-            step: 0,
-        };
+        let eh = |actor, count| EpisodeHeader { actor, count, epsilon_micro: 100_000, step: 0 };
         let rec = |r: [f32; 4]| r.iter().flat_map(|v| v.to_le_bytes()).collect::<Vec<u8>>();
         let good = rec([450.0, 150.0, 2.0, 0.1]);
         assert!(episodes(&host(), Some(wire::header_bytes(&eh(1, 1))), &good).is_ok());
@@ -376,7 +370,7 @@ mod tests {
             let h = TransitionHeader { actor, count, seq: 0, weight_version: 0 };
             let r = transitions(&host(), Some(wire::header_bytes(&h)), &[&p]);
             prop_assert!(r.is_err() || p.len() == count as usize * PACKED_LEN * 2);
-            let e = EpisodeHeader { actor, count, transitions: 0, epsilon_micro: 0, step: 0 };
+            let e = EpisodeHeader { actor, count, epsilon_micro: 0, step: 0 };
             let r = episodes(&host(), Some(wire::header_bytes(&e)), &p);
             prop_assert!(r.is_err() || p.len() == count as usize * EPISODE_FIELDS * 4);
         }

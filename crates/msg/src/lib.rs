@@ -364,8 +364,6 @@ pub struct EpisodeHeader {
     pub actor: u32,
     /// Episodes in the message.
     pub count: u32,
-    /// Transitions this actor has produced.
-    pub transitions: u64,
     /// The actor's largest exploration rate in use ×1e6 (each agent's own
     /// is in its episode record).
     pub epsilon_micro: u64,

@@ -38,6 +38,21 @@ pub struct Bottleneck {
     pub wait: f64,
 }
 
+impl std::fmt::Display for Bottleneck {
+    /// The sentence the run prints at its end and `profile.md` shows.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "Bottleneck: {}, stage `{}` ({:.0} % of its wall time; it waits on others only {:.0} % \
+             of the time).",
+            self.role,
+            self.stage,
+            self.busy * 100.0,
+            self.wait * 100.0
+        )
+    }
+}
+
 /// What `hive profile` reads from a run's telemetry.
 pub struct Profile {
     /// Every role, in name order.
@@ -163,7 +178,17 @@ fn role_profile(role: Member, index: u32, r: &[TelemetryRow]) -> Option<RoleProf
 
 /// The report as Markdown text.
 pub fn report(run_dir: &Path) -> Result<String> {
-    let p = analyse(run_dir)?;
+    analyse(run_dir)?.markdown(run_dir)
+}
+
+impl Profile {
+    /// The report as Markdown text (`profile.md`), for the run in `run_dir`.
+    pub fn markdown(&self, run_dir: &Path) -> Result<String> {
+        markdown(self, run_dir)
+    }
+}
+
+fn markdown(p: &Profile, run_dir: &Path) -> Result<String> {
     let mut out = String::new();
     writeln!(out, "# Profile of {}\n", run_dir.display())?;
     writeln!(
@@ -216,14 +241,7 @@ pub fn report(run_dir: &Path) -> Result<String> {
         std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)
     )?;
     if let Some(b) = &p.bottleneck {
-        writeln!(
-            out,
-            "\n**Bottleneck: {}, stage `{}`** ({:.0} % of its wall time; it waits on others only {:.0} % of the time).",
-            b.role,
-            b.stage,
-            b.busy * 100.0,
-            b.wait * 100.0
-        )?;
+        writeln!(out, "\n**{b}**")?;
         if p.saturated() {
             writeln!(
                 out,

@@ -408,13 +408,8 @@ impl<'a, S: Service> Actor<'a, S> {
             return Ok(());
         }
         let count = (self.finished.len() / EPISODE_FIELDS) as u32;
-        let header = EpisodeHeader {
-            actor: self.e as u32,
-            count,
-            transitions: self.transitions,
-            epsilon_micro: (eps * 1e6) as u64,
-            step,
-        };
+        let header =
+            EpisodeHeader { actor: self.e as u32, count, epsilon_micro: (eps * 1e6) as u64, step };
         let finished = &self.finished;
         let sent = self.ep_tx.send_with(finished.len(), |eh, out| {
             *eh = header;

@@ -697,14 +697,16 @@ impl Supervisor<'_> {
 
     /// `profile.md`, and its bottleneck line on the terminal.
     fn profile(&self) {
-        match rotorhive_records::profile::report(self.run_dir) {
-            Ok(r) => {
+        let profile = rotorhive_records::profile::analyse(self.run_dir)
+            .and_then(|p| Ok((p.markdown(self.run_dir)?, p)));
+        match profile {
+            Ok((r, p)) => {
                 let path = self.run_dir.join("profile.md");
                 if let Err(e) = std::fs::write(&path, &r) {
                     tracing::warn!("cannot write {}: {e}", path.display());
                 }
-                if let Some(line) = r.lines().find(|l| l.starts_with("**Bottleneck")) {
-                    say(&line.replace("**", ""));
+                if let Some(b) = &p.bottleneck {
+                    say(&b.to_string());
                 }
             }
             Err(e) => tracing::warn!("no profile: {e:#}"),

@@ -317,13 +317,7 @@ mod tests {
 
     #[test]
     fn a_deterministic_run_writes_episodes_by_step_then_environment() {
-        let h = |actor: u32, step: u64| EpisodeHeader {
-            actor,
-            count: 1,
-            transitions: 0,
-            epsilon_micro: 0,
-            step,
-        };
+        let h = |actor: u32, step: u64| EpisodeHeader { actor, count: 1, epsilon_micro: 0, step };
         let mut o = EpisodeOrder::new(2, true);
         o.push(h(1, 3), &[1.0, 1.0, 1.0, 0.1]);
         o.push(h(1, 4), &[2.0, 1.0, 1.0, 0.1]);
