@@ -13,6 +13,7 @@ mod common;
 use common::{root, tmp};
 use rotorhive_msg::LinkStage;
 use rotorhive_records::{HostSummary, Member, Summary};
+use rustix::process::Signal;
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
@@ -391,8 +392,7 @@ fn a_killed_worker_comes_back_and_a_killed_head_is_noticed() {
         .find(|(_, cmd)| cmd.contains("actor"))
         .unwrap_or_else(|| panic!("{roles:?}"))
         .0;
-    // SAFETY: a plain signal to a process of this test's run.
-    unsafe { libc::kill(actor, libc::SIGKILL) };
+    common::signal(actor, Signal::KILL);
     let restarted = || {
         children_of(first.id())
             .into_iter()
@@ -531,11 +531,9 @@ fn a_head_held_busy_slows_the_worker_without_loss() {
     // past which an actor gives a batch up and counts it lost): transitions
     // pile up in the head's link, then zenoh's queue, then the worker's link
     // and actors wait.
-    // SAFETY: plain signals to a child process of this test's run.
-    unsafe { libc::kill(pid, libc::SIGSTOP) };
+    common::signal(pid, Signal::STOP);
     std::thread::sleep(Duration::from_millis(1000));
-    // SAFETY: as above.
-    unsafe { libc::kill(pid, libc::SIGCONT) };
+    common::signal(pid, Signal::CONT);
     let h = head.wait_with_output().unwrap();
     let w = worker.wait_with_output().unwrap();
     assert!(h.status.success(), "head: {}", text(&h));
@@ -633,8 +631,7 @@ impl Drop for NetPair {
 #[ignore = "slow multi-process test: scripts/test runs it (--include-ignored)"]
 fn two_hosts_in_two_network_namespaces_with_their_own_shared_memory() {
     let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
-    // SAFETY: geteuid has no preconditions.
-    if unsafe { libc::geteuid() } != 0 {
+    if !rustix::process::geteuid().is_root() {
         println!("skipped: network namespaces need root");
         return;
     }

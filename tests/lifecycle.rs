@@ -9,6 +9,7 @@ mod common;
 
 use common::{root, tmp, wait_for};
 use rotorhive_records::Member;
+use rustix::process::Signal;
 use std::path::Path;
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, SystemTime};
@@ -61,7 +62,7 @@ impl Run {
         self.child.as_ref().unwrap().id() as i32
     }
 
-    fn signal_and_wait(mut self, sig: i32) -> Output {
+    fn signal_and_wait(mut self, sig: Signal) -> Output {
         let c = self.child.take().unwrap();
         kill(c.id() as i32, sig);
         c.wait_with_output().unwrap()
@@ -77,9 +78,8 @@ impl Drop for Run {
     }
 }
 
-fn kill(pid: i32, sig: i32) {
-    // SAFETY: kill(2) on a process of this test's run.
-    assert_eq!(unsafe { libc::kill(pid, sig) }, 0, "kill({pid}, {sig})");
+fn kill(pid: i32, sig: Signal) {
+    common::signal(pid, sig);
 }
 
 /// Whether a process is gone (or a zombie, dead but not yet reaped).
@@ -112,7 +112,7 @@ fn kill_learner_after_checkpoint(dir: &Path, after: Duration) {
     let before = mtime(&state);
     wait_for("a new learner checkpoint", Duration::from_secs(10), || mtime(&state) != before);
     std::thread::sleep(after);
-    kill(pid, 9);
+    kill(pid, Signal::KILL);
     // The state file is whole (written aside, then renamed) and no longer
     // changes: the learner that wrote it is dead and the next one reads it
     // before it writes.
@@ -190,7 +190,7 @@ fn sighup_stops_cleanly_a_live_run_directory_is_refused_and_a_killed_learner_los
     });
 
     // The terminal closes: SIGHUP stops the run the clean way.
-    let out = run.signal_and_wait(libc::SIGHUP);
+    let out = run.signal_and_wait(Signal::HUP);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "SIGHUP: {stderr}");
     let summary = common::summary(&dir);
@@ -225,7 +225,7 @@ fn no_role_outlives_a_killed_supervisor() {
     let pids: Vec<(Member, i32)> =
         ROLES.iter().map(|r| (*r, role_state(&dir, *r).unwrap().1)).collect();
     assert!(pids.iter().all(|(_, p)| !gone(*p)), "{pids:?}");
-    let out = run.signal_and_wait(libc::SIGKILL);
+    let out = run.signal_and_wait(Signal::KILL);
     assert!(!out.status.success());
     // The design gives them 2 s; a test asserts no time, it prints it.
     let killed = std::time::Instant::now();

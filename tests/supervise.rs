@@ -7,6 +7,7 @@ mod common;
 
 use common::{root, tmp, wait_for};
 use rotorhive_records::Member;
+use rustix::process::Signal;
 use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Duration;
@@ -65,8 +66,7 @@ fn killed_roles_are_restarted_and_training_goes_on() {
     let mut killed = Vec::new();
     for role in [Member::Actor, Member::Sim, Member::Replay, Member::Learner] {
         let (pid, before) = role_state(&dir, role).unwrap();
-        // SAFETY: kill(2) on a process of this test's run.
-        assert_eq!(unsafe { libc_kill(pid, 9) }, 0, "kill {role} {pid}");
+        common::signal(pid, Signal::KILL);
         killed.push((role, pid));
         // A new process of the role reports, and the learner keeps updating.
         wait_for(&format!("{role} to come back"), Duration::from_secs(30), || {
@@ -82,8 +82,8 @@ fn killed_roles_are_restarted_and_training_goes_on() {
     // The restored learner went on from its saved update count.
     let (_, updates) = role_state(&dir, Member::Learner).unwrap();
     assert!(updates > 20, "learner at {updates} updates after its restart");
-    // SAFETY: SIGINT to our own child: stop the run as Ctrl-C would.
-    unsafe { libc_kill(child.id() as i32, 2) };
+    // SIGINT to our own child: stop the run as Ctrl-C would.
+    common::signal(child.id() as i32, Signal::INT);
     let out = child.wait_with_output().unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "train failed: {stderr}");
@@ -91,11 +91,6 @@ fn killed_roles_are_restarted_and_training_goes_on() {
     assert!(summary.restarts >= 4, "{summary:?} ({killed:?})");
     assert!(summary.leftover_services.is_empty(), "{summary:?}");
     let _ = std::fs::remove_dir_all(&dir);
-}
-
-unsafe extern "C" {
-    #[link_name = "kill"]
-    fn libc_kill(pid: i32, sig: i32) -> i32;
 }
 
 /// A role that keeps dying (here: the replay cannot read a corrupt snapshot

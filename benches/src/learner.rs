@@ -89,14 +89,7 @@ pub fn bench(
     if threads == 0 || batch == 0 || updates == 0 {
         usage!("--threads, --batch and --updates must be positive");
     }
-    // The fused path shards over `threads` threads itself; candle's
-    // elementwise pool must stay single-threaded (it serialises concurrent
-    // callers), its GEMMs (generic path) use `RAYON_NUM_THREADS`.
-    // SAFETY: no other thread exists yet in this process.
-    unsafe {
-        std::env::set_var("RAYON_NUM_THREADS", threads.to_string());
-        std::env::set_var("CANDLE_NUM_THREADS", "1");
-    }
+    // The pools' threads were set by `main` (`BenchCmd::thread_env`).
     let fused = measure(true, threads, batch, updates)?;
     let generic = if compare { Some(measure(false, threads, batch, updates)?) } else { None };
     for (name, p) in

@@ -206,6 +206,23 @@ pub enum BenchCmd {
     },
 }
 
+impl BenchCmd {
+    /// The environment a benchmark's process must start with (set by the
+    /// binary's `main` before any thread): the learner bench's candle and
+    /// rayon pools. The fused path shards over `threads` threads itself;
+    /// candle's elementwise pool must stay single-threaded (it serialises
+    /// concurrent callers), its GEMMs (generic path) use `RAYON_NUM_THREADS`.
+    pub fn thread_env(&self) -> Vec<(&'static str, String)> {
+        match self {
+            BenchCmd::Learner { threads, .. } => vec![
+                ("RAYON_NUM_THREADS", threads.to_string()),
+                ("CANDLE_NUM_THREADS", "1".to_string()),
+            ],
+            _ => Vec::new(),
+        }
+    }
+}
+
 pub fn run(cmd: BenchCmd) -> Result<()> {
     match cmd {
         BenchCmd::Sim { agents, steps, threads, physics, arena, config, json } => {

@@ -64,8 +64,11 @@ struct Procs(Vec<Child>);
 impl Drop for Procs {
     fn drop(&mut self) {
         for c in &mut self.0 {
-            // SAFETY: kill(2) on our own child.
-            unsafe { libc::kill(c.id() as i32, libc::SIGTERM) };
+            // SIGTERM, unless already reaped (its pid may be another's then).
+            if matches!(c.try_wait(), Ok(None)) {
+                let pid = rustix::process::Pid::from_child(c);
+                let _ = rustix::process::kill_process(pid, rustix::process::Signal::TERM);
+            }
         }
         for c in &mut self.0 {
             let _ = c.wait();

@@ -55,3 +55,10 @@ pub fn metrics(run_dir: &Path) -> Vec<MetricsRow> {
 pub fn evals(run_dir: &Path) -> Vec<EvalRow> {
     rotorhive_records::rows::read(&run_dir.join("evals.csv")).unwrap_or_else(|e| panic!("{e:#}"))
 }
+
+/// Sends `sig` to process `pid` of this test's run; fails the test if the
+/// process is not there.
+pub fn signal(pid: i32, sig: rustix::process::Signal) {
+    let p = rustix::process::Pid::from_raw(pid).unwrap_or_else(|| panic!("pid {pid}"));
+    rustix::process::kill_process(p, sig).unwrap_or_else(|e| panic!("kill({pid}, {sig:?}): {e}"));
+}

@@ -119,13 +119,24 @@ fn main() -> ExitCode {
         libc::mallopt(libc::M_MMAP_THRESHOLD, 32 << 20);
         libc::mallopt(libc::M_TRIM_THRESHOLD, 256 << 20);
     }
+    let mut env = match &cli.command {
+        Command::Train(a) => a.thread_env(),
+        Command::Bench(b) => b.thread_env(),
+        _ => Vec::new(),
+    };
     if let Some(d) = &cli.domain {
         if let Err(e) = rotorhive_transport::check_domain(d) {
             eprintln!("error: --domain: {e}");
             return ExitCode::from(2);
         }
-        // SAFETY: no thread has started yet; role processes inherit it.
-        unsafe { std::env::set_var(rotorhive_transport::DOMAIN_ENV, d) };
+        // Role processes inherit it.
+        env.push((rotorhive_transport::DOMAIN_ENV, d.clone()));
+    }
+    for (k, v) in env {
+        // SAFETY: the only place this program sets its environment, in
+        // `main` before any thread has started (tracing's subscriber and
+        // clap start none).
+        unsafe { std::env::set_var(k, v) };
     }
     // iceoryx2 warns about running without a config file; only errors matter here.
     iceoryx2::prelude::set_log_level(iceoryx2::prelude::LogLevel::Error);

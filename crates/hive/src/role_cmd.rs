@@ -80,8 +80,8 @@ fn watch_supervisor(prefix: &str, node: &str) -> Result<()> {
             let mut seen = false;
             loop {
                 std::thread::sleep(Duration::from_millis(200));
-                // SAFETY: getppid(2) has no preconditions.
-                let orphaned = parent.is_some_and(|p| unsafe { libc::getppid() } != p);
+                let ppid = rustix::process::getppid().map(|p| p.as_raw_pid());
+                let orphaned = parent.is_some_and(|p| ppid != Some(p));
                 let state = rotorhive_transport::node_alive(&supervisor);
                 seen |= state == Some(true);
                 if orphaned || (seen && state != Some(true)) {
@@ -92,9 +92,8 @@ fn watch_supervisor(prefix: &str, node: &str) -> Result<()> {
                         &mut std::io::stderr(),
                         format_args!("{node}: did not stop within {ORPHAN_GRACE:?} of its supervisor's end; exiting\n"),
                     );
-                    // SAFETY: _exit(2) ends the process without running
-                    // anything else; shared memory is cleaned by the next start.
-                    unsafe { libc::_exit(3) };
+                    // Shared memory is cleaned by the next start.
+                    std::process::exit(3);
                 }
             }
         })

@@ -50,16 +50,17 @@ impl Launcher {
         // they die with the supervisor however it dies (PR_SET_PDEATHSIG,
         // plus the supervisor watch of every role).
         cmd.process_group(0).env(crate::role_cmd::SUPERVISOR_PID_ENV, supervisor.to_string());
-        // SAFETY: prctl(2), getppid(2) and raise(3) are async-signal-safe, as
-        // a pre_exec hook needs; nothing is allocated.
+        // SAFETY: a pre_exec hook runs in the forked child before exec and
+        // may only make async-signal-safe calls: these are plain system
+        // calls through rustix (prctl(2), getppid(2), getpid(2), kill(2)),
+        // which allocate nothing and take no lock.
         unsafe {
             cmd.pre_exec(move || {
-                if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
-                    return Err(std::io::Error::last_os_error());
-                }
+                use rustix::process::{Signal, getpid, getppid, kill_process};
+                rustix::process::set_parent_process_death_signal(Some(Signal::TERM))?;
                 // The supervisor may have died before the prctl took effect.
-                if libc::getppid() as u32 != supervisor {
-                    libc::raise(libc::SIGTERM);
+                if getppid().map(|p| p.as_raw_pid() as u32) != Some(supervisor) {
+                    kill_process(getpid(), Signal::TERM)?;
                 }
                 Ok(())
             });
@@ -104,9 +105,8 @@ pub(crate) struct Children {
 
 impl Children {
     fn stop(&mut self) {
-        for r in &self.roles {
-            // SAFETY: plain kill(2) on our own child's pid.
-            unsafe { libc::kill(r.child.id() as i32, libc::SIGTERM) };
+        for r in &mut self.roles {
+            terminate(&mut r.child);
         }
         let deadline = Instant::now() + Duration::from_secs(10);
         for r in &mut self.roles {
@@ -346,4 +346,13 @@ pub fn host_name() -> String {
         .ok()
         .filter(|s| !s.is_empty())
         .unwrap_or_else(|| "localhost".into())
+}
+
+/// Asks a child to stop (SIGTERM), unless it was already reaped: its pid
+/// may then belong to another process (while it is not reaped, it cannot).
+pub(crate) fn terminate(child: &mut std::process::Child) {
+    if matches!(child.try_wait(), Ok(None)) {
+        let pid = rustix::process::Pid::from_child(child);
+        let _ = rustix::process::kill_process(pid, rustix::process::Signal::TERM);
+    }
 }

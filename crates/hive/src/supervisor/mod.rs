@@ -133,15 +133,24 @@ pub fn run(a: TrainArgs) -> Result<()> {
         tracing::info!("cleaned {stale} dead iceoryx2 nodes of earlier runs");
     }
     if a.serial {
-        // Candle's pools stay single-threaded, as in the role processes.
-        // SAFETY: no thread of this process has started yet.
-        unsafe {
-            std::env::set_var("RAYON_NUM_THREADS", "1");
-            std::env::set_var("CANDLE_NUM_THREADS", "1");
-        }
+        // Candle's pools stay single-threaded, as in the role processes
+        // (`main` set them: `TrainArgs::thread_env`).
         supervise::<Local>(&a, cfg, &run_dir, &cfg_path, prefix, link)
     } else {
         supervise::<Ipc>(&a, cfg, &run_dir, &cfg_path, prefix, link)
+    }
+}
+
+impl TrainArgs {
+    /// The environment the process must start with (set by `main` before
+    /// any thread): with `--serial`, candle's pools single-threaded, as in
+    /// the role processes.
+    pub fn thread_env(&self) -> Vec<(&'static str, String)> {
+        if self.serial {
+            vec![("RAYON_NUM_THREADS", "1".into()), ("CANDLE_NUM_THREADS", "1".into())]
+        } else {
+            Vec::new()
+        }
     }
 }
 
