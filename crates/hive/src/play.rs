@@ -71,7 +71,7 @@ pub fn run(a: PlayArgs) -> Result<()> {
         &view::palette(),
     )?;
     gif.set_repeat(gif::Repeat::Infinite)?;
-    let delay = (100 / a.fps).max(1) as u16;
+    let delay = (100 / a.fps).max(1);
     let mut rec = Recording { gif, delay, frames: 0, goals: 0, crashes: 0, still_written: false };
     for round in 0..a.episodes {
         rec.round(&a, &net, &arena, round)?;

@@ -7,11 +7,11 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use iceoryx2::service::Service;
 use rotorhive_msg::{
     EPISODE_FIELDS, EpisodeHeader, LinkStage, SeqTracker, Telemetry, TransitionHeader,
     WeightsHeader,
 };
+use rotorhive_transport::Service;
 use rotorhive_transport::{Channel, Hub};
 use zenoh::Wait;
 use zenoh::qos::CongestionControl;

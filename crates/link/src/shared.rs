@@ -4,8 +4,8 @@
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use iceoryx2::service::Service;
 use rotorhive_msg::{EPISODE_FIELDS, RoleKind, Telemetry};
+use rotorhive_transport::Service;
 use rotorhive_transport::{Channel, Hub, TransportError};
 use zenoh::handlers::FifoChannelHandler;
 

@@ -3,10 +3,10 @@
 
 use std::time::{Duration, Instant};
 
-use iceoryx2::service::Service;
 use rotorhive_msg::{
     EpisodeHeader, LinkStage, RoleKind, SeqTracker, Telemetry, TransitionHeader, WeightsHeader,
 };
+use rotorhive_transport::Service;
 use rotorhive_transport::{Channel, Hub};
 use zenoh::Wait;
 use zenoh::handlers::{FifoChannel, RingChannel};

@@ -233,7 +233,7 @@ fn markdown(p: &Profile, run_dir: &Path) -> Result<String> {
             "Policy lag: the learner trained on transitions acted {lag:.1} weight versions behind its own, on average."
         )?;
     }
-    learning_section(&mut out, &p)?;
+    learning_section(&mut out, p)?;
     writeln!(
         out,
         "Machine CPU: {:.0} % on average over {} cores.",

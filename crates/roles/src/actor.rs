@@ -15,8 +15,8 @@ use rotorhive_msg::{
 };
 use rotorhive_transport::Channel;
 
-use iceoryx2::service::Service;
 use rotorhive_msg::EpisodeHeader;
+use rotorhive_transport::Service;
 use rotorhive_transport::{Receiver, Sender};
 
 use crate::config::Config;

@@ -13,7 +13,7 @@ use rotorhive_msg::{
 };
 use rotorhive_transport::Channel;
 
-use iceoryx2::service::Service;
+use rotorhive_transport::Service;
 
 use crate::config::Config;
 use crate::{Ctx, POLL, STALL_TIMEOUT, roles_of};

@@ -25,9 +25,9 @@ use std::thread::JoinHandle;
 use std::time::Duration;
 
 use crate::error::{Doing, Result, protocol_err};
-use iceoryx2::service::Service;
 pub use rotorhive_msg::EpisodeHeader;
 use rotorhive_msg::{RoleKind, Telemetry};
+use rotorhive_transport::Service;
 use rotorhive_transport::{Channel, Hub, Local, Periodic};
 
 pub use config::{Config, DeviceName, Exploration, ObservationMode};

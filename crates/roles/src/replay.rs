@@ -13,7 +13,7 @@ use rotorhive_msg::{
 use rotorhive_replay::{Acted, Journal, Pick, Replay};
 use rotorhive_transport::{Channel, TransportError};
 
-use iceoryx2::service::Service;
+use rotorhive_transport::Service;
 
 use crate::schedule::Schedule;
 use crate::{Counters, Ctx, roles_of};

@@ -10,7 +10,7 @@ use rotorhive_msg::{
 use rotorhive_sim::VecEnv;
 use rotorhive_transport::Channel;
 
-use iceoryx2::service::Service;
+use rotorhive_transport::Service;
 use rotorhive_transport::{Hub, Receiver, Sender};
 
 use crate::{Ctx, POLL, STALL_TIMEOUT, roles_of};

@@ -130,7 +130,7 @@ pub fn control(
         axes: axes.map(v3),
         w: v3(r.inverse() * s.angvel),
     };
-    let f = thrusts(p, g, g.vel_xy, &k, [vel_sp.x, vel_sp.y], alt_sp);
+    let f = thrusts(p, g, g.vel_xy, k, [vel_sp.x, vel_sp.y], alt_sp);
     let (arms, spin) = rotors(p.arm);
     let yaw = p.torque_coeff * (spin[0] * f[0] + spin[1] * f[1] + spin[2] * f[2] + spin[3] * f[3]);
     RotorCommand {
@@ -164,11 +164,11 @@ pub(crate) fn thrusts<T: Lane>(
     p: &QuadParams,
     g: &Gains,
     vel_gain: T,
-    k: &Kinematics<T>,
+    k: Kinematics<T>,
     vel_sp: [T; 2],
     alt_sp: T,
 ) -> [T; 4] {
-    let Kinematics { position, velocity, axes: [bx, by, bz], w } = *k;
+    let Kinematics { position, velocity, axes: [bx, by, bz], w } = k;
     let c = T::splat;
     // Velocity loop (altitude held by an outer position loop on z).
     let vz_sp = (c(g.alt) * (alt_sp - position[2])).max(c(-2.0)).min(c(2.0));

@@ -171,7 +171,7 @@ impl Flight {
         let c = T::splat;
         let axes = axes(s.q);
         let k = Kinematics { position: s.p, velocity: s.v, axes, w: s.w };
-        let f = thrusts(q, &self.gains, s.gain, &k, [s.fwd, s.lat], c(self.altitude));
+        let f = thrusts(q, &self.gains, s.gain, k, [s.fwd, s.lat], c(self.altitude));
         let (thrust, torque) = wrench(q, f);
         let per_mass = thrust / s.mass;
         let bz = axes[2];

@@ -26,10 +26,37 @@ use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::sample::Sample;
-use iceoryx2::service::Service;
 
 pub use iceoryx2::service::ipc::Service as Ipc;
 pub use iceoryx2::service::local::Service as Local;
+
+/// The iceoryx2 service kinds a run uses: `Ipc` (processes, the default)
+/// and `Local` (threads of one process: `--serial` and tests), with what
+/// each promises about a loan's bytes.
+pub trait Service: iceoryx2::service::Service + sealed::Sealed {
+    /// Whether a fresh loan's payload is initialised memory before it is
+    /// written: true for `Ipc`, whose payload lies in a shared-memory
+    /// segment mapped from a file descriptor (zero-filled by the OS when
+    /// created, later holding earlier samples); false for `Local`, whose
+    /// segments come from the heap.
+    const LOANS_ARE_INITIALISED: bool;
+}
+
+impl Service for Ipc {
+    const LOANS_ARE_INITIALISED: bool = true;
+}
+
+impl Service for Local {
+    const LOANS_ARE_INITIALISED: bool = false;
+}
+
+mod sealed {
+    /// Only this crate's two service kinds are [`super::Service`]s: the
+    /// loan's soundness rests on what each one's memory is.
+    pub trait Sealed {}
+    impl Sealed for super::Ipc {}
+    impl Sealed for super::Local {}
+}
 
 /// An iceoryx2 error as it came: the error value itself, boxed (callers may
 /// downcast it), shown in its error's text.
@@ -401,15 +428,13 @@ impl<S: Service, T: Plain, H: Debug + ZeroCopySend + Default + 'static> Sender<S
             .publisher
             .loan_slice_uninit(len)
             .map_err(|e| io("loan", e.into(), &self.channel))?;
-        let mut sample = if std::any::type_name::<S>() == std::any::type_name::<Ipc>() {
-            // SAFETY: with the `ipc` service the payload lies in a
-            // shared-memory segment mapped from a file descriptor: its bytes
-            // are initialised memory (zero-filled by the OS when created,
-            // later holding earlier samples), and `T: Plain` has no invalid
-            // bit pattern, so reading it as `[T]` before `fill` writes it is
-            // sound. Skipping iceoryx2's default-fill saves a write of the
-            // whole payload per message (code audit T1: 410 KB for a
-            // 50-agent observation batch).
+        let mut sample = if S::LOANS_ARE_INITIALISED {
+            // SAFETY: `S::LOANS_ARE_INITIALISED` (sealed: only `Ipc` says
+            // so) means the payload's bytes are initialised memory, and
+            // `T: Plain` has no invalid bit pattern, so reading it as `[T]`
+            // before `fill` writes it is sound. Skipping iceoryx2's
+            // default-fill saves a write of the whole payload per message
+            // (code audit T1: 410 KB for a 50-agent observation batch).
             unsafe { uninit.assume_init() }
         } else {
             // The `local` service's segments come from the heap, which

@@ -18,11 +18,11 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use iceoryx2::service::Service;
 use rotorhive_model::{Device, QNet};
 use rotorhive_msg::WeightsHeader;
 use rotorhive_records::rows::{self, EvalRow};
 use rotorhive_roles::Config;
+use rotorhive_transport::Service;
 use rotorhive_transport::{Channel, Hub};
 
 /// One greedy evaluation during training.

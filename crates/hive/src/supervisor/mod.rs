@@ -20,12 +20,12 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
-use iceoryx2::service::Service;
 use indicatif::{ProgressBar, ProgressStyle};
 use rotorhive_msg::{EpisodeHeader, RoleKind, Telemetry};
 use rotorhive_records::Summary;
 use rotorhive_roles::schedule::Schedule;
 use rotorhive_roles::{Config, episodes_channel, roles_of};
+use rotorhive_transport::Service;
 use rotorhive_transport::{
     Channel, Hub, Ipc, Local, Receiver, cleanup_dead_nodes, services_of_run,
 };

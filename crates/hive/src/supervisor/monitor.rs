@@ -9,11 +9,11 @@ use std::path::Path;
 use std::sync::Arc;
 
 use anyhow::Result;
-use iceoryx2::service::Service;
 use rotorhive_msg::{RoleKind, Telemetry};
 use rotorhive_records::{HostRole, HostSummary, Member, TelemetryRow};
 use rotorhive_roles::Config;
 use rotorhive_transport::Receiver;
+use rotorhive_transport::Service;
 use sysinfo::{Pid, ProcessesToUpdate, System};
 
 use super::records::{Counts, Mean, Series, Table};
