@@ -176,7 +176,7 @@ mod tests {
     fn headers_have_no_hidden_padding() {
         // Field sizes add up to the type's size: no implicit padding bytes.
         assert_eq!(std::mem::size_of::<TransitionHeader>(), 4 + 4 + 8 + 8);
-        assert_eq!(std::mem::size_of::<EpisodeHeader>(), 4 + 4 + 8 + 8 + 8);
+        assert_eq!(std::mem::size_of::<EpisodeHeader>(), 4 + 4 + 8 + 8);
         assert_eq!(std::mem::size_of::<WeightsHeader>(), 8 + 8 + 8);
         assert_eq!(std::mem::size_of::<Telemetry>(), 4 * 4 + 6 * 8 + 4 * 8 + 8 * 4);
     }

@@ -84,16 +84,24 @@ def test_bad_reset_masks_and_order_of_calls():
 
 def test_the_native_layer_checks_its_buffers_too():
     sim = _rotorhive.Sim(2)
-    depth, vel = np.zeros((2, 2, 32, 32), np.float32), np.zeros((2, 3), np.float32)
-    f, u8, i32 = np.zeros(2, np.float32), np.zeros(2, np.uint8), np.zeros(2, np.int32)
+
+    class Buffers:  # the arrays `Sim.step` writes, by attribute
+        def __init__(self, depth):
+            self.depth, self.velocity = depth, np.zeros((2, 3), np.float32)
+            self.rewards, self.dones = np.zeros(2, np.float32), np.zeros(2, np.uint8)
+            self.ep_return, self.ep_length = np.zeros(2, np.float32), np.zeros(2, np.int32)
+
+    good = Buffers(np.zeros((2, 2, 32, 32), np.float32))
     with pytest.raises(ValueError, match="depth"):
-        sim.step(np.zeros(2, np.uint8), np.zeros((1, 2, 32, 32), np.float32), vel, f, u8, f.copy(), i32)
+        sim.step(np.zeros(2, np.uint8), Buffers(np.zeros((1, 2, 32, 32), np.float32)))
     with pytest.raises(ValueError, match=r"actions\[0\] = 7"):
-        sim.step(np.array([7, 0], np.uint8), depth, vel, f, u8, f.copy(), i32)
+        sim.step(np.array([7, 0], np.uint8), good)
     with pytest.raises(TypeError):
-        sim.step(np.zeros(2, np.float64), depth, vel, f, u8, f.copy(), i32)
-    sim.step(np.zeros(2, np.uint8), depth, vel, f, u8, f.copy(), i32)
-    assert depth.max() > 0
+        sim.step(np.zeros(2, np.float64), good)
+    with pytest.raises((TypeError, AttributeError)):
+        sim.step(np.zeros(2, np.uint8), object())
+    sim.step(np.zeros(2, np.uint8), good)
+    assert good.depth.max() > 0
 
 
 def test_single_env_bad_actions():
