@@ -246,7 +246,13 @@ fn head_side(
 ) -> Result<()> {
     let stop = Arc::new(AtomicBool::new(false));
     let mut head = rotorhive_link::Head::listen(ep, RUN, layout, opts)?;
-    head.gather(1, 1, batch, Duration::from_secs(30), rotorhive_transport::stop_requested)?;
+    head.gather(
+        1,
+        1,
+        rotorhive_link::JoinLimits { default_agents: batch as u32, n_step: 1 },
+        Duration::from_secs(30),
+        rotorhive_transport::stop_requested,
+    )?;
     head.admit(|_| (String::new(), String::new()));
     let hub = Hub::<Ipc>::new(RUN, "bench-consumer")?;
     let mut rx = hub.receiver::<u16, TransitionHeader>(&Channel::transitions(1))?;

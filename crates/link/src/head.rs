@@ -9,7 +9,7 @@ use zenoh::handlers::{FifoChannel, FifoChannelHandler, RingChannel};
 use zenoh::query::Query;
 
 use crate::error::{LinkError, Result, zerr};
-use crate::host::{Host, same_token};
+use crate::host::{Host, JoinLimits, place, same_token};
 use crate::options::{LinkOptions, open};
 use crate::shared::{Fifo, JOIN, key};
 use crate::wire::{Hello, Welcome};
@@ -69,7 +69,7 @@ pub struct Head {
     _token: zenoh::liveliness::LivelinessToken,
     pub(crate) hosts: Vec<Host>,
     pending: Vec<(Query, Hello)>,
-    default_agents: u32,
+    limits: JoinLimits,
     pub(crate) subs: HeadSubscribers,
 }
 
@@ -123,7 +123,7 @@ impl Head {
             _token: token,
             hosts: Vec::new(),
             pending: Vec::new(),
-            default_agents: 1,
+            limits: JoinLimits { default_agents: 1, n_step: 1 },
         })
     }
 
@@ -135,11 +135,11 @@ impl Head {
         &mut self,
         wanted: usize,
         head_envs: usize,
-        default_agents: usize,
+        limits: JoinLimits,
         timeout: Duration,
         stop: impl Fn() -> bool,
     ) -> Result<Vec<Host>> {
-        self.default_agents = default_agents as u32;
+        self.limits = limits;
         let start = Instant::now();
         while self.pending.len() < wanted {
             if stop() {
@@ -185,9 +185,15 @@ impl Head {
                 Err(why) => refuse(&q, &why),
             }
         }
-        let mut env_offset = head_envs as u32;
+        let envs = self.pending.iter().map(|(_, h)| h.envs);
+        let Some(offsets) = u32::try_from(head_envs).ok().and_then(|h| place(h, envs)) else {
+            return Err(LinkError::Refused {
+                endpoint: "this head".into(),
+                why: "the workers' environments pass u32::MAX".into(),
+            });
+        };
         self.hosts.clear();
-        for (i, (_, h)) in self.pending.iter().enumerate() {
+        for (i, ((_, h), env_offset)) in self.pending.iter().zip(offsets).enumerate() {
             self.hosts.push(Host {
                 name: h.host.clone(),
                 slot: i as u32 + 1,
@@ -196,7 +202,6 @@ impl Head {
                 env_offset,
                 token: h.token.clone(),
             });
-            env_offset += h.envs;
         }
         Ok(self.hosts.clone())
     }
@@ -222,18 +227,12 @@ impl Head {
     pub(crate) fn check(&self, q: &Query) -> std::result::Result<Hello, String> {
         let bytes = q.payload().map(|p| p.to_bytes().into_owned()).unwrap_or_default();
         let mut h = Hello::decode(&bytes).ok_or("not a rotorhive worker's join request")?;
-        if h.agents == 0 {
-            h.agents = self.default_agents;
-        }
         if h.layout != self.layout {
-            return Err("message layout mismatch: this worker runs another build of hive (or another model); run the same build on every host".into());
+            return Err("message layout mismatch: this worker runs another build of hive (or \
+                        another model); run the same build on every host"
+                .into());
         }
-        if h.envs == 0 || h.agents == 0 {
-            return Err(format!(
-                "a worker needs at least one environment and one agent, got {} × {}",
-                h.envs, h.agents
-            ));
-        }
+        self.limits.check(&mut h)?;
         if h.token.is_empty() || h.token.len() > wire::MAX_TOKEN {
             return Err(format!(
                 "a join token of 1 to {} bytes is needed, got {}",

@@ -31,7 +31,7 @@ mod worker_bridge;
 pub use error::{LinkError, Result};
 pub use head::{ConfigFor, Head, HeadStats};
 pub use head_bridge::HeadLink;
-pub use host::Host;
+pub use host::{Host, JoinLimits, MAX_HOST_NAME};
 pub use options::{LinkOptions, check_endpoint, check_options, is_loopback, is_tls, tls_files};
 pub use shared::{MAX_MESSAGE_BYTES, layout};
 pub use wire::{Hello, Welcome};

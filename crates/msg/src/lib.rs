@@ -63,6 +63,12 @@ impl DoneKind {
     }
 }
 
+/// The most environments one host runs (`sim.envs`); a head believes no
+/// joining worker of more.
+pub const MAX_ENVS_PER_HOST: usize = 64;
+/// The most agents one environment holds (`sim.agents`).
+pub const MAX_AGENTS_PER_ENV: usize = 4096;
+
 /// Header of an observation batch, sim → actor.
 ///
 /// Payload: `[f32]` of length [`obs_batch_len`]`(agents)`: `agents × OBS_LEN`

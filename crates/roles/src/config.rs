@@ -616,9 +616,12 @@ impl Config {
         if s.generated_lanes > 256 {
             config_err!("key `sim.generated_lanes` must be at most 256, got {}", s.generated_lanes);
         }
-        if s.envs > 64 || s.agents > 4096 {
+        let (max_envs, max_agents) =
+            (rotorhive_msg::MAX_ENVS_PER_HOST, rotorhive_msg::MAX_AGENTS_PER_ENV);
+        if s.envs > max_envs || s.agents > max_agents {
             config_err!(
-                "keys `sim.envs` ({}) and `sim.agents` ({}) must be at most 64 and 4096",
+                "keys `sim.envs` ({}) and `sim.agents` ({}) must be at most {max_envs} and \
+                 {max_agents}",
                 s.envs,
                 s.agents
             );

@@ -237,15 +237,14 @@ fn gather_workers(
         ));
     }
     let timeout = Duration::from_secs_f64(cfg.cluster.join_timeout_s);
-    let hosts = head.gather(
-        wanted,
-        cfg.sim.envs,
-        cfg.sim.agents,
-        timeout,
-        rotorhive_transport::stop_requested,
-    )?;
+    let limits = rotorhive_link::JoinLimits {
+        default_agents: cfg.sim.agents as u32,
+        n_step: cfg.learner.n_step as u32,
+    };
+    let hosts =
+        head.gather(wanted, cfg.sim.envs, limits, timeout, rotorhive_transport::stop_requested)?;
     cfg.cluster.envs_elsewhere = hosts.iter().map(|h| h.envs as usize).sum();
-    cfg.cluster.agents_elsewhere = hosts.iter().map(|h| (h.envs * h.agents) as usize).sum();
+    cfg.cluster.agents_elsewhere = hosts.iter().map(|h| h.envs as usize * h.agents as usize).sum();
     for h in &hosts {
         say(&format!(
             "worker {} joined: {} × {} agents (environments {}..{})",
