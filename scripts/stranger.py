@@ -11,8 +11,10 @@ join), then sends for --seconds and
 prints one JSON line: how many messages it sent on slot 1's keys (each
 must be counted in that host's `rejected_messages` in `summary.json`), how
 many on keys of a slot that no host holds (counted on the head's row), and
-how many oversized ones Zenoh itself drops (counted nowhere). Every message
-it sends is one an honest worker never sends.
+how many oversized ones Zenoh itself drops (counted nowhere), and both
+counts by the reason the head must give (`slot_by_reason`,
+`unknown_by_reason`: each must equal that host's `rejected_by_reason`).
+Every message it sends is one an honest worker never sends.
 """
 
 import argparse
@@ -40,7 +42,8 @@ def trans_header(actor, count, seq=0):
 
 
 def ep_header(actor, count):
-    return struct.pack("<IIQQQ", actor, count, 0, 100_000, 0)
+    # EpisodeHeader: actor, count, epsilon_micro, step (24 bytes).
+    return struct.pack("<IIQQ", actor, count, 100_000, 0)
 
 
 def telemetry(role, index, work=0):
@@ -52,37 +55,38 @@ def telemetry(role, index, work=0):
 
 
 def forged(slot_env):
-    """(key suffix, payload, attachment) of every kind, for slot 1 whose
-    first environment is `slot_env`."""
+    """(key suffix, payload, attachment, reason) of every kind, for slot 1
+    whose first environment is `slot_env`; the reason is the one the head
+    must count it under (`summary.json`'s `rejected_by_reason`)."""
     a = slot_env
     return [
-        ("host/1/transitions", transition() + b"\x00", trans_header(a, 1)),  # odd length
-        ("host/1/transitions", transition(reward=math.nan), trans_header(a, 1)),  # NaN reward
-        ("host/1/transitions", transition(action=2.0), trans_header(a, 1)),  # action out of range
-        ("host/1/transitions", transition(done=0.5), trans_header(a, 1)),  # done flag out of range
-        ("host/1/transitions", transition(), trans_header(0, 1)),  # the head's environment
-        ("host/1/transitions", transition(), trans_header(a + 1000, 1)),  # nobody's environment
-        ("host/1/transitions", transition() * 2, trans_header(a, 1)),  # count says 1, payload holds 2
-        ("host/1/transitions", b"", trans_header(a, 0)),  # count 0
-        ("host/1/transitions", transition(), trans_header(a, 1)[:-1]),  # short header
-        ("host/1/transitions", transition(), None),  # no header
-        ("host/1/episodes", b"\x00" * 13, ep_header(a, 1)),  # not whole floats
-        ("host/1/episodes", struct.pack("<4f", math.nan, 10, 1, 0.1), ep_header(a, 1)),  # NaN return
-        ("host/1/episodes", struct.pack("<4f", 1e9, 10, 7, 0.1), ep_header(a, 1)),  # done code 7
-        ("host/1/episodes", struct.pack("<4f", 450, 150, 2, 0.1), ep_header(0, 1)),  # the head's environment
-        ("host/1/episodes", struct.pack("<4f", 450, 150, 2, 0.1), ep_header(a, 2)),  # count says 2
-        ("host/1/telemetry", b"", telemetry(3, 0)),  # a learner: no worker runs one
-        ("host/1/telemetry", b"", telemetry(0, 0, work=10**15)),  # the head's sim
-        ("host/1/telemetry", b"", telemetry(4, 2)),  # another slot's link
-        ("host/1/telemetry", b"x", telemetry(0, a)),  # a payload where none goes
+        ("host/1/transitions", transition() + b"\x00", trans_header(a, 1), "length"),  # odd length
+        ("host/1/transitions", transition(reward=math.nan), trans_header(a, 1), "values"),  # NaN reward
+        ("host/1/transitions", transition(action=2.0), trans_header(a, 1), "values"),  # action out of range
+        ("host/1/transitions", transition(done=0.5), trans_header(a, 1), "values"),  # done flag out of range
+        ("host/1/transitions", transition(), trans_header(0, 1), "environment"),  # the head's environment
+        ("host/1/transitions", transition(), trans_header(a + 1000, 1), "environment"),  # nobody's environment
+        ("host/1/transitions", transition() * 2, trans_header(a, 1), "length"),  # count says 1, payload holds 2
+        ("host/1/transitions", b"", trans_header(a, 0), "count"),  # count 0
+        ("host/1/transitions", transition(), trans_header(a, 1)[:-1], "header"),  # short header
+        ("host/1/transitions", transition(), None, "header"),  # no header
+        ("host/1/episodes", b"\x00" * 13, ep_header(a, 1), "length"),  # not whole floats
+        ("host/1/episodes", struct.pack("<4f", math.nan, 10, 1, 0.1), ep_header(a, 1), "values"),  # NaN return
+        ("host/1/episodes", struct.pack("<4f", 1e9, 10, 7, 0.1), ep_header(a, 1), "values"),  # done code 7
+        ("host/1/episodes", struct.pack("<4f", 450, 150, 2, 0.1), ep_header(0, 1), "environment"),  # the head's environment
+        ("host/1/episodes", struct.pack("<4f", 450, 150, 2, 0.1), ep_header(a, 2), "length"),  # count says 2
+        ("host/1/telemetry", b"", telemetry(3, 0), "role"),  # a learner: no worker runs one
+        ("host/1/telemetry", b"", telemetry(0, 0, work=10**15), "role"),  # the head's sim
+        ("host/1/telemetry", b"", telemetry(4, 2), "role"),  # another slot's link
+        ("host/1/telemetry", b"x", telemetry(0, a), "length"),  # a payload where none goes
     ]
 
 
 def unknown_slot(slot_env):
     return [
-        ("host/9/transitions", transition(), trans_header(slot_env, 1)),
-        ("host/9/episodes", struct.pack("<4f", 450, 150, 2, 0.1), ep_header(slot_env, 1)),
-        ("host/9/telemetry", b"", telemetry(0, slot_env, work=10**15)),
+        ("host/9/transitions", transition(), trans_header(slot_env, 1), "slot"),
+        ("host/9/episodes", struct.pack("<4f", 450, 150, 2, 0.1), ep_header(slot_env, 1), "slot"),
+        ("host/9/telemetry", b"", telemetry(0, slot_env, work=10**15), "slot"),
     ]
 
 
@@ -123,12 +127,14 @@ def main():
     bad, stray = forged(a.slot_env), unknown_slot(a.slot_env)
     kinds = [(m, "slot") for m in bad] + [(m, "unknown") for m in stray]
     sent = {"slot": 0, "unknown": 0, "oversized": 0}
+    reasons = {"slot": {}, "unknown": {}}
     start = time.time()
     i = 0
     while time.time() - start < a.seconds:
-        (key, payload, att), where = kinds[i % len(kinds)]
+        (key, payload, att, reason), where = kinds[i % len(kinds)]
         session.put(f"rotorhive/{run}/{key}", payload, attachment=att, congestion_control=block)
         sent[where] += 1
+        reasons[where][reason] = reasons[where].get(reason, 0) + 1
         i += 1
         # Paced to the rate, in bursts of a millisecond's worth.
         ahead = i / a.rate - (time.time() - start)
@@ -141,7 +147,8 @@ def main():
         sent["oversized"] += 1
     time.sleep(1.0)
     session.close()
-    print(json.dumps({"run": run, "seconds": elapsed, "rate": (sent["slot"] + sent["unknown"]) / elapsed, **sent}))
+    by_reason = {"slot_by_reason": reasons["slot"], "unknown_by_reason": reasons["unknown"]}
+    print(json.dumps({"run": run, "seconds": elapsed, "rate": (sent["slot"] + sent["unknown"]) / elapsed, **sent, **by_reason}))
     return 0
 
 

@@ -8,6 +8,7 @@ use zenoh::Wait;
 use zenoh::handlers::{FifoChannel, FifoChannelHandler, RingChannel};
 use zenoh::query::Query;
 
+use crate::check::Reason;
 use crate::error::{LinkError, Result, zerr};
 use crate::host::{Host, JoinLimits, place, same_token};
 use crate::options::{LinkOptions, open};
@@ -30,23 +31,17 @@ pub struct HeadStats {
     pub lost_by_env: std::sync::Mutex<Vec<u64>>,
     /// Episode or telemetry messages that could not be delivered.
     pub dropped: AtomicU64,
-    /// Messages that failed a check ([`check`]) and were dropped, per
-    /// slot (0: keys that name no host of the run).
-    pub rejected: std::sync::Mutex<Vec<u64>>,
+    /// Messages that failed a check ([`check`]) and were dropped, and join
+    /// requests refused, per slot (0: keys that name no host of the run,
+    /// and joins) and reason (in [`Reason::ALL`]'s order).
+    pub rejected: std::sync::Mutex<Vec<[u64; Reason::ALL.len()]>>,
 }
 
 impl HeadStats {
     /// Counts a dropped message from `slot`; logs the first few of each
     /// host and then every thousandth.
     pub(crate) fn reject(&self, slot: u32, what: &str, why: &check::Reject) {
-        let Ok(mut r) = self.rejected.lock() else {
-            return;
-        };
-        if r.len() <= slot as usize {
-            r.resize(slot as usize + 1, 0);
-        }
-        r[slot as usize] += 1;
-        let n = r[slot as usize];
+        let n = self.count(slot, why.reason(), 1);
         if n <= 5 || n % 1000 == 0 {
             let from =
                 if slot == 0 { "an unknown sender".to_string() } else { format!("worker {slot}") };
@@ -54,9 +49,29 @@ impl HeadStats {
         }
     }
 
-    /// Messages dropped from `slot`.
+    /// Counts `n` refusals of `slot` for `reason`; the slot's total since.
+    pub(crate) fn count(&self, slot: u32, reason: Reason, n: u64) -> u64 {
+        let Ok(mut r) = self.rejected.lock() else {
+            return 0;
+        };
+        if r.len() <= slot as usize {
+            r.resize(slot as usize + 1, [0; Reason::ALL.len()]);
+        }
+        let row = &mut r[slot as usize];
+        row[Reason::ALL.iter().position(|x| *x == reason).unwrap_or(0)] += n;
+        row.iter().sum()
+    }
+
+    /// Messages (and joins) refused from `slot`.
     pub fn rejected_from(&self, slot: u32) -> u64 {
-        self.rejected.lock().ok().and_then(|r| r.get(slot as usize).copied()).unwrap_or(0)
+        self.rejected_by_reason(slot).iter().map(|(_, n)| n).sum()
+    }
+
+    /// Refusals of `slot` by reason, the reasons that counted any.
+    pub fn rejected_by_reason(&self, slot: u32) -> Vec<(Reason, u64)> {
+        let row = self.rejected.lock().ok().and_then(|r| r.get(slot as usize).copied());
+        let row = row.unwrap_or_default();
+        Reason::ALL.iter().copied().zip(row).filter(|(_, n)| *n > 0).collect()
     }
 }
 
@@ -70,6 +85,8 @@ pub struct Head {
     pub(crate) hosts: Vec<Host>,
     pending: Vec<(Query, Hello)>,
     limits: JoinLimits,
+    /// Joins refused while gathering (counted into the link's stats).
+    pub(crate) refused_joins: u64,
     pub(crate) subs: HeadSubscribers,
 }
 
@@ -124,6 +141,7 @@ impl Head {
             hosts: Vec::new(),
             pending: Vec::new(),
             limits: JoinLimits { default_agents: 1, n_step: 1 },
+            refused_joins: 0,
         })
     }
 
@@ -164,6 +182,7 @@ impl Head {
                             // The same host asking again (it retried): keep the newest.
                             self.pending[i] = (q, h);
                         } else {
+                            self.refused_joins += 1;
                             refuse(
                                 &q,
                                 &format!(
@@ -182,7 +201,10 @@ impl Head {
                         self.pending.push((q, h));
                     }
                 }
-                Err(why) => refuse(&q, &why),
+                Err(why) => {
+                    self.refused_joins += 1;
+                    refuse(&q, &why);
+                }
             }
         }
         let envs = self.pending.iter().map(|(_, h)| h.envs);

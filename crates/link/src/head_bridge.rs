@@ -16,6 +16,7 @@ use rotorhive_transport::{Channel, Hub};
 use zenoh::Wait;
 use zenoh::qos::CongestionControl;
 
+use crate::check::Reason;
 use crate::error::{LinkError, Result, zerr};
 use crate::head::{ConfigFor, Head, HeadStats, refuse, reply};
 use crate::host::{Host, same_token};
@@ -37,6 +38,9 @@ impl Head {
         config_for: ConfigFor,
     ) -> Result<HeadLink> {
         let stats = Arc::new(HeadStats::default());
+        if self.refused_joins > 0 {
+            stats.count(0, Reason::JoinRefused, self.refused_joins);
+        }
         let (st, sp) = (stats.clone(), stop.clone());
         let hosts = self.hosts.clone();
         let thread = std::thread::Builder::new()
@@ -272,7 +276,7 @@ impl<S: Service> HeadBridge<'_, S> {
         while let Ok(Some(q)) = head.queryable.try_recv() {
             match head.check(&q) {
                 Ok(h) => match head.hosts.iter().find(|x| x.name == h.host) {
-                    Some(x) if !same_token(&x.token, &h.token) => refuse(
+                    Some(x) if !same_token(&x.token, &h.token) => self.refuse_join(
                         &q,
                         &format!(
                             "host {} is in this run; only the worker that joined under that name (with its join token) may take its place back",
@@ -297,18 +301,24 @@ impl<S: Service> HeadBridge<'_, S> {
                         }
                         tracing::info!("worker {} joined again", x.name);
                     }
-                    Some(x) => refuse(
+                    Some(x) => self.refuse_join(
                         &q,
                         &format!(
                             "host {} joined with {} × {} agents, and comes back with {} × {}",
                             x.name, x.envs, x.agents, h.envs, h.agents
                         ),
                     ),
-                    None => refuse(&q, "the run has all its worker hosts (`cluster.workers`)"),
+                    None => self.refuse_join(&q, "the run has all its worker hosts (`cluster.workers`)"),
                 },
-                Err(why) => refuse(&q, &why),
+                Err(why) => self.refuse_join(&q, &why),
             }
         }
+    }
+
+    /// Refuses a join request, and counts it (`join_refused`, on no host).
+    fn refuse_join(&self, q: &zenoh::query::Query, why: &str) {
+        self.stats.count(0, Reason::JoinRefused, 1);
+        refuse(q, why);
     }
 }
 

@@ -77,6 +77,17 @@ def test_a_stranger_cannot_crash_poison_or_stop_a_run(tmp_path):
     assert hosts[1]["rejected_messages"] == sent["slot"], (hosts, sent)
     assert hosts[2]["name"] == "unknown" and hosts[2]["rejected_messages"] == sent["unknown"], (hosts, sent)
     assert hosts[0]["rejected_messages"] == 0, hosts
+    # Each forged kind was refused for its own reason, kind by kind (a
+    # header-size drift once refused every forged transition as a header
+    # while the totals still matched).
+    assert hosts[1]["rejected_by_reason"] == sent["slot_by_reason"], (hosts[1], sent)
+    assert hosts[2]["rejected_by_reason"] == sent["unknown_by_reason"], (hosts[2], sent)
+    assert set(sent["slot_by_reason"]) == {"length", "values", "environment", "count", "header", "role"}
+    total = {}
+    for h in hosts:
+        for k, v in h["rejected_by_reason"].items():
+            total[k] = total.get(k, 0) + v
+    assert summary["rejected_by_reason"] == total, summary["rejected_by_reason"]
     # Nothing forged was stored or trained on, nothing honest was lost, and
     # the forged counters did not reach the records.
     assert summary["skipped_updates"] == 0

@@ -2,6 +2,7 @@
 //! back by `hive bench table` and by scripts (design.md's contract names
 //! its keys; every field here is one of them).
 
+use std::collections::BTreeMap;
 use std::path::Path;
 
 use crate::{HostRole, ObservationMode, RecordsError, Renderer, Result};
@@ -23,9 +24,15 @@ pub struct HostSummary {
     /// Transitions lost on the way from it.
     pub lost_transitions: u64,
     /// Messages from it that failed the head's checks and were dropped (a
-    /// host named `unknown`: messages on keys that name no host of the run).
+    /// host named `unknown`: messages on keys that name no host of the run,
+    /// and refused join requests).
     #[serde(default)]
     pub rejected_messages: u64,
+    /// The same by reason (`slot`, `header`, `length`, `count`,
+    /// `environment`, `role`, `values`, `join_refused`), the reasons that
+    /// counted any.
+    #[serde(default)]
+    pub rejected_by_reason: BTreeMap<String, u64>,
 }
 
 /// The result of one `hive train`.
@@ -82,6 +89,10 @@ pub struct Summary {
     pub restarts: u64,
     /// Messages lost (sequence gaps), every role.
     pub lost_messages: u64,
+    /// Messages and joins refused from other hosts by reason, summed over
+    /// `hosts`.
+    #[serde(default)]
+    pub rejected_by_reason: BTreeMap<String, u64>,
     /// The run's result: the best greedy checkpoint, else the last weights.
     pub checkpoint: Option<String>,
     /// The last weights the learner saved.
@@ -182,7 +193,8 @@ mod tests {
                 agents: 25,
                 env_steps: 400_000,
                 lost_transitions: 0,
-                rejected_messages: 0,
+                rejected_messages: 3,
+                rejected_by_reason: [("length".to_string(), 2), ("values".to_string(), 1)].into(),
             }],
             observation_mode: ObservationMode::Batched,
             renderer: Renderer::Cpu,
@@ -196,6 +208,7 @@ mod tests {
             policy_lag_mean: Some(4.5),
             restarts: 0,
             lost_messages: 0,
+            rejected_by_reason: [("length".to_string(), 2), ("values".to_string(), 1)].into(),
             checkpoint: Some("runs/x/checkpoints/best.safetensors".into()),
             last_checkpoint: None,
             evaluations: 3,
@@ -240,10 +253,14 @@ mod tests {
             "updates_at_threshold",
             "epsilon_at_threshold",
             "env_steps_to_target",
+            "rejected_by_reason",
         ] {
             assert!(v.get(key).is_some(), "no key {key}");
         }
         assert!(v["gpu_util_mean_pct"].is_null());
+        // Reasons are an object, reason → count (design.md's contract).
+        assert_eq!(v["hosts"][0]["rejected_by_reason"]["length"], 2);
+        assert_eq!(v["rejected_by_reason"]["values"], 1);
         std::fs::write(dir.join("summary.json"), "{\"converged\": 1}").unwrap();
         assert!(Summary::read(&dir).unwrap_err().to_string().contains("summary.json"));
         std::fs::remove_dir_all(&dir).unwrap();

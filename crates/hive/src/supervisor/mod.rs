@@ -612,6 +612,10 @@ impl Supervisor<'_> {
         let (m, best, cfg) = (&self.monitor, self.evaluator.best(), &self.cfg);
         let roll = self.progress.rolling();
         let at_target = self.evaluator.first_at(cfg.eval.target_success);
+        let mut rejected_by_reason = std::collections::BTreeMap::new();
+        for (reason, n) in hosts.iter().flat_map(|h| &h.rejected_by_reason) {
+            *rejected_by_reason.entry(reason.clone()).or_insert(0) += n;
+        }
         Summary {
             converged: self.progress.time_to_threshold.is_some(),
             threshold: cfg.threshold,
@@ -641,6 +645,7 @@ impl Supervisor<'_> {
             policy_lag_mean: m.policy_lag.mean(),
             restarts: self.restarts,
             lost_messages: m.latest.values().map(|t| t.lost).sum(),
+            rejected_by_reason,
             checkpoint: checkpoint.map(|p| p.display().to_string()),
             last_checkpoint: last.map(|p| p.display().to_string()),
             evaluations: self.evaluator.count(),

@@ -178,6 +178,7 @@ impl Monitor {
             env_steps: self.steps_of(0, envs),
             lost_transitions: lost_here,
             rejected_messages: 0,
+            rejected_by_reason: Default::default(),
         }];
         if let Some((stats, hosts)) = link {
             let lost = stats.lost_by_env.lock().map(|v| v.clone()).unwrap_or_default();
@@ -193,6 +194,7 @@ impl Monitor {
                         .get(a as usize..b as usize)
                         .map_or(0, |l| l.iter().sum::<u64>()),
                     rejected_messages: stats.rejected_from(h.slot),
+                    rejected_by_reason: by_reason(stats, h.slot),
                 });
             }
             // Messages on keys that name no host of the run.
@@ -206,11 +208,18 @@ impl Monitor {
                     env_steps: 0,
                     lost_transitions: 0,
                     rejected_messages: unknown,
+                    rejected_by_reason: by_reason(stats, 0),
                 });
             }
         }
         out
     }
+}
+
+/// A host's refusals by reason, as `summary.json` names them.
+fn by_reason(stats: &rotorhive_link::HeadStats, slot: u32) -> BTreeMap<String, u64> {
+    let reasons = stats.rejected_by_reason(slot);
+    reasons.into_iter().map(|(r, n)| (r.name().to_string(), n)).collect()
 }
 
 /// A role's row of `telemetry.csv` before its process is read (CPU and
