@@ -42,7 +42,7 @@ impl HeadStats {
     /// host and then every thousandth.
     pub(crate) fn reject(&self, slot: u32, what: &str, why: &check::Reject) {
         let n = self.count(slot, why.reason(), 1);
-        if n <= 5 || n % 1000 == 0 {
+        if n <= 5 || n.is_multiple_of(1000) {
             let from =
                 if slot == 0 { "an unknown sender".to_string() } else { format!("worker {slot}") };
             tracing::warn!("dropped {what} from {from}: {why} ({n} dropped from it so far)");
