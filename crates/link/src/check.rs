@@ -14,11 +14,7 @@ use rotorhive_msg::{
 use crate::host::Host;
 use crate::wire;
 
-/// The most transitions one batch may carry (an actor sends one batch per
-/// observation step of at most 1,024 agents).
-pub const MAX_BATCH: usize = 1024;
-/// The most episode records in one message.
-pub const MAX_EPISODES: usize = 4096;
+pub use crate::wire::{MAX_BATCH, MAX_EPISODES};
 
 /// Why a message from another host was dropped.
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -41,7 +41,7 @@ pub const MAX_HOST_NAME: usize = 253;
 /// ([`rotorhive_msg::MAX_ENVS_PER_HOST`], [`rotorhive_msg::MAX_AGENTS_PER_ENV`]),
 /// and no more agents than one batch of the run's n-step returns can carry
 /// (an episode's end releases up to `n_step` transitions of every agent,
-/// and the head refuses a batch of more than [`crate::check::MAX_BATCH`]).
+/// and the head refuses a batch of more than [`crate::wire::MAX_BATCH`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct JoinLimits {
     /// Agents per environment of a worker that asks for 0 (the head's own).
@@ -53,7 +53,7 @@ pub struct JoinLimits {
 impl JoinLimits {
     /// The most agents per environment a worker may run.
     pub fn max_agents(&self) -> u32 {
-        let per_batch = crate::check::MAX_BATCH as u32 / self.n_step.max(1);
+        let per_batch = crate::wire::MAX_BATCH as u32 / self.n_step.max(1);
         per_batch.min(rotorhive_msg::MAX_AGENTS_PER_ENV as u32)
     }
 
@@ -69,7 +69,7 @@ impl JoinLimits {
                 "a worker runs 1 to {max_envs} environments of 1 to {max_agents} agents here \
                  (n-step {}: one batch carries at most {} transitions), got {} × {}",
                 self.n_step,
-                crate::check::MAX_BATCH,
+                crate::wire::MAX_BATCH,
                 h.envs,
                 h.agents
             ));
@@ -156,7 +156,7 @@ mod tests {
             let mut h = hello(envs, agents, &host);
             if limits.check(&mut h).is_ok() {
                 prop_assert!(h.envs >= 1 && h.envs as usize <= rotorhive_msg::MAX_ENVS_PER_HOST);
-                prop_assert!(h.agents >= 1 && (h.agents * n_step) as usize <= crate::check::MAX_BATCH);
+                prop_assert!(h.agents >= 1 && (h.agents * n_step) as usize <= crate::wire::MAX_BATCH);
             }
             if let Some(at) = place(head, more.iter().copied()) {
                 prop_assert!(at.windows(2).all(|w| w[0] <= w[1]));

@@ -46,6 +46,12 @@ pub struct Hello {
     pub token: String,
 }
 
+/// The most transitions one batch may carry (an actor sends one batch per
+/// observation step of at most 1,024 agents).
+pub const MAX_BATCH: usize = 1024;
+/// The most episode records in one message.
+pub const MAX_EPISODES: usize = 4096;
+
 /// The longest join token a head accepts.
 pub const MAX_TOKEN: usize = 128;
 
