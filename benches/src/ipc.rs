@@ -44,6 +44,7 @@ fn request_channel() -> Channel {
         buffer: 2,
         overflow: false,
         history: 0,
+        needs_receiver: false,
     }
 }
 
@@ -55,6 +56,7 @@ fn ack_channel() -> Channel {
         buffer: 2,
         overflow: false,
         history: 0,
+        needs_receiver: false,
     }
 }
 

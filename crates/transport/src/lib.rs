@@ -129,6 +129,11 @@ pub struct Channel {
     pub overflow: bool,
     /// Samples a late subscriber receives on connecting.
     pub history: usize,
+    /// A send with no receiver is a stall, not a success: the sender waits
+    /// up to its stall timeout for one, and a sample that reached nobody is
+    /// reported as [`TransportError::Stalled`] (so the caller sends it
+    /// again or counts it lost). On for transitions, whose loss matters.
+    pub needs_receiver: bool,
 }
 
 impl Channel {
@@ -142,6 +147,7 @@ impl Channel {
             buffer: 2 * per_step.max(1),
             overflow: false,
             history: 0,
+            needs_receiver: false,
         }
     }
     /// Action batches of actor `env` to its sim.
@@ -153,6 +159,7 @@ impl Channel {
             buffer: 2,
             overflow: false,
             history: 0,
+            needs_receiver: false,
         }
     }
     /// Transition batches from every actor of this host (and the host's
@@ -165,6 +172,7 @@ impl Channel {
             buffer: 8,
             overflow: false,
             history: 0,
+            needs_receiver: true,
         }
     }
     /// Finished episodes from every actor of this host (and its link) to the supervisor.
@@ -176,6 +184,7 @@ impl Channel {
             buffer: 256,
             overflow: false,
             history: 0,
+            needs_receiver: false,
         }
     }
     /// Minibatches from the replay memory to the learner.
@@ -187,6 +196,7 @@ impl Channel {
             buffer: prefetch,
             overflow: false,
             history: 0,
+            needs_receiver: false,
         }
     }
     /// Priorities from the learner back to the replay (prioritized replay):
@@ -199,6 +209,7 @@ impl Channel {
             buffer: 2 * prefetch + 8,
             overflow: false,
             history: 0,
+            needs_receiver: false,
         }
     }
     /// Weights from the learner to every actor (and to every sim, which reads
@@ -213,6 +224,7 @@ impl Channel {
             buffer: 1,
             overflow: true,
             history: 1,
+            needs_receiver: false,
         }
     }
     /// Telemetry from every role to the supervisor; old samples may be overwritten.
@@ -224,6 +236,7 @@ impl Channel {
             buffer: 64,
             overflow: true,
             history: 0,
+            needs_receiver: false,
         }
     }
 }
@@ -365,6 +378,7 @@ impl<S: Service> Hub<S> {
             channel: ch.name.clone(),
             stalls,
             stall_timeout,
+            needs_receiver: ch.needs_receiver,
             sent: 0,
         })
     }
@@ -398,6 +412,7 @@ pub struct Sender<S: Service, T: Debug + ZeroCopySend + 'static, H: Debug + Zero
     stalls: Arc<AtomicU64>,
     stall_timeout: Duration,
     sent: u64,
+    needs_receiver: bool,
 }
 
 impl<S: Service, T: Plain, H: Debug + ZeroCopySend + Default + 'static> Sender<S, T, H> {
@@ -424,6 +439,13 @@ impl<S: Service, T: Plain, H: Debug + ZeroCopySend + Default + 'static> Sender<S
     ) -> Result<std::result::Result<(), E>> {
         let io =
             |op, e: Cause, ch: &str| TransportError::Io { channel: ch.to_string(), op, cause: e };
+        let stalled = || TransportError::Stalled {
+            channel: self.channel.clone(),
+            timeout: self.stall_timeout,
+        };
+        if self.needs_receiver && !self.wait_for_receiver() {
+            return Err(stalled());
+        }
         let uninit = self
             .publisher
             .loan_slice_uninit(len)
@@ -452,13 +474,12 @@ impl<S: Service, T: Plain, H: Debug + ZeroCopySend + Default + 'static> Sender<S
         }
         let before = self.stalls.load(Ordering::Relaxed);
         match sample.send() {
+            // The receiver went away between the wait and the send.
+            Ok(0) if self.needs_receiver => return Err(stalled()),
             Ok(_) => {}
             Err(e) => {
                 if self.stalls.load(Ordering::Relaxed) > before {
-                    return Err(TransportError::Stalled {
-                        channel: self.channel.clone(),
-                        timeout: self.stall_timeout,
-                    });
+                    return Err(stalled());
                 }
                 return Err(io("send", e.into(), &self.channel));
             }
@@ -472,6 +493,19 @@ impl<S: Service, T: Plain, H: Debug + ZeroCopySend + Default + 'static> Sender<S
     /// Messages sent.
     pub fn sent(&self) -> u64 {
         self.sent
+    }
+
+    /// Waits up to the stall timeout for a receiver (a restarting receiver
+    /// comes back); false when none came.
+    fn wait_for_receiver(&self) -> bool {
+        let start = std::time::Instant::now();
+        while self.receivers() == 0 {
+            if start.elapsed() >= self.stall_timeout {
+                return false;
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        true
     }
 
     /// Receivers connected to the channel now.
@@ -816,6 +850,33 @@ mod tests {
         .unwrap();
         let m = rx.try_recv().unwrap().expect("the second message");
         assert_eq!((m.user_header().seq, m.payload()), (2, &[2.0f32; 8][..]));
+    }
+
+    #[test]
+    fn a_transition_sent_to_nobody_is_a_stall_and_one_sent_to_a_receiver_arrives() {
+        let hub = Hub::<Local>::new("unit-nobody", "unit").unwrap();
+        let ch = Channel::transitions(1);
+        let mut tx = hub.sender::<f32, Hdr>(&ch, 4, Duration::from_millis(50)).unwrap();
+        let t = std::time::Instant::now();
+        let r = tx.send_with(4, |h, p| {
+            h.seq = 1;
+            p.fill(1.0);
+        });
+        assert!(matches!(r, Err(TransportError::Stalled { .. })), "{r:?}");
+        assert!(t.elapsed() >= Duration::from_millis(50), "it waited for a receiver first");
+        assert_eq!(tx.sent(), 0);
+        let mut rx = hub.receiver::<f32, Hdr>(&ch).unwrap();
+        tx.send_with(4, |h, p| {
+            h.seq = 2;
+            p.fill(2.0);
+        })
+        .unwrap();
+        let m = rx.try_recv().unwrap().expect("the sample arrived");
+        assert_eq!(m.user_header().seq, 2);
+        // Other channels keep sending to nobody as before (telemetry, weights).
+        let w = Channel::weights(1);
+        let mut wtx = hub.sender::<f32, Hdr>(&w, 4, Duration::from_millis(50)).unwrap();
+        wtx.send_with(4, |_, p| p.fill(0.0)).unwrap();
     }
 
     #[test]
