@@ -644,7 +644,7 @@ impl Supervisor<'_> {
             peak_rss_mb: m.peak_rss_mb,
             policy_lag_mean: m.policy_lag.mean(),
             restarts: self.restarts,
-            lost_messages: m.latest.values().map(|t| t.lost).sum(),
+            lost_messages: m.lost(),
             rejected_by_reason,
             checkpoint: checkpoint.map(|p| p.display().to_string()),
             last_checkpoint: last.map(|p| p.display().to_string()),

@@ -24,6 +24,11 @@ pub(super) struct Monitor {
     table: Table,
     /// Each role's newest telemetry sample, by (role, index).
     pub(super) latest: BTreeMap<(u32, u32), Telemetry>,
+    /// What earlier processes of each role counted before they were
+    /// restarted (the counters a new process starts again at 0), by
+    /// (role, index): a restarted role's work and losses stay in the run's
+    /// totals.
+    carried: BTreeMap<(u32, u32), Carried>,
     sys: System,
     gpu: GpuMonitor,
     /// Whole-machine CPU %, over the run.
@@ -59,6 +64,7 @@ impl Monitor {
                 resumed,
             )?,
             latest: BTreeMap::new(),
+            carried: BTreeMap::new(),
             sys: System::new()
                 .map_err(|e| anyhow::anyhow!("cannot read system statistics: {e}"))?,
             gpu: GpuMonitor::new(),
@@ -78,15 +84,39 @@ impl Monitor {
         rx: &mut Receiver<S, u8, Telemetry>,
     ) -> Result<()> {
         while let Some(m) = rx.try_recv()? {
-            let t = *m.user_header();
-            self.latest.insert((t.role, t.index), t);
+            self.take(*m.user_header());
         }
         Ok(())
     }
 
-    /// The main work counter summed over every instance of `role`.
+    /// Takes one sample: the role's newest, and, when it comes from a new
+    /// process of the role, what the ended one counted is carried.
+    fn take(&mut self, t: Telemetry) {
+        let key = (t.role, t.index);
+        if let Some(old) = self.latest.get(&key).filter(|old| restarted(old, &t)) {
+            self.carried.entry(key).or_default().add(old);
+        }
+        self.latest.insert(key, t);
+    }
+
+    /// A role's counters over the run: its newest sample plus what its
+    /// earlier processes counted.
+    fn total(&self, t: &Telemetry) -> Carried {
+        let c = self.carried.get(&(t.role, t.index)).copied().unwrap_or_default();
+        Carried { work: c.work + t.work, lost: c.lost + t.lost }
+    }
+
+    /// The main work counter summed over every instance of `role`, across
+    /// restarts.
     pub(super) fn sum_work(&self, role: RoleKind) -> u64 {
-        self.latest.values().filter(|t| t.role == role as u32).map(|t| t.work).sum()
+        let of = self.latest.values().filter(|t| t.role == role as u32);
+        of.map(|t| self.total(t).work).sum()
+    }
+
+    /// Messages lost (sequence gaps, batches given up), every role, across
+    /// restarts.
+    pub(super) fn lost(&self) -> u64 {
+        self.latest.values().map(|t| self.total(t).lost).sum()
     }
 
     /// Agent-steps, learner updates and replay size, from the telemetry.
@@ -101,7 +131,7 @@ impl Monitor {
         self.latest
             .values()
             .filter(|t| t.role == RoleKind::Sim as u32 && (from..to).contains(&t.index))
-            .map(|t| t.work)
+            .map(|t| self.total(t).work)
             .sum()
     }
 
@@ -167,7 +197,7 @@ impl Monitor {
             .latest
             .values()
             .filter(|t| t.role == RoleKind::Replay as u32)
-            .map(|t| t.lost)
+            .map(|t| self.total(t).lost)
             .sum::<u64>();
         let envs = cfg.sim.envs as u32;
         let mut out = vec![HostSummary {
@@ -216,6 +246,32 @@ impl Monitor {
     }
 }
 
+/// The counters of a role's process that start again at 0 when it is
+/// restarted. The learner's updates do not (it resumes from its saved
+/// state), so its work is not carried.
+#[derive(Debug, Clone, Copy, Default)]
+struct Carried {
+    work: u64,
+    lost: u64,
+}
+
+impl Carried {
+    /// Carries what an ended process `t` counted.
+    fn add(&mut self, t: &Telemetry) {
+        if t.role != RoleKind::Learner as u32 {
+            self.work += t.work;
+        }
+        self.lost += t.lost;
+    }
+}
+
+/// Whether `new` comes from a new process of the role `old` came from: its
+/// heartbeat started again, or its process id changed (roles of another
+/// host send 0).
+fn restarted(old: &Telemetry, new: &Telemetry) -> bool {
+    new.heartbeat < old.heartbeat || (new.pid != old.pid && new.pid != 0 && old.pid != 0)
+}
+
 /// A host's refusals by reason, as `summary.json` names them.
 fn by_reason(stats: &rotorhive_link::HeadStats, slot: u32) -> BTreeMap<String, u64> {
     let reasons = stats.rejected_by_reason(slot);
@@ -260,5 +316,39 @@ fn gauge(t: &Telemetry) -> String {
         Some(RoleKind::Actor) => format!("{:.3}", t.value_milli as f64 / 1e3),
         Some(RoleKind::Replay) => t.value_milli.to_string(),
         _ => String::new(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample(role: RoleKind, index: u32, pid: u32, heartbeat: u64, work: u64) -> Telemetry {
+        Telemetry { role: role as u32, index, pid, heartbeat, work, lost: 1, ..Default::default() }
+    }
+
+    #[test]
+    fn what_a_restarted_role_counted_stays_in_the_runs_totals() {
+        let dir = std::env::temp_dir().join(format!("rotorhive-monitor-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut m = Monitor::open(&dir, false).unwrap();
+        // A sim killed after 100 agent-steps, and its new process (heartbeat
+        // and work from 0 again, another pid).
+        m.take(sample(RoleKind::Sim, 0, 10, 5, 100));
+        m.take(sample(RoleKind::Sim, 0, 10, 6, 120));
+        m.take(sample(RoleKind::Sim, 0, 11, 1, 20));
+        // A worker's sim (pid 0 from another host) restarted: its heartbeat.
+        m.take(sample(RoleKind::Sim, 1, 0, 7, 30));
+        m.take(sample(RoleKind::Sim, 1, 0, 1, 5));
+        // The learner resumes its update count from its saved state.
+        m.take(sample(RoleKind::Learner, 0, 12, 9, 50));
+        m.take(sample(RoleKind::Learner, 0, 13, 1, 55));
+        assert_eq!(m.sum_work(RoleKind::Sim), 120 + 20 + 30 + 5);
+        assert_eq!(m.steps_of(1, 2), 35);
+        assert_eq!(m.sum_work(RoleKind::Learner), 55);
+        // Every process's losses count (1 each): two processes of each of
+        // sim 0, sim 1 and the learner.
+        assert_eq!(m.lost(), 6);
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }
