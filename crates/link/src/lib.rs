@@ -3,10 +3,12 @@
 //! iceoryx2 stays the transport inside each host; the link of a host is one
 //! more member of its run that carries, over one Zenoh session on TCP (peer
 //! mode, explicit endpoints, no multicast, no router):
-//! - transition batches worker → head, loss-free: zenoh's
-//!   `CongestionControl::Block`, a bounded FIFO on the head, then the head's
-//!   bounded iceoryx2 send retried while the replay is full, so back-pressure
-//!   reaches the worker's actors end to end;
+//! - transition batches worker → head: zenoh's `CongestionControl::Block`,
+//!   a bounded FIFO on the head, then the head's bounded iceoryx2 send
+//!   retried while the replay is full (or restarting), so back-pressure
+//!   reaches the worker's actors end to end; nothing is acknowledged yet, so
+//!   a session that drops loses what its queues held (README says what is
+//!   guaranteed);
 //! - weights head → worker, newest only (a ring of one), republished on the
 //!   worker's shared memory once per host;
 //! - telemetry and episodes worker → head (they may drop under load; drops
