@@ -594,6 +594,22 @@ impl NetPair {
         Ok(pair)
     }
 
+    /// Takes the second namespace's end of the veth pair down or up (a
+    /// network outage for the host there).
+    fn set_link(&self, up: bool) -> Result<(), String> {
+        let dev = format!("vb{}", self.b.trim_start_matches("rhb"));
+        let state = if up { "up" } else { "down" };
+        let o = Command::new("ip")
+            .args(["-n", &self.b, "link", "set", &dev, state])
+            .output()
+            .map_err(|e| e.to_string())?;
+        if o.status.success() {
+            Ok(())
+        } else {
+            Err(String::from_utf8_lossy(&o.stderr).into_owned())
+        }
+    }
+
     /// `hive args` inside namespace `ns`, with a /dev/shm of its own.
     fn hive(&self, ns: &str, args: &[&str]) -> Command {
         let mut line =
@@ -685,5 +701,76 @@ fn two_hosts_in_two_network_namespaces_with_their_own_shared_memory() {
         assert_little_loss(host, &s, &h, &w);
         assert!(host.env_steps > 1000, "{s:?}");
     }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A network outage of 15 s (the worker's interface down, past zenoh's
+/// default 10 s lease) in the middle of a run: the session is kept (the
+/// link's lease is 60 s), the worker's actors wait instead of giving
+/// batches up, and the run ends normally with the worker still in it and
+/// nothing counted lost on either host.
+#[test]
+#[ignore = "slow multi-process test: scripts/test runs it (--include-ignored)"]
+fn a_worker_rides_out_a_fifteen_second_network_outage() {
+    let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
+    if !rustix::process::geteuid().is_root() {
+        println!("skipped: network namespaces need root");
+        return;
+    }
+    let net = match NetPair::new() {
+        Ok(n) => n,
+        Err(e) => {
+            println!("skipped: cannot make two network namespaces here: {e}");
+            return;
+        }
+    };
+    let dir = tmp("outage");
+    let dir_s = dir.display().to_string();
+    let mut args = vec![
+        "train",
+        "--listen",
+        "tcp/10.78.0.1:7447",
+        "--insecure",
+        "--max-seconds",
+        "40",
+        "--run-dir",
+        &dir_s,
+    ];
+    args.extend(small_run());
+    args.extend(["--set", "cluster.workers=1"]);
+    let head = net.hive(&net.a, &args).spawn().unwrap();
+    let wdir = tmp("outage-worker").display().to_string();
+    let worker_args = [
+        "worker",
+        "--connect",
+        "tcp/10.78.0.1:7447",
+        "--agents",
+        "8",
+        "--name",
+        "far",
+        "--run-dir",
+    ];
+    let mut worker_args = worker_args.to_vec();
+    worker_args.push(&wdir);
+    let worker = net.hive(&net.b, &worker_args).spawn().unwrap();
+    // The worker's sim has stepped for a while: its batches flow.
+    common::wait_for("the worker's sim at work", Duration::from_secs(40), || {
+        sim_heartbeats(&dir, 1).last().is_some_and(|b| *b >= 5)
+    });
+    net.set_link(false).unwrap();
+    std::thread::sleep(Duration::from_secs(15));
+    net.set_link(true).unwrap();
+    let w = worker.wait_with_output().unwrap();
+    let h = head.wait_with_output().unwrap();
+    assert!(h.status.success(), "head: {}", text(&h));
+    assert!(w.status.success(), "worker: {}", text(&w));
+    assert!(String::from_utf8_lossy(&w.stdout).contains("the head ended the run"), "{}", text(&w));
+    let s = common::summary(&dir);
+    assert_eq!(s.hosts.len(), 2, "{s:?}");
+    for host in &s.hosts {
+        assert_eq!(host.lost_transitions, 0, "{s:?}");
+        assert!(host.env_steps > 1000, "{s:?}");
+    }
+    assert_eq!(s.lost_messages, 0, "{s:?}");
     let _ = std::fs::remove_dir_all(&dir);
 }

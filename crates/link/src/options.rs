@@ -111,6 +111,10 @@ pub fn check_options(ep: &str, opts: &LinkOptions) -> Result<()> {
     Ok(())
 }
 
+/// How long a silent link is given before its session is dropped (ms): a
+/// network outage or a stalled head shorter than this loses nothing.
+pub const LEASE_MS: u64 = 60_000;
+
 pub(crate) fn set(c: &mut zenoh::Config, k: &str, v: &str) -> Result<()> {
     c.insert_json5(k, v).map_err(|cause| LinkError::Zenoh { what: format!("config {k}"), cause })
 }
@@ -187,6 +191,12 @@ pub(crate) fn open(
     // lose what is in flight (the default is 5 s); the head's own stall is
     // bounded by the run's stop.
     set(&mut c, "transport/link/tx/queue/congestion_control/block/wait_before_close", "60000000")?;
+    // A link that goes quiet (a network outage, a head held busy) is given
+    // LEASE_MS before either end declares the other dead and drops the
+    // session with what it holds in flight; TCP carries what waited once
+    // the link is back (zenoh's default lease is 10 s; keep-alives go every
+    // quarter of it).
+    set(&mut c, "transport/link/tx/lease", &LEASE_MS.to_string())?;
     // A transition batch is hundreds of kilobytes: read the link in large
     // chunks (the default is one 64 KiB batch).
     set(&mut c, "transport/link/rx/buffer_size", "4194304")?;

@@ -17,7 +17,7 @@ use rotorhive_transport::Channel;
 
 use rotorhive_msg::EpisodeHeader;
 use rotorhive_transport::Service;
-use rotorhive_transport::{Receiver, Sender};
+use rotorhive_transport::{Receiver, Sender, TransportError};
 
 use crate::config::Config;
 use crate::schedule::Schedule;
@@ -353,20 +353,31 @@ impl<'a, S: Service> Actor<'a, S> {
             seq: self.seq,
             weight_version: self.version,
         };
-        let sent = self.trans_tx.send_with(count * PACKED_LEN, |th, out| {
-            *th = header;
-            for (o, t) in out.chunks_exact_mut(PACKED_LEN).zip(&nstep.out) {
-                let next = &obs[t.agent * OBS_LEN..(t.agent + 1) * OBS_LEN];
-                pack_transition(
-                    nstep.obs(t.slot, t.agent),
-                    next,
-                    t.action as f32,
-                    t.ret,
-                    if t.done { 1.0 } else { 0.0 },
-                    o,
-                );
+        // A receiver that is there but busy (a replay or a link held up, a
+        // network outage behind the worker's link) is waited for: the batch
+        // is sent again, and back-pressure reaches the sim. Only a send that
+        // found no receiver within the stall timeout gives the batch up.
+        let sent = loop {
+            let r = self.trans_tx.send_with(count * PACKED_LEN, |th, out| {
+                *th = header;
+                for (o, t) in out.chunks_exact_mut(PACKED_LEN).zip(&nstep.out) {
+                    let next = &obs[t.agent * OBS_LEN..(t.agent + 1) * OBS_LEN];
+                    pack_transition(
+                        nstep.obs(t.slot, t.agent),
+                        next,
+                        t.action as f32,
+                        t.ret,
+                        if t.done { 1.0 } else { 0.0 },
+                        o,
+                    );
+                }
+            });
+            match r {
+                Err(TransportError::Stalled { .. })
+                    if self.trans_tx.receivers() > 0 && !self.hub.shutdown_requested() => {}
+                other => break other,
             }
-        });
+        };
         match sent {
             Ok(()) => {
                 self.seq += 1;

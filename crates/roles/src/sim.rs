@@ -50,9 +50,10 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
                     last_send = Instant::now();
                 }
                 Err(e) => {
-                    // The actor is gone or restarting: report, and try again.
+                    // The actor is gone, restarting or held up (waiting on
+                    // its own receiver): report, and send the same step
+                    // again. Nothing is lost, so nothing is counted lost.
                     tracing::warn!("sim {env_index}: {e}");
-                    tel.sample.lost += 1;
                     tel.tick(false, Telemetry::beat);
                     continue;
                 }
@@ -71,8 +72,13 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
             continue;
         };
         let h = *msg.user_header();
+        if h.step < step && msg.payload().len() == n {
+            // The actor's answer to a step published again (it was held up):
+            // a duplicate, not a loss. Keep waiting for the right one.
+            continue;
+        }
         if h.step != step || msg.payload().len() != n {
-            // A stale or foreign batch: count it and keep waiting for the right one.
+            // A foreign batch: count it and keep waiting for the right one.
             tel.sample.lost += 1;
             continue;
         }
