@@ -398,3 +398,19 @@ fn no_two_source_files_import_each_other() {
     assert!(edges_seen > 100, "only {edges_seen} imports found: the scan is broken");
     assert!(cycles.is_empty(), "source files that import each other: {cycles:#?}");
 }
+
+/// Architecture Invariant: `crates/link` stays split by what each part is:
+/// no file of it over 400 lines (tests included).
+#[test]
+fn no_file_of_the_link_is_over_400_lines() {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let files = sources(&root.join("crates/link/src"));
+    assert!(files.len() >= 8, "{files:?}");
+    let long: Vec<String> = files
+        .iter()
+        .map(|f| (f, std::fs::read_to_string(f).unwrap().lines().count()))
+        .filter(|(_, n)| *n > 400)
+        .map(|(f, n)| format!("{}: {n} lines", f.display()))
+        .collect();
+    assert!(long.is_empty(), "files of crates/link over 400 lines: {long:?}");
+}

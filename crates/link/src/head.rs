@@ -8,10 +8,10 @@ use zenoh::Wait;
 use zenoh::handlers::{FifoChannel, FifoChannelHandler, RingChannel};
 use zenoh::query::Query;
 
-use crate::check::Reason;
 use crate::error::{LinkError, Result, zerr};
 use crate::host::{Host, JoinLimits, place, same_token};
 use crate::options::{LinkOptions, open};
+use crate::reject::Reason;
 use crate::shared::{Fifo, JOIN, key};
 use crate::wire::{Hello, Welcome};
 use crate::{check, wire};

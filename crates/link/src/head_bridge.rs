@@ -16,10 +16,10 @@ use rotorhive_transport::{Channel, Hub};
 use zenoh::Wait;
 use zenoh::qos::CongestionControl;
 
-use crate::check::Reason;
 use crate::error::{LinkError, Result, zerr};
 use crate::head::{ConfigFor, Head, HeadStats, refuse, reply};
 use crate::host::{Host, same_token};
+use crate::reject::Reason;
 use crate::shared::{LinkTelemetry, key, link_telemetry, send_retrying};
 use crate::wire::Welcome;
 use crate::{check, wire};

@@ -25,6 +25,7 @@ mod head;
 mod head_bridge;
 mod host;
 mod options;
+mod reject;
 mod shared;
 pub mod wire;
 mod worker;
