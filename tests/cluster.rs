@@ -489,7 +489,7 @@ fn a_head_held_busy_slows_the_worker_without_loss() {
         "--listen",
         &ep,
         "--max-seconds",
-        "30",
+        "40",
         "--run-dir",
         &dir_s,
     ];
@@ -527,12 +527,12 @@ fn a_head_held_busy_slows_the_worker_without_loss() {
     common::wait_for("the worker's sim at work", Duration::from_secs(30), || {
         sim_heartbeats(&dir, 1).last().is_some_and(|b| *b >= 5)
     });
-    // Hold the head's replay for 1 s (half the actors' 2 s stall bound,
-    // past which an actor gives a batch up and counts it lost): transitions
-    // pile up in the head's link, then zenoh's queue, then the worker's link
-    // and actors wait.
+    // Hold the head's replay for 15 s (past zenoh's default 10 s lease, and
+    // far past the actors' 2 s stall bound, beyond which an actor whose
+    // receiver is gone gives a batch up): transitions pile up in the head's
+    // link, then zenoh's queue, then the worker's link and actors wait.
     common::signal(pid, Signal::STOP);
-    std::thread::sleep(Duration::from_millis(1000));
+    std::thread::sleep(Duration::from_secs(15));
     common::signal(pid, Signal::CONT);
     let h = head.wait_with_output().unwrap();
     let w = worker.wait_with_output().unwrap();
@@ -553,9 +553,10 @@ fn a_head_held_busy_slows_the_worker_without_loss() {
     let link = tel.iter().rfind(|r| r.role == Member::Link && r.index == 0).unwrap();
     let send_wait_ms = link.stage_ms[LinkStage::SendWait as usize];
     assert!(
-        send_wait_ms > 1000.0,
+        send_wait_ms > 10_000.0,
         "the head's link waited {send_wait_ms} ms on the replay: {link:?}"
     );
+    assert_eq!(s.lost_messages, 0, "{s:?}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 
