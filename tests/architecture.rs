@@ -20,11 +20,7 @@ fn every_crate_is_in_the_code_map() {
     // And every module of every crate (`sumtree.rs` or `sumtree`), so that
     // a new file cannot hide from the map.
     let mut missing = Vec::new();
-    for dir in std::fs::read_dir(root.join("crates"))
-        .unwrap()
-        .map(|e| e.unwrap().path().join("src"))
-        .chain([root.join("benches/src")])
-    {
+    for dir in source_dirs() {
         for f in sources(&dir) {
             let stem = f.file_stem().unwrap().to_string_lossy().into_owned();
             if !["lib", "main", "mod"].contains(&stem.as_str())
@@ -52,6 +48,17 @@ fn sources(dir: &Path) -> Vec<PathBuf> {
     out
 }
 
+/// The source folders of the workspace: every crate's `src`, the benches'.
+fn source_dirs() -> Vec<PathBuf> {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let mut dirs: Vec<PathBuf> = std::fs::read_dir(root.join("crates"))
+        .unwrap()
+        .map(|e| e.unwrap().path().join("src"))
+        .collect();
+    dirs.push(root.join("benches/src"));
+    dirs
+}
+
 /// A file's lines before its test module (`#[cfg(test)]` at the top level;
 /// test modules sit at the end of their file here); none for `tests.rs`.
 fn non_test_lines(path: &Path) -> Vec<String> {
@@ -70,12 +77,7 @@ fn non_test_lines(path: &Path) -> Vec<String> {
 /// at most a quarter of the workspace's non-test Rust lines.
 #[test]
 fn the_binary_holds_at_most_a_quarter_of_the_code() {
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
-    let mut dirs: Vec<PathBuf> = std::fs::read_dir(root.join("crates"))
-        .unwrap()
-        .map(|e| e.unwrap().path().join("src"))
-        .collect();
-    dirs.push(root.join("benches/src"));
+    let dirs = source_dirs();
     let (mut total, mut hive) = (0, 0);
     for dir in dirs.iter().filter(|d| d.exists()) {
         let n: usize = sources(dir).iter().map(|f| non_test_lines(f).len()).sum();
@@ -97,12 +99,7 @@ fn the_binary_holds_at_most_a_quarter_of_the_code() {
 /// line to its closing brace).
 #[test]
 fn no_function_is_longer_than_80_lines() {
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
-    let mut dirs: Vec<PathBuf> = std::fs::read_dir(root.join("crates"))
-        .unwrap()
-        .map(|e| e.unwrap().path().join("src"))
-        .collect();
-    dirs.push(root.join("benches/src"));
+    let dirs = source_dirs();
     let files: Vec<PathBuf> = dirs.iter().filter(|d| d.exists()).flat_map(|d| sources(d)).collect();
     assert!(files.len() >= 60, "{files:?}");
     let mut long = Vec::new();
@@ -353,12 +350,7 @@ fn crate_paths(line: &str, module: &[String]) -> Vec<Vec<String>> {
 /// dependency), tests aside.
 #[test]
 fn no_two_source_files_import_each_other() {
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
-    let mut dirs: Vec<PathBuf> = std::fs::read_dir(root.join("crates"))
-        .unwrap()
-        .map(|e| e.unwrap().path().join("src"))
-        .collect();
-    dirs.push(root.join("benches/src"));
+    let dirs = source_dirs();
     let mut cycles = Vec::new();
     let mut edges_seen = 0;
     for src in dirs.iter().filter(|d| d.exists()) {

@@ -14,7 +14,8 @@ use common::{root, tmp};
 use rotorhive_msg::LinkStage;
 use rotorhive_records::{HostSummary, Member, Summary};
 use rustix::process::Signal;
-use std::process::{Command, Output, Stdio};
+use std::path::PathBuf;
+use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 /// A TCP port nobody listens on right now.
@@ -644,54 +645,42 @@ impl Drop for NetPair {
     }
 }
 
-#[test]
-#[ignore = "slow multi-process test: scripts/test runs it (--include-ignored)"]
-fn two_hosts_in_two_network_namespaces_with_their_own_shared_memory() {
-    let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
+/// A head (`--max-seconds secs`, run directory `tmp(name)`) in one network
+/// namespace and a worker named `worker` (8 agents) in the other, both
+/// started; `None` (saying why) where namespaces cannot be made here.
+fn netns_run(name: &str, secs: &str, worker: &str) -> Option<(NetPair, PathBuf, Child, Child)> {
     if !rustix::process::geteuid().is_root() {
         println!("skipped: network namespaces need root");
-        return;
+        return None;
     }
     let net = match NetPair::new() {
         Ok(n) => n,
         Err(e) => {
             println!("skipped: cannot make two network namespaces here: {e}");
-            return;
+            return None;
         }
     };
-    let dir = tmp("netns");
+    let dir = tmp(name);
     let dir_s = dir.display().to_string();
-    let mut args = vec![
-        "train",
-        "--listen",
-        "tcp/10.78.0.1:7447",
-        "--insecure",
-        "--max-seconds",
-        "20",
-        "--run-dir",
-        &dir_s,
-    ];
+    let ep = "tcp/10.78.0.1:7447";
+    let mut args =
+        vec!["train", "--listen", ep, "--insecure", "--max-seconds", secs, "--run-dir", &dir_s];
     args.extend(small_run());
     args.extend(["--set", "cluster.workers=1"]);
     let head = net.hive(&net.a, &args).spawn().unwrap();
-    let wdir = tmp("netns-worker").display().to_string();
-    let worker = net
-        .hive(
-            &net.b,
-            &[
-                "worker",
-                "--connect",
-                "tcp/10.78.0.1:7447",
-                "--agents",
-                "8",
-                "--name",
-                "other-host",
-                "--run-dir",
-                &wdir,
-            ],
-        )
-        .spawn()
-        .unwrap();
+    let wdir = tmp(&format!("{name}-worker")).display().to_string();
+    let wargs = ["worker", "--connect", ep, "--agents", "8", "--name", worker, "--run-dir", &wdir];
+    let worker = net.hive(&net.b, &wargs).spawn().unwrap();
+    Some((net, dir, head, worker))
+}
+
+#[test]
+#[ignore = "slow multi-process test: scripts/test runs it (--include-ignored)"]
+fn two_hosts_in_two_network_namespaces_with_their_own_shared_memory() {
+    let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
+    let Some((_net, dir, head, worker)) = netns_run("netns", "20", "other-host") else {
+        return;
+    };
     let w = worker.wait_with_output().unwrap();
     let h = head.wait_with_output().unwrap();
     assert!(h.status.success(), "head: {}", text(&h));
@@ -714,46 +703,9 @@ fn two_hosts_in_two_network_namespaces_with_their_own_shared_memory() {
 #[ignore = "slow multi-process test: scripts/test runs it (--include-ignored)"]
 fn a_worker_rides_out_a_fifteen_second_network_outage() {
     let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
-    if !rustix::process::geteuid().is_root() {
-        println!("skipped: network namespaces need root");
+    let Some((net, dir, head, worker)) = netns_run("outage", "40", "far") else {
         return;
-    }
-    let net = match NetPair::new() {
-        Ok(n) => n,
-        Err(e) => {
-            println!("skipped: cannot make two network namespaces here: {e}");
-            return;
-        }
     };
-    let dir = tmp("outage");
-    let dir_s = dir.display().to_string();
-    let mut args = vec![
-        "train",
-        "--listen",
-        "tcp/10.78.0.1:7447",
-        "--insecure",
-        "--max-seconds",
-        "40",
-        "--run-dir",
-        &dir_s,
-    ];
-    args.extend(small_run());
-    args.extend(["--set", "cluster.workers=1"]);
-    let head = net.hive(&net.a, &args).spawn().unwrap();
-    let wdir = tmp("outage-worker").display().to_string();
-    let worker_args = [
-        "worker",
-        "--connect",
-        "tcp/10.78.0.1:7447",
-        "--agents",
-        "8",
-        "--name",
-        "far",
-        "--run-dir",
-    ];
-    let mut worker_args = worker_args.to_vec();
-    worker_args.push(&wdir);
-    let worker = net.hive(&net.b, &worker_args).spawn().unwrap();
     // The worker's sim has stepped for a while: its batches flow.
     common::wait_for("the worker's sim at work", Duration::from_secs(40), || {
         sim_heartbeats(&dir, 1).last().is_some_and(|b| *b >= 5)

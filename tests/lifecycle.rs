@@ -30,13 +30,8 @@ fn start_run(dir: &Path) -> Run {
         &["train", "configs/default.toml", "--quiet", "--max-seconds", "150", "--run-dir"],
         dir,
     )
+    .args(common::SMALL_RUN)
     .args([
-        "--set",
-        "sim.agents=8",
-        "--set",
-        "replay.min_fill=300",
-        "--set",
-        "replay.capacity=2000",
         "--set",
         "eval.every_s=0",
         "--set",

@@ -25,13 +25,8 @@ fn killed_roles_are_restarted_and_training_goes_on() {
         .current_dir(root())
         .args(["train", "configs/default.toml", "--quiet", "--max-seconds", "70", "--run-dir"])
         .arg(&dir)
+        .args(common::SMALL_RUN)
         .args([
-            "--set",
-            "sim.agents=8",
-            "--set",
-            "replay.min_fill=300",
-            "--set",
-            "replay.capacity=2000",
             "--set",
             "learner.checkpoint_every_s=2",
             "--set",

@@ -27,16 +27,8 @@ fn short_multi_process_training_run() {
     let out = hive()
         .args(["train", "configs/default.toml", "--quiet", "--max-seconds", "35", "--run-dir"])
         .arg(&dir)
-        .args([
-            "--set",
-            "sim.agents=8",
-            "--set",
-            "replay.min_fill=300",
-            "--set",
-            "replay.capacity=2000",
-            "--set",
-            "learner.checkpoint_every_s=5",
-        ])
+        .args(common::SMALL_RUN)
+        .args(["--set", "learner.checkpoint_every_s=5"])
         // A target network that never moves, so that the TD loss is a
         // regression on fixed targets and must fall if the learner learns
         // (with the default target update it rises as the Q-values grow),
@@ -249,12 +241,6 @@ fn a_stopped_run_resumes() {
     let dir = tmp("resume");
     let small = [
         "--set",
-        "sim.agents=8",
-        "--set",
-        "replay.min_fill=300",
-        "--set",
-        "replay.capacity=2000",
-        "--set",
         "learner.checkpoint_every_s=3",
         "--set",
         "eval.every_s=3",
@@ -268,6 +254,7 @@ fn a_stopped_run_resumes() {
     let out = hive()
         .args(["train", "configs/default.toml", "--quiet", "--max-seconds", "20", "--run-dir"])
         .arg(&dir)
+        .args(common::SMALL_RUN)
         .args(small)
         .output()
         .unwrap();

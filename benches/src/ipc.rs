@@ -37,20 +37,17 @@ fn kinds() -> [(&'static str, usize); 4] {
 }
 
 fn request_channel() -> Channel {
-    Channel {
-        name: "bench.req".into(),
-        publishers: 1,
-        subscribers: 1,
-        buffer: 2,
-        overflow: false,
-        history: 0,
-        needs_receiver: false,
-    }
+    bench_channel("bench.req")
 }
 
 fn ack_channel() -> Channel {
+    bench_channel("bench.ack")
+}
+
+/// One writer, one reader, two messages in flight.
+fn bench_channel(name: &str) -> Channel {
     Channel {
-        name: "bench.ack".into(),
+        name: name.into(),
         publishers: 1,
         subscribers: 1,
         buffer: 2,

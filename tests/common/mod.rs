@@ -8,6 +8,11 @@ use std::time::{Duration, Instant};
 use rotorhive_records::rows::{EvalRow, MetricsRow};
 use rotorhive_records::{Member, Summary, TelemetryRow};
 
+/// The `--set` arguments of a small run on one host: 8 agents, a replay of
+/// 2,000 that samples from 300 (each test adds its own).
+pub const SMALL_RUN: [&str; 6] =
+    ["--set", "sim.agents=8", "--set", "replay.min_fill=300", "--set", "replay.capacity=2000"];
+
 /// The repository root (configs and arenas are read relative to it).
 pub fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")

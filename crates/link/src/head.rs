@@ -58,7 +58,7 @@ impl HeadStats {
             r.resize(slot as usize + 1, [0; Reason::ALL.len()]);
         }
         let row = &mut r[slot as usize];
-        row[Reason::ALL.iter().position(|x| *x == reason).unwrap_or(0)] += n;
+        row[reason as usize] += n;
         row.iter().sum()
     }
 

@@ -54,7 +54,8 @@ pub enum Reason {
 }
 
 impl Reason {
-    /// Every reason, in `summary.json`'s order.
+    /// Every reason, in `summary.json`'s order (which is the order of the
+    /// variants: a reason's index here is `reason as usize`).
     pub const ALL: [Reason; 8] = [
         Reason::Slot,
         Reason::Header,
@@ -110,6 +111,19 @@ impl std::fmt::Display for Reject {
                 write!(f, "role code {role} index {index}, which the sender does not run")
             }
             Reject::Values(n) => write!(f, "{n} records with non-finite or out-of-range values"),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_reason_sits_at_its_own_index_and_has_its_own_word() {
+        for (i, r) in Reason::ALL.iter().enumerate() {
+            assert_eq!(*r as usize, i, "{r:?}");
+            assert_eq!(Reason::ALL.iter().filter(|x| x.name() == r.name()).count(), 1);
         }
     }
 }

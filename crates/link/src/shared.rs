@@ -6,7 +6,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use rotorhive_msg::{EPISODE_FIELDS, RoleKind, Telemetry};
 use rotorhive_transport::Service;
-use rotorhive_transport::{Channel, Hub, TransportError};
+use rotorhive_transport::{Channel, Hub};
 use zenoh::handlers::FifoChannelHandler;
 
 use crate::check;
@@ -61,30 +61,21 @@ pub(crate) fn link_telemetry<S: Service>(
     Ok(rotorhive_transport::Periodic::new(hub, &Channel::telemetry(roles), sample)?)
 }
 
-/// Sends into shared memory, retrying while the receiver is full (bounded
-/// back-pressure, never a loss) until `stop`.
+/// Sends into shared memory, retrying while the receiver is full or
+/// restarting (bounded back-pressure, never a loss) until `stop` or the
+/// process is asked to stop; false when it stopped first.
 pub(crate) fn send_retrying<S: Service, T, H>(
     tx: &mut rotorhive_transport::Sender<S, T, H>,
     len: usize,
     stop: &AtomicBool,
-    mut fill: impl FnMut(&mut H, &mut [T]),
+    fill: impl FnMut(&mut H, &mut [T]),
 ) -> Result<bool>
 where
     T: rotorhive_transport::Plain,
     H: std::fmt::Debug + iceoryx2::prelude::ZeroCopySend + Default + 'static,
 {
-    loop {
-        match tx.send_with(len, &mut fill) {
-            Ok(()) => return Ok(true),
-            Err(TransportError::Stalled { .. })
-                if !stop.load(Ordering::SeqCst) && !rotorhive_transport::stop_requested() =>
-            {
-                continue;
-            }
-            Err(TransportError::Stalled { .. }) => return Ok(false),
-            Err(e) => return Err(e.into()),
-        }
-    }
+    let give_up = |_| stop.load(Ordering::SeqCst) || rotorhive_transport::stop_requested();
+    Ok(tx.send_retrying(len, give_up, fill)?)
 }
 
 pub(crate) type Fifo = zenoh::pubsub::Subscriber<FifoChannelHandler<zenoh::sample::Sample>>;

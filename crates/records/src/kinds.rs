@@ -45,18 +45,19 @@ impl Member {
         }
     }
 
+    /// Every member.
+    pub const ALL: [Member; 6] = [
+        Member::Sim,
+        Member::Actor,
+        Member::Replay,
+        Member::Learner,
+        Member::Link,
+        Member::Supervisor,
+    ];
+
     /// Reads the word in the files.
     pub fn parse(s: &str) -> Option<Self> {
-        [
-            Member::Sim,
-            Member::Actor,
-            Member::Replay,
-            Member::Learner,
-            Member::Link,
-            Member::Supervisor,
-        ]
-        .into_iter()
-        .find(|m| m.name() == s)
+        Self::ALL.into_iter().find(|m| m.name() == s)
     }
 }
 
@@ -118,14 +119,7 @@ mod tests {
 
     #[test]
     fn members_read_back_what_they_write() {
-        for m in [
-            Member::Sim,
-            Member::Actor,
-            Member::Replay,
-            Member::Learner,
-            Member::Link,
-            Member::Supervisor,
-        ] {
+        for m in Member::ALL {
             assert_eq!(Member::parse(m.name()), Some(m));
             assert_eq!(serde_json::to_value(m).unwrap(), m.name());
         }

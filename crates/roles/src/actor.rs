@@ -17,7 +17,7 @@ use rotorhive_transport::Channel;
 
 use rotorhive_msg::EpisodeHeader;
 use rotorhive_transport::Service;
-use rotorhive_transport::{Receiver, Sender, TransportError};
+use rotorhive_transport::{Receiver, Sender};
 
 use crate::config::Config;
 use crate::schedule::Schedule;
@@ -357,34 +357,38 @@ impl<'a, S: Service> Actor<'a, S> {
         // network outage behind the worker's link) is waited for: the batch
         // is sent again, and back-pressure reaches the sim. Only a send that
         // found no receiver within the stall timeout gives the batch up.
-        let sent = loop {
-            let r = self.trans_tx.send_with(count * PACKED_LEN, |th, out| {
-                *th = header;
-                for (o, t) in out.chunks_exact_mut(PACKED_LEN).zip(&nstep.out) {
-                    let next = &obs[t.agent * OBS_LEN..(t.agent + 1) * OBS_LEN];
-                    pack_transition(
-                        nstep.obs(t.slot, t.agent),
-                        next,
-                        t.action as f32,
-                        t.ret,
-                        if t.done { 1.0 } else { 0.0 },
-                        o,
-                    );
-                }
-            });
-            match r {
-                Err(TransportError::Stalled { .. })
-                    if self.trans_tx.receivers() > 0 && !self.hub.shutdown_requested() => {}
-                other => break other,
+        let hub = self.hub;
+        let give_up = |receivers| receivers == 0 || hub.shutdown_requested();
+        let sent = self.trans_tx.send_retrying(count * PACKED_LEN, give_up, |th, out| {
+            *th = header;
+            for (o, t) in out.chunks_exact_mut(PACKED_LEN).zip(&nstep.out) {
+                let next = &obs[t.agent * OBS_LEN..(t.agent + 1) * OBS_LEN];
+                pack_transition(
+                    nstep.obs(t.slot, t.agent),
+                    next,
+                    t.action as f32,
+                    t.ret,
+                    if t.done { 1.0 } else { 0.0 },
+                    o,
+                );
             }
-        };
+        });
         match sent {
-            Ok(()) => {
+            Ok(true) => {
                 self.seq += 1;
                 self.transitions += count as u64;
             }
+            Ok(false) if self.schedule.is_some() => {
+                protocol_err!(
+                    "actor {e}: a deterministic run cannot lose transitions: no replay took them"
+                )
+            }
             Err(err) if self.schedule.is_some() => {
                 protocol_err!("actor {e}: a deterministic run cannot lose transitions: {err}")
+            }
+            Ok(false) => {
+                tracing::warn!("actor {e}: no replay took a batch within the stall timeout");
+                self.tel.sample.lost += 1;
             }
             Err(err) => {
                 tracing::warn!("actor {e}: {err}");

@@ -429,6 +429,27 @@ impl<S: Service, T: Plain, H: Debug + ZeroCopySend + Default + 'static> Sender<S
         }
     }
 
+    /// [`Sender::send_with`], sent again for as long as it stalls (the
+    /// receiver is full, or gone) unless `give_up(receivers)` says to stop
+    /// trying: true when sent, false when it gave up after a stall. The
+    /// bounded back-pressure of the link and the actors: a busy receiver is
+    /// waited for, never skipped.
+    pub fn send_retrying(
+        &mut self,
+        len: usize,
+        give_up: impl Fn(usize) -> bool,
+        mut fill: impl FnMut(&mut H, &mut [T]),
+    ) -> Result<bool> {
+        loop {
+            match self.send_with(len, &mut fill) {
+                Ok(()) => return Ok(true),
+                Err(TransportError::Stalled { .. }) if !give_up(self.receivers()) => {}
+                Err(TransportError::Stalled { .. }) => return Ok(false),
+                Err(e) => return Err(e),
+            }
+        }
+    }
+
     /// As [`Sender::send_with`], with a fill that may fail: when it does, the
     /// loan is given back unsent and its error returned inside `Ok`, so a
     /// half-written message is never published.
