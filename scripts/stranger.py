@@ -36,9 +36,11 @@ def transition(action=1.0, reward=3.0, done=0.0):
     return depth + struct.pack("<9f", 0.1, 0.2, 0.3, 0.1, 0.2, 0.3, action, reward, done)
 
 
-def trans_header(actor, count, seq=0):
-    # TransitionHeader: actor, count, seq, weight_version (24 bytes).
-    return struct.pack("<IIQQ", actor, count, seq, 0)
+def trans_header(actor, count, seq=0, epoch=0):
+    # TransitionHeader: actor, count, seq, weight_version (24 bytes); then
+    # the link's LinkHeader: epoch, seq in the stream (16 bytes). The head
+    # gives each join its epoch (random): a forged one is not the worker's.
+    return struct.pack("<IIQQ", actor, count, seq, 0) + struct.pack("<QQ", epoch, seq)
 
 
 def ep_header(actor, count):
@@ -51,7 +53,8 @@ def telemetry(role, index, work=0):
     counters = struct.pack("<QQQQQq", 1, work, 0, 0, 0, 0)
     stages = struct.pack("<4Q", 0, 0, 0, 0)
     learning = struct.pack("<fffIffII", 0, 0, 0, 0, 0, 0, 0, 0)
-    return head + counters + stages + learning
+    delivery = struct.pack("<4Q", 0, 0, 0, 0)
+    return head + counters + stages + learning + delivery
 
 
 def forged(slot_env):
@@ -70,6 +73,8 @@ def forged(slot_env):
         ("host/1/transitions", b"", trans_header(a, 0), "count"),  # count 0
         ("host/1/transitions", transition(), trans_header(a, 1)[:-1], "header"),  # short header
         ("host/1/transitions", transition(), None, "header"),  # no header
+        ("host/1/transitions", transition(), trans_header(a, 1)[:24], "header"),  # no link header
+        ("host/1/transitions", transition(), trans_header(a, 1, epoch=12345), "epoch"),  # well formed, a forged epoch
         ("host/1/episodes", b"\x00" * 13, ep_header(a, 1), "length"),  # not whole floats
         ("host/1/episodes", struct.pack("<4f", math.nan, 10, 1, 0.1), ep_header(a, 1), "values"),  # NaN return
         ("host/1/episodes", struct.pack("<4f", 1e9, 10, 7, 0.1), ep_header(a, 1), "values"),  # done code 7

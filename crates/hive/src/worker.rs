@@ -84,7 +84,7 @@ pub fn run(a: WorkerArgs) -> Result<()> {
         host: name.clone(),
         token,
     };
-    let link = Worker::join(
+    let mut link = Worker::join(
         &a.connect,
         &hello,
         Duration::from_secs_f64(a.join_timeout),
@@ -92,6 +92,7 @@ pub fn run(a: WorkerArgs) -> Result<()> {
         rotorhive_transport::stop_requested,
     )?;
     let (cfg, cfg_path) = worker_config(&link, &run_dir, a.envs as usize, a.agents)?;
+    link.reconnect = Duration::from_secs_f64(cfg.cluster.reconnect_s);
     println!(
         "joined the run at {} as worker {} ({name}): {} × {} agents, environments {}..{}",
         a.connect,
@@ -105,9 +106,11 @@ pub fn run(a: WorkerArgs) -> Result<()> {
     let mut restarts = 0u32;
     let end = serve(&link, &cfg, &cfg_path, &run_dir, &name, &mut stats, &mut restarts);
     println!(
-        "worker {name}: {} transitions in {} batches sent, weights version {} ({} received, {} rejected), {} messages dropped, {restarts} role restarts",
+        "worker {name}: {} transitions sent ({} acknowledged, {} sent again, {} never acknowledged), weights version {} ({} received, {} rejected), {} messages dropped, {restarts} role restarts",
         stats.transitions,
-        stats.batches,
+        stats.acknowledged,
+        stats.resent,
+        stats.unacknowledged,
         stats.weight_version,
         stats.weights,
         stats.rejected,

@@ -11,6 +11,7 @@ use rotorhive_msg::{
     TransitionHeader, WeightsHeader, episode_corrupt, scalars_corrupt,
 };
 
+use crate::delivery::LinkHeader;
 use crate::host::Host;
 use crate::wire;
 
@@ -53,15 +54,16 @@ impl<'a> Fragments<'a> {
     }
 }
 
-/// Checks a transition batch from `host`: header, exact length, the
-/// sender's environment, and every transition's scalars (the depth words
-/// have no invalid value). The payload stays in its fragments.
+/// Checks a transition batch from `host`: headers (the batch's, then its
+/// place in the link's stream), exact length, the sender's environment, and
+/// every transition's scalars (the depth words have no invalid value). The
+/// payload stays in its fragments.
 pub fn transitions(
     host: &Host,
     attachment: Option<&[u8]>,
     frags: &[&[u8]],
-) -> Result<TransitionHeader, Reject> {
-    let h: TransitionHeader = attachment.and_then(wire::header_from).ok_or(Reject::Header)?;
+) -> Result<(TransitionHeader, LinkHeader), Reject> {
+    let (h, link) = attachment.and_then(wire::transition_headers).ok_or(Reject::Header)?;
     if h.count == 0 || h.count as usize > MAX_BATCH {
         return Err(Reject::Count(h.count));
     }
@@ -89,7 +91,7 @@ pub fn transitions(
     if bad > 0 {
         return Err(Reject::Values(bad));
     }
-    Ok(h)
+    Ok((h, link))
 }
 
 /// The little-endian `f32`s of `bytes` (the payload's own byte order),
@@ -186,7 +188,15 @@ mod tests {
     use rotorhive_msg::{OBS_LEN, pack_transition};
 
     fn host() -> Host {
-        Host { name: "w".into(), slot: 1, envs: 2, agents: 3, env_offset: 1, token: String::new() }
+        Host {
+            name: "w".into(),
+            slot: 1,
+            envs: 2,
+            agents: 3,
+            env_offset: 1,
+            epoch: 0,
+            token: String::new(),
+        }
     }
 
     fn batch(actor: u32, rows: &[(f32, f32, f32)]) -> (Vec<u8>, Vec<u8>) {
@@ -196,7 +206,8 @@ mod tests {
             pack_transition(&obs, &obs, a, r, d, t);
         }
         let h = TransitionHeader { actor, count: rows.len() as u32, seq: 0, weight_version: 0 };
-        (wire::header_bytes(&h).to_vec(), wire::payload_bytes(&words).to_vec())
+        let link = LinkHeader { epoch: 0, seq: 0 };
+        (wire::transition_attachment(&h, &link), wire::payload_bytes(&words).to_vec())
     }
 
     #[test]
@@ -319,7 +330,8 @@ mod tests {
         #[test]
         fn arbitrary_headers_with_arbitrary_payloads(actor in any::<u32>(), count in any::<u32>(), p in proptest::collection::vec(any::<u8>(), 0..40_000)) {
             let h = TransitionHeader { actor, count, seq: 0, weight_version: 0 };
-            let r = transitions(&host(), Some(wire::header_bytes(&h)), &[&p]);
+            let att = wire::transition_attachment(&h, &LinkHeader::default());
+            let r = transitions(&host(), Some(&att), &[&p]);
             prop_assert!(r.is_err() || p.len() == count as usize * PACKED_LEN * 2);
             let e = EpisodeHeader { actor, count, epsilon_micro: 0, step: 0 };
             let r = episodes(&host(), Some(wire::header_bytes(&e)), &p);

@@ -35,6 +35,29 @@ pub struct HeadStats {
     /// requests refused, per slot (0: keys that name no host of the run,
     /// and joins) and reason (in [`Reason::ALL`]'s order).
     pub rejected: std::sync::Mutex<Vec<[u64; Reason::ALL.len()]>>,
+    /// Delivery per slot ([`crate::delivery`]).
+    pub flows: std::sync::Mutex<Vec<Flow>>,
+}
+
+/// A worker's delivery to the head over the run, in transitions (across
+/// its joins).
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
+pub struct Flow {
+    /// Sent a first time (the worker's own count, as its link reports it).
+    pub sent: u64,
+    /// Taken by the head's replay and acknowledged.
+    pub acknowledged: u64,
+    /// Sent again (the worker's count).
+    pub resent: u64,
+    /// Arrived again after they were taken: dropped.
+    pub duplicates: u64,
+    /// Arrived past a missing batch: dropped, and asked for again.
+    pub out_of_order: u64,
+    /// Sent and never taken: a worker's window when one of its processes
+    /// ended (a killed one: as its last report said), or when the run did.
+    pub lost: u64,
+    /// The worker's link sent its last count.
+    pub ended: bool,
 }
 
 impl HeadStats {
@@ -60,6 +83,11 @@ impl HeadStats {
         let row = &mut r[slot as usize];
         row[reason as usize] += n;
         row.iter().sum()
+    }
+
+    /// The delivery counts of `slot`.
+    pub fn flow_of(&self, slot: u32) -> Flow {
+        self.flows.lock().ok().and_then(|f| f.get(slot as usize).copied()).unwrap_or_default()
     }
 
     /// Messages (and joins) refused from `slot`.
@@ -222,6 +250,7 @@ impl Head {
                 envs: h.envs,
                 agents: h.agents,
                 env_offset,
+                epoch: crate::delivery::new_epoch(),
                 token: h.token.clone(),
             });
         }
@@ -238,6 +267,7 @@ impl Head {
                 &Welcome::Joined {
                     slot: host.slot,
                     env_offset: host.env_offset,
+                    epoch: host.epoch,
                     run: self.run.clone(),
                     config,
                     arena,

@@ -8,7 +8,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use rotorhive_msg::{
-    EPISODE_FIELDS, EpisodeHeader, LinkStage, SeqTracker, Telemetry, TransitionHeader,
+    EPISODE_FIELDS, EpisodeHeader, LinkStage, RoleKind, SeqTracker, Telemetry, TransitionHeader,
     WeightsHeader,
 };
 use rotorhive_transport::Service;
@@ -16,11 +16,13 @@ use rotorhive_transport::{Channel, Hub};
 use zenoh::Wait;
 use zenoh::qos::CongestionControl;
 
+use crate::delivery::Admit;
 use crate::error::{LinkError, Result, zerr};
 use crate::head::{ConfigFor, Head, HeadStats, refuse, reply};
+use crate::head_flows::Flows;
 use crate::host::{Host, same_token};
-use crate::reject::Reason;
-use crate::shared::{LinkTelemetry, key, link_telemetry, send_retrying};
+use crate::reject::{Reason, Reject};
+use crate::shared::{LinkTelemetry, key, link_telemetry};
 use crate::wire::Welcome;
 use crate::{check, wire};
 
@@ -98,13 +100,10 @@ pub(crate) fn head_loop<S: Service>(
 ) -> Result<()> {
     let s = &head.session;
     let decl = |what: &str| zerr(format!("declare {what}"));
-    let publisher = |what: &str| {
-        s.declare_publisher(key(&head.run, what))
-            .congestion_control(CongestionControl::Block)
-            .wait()
-            .map_err(decl(what))
+    let publisher = |what: &str, cc| {
+        s.declare_publisher(key(&head.run, what)).congestion_control(cc).wait().map_err(decl(what))
     };
-    let end_pub = publisher("end")?;
+    let end_pub = publisher("end", CongestionControl::Block)?;
     let total_envs = envs + head.hosts.iter().map(|h| h.envs as usize).sum::<usize>();
     let max_batch = rotorhive_msg::PACKED_LEN * check::MAX_BATCH;
     if let Ok(mut l) = stats.lost_by_env.lock() {
@@ -114,7 +113,10 @@ pub(crate) fn head_loop<S: Service>(
         head,
         stats,
         stop,
-        w_pub: publisher("weights")?,
+        // Weights may drop where a worker's link is full or gone (the next
+        // version follows): a slow or unreachable worker never holds the
+        // head's link, and with it every other worker's transitions.
+        w_pub: publisher("weights", CongestionControl::Drop)?,
         trans_tx: hub.sender(&Channel::transitions(envs), max_batch, Duration::from_millis(200))?,
         ep_tx: hub.sender(
             &Channel::episodes(envs),
@@ -125,26 +127,34 @@ pub(crate) fn head_loop<S: Service>(
         tel: link_telemetry(hub, roles, 0)?,
         next_seq: SeqTracker::new(total_envs),
         version: 0,
+        flows: Flows::open(s, &head.run, &head.hosts)?,
+        deadline: None,
     };
     while !stop.load(Ordering::SeqCst) && !hub.shutdown_requested() {
         b.weights_out()?;
-        // Transitions in, loss-free: the FIFO is bounded and the send waits.
-        let t = Instant::now();
-        let got = head.subs.transitions.recv_timeout(Duration::from_millis(5)).ok().flatten();
-        b.tel.sample.time_stage(LinkStage::Receive, t);
-        if let Some(smp) = got {
-            b.transitions_in(&smp)?;
-        }
-        b.episodes_and_telemetry_in();
+        b.round()?;
         b.rejoins(&config_for);
         b.tel.tick(false, Telemetry::beat);
     }
-    // The run's end, so the workers exit 0 instead of reporting a lost head.
+    // The run's end, so the workers exit 0 instead of reporting a lost head;
+    // then what they sent is taken (the replay runs until the link stops)
+    // until each has sent its last count.
     let _ = end_pub.put(b"end".to_vec()).wait();
-    // Let the message leave before the session closes.
-    std::thread::sleep(Duration::from_millis(200));
+    let deadline = Instant::now() + DRAIN;
+    b.deadline = Some(deadline);
+    while Instant::now() < deadline
+        && !rotorhive_transport::stop_requested()
+        && !b.flows.all_ended()
+    {
+        b.round()?;
+    }
+    b.flows.settle(stats);
     Ok(())
 }
+
+/// How long the head takes the workers' batches after the run's end: longer
+/// than they wait for their acknowledgements ([`crate::worker_bridge`]).
+const DRAIN: Duration = Duration::from_secs(7);
 
 /// The head's link at work: what it sends and receives on the head's
 /// shared memory, and what it keeps between rounds.
@@ -161,9 +171,27 @@ struct HeadBridge<'a, S: Service> {
     next_seq: SeqTracker,
     /// The newest weight version sent.
     pub(crate) version: u64,
+    /// Each worker slot's stream.
+    flows: Flows,
+    /// Past the run's end: when the head stops waiting for the replay.
+    deadline: Option<Instant>,
 }
 
 impl<S: Service> HeadBridge<'_, S> {
+    /// One round: a transition batch in (loss-free: the FIFO is bounded
+    /// and the send waits), episodes and telemetry, the answers due.
+    fn round(&mut self) -> Result<()> {
+        let t = Instant::now();
+        let got = self.head.subs.transitions.recv_timeout(Duration::from_millis(5)).ok().flatten();
+        self.tel.sample.time_stage(LinkStage::Receive, t);
+        if let Some(smp) = got {
+            self.transitions_in(&smp)?;
+        }
+        self.episodes_and_telemetry_in();
+        self.flows.answer(Instant::now());
+        Ok(())
+    }
+
     /// Weights out: the newest version, once per host (zenoh fans out).
     fn weights_out(&mut self) -> Result<()> {
         let t = Instant::now();
@@ -184,19 +212,29 @@ impl<S: Service> HeadBridge<'_, S> {
         Ok(())
     }
 
-    /// One transition batch from a worker: checked, its sequence gap
-    /// counted, then into the replay's channel (the send retried while the
-    /// replay is full).
+    /// One transition batch from a worker: checked, taken only in its
+    /// stream's order (a duplicate or a batch past a gap is dropped), its
+    /// actor's sequence gap counted, then into the replay's channel (the
+    /// send retried while the replay is full or restarting).
     fn transitions_in(&mut self, smp: &zenoh::sample::Sample) -> Result<()> {
         let (stats, hosts, run) = (self.stats, &self.head.hosts, &self.head.run);
         let t = Instant::now();
         let payload = smp.payload();
         let frags: Vec<&[u8]> = payload.slices().collect();
-        let Some(h) = accept(stats, hosts, smp, run, "transitions", |host, att| {
-            check::transitions(host, att, &frags)
+        let Some((slot, h, link)) = accept(stats, hosts, smp, run, "transitions", |host, att| {
+            check::transitions(host, att, &frags).map(|(h, l)| (host.slot, h, l))
         }) else {
             return Ok(());
         };
+        match self.flows.admit(slot, link) {
+            Admit::Take => {}
+            Admit::Duplicate => return Ok(stats.flow(slot, |f| f.duplicates += h.count as u64)),
+            Admit::Gap => return Ok(stats.flow(slot, |f| f.out_of_order += h.count as u64)),
+            Admit::Stale => {
+                stats.reject(slot, "transitions", &Reject::Epoch(link.epoch));
+                return Ok(());
+            }
+        }
         let words = payload.len() / 2;
         let gap = self.next_seq.observe(h.actor as usize, h.seq);
         if gap > 0 {
@@ -215,7 +253,12 @@ impl<S: Service> HeadBridge<'_, S> {
                 *l = l.saturating_add(gap.saturating_mul(h.count as u64));
             }
         }
-        let sent = send_retrying(&mut self.trans_tx, words, self.stop, |hdr, p| {
+        let (stop, deadline) = (self.stop, self.deadline);
+        let give_up = |_| {
+            rotorhive_transport::stop_requested()
+                || deadline.map_or(stop.load(Ordering::SeqCst), |d| Instant::now() > d)
+        };
+        let sent = self.trans_tx.send_retrying(words, give_up, |hdr, p| {
             *hdr = h;
             // Zenoh's fragments straight into the loaned sample (their
             // total is the sample's length: checked above).
@@ -227,6 +270,7 @@ impl<S: Service> HeadBridge<'_, S> {
             }
         })?;
         if sent {
+            self.flows.taken(slot, h.count, stats);
             stats.batches.fetch_add(1, Ordering::Relaxed);
             stats.transitions.fetch_add(h.count as u64, Ordering::Relaxed);
             self.tel.sample.work += h.count as u64;
@@ -263,6 +307,9 @@ impl<S: Service> HeadBridge<'_, S> {
             if let Some(t) = accept(stats, hosts, &smp, run, "telemetry", |host, att| {
                 check::telemetry(host, att, smp.payload().len())
             }) {
+                if t.role == RoleKind::Link as u32 {
+                    self.flows.report(t.index, t.delivery, stats);
+                }
                 self.tel.send(t);
             }
         }
@@ -285,11 +332,14 @@ impl<S: Service> HeadBridge<'_, S> {
                     ),
                     Some(x) if x.envs == h.envs && x.agents == h.agents => {
                         let (config, arena) = config_for(x);
+                        let epoch = crate::delivery::new_epoch();
+                        self.flows.rejoin(x.slot, epoch, self.stats);
                         reply(
                             &q,
                             &Welcome::Joined {
                                 slot: x.slot,
                                 env_offset: x.env_offset,
+                                epoch,
                                 run: run.clone(),
                                 config,
                                 arena,

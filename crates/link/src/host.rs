@@ -16,6 +16,8 @@ pub struct Host {
     pub agents: u32,
     /// Its first environment's index in the run.
     pub env_offset: u32,
+    /// The link epoch of its first join (a join again gets a new one).
+    pub epoch: u64,
     /// The join token it first joined with: it comes back only with it.
     pub(crate) token: String,
 }

@@ -20,9 +20,11 @@
 
 pub mod certs;
 pub mod check;
+pub mod delivery;
 mod error;
 mod head;
 mod head_bridge;
+mod head_flows;
 mod host;
 mod options;
 mod reject;
@@ -32,7 +34,7 @@ mod worker;
 mod worker_bridge;
 
 pub use error::{LinkError, Result};
-pub use head::{ConfigFor, Head, HeadStats};
+pub use head::{ConfigFor, Flow, Head, HeadStats};
 pub use head_bridge::HeadLink;
 pub use host::{Host, JoinLimits, MAX_HOST_NAME};
 pub use options::{LinkOptions, check_endpoint, check_options, is_loopback, is_tls, tls_files};

@@ -29,6 +29,8 @@ pub enum Reject {
     },
     /// Values an honest sender never writes (non-finite, out of range).
     Values(u64),
+    /// A batch of another link epoch than the sender's current join.
+    Epoch(u64),
 }
 
 /// The reason a refusal is counted under (`summary.json`'s
@@ -49,6 +51,9 @@ pub enum Reason {
     Role,
     /// Non-finite or out-of-range values.
     Values,
+    /// A batch of another epoch than its slot's current join (from an
+    /// earlier process of that worker, or forged).
+    Epoch,
     /// A join request the head refused.
     JoinRefused,
 }
@@ -56,7 +61,7 @@ pub enum Reason {
 impl Reason {
     /// Every reason, in `summary.json`'s order (which is the order of the
     /// variants: a reason's index here is `reason as usize`).
-    pub const ALL: [Reason; 8] = [
+    pub const ALL: [Reason; 9] = [
         Reason::Slot,
         Reason::Header,
         Reason::Length,
@@ -64,6 +69,7 @@ impl Reason {
         Reason::Environment,
         Reason::Role,
         Reason::Values,
+        Reason::Epoch,
         Reason::JoinRefused,
     ];
 
@@ -77,6 +83,7 @@ impl Reason {
             Reason::Environment => "environment",
             Reason::Role => "role",
             Reason::Values => "values",
+            Reason::Epoch => "epoch",
             Reason::JoinRefused => "join_refused",
         }
     }
@@ -93,6 +100,7 @@ impl Reject {
             Reject::Actor(_) => Reason::Environment,
             Reject::Role { .. } => Reason::Role,
             Reject::Values(_) => Reason::Values,
+            Reject::Epoch(_) => Reason::Epoch,
         }
     }
 }
@@ -111,6 +119,7 @@ impl std::fmt::Display for Reject {
                 write!(f, "role code {role} index {index}, which the sender does not run")
             }
             Reject::Values(n) => write!(f, "{n} records with non-finite or out-of-range values"),
+            Reject::Epoch(e) => write!(f, "link epoch {e}, not the one of the sender's join"),
         }
     }
 }

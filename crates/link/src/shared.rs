@@ -1,8 +1,5 @@
 //! What both ends of the link share: the key names, the bounds on a
-//! message, the layout fingerprint, the link's telemetry and the retrying
-//! send into shared memory.
-
-use std::sync::atomic::{AtomicBool, Ordering};
+//! message, the layout fingerprint, the link's telemetry.
 
 use rotorhive_msg::{EPISODE_FIELDS, RoleKind, Telemetry};
 use rotorhive_transport::Service;
@@ -21,9 +18,14 @@ pub const MAX_MESSAGE_BYTES: usize = 16 << 20;
 pub(crate) const MAX_EPISODES_BYTES: usize = check::MAX_EPISODES * EPISODE_FIELDS * 4 + 4096;
 pub(crate) const MAX_TELEMETRY_BYTES: usize = 4096;
 
-/// The layout this build sends: the message layout and the model's size.
+/// The layout this build sends: the message layout, the link's delivery
+/// headers and the model's size.
 pub fn layout(num_params: usize) -> u64 {
-    rotorhive_msg::layout_fingerprint() ^ (num_params as u64).rotate_left(17)
+    let delivery = std::mem::size_of::<crate::delivery::LinkHeader>()
+        + std::mem::size_of::<crate::delivery::Ack>();
+    rotorhive_msg::layout_fingerprint()
+        ^ (num_params as u64).rotate_left(17)
+        ^ (delivery as u64).rotate_left(41)
 }
 
 pub(crate) fn key(run: &str, what: &str) -> String {
@@ -59,23 +61,6 @@ pub(crate) fn link_telemetry<S: Service>(
         ..Telemetry::default()
     };
     Ok(rotorhive_transport::Periodic::new(hub, &Channel::telemetry(roles), sample)?)
-}
-
-/// Sends into shared memory, retrying while the receiver is full or
-/// restarting (bounded back-pressure, never a loss) until `stop` or the
-/// process is asked to stop; false when it stopped first.
-pub(crate) fn send_retrying<S: Service, T, H>(
-    tx: &mut rotorhive_transport::Sender<S, T, H>,
-    len: usize,
-    stop: &AtomicBool,
-    fill: impl FnMut(&mut H, &mut [T]),
-) -> Result<bool>
-where
-    T: rotorhive_transport::Plain,
-    H: std::fmt::Debug + iceoryx2::prelude::ZeroCopySend + Default + 'static,
-{
-    let give_up = |_| stop.load(Ordering::SeqCst) || rotorhive_transport::stop_requested();
-    Ok(tx.send_retrying(len, give_up, fill)?)
 }
 
 pub(crate) type Fifo = zenoh::pubsub::Subscriber<FifoChannelHandler<zenoh::sample::Sample>>;

@@ -4,6 +4,9 @@
 //! goes through a general-purpose serializer.
 
 use bytemuck::Pod;
+use rotorhive_msg::TransitionHeader;
+
+pub use crate::delivery::{Ack, LinkHeader};
 
 /// The bytes of a header (a `bytemuck::Pod` type: `#[repr(C)]`, no padding,
 /// every bit pattern valid; the message headers derive it).
@@ -26,8 +29,26 @@ pub fn payload_bytes_mut<T: Pod>(p: &mut [T]) -> &mut [u8] {
     bytemuck::cast_slice_mut(p)
 }
 
+/// A transition batch's attachment: its header, then its place in the
+/// link's stream.
+pub fn transition_attachment(h: &TransitionHeader, link: &LinkHeader) -> Vec<u8> {
+    let mut out = header_bytes(h).to_vec();
+    out.extend_from_slice(header_bytes(link));
+    out
+}
+
+/// A transition batch's two headers from its attachment, if it is exactly
+/// their size.
+pub fn transition_headers(b: &[u8]) -> Option<(TransitionHeader, LinkHeader)> {
+    let n = std::mem::size_of::<TransitionHeader>();
+    if b.len() != n + std::mem::size_of::<LinkHeader>() {
+        return None;
+    }
+    Some((header_from(&b[..n])?, header_from(&b[n..])?))
+}
+
 const HELLO: [u8; 4] = *b"RHJ2";
-const WELCOME: [u8; 4] = *b"RHW1";
+const WELCOME: [u8; 4] = *b"RHW2";
 
 /// A worker's request to join a run.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -64,6 +85,8 @@ pub enum Welcome {
         slot: u32,
         /// Index of its first environment in the run (its actors' indexes start here).
         env_offset: u32,
+        /// The link epoch of this join: the worker's batches carry it.
+        epoch: u64,
         /// The run's name: the key prefix of its data.
         run: String,
         /// The head's resolved config (TOML, as in the head's `config.toml`).
@@ -137,10 +160,11 @@ impl Welcome {
     pub fn encode(&self) -> Vec<u8> {
         let mut out = WELCOME.to_vec();
         match self {
-            Welcome::Joined { slot, env_offset, run, config, arena } => {
+            Welcome::Joined { slot, env_offset, epoch, run, config, arena } => {
                 out.extend_from_slice(&0u32.to_le_bytes());
                 out.extend_from_slice(&slot.to_le_bytes());
                 out.extend_from_slice(&env_offset.to_le_bytes());
+                out.extend_from_slice(&epoch.to_le_bytes());
                 put_str(&mut out, run);
                 put_str(&mut out, config);
                 put_str(&mut out, arena);
@@ -163,6 +187,7 @@ impl Welcome {
             0 => Some(Welcome::Joined {
                 slot: r.u32()?,
                 env_offset: r.u32()?,
+                epoch: r.u64()?,
                 run: r.str()?,
                 config: r.str()?,
                 arena: r.str()?,
@@ -184,7 +209,7 @@ mod tests {
         assert_eq!(std::mem::size_of::<TransitionHeader>(), 4 + 4 + 8 + 8);
         assert_eq!(std::mem::size_of::<EpisodeHeader>(), 4 + 4 + 8 + 8);
         assert_eq!(std::mem::size_of::<WeightsHeader>(), 8 + 8 + 8);
-        assert_eq!(std::mem::size_of::<Telemetry>(), 4 * 4 + 6 * 8 + 4 * 8 + 8 * 4);
+        assert_eq!(std::mem::size_of::<Telemetry>(), 4 * 4 + 6 * 8 + 4 * 8 + 8 * 4 + 4 * 8);
     }
 
     #[test]
@@ -193,12 +218,20 @@ mod tests {
         let back: TransitionHeader = header_from(header_bytes(&h)).unwrap();
         assert_eq!((back.actor, back.count, back.seq, back.weight_version), (3, 50, 77, 9));
         assert!(header_from::<TransitionHeader>(&header_bytes(&h)[1..]).is_none());
+        let link = LinkHeader { epoch: 4, seq: 8 };
+        let att = transition_attachment(&h, &link);
+        assert_eq!(att.len(), 40);
+        let (back, l) = transition_headers(&att).unwrap();
+        assert_eq!((back.seq, l), (77, link));
+        assert!(transition_headers(&att[..39]).is_none());
+        assert!(transition_headers(header_bytes(&h)).is_none());
         let hello = Hello { layout: 42, envs: 2, agents: 37, host: "b".into(), token: "t".into() };
         assert_eq!(Hello::decode(&hello.encode()), Some(hello.clone()));
         assert!(Hello::decode(&hello.encode()[..10]).is_none());
         let w = Welcome::Joined {
             slot: 1,
             env_offset: 1,
+            epoch: 5,
             run: "r".into(),
             config: "seed = 1".into(),
             arena: "x".into(),

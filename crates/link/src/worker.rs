@@ -22,10 +22,14 @@ pub enum WorkerEnd {
 /// Counters of a worker's link.
 #[derive(Debug, Default, Clone, Copy)]
 pub struct WorkerStats {
-    /// Transition batches sent.
-    pub batches: u64,
-    /// Transitions sent.
+    /// Transitions sent (a first time).
     pub transitions: u64,
+    /// Transitions the head acknowledged.
+    pub acknowledged: u64,
+    /// Transitions sent again (asked for again, or a session came back).
+    pub resent: u64,
+    /// Transitions sent but not acknowledged when the link ended.
+    pub unacknowledged: u64,
     /// Weight versions received.
     pub weights: u64,
     /// Newest weight version received.
@@ -43,12 +47,18 @@ pub struct Worker {
     pub slot: u32,
     /// Index of this host's first environment in the run.
     pub env_offset: u32,
+    /// The link epoch of this join: every batch carries it.
+    pub epoch: u64,
     /// The run's name.
     pub run: String,
     /// The head's resolved config (TOML).
     pub config: String,
     /// The training arena (TOML).
     pub arena: String,
+    /// How long the link waits for a head that went away to come back
+    /// (`cluster.reconnect_s`; 60 s until set), its window kept, before it
+    /// gives up.
+    pub reconnect: Duration,
 }
 
 impl Worker {
@@ -86,8 +96,18 @@ impl Worker {
                     }
                 };
                 match Welcome::decode(&bytes) {
-                    Some(Welcome::Joined { slot, env_offset, run, config, arena }) => {
-                        return Ok(Self { session, slot, env_offset, run, config, arena });
+                    Some(Welcome::Joined { slot, env_offset, epoch, run, config, arena }) => {
+                        let reconnect = Duration::from_secs(60);
+                        return Ok(Self {
+                            session,
+                            slot,
+                            env_offset,
+                            epoch,
+                            run,
+                            config,
+                            arena,
+                            reconnect,
+                        });
                     }
                     Some(Welcome::Refused(why)) => {
                         return Err(LinkError::Refused { endpoint: endpoint.into(), why });

@@ -4,15 +4,18 @@
 use std::time::{Duration, Instant};
 
 use rotorhive_msg::{
-    EpisodeHeader, LinkStage, RoleKind, SeqTracker, Telemetry, TransitionHeader, WeightsHeader,
+    Delivery, EpisodeHeader, LinkStage, RoleKind, SeqTracker, Telemetry, TransitionHeader,
+    WeightsHeader,
 };
 use rotorhive_transport::Service;
 use rotorhive_transport::{Channel, Hub};
 use zenoh::Wait;
+use zenoh::bytes::ZBytes;
 use zenoh::handlers::{FifoChannel, RingChannel};
 use zenoh::qos::CongestionControl;
 use zenoh::sample::SampleKind;
 
+use crate::delivery::{Ack, LinkHeader, Outbox, WINDOW_BYTES};
 use crate::error::{LinkError, Result, zerr};
 use crate::shared::{Fifo, LinkTelemetry, host_key, key, link_telemetry};
 use crate::worker::{Worker, WorkerEnd, WorkerStats};
@@ -56,25 +59,48 @@ impl Worker {
             std::thread::sleep(Duration::from_millis(10));
         }
         on_ready();
-        loop {
+        let end = loop {
             if hub.shutdown_requested() {
-                return Ok(WorkerEnd::Stopped);
+                break Ok(WorkerEnd::Stopped);
             }
-            if let Some(end) = b.head_end() {
-                return end;
+            if let Some(end) = b.head_end(self.reconnect) {
+                break end;
             }
             b.weights_in(hub, stats)?;
-            b.transitions_out(stats)?;
+            b.acks_in()?;
+            b.transitions_out()?;
             b.episodes_and_telemetry_out(stats)?;
+            b.count(stats);
             b.tel.tick(false, Telemetry::beat);
-        }
+        };
+        // What it sent waits for its acknowledgement (the head takes
+        // batches until its replay stops), then the last count goes out.
+        let drain = match end {
+            Ok(WorkerEnd::RunEnded) => DRAIN,
+            Ok(WorkerEnd::Stopped) => Duration::from_secs(1),
+            Err(_) => Duration::ZERO,
+        };
+        b.finish(drain)?;
+        b.count(stats);
+        end
     }
 }
+
+/// How long a worker waits, once the run ends, for the head to acknowledge
+/// what it sent (the head waits a little longer: [`crate::head_bridge`]).
+pub(crate) const DRAIN: Duration = Duration::from_secs(5);
 
 /// A worker's link at work: its Zenoh publishers and subscribers, its
 /// host's shared-memory channels, and what it keeps between rounds.
 pub(crate) struct WorkerBridge<S: Service> {
+    session: zenoh::Session,
     pub(crate) trans_pub: zenoh::pubsub::Publisher<'static>,
+    ack_sub: zenoh::pubsub::Subscriber<zenoh::handlers::RingChannelHandler<zenoh::sample::Sample>>,
+    /// What it sent and the head has not acknowledged yet.
+    outbox: Outbox<(ZBytes, TransitionHeader)>,
+    /// Since when the head is away (its session dropped): the link waits
+    /// for it, its window kept, and sends it again once it is back.
+    away_since: Option<Instant>,
     ep_pub: zenoh::pubsub::Publisher<'static>,
     tel_pub: zenoh::pubsub::Publisher<'static>,
     w_sub: zenoh::pubsub::Subscriber<zenoh::handlers::RingChannelHandler<zenoh::sample::Sample>>,
@@ -113,7 +139,15 @@ impl<S: Service> WorkerBridge<S> {
                 .map_err(decl(what))
         };
         Ok(WorkerBridge {
+            session: s.clone(),
             trans_pub: publisher("transitions", CongestionControl::Block)?,
+            ack_sub: s
+                .declare_subscriber(host_key(run, worker.slot, "ack"))
+                .with(RingChannel::new(16))
+                .wait()
+                .map_err(decl("the acknowledgements subscriber"))?,
+            outbox: Outbox::new(worker.epoch, WINDOW_BYTES),
+            away_since: None,
             ep_pub: publisher("episodes", CongestionControl::Drop)?,
             tel_pub: publisher("telemetry", CongestionControl::Drop)?,
             w_sub: s
@@ -147,16 +181,26 @@ impl<S: Service> WorkerBridge<S> {
         })
     }
 
-    /// The run's end, or the head lost (its liveliness token gone without
-    /// the end message right behind it); none while the head is there.
-    pub(crate) fn head_end(&mut self) -> Option<Result<WorkerEnd>> {
+    /// The run's end, or the head lost: its liveliness token gone without
+    /// the end message right behind it, and not back within `reconnect`;
+    /// none while the head is there (or away, and may come back).
+    pub(crate) fn head_end(&mut self, reconnect: Duration) -> Option<Result<WorkerEnd>> {
         if self.end_sub.try_recv().ok().flatten().is_some() {
             return Some(Ok(WorkerEnd::RunEnded));
         }
         while let Ok(Some(l)) = self.head_sub.try_recv() {
             match l.kind() {
-                SampleKind::Put => self.head_seen = true,
-                SampleKind::Delete if self.head_seen => {
+                SampleKind::Put => {
+                    if let Some(t) = self.away_since.take() {
+                        tracing::info!(
+                            "the head is back after {:.1} s; {} batches wait for it",
+                            t.elapsed().as_secs_f64(),
+                            self.outbox.len()
+                        );
+                    }
+                    self.head_seen = true;
+                }
+                SampleKind::Delete if self.head_seen && self.away_since.is_none() => {
                     // The end message may be right behind (over TLS on a
                     // busy machine, up to a few hundred ms): look for 1 s.
                     let t = Instant::now();
@@ -171,12 +215,20 @@ impl<S: Service> WorkerBridge<S> {
                             return Some(Ok(WorkerEnd::RunEnded));
                         }
                     }
-                    return Some(Err(LinkError::LostHead));
+                    tracing::warn!(
+                        "the head went away; waiting up to {:.0} s for it, {} batches kept",
+                        reconnect.as_secs_f64(),
+                        self.outbox.len()
+                    );
+                    self.away_since = Some(t);
                 }
                 SampleKind::Delete => {}
             }
         }
-        None
+        match self.away_since {
+            Some(t) if t.elapsed() > reconnect => Some(Err(LinkError::LostHead)),
+            _ => None,
+        }
     }
 
     /// The newest weights in, checked, republished on this host.
@@ -217,10 +269,16 @@ impl<S: Service> WorkerBridge<S> {
         Ok(())
     }
 
-    /// One transition batch out, if there is one: a blocking put, so a busy
-    /// head slows the actors.
-    pub(crate) fn transitions_out(&mut self, stats: &mut WorkerStats) -> Result<()> {
+    /// One transition batch out, if there is one and the window has room
+    /// (a full window waits for the head's acknowledgements: back-pressure
+    /// to the actors): a blocking put, so a busy head slows the actors.
+    pub(crate) fn transitions_out(&mut self) -> Result<()> {
         let t = Instant::now();
+        if !self.outbox.has_room() {
+            std::thread::sleep(Duration::from_millis(2));
+            self.tel.sample.time_stage(LinkStage::SendWait, t);
+            return Ok(());
+        }
         let m = self.trans_rx.recv_timeout(Duration::from_millis(5))?;
         self.tel.sample.time_stage(LinkStage::Receive, t);
         let Some(m) = m else { return Ok(()) };
@@ -236,16 +294,81 @@ impl<S: Service> WorkerBridge<S> {
             );
         }
         h.actor += self.off;
-        self.trans_pub
-            .put(wire::payload_bytes(m.payload()).to_vec())
-            .attachment(wire::header_bytes(&h).to_vec())
-            .wait()
-            .map_err(zerr("send transitions"))?;
-        stats.batches += 1;
-        stats.transitions += h.count as u64;
-        self.tel.sample.work += h.count as u64;
+        let bytes = ZBytes::from(wire::payload_bytes(m.payload()).to_vec());
+        let link = self.outbox.push(h.count, bytes.len(), (bytes.clone(), h), Instant::now());
+        self.put(&h, &link, bytes)?;
         self.tel.sample.work2 += std::mem::size_of_val(m.payload()) as u64;
         self.tel.sample.time_stage(LinkStage::SendWait, t);
+        Ok(())
+    }
+
+    /// A batch on the wire (the payload's bytes shared with the window).
+    fn put(&self, h: &TransitionHeader, link: &LinkHeader, bytes: ZBytes) -> Result<()> {
+        self.trans_pub
+            .put(bytes)
+            .attachment(wire::transition_attachment(h, link))
+            .wait()
+            .map_err(zerr("send transitions"))
+    }
+
+    /// The head's acknowledgements in: the window shrinks, and goes out
+    /// again from the first batch missing when the head asks for it or its
+    /// answers say nothing new for [`crate::delivery::RESEND_AFTER`].
+    pub(crate) fn acks_in(&mut self) -> Result<()> {
+        let now = Instant::now();
+        let mut again = false;
+        while let Ok(Some(smp)) = self.ack_sub.try_recv() {
+            if let Some(ack) = wire::header_from::<Ack>(&smp.payload().to_bytes()) {
+                again |= self.outbox.on_ack(ack, now);
+            }
+        }
+        if again {
+            let window = self.outbox.resend(now);
+            tracing::info!("sending {} unacknowledged batches again", window.len());
+            for (link, (bytes, h)) in window {
+                self.put(&h, &link, bytes)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// The counts into the worker's stats and its link's telemetry.
+    pub(crate) fn count(&mut self, stats: &mut WorkerStats) {
+        let c = self.outbox.counts;
+        (stats.transitions, stats.acknowledged, stats.resent) = (c.sent, c.acknowledged, c.resent);
+        stats.unacknowledged = c.sent - c.acknowledged;
+        self.tel.sample.work = c.sent;
+        let ended = self.tel.sample.delivery.ended;
+        self.tel.sample.delivery =
+            Delivery { sent: c.sent, acknowledged: c.acknowledged, resent: c.resent, ended };
+    }
+
+    /// Waits up to `drain` for the head to acknowledge the window (a
+    /// head that asks for batches again gets them), then sends the link's
+    /// last count to the head, marked ended.
+    pub(crate) fn finish(&mut self, drain: Duration) -> Result<()> {
+        let t = Instant::now();
+        while !self.outbox.is_empty() && t.elapsed() < drain {
+            self.acks_in()?;
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        if !self.outbox.is_empty() {
+            tracing::warn!("{} batches the head did not acknowledge are lost", self.outbox.len());
+        }
+        let mut last = self.tel.sample;
+        let c = self.outbox.counts;
+        last.delivery =
+            Delivery { sent: c.sent, acknowledged: c.acknowledged, resent: c.resent, ended: 1 };
+        last.work = c.sent;
+        last.index = self.slot;
+        last.pid = 0;
+        self.tel.sample.delivery.ended = 1;
+        let _ = self
+            .session
+            .put(self.tel_pub.key_expr().clone(), Vec::new())
+            .attachment(wire::header_bytes(&last).to_vec())
+            .congestion_control(CongestionControl::Block)
+            .wait();
         Ok(())
     }
 

@@ -459,6 +459,25 @@ pub struct Telemetry {
     pub stage_ns: [u64; STAGES],
     /// Learning diagnostics (learner) or the exploration spread (actor).
     pub learning: Learning,
+    /// Delivery between hosts (a worker's link).
+    pub delivery: Delivery,
+}
+
+/// What a worker's link says of its delivery to the head, in transitions,
+/// counted since its join (the other roles leave it zero).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
+#[cfg_attr(feature = "zero-copy", derive(ZeroCopySend), type_name("rotorhive::Delivery"))]
+#[repr(C)]
+pub struct Delivery {
+    /// Transitions sent a first time.
+    pub sent: u64,
+    /// Transitions the head acknowledged (its replay took them).
+    pub acknowledged: u64,
+    /// Transitions sent again (asked for again, or after the session came back).
+    pub resent: u64,
+    /// 1 on the link's last sample: it sends no more (the run ended, or
+    /// it was stopped), and what it sent but saw unacknowledged is lost.
+    pub ended: u64,
 }
 
 /// What a telemetry sample says about learning, so that a collapse can be

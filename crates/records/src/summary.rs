@@ -21,8 +21,23 @@ pub struct HostSummary {
     pub agents: u32,
     /// Agent-steps its sims reported.
     pub env_steps: u64,
-    /// Transitions lost on the way from it.
+    /// Transitions lost on the way from it (sequence gaps of its actors,
+    /// and what it sent that the head never took), across restarts.
     pub lost_transitions: u64,
+    /// Transitions its link sent a first time (a worker; 0 on the head).
+    #[serde(default)]
+    pub transitions_sent: u64,
+    /// Transitions the head's replay took from it and acknowledged.
+    #[serde(default)]
+    pub transitions_acknowledged: u64,
+    /// Transitions its link sent again (asked for again, or after its
+    /// session came back).
+    #[serde(default)]
+    pub transitions_resent: u64,
+    /// Transitions that reached the head again after it had taken them:
+    /// dropped.
+    #[serde(default)]
+    pub duplicates_dropped: u64,
     /// Messages from it that failed the head's checks and were dropped (a
     /// host named `unknown`: messages on keys that name no host of the run,
     /// and refused join requests).
@@ -193,6 +208,10 @@ mod tests {
                 agents: 25,
                 env_steps: 400_000,
                 lost_transitions: 0,
+                transitions_sent: 0,
+                transitions_acknowledged: 0,
+                transitions_resent: 0,
+                duplicates_dropped: 0,
                 rejected_messages: 3,
                 rejected_by_reason: [("length".to_string(), 2), ("values".to_string(), 1)].into(),
             }],

@@ -100,6 +100,9 @@ pub struct ClusterSection {
     pub workers: usize,
     /// How long the head waits for them (s).
     pub join_timeout_s: f64,
+    /// How long a worker waits for a head whose session dropped to come
+    /// back (s), its unacknowledged batches kept and then sent again.
+    pub reconnect_s: f64,
     /// Environments on other hosts (set by the head).
     pub envs_elsewhere: usize,
     /// Agents on other hosts (set by the head).
@@ -115,6 +118,7 @@ impl Default for ClusterSection {
         Self {
             workers: 0,
             join_timeout_s: 60.0,
+            reconnect_s: 60.0,
             envs_elsewhere: 0,
             agents_elsewhere: 0,
             env_offset: 0,
@@ -577,6 +581,7 @@ impl Config {
             }
         }
         positive("cluster.join_timeout_s", self.cluster.join_timeout_s)?;
+        positive("cluster.reconnect_s", self.cluster.reconnect_s)?;
         positive("rolling_window", self.rolling_window as f64)?;
         let e = &self.eval;
         for (k, v) in [("eval.every_s", e.every_s), ("eval.after_threshold_s", e.after_threshold_s)]

@@ -207,6 +207,10 @@ impl Monitor {
             agents: cfg.sim.agents as u32,
             env_steps: self.steps_of(0, envs),
             lost_transitions: lost_here,
+            transitions_sent: 0,
+            transitions_acknowledged: 0,
+            transitions_resent: 0,
+            duplicates_dropped: 0,
             rejected_messages: 0,
             rejected_by_reason: Default::default(),
         }];
@@ -214,15 +218,19 @@ impl Monitor {
             let lost = stats.lost_by_env.lock().map(|v| v.clone()).unwrap_or_default();
             for h in hosts {
                 let (a, b) = (h.env_offset, h.env_offset + h.envs);
+                let flow = stats.flow_of(h.slot);
+                let gaps = lost.get(a as usize..b as usize).map_or(0, |l| l.iter().sum::<u64>());
                 out.push(HostSummary {
                     name: h.name.clone(),
                     role: HostRole::Worker,
                     envs: h.envs,
                     agents: h.agents,
                     env_steps: self.steps_of(a, b),
-                    lost_transitions: lost
-                        .get(a as usize..b as usize)
-                        .map_or(0, |l| l.iter().sum::<u64>()),
+                    lost_transitions: gaps + flow.lost,
+                    transitions_sent: flow.sent,
+                    transitions_acknowledged: flow.acknowledged,
+                    transitions_resent: flow.resent,
+                    duplicates_dropped: flow.duplicates,
                     rejected_messages: stats.rejected_from(h.slot),
                     rejected_by_reason: by_reason(stats, h.slot),
                 });
@@ -237,6 +245,10 @@ impl Monitor {
                     agents: 0,
                     env_steps: 0,
                     lost_transitions: 0,
+                    transitions_sent: 0,
+                    transitions_acknowledged: 0,
+                    transitions_resent: 0,
+                    duplicates_dropped: 0,
                     rejected_messages: unknown,
                     rejected_by_reason: by_reason(stats, 0),
                 });

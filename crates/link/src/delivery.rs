@@ -1,0 +1,376 @@
+//! Acknowledged delivery of transition batches, worker → head (Kafka's
+//! idempotent producer, Reverb's confirmed inserts): each batch carries its
+//! link's epoch (the head gives one at every join) and a sequence number;
+//! the worker keeps what it sent in a window bounded in bytes ([`Outbox`])
+//! until the head acknowledges it; the head takes each slot's batches in
+//! order only ([`Inflow`]): a duplicate is dropped and counted, a batch
+//! past a gap is dropped and the gap asked for again (go-back-N), and the
+//! acknowledgement (cumulative: every batch below `next`) is sent once the
+//! replay has taken the batch with a receiver there. Nothing here knows
+//! Zenoh: the bridges carry [`LinkHeader`] in a batch's attachment and
+//! [`Ack`] on the slot's `ack` key.
+
+use std::collections::VecDeque;
+use std::time::{Duration, Instant};
+
+/// A batch's place in its link's stream, sent after its `TransitionHeader`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
+pub struct LinkHeader {
+    /// The link's epoch: the head's number for this join of the worker.
+    pub epoch: u64,
+    /// The batch's number in the epoch, from 0.
+    pub seq: u64,
+}
+
+/// The head's answer to a worker: every batch of `epoch` below `next` is
+/// in the replay; `resend` 1: the batch at `next` is missing (a later one
+/// came first), send the window again from there.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
+pub struct Ack {
+    /// The epoch it answers.
+    pub epoch: u64,
+    /// The first batch not yet taken.
+    pub next: u64,
+    /// 1 to ask for the window again from `next`, else 0.
+    pub resend: u64,
+}
+
+/// The most bytes of unacknowledged batches a worker keeps (a full one
+/// stops its reading of shared memory: back-pressure, as a full queue).
+pub const WINDOW_BYTES: usize = 64 << 20;
+/// A worker sends its window again when the head's acknowledgements say
+/// nothing new and its oldest batch went out this long ago (a lost tail,
+/// a session that came back); and no sooner again after a resend request.
+pub const RESEND_AFTER: Duration = Duration::from_secs(1);
+/// The head acknowledges new batches at most this often, and says where
+/// each slot stands at least this often ([`HEARTBEAT`]).
+pub const ACK_EVERY: Duration = Duration::from_millis(20);
+/// See [`ACK_EVERY`].
+pub const HEARTBEAT: Duration = Duration::from_millis(250);
+/// The head asks again for one missing batch at most this often.
+pub const NACK_EVERY: Duration = Duration::from_millis(500);
+
+/// A worker link's delivery counters, in transitions.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct SentCounts {
+    /// Sent a first time.
+    pub sent: u64,
+    /// Acknowledged by the head.
+    pub acknowledged: u64,
+    /// Sent again.
+    pub resent: u64,
+}
+
+struct Pending<P> {
+    seq: u64,
+    count: u32,
+    bytes: usize,
+    sent_at: Instant,
+    item: P,
+}
+
+/// A worker's window of sent, unacknowledged batches (`P`: what it sends
+/// again, a handle to the batch's bytes).
+pub struct Outbox<P> {
+    epoch: u64,
+    next_seq: u64,
+    window: VecDeque<Pending<P>>,
+    bytes: usize,
+    limit: usize,
+    /// The highest `next` the head acknowledged.
+    acked_next: u64,
+    /// The last resend asked for: from which batch, and when.
+    resent_from: Option<(u64, Instant)>,
+    /// Its counts.
+    pub counts: SentCounts,
+}
+
+impl<P: Clone> Outbox<P> {
+    /// An empty window of epoch `epoch` holding at most `limit` bytes (one
+    /// batch, whatever its size, always fits an empty window).
+    pub fn new(epoch: u64, limit: usize) -> Self {
+        Self {
+            epoch,
+            next_seq: 0,
+            window: VecDeque::new(),
+            bytes: 0,
+            limit,
+            acked_next: 0,
+            resent_from: None,
+            counts: SentCounts::default(),
+        }
+    }
+
+    /// Whether the window takes another batch (then the worker reads one).
+    pub fn has_room(&self) -> bool {
+        self.bytes < self.limit
+    }
+
+    /// Whether every batch sent was acknowledged.
+    pub fn is_empty(&self) -> bool {
+        self.window.is_empty()
+    }
+
+    /// Batches waiting for their acknowledgement.
+    pub fn len(&self) -> usize {
+        self.window.len()
+    }
+
+    /// Records a batch of `count` transitions and `bytes` bytes, sent now;
+    /// the header to send it with.
+    pub fn push(&mut self, count: u32, bytes: usize, item: P, now: Instant) -> LinkHeader {
+        let seq = self.next_seq;
+        self.next_seq += 1;
+        self.window.push_back(Pending { seq, count, bytes, sent_at: now, item });
+        self.bytes += bytes;
+        self.counts.sent += count as u64;
+        LinkHeader { epoch: self.epoch, seq }
+    }
+
+    /// Takes the head's answer: drops what it acknowledged; whether the
+    /// window must go out again now ([`Outbox::resend`]).
+    pub fn on_ack(&mut self, ack: Ack, now: Instant) -> bool {
+        if ack.epoch != self.epoch || ack.next > self.next_seq {
+            return false;
+        }
+        while self.window.front().is_some_and(|p| p.seq < ack.next) {
+            if let Some(p) = self.window.pop_front() {
+                self.bytes -= p.bytes;
+                self.counts.acknowledged += p.count as u64;
+            }
+        }
+        let progress = ack.next > self.acked_next;
+        self.acked_next = self.acked_next.max(ack.next);
+        let Some(first) = self.window.front() else {
+            return false;
+        };
+        if ack.resend != 0 {
+            let recent = self
+                .resent_from
+                .is_some_and(|(from, at)| from == ack.next && now - at < RESEND_AFTER);
+            return first.seq == ack.next && !recent;
+        }
+        !progress && now.saturating_duration_since(first.sent_at) >= RESEND_AFTER
+    }
+
+    /// The window, oldest first, with the headers to send it again with;
+    /// counted resent and stamped sent now.
+    pub fn resend(&mut self, now: Instant) -> Vec<(LinkHeader, P)> {
+        if let Some(first) = self.window.front() {
+            self.resent_from = Some((first.seq, now));
+        }
+        let epoch = self.epoch;
+        let counts = &mut self.counts;
+        self.window
+            .iter_mut()
+            .map(|p| {
+                p.sent_at = now;
+                counts.resent += p.count as u64;
+                (LinkHeader { epoch, seq: p.seq }, p.item.clone())
+            })
+            .collect()
+    }
+}
+
+/// What the head does with a batch of a slot.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Admit {
+    /// The next one: into the replay.
+    Take,
+    /// Taken before (a resend): dropped, counted.
+    Duplicate,
+    /// Past a gap: dropped (it comes again behind the missing one).
+    Gap,
+    /// Of another epoch than the slot's join: dropped, counted.
+    Stale,
+}
+
+/// The head's view of one slot's stream.
+#[derive(Debug, Clone)]
+pub struct Inflow {
+    epoch: u64,
+    next: u64,
+    /// The `next` last acknowledged, and when.
+    acked: u64,
+    acked_at: Option<Instant>,
+    /// The last resend request: for which batch, and when.
+    nacked: Option<(u64, Instant)>,
+}
+
+impl Inflow {
+    /// A slot joined under `epoch`, nothing taken yet.
+    pub fn new(epoch: u64) -> Self {
+        Self { epoch, next: 0, acked: 0, acked_at: None, nacked: None }
+    }
+
+    /// The epoch of the slot's current join.
+    pub fn epoch(&self) -> u64 {
+        self.epoch
+    }
+
+    /// What to do with a batch of header `h`.
+    pub fn admit(&self, h: LinkHeader) -> Admit {
+        match (h.epoch == self.epoch, h.seq.cmp(&self.next)) {
+            (false, _) => Admit::Stale,
+            (true, std::cmp::Ordering::Less) => Admit::Duplicate,
+            (true, std::cmp::Ordering::Greater) => Admit::Gap,
+            (true, std::cmp::Ordering::Equal) => Admit::Take,
+        }
+    }
+
+    /// The batch admitted last is in the replay.
+    pub fn taken(&mut self) {
+        self.next += 1;
+    }
+
+    /// The answer due now, if any: a resend request after a gap (at most
+    /// one per [`NACK_EVERY`] for one batch), else an acknowledgement of
+    /// new batches ([`ACK_EVERY`]) or where the slot stands ([`HEARTBEAT`]).
+    pub fn answer(&mut self, gap: bool, now: Instant) -> Option<Ack> {
+        if gap {
+            let asked = self.nacked.is_some_and(|(n, at)| n == self.next && now - at < NACK_EVERY);
+            if asked {
+                return None;
+            }
+            self.nacked = Some((self.next, now));
+            return Some(self.ack(1, now));
+        }
+        let since = self.acked_at.map_or(Duration::MAX, |at| now.saturating_duration_since(at));
+        let due = (self.next != self.acked && since >= ACK_EVERY) || since >= HEARTBEAT;
+        due.then(|| self.ack(0, now))
+    }
+
+    fn ack(&mut self, resend: u64, now: Instant) -> Ack {
+        self.acked = self.next;
+        self.acked_at = Some(now);
+        Ack { epoch: self.epoch, next: self.next, resend }
+    }
+}
+
+/// A new epoch for a join: random (std's per-process random hash keys mixed
+/// with the time), so that a batch of an earlier join is never taken as one
+/// of this join's.
+pub fn new_epoch() -> u64 {
+    use std::hash::{BuildHasher, Hasher};
+    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+    h.write_u128(
+        std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos()),
+    );
+    h.finish()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    /// `batches` batches over a link that loses and duplicates them as
+    /// `fate` says (then heals), a round of 30 ms at a time: what the head
+    /// took, the worker's counts, and the duplicates the head dropped.
+    fn fly(fate: &[u8], batches: usize) -> (Vec<u64>, SentCounts, u64) {
+        let epoch = 7;
+        let mut out: Outbox<u64> = Outbox::new(epoch, 8 * 100);
+        let mut inflow = Inflow::new(epoch);
+        let mut taken = Vec::new();
+        let mut dups = 0;
+        let mut wire: VecDeque<(LinkHeader, u64)> = VecDeque::new();
+        let mut now = Instant::now();
+        let mut made = 0u64;
+        for round in 0..20 * batches + 200 {
+            now += Duration::from_millis(30);
+            if made < batches as u64 && out.has_room() {
+                let h = out.push(1, 100, made, now);
+                wire.push_back((h, made));
+                made += 1;
+            }
+            // The wire: in order; a batch may be lost or delivered twice
+            // (until the link heals, late in the run).
+            let healed = round > 10 * batches;
+            let mut gap = false;
+            let mut n = 2;
+            while n > 0
+                && let Some((h, v)) = wire.pop_front()
+            {
+                n -= 1;
+                let f = fate.get(round % fate.len().max(1)).copied().unwrap_or(0);
+                let copies = match f % 8 {
+                    _ if healed => 1,
+                    0 => 0,
+                    1 => 2,
+                    _ => 1,
+                };
+                for _ in 0..copies {
+                    match inflow.admit(h) {
+                        Admit::Take => {
+                            taken.push(v);
+                            inflow.taken();
+                        }
+                        Admit::Duplicate => dups += 1,
+                        Admit::Gap => gap = true,
+                        Admit::Stale => unreachable!("one epoch"),
+                    }
+                }
+            }
+            if let Some(ack) = inflow.answer(gap, now)
+                && out.on_ack(ack, now)
+            {
+                wire.extend(out.resend(now));
+            }
+        }
+        (taken, out.counts, dups)
+    }
+
+    proptest! {
+        /// Whatever the link loses or doubles, the head takes every batch
+        /// exactly once, in order, and the worker's counts add up.
+        #[test]
+        fn every_batch_arrives_once_in_order(
+            fate in proptest::collection::vec(any::<u8>(), 1..64),
+            batches in 1usize..60,
+        ) {
+            let (taken, counts, _) = fly(&fate, batches);
+            prop_assert_eq!(taken, (0..batches as u64).collect::<Vec<_>>());
+            prop_assert_eq!(counts.sent, batches as u64);
+            prop_assert_eq!(counts.acknowledged, batches as u64);
+        }
+    }
+
+    #[test]
+    fn a_clean_link_resends_nothing() {
+        let (taken, counts, dups) = fly(&[2], 50);
+        assert_eq!(taken.len(), 50);
+        assert_eq!((counts.resent, dups), (0, 0));
+    }
+
+    #[test]
+    fn a_lost_batch_is_sent_again() {
+        // The first batch of every eight is lost on its first trip.
+        let (taken, counts, _) = fly(&[0, 2, 2, 2, 2, 2, 2, 2], 40);
+        assert_eq!(taken, (0..40).collect::<Vec<_>>());
+        assert!(counts.resent > 0);
+    }
+
+    #[test]
+    fn batches_of_another_epoch_are_stale_and_the_window_is_bounded() {
+        let inflow = Inflow::new(1);
+        assert_eq!(inflow.admit(LinkHeader { epoch: 2, seq: 0 }), Admit::Stale);
+        let mut out: Outbox<()> = Outbox::new(1, 250);
+        let now = Instant::now();
+        out.push(1, 100, (), now);
+        out.push(1, 100, (), now);
+        assert!(out.has_room());
+        out.push(1, 100, (), now);
+        assert!(!out.has_room());
+        // An answer of another epoch, or of batches never sent, changes nothing.
+        assert!(!out.on_ack(Ack { epoch: 2, next: 3, resend: 0 }, now));
+        assert!(!out.on_ack(Ack { epoch: 1, next: 9, resend: 0 }, now));
+        assert_eq!(out.len(), 3);
+        assert!(!out.on_ack(Ack { epoch: 1, next: 2, resend: 0 }, now));
+        assert_eq!((out.len(), out.counts.acknowledged), (1, 2));
+        assert!(out.has_room());
+    }
+}

@@ -1,0 +1,159 @@
+//! The head's side of acknowledged delivery ([`crate::delivery`]) for
+//! every worker slot: the slot's stream, its answers on the slot's `ack`
+//! key, and what the worker's link reports of its own counts, kept across
+//! the worker's joins.
+
+use std::time::{Duration, Instant};
+
+use rotorhive_msg::Delivery;
+use zenoh::Wait;
+use zenoh::qos::CongestionControl;
+
+use crate::delivery::{Admit, Inflow, LinkHeader};
+use crate::error::{Result, zerr};
+use crate::head::{Flow, HeadStats};
+use crate::host::Host;
+use crate::shared::host_key;
+use crate::wire;
+
+/// A worker silent this long counts as ended when the head drains at the
+/// run's end (a killed worker sends no last count).
+const SILENT: Duration = Duration::from_secs(3);
+
+/// One slot's stream and counts.
+struct SlotFlow {
+    slot: u32,
+    inflow: Inflow,
+    ack_pub: zenoh::pubsub::Publisher<'static>,
+    /// A batch came past a gap since the last answer.
+    gap: bool,
+    /// The worker's newest report in this join, and when it came.
+    reported: Delivery,
+    heard: Option<Instant>,
+    /// Its reports of earlier joins.
+    base: Delivery,
+    /// Transitions taken in this join.
+    taken: u64,
+}
+
+/// Every slot's stream (in the order of the run's hosts).
+pub(crate) struct Flows {
+    slots: Vec<SlotFlow>,
+}
+
+impl Flows {
+    /// The streams of `hosts`, each answering on its slot's `ack` key.
+    pub(crate) fn open(session: &zenoh::Session, run: &str, hosts: &[Host]) -> Result<Self> {
+        let mut slots = Vec::with_capacity(hosts.len());
+        for h in hosts {
+            let ack_pub = session
+                .declare_publisher(host_key(run, h.slot, "ack"))
+                .congestion_control(CongestionControl::Drop)
+                .express(true)
+                .wait()
+                .map_err(zerr("declare an acknowledgements publisher"))?;
+            slots.push(SlotFlow {
+                slot: h.slot,
+                inflow: Inflow::new(h.epoch),
+                ack_pub,
+                gap: false,
+                reported: Delivery::default(),
+                heard: None,
+                base: Delivery::default(),
+                taken: 0,
+            });
+        }
+        Ok(Self { slots })
+    }
+
+    fn get(&mut self, slot: u32) -> Option<&mut SlotFlow> {
+        self.slots.iter_mut().find(|s| s.slot == slot)
+    }
+
+    /// What to do with a batch of `slot` with header `h` (a batch past a
+    /// gap is asked for again at the next answer).
+    pub(crate) fn admit(&mut self, slot: u32, h: LinkHeader) -> Admit {
+        let Some(s) = self.get(slot) else { return Admit::Stale };
+        let a = s.inflow.admit(h);
+        s.gap |= a == Admit::Gap;
+        a
+    }
+
+    /// The batch of `slot` admitted last, of `count` transitions, is in
+    /// the replay.
+    pub(crate) fn taken(&mut self, slot: u32, count: u32, stats: &HeadStats) {
+        if let Some(s) = self.get(slot) {
+            s.inflow.taken();
+            s.taken += count as u64;
+            stats.flow(slot, |f| f.acknowledged += count as u64);
+        }
+    }
+
+    /// Sends every answer due now (a lost one is made good by the next:
+    /// they are cumulative, and each slot's stands again every heartbeat).
+    pub(crate) fn answer(&mut self, now: Instant) {
+        for s in &mut self.slots {
+            if let Some(ack) = s.inflow.answer(std::mem::take(&mut s.gap), now) {
+                let _ = s.ack_pub.put(wire::header_bytes(&ack).to_vec()).wait();
+            }
+        }
+    }
+
+    /// The worker link's own report of `slot` (its telemetry).
+    pub(crate) fn report(&mut self, slot: u32, d: Delivery, stats: &HeadStats) {
+        let Some(s) = self.get(slot) else { return };
+        s.reported = d;
+        s.heard = Some(Instant::now());
+        let (base, ended) = (s.base, d.ended != 0);
+        stats.flow(slot, |f| {
+            f.sent = base.sent + d.sent;
+            f.resent = base.resent + d.resent;
+            f.ended = ended;
+        });
+    }
+
+    /// `slot` joined again under `epoch`: what the earlier process sent
+    /// and was never acknowledged (as its last report said) is lost.
+    pub(crate) fn rejoin(&mut self, slot: u32, epoch: u64, stats: &HeadStats) {
+        let Some(s) = self.get(slot) else { return };
+        let lost = s.reported.sent.saturating_sub(s.taken);
+        s.base.sent += s.reported.sent;
+        s.base.resent += s.reported.resent;
+        (s.reported, s.taken, s.inflow) = (Delivery::default(), 0, Inflow::new(epoch));
+        stats.flow(slot, |f| {
+            f.lost += lost;
+            f.ended = false;
+        });
+    }
+
+    /// Whether every worker sent its last count (or went silent).
+    pub(crate) fn all_ended(&self) -> bool {
+        self.slots
+            .iter()
+            .all(|s| s.reported.ended != 0 || s.heard.is_none_or(|t| t.elapsed() > SILENT))
+    }
+
+    /// At the run's end: what each worker reported sent and the head did
+    /// not take is lost.
+    pub(crate) fn settle(&self, stats: &HeadStats) {
+        for s in &self.slots {
+            let lost = s.reported.sent.saturating_sub(s.taken);
+            if lost > 0 {
+                tracing::warn!("worker {}: {lost} transitions sent and never taken", s.slot);
+            }
+            stats.flow(s.slot, |f| f.lost += lost);
+        }
+    }
+}
+
+impl HeadStats {
+    /// Changes the delivery counts of `slot`.
+    pub(crate) fn flow(&self, slot: u32, change: impl FnOnce(&mut Flow)) {
+        if let Ok(mut f) = self.flows.lock() {
+            if f.len() <= slot as usize {
+                f.resize(slot as usize + 1, Flow::default());
+            }
+            change(&mut f[slot as usize]);
+        }
+    }
+}
