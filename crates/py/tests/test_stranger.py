@@ -82,7 +82,7 @@ def test_a_stranger_cannot_crash_poison_or_stop_a_run(tmp_path):
     # while the totals still matched).
     assert hosts[1]["rejected_by_reason"] == sent["slot_by_reason"], (hosts[1], sent)
     assert hosts[2]["rejected_by_reason"] == sent["unknown_by_reason"], (hosts[2], sent)
-    assert set(sent["slot_by_reason"]) == {"length", "values", "environment", "count", "header", "role"}
+    assert set(sent["slot_by_reason"]) == {"length", "values", "environment", "count", "header", "role", "epoch"}
     total = {}
     for h in hosts:
         for k, v in h["rejected_by_reason"].items():
@@ -94,6 +94,9 @@ def test_a_stranger_cannot_crash_poison_or_stop_a_run(tmp_path):
     assert summary["lost_messages"] == 0
     for h in hosts:
         assert h["lost_transitions"] == 0, hosts
+    # Every transition the honest worker sent was taken and acknowledged.
+    assert hosts[1]["transitions_sent"] > 0, hosts[1]
+    assert hosts[1]["transitions_acknowledged"] == hosts[1]["transitions_sent"], hosts[1]
     assert len(hosts) == 3, hosts
     assert summary["env_steps"] < 10**12, summary["env_steps"]
     assert summary["time_to_threshold_s"] is None
@@ -146,8 +149,8 @@ def test_a_join_of_another_layout_is_refused_and_the_head_gives_up_in_time(tmp_p
         if head.poll() is None:
             head.kill()
     assert answer is not None, "the head never answered the join"
-    # `RHW1`, 1 (refused), then the reason.
-    assert answer[:8] == b"RHW1" + struct.pack("<I", 1), answer[:8]
+    # `RHW2`, 1 (refused), then the reason.
+    assert answer[:8] == b"RHW2" + struct.pack("<I", 1), answer[:8]
     (n,) = struct.unpack("<I", answer[8:12])
     why = answer[12 : 12 + n].decode()
     assert "message layout mismatch" in why and "same build" in why, why
