@@ -226,14 +226,16 @@ impl<S: Service> HeadBridge<'_, S> {
         }) else {
             return Ok(());
         };
-        match self.flows.admit(slot, link) {
+        let n = h.count as u64;
+        let admit = self.flows.admit(slot, link);
+        match admit {
             Admit::Take => {}
-            Admit::Duplicate => return Ok(stats.flow(slot, |f| f.duplicates += h.count as u64)),
-            Admit::Gap => return Ok(stats.flow(slot, |f| f.out_of_order += h.count as u64)),
-            Admit::Stale => {
-                stats.reject(slot, "transitions", &Reject::Epoch(link.epoch));
-                return Ok(());
-            }
+            Admit::Duplicate => stats.flow(slot, |f| f.duplicates += n),
+            Admit::Gap => stats.flow(slot, |f| f.out_of_order += n),
+            Admit::Stale => stats.reject(slot, "transitions", &Reject::Epoch(link.epoch)),
+        }
+        if admit != Admit::Take {
+            return Ok(());
         }
         let words = payload.len() / 2;
         let gap = self.next_seq.observe(h.actor as usize, h.seq);
