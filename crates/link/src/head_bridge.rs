@@ -248,7 +248,7 @@ impl<S: Service> HeadBridge<'_, S> {
             );
             stats.lost_batches.fetch_add(gap, Ordering::Relaxed);
             stats.lost_transitions.fetch_add(gap.saturating_mul(h.count as u64), Ordering::Relaxed);
-            self.tel.sample.lost = self.tel.sample.lost.saturating_add(gap);
+            self.tel.sample.lost = self.tel.sample.lost.saturating_add(gap * h.count as u64);
             if let Some(l) =
                 stats.lost_by_env.lock().ok().as_mut().and_then(|v| v.get_mut(h.actor as usize))
             {

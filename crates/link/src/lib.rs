@@ -32,6 +32,7 @@ mod shared;
 pub mod wire;
 mod worker;
 mod worker_bridge;
+mod worker_send;
 
 pub use error::{LinkError, Result};
 pub use head::{ConfigFor, Flow, Head, HeadStats};

@@ -4,18 +4,16 @@
 use std::time::{Duration, Instant};
 
 use rotorhive_msg::{
-    Delivery, EpisodeHeader, LinkStage, RoleKind, SeqTracker, Telemetry, TransitionHeader,
-    WeightsHeader,
+    EpisodeHeader, LinkStage, RoleKind, SeqTracker, Telemetry, TransitionHeader, WeightsHeader,
 };
 use rotorhive_transport::Service;
 use rotorhive_transport::{Channel, Hub};
 use zenoh::Wait;
-use zenoh::bytes::ZBytes;
 use zenoh::handlers::{FifoChannel, RingChannel};
 use zenoh::qos::CongestionControl;
 use zenoh::sample::SampleKind;
 
-use crate::delivery::{Ack, LinkHeader, Outbox, WINDOW_BYTES};
+use crate::delivery::{Outbox, WINDOW_BYTES};
 use crate::error::{LinkError, Result, zerr};
 use crate::shared::{Fifo, LinkTelemetry, host_key, key, link_telemetry};
 use crate::worker::{Worker, WorkerEnd, WorkerStats};
@@ -93,28 +91,29 @@ pub(crate) const DRAIN: Duration = Duration::from_secs(5);
 /// A worker's link at work: its Zenoh publishers and subscribers, its
 /// host's shared-memory channels, and what it keeps between rounds.
 pub(crate) struct WorkerBridge<S: Service> {
-    session: zenoh::Session,
+    pub(crate) session: zenoh::Session,
     pub(crate) trans_pub: zenoh::pubsub::Publisher<'static>,
-    ack_sub: zenoh::pubsub::Subscriber<zenoh::handlers::RingChannelHandler<zenoh::sample::Sample>>,
+    pub(crate) ack_sub:
+        zenoh::pubsub::Subscriber<zenoh::handlers::RingChannelHandler<zenoh::sample::Sample>>,
     /// What it sent and the head has not acknowledged yet.
-    outbox: Outbox<(ZBytes, TransitionHeader)>,
+    pub(crate) outbox: Outbox<(zenoh::bytes::ZBytes, TransitionHeader)>,
     /// Since when the head is away (its session dropped): the link waits
     /// for it, its window kept, and sends it again once it is back.
     away_since: Option<Instant>,
     ep_pub: zenoh::pubsub::Publisher<'static>,
-    tel_pub: zenoh::pubsub::Publisher<'static>,
+    pub(crate) tel_pub: zenoh::pubsub::Publisher<'static>,
     w_sub: zenoh::pubsub::Subscriber<zenoh::handlers::RingChannelHandler<zenoh::sample::Sample>>,
     end_sub: Fifo,
     head_sub: Fifo,
-    trans_rx: rotorhive_transport::Receiver<S, u16, TransitionHeader>,
+    pub(crate) trans_rx: rotorhive_transport::Receiver<S, u16, TransitionHeader>,
     ep_rx: rotorhive_transport::Receiver<S, f32, EpisodeHeader>,
     tel_rx: rotorhive_transport::Receiver<S, u8, Telemetry>,
     w_tx: Option<rotorhive_transport::Sender<S, f32, WeightsHeader>>,
     pub(crate) tel: LinkTelemetry<S>,
     /// The batches seen from each actor of this host.
-    wseq: SeqTracker,
+    pub(crate) wseq: SeqTracker,
     head_seen: bool,
-    off: u32,
+    pub(crate) off: u32,
     pub(crate) slot: u32,
     pub(crate) envs: usize,
     num_params: usize,
@@ -266,109 +265,6 @@ impl<S: Service> WorkerBridge<S> {
             }
         }
         self.tel.sample.time_stage(LinkStage::Weights, t);
-        Ok(())
-    }
-
-    /// One transition batch out, if there is one and the window has room
-    /// (a full window waits for the head's acknowledgements: back-pressure
-    /// to the actors): a blocking put, so a busy head slows the actors.
-    pub(crate) fn transitions_out(&mut self) -> Result<()> {
-        let t = Instant::now();
-        if !self.outbox.has_room() {
-            std::thread::sleep(Duration::from_millis(2));
-            self.tel.sample.time_stage(LinkStage::SendWait, t);
-            return Ok(());
-        }
-        let m = self.trans_rx.recv_timeout(Duration::from_millis(5))?;
-        self.tel.sample.time_stage(LinkStage::Receive, t);
-        let Some(m) = m else { return Ok(()) };
-        let t = Instant::now();
-        let mut h = *m.user_header();
-        let gap = self.wseq.observe(h.actor as usize, h.seq);
-        if gap > 0 {
-            tracing::warn!(
-                "worker link: actor {} batches {}..{} missing in shared memory",
-                h.actor,
-                h.seq - gap,
-                h.seq
-            );
-        }
-        h.actor += self.off;
-        let bytes = ZBytes::from(wire::payload_bytes(m.payload()).to_vec());
-        let link = self.outbox.push(h.count, bytes.len(), (bytes.clone(), h), Instant::now());
-        self.put(&h, &link, bytes)?;
-        self.tel.sample.work2 += std::mem::size_of_val(m.payload()) as u64;
-        self.tel.sample.time_stage(LinkStage::SendWait, t);
-        Ok(())
-    }
-
-    /// A batch on the wire (the payload's bytes shared with the window).
-    fn put(&self, h: &TransitionHeader, link: &LinkHeader, bytes: ZBytes) -> Result<()> {
-        self.trans_pub
-            .put(bytes)
-            .attachment(wire::transition_attachment(h, link))
-            .wait()
-            .map_err(zerr("send transitions"))
-    }
-
-    /// The head's acknowledgements in: the window shrinks, and goes out
-    /// again from the first batch missing when the head asks for it or its
-    /// answers say nothing new for [`crate::delivery::RESEND_AFTER`].
-    pub(crate) fn acks_in(&mut self) -> Result<()> {
-        let now = Instant::now();
-        let mut again = false;
-        while let Ok(Some(smp)) = self.ack_sub.try_recv() {
-            if let Some(ack) = wire::header_from::<Ack>(&smp.payload().to_bytes()) {
-                again |= self.outbox.on_ack(ack, now);
-            }
-        }
-        if again {
-            let window = self.outbox.resend(now);
-            tracing::info!("sending {} unacknowledged batches again", window.len());
-            for (link, (bytes, h)) in window {
-                self.put(&h, &link, bytes)?;
-            }
-        }
-        Ok(())
-    }
-
-    /// The counts into the worker's stats and its link's telemetry.
-    pub(crate) fn count(&mut self, stats: &mut WorkerStats) {
-        let c = self.outbox.counts;
-        (stats.transitions, stats.acknowledged, stats.resent) = (c.sent, c.acknowledged, c.resent);
-        stats.unacknowledged = c.sent - c.acknowledged;
-        self.tel.sample.work = c.sent;
-        let ended = self.tel.sample.delivery.ended;
-        self.tel.sample.delivery =
-            Delivery { sent: c.sent, acknowledged: c.acknowledged, resent: c.resent, ended };
-    }
-
-    /// Waits up to `drain` for the head to acknowledge the window (a
-    /// head that asks for batches again gets them), then sends the link's
-    /// last count to the head, marked ended.
-    pub(crate) fn finish(&mut self, drain: Duration) -> Result<()> {
-        let t = Instant::now();
-        while !self.outbox.is_empty() && t.elapsed() < drain {
-            self.acks_in()?;
-            std::thread::sleep(Duration::from_millis(2));
-        }
-        if !self.outbox.is_empty() {
-            tracing::warn!("{} batches the head did not acknowledge are lost", self.outbox.len());
-        }
-        let mut last = self.tel.sample;
-        let c = self.outbox.counts;
-        last.delivery =
-            Delivery { sent: c.sent, acknowledged: c.acknowledged, resent: c.resent, ended: 1 };
-        last.work = c.sent;
-        last.index = self.slot;
-        last.pid = 0;
-        self.tel.sample.delivery.ended = 1;
-        let _ = self
-            .session
-            .put(self.tel_pub.key_expr().clone(), Vec::new())
-            .attachment(wire::header_bytes(&last).to_vec())
-            .congestion_control(CongestionControl::Block)
-            .wait();
         Ok(())
     }
 

@@ -450,7 +450,10 @@ pub struct Telemetry {
     pub work2: u64,
     /// Weight version in use (actor) or published (learner).
     pub weight_version: u64,
-    /// Lost messages detected by sequence gaps.
+    /// What the role counted lost: the replay, transitions of this host's
+    /// actors (sequence gaps, at the size of the batch after the gap, and
+    /// corrupt ones); an actor, messages it gave up or found missing; the
+    /// head's link, transitions missing from another host's actors.
     pub lost: u64,
     /// Role's gauge: epsilon ×1000 (actor), replay size (replay), mean loss of the updates
     /// since the previous sample ×1e6 (learner); 0 for sims.
@@ -680,7 +683,8 @@ mod tests {
         assert_eq!(std::mem::size_of::<TransitionHeader>(), 24);
         assert_eq!(std::mem::size_of::<MinibatchHeader>(), 24);
         assert_eq!(std::mem::size_of::<WeightsHeader>(), 24);
-        assert_eq!(std::mem::size_of::<Telemetry>(), 128);
+        assert_eq!(std::mem::size_of::<Telemetry>(), 160);
+        assert_eq!(std::mem::size_of::<Delivery>(), 32);
         assert_eq!(std::mem::size_of::<Learning>(), 32);
         assert_eq!(std::mem::size_of::<PriorityHeader>(), 16);
     }

@@ -102,7 +102,9 @@ pub struct Summary {
     pub policy_lag_mean: Option<f64>,
     /// Roles restarted after dying.
     pub restarts: u64,
-    /// Messages lost (sequence gaps), every role.
+    /// Lost, every role, across restarts: messages an actor gave up or
+    /// found missing, plus transitions the replay and the head's link found
+    /// missing (sequence gaps) or corrupt.
     pub lost_messages: u64,
     /// Messages and joins refused from other hosts by reason, summed over
     /// `hosts`.

@@ -74,7 +74,9 @@ impl<S: Service> Memory<'_, S> {
     fn run_free(&mut self) -> Result<()> {
         let r = &self.cfg.replay;
         // Actors of other hosts come through the link with indexes after ours.
-        let mut next_seq = SeqTracker::new(self.cfg.envs_total());
+        // This host's actors only: another host's gaps are its link's to
+        // count (the head's link takes each host's batches in order).
+        let mut next_seq = SeqTracker::new(self.cfg.sim.envs);
         let mut mb_seq = 0u64;
         let mut backoff_until = Instant::now();
         let mut limit = SampleLimit::new(self.cfg);
@@ -422,8 +424,9 @@ fn enqueue<S: Service>(
     Ok(())
 }
 
-/// Counts a gap in the batch's actor's sequence numbers (a restarted actor
-/// starts again at 0, which is not loss) and its corrupt transitions; true
+/// Counts, in transitions, a gap in the batch's actor's sequence numbers
+/// (estimated at this batch's size; a restarted actor starts again at 0,
+/// which is not loss) and its corrupt transitions; true
 /// when the batch is clean (a batch with any corrupt transition, or whose
 /// length is not whole transitions, is not stored: poison never reaches the
 /// learner).
@@ -433,12 +436,12 @@ fn check<S: Service>(
     lost: &mut u64,
 ) -> bool {
     let h = m.user_header();
-    *lost += next_seq.observe(h.actor as usize, h.seq);
+    *lost += next_seq.observe(h.actor as usize, h.seq).saturating_mul(h.count as u64);
     let bad = rotorhive_msg::corrupt_transitions(m.payload());
     *lost += bad;
     let whole = m.payload().len().is_multiple_of(PACKED_LEN);
     if !whole {
-        *lost += 1;
+        *lost += (h.count as u64).max(1);
     }
     bad == 0 && whole
 }
