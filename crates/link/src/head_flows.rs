@@ -104,9 +104,9 @@ impl Flows {
         let Some(s) = self.get(slot) else { return };
         s.reported = d;
         s.heard = Some(Instant::now());
-        let (base, ended) = (s.base, d.ended != 0);
+        let (base, ended, taken) = (s.base, d.ended != 0, s.taken);
         stats.flow(slot, |f| {
-            f.sent = base.sent + d.sent;
+            f.sent = base.sent + d.sent.max(taken);
             f.resent = base.resent + d.resent;
             f.ended = ended;
         });
@@ -117,7 +117,8 @@ impl Flows {
     pub(crate) fn rejoin(&mut self, slot: u32, epoch: u64, stats: &HeadStats) {
         let Some(s) = self.get(slot) else { return };
         let lost = s.reported.sent.saturating_sub(s.taken);
-        s.base.sent += s.reported.sent;
+        // It sent at least what was taken (its last report may be older).
+        s.base.sent += s.reported.sent.max(s.taken);
         s.base.resent += s.reported.resent;
         (s.reported, s.taken, s.inflow) = (Delivery::default(), 0, Inflow::new(epoch));
         stats.flow(slot, |f| {
