@@ -15,8 +15,11 @@
 #[cfg(feature = "zero-copy")]
 use iceoryx2::prelude::ZeroCopySend;
 
+mod counters;
 pub mod durable;
 pub mod protobuf;
+
+pub use counters::Counters;
 
 /// Side of one square depth image, in pixels.
 pub const DEPTH_SIDE: usize = 32;

@@ -9,7 +9,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 use anyhow::Result;
-use rotorhive_msg::{RoleKind, Telemetry};
+use rotorhive_msg::{Counters, RoleKind, Telemetry};
 use rotorhive_records::{HostRole, HostSummary, Member, TelemetryRow};
 use rotorhive_roles::Config;
 use rotorhive_transport::Receiver;
@@ -121,8 +121,11 @@ impl Monitor {
 
     /// Agent-steps, learner updates and replay size, from the telemetry.
     pub(super) fn counts(&self) -> Counts {
-        let replay =
-            self.latest.get(&(RoleKind::Replay as u32, 0)).map(|t| t.value_milli).unwrap_or(0);
+        let replay = match self.latest.get(&(RoleKind::Replay as u32, 0)).and_then(|t| t.counters())
+        {
+            Some(Counters::Replay { size, .. }) => size as i64,
+            _ => 0,
+        };
         (self.sum_work(RoleKind::Sim), self.sum_work(RoleKind::Learner), replay)
     }
 
@@ -323,10 +326,10 @@ fn role_row(t: &Telemetry, wall: f64, machine: f64, gpu: Option<GpuReading>) -> 
 /// mean loss over the updates since its previous sample, the actor's
 /// epsilon, the replay's size; empty for sims.
 fn gauge(t: &Telemetry) -> String {
-    match RoleKind::from_code(t.role) {
-        Some(RoleKind::Learner) => format!("{:.6}", t.value_milli as f64 / 1e6),
-        Some(RoleKind::Actor) => format!("{:.3}", t.value_milli as f64 / 1e3),
-        Some(RoleKind::Replay) => t.value_milli.to_string(),
+    match t.counters() {
+        Some(Counters::Learner { loss, .. }) => format!("{loss:.6}"),
+        Some(Counters::Actor { epsilon, .. }) => format!("{epsilon:.3}"),
+        Some(Counters::Replay { size, .. }) => size.to_string(),
         _ => String::new(),
     }
 }
