@@ -147,11 +147,22 @@ fn a_head_trains_from_a_worker_on_another_domain_over_mutual_tls_without_loss() 
     let plain_ep = ep.replace("quic/", "tcp/");
     let other_tls = tls(&other, "worker-1");
     let unlisted_tls = tls(&certs, "worker-2");
+    // Worker 1's own certificate asking for another slot: the access
+    // control holds each certificate to its slot's join and keys, so the
+    // request never reaches the head (which would refuse it by name).
+    let as_two = tmp("worker-1-as-2");
+    std::fs::create_dir_all(&as_two).unwrap();
+    for f in ["ca.pem", "cert.pem", "key.pem"] {
+        std::fs::copy(certs.join("worker-1").join(f), as_two.join(f)).unwrap();
+    }
+    std::fs::write(as_two.join("slot"), "2\n").unwrap();
+    let as_two_tls = as_two.display().to_string();
     let intruder_dir = tmp("intruder").display().to_string();
     for (args, name) in [
         (vec!["--connect", ep.as_str(), "--tls", &other_tls], "another CA"),
         (vec!["--connect", &plain_ep], "plaintext"),
         (vec!["--connect", ep.as_str(), "--tls", &unlisted_tls], "a worker the run does not list"),
+        (vec!["--connect", ep.as_str(), "--tls", &as_two_tls], "worker 1 asking for slot 2"),
     ] {
         let mut all = vec![
             "--domain",

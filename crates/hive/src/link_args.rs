@@ -30,7 +30,7 @@ impl LinkArgs {
         rotorhive_link::LinkOptions {
             tls: self.tls.clone(),
             zenoh_config: self.zenoh_config.clone(),
-            peers: Vec::new(),
+            ..Default::default()
         }
     }
 

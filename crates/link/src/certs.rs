@@ -65,9 +65,23 @@ pub fn make(out: &Path, workers: usize, head_names: &[String]) -> Result<Vec<Pat
         write(&dir.join("ca.pem"), &ca.pem(), false)?;
         write(&dir.join("cert.pem"), &cert.pem(), false)?;
         write(&dir.join("key.pem"), &key.serialize_pem(), true)?;
+        if let Some(slot) = host.strip_prefix("worker-") {
+            // The slot this certificate may join as (the head's access
+            // control holds it to that).
+            write(&dir.join("slot"), &format!("{slot}\n"), false)?;
+        }
         dirs.push(dir);
     }
     Ok(dirs)
+}
+
+/// The slot a worker's certificate directory holds: its `slot` file, else
+/// a directory named `worker-N` (made by `hive certs` before the file).
+pub fn slot_of(dir: &Path) -> Option<u32> {
+    match std::fs::read_to_string(dir.join("slot")) {
+        Ok(s) => s.trim().parse().ok(),
+        Err(_) => dir.file_name()?.to_str()?.strip_prefix("worker-")?.parse().ok(),
+    }
 }
 
 /// Writes `text`; a key readable by its owner only.

@@ -111,11 +111,21 @@ pub struct Head {
     pub(crate) queryable: zenoh::query::Queryable<FifoChannelHandler<Query>>,
     _token: zenoh::liveliness::LivelinessToken,
     pub(crate) hosts: Vec<Host>,
-    pending: Vec<(Query, Hello)>,
+    pending: Vec<Pending>,
+    /// Workers the run waits for.
+    wanted: usize,
     limits: JoinLimits,
     /// Joins refused while gathering (counted into the link's stats).
     pub(crate) refused_joins: u64,
     pub(crate) subs: HeadSubscribers,
+}
+
+/// A join waiting for its answer: the request, what it says, and the
+/// slot it asked for (then the one it got).
+struct Pending {
+    query: Query,
+    hello: Hello,
+    slot: Option<u32>,
 }
 
 /// The head's subscribers, declared before any worker is admitted, so that
@@ -132,7 +142,7 @@ impl Head {
     pub fn listen(endpoint: &str, run: &str, layout: u64, opts: &LinkOptions) -> Result<Self> {
         let session = open(Some(endpoint), None, opts)?;
         let queryable = session
-            .declare_queryable(JOIN)
+            .declare_queryable(format!("{JOIN}/**"))
             .with(FifoChannel::new(64))
             .wait()
             .map_err(zerr("declare the join queryable"))?;
@@ -168,14 +178,18 @@ impl Head {
             _token: token,
             hosts: Vec::new(),
             pending: Vec::new(),
+            wanted: 0,
             limits: JoinLimits { default_agents: 1, n_step: 1 },
             refused_joins: 0,
         })
     }
 
     /// Waits for `wanted` workers (at most `timeout`) and places their
-    /// environments after the head's `head_envs`, in order of joining. They
-    /// wait for their answer until [`Head::admit`].
+    /// environments after the head's `head_envs`, in the order of their
+    /// slots: the slot a worker's certificate holds where it asks for one
+    /// (`rotorhive/join/SLOT`; the access control admits only that one),
+    /// else the first free, in order of joining. They wait for their answer
+    /// until [`Head::admit`].
     /// A worker that asks for 0 agents per environment gets `default_agents`.
     pub fn gather(
         &mut self,
@@ -185,7 +199,7 @@ impl Head {
         timeout: Duration,
         stop: impl Fn() -> bool,
     ) -> Result<Vec<Host>> {
-        self.limits = limits;
+        (self.limits, self.wanted) = (limits, wanted);
         let start = Instant::now();
         while self.pending.len() < wanted {
             if stop() {
@@ -199,43 +213,12 @@ impl Head {
                     secs: timeout.as_secs_f64(),
                 });
             }
-            let Ok(Some(q)) = self.queryable.recv_timeout(left.min(Duration::from_millis(100)))
-            else {
-                continue;
-            };
-            match self.check(&q) {
-                Ok(h) => {
-                    if let Some(i) = self.pending.iter().position(|(_, p)| p.host == h.host) {
-                        if same_token(&self.pending[i].1.token, &h.token) {
-                            // The same host asking again (it retried): keep the newest.
-                            self.pending[i] = (q, h);
-                        } else {
-                            self.refused_joins += 1;
-                            refuse(
-                                &q,
-                                &format!(
-                                    "host {} has already joined this run (another join token)",
-                                    h.host
-                                ),
-                            );
-                        }
-                    } else {
-                        tracing::info!(
-                            "worker {} joined: {} × {} agents",
-                            h.host,
-                            h.envs,
-                            h.agents
-                        );
-                        self.pending.push((q, h));
-                    }
-                }
-                Err(why) => {
-                    self.refused_joins += 1;
-                    refuse(&q, &why);
-                }
+            if let Ok(Some(q)) = self.queryable.recv_timeout(left.min(Duration::from_millis(100))) {
+                self.take_join(q);
             }
         }
-        let envs = self.pending.iter().map(|(_, h)| h.envs);
+        self.assign_slots();
+        let envs = self.pending.iter().map(|p| p.hello.envs);
         let Some(offsets) = u32::try_from(head_envs).ok().and_then(|h| place(h, envs)) else {
             return Err(LinkError::Refused {
                 endpoint: "this head".into(),
@@ -243,10 +226,11 @@ impl Head {
             });
         };
         self.hosts.clear();
-        for (i, ((_, h), env_offset)) in self.pending.iter().zip(offsets).enumerate() {
+        for (p, env_offset) in self.pending.iter().zip(offsets) {
+            let h = &p.hello;
             self.hosts.push(Host {
                 name: h.host.clone(),
-                slot: i as u32 + 1,
+                slot: p.slot.unwrap_or(0),
                 envs: h.envs,
                 agents: h.agents,
                 env_offset,
@@ -257,10 +241,63 @@ impl Head {
         Ok(self.hosts.clone())
     }
 
+    /// A join request while gathering: kept (the newest of one host), or
+    /// refused with why.
+    fn take_join(&mut self, q: Query) {
+        let (hello, slot) = match self.check(&q) {
+            Ok(h) => h,
+            Err(why) => {
+                self.refused_joins += 1;
+                return refuse(&q, &why);
+            }
+        };
+        let same_host = self.pending.iter().position(|p| p.hello.host == hello.host);
+        let taken = self
+            .pending
+            .iter()
+            .any(|p| p.hello.host != hello.host && slot.is_some() && p.slot == slot);
+        let why = match same_host {
+            Some(i) if !same_token(&self.pending[i].hello.token, &hello.token) => {
+                format!("host {} has already joined this run (another join token)", hello.host)
+            }
+            _ if taken => format!("slot {} has joined this run already", slot.unwrap_or(0)),
+            Some(i) => {
+                // The same host asking again (it retried): keep the newest.
+                self.pending[i] = Pending { query: q, hello, slot };
+                return;
+            }
+            None => {
+                tracing::info!(
+                    "worker {} joined: {} × {} agents",
+                    hello.host,
+                    hello.envs,
+                    hello.agents
+                );
+                self.pending.push(Pending { query: q, hello, slot });
+                return;
+            }
+        };
+        self.refused_joins += 1;
+        refuse(&q, &why);
+    }
+
+    /// Gives each gathered worker its slot (the one it asked for, else the
+    /// first free, in order of joining) and puts them in slot order.
+    fn assign_slots(&mut self) {
+        let taken: Vec<u32> = self.pending.iter().filter_map(|p| p.slot).collect();
+        let mut free = (1..=self.wanted as u32).filter(|s| !taken.contains(s));
+        for p in &mut self.pending {
+            if p.slot.is_none() {
+                p.slot = free.next();
+            }
+        }
+        self.pending.sort_by_key(|p| p.slot);
+    }
+
     /// Answers the gathered workers: each gets its place, the config
     /// `welcome` gives it and the arena.
     pub fn admit(&mut self, welcome: impl Fn(&Host) -> (String, String)) {
-        for ((q, _), host) in self.pending.drain(..).zip(&self.hosts) {
+        for (Pending { query: q, .. }, host) in self.pending.drain(..).zip(&self.hosts) {
             let (config, arena) = welcome(host);
             reply(
                 &q,
@@ -276,7 +313,16 @@ impl Head {
         }
     }
 
-    pub(crate) fn check(&self, q: &Query) -> std::result::Result<Hello, String> {
+    /// A join request's hello, checked, and the slot it asks for (its key's
+    /// last part, `rotorhive/join/SLOT`; none on `rotorhive/join`).
+    pub(crate) fn check(&self, q: &Query) -> std::result::Result<(Hello, Option<u32>), String> {
+        let slot = match q.key_expr().as_str().strip_prefix(JOIN).unwrap_or("") {
+            "" => None,
+            rest => match rest.strip_prefix('/').and_then(|n| n.parse::<u32>().ok()) {
+                Some(n) if (1..=self.wanted.max(self.hosts.len()) as u32).contains(&n) => Some(n),
+                _ => return Err(format!("{}: not a slot of this run", q.key_expr())),
+            },
+        };
         let bytes = q.payload().map(|p| p.to_bytes().into_owned()).unwrap_or_default();
         let mut h = Hello::decode(&bytes).ok_or("not a rotorhive worker's join request")?;
         if h.layout != self.layout {
@@ -292,7 +338,7 @@ impl Head {
                 h.token.len()
             ));
         }
-        Ok(h)
+        Ok((h, slot))
     }
 }
 
@@ -300,7 +346,7 @@ impl Head {
 pub type ConfigFor = Box<dyn Fn(&Host) -> (String, String) + Send>;
 
 pub(crate) fn reply(q: &Query, w: &Welcome) {
-    if let Err(e) = q.reply(JOIN, w.encode()).wait() {
+    if let Err(e) = q.reply(q.key_expr().clone(), w.encode()).wait() {
         tracing::warn!("cannot answer a worker: {e}");
     }
 }

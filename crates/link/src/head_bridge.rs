@@ -324,7 +324,10 @@ impl<S: Service> HeadBridge<'_, S> {
         let (head, run) = (self.head, &self.head.run);
         while let Ok(Some(q)) = head.queryable.try_recv() {
             match head.check(&q) {
-                Ok(h) => match head.hosts.iter().find(|x| x.name == h.host) {
+                Ok((h, slot)) => match head.hosts.iter().find(|x| x.name == h.host) {
+                    Some(x) if slot.is_some_and(|s| s != x.slot) => {
+                        self.refuse_join(&q, &format!("host {} holds slot {}", x.name, x.slot))
+                    }
                     Some(x) if !same_token(&x.token, &h.token) => self.refuse_join(
                         &q,
                         &format!(

@@ -57,6 +57,12 @@ pub struct LinkOptions {
     /// from any other peer, even one holding a certificate of the run's CA.
     /// Empty: no access control.
     pub peers: Vec<String>,
+    /// The head: `peers[i]` is worker slot `i + 1`'s certificate, which
+    /// may join as that slot only and put on that slot's keys only.
+    pub peers_are_slots: bool,
+    /// A worker: the slot its certificate holds (`hive certs` writes it as
+    /// `slot` in the worker's directory), asked for at the join.
+    pub slot: Option<u32>,
 }
 
 impl LinkOptions {
@@ -67,13 +73,22 @@ impl LinkOptions {
             tls,
             zenoh_config,
             peers: (1..=workers).map(|i| certs::common_name(&format!("worker-{i}"))).collect(),
+            peers_are_slots: true,
+            slot: None,
         }
     }
 
     /// A worker's options: `tls` and `zenoh_config`, talking to the head's
     /// certificate only.
     pub fn for_worker(tls: Option<PathBuf>, zenoh_config: Option<PathBuf>) -> Self {
-        Self { tls, zenoh_config, peers: vec![certs::common_name("head")] }
+        let slot = tls.as_deref().and_then(certs::slot_of);
+        Self {
+            tls,
+            zenoh_config,
+            peers: vec![certs::common_name("head")],
+            peers_are_slots: false,
+            slot,
+        }
     }
 }
 
@@ -133,21 +148,50 @@ fn set_tls(c: &mut zenoh::Config, dir: &Path) -> Result<()> {
     set(c, "transport/link/tls/verify_name_on_connect", "true")
 }
 
+/// The messages a host's access control admits on the run's keys.
+const MESSAGES: &str = r#"["put", "delete", "declare_subscriber", "query", "declare_queryable", "reply",
+    "liveliness_token", "declare_liveliness_subscriber", "liveliness_query"]"#;
+
 /// Zenoh's access control (JSON5) for a host that talks to the peers whose
 /// certificates have the common names `peers`: everything on the run's
-/// keys (`rotorhive/**`: the join, transitions, episodes, telemetry,
-/// weights, the end, liveliness), both ways, with them; nothing with
-/// anyone else.
-fn access_control(peers: &[String]) -> String {
-    let names: Vec<String> = peers.iter().map(|p| format!("{p:?}")).collect();
+/// keys to them; from them, what they may send. With `slots` (the head),
+/// `peers[i]` is worker slot `i + 1`: it may subscribe and ask anywhere on
+/// the run's keys, but join only as its slot (`rotorhive/join/SLOT`) and
+/// put only on its slot's keys (`rotorhive/RUN/host/SLOT/...`). Everything
+/// else, and every other certificate, is denied.
+fn access_control(peers: &[String], slots: bool) -> String {
+    let q = |p: &String| format!("{p:?}");
+    let names: Vec<String> = peers.iter().map(q).collect();
+    let mut rules = vec![format!(
+        r#"{{ id: "out", key_exprs: ["rotorhive/**"], flows: ["egress"], permission: "allow", messages: {MESSAGES} }}"#
+    )];
+    let mut subjects =
+        vec![format!(r#"{{ id: "peers", cert_common_names: [{}] }}"#, names.join(", "))];
+    let mut policies = vec![r#"{ rules: ["out", "in"], subjects: ["peers"] }"#.to_string()];
+    if slots {
+        rules.push(r#"{ id: "in", key_exprs: ["rotorhive/**"], flows: ["ingress"], permission: "allow",
+            messages: ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query"] }"#
+            .into());
+        for (i, p) in peers.iter().enumerate() {
+            let slot = i + 1;
+            rules.push(format!(
+                r#"{{ id: "slot-{slot}", flows: ["ingress"], permission: "allow",
+                     key_exprs: ["rotorhive/join/{slot}", "rotorhive/*/host/{slot}", "rotorhive/*/host/{slot}/**"],
+                     messages: ["put", "delete", "query", "liveliness_token"] }}"#
+            ));
+            subjects.push(format!(r#"{{ id: "worker-{slot}", cert_common_names: [{}] }}"#, q(p)));
+            policies.push(format!(r#"{{ rules: ["slot-{slot}"], subjects: ["worker-{slot}"] }}"#));
+        }
+    } else {
+        rules.push(format!(
+            r#"{{ id: "in", key_exprs: ["rotorhive/**"], flows: ["ingress"], permission: "allow", messages: {MESSAGES} }}"#
+        ));
+    }
     format!(
-        r#"{{ enabled: true, default_permission: "deny",
-             rules: [{{ id: "run", key_exprs: ["rotorhive/**"], flows: ["ingress", "egress"], permission: "allow",
-                        messages: ["put", "delete", "declare_subscriber", "query", "declare_queryable", "reply",
-                                   "liveliness_token", "declare_liveliness_subscriber", "liveliness_query"] }}],
-             subjects: [{{ id: "peers", cert_common_names: [{}] }}],
-             policies: [{{ rules: ["run"], subjects: ["peers"] }}] }}"#,
-        names.join(", ")
+        r#"{{ enabled: true, default_permission: "deny", rules: [{}], subjects: [{}], policies: [{}] }}"#,
+        rules.join(", "),
+        subjects.join(", "),
+        policies.join(", ")
     )
 }
 
@@ -217,7 +261,7 @@ pub(crate) fn open(
     if let Some(dir) = &opts.tls {
         set_tls(&mut c, dir)?;
         if !opts.peers.is_empty() {
-            set(&mut c, "access_control", &access_control(&opts.peers))?;
+            set(&mut c, "access_control", &access_control(&opts.peers, opts.peers_are_slots))?;
         }
     }
     match (listen, connect) {
@@ -240,4 +284,42 @@ pub(crate) fn open(
         _ => "open".into(),
     };
     zenoh::open(c).wait().map_err(zerr(what))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn access_control_holds_each_worker_to_its_slot() {
+        let peers: Vec<String> = (1..=3).map(|i| format!("rotorhive-worker-{i}")).collect();
+        for slots in [true, false] {
+            let acl = access_control(&peers, slots);
+            // Zenoh reads it (it checks the rules' fields and key expressions).
+            let mut c = zenoh::Config::default();
+            set(&mut c, "access_control", &acl).unwrap();
+            let v: serde_json::Value = json5::from_str(&acl).unwrap();
+            let rules = v["rules"].as_array().unwrap();
+            let of = |id: &str| rules.iter().find(|r| r["id"] == id).cloned();
+            if slots {
+                // Worker 2 may join and put as slot 2 only; nobody may put anywhere else.
+                let two = of("slot-2").unwrap();
+                let keys: Vec<&str> = two["key_exprs"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .filter_map(|k| k.as_str())
+                    .collect();
+                assert_eq!(
+                    keys,
+                    ["rotorhive/join/2", "rotorhive/*/host/2", "rotorhive/*/host/2/**"]
+                );
+                let inbound = of("in").unwrap();
+                assert!(!inbound["messages"].as_array().unwrap().iter().any(|m| m == "put"));
+                assert_eq!(v["subjects"].as_array().unwrap().len(), 4);
+            } else {
+                assert!(of("slot-1").is_none());
+            }
+        }
+    }
 }

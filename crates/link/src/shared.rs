@@ -33,10 +33,10 @@ pub(crate) fn key(run: &str, what: &str) -> String {
 }
 
 /// The key a worker in `slot` puts `what` on: the head knows the sender by
-/// it and checks each message against that host ([`crate::check`]). The
-/// access-control rules admit the run's certificates, not one certificate
-/// per slot: any admitted worker could put on another slot's keys (its
-/// messages are still checked against that slot's environments).
+/// it and checks each message against that host ([`crate::check`]). Under
+/// TLS the head's access control admits slot `i`'s keys from certificate
+/// `worker-i` only; over plain `tcp/` anyone may put anywhere (each message
+/// is still checked against the slot its key names).
 pub(crate) fn host_key(run: &str, slot: u32, what: &str) -> String {
     format!("rotorhive/{run}/host/{slot}/{what}")
 }

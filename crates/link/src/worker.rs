@@ -72,6 +72,9 @@ impl Worker {
         stop: impl Fn() -> bool,
     ) -> Result<Self> {
         let session = open(None, Some(endpoint), opts)?;
+        // A worker whose certificate holds a slot asks for it (the head's
+        // access control admits that one only).
+        let join = opts.slot.map_or(JOIN.to_string(), |s| format!("{JOIN}/{s}"));
         let start = Instant::now();
         while start.elapsed() < timeout {
             if stop() {
@@ -79,7 +82,7 @@ impl Worker {
             }
             let left = timeout.saturating_sub(start.elapsed()).max(Duration::from_millis(100));
             let replies = session
-                .get(JOIN)
+                .get(&join)
                 .payload(hello.encode())
                 .timeout(left.min(Duration::from_secs(5)))
                 .wait()
