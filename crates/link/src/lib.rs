@@ -6,11 +6,12 @@
 //! - transition batches worker → head: zenoh's `CongestionControl::Block`,
 //!   a bounded FIFO on the head, then the head's bounded iceoryx2 send
 //!   retried while the replay is full (or restarting), so back-pressure
-//!   reaches the worker's actors end to end; nothing is acknowledged yet, so
-//!   a session that drops loses what its queues held (README says what is
-//!   guaranteed);
-//! - weights head → worker, newest only (a ring of one), republished on the
-//!   worker's shared memory once per host;
+//!   reaches the worker's actors end to end; every batch acknowledged once
+//!   the replay took it, and sent again from the worker's window when it
+//!   went missing or the session dropped and came back ([`delivery`]);
+//! - weights head → worker, newest only (a ring of one; `Drop`: a slow
+//!   worker never holds the head), republished on the worker's shared
+//!   memory once per host;
 //! - telemetry and episodes worker → head (they may drop under load; drops
 //!   are counted).
 //!
