@@ -323,43 +323,7 @@ fn worker_side(
     w.reconnect = Duration::from_secs(5);
     let hub = Hub::<Ipc>::new(RUN, "bench-link")?.with_stop(stop.clone());
     let (ready_tx, ready_rx) = std::sync::mpsc::channel::<()>();
-    let producer = {
-        let stop = stop.clone();
-        let data = sample_batch(batch);
-        std::thread::spawn(move || -> Result<u64> {
-            // Start once the link takes batches.
-            let _ = ready_rx.recv();
-            let hub = Hub::<Ipc>::new(RUN, "bench-producer")?;
-            let mut tx = hub.sender::<u16, TransitionHeader>(
-                &Channel::transitions(1),
-                batch * PACKED_LEN,
-                rotorhive_roles::STALL_TIMEOUT,
-            )?;
-            // A burst sent within ~100 ms of a publisher's creation lost
-            // batches 8..N to the subscriber created before it in about
-            // one run in four (iceoryx2 0.10, not yet understood; the
-            // link's sequence check reports it): let the new publisher
-            // settle first, as an actor does while its sim starts.
-            std::thread::sleep(Duration::from_millis(500));
-            let mut seq = 0u64;
-            while !stop.load(Ordering::Relaxed) {
-                let r = tx.send_with(batch * PACKED_LEN, |h, p| {
-                    *h = TransitionHeader { actor: 0, count: batch as u32, seq, weight_version: 0 };
-                    // Written into the loan, as the baseline serializes its
-                    // buffer; a marker proves each batch's identity.
-                    p.copy_from_slice(&data);
-                    // (in a depth word: the scalars are checked on the way).
-                    p[0] = seq as u16;
-                });
-                match r {
-                    Ok(()) => seq += 1,
-                    Err(rotorhive_transport::TransportError::Stalled { .. }) => {}
-                    Err(e) => return Err(e.into()),
-                }
-            }
-            Ok(seq * batch as u64)
-        })
-    };
+    let producer = spawn_producer(batch, stop.clone(), ready_rx);
     let mut stats = rotorhive_link::WorkerStats::default();
     let end = w.bridge(&hub, 1, 2, rotorhive_model::num_params(), &mut stats, move || {
         let _ = ready_tx.send(());
@@ -374,9 +338,53 @@ fn worker_side(
         Ok(_) | Err(rotorhive_link::LinkError::LostHead) => {}
         Err(e) => return Err(e.into()),
     }
-    let report = WorkerSide { sent: stats.transitions, produced: produced as u64 };
+    let report = WorkerSide { sent: stats.transitions, produced };
     println!("{}", serde_json::to_string(&report)?);
     Ok(())
+}
+
+/// The bench worker's producer: once `ready` says the link takes batches,
+/// sends the same batch of `batch` transitions (its sequence number as a
+/// marker) as fast as the link takes it, until `stop`; the transitions sent.
+fn spawn_producer(
+    batch: usize,
+    stop: Arc<AtomicBool>,
+    ready_rx: std::sync::mpsc::Receiver<()>,
+) -> std::thread::JoinHandle<Result<u64>> {
+    let data = sample_batch(batch);
+    std::thread::spawn(move || -> Result<u64> {
+        // Start once the link takes batches.
+        let _ = ready_rx.recv();
+        let hub = Hub::<Ipc>::new(RUN, "bench-producer")?;
+        let mut tx = hub.sender::<u16, TransitionHeader>(
+            &Channel::transitions(1),
+            batch * PACKED_LEN,
+            rotorhive_roles::STALL_TIMEOUT,
+        )?;
+        // A burst sent within ~100 ms of a publisher's creation lost
+        // batches 8..N to the subscriber created before it in about
+        // one run in four (iceoryx2 0.10, not yet understood; the
+        // link's sequence check reports it): let the new publisher
+        // settle first, as an actor does while its sim starts.
+        std::thread::sleep(Duration::from_millis(500));
+        let mut seq = 0u64;
+        while !stop.load(Ordering::Relaxed) {
+            let r = tx.send_with(batch * PACKED_LEN, |h, p| {
+                *h = TransitionHeader { actor: 0, count: batch as u32, seq, weight_version: 0 };
+                // Written into the loan, as the baseline serializes its
+                // buffer; a marker proves each batch's identity.
+                p.copy_from_slice(&data);
+                // (in a depth word: the scalars are checked on the way).
+                p[0] = seq as u16;
+            });
+            match r {
+                Ok(()) => seq += 1,
+                Err(rotorhive_transport::TransportError::Stalled { .. }) => {}
+                Err(e) => return Err(e.into()),
+            }
+        }
+        Ok(seq * batch as u64)
+    })
 }
 
 /// A transition batch as a msgpack record (what an RPC framework sends).
