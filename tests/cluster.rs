@@ -591,6 +591,68 @@ fn a_head_held_busy_slows_the_worker_without_loss() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A worker killed outright (SIGKILL) and started again under its name:
+/// it joins again under a new link epoch, the run ends normally, and every
+/// transition is accounted for: what the killed process sent and the head
+/// never took is counted lost (as its last report said), and everything
+/// the second process sent was acknowledged.
+#[test]
+#[ignore = "slow multi-process test: scripts/test runs it (--include-ignored)"]
+fn a_killed_worker_that_joins_again_has_every_transition_accounted_for() {
+    let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = tmp("rejoin");
+    let dir_s = dir.display().to_string();
+    let ep = format!("tcp/127.0.0.1:{}", free_port());
+    let mut args = vec!["--domain", "cluster-rejoin-head", "train", "--listen", &ep];
+    args.extend(["--max-seconds", "30", "--run-dir", &dir_s]);
+    args.extend(small_run());
+    args.extend(["--set", "cluster.workers=1"]);
+    let head = hive(&args).spawn().unwrap();
+    let wdir = tmp("rejoin-worker").display().to_string();
+    let worker = || {
+        let a = ["--domain", "cluster-rejoin-worker", "worker", "--connect", &ep, "--agents", "8"];
+        hive(&a).args(["--name", "w", "--run-dir", &wdir]).spawn().unwrap()
+    };
+    let mut first = worker();
+    common::wait_for("the first worker's sim at work", Duration::from_secs(40), || {
+        sim_heartbeats(&dir, 1).last().is_some_and(|b| *b >= 4)
+    });
+    first.kill().unwrap();
+    first.wait().unwrap();
+    let second = worker();
+    let w = second.wait_with_output().unwrap();
+    let h = head.wait_with_output().unwrap();
+    assert!(h.status.success(), "head: {}", text(&h));
+    assert!(w.status.success(), "worker: {}", text(&w));
+    let wout = String::from_utf8_lossy(&w.stdout);
+    assert!(wout.contains("the head ended the run"), "{wout}");
+    // The second process: everything it sent acknowledged ("worker w: N
+    // transitions sent (M acknowledged, ...").
+    let (before, after) =
+        wout.split_once(" transitions sent (").unwrap_or_else(|| panic!("{wout}"));
+    let number = |t: &str| t.parse::<u64>().unwrap_or_else(|_| panic!("{t:?} in {wout}"));
+    let second_sent = number(before.rsplit(' ').next().unwrap_or(""));
+    assert_eq!(number(after.split(' ').next().unwrap_or("")), second_sent, "{wout}");
+    let s = common::summary(&dir);
+    let host = &s.hosts[1];
+    // Both processes' transitions reached the head's count; what was sent
+    // is what was acknowledged plus what is counted lost.
+    assert!(host.transitions_acknowledged > second_sent, "{s:?}");
+    assert_eq!(
+        host.transitions_sent,
+        host.transitions_acknowledged + host.lost_transitions,
+        "{s:?}"
+    );
+    eprintln!(
+        "killed and rejoined: {} sent, {} acknowledged, {} counted lost, {} refused as another epoch's",
+        host.transitions_sent,
+        host.transitions_acknowledged,
+        host.lost_transitions,
+        host.rejected_by_reason.get("epoch").copied().unwrap_or(0)
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// Two network namespaces joined by a veth pair, removed on drop.
 struct NetPair {
     a: String,
