@@ -48,6 +48,18 @@ fn small_run() -> Vec<&'static str> {
     ]
 }
 
+/// A head of a small run (`small_run`, one worker, then `extra`) in domain
+/// `domain`, listening on `ep` for `secs` seconds, its records in `dir`.
+fn small_head(domain: &str, ep: &str, secs: &str, dir: &std::path::Path, extra: &[&str]) -> Child {
+    let dir_s = dir.display().to_string();
+    let mut args = vec!["--domain", domain, "train", "--listen", ep, "--max-seconds", secs];
+    args.extend(["--run-dir", &dir_s]);
+    args.extend(small_run());
+    args.extend(["--set", "cluster.workers=1"]);
+    args.extend(extra);
+    hive(&args).spawn().unwrap()
+}
+
 fn text(o: &Output) -> String {
     format!(
         "stdout:\n{}\nstderr:\n{}",
@@ -382,14 +394,8 @@ fn a_killed_worker_comes_back_and_a_killed_head_is_noticed() {
     let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
     let dir = tmp("restart");
     let ep = format!("tcp/127.0.0.1:{}", free_port());
-    let hd = "cluster-head".to_string();
-    let dir_s = dir.display().to_string();
-    let mut args =
-        vec!["--domain", &hd, "train", "--listen", &ep, "--max-seconds", "30", "--run-dir", &dir_s];
-    args.extend(small_run());
     // A worker waits 3 s (not 60) for a head that went away to come back.
-    args.extend(["--set", "cluster.workers=1", "--set", "cluster.reconnect_s=3"]);
-    let mut head = hive(&args).spawn().unwrap();
+    let mut head = small_head("cluster-head", &ep, "30", &dir, &["--set", "cluster.reconnect_s=3"]);
     // One run directory for both starts of the host: it keeps the join token.
     let wdir = tmp("restart-worker").display().to_string();
     let worker = |domain: &str| {
@@ -512,23 +518,10 @@ fn a_head_held_busy_slows_the_worker_without_loss() {
     let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
     let dir = tmp("busy-head");
     let ep = format!("tcp/127.0.0.1:{}", free_port());
-    let dir_s = dir.display().to_string();
-    let mut args = vec![
-        "--domain",
-        "cluster-head",
-        "train",
-        "--listen",
-        &ep,
-        "--max-seconds",
-        "40",
-        "--run-dir",
-        &dir_s,
-    ];
-    args.extend(small_run());
     // No rate limit: the worker's actors push as fast as they can, so a
     // stalled replay is felt at once.
-    args.extend(["--set", "cluster.workers=1", "--set", "replay.samples_per_insert=0"]);
-    let head = hive(&args).spawn().unwrap();
+    let head =
+        small_head("cluster-head", &ep, "40", &dir, &["--set", "replay.samples_per_insert=0"]);
     let wdir = tmp("busy-head-worker").display().to_string();
     let mut worker = hive(&[
         "--domain",
@@ -601,13 +594,8 @@ fn a_head_held_busy_slows_the_worker_without_loss() {
 fn a_killed_worker_that_joins_again_has_every_transition_accounted_for() {
     let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
     let dir = tmp("rejoin");
-    let dir_s = dir.display().to_string();
     let ep = format!("tcp/127.0.0.1:{}", free_port());
-    let mut args = vec!["--domain", "cluster-rejoin-head", "train", "--listen", &ep];
-    args.extend(["--max-seconds", "30", "--run-dir", &dir_s]);
-    args.extend(small_run());
-    args.extend(["--set", "cluster.workers=1"]);
-    let head = hive(&args).spawn().unwrap();
+    let head = small_head("cluster-rejoin-head", &ep, "30", &dir, &[]);
     let wdir = tmp("rejoin-worker").display().to_string();
     let worker = || {
         let a = ["--domain", "cluster-rejoin-worker", "worker", "--connect", &ep, "--agents", "8"];

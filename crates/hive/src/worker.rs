@@ -110,7 +110,7 @@ pub fn run(a: WorkerArgs) -> Result<()> {
         stats.transitions,
         stats.acknowledged,
         stats.resent,
-        stats.unacknowledged,
+        stats.unacknowledged(),
         stats.weight_version,
         stats.weights,
         stats.rejected,

@@ -13,6 +13,8 @@
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
+use rotorhive_msg::Delivery;
+
 /// A batch's place in its link's stream, sent after its `TransitionHeader`.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
 #[repr(C)]
@@ -52,17 +54,6 @@ pub const HEARTBEAT: Duration = Duration::from_millis(250);
 /// The head asks again for one missing batch at most this often.
 pub const NACK_EVERY: Duration = Duration::from_millis(500);
 
-/// A worker link's delivery counters, in transitions.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct SentCounts {
-    /// Sent a first time.
-    pub sent: u64,
-    /// Acknowledged by the head.
-    pub acknowledged: u64,
-    /// Sent again.
-    pub resent: u64,
-}
-
 struct Pending<P> {
     seq: u64,
     count: u32,
@@ -83,8 +74,8 @@ pub struct Outbox<P> {
     acked_next: u64,
     /// The last resend asked for: from which batch, and when.
     resent_from: Option<(u64, Instant)>,
-    /// Its counts.
-    pub counts: SentCounts,
+    /// Its counts (in transitions; `ended` stays 0: the link sets it).
+    pub counts: Delivery,
 }
 
 impl<P: Clone> Outbox<P> {
@@ -99,7 +90,7 @@ impl<P: Clone> Outbox<P> {
             limit,
             acked_next: 0,
             resent_from: None,
-            counts: SentCounts::default(),
+            counts: Delivery::default(),
         }
     }
 
@@ -271,7 +262,7 @@ mod tests {
     /// `batches` batches over a link that loses and duplicates them as
     /// `fate` says (then heals), a round of 30 ms at a time: what the head
     /// took, the worker's counts, and the duplicates the head dropped.
-    fn fly(fate: &[u8], batches: usize) -> (Vec<u64>, SentCounts, u64) {
+    fn fly(fate: &[u8], batches: usize) -> (Vec<u64>, Delivery, u64) {
         let epoch = 7;
         let mut out: Outbox<u64> = Outbox::new(epoch, 8 * 100);
         let mut inflow = Inflow::new(epoch);

@@ -56,8 +56,6 @@ pub struct Flow {
     /// Sent and never taken: a worker's window when one of its processes
     /// ended (a killed one: as its last report said), or when the run did.
     pub lost: u64,
-    /// The worker's link sent its last count.
-    pub ended: bool,
 }
 
 impl HeadStats {

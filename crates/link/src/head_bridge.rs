@@ -22,7 +22,7 @@ use crate::head::{ConfigFor, Head, HeadStats, refuse, reply};
 use crate::head_flows::Flows;
 use crate::host::{Host, same_token};
 use crate::reject::{Reason, Reject};
-use crate::shared::{LinkTelemetry, key, link_telemetry};
+use crate::shared::{LinkTelemetry, key, link_telemetry, missing_before};
 use crate::wire::Welcome;
 use crate::{check, wire};
 
@@ -238,21 +238,16 @@ impl<S: Service> HeadBridge<'_, S> {
             return Ok(());
         }
         let words = payload.len() / 2;
-        let gap = self.next_seq.observe(h.actor as usize, h.seq);
+        let gap = missing_before(&mut self.next_seq, &h, "head link", "");
         if gap > 0 {
-            tracing::warn!(
-                "head link: actor {} batches {}..{} missing",
-                h.actor,
-                h.seq - gap,
-                h.seq
-            );
+            let lost = gap.saturating_mul(n);
             stats.lost_batches.fetch_add(gap, Ordering::Relaxed);
-            stats.lost_transitions.fetch_add(gap.saturating_mul(h.count as u64), Ordering::Relaxed);
-            self.tel.sample.lost = self.tel.sample.lost.saturating_add(gap * h.count as u64);
+            stats.lost_transitions.fetch_add(lost, Ordering::Relaxed);
+            self.tel.sample.lost = self.tel.sample.lost.saturating_add(lost);
             if let Some(l) =
                 stats.lost_by_env.lock().ok().as_mut().and_then(|v| v.get_mut(h.actor as usize))
             {
-                *l = l.saturating_add(gap.saturating_mul(h.count as u64));
+                *l = l.saturating_add(lost);
             }
         }
         let (stop, deadline) = (self.stop, self.deadline);

@@ -36,6 +36,14 @@ struct SlotFlow {
     taken: u64,
 }
 
+impl SlotFlow {
+    /// Transitions the worker reported sent in this join and the head has
+    /// not taken.
+    fn untaken(&self) -> u64 {
+        self.reported.sent.saturating_sub(self.taken)
+    }
+}
+
 /// Every slot's stream (in the order of the run's hosts).
 pub(crate) struct Flows {
     slots: Vec<SlotFlow>,
@@ -104,11 +112,10 @@ impl Flows {
         let Some(s) = self.get(slot) else { return };
         s.reported = d;
         s.heard = Some(Instant::now());
-        let (base, ended, taken) = (s.base, d.ended != 0, s.taken);
+        let (base, taken) = (s.base, s.taken);
         stats.flow(slot, |f| {
             f.sent = base.sent + d.sent.max(taken);
             f.resent = base.resent + d.resent;
-            f.ended = ended;
         });
     }
 
@@ -116,15 +123,12 @@ impl Flows {
     /// and was never acknowledged (as its last report said) is lost.
     pub(crate) fn rejoin(&mut self, slot: u32, epoch: u64, stats: &HeadStats) {
         let Some(s) = self.get(slot) else { return };
-        let lost = s.reported.sent.saturating_sub(s.taken);
+        let lost = s.untaken();
         // It sent at least what was taken (its last report may be older).
         s.base.sent += s.reported.sent.max(s.taken);
         s.base.resent += s.reported.resent;
         (s.reported, s.taken, s.inflow) = (Delivery::default(), 0, Inflow::new(epoch));
-        stats.flow(slot, |f| {
-            f.lost += lost;
-            f.ended = false;
-        });
+        stats.flow(slot, |f| f.lost += lost);
     }
 
     /// Whether every worker sent its last count (or went silent).
@@ -138,7 +142,7 @@ impl Flows {
     /// not take is lost.
     pub(crate) fn settle(&self, stats: &HeadStats) {
         for s in &self.slots {
-            let lost = s.reported.sent.saturating_sub(s.taken);
+            let lost = s.untaken();
             if lost > 0 {
                 tracing::warn!("worker {}: {lost} transitions sent and never taken", s.slot);
             }

@@ -1,7 +1,8 @@
 //! What both ends of the link share: the key names, the bounds on a
-//! message, the layout fingerprint, the link's telemetry.
+//! message, the layout fingerprint, the link's telemetry, the check of an
+//! actor's sequence.
 
-use rotorhive_msg::{EPISODE_FIELDS, RoleKind, Telemetry};
+use rotorhive_msg::{EPISODE_FIELDS, RoleKind, SeqTracker, Telemetry, TransitionHeader};
 use rotorhive_transport::Service;
 use rotorhive_transport::{Channel, Hub};
 use zenoh::handlers::FifoChannelHandler;
@@ -61,6 +62,22 @@ pub(crate) fn link_telemetry<S: Service>(
         ..Telemetry::default()
     };
     Ok(rotorhive_transport::Periodic::new(hub, &Channel::telemetry(roles), sample)?)
+}
+
+/// The batches of `h`'s actor missing just before it (`seen` tracks each
+/// actor's sequence), warned about as missing at `link` (`where_`: where).
+pub(crate) fn missing_before(
+    seen: &mut SeqTracker,
+    h: &TransitionHeader,
+    link: &str,
+    where_: &str,
+) -> u64 {
+    let gap = seen.observe(h.actor as usize, h.seq);
+    if gap > 0 {
+        let (a, from) = (h.actor, h.seq - gap);
+        tracing::warn!("{link}: actor {a} batches {from}..{} missing{where_}", h.seq);
+    }
+    gap
 }
 
 pub(crate) type Fifo = zenoh::pubsub::Subscriber<FifoChannelHandler<zenoh::sample::Sample>>;

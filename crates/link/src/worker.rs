@@ -28,8 +28,6 @@ pub struct WorkerStats {
     pub acknowledged: u64,
     /// Transitions sent again (asked for again, or a session came back).
     pub resent: u64,
-    /// Transitions sent but not acknowledged when the link ended.
-    pub unacknowledged: u64,
     /// Weight versions received.
     pub weights: u64,
     /// Newest weight version received.
@@ -38,6 +36,14 @@ pub struct WorkerStats {
     pub dropped: u64,
     /// Weights from the head that failed their check and were dropped.
     pub rejected: u64,
+}
+
+impl WorkerStats {
+    /// Transitions sent and not (yet) acknowledged: at the link's end,
+    /// those lost.
+    pub fn unacknowledged(&self) -> u64 {
+        self.transitions.saturating_sub(self.acknowledged)
+    }
 }
 
 /// A worker's end of the link.

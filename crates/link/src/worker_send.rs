@@ -4,7 +4,7 @@
 
 use std::time::{Duration, Instant};
 
-use rotorhive_msg::{Delivery, LinkStage, TransitionHeader};
+use rotorhive_msg::{Delivery, LinkStage, Telemetry, TransitionHeader};
 use rotorhive_transport::Service;
 use zenoh::Wait;
 use zenoh::bytes::ZBytes;
@@ -12,6 +12,7 @@ use zenoh::qos::CongestionControl;
 
 use crate::delivery::{Ack, LinkHeader};
 use crate::error::{Result, zerr};
+use crate::shared::missing_before;
 use crate::wire;
 use crate::worker::WorkerStats;
 use crate::worker_bridge::WorkerBridge;
@@ -32,15 +33,7 @@ impl<S: Service> WorkerBridge<S> {
         let Some(m) = m else { return Ok(()) };
         let t = Instant::now();
         let mut h = *m.user_header();
-        let gap = self.wseq.observe(h.actor as usize, h.seq);
-        if gap > 0 {
-            tracing::warn!(
-                "worker link: actor {} batches {}..{} missing in shared memory",
-                h.actor,
-                h.seq - gap,
-                h.seq
-            );
-        }
+        missing_before(&mut self.wseq, &h, "worker link", " in shared memory");
         h.actor += self.off;
         let bytes = ZBytes::from(wire::payload_bytes(m.payload()).to_vec());
         let link = self.outbox.push(h.count, bytes.len(), (bytes.clone(), h), Instant::now());
@@ -84,11 +77,15 @@ impl<S: Service> WorkerBridge<S> {
     pub(crate) fn count(&mut self, stats: &mut WorkerStats) {
         let c = self.outbox.counts;
         (stats.transitions, stats.acknowledged, stats.resent) = (c.sent, c.acknowledged, c.resent);
-        stats.unacknowledged = c.sent - c.acknowledged;
+        self.counts_into_sample();
+    }
+
+    /// The window's counts into the link's telemetry sample (its `ended`
+    /// kept).
+    fn counts_into_sample(&mut self) {
+        let c = self.outbox.counts;
         self.tel.sample.work = c.sent;
-        let ended = self.tel.sample.delivery.ended;
-        self.tel.sample.delivery =
-            Delivery { sent: c.sent, acknowledged: c.acknowledged, resent: c.resent, ended };
+        self.tel.sample.delivery = Delivery { ended: self.tel.sample.delivery.ended, ..c };
     }
 
     /// Waits up to `drain` for the head to acknowledge the window (a
@@ -103,14 +100,9 @@ impl<S: Service> WorkerBridge<S> {
         if !self.outbox.is_empty() {
             tracing::warn!("{} batches the head did not acknowledge are lost", self.outbox.len());
         }
-        let mut last = self.tel.sample;
-        let c = self.outbox.counts;
-        last.delivery =
-            Delivery { sent: c.sent, acknowledged: c.acknowledged, resent: c.resent, ended: 1 };
-        last.work = c.sent;
-        last.index = self.slot;
-        last.pid = 0;
         self.tel.sample.delivery.ended = 1;
+        self.counts_into_sample();
+        let last = Telemetry { index: self.slot, pid: 0, ..self.tel.sample };
         let _ = self
             .session
             .put(self.tel_pub.key_expr().clone(), Vec::new())
