@@ -538,19 +538,7 @@ fn a_head_held_busy_slows_the_worker_without_loss() {
     .unwrap();
     let lines = lines_of(&mut worker);
     assert!(wait_line(&lines, "joined the run", Duration::from_secs(30)).is_some());
-    // The replay's process id, from the head's telemetry.
-    let end = Instant::now() + Duration::from_secs(30);
-    let pid = loop {
-        if let Some(r) = common::telemetry_of(&dir, Member::Replay).first() {
-            break r.pid as i32;
-        }
-        assert!(Instant::now() < end, "no replay telemetry");
-        std::thread::sleep(Duration::from_millis(200));
-    };
-    // The worker's sim has stepped for a few seconds: its batches flow.
-    common::wait_for("the worker's sim at work", Duration::from_secs(30), || {
-        sim_heartbeats(&dir, 1).last().is_some_and(|b| *b >= 5)
-    });
+    let pid = replay_once_the_worker_is_at_work(&dir);
     // Hold the head's replay for 15 s (past zenoh's default 10 s lease, and
     // far past the actors' 2 s stall bound, beyond which an actor whose
     // receiver is gone gives a batch up): transitions pile up in the head's
@@ -581,6 +569,54 @@ fn a_head_held_busy_slows_the_worker_without_loss() {
         "the head's link waited {send_wait_ms} ms on the replay: {link:?}"
     );
     assert_eq!(s.lost_messages, 0, "{s:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The head's replay's process id (from its telemetry), once the worker's
+/// sim has stepped for a few seconds (its batches flow).
+fn replay_once_the_worker_is_at_work(dir: &std::path::Path) -> i32 {
+    let end = Instant::now() + Duration::from_secs(30);
+    let pid = loop {
+        if let Some(r) = common::telemetry_of(dir, Member::Replay).first() {
+            break r.pid as i32;
+        }
+        assert!(Instant::now() < end, "no replay telemetry");
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    common::wait_for("the worker's sim at work", Duration::from_secs(30), || {
+        sim_heartbeats(dir, 1).last().is_some_and(|b| *b >= 5)
+    });
+    pid
+}
+
+/// The head's replay killed outright (SIGKILL) while a worker floods it:
+/// the supervisor starts it again, the head's link sees the new replay's
+/// first receipt and asks the worker again for every batch the dead one's
+/// queue held (never acknowledged: the worker's window still has them),
+/// and every transition the worker sent is in the new replay.
+#[test]
+#[ignore = "slow multi-process test: scripts/test runs it (--include-ignored)"]
+fn a_killed_replay_on_the_head_loses_nothing_a_worker_sent() {
+    let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = tmp("replay-kill");
+    let ep = format!("tcp/127.0.0.1:{}", free_port());
+    let head = small_head("cluster-rk-head", &ep, "30", &dir, &[]);
+    let wdir = tmp("replay-kill-worker").display().to_string();
+    let args = ["--domain", "cluster-rk-worker", "worker", "--connect", &ep, "--agents", "8"];
+    let mut worker = hive(&args).args(["--run-dir", &wdir]).spawn().unwrap();
+    let lines = lines_of(&mut worker);
+    assert!(wait_line(&lines, "joined the run", Duration::from_secs(30)).is_some());
+    let pid = replay_once_the_worker_is_at_work(&dir);
+    common::signal(pid, Signal::KILL);
+    let h = head.wait_with_output().unwrap();
+    let w = worker.wait_with_output().unwrap();
+    assert!(h.status.success(), "head: {}", text(&h));
+    assert!(w.status.success(), "worker: {}", text(&w));
+    let s = common::summary(&dir);
+    assert_eq!(s.restarts, 1, "{s:?}");
+    assert!(text(&h).contains("the replay restarted"), "head: {}", text(&h));
+    let worker_host = s.hosts.iter().find(|x| x.role == HostRole::Worker).unwrap();
+    assert_delivered(worker_host, &s, &h, &w);
     let _ = std::fs::remove_dir_all(&dir);
 }
 

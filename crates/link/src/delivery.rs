@@ -6,9 +6,11 @@
 //! order only ([`Inflow`]): a duplicate is dropped and counted, a batch
 //! past a gap is dropped and the gap asked for again (go-back-N), and the
 //! acknowledgement (cumulative: every batch below `next`) is sent once the
-//! replay has taken the batch with a receiver there. Nothing here knows
-//! Zenoh: the bridges carry [`LinkHeader`] in a batch's attachment and
-//! [`Ack`] on the slot's `ack` key.
+//! replay process has taken the batch (its receipt, not its queue's: a
+//! replay killed with batches in its queue has them asked for again from
+//! the workers, whose windows still hold them). Nothing here knows Zenoh:
+//! the bridges carry [`LinkHeader`] in a batch's attachment and [`Ack`] on
+//! the slot's `ack` key.
 
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
@@ -26,8 +28,9 @@ pub struct LinkHeader {
 }
 
 /// The head's answer to a worker: every batch of `epoch` below `next` is
-/// in the replay; `resend` 1: the batch at `next` is missing (a later one
-/// came first), send the window again from there.
+/// in the replay; `resend` nonzero: the batch `resend - 1` is missing (a
+/// later one came first, or the replay lost it), send the window again from
+/// there.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
 #[repr(C)]
 pub struct Ack {
@@ -35,7 +38,7 @@ pub struct Ack {
     pub epoch: u64,
     /// The first batch not yet taken.
     pub next: u64,
-    /// 1 to ask for the window again from `next`, else 0.
+    /// The first batch to send again, plus one; 0 for none.
     pub resend: u64,
 }
 
@@ -47,7 +50,7 @@ pub const WINDOW_BYTES: usize = 64 << 20;
 /// a session that came back); and no sooner again after a resend request.
 pub const RESEND_AFTER: Duration = Duration::from_secs(1);
 /// The head acknowledges new batches at most this often, and says where
-/// each slot stands at least this often ([`HEARTBEAT`]).
+/// each slot stands at least this often ([`HEARTBEAT`]; [`crate::inflow`]).
 pub const ACK_EVERY: Duration = Duration::from_millis(20);
 /// See [`ACK_EVERY`].
 pub const HEARTBEAT: Duration = Duration::from_millis(250);
@@ -120,11 +123,12 @@ impl<P: Clone> Outbox<P> {
         LinkHeader { epoch: self.epoch, seq }
     }
 
-    /// Takes the head's answer: drops what it acknowledged; whether the
-    /// window must go out again now ([`Outbox::resend`]).
-    pub fn on_ack(&mut self, ack: Ack, now: Instant) -> bool {
+    /// Takes the head's answer: drops what it acknowledged; from which
+    /// batch the window must go out again now, if it must
+    /// ([`Outbox::resend`]).
+    pub fn on_ack(&mut self, ack: Ack, now: Instant) -> Option<u64> {
         if ack.epoch != self.epoch || ack.next > self.next_seq {
-            return false;
+            return None;
         }
         while self.window.front().is_some_and(|p| p.seq < ack.next) {
             if let Some(p) = self.window.pop_front() {
@@ -134,109 +138,33 @@ impl<P: Clone> Outbox<P> {
         }
         let progress = ack.next > self.acked_next;
         self.acked_next = self.acked_next.max(ack.next);
-        let Some(first) = self.window.front() else {
-            return false;
-        };
+        let first = self.window.front()?;
         if ack.resend != 0 {
-            let recent = self
-                .resent_from
-                .is_some_and(|(from, at)| from == ack.next && now - at < RESEND_AFTER);
-            return first.seq == ack.next && !recent;
+            let from = ack.resend - 1;
+            let recent =
+                self.resent_from.is_some_and(|(f, at)| f == from && now - at < RESEND_AFTER);
+            let held = self.window.back().is_some_and(|p| p.seq >= from);
+            return (held && !recent).then_some(from.max(first.seq));
         }
-        !progress && now.saturating_duration_since(first.sent_at) >= RESEND_AFTER
+        let stuck = !progress && now.saturating_duration_since(first.sent_at) >= RESEND_AFTER;
+        stuck.then_some(first.seq)
     }
 
-    /// The window, oldest first, with the headers to send it again with;
-    /// counted resent and stamped sent now.
-    pub fn resend(&mut self, now: Instant) -> Vec<(LinkHeader, P)> {
-        if let Some(first) = self.window.front() {
-            self.resent_from = Some((first.seq, now));
-        }
+    /// The window from batch `from` on, oldest first, with the headers to
+    /// send it again with; counted resent and stamped sent now.
+    pub fn resend(&mut self, from: u64, now: Instant) -> Vec<(LinkHeader, P)> {
+        self.resent_from = Some((from, now));
         let epoch = self.epoch;
         let counts = &mut self.counts;
         self.window
             .iter_mut()
+            .filter(|p| p.seq >= from)
             .map(|p| {
                 p.sent_at = now;
                 counts.resent += p.count as u64;
                 (LinkHeader { epoch, seq: p.seq }, p.item.clone())
             })
             .collect()
-    }
-}
-
-/// What the head does with a batch of a slot.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Admit {
-    /// The next one: into the replay.
-    Take,
-    /// Taken before (a resend): dropped, counted.
-    Duplicate,
-    /// Past a gap: dropped (it comes again behind the missing one).
-    Gap,
-    /// Of another epoch than the slot's join: dropped, counted.
-    Stale,
-}
-
-/// The head's view of one slot's stream.
-#[derive(Debug, Clone)]
-pub struct Inflow {
-    epoch: u64,
-    next: u64,
-    /// The `next` last acknowledged, and when.
-    acked: u64,
-    acked_at: Option<Instant>,
-    /// The last resend request: for which batch, and when.
-    nacked: Option<(u64, Instant)>,
-}
-
-impl Inflow {
-    /// A slot joined under `epoch`, nothing taken yet.
-    pub fn new(epoch: u64) -> Self {
-        Self { epoch, next: 0, acked: 0, acked_at: None, nacked: None }
-    }
-
-    /// The epoch of the slot's current join.
-    pub fn epoch(&self) -> u64 {
-        self.epoch
-    }
-
-    /// What to do with a batch of header `h`.
-    pub fn admit(&self, h: LinkHeader) -> Admit {
-        match (h.epoch == self.epoch, h.seq.cmp(&self.next)) {
-            (false, _) => Admit::Stale,
-            (true, std::cmp::Ordering::Less) => Admit::Duplicate,
-            (true, std::cmp::Ordering::Greater) => Admit::Gap,
-            (true, std::cmp::Ordering::Equal) => Admit::Take,
-        }
-    }
-
-    /// The batch admitted last is in the replay.
-    pub fn taken(&mut self) {
-        self.next += 1;
-    }
-
-    /// The answer due now, if any: a resend request after a gap (at most
-    /// one per [`NACK_EVERY`] for one batch), else an acknowledgement of
-    /// new batches ([`ACK_EVERY`]) or where the slot stands ([`HEARTBEAT`]).
-    pub fn answer(&mut self, gap: bool, now: Instant) -> Option<Ack> {
-        if gap {
-            let asked = self.nacked.is_some_and(|(n, at)| n == self.next && now - at < NACK_EVERY);
-            if asked {
-                return None;
-            }
-            self.nacked = Some((self.next, now));
-            return Some(self.ack(1, now));
-        }
-        let since = self.acked_at.map_or(Duration::MAX, |at| now.saturating_duration_since(at));
-        let due = (self.next != self.acked && since >= ACK_EVERY) || since >= HEARTBEAT;
-        due.then(|| self.ack(0, now))
-    }
-
-    fn ack(&mut self, resend: u64, now: Instant) -> Ack {
-        self.acked = self.next;
-        self.acked_at = Some(now);
-        Ack { epoch: self.epoch, next: self.next, resend }
     }
 }
 
@@ -257,18 +185,23 @@ pub fn new_epoch() -> u64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::inflow::{Admit, Inflow};
     use proptest::prelude::*;
 
     /// `batches` batches over a link that loses and duplicates them as
-    /// `fate` says (then heals), a round of 30 ms at a time: what the head
-    /// took, the worker's counts, and the duplicates the head dropped.
-    fn fly(fate: &[u8], batches: usize) -> (Vec<u64>, Delivery, u64) {
+    /// `fate` says (then heals), a round of 30 ms at a time, into a replay
+    /// that takes two a round and loses its queue at the rounds in
+    /// `restarts`: what the replay took, the worker's counts, and the
+    /// duplicates the head dropped.
+    fn fly(fate: &[u8], batches: usize, restarts: &[usize]) -> (Vec<u64>, Delivery, u64) {
         let epoch = 7;
         let mut out: Outbox<u64> = Outbox::new(epoch, 8 * 100);
         let mut inflow = Inflow::new(epoch);
         let mut taken = Vec::new();
         let mut dups = 0;
         let mut wire: VecDeque<(LinkHeader, u64)> = VecDeque::new();
+        // The replay's queue: link sequence numbers and what they carry.
+        let mut queue: VecDeque<(u64, u64)> = VecDeque::new();
         let mut now = Instant::now();
         let mut made = 0u64;
         for round in 0..20 * batches + 200 {
@@ -297,7 +230,7 @@ mod tests {
                 for _ in 0..copies {
                     match inflow.admit(h) {
                         Admit::Take => {
-                            taken.push(v);
+                            queue.push_back((h.seq, v));
                             inflow.taken();
                         }
                         Admit::Duplicate => dups += 1,
@@ -306,24 +239,34 @@ mod tests {
                     }
                 }
             }
+            if restarts.contains(&round) {
+                queue.clear();
+                inflow.rewind();
+            }
+            for (seq, v) in queue.drain(..queue.len().min(2)) {
+                taken.push(v);
+                inflow.confirm(seq);
+            }
             if let Some(ack) = inflow.answer(gap, now)
-                && out.on_ack(ack, now)
+                && let Some(from) = out.on_ack(ack, now)
             {
-                wire.extend(out.resend(now));
+                wire.extend(out.resend(from, now));
             }
         }
         (taken, out.counts, dups)
     }
 
     proptest! {
-        /// Whatever the link loses or doubles, the head takes every batch
-        /// exactly once, in order, and the worker's counts add up.
+        /// Whatever the link loses or doubles, and however often the replay
+        /// loses its queue, the replay takes every batch exactly once, in
+        /// order, and the worker's counts add up.
         #[test]
         fn every_batch_arrives_once_in_order(
             fate in proptest::collection::vec(any::<u8>(), 1..64),
             batches in 1usize..60,
+            restarts in proptest::collection::vec(0usize..600, 0..4),
         ) {
-            let (taken, counts, _) = fly(&fate, batches);
+            let (taken, counts, _) = fly(&fate, batches, &restarts);
             prop_assert_eq!(taken, (0..batches as u64).collect::<Vec<_>>());
             prop_assert_eq!(counts.sent, batches as u64);
             prop_assert_eq!(counts.acknowledged, batches as u64);
@@ -332,7 +275,7 @@ mod tests {
 
     #[test]
     fn a_clean_link_resends_nothing() {
-        let (taken, counts, dups) = fly(&[2], 50);
+        let (taken, counts, dups) = fly(&[2], 50, &[]);
         assert_eq!(taken.len(), 50);
         assert_eq!((counts.resent, dups), (0, 0));
     }
@@ -340,7 +283,16 @@ mod tests {
     #[test]
     fn a_lost_batch_is_sent_again() {
         // The first batch of every eight is lost on its first trip.
-        let (taken, counts, _) = fly(&[0, 2, 2, 2, 2, 2, 2, 2], 40);
+        let (taken, counts, _) = fly(&[0, 2, 2, 2, 2, 2, 2, 2], 40, &[]);
+        assert_eq!(taken, (0..40).collect::<Vec<_>>());
+        assert!(counts.resent > 0);
+    }
+
+    #[test]
+    fn what_a_restarted_replay_lost_is_sent_again() {
+        // A replay that takes two a round while the link brings two: its
+        // queue holds a few when it restarts.
+        let (taken, counts, _) = fly(&[2], 40, &[10, 11, 25]);
         assert_eq!(taken, (0..40).collect::<Vec<_>>());
         assert!(counts.resent > 0);
     }
@@ -357,10 +309,10 @@ mod tests {
         out.push(1, 100, (), now);
         assert!(!out.has_room());
         // An answer of another epoch, or of batches never sent, changes nothing.
-        assert!(!out.on_ack(Ack { epoch: 2, next: 3, resend: 0 }, now));
-        assert!(!out.on_ack(Ack { epoch: 1, next: 9, resend: 0 }, now));
+        assert_eq!(out.on_ack(Ack { epoch: 2, next: 3, resend: 0 }, now), None);
+        assert_eq!(out.on_ack(Ack { epoch: 1, next: 9, resend: 0 }, now), None);
         assert_eq!(out.len(), 3);
-        assert!(!out.on_ack(Ack { epoch: 1, next: 2, resend: 0 }, now));
+        assert_eq!(out.on_ack(Ack { epoch: 1, next: 2, resend: 0 }, now), None);
         assert_eq!((out.len(), out.counts.acknowledged), (1, 2));
         assert!(out.has_room());
     }

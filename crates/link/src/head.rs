@@ -353,3 +353,24 @@ pub(crate) fn refuse(q: &Query, why: &str) {
     tracing::warn!("refused a worker: {why}");
     reply(q, &Welcome::Refused(why.to_string()));
 }
+
+/// A message `what` from another host, checked by `check` against the
+/// joined host its key names, with its attachment; one that fails (or
+/// whose key names no host: slot 0) is counted against its sender and `None`.
+pub(crate) fn accept<T>(
+    stats: &HeadStats,
+    hosts: &[Host],
+    smp: &zenoh::sample::Sample,
+    run: &str,
+    what: &str,
+    check: impl FnOnce(&Host, Option<&[u8]>) -> std::result::Result<T, check::Reject>,
+) -> Option<T> {
+    let Some(host) = crate::host::slot_of(smp.key_expr().as_str(), run, what)
+        .and_then(|slot| hosts.iter().find(|h| h.slot == slot))
+    else {
+        stats.reject(0, what, &check::Reject::UnknownSender);
+        return None;
+    };
+    let att = smp.attachment().map(|a| a.to_bytes());
+    check(host, att.as_deref()).map_err(|why| stats.reject(host.slot, what, &why)).ok()
+}

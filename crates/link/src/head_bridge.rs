@@ -8,19 +8,20 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use rotorhive_msg::{
-    EPISODE_FIELDS, EpisodeHeader, LinkStage, RoleKind, SeqTracker, Telemetry, TransitionHeader,
-    WeightsHeader,
+    EPISODE_FIELDS, EpisodeHeader, LinkStage, Receipt, RoleKind, SeqTracker, Telemetry,
+    TransitionHeader, WeightsHeader,
 };
 use rotorhive_transport::Service;
 use rotorhive_transport::{Channel, Hub};
 use zenoh::Wait;
 use zenoh::qos::CongestionControl;
 
-use crate::delivery::Admit;
 use crate::error::{LinkError, Result, zerr};
+use crate::head::accept;
 use crate::head::{ConfigFor, Head, HeadStats, refuse, reply};
 use crate::head_flows::Flows;
 use crate::host::{Host, same_token};
+use crate::inflow::Admit;
 use crate::reject::{Reason, Reject};
 use crate::shared::{LinkTelemetry, key, link_telemetry, missing_before};
 use crate::wire::Welcome;
@@ -124,6 +125,7 @@ pub(crate) fn head_loop<S: Service>(
             Duration::from_millis(200),
         )?,
         w_rx: hub.receiver(&Channel::weights(envs))?,
+        receipts: hub.receiver(&Channel::receipts())?,
         tel: link_telemetry(hub, roles, 0)?,
         next_seq: SeqTracker::new(total_envs),
         version: 0,
@@ -166,6 +168,7 @@ struct HeadBridge<'a, S: Service> {
     trans_tx: rotorhive_transport::Sender<S, u16, TransitionHeader>,
     ep_tx: rotorhive_transport::Sender<S, f32, EpisodeHeader>,
     w_rx: rotorhive_transport::Receiver<S, f32, WeightsHeader>,
+    receipts: rotorhive_transport::Receiver<S, u8, Receipt>,
     pub(crate) tel: LinkTelemetry<S>,
     /// The batches seen from each actor of the run.
     next_seq: SeqTracker,
@@ -188,6 +191,9 @@ impl<S: Service> HeadBridge<'_, S> {
             self.transitions_in(&smp)?;
         }
         self.episodes_and_telemetry_in();
+        if let Some(r) = self.receipts.latest()? {
+            self.flows.confirm(*r.user_header(), self.stats);
+        }
         self.flows.answer(Instant::now());
         Ok(())
     }
@@ -267,7 +273,7 @@ impl<S: Service> HeadBridge<'_, S> {
             }
         })?;
         if sent {
-            self.flows.taken(slot, h.count, stats);
+            self.flows.taken(slot, &h, link);
             stats.batches.fetch_add(1, Ordering::Relaxed);
             stats.transitions.fetch_add(h.count as u64, Ordering::Relaxed);
             self.tel.sample.work += h.count as u64;
@@ -370,25 +376,4 @@ impl<S: Service> HeadBridge<'_, S> {
         self.stats.count(0, Reason::JoinRefused, 1);
         refuse(q, why);
     }
-}
-
-/// A message `what` from another host, checked by `check` against the
-/// joined host its key names, with its attachment; one that fails (or
-/// whose key names no host: slot 0) is counted against its sender and `None`.
-fn accept<T>(
-    stats: &HeadStats,
-    hosts: &[Host],
-    smp: &zenoh::sample::Sample,
-    run: &str,
-    what: &str,
-    check: impl FnOnce(&Host, Option<&[u8]>) -> std::result::Result<T, check::Reject>,
-) -> Option<T> {
-    let Some(host) = crate::host::slot_of(smp.key_expr().as_str(), run, what)
-        .and_then(|slot| hosts.iter().find(|h| h.slot == slot))
-    else {
-        stats.reject(0, what, &check::Reject::UnknownSender);
-        return None;
-    };
-    let att = smp.attachment().map(|a| a.to_bytes());
-    check(host, att.as_deref()).map_err(|why| stats.reject(host.slot, what, &why)).ok()
 }

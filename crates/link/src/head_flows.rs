@@ -1,18 +1,20 @@
 //! The head's side of acknowledged delivery ([`crate::delivery`]) for
 //! every worker slot: the slot's stream, its answers on the slot's `ack`
-//! key, and what the worker's link reports of its own counts, kept across
-//! the worker's joins.
+//! key, the replay's receipts that those answers wait for, and what the
+//! worker's link reports of its own counts, kept across the worker's joins.
 
+use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
-use rotorhive_msg::Delivery;
+use rotorhive_msg::{Delivery, Receipt, TransitionHeader};
 use zenoh::Wait;
 use zenoh::qos::CongestionControl;
 
-use crate::delivery::{Admit, Inflow, LinkHeader};
+use crate::delivery::LinkHeader;
 use crate::error::{Result, zerr};
 use crate::head::{Flow, HeadStats};
 use crate::host::Host;
+use crate::inflow::{Admit, Inflow};
 use crate::shared::host_key;
 use crate::wire;
 
@@ -44,9 +46,31 @@ impl SlotFlow {
     }
 }
 
+/// A batch sent into the replay's queue that no receipt covers yet.
+struct Unconfirmed {
+    slot: u32,
+    link: LinkHeader,
+    /// Its actor and the actor's sequence number (what a receipt names).
+    actor: u64,
+    seq: u64,
+    count: u32,
+}
+
+impl Unconfirmed {
+    /// Its slot's flow, while the slot is in the join that sent it.
+    fn of<'a>(&self, slots: &'a mut [SlotFlow]) -> Option<&'a mut SlotFlow> {
+        slots.iter_mut().find(|s| s.slot == self.slot && s.inflow.epoch() == self.link.epoch)
+    }
+}
+
 /// Every slot's stream (in the order of the run's hosts).
 pub(crate) struct Flows {
     slots: Vec<SlotFlow>,
+    /// What went into the replay's queue, oldest first, until a receipt
+    /// covers it (the replay takes its queue in order).
+    queued: VecDeque<Unconfirmed>,
+    /// The replay process the receipts come from.
+    incarnation: Option<u64>,
 }
 
 impl Flows {
@@ -71,7 +95,7 @@ impl Flows {
                 taken: 0,
             });
         }
-        Ok(Self { slots })
+        Ok(Self { slots, queued: VecDeque::new(), incarnation: None })
     }
 
     fn get(&mut self, slot: u32) -> Option<&mut SlotFlow> {
@@ -87,14 +111,49 @@ impl Flows {
         a
     }
 
-    /// The batch of `slot` admitted last, of `count` transitions, is in
-    /// the replay.
-    pub(crate) fn taken(&mut self, slot: u32, count: u32, stats: &HeadStats) {
+    /// The batch of `slot` admitted last (`h`, `link`) went into the
+    /// replay's queue.
+    pub(crate) fn taken(&mut self, slot: u32, h: &TransitionHeader, link: LinkHeader) {
         if let Some(s) = self.get(slot) {
             s.inflow.taken();
-            s.taken += count as u64;
-            stats.flow(slot, |f| f.acknowledged += count as u64);
+            s.taken += h.count as u64;
+            let (actor, seq, count) = (h.actor as u64, h.seq, h.count);
+            self.queued.push_back(Unconfirmed { slot, link, actor, seq, count });
         }
+    }
+
+    /// The replay's newest receipt: what it covers is acknowledged; a new
+    /// replay process means its predecessor's queue is gone, and what that
+    /// held is asked of the workers again.
+    pub(crate) fn confirm(&mut self, r: Receipt, stats: &HeadStats) {
+        if self.incarnation.is_some_and(|i| i != r.incarnation) {
+            self.replay_restarted();
+        }
+        self.incarnation = Some(r.incarnation);
+        let Self { slots, queued, .. } = self;
+        let Some(last) = queued.iter().position(|u| (u.actor, u.seq) == (r.actor, r.seq)) else {
+            return;
+        };
+        if r.batches == 0 {
+            return;
+        }
+        for u in queued.drain(..=last) {
+            if let Some(s) = u.of(slots) {
+                s.inflow.confirm(u.link.seq);
+                stats.flow(u.slot, |f| f.acknowledged += u.count as u64);
+            }
+        }
+    }
+
+    /// Takes every slot back to the first batch the replay did not confirm.
+    fn replay_restarted(&mut self) {
+        for u in self.queued.drain(..) {
+            if let Some(s) = u.of(&mut self.slots) {
+                s.taken -= u.count as u64;
+            }
+        }
+        let again: u64 = self.slots.iter_mut().map(|s| s.inflow.rewind()).sum();
+        tracing::warn!("the replay restarted: asking the workers again for {again} batches");
     }
 
     /// Sends every answer due now (a lost one is made good by the next:

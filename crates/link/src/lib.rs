@@ -27,6 +27,7 @@ mod head;
 mod head_bridge;
 mod head_flows;
 mod host;
+pub mod inflow;
 mod options;
 mod reject;
 mod shared;

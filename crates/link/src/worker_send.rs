@@ -57,14 +57,14 @@ impl<S: Service> WorkerBridge<S> {
     /// answers say nothing new for [`crate::delivery::RESEND_AFTER`].
     pub(crate) fn acks_in(&mut self) -> Result<()> {
         let now = Instant::now();
-        let mut again = false;
+        let mut again = None;
         while let Ok(Some(smp)) = self.ack_sub.try_recv() {
             if let Some(ack) = wire::header_from::<Ack>(&smp.payload().to_bytes()) {
-                again |= self.outbox.on_ack(ack, now);
+                again = again.into_iter().chain(self.outbox.on_ack(ack, now)).min();
             }
         }
-        if again {
-            let window = self.outbox.resend(now);
+        if let Some(from) = again {
+            let window = self.outbox.resend(from, now);
             tracing::info!("sending {} unacknowledged batches again", window.len());
             for (link, (bytes, h)) in window {
                 self.put(&h, &link, bytes)?;

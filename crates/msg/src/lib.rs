@@ -381,6 +381,32 @@ pub struct EpisodeHeader {
     pub step: u64,
 }
 
+/// The replay's receipt for the batches its host's link brings (other
+/// hosts' actors), replay → link: the head's link acknowledges a worker's
+/// batch only once a receipt covers it. Header only (no payload).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
+#[cfg_attr(feature = "zero-copy", derive(ZeroCopySend), type_name("rotorhive::Receipt"))]
+#[repr(C)]
+pub struct Receipt {
+    /// Drawn by the replay process at its start: a new one says the replay
+    /// restarted, and that what its predecessor's queue held is gone.
+    pub incarnation: u64,
+    /// Batches of other hosts' actors this replay process has taken.
+    pub batches: u64,
+    /// The newest of them: its actor and the actor's sequence number.
+    pub actor: u64,
+    /// See `actor`.
+    pub seq: u64,
+}
+
+impl Receipt {
+    /// Takes note of a batch of another host's actor.
+    pub fn took(&mut self, h: &TransitionHeader) {
+        self.batches += 1;
+        (self.actor, self.seq) = (h.actor as u64, h.seq);
+    }
+}
+
 /// The role a telemetry sample comes from.
 #[repr(u32)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

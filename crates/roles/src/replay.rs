@@ -7,8 +7,8 @@ use std::time::{Duration, Instant};
 
 use crate::error::{Doing, Result, protocol_err};
 use rotorhive_msg::{
-    MinibatchHeader, PACKED_LEN, PICK_WORDS, PriorityHeader, ReplayStage, RoleKind, SeqTracker,
-    Telemetry, TransitionHeader,
+    MinibatchHeader, PACKED_LEN, PICK_WORDS, PriorityHeader, Receipt, ReplayStage, RoleKind,
+    SeqTracker, Telemetry, TransitionHeader,
 };
 use rotorhive_replay::{Acted, Journal, Pick, Replay};
 use rotorhive_transport::{Channel, TransportError};
@@ -28,6 +28,7 @@ struct Memory<'a, S: Service> {
     rx: rotorhive_transport::Receiver<S, u16, TransitionHeader>,
     tx: rotorhive_transport::Sender<S, u16, MinibatchHeader>,
     tel: Counters<S>,
+    receipts: Receipts<S>,
     prio: Feedback<S>,
     picks: Vec<Pick>,
     last_sync: Instant,
@@ -53,9 +54,10 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
         Duration::from_millis(1),
     )?;
     let tel = crate::counters(hub, RoleKind::Replay, 0, roles_of(cfg))?;
+    let receipts = Receipts::new(hub, cfg.sim.envs)?;
     let picks = vec![Pick::default(); r.batch];
     let last_sync = Instant::now();
-    let mut m = Memory { cfg, hub, mem, journal, rx, tx, tel, prio, picks, last_sync };
+    let mut m = Memory { cfg, hub, mem, journal, rx, tx, tel, receipts, prio, picks, last_sync };
     if cfg.deterministic {
         m.run_scheduled()?
     } else {
@@ -92,6 +94,7 @@ impl<S: Service> Memory<'_, S> {
                 };
                 let lost = &mut self.tel.sample.lost;
                 ingest(&m, &mut self.mem, self.journal.as_mut(), &mut next_seq, lost)?;
+                self.receipts.took(m.user_header());
                 got = true;
             }
             self.tel.sample.time_stage(ReplayStage::Insert, t);
@@ -115,6 +118,7 @@ impl<S: Service> Memory<'_, S> {
                 if let Some(m) = self.rx.recv_timeout(wait).doing("waiting for transitions")? {
                     let lost = &mut self.tel.sample.lost;
                     ingest(&m, &mut self.mem, self.journal.as_mut(), &mut next_seq, lost)?;
+                    self.receipts.took(m.user_header());
                 }
                 self.tel.sample.time_stage(ReplayStage::Idle, t);
             }
@@ -136,14 +140,55 @@ impl<S: Service> Memory<'_, S> {
         sent_or_stalled(res)
     }
 
-    /// Syncs the journal when due and publishes the counters.
+    /// Syncs the journal when due and publishes the receipts and counters.
     fn housekeep(&mut self, minibatches: u64) -> Result<()> {
         sync_due(self.journal.as_ref(), &mut self.last_sync, self.cfg)?;
+        self.receipts.publish();
         self.tel.sample.work = self.mem.inserted();
         self.tel.sample.work2 = minibatches;
         self.tel.sample.value_milli = self.mem.len() as i64;
         self.tel.tick(false, Telemetry::beat);
         Ok(())
+    }
+}
+
+/// The replay's receipts for other hosts' batches to its host's link
+/// ([`Receipt`]): the head acknowledges a worker's batch once it is here,
+/// not when the replay's queue took it.
+struct Receipts<S: Service> {
+    out: rotorhive_transport::Periodic<S, Receipt>,
+    /// This host's environments: actors from here on are other hosts'.
+    local: usize,
+    /// Batches taken at the last receipt sent.
+    sent: u64,
+}
+
+impl<S: Service> Receipts<S> {
+    /// A new incarnation's receipts (the first, for no batch, goes at once).
+    fn new(hub: &rotorhive_transport::Hub<S>, local: usize) -> Result<Self> {
+        use std::hash::{BuildHasher, Hasher};
+        let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+        h.write_u32(std::process::id());
+        let first = Receipt { incarnation: h.finish(), ..Receipt::default() };
+        let mut out = rotorhive_transport::Periodic::new(hub, &Channel::receipts(), first)
+            .doing("opening the receipts channel")?;
+        out.send(first);
+        Ok(Self { out, local, sent: 0 })
+    }
+
+    /// Takes note of a batch taken off the transitions channel.
+    fn took(&mut self, h: &TransitionHeader) {
+        if h.actor as usize >= self.local {
+            self.out.sample.took(h);
+        }
+    }
+
+    /// Sends the receipt when it covers new batches.
+    fn publish(&mut self) {
+        if self.out.sample.batches != self.sent {
+            self.sent = self.out.sample.batches;
+            self.out.send(self.out.sample);
+        }
     }
 }
 
@@ -339,6 +384,7 @@ impl<S: Service> Memory<'_, S> {
             let mut busy = false;
             while let Some(m) = self.rx.try_recv().doing("receiving transitions")? {
                 enqueue(&m, &mut pending, &mut next_seq, &mut self.tel.sample.lost)?;
+                self.receipts.took(m.user_header());
                 busy = true;
             }
             self.tel.sample.time_stage(ReplayStage::Insert, t);
@@ -370,6 +416,7 @@ impl<S: Service> Memory<'_, S> {
                 let wait = Duration::from_millis(1);
                 if let Some(m) = self.rx.recv_timeout(wait).doing("waiting for transitions")? {
                     enqueue(&m, &mut pending, &mut next_seq, &mut self.tel.sample.lost)?;
+                    self.receipts.took(m.user_header());
                 }
                 self.tel.sample.time_stage(ReplayStage::Idle, t);
             }

@@ -227,6 +227,19 @@ impl Channel {
             needs_receiver: false,
         }
     }
+    /// The replay's receipts to its host's link (only the newest matters;
+    /// the link gets the last one on connecting).
+    pub fn receipts() -> Self {
+        Self {
+            name: "receipts".into(),
+            publishers: 1,
+            subscribers: 1,
+            buffer: 1,
+            overflow: true,
+            history: 1,
+            needs_receiver: false,
+        }
+    }
     /// Telemetry from every role to the supervisor; old samples may be overwritten.
     pub fn telemetry(roles: usize) -> Self {
         Self {
