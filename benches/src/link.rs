@@ -256,6 +256,12 @@ fn head_side(
     head.admit(|_| (String::new(), String::new()));
     let hub = Hub::<Ipc>::new(RUN, "bench-consumer")?;
     let mut rx = hub.receiver::<u16, TransitionHeader>(&Channel::transitions(1))?;
+    // The consumer stands in for the replay: its receipts are what the
+    // head's link acknowledges the worker's batches on.
+    let first = rotorhive_msg::Receipt { incarnation: 1, ..Default::default() };
+    let mut receipts = rotorhive_transport::Periodic::new(&hub, &Channel::receipts(), first)?;
+    receipts.send(first);
+    let mut receipted = Instant::now();
     let mut link = head.bridge::<Ipc>(
         RUN.into(),
         1,
@@ -280,6 +286,11 @@ fn head_side(
         }
         first.get_or_insert_with(Instant::now);
         got += h.count as u64;
+        receipts.sample.took(&h);
+        if receipted.elapsed() >= Duration::from_millis(1) {
+            receipted = Instant::now();
+            receipts.send(receipts.sample);
+        }
     }
     let secs = first.map_or(0.0, |t| t.elapsed().as_secs_f64());
     link.stop()?;

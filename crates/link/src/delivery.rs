@@ -44,14 +44,14 @@ pub struct Ack {
 
 /// The most bytes of unacknowledged batches a worker keeps (a full one
 /// stops its reading of shared memory: back-pressure, as a full queue).
-pub const WINDOW_BYTES: usize = 64 << 20;
+pub const WINDOW_BYTES: usize = 128 << 20;
 /// A worker sends its window again when the head's acknowledgements say
 /// nothing new and its oldest batch went out this long ago (a lost tail,
 /// a session that came back); and no sooner again after a resend request.
 pub const RESEND_AFTER: Duration = Duration::from_secs(1);
 /// The head acknowledges new batches at most this often, and says where
 /// each slot stands at least this often ([`HEARTBEAT`]; [`crate::inflow`]).
-pub const ACK_EVERY: Duration = Duration::from_millis(20);
+pub const ACK_EVERY: Duration = Duration::from_millis(5);
 /// See [`ACK_EVERY`].
 pub const HEARTBEAT: Duration = Duration::from_millis(250);
 /// The head asks again for one missing batch at most this often.

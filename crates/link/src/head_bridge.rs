@@ -126,6 +126,7 @@ pub(crate) fn head_loop<S: Service>(
         )?,
         w_rx: hub.receiver(&Channel::weights(envs))?,
         receipts: hub.receiver(&Channel::receipts())?,
+        receipts_read: Instant::now(),
         tel: link_telemetry(hub, roles, 0)?,
         next_seq: SeqTracker::new(total_envs),
         version: 0,
@@ -154,6 +155,10 @@ pub(crate) fn head_loop<S: Service>(
     Ok(())
 }
 
+/// The head reads the replay's receipts at most this often (acknowledging
+/// goes at most every [`crate::delivery::ACK_EVERY`]).
+const RECEIPTS_EVERY: Duration = Duration::from_millis(1);
+
 /// How long the head takes the workers' batches after the run's end: longer
 /// than they wait for their acknowledgements ([`crate::worker_bridge`]).
 const DRAIN: Duration = Duration::from_secs(7);
@@ -169,6 +174,7 @@ struct HeadBridge<'a, S: Service> {
     ep_tx: rotorhive_transport::Sender<S, f32, EpisodeHeader>,
     w_rx: rotorhive_transport::Receiver<S, f32, WeightsHeader>,
     receipts: rotorhive_transport::Receiver<S, u8, Receipt>,
+    receipts_read: Instant,
     pub(crate) tel: LinkTelemetry<S>,
     /// The batches seen from each actor of the run.
     next_seq: SeqTracker,
@@ -191,8 +197,11 @@ impl<S: Service> HeadBridge<'_, S> {
             self.transitions_in(&smp)?;
         }
         self.episodes_and_telemetry_in();
-        if let Some(r) = self.receipts.latest()? {
-            self.flows.confirm(*r.user_header(), self.stats);
+        if self.receipts_read.elapsed() >= RECEIPTS_EVERY {
+            self.receipts_read = Instant::now();
+            if let Some(r) = self.receipts.latest()? {
+                self.flows.confirm(*r.user_header(), self.stats);
+            }
         }
         self.flows.answer(Instant::now());
         Ok(())

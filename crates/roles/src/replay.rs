@@ -152,6 +152,9 @@ impl<S: Service> Memory<'_, S> {
     }
 }
 
+/// The replay sends a receipt at most this often.
+const RECEIPT_EVERY: Duration = Duration::from_millis(1);
+
 /// The replay's receipts for other hosts' batches to its host's link
 /// ([`Receipt`]): the head acknowledges a worker's batch once it is here,
 /// not when the replay's queue took it.
@@ -159,8 +162,9 @@ struct Receipts<S: Service> {
     out: rotorhive_transport::Periodic<S, Receipt>,
     /// This host's environments: actors from here on are other hosts'.
     local: usize,
-    /// Batches taken at the last receipt sent.
+    /// Batches taken at the last receipt sent, and when it went.
     sent: u64,
+    sent_at: Instant,
 }
 
 impl<S: Service> Receipts<S> {
@@ -173,7 +177,7 @@ impl<S: Service> Receipts<S> {
         let mut out = rotorhive_transport::Periodic::new(hub, &Channel::receipts(), first)
             .doing("opening the receipts channel")?;
         out.send(first);
-        Ok(Self { out, local, sent: 0 })
+        Ok(Self { out, local, sent: 0, sent_at: Instant::now() })
     }
 
     /// Takes note of a batch taken off the transitions channel.
@@ -183,10 +187,11 @@ impl<S: Service> Receipts<S> {
         }
     }
 
-    /// Sends the receipt when it covers new batches.
+    /// Sends the receipt when it covers new batches (at most every
+    /// millisecond: the link reads them no more often).
     fn publish(&mut self) {
-        if self.out.sample.batches != self.sent {
-            self.sent = self.out.sample.batches;
+        if self.out.sample.batches != self.sent && self.sent_at.elapsed() >= RECEIPT_EVERY {
+            (self.sent, self.sent_at) = (self.out.sample.batches, Instant::now());
             self.out.send(self.out.sample);
         }
     }
