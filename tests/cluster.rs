@@ -104,9 +104,8 @@ fn a_head_trains_from_a_worker_on_another_domain_over_mutual_tls_without_loss() 
         assert!(o.status.success(), "{}", text(&o));
     }
     let tls = |d: &std::path::Path, host: &str| d.join(host).display().to_string();
-    // QUIC: mutual TLS 1.3 in zenoh's QUIC link; its TCP TLS link shares one
-    // rustls stream between a reading and a writing task (zenoh issue
-    // #2557) and drops the session under two-way load now and then.
+    // QUIC: mutual TLS 1.3 in zenoh's QUIC link (`tls/`, TLS over TCP, is
+    // the killed-replay test's).
     let ep = format!("quic/127.0.0.1:{}", free_port());
     // Fixed domain names: each domain keeps one small management file in
     // /dev/shm, as the machine's shared domain does.
@@ -589,21 +588,30 @@ fn replay_once_the_worker_is_at_work(dir: &std::path::Path) -> i32 {
     pid
 }
 
-/// The head's replay killed outright (SIGKILL) while a worker floods it:
-/// the supervisor starts it again, the head's link sees the new replay's
-/// first receipt and asks the worker again for every batch the dead one's
-/// queue held (never acknowledged: the worker's window still has them),
-/// and every transition the worker sent is in the new replay.
+/// The head's replay killed outright (SIGKILL) while a worker floods it,
+/// over `tls/` (mutual TLS on TCP, whose link carries the batches one way
+/// and the acknowledgements the other at once): the supervisor starts the
+/// replay again, the head's link sees the new replay's first receipt and
+/// asks the worker again for every batch the dead one's queue held (never
+/// acknowledged: the worker's window still has them), and every
+/// transition the worker sent is in the new replay.
 #[test]
 #[ignore = "slow multi-process test: scripts/test runs it (--include-ignored)"]
 fn a_killed_replay_on_the_head_loses_nothing_a_worker_sent() {
     let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
     let dir = tmp("replay-kill");
-    let ep = format!("tcp/127.0.0.1:{}", free_port());
-    let head = small_head("cluster-rk-head", &ep, "30", &dir, &[]);
+    let certs = tmp("replay-kill-certs");
+    let o = hive(&["certs", "--out", &certs.display().to_string(), "--workers", "1", "--force"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    let (head_tls, worker_tls) = (certs.join("head"), certs.join("worker-1"));
+    let (head_tls, worker_tls) = (head_tls.to_str().unwrap(), worker_tls.to_str().unwrap());
+    let ep = format!("tls/127.0.0.1:{}", free_port());
+    let head = small_head("cluster-rk-head", &ep, "30", &dir, &["--tls", head_tls]);
     let wdir = tmp("replay-kill-worker").display().to_string();
     let args = ["--domain", "cluster-rk-worker", "worker", "--connect", &ep, "--agents", "8"];
-    let mut worker = hive(&args).args(["--run-dir", &wdir]).spawn().unwrap();
+    let mut worker = hive(&args).args(["--run-dir", &wdir, "--tls", worker_tls]).spawn().unwrap();
     let lines = lines_of(&mut worker);
     assert!(wait_line(&lines, "joined the run", Duration::from_secs(30)).is_some());
     let pid = replay_once_the_worker_is_at_work(&dir);
@@ -617,7 +625,9 @@ fn a_killed_replay_on_the_head_loses_nothing_a_worker_sent() {
     assert!(text(&h).contains("the replay restarted"), "head: {}", text(&h));
     let worker_host = s.hosts.iter().find(|x| x.role == HostRole::Worker).unwrap();
     assert_delivered(worker_host, &s, &h, &w);
-    let _ = std::fs::remove_dir_all(&dir);
+    for d in [&dir, &certs] {
+        let _ = std::fs::remove_dir_all(d);
+    }
 }
 
 /// A worker killed outright (SIGKILL) and started again under its name:
