@@ -132,10 +132,10 @@ struct Pair {
     attempts: u32,
 }
 
-/// A path over mutual TLS, tried up to three times: Zenoh 1.10's `tls/`
-/// link drops its session under two-way load now and then (zenoh issue
-/// #2557; about one run in ten here), which ends that path's worker. Each
-/// failed try is reported; `attempts` in the result counts them all.
+/// A path over mutual TLS, tried up to three times: a session that drops
+/// ends that path's worker (the published Zenoh 1.10 `tls/` link did so
+/// under two-way load, zenoh issue #2557, before the patch in `vendor/`).
+/// Each failed try is reported; `attempts` in the result counts them all.
 fn secure_pair(seconds: f64, batch: usize, certs: &std::path::Path, kind: &str) -> Result<Pair> {
     let mut attempt = 1;
     loop {
@@ -328,9 +328,8 @@ fn worker_side(
         opts,
         rotorhive_transport::stop_requested,
     )?;
-    // A head whose session dropped at the bench's end (zenoh's `tls/`
-    // link drops sessions under two-way traffic) is waited for 5 s, not
-    // a run's 60.
+    // A head whose session dropped at the bench's end is waited for 5 s,
+    // not a run's 60.
     w.reconnect = Duration::from_secs(5);
     let hub = Hub::<Ipc>::new(RUN, "bench-link")?.with_stop(stop.clone());
     let (ready_tx, ready_rx) = std::sync::mpsc::channel::<()>();
@@ -344,8 +343,8 @@ fn worker_side(
         producer.join().map_err(|_| BenchError::Failed("producer panicked".into()))??;
     match end {
         // The head side judges what arrived; a head that went away at the
-        // end without its end message (a dropped `tls/` session) is no
-        // failure of this side.
+        // end without its end message (a dropped session) is no failure of
+        // this side.
         Ok(_) | Err(rotorhive_link::LinkError::LostHead) => {}
         Err(e) => return Err(e.into()),
     }
