@@ -325,26 +325,38 @@ impl<S: Service> Hub<S> {
         let name = self.service_name(ch)?;
         let open_err =
             |op, e: Cause| TransportError::Open { channel: ch.name.clone(), op, cause: e };
-        let ps = self
-            .node
-            .service_builder(&name)
-            .publish_subscribe::<[T]>()
-            .user_header::<H>()
-            .max_publishers(ch.publishers)
-            .max_subscribers(ch.subscribers)
-            .subscriber_max_buffer_size(ch.buffer)
-            .history_size(ch.history)
-            .enable_safe_overflow(ch.overflow)
-            .open_or_create()
-            .map_err(|e| open_err("open publish-subscribe service", e.into()))?;
-        let ev = self
-            .node
-            .service_builder(&name)
-            .event()
-            .max_notifiers(ch.publishers + 1)
-            .max_listeners(ch.subscribers + 1)
-            .open_or_create()
-            .map_err(|e| open_err("open event service", e.into()))?;
+        use iceoryx2::service::builder::event::{EventOpenError, EventOpenOrCreateError as EvE};
+        use iceoryx2::service::builder::publish_subscribe::{
+            PublishSubscribeOpenError as PsOpen, PublishSubscribeOpenOrCreateError as PsE,
+        };
+        let ps = past_hanging_creation(
+            || {
+                self.node
+                    .service_builder(&name)
+                    .publish_subscribe::<[T]>()
+                    .user_header::<H>()
+                    .max_publishers(ch.publishers)
+                    .max_subscribers(ch.subscribers)
+                    .subscriber_max_buffer_size(ch.buffer)
+                    .history_size(ch.history)
+                    .enable_safe_overflow(ch.overflow)
+                    .open_or_create()
+            },
+            |e| matches!(e, PsE::PublishSubscribeOpenError(PsOpen::HangsInCreation)),
+        )
+        .map_err(|e| open_err("open publish-subscribe service", e.into()))?;
+        let ev = past_hanging_creation(
+            || {
+                self.node
+                    .service_builder(&name)
+                    .event()
+                    .max_notifiers(ch.publishers + 1)
+                    .max_listeners(ch.subscribers + 1)
+                    .open_or_create()
+            },
+            |e| matches!(e, EvE::EventOpenError(EventOpenError::HangsInCreation)),
+        )
+        .map_err(|e| open_err("open event service", e.into()))?;
         Ok((ps, ev))
     }
 
@@ -587,6 +599,25 @@ pub const DEFAULT_SPIN_US: u64 = 100;
 /// (a sim once hung for minutes on a 0.4 µs remainder).
 fn wait_slice(remaining: Duration) -> Duration {
     remaining.clamp(Duration::from_micros(1), Duration::from_millis(20))
+}
+
+/// Opens a service, trying again (up to three times, after cleaning up
+/// dead nodes) while iceoryx2 finds it hanging in creation: seen once when
+/// a role SIGKILLed and started again opened its actions' event service.
+fn past_hanging_creation<T, E>(
+    mut open: impl FnMut() -> std::result::Result<T, E>,
+    hangs: impl Fn(&E) -> bool,
+) -> std::result::Result<T, E> {
+    for _ in 0..3 {
+        match open() {
+            Err(e) if hangs(&e) => {
+                cleanup_dead_nodes();
+                std::thread::sleep(Duration::from_millis(100));
+            }
+            r => return r,
+        }
+    }
+    open()
 }
 
 /// A received message, read in place from shared memory.
