@@ -653,6 +653,10 @@ fn a_killed_worker_that_joins_again_has_every_transition_accounted_for() {
     });
     first.kill().unwrap();
     first.wait().unwrap();
+    // What the killed process had sent, as its log in its run directory
+    // says (the second process brings it to the head at its join).
+    let log = std::fs::read(std::path::Path::new(&wdir).join("link-sent")).unwrap();
+    let first_sent = u64::from_le_bytes(log[8..16].try_into().unwrap());
     let second = worker();
     let w = second.wait_with_output().unwrap();
     let h = head.wait_with_output().unwrap();
@@ -677,6 +681,9 @@ fn a_killed_worker_that_joins_again_has_every_transition_accounted_for() {
         host.transitions_acknowledged + host.lost_transitions,
         "{s:?}"
     );
+    // Exactly: the killed process's count is its log's, not its last
+    // once-a-second report's.
+    assert_eq!(host.transitions_sent, first_sent + second_sent, "{s:?}");
     eprintln!(
         "killed and rejoined: {} sent, {} acknowledged, {} counted lost, {} refused as another epoch's",
         host.transitions_sent,

@@ -320,6 +320,7 @@ fn worker_side(
         agents: batch as u32,
         host: "bench-worker".into(),
         token: "bench".into(),
+        earlier: Default::default(),
     };
     let mut w = rotorhive_link::Worker::join(
         ep,

@@ -12,7 +12,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
-use rotorhive_link::{Hello, Worker, WorkerEnd, WorkerStats};
+use rotorhive_link::{Hello, SentLog, Worker, WorkerEnd, WorkerStats};
 use rotorhive_roles::{Config, env_role_names, roles_of};
 use rotorhive_transport::{Hub, Ipc};
 
@@ -60,29 +60,16 @@ pub fn run(a: WorkerArgs) -> Result<()> {
     if cleaned > 0 {
         tracing::info!("cleaned {cleaned} dead node(s) left in this domain");
     }
-    let name =
-        a.name.clone().unwrap_or_else(|| match std::env::var(rotorhive_transport::DOMAIN_ENV) {
-            Ok(d) if !d.is_empty() => format!("{}/{d}", crate::supervisor::host_name()),
-            _ => crate::supervisor::host_name(),
-        });
-    // One directory per host name, so that a worker started again under
-    // its name finds its join token.
-    let safe: String = name
-        .chars()
-        .map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '.' { c } else { '_' })
-        .collect();
-    let run_dir =
-        a.run_dir.clone().unwrap_or_else(|| PathBuf::from("runs").join(format!("worker-{safe}")));
-    std::fs::create_dir_all(&run_dir)
-        .with_context(|| format!("cannot create {}", run_dir.display()))?;
-    let run_dir = run_dir.canonicalize()?;
+    let (name, run_dir) = name_and_dir(&a)?;
     let token = join_token(&run_dir)?;
+    let sent_log = run_dir.join("link-sent");
     let hello = Hello {
         layout: rotorhive_link::layout(rotorhive_model::num_params()),
         envs: a.envs,
         agents: a.agents.unwrap_or(0),
         host: name.clone(),
         token,
+        earlier: SentLog::read(&sent_log),
     };
     let mut link = Worker::join(
         &a.connect,
@@ -93,6 +80,7 @@ pub fn run(a: WorkerArgs) -> Result<()> {
     )?;
     let (cfg, cfg_path) = worker_config(&link, &run_dir, a.envs as usize, a.agents)?;
     link.reconnect = Duration::from_secs_f64(cfg.cluster.reconnect_s);
+    link.sent_log = Some(sent_log);
     println!(
         "joined the run at {} as worker {} ({name}): {} × {} agents, environments {}..{}",
         a.connect,
@@ -123,6 +111,26 @@ pub fn run(a: WorkerArgs) -> Result<()> {
         }
         WorkerEnd::Stopped => Ok(()),
     }
+}
+
+/// This host's name in the run and its run directory (created): one
+/// directory per host name, so that a worker started again under its name
+/// finds its join token and what the killed one sent.
+fn name_and_dir(a: &WorkerArgs) -> Result<(String, PathBuf)> {
+    let name =
+        a.name.clone().unwrap_or_else(|| match std::env::var(rotorhive_transport::DOMAIN_ENV) {
+            Ok(d) if !d.is_empty() => format!("{}/{d}", crate::supervisor::host_name()),
+            _ => crate::supervisor::host_name(),
+        });
+    let safe: String = name
+        .chars()
+        .map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '.' { c } else { '_' })
+        .collect();
+    let run_dir =
+        a.run_dir.clone().unwrap_or_else(|| PathBuf::from("runs").join(format!("worker-{safe}")));
+    std::fs::create_dir_all(&run_dir)
+        .with_context(|| format!("cannot create {}", run_dir.display()))?;
+    Ok((name, run_dir.canonicalize()?))
 }
 
 /// Runs the link (a thread of this process) and, once it takes their

@@ -97,6 +97,11 @@ impl<P: Clone> Outbox<P> {
         }
     }
 
+    /// The epoch its batches go under.
+    pub fn epoch(&self) -> u64 {
+        self.epoch
+    }
+
     /// Whether the window takes another batch (then the worker reads one).
     pub fn has_room(&self) -> bool {
         self.bytes < self.limit

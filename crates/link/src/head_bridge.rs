@@ -348,7 +348,7 @@ impl<S: Service> HeadBridge<'_, S> {
                     Some(x) if x.envs == h.envs && x.agents == h.agents => {
                         let (config, arena) = config_for(x);
                         let epoch = crate::delivery::new_epoch();
-                        self.flows.rejoin(x.slot, epoch, self.stats);
+                        self.flows.rejoin(x.slot, epoch, h.earlier, self.stats);
                         reply(
                             &q,
                             &Welcome::Joined {

@@ -17,6 +17,7 @@ use crate::host::Host;
 use crate::inflow::{Admit, Inflow};
 use crate::shared::host_key;
 use crate::wire;
+use crate::wire::Earlier;
 
 /// A worker silent this long counts as ended when the head drains at the
 /// run's end (a killed worker sends no last count).
@@ -179,9 +180,13 @@ impl Flows {
     }
 
     /// `slot` joined again under `epoch`: what the earlier process sent
-    /// and was never acknowledged (as its last report said) is lost.
-    pub(crate) fn rejoin(&mut self, slot: u32, epoch: u64, stats: &HeadStats) {
+    /// and the head never took (as its last report said, or its log where
+    /// the new process brought it) is lost.
+    pub(crate) fn rejoin(&mut self, slot: u32, epoch: u64, earlier: Earlier, stats: &HeadStats) {
         let Some(s) = self.get(slot) else { return };
+        if earlier.epoch == s.inflow.epoch() {
+            s.reported.sent = s.reported.sent.max(earlier.sent);
+        }
         let lost = s.untaken();
         // It sent at least what was taken (its last report may be older).
         s.base.sent += s.reported.sent.max(s.taken);

@@ -120,7 +120,8 @@ mod tests {
     use proptest::prelude::*;
 
     fn hello(envs: u32, agents: u32, host: &str) -> Hello {
-        Hello { layout: 1, envs, agents, host: host.into(), token: "t".into() }
+        let earlier = Default::default();
+        Hello { layout: 1, envs, agents, host: host.into(), token: "t".into(), earlier }
     }
 
     #[test]

@@ -42,5 +42,6 @@ pub use head_bridge::HeadLink;
 pub use host::{Host, JoinLimits, MAX_HOST_NAME};
 pub use options::{LinkOptions, check_endpoint, check_options, is_loopback, is_tls, tls_files};
 pub use shared::{MAX_MESSAGE_BYTES, layout};
-pub use wire::{Hello, Welcome};
+pub use wire::{Earlier, Hello, Welcome};
+pub use worker::SentLog;
 pub use worker::{Worker, WorkerEnd, WorkerStats};

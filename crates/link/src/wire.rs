@@ -47,7 +47,7 @@ pub fn transition_headers(b: &[u8]) -> Option<(TransitionHeader, LinkHeader)> {
     Some((header_from(&b[..n])?, header_from(&b[n..])?))
 }
 
-const HELLO: [u8; 4] = *b"RHJ2";
+const HELLO: [u8; 4] = *b"RHJ3";
 const WELCOME: [u8; 4] = *b"RHW2";
 
 /// A worker's request to join a run.
@@ -65,6 +65,19 @@ pub struct Hello {
     /// host that comes back under a name of the run must present the
     /// token it first joined with ([`MAX_TOKEN`] bytes at most).
     pub token: String,
+    /// What the worker process before it in its run directory had sent
+    /// when it stopped (its [`crate::worker_send::SentLog`]).
+    pub earlier: Earlier,
+}
+
+/// A worker process's epoch and the transitions it had sent under it (all
+/// 0: none known).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Earlier {
+    /// The epoch its join had.
+    pub epoch: u64,
+    /// Transitions it sent.
+    pub sent: u64,
 }
 
 /// The most transitions one batch may carry (an actor sends one batch per
@@ -136,6 +149,8 @@ impl Hello {
         out.extend_from_slice(&self.agents.to_le_bytes());
         put_str(&mut out, &self.host);
         put_str(&mut out, &self.token);
+        out.extend_from_slice(&self.earlier.epoch.to_le_bytes());
+        out.extend_from_slice(&self.earlier.sent.to_le_bytes());
         out
     }
 
@@ -151,6 +166,7 @@ impl Hello {
             agents: r.u32()?,
             host: r.str()?,
             token: r.str()?,
+            earlier: Earlier { epoch: r.u64()?, sent: r.u64()? },
         })
     }
 }
@@ -225,7 +241,9 @@ mod tests {
         assert_eq!((back.seq, l), (77, link));
         assert!(transition_headers(&att[..39]).is_none());
         assert!(transition_headers(header_bytes(&h)).is_none());
-        let hello = Hello { layout: 42, envs: 2, agents: 37, host: "b".into(), token: "t".into() };
+        let earlier = Earlier { epoch: 3, sent: 9 };
+        let hello =
+            Hello { layout: 42, envs: 2, agents: 37, host: "b".into(), token: "t".into(), earlier };
         assert_eq!(Hello::decode(&hello.encode()), Some(hello.clone()));
         assert!(Hello::decode(&hello.encode()[..10]).is_none());
         let w = Welcome::Joined {

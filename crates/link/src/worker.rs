@@ -8,7 +8,7 @@ use zenoh::Wait;
 use crate::error::{LinkError, Result, zerr};
 use crate::options::{LinkOptions, open};
 use crate::shared::JOIN;
-use crate::wire::{Hello, Welcome};
+use crate::wire::{Earlier, Hello, Welcome};
 
 /// How a worker's link ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -65,6 +65,9 @@ pub struct Worker {
     /// (`cluster.reconnect_s`; 60 s until set), its window kept, before it
     /// gives up.
     pub reconnect: Duration,
+    /// Where the link keeps what this process has sent ([`SentLog`]);
+    /// none until set.
+    pub sent_log: Option<std::path::PathBuf>,
 }
 
 impl Worker {
@@ -116,6 +119,7 @@ impl Worker {
                             config,
                             arena,
                             reconnect,
+                            sent_log: None,
                         });
                     }
                     Some(Welcome::Refused(why)) => {
@@ -133,5 +137,44 @@ impl Worker {
             std::thread::sleep(Duration::from_millis(200));
         }
         Err(LinkError::NoHead { endpoint: endpoint.into(), secs: timeout.as_secs_f64() })
+    }
+}
+
+/// What a worker process has sent under its epoch, in a file of its run
+/// directory (16 bytes: the epoch and the transitions sent, little-endian),
+/// written before each batch goes: a process killed outright leaves it
+/// behind, and the next one in that directory tells the head at its join
+/// ([`crate::wire::Hello::earlier`]), so the head counts exactly what the
+/// killed one sent and the head never took (not only what its last
+/// once-a-second report said).
+pub struct SentLog {
+    file: std::fs::File,
+}
+
+impl SentLog {
+    /// The log at `path`, created (or emptied) for this process.
+    pub fn create(path: &std::path::Path) -> std::io::Result<Self> {
+        Ok(Self { file: std::fs::File::create(path)? })
+    }
+
+    /// What the earlier process's log at `path` says (nothing known: 0, 0).
+    pub fn read(path: &std::path::Path) -> Earlier {
+        let Ok(b) = std::fs::read(path) else { return Earlier::default() };
+        match <[u8; 16]>::try_from(b.as_slice()) {
+            Ok(b) => Earlier {
+                epoch: u64::from_le_bytes(b[..8].try_into().unwrap_or_default()),
+                sent: u64::from_le_bytes(b[8..].try_into().unwrap_or_default()),
+            },
+            Err(_) => Earlier::default(),
+        }
+    }
+
+    /// Records `e` (a failed write only makes the count less exact).
+    pub(crate) fn record(&self, e: Earlier) {
+        use std::os::unix::fs::FileExt;
+        let mut b = [0u8; 16];
+        b[..8].copy_from_slice(&e.epoch.to_le_bytes());
+        b[8..].copy_from_slice(&e.sent.to_le_bytes());
+        let _ = self.file.write_all_at(&b, 0);
     }
 }

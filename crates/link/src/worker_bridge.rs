@@ -16,6 +16,7 @@ use zenoh::sample::SampleKind;
 use crate::delivery::{Outbox, WINDOW_BYTES};
 use crate::error::{LinkError, Result, zerr};
 use crate::shared::{Fifo, LinkTelemetry, host_key, key, link_telemetry};
+use crate::worker::SentLog;
 use crate::worker::{Worker, WorkerEnd, WorkerStats};
 use crate::{check, wire};
 
@@ -113,6 +114,8 @@ pub(crate) struct WorkerBridge<S: Service> {
     /// The batches seen from each actor of this host.
     pub(crate) wseq: SeqTracker,
     head_seen: bool,
+    /// What this process has sent, kept in its run directory.
+    pub(crate) sent_log: Option<SentLog>,
     pub(crate) off: u32,
     pub(crate) slot: u32,
     pub(crate) envs: usize,
@@ -173,6 +176,11 @@ impl<S: Service> WorkerBridge<S> {
             tel: link_telemetry(hub, roles, 0)?,
             wseq: SeqTracker::new(envs),
             head_seen: false,
+            sent_log: worker.sent_log.as_deref().and_then(|p| {
+                SentLog::create(p)
+                    .map_err(|e| tracing::warn!("cannot keep {}: {e}", p.display()))
+                    .ok()
+            }),
             off: worker.env_offset,
             slot: worker.slot,
             envs,

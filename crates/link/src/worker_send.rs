@@ -14,6 +14,7 @@ use crate::delivery::{Ack, LinkHeader};
 use crate::error::{Result, zerr};
 use crate::shared::missing_before;
 use crate::wire;
+use crate::wire::Earlier;
 use crate::worker::WorkerStats;
 use crate::worker_bridge::WorkerBridge;
 
@@ -37,6 +38,9 @@ impl<S: Service> WorkerBridge<S> {
         h.actor += self.off;
         let bytes = ZBytes::from(wire::payload_bytes(m.payload()).to_vec());
         let link = self.outbox.push(h.count, bytes.len(), (bytes.clone(), h), Instant::now());
+        if let Some(log) = &self.sent_log {
+            log.record(Earlier { epoch: link.epoch, sent: self.outbox.counts.sent });
+        }
         self.put(&h, &link, bytes)?;
         self.tel.sample.work2 += std::mem::size_of_val(m.payload()) as u64;
         self.tel.sample.time_stage(LinkStage::SendWait, t);
