@@ -106,10 +106,11 @@ def test_a_stranger_cannot_crash_poison_or_stop_a_run(tmp_path):
 
 
 def hello(layout, host="odd", token="t"):
-    """A worker's join request (`link/src/wire.rs`: `RHJ2`, layout, envs,
-    agents, host, token)."""
+    """A worker's join request (`link/src/wire.rs`: `RHJ3`, layout, envs,
+    agents, host, token, and the earlier process's epoch and transitions
+    sent)."""
     s = lambda v: struct.pack("<I", len(v)) + v.encode()  # noqa: E731
-    return b"RHJ2" + struct.pack("<QII", layout, 1, 8) + s(host) + s(token)
+    return b"RHJ3" + struct.pack("<QII", layout, 1, 8) + s(host) + s(token) + struct.pack("<QQ", 0, 0)
 
 
 @pytest.mark.skipif(not HIVE.exists(), reason="needs target/release/hive (scripts/test builds it)")
