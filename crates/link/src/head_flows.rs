@@ -226,3 +226,63 @@ impl HeadStats {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::delivery::LinkHeader;
+
+    fn batch(seq: u64) -> (TransitionHeader, LinkHeader) {
+        (
+            TransitionHeader { actor: 3, count: 5, seq, weight_version: 0 },
+            LinkHeader { epoch: 10, seq },
+        )
+    }
+
+    /// Acknowledged only as far as the replay's receipt goes; a restarted
+    /// replay makes the slot take its unconfirmed batches again; a killed
+    /// worker's loss is counted from the log its successor brings, when it
+    /// is of the epoch the head knew, and from its last report otherwise.
+    #[test]
+    fn receipts_rewinds_and_a_killed_workers_log() {
+        let session = crate::options::open(None, None, &Default::default()).unwrap();
+        let host = Host {
+            name: "w".into(),
+            slot: 1,
+            envs: 1,
+            agents: 5,
+            env_offset: 1,
+            epoch: 10,
+            token: "t".into(),
+        };
+        let stats = HeadStats::default();
+        let mut f = Flows::open(&session, "t", std::slice::from_ref(&host)).unwrap();
+        for seq in 0..3 {
+            let (h, link) = batch(seq);
+            assert_eq!(f.admit(1, link), Admit::Take);
+            f.taken(1, &h, link);
+        }
+        let receipt = |incarnation, batches, seq| Receipt { incarnation, batches, actor: 3, seq };
+        f.confirm(receipt(7, 2, 1), &stats);
+        assert_eq!(stats.flow_of(1).acknowledged, 10);
+        // The replay restarted: the third batch (never confirmed) is taken
+        // again, the first two are duplicates.
+        f.confirm(receipt(8, 0, 0), &stats);
+        assert_eq!(f.admit(1, batch(0).1), Admit::Duplicate);
+        assert_eq!(f.admit(1, batch(2).1), Admit::Take);
+        let (h, link) = batch(2);
+        f.taken(1, &h, link);
+        f.confirm(receipt(8, 1, 2), &stats);
+        assert_eq!(stats.flow_of(1).acknowledged, 15);
+        // Killed: its last report said 10 sent, its log 25 (epoch 10).
+        f.report(1, Delivery { sent: 10, ..Delivery::default() }, &stats);
+        f.rejoin(1, 11, Earlier { epoch: 10, sent: 25 }, &stats);
+        assert_eq!(stats.flow_of(1).lost, 10);
+        f.report(1, Delivery::default(), &stats);
+        assert_eq!(stats.flow_of(1).sent, 25);
+        // A log of another epoch than the head's for the slot is ignored.
+        f.report(1, Delivery { sent: 4, ..Delivery::default() }, &stats);
+        f.rejoin(1, 12, Earlier { epoch: 10, sent: 1_000 }, &stats);
+        assert_eq!(stats.flow_of(1).lost, 14);
+    }
+}
