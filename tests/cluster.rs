@@ -60,6 +60,13 @@ fn small_head(domain: &str, ep: &str, secs: &str, dir: &std::path::Path, extra: 
     hive(&args).spawn().unwrap()
 }
 
+/// A run's CA and certificates for the head and `workers` workers in `dir`.
+fn make_certs(dir: &std::path::Path, workers: &str) {
+    let d = dir.display().to_string();
+    let o = hive(&["certs", "--out", &d, "--workers", workers, "--force"]).output().unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+}
+
 fn text(o: &Output) -> String {
     format!(
         "stdout:\n{}\nstderr:\n{}",
@@ -97,12 +104,8 @@ fn a_head_trains_from_a_worker_on_another_domain_over_mutual_tls_without_loss() 
     let wdir = tmp("worker");
     let certs = tmp("certs");
     let other = tmp("other-ca");
-    for (d, n) in [(&certs, "2"), (&other, "1")] {
-        let o = hive(&["certs", "--out", &d.display().to_string(), "--workers", n, "--force"])
-            .output()
-            .unwrap();
-        assert!(o.status.success(), "{}", text(&o));
-    }
+    make_certs(&certs, "2");
+    make_certs(&other, "1");
     let tls = |d: &std::path::Path, host: &str| d.join(host).display().to_string();
     // QUIC: mutual TLS 1.3 in zenoh's QUIC link (`tls/`, TLS over TCP, is
     // the killed-replay test's).
@@ -601,10 +604,7 @@ fn a_killed_replay_on_the_head_loses_nothing_a_worker_sent() {
     let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
     let dir = tmp("replay-kill");
     let certs = tmp("replay-kill-certs");
-    let o = hive(&["certs", "--out", &certs.display().to_string(), "--workers", "1", "--force"])
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", text(&o));
+    make_certs(&certs, "1");
     let (head_tls, worker_tls) = (certs.join("head"), certs.join("worker-1"));
     let (head_tls, worker_tls) = (head_tls.to_str().unwrap(), worker_tls.to_str().unwrap());
     let ep = format!("tls/127.0.0.1:{}", free_port());
