@@ -677,6 +677,12 @@ impl SeqTracker {
         gap
     }
 
+    /// A tracker that goes on from `next` (each actor's next batch, `None`
+    /// where none was seen): a restarted receiver's predecessor's view.
+    pub fn resume(next: Vec<Option<u64>>) -> Self {
+        Self { next }
+    }
+
     /// Forgets `actor` (its host joined again: its sequence starts afresh).
     pub fn reset(&mut self, actor: usize) {
         if let Some(slot) = self.next.get_mut(actor) {

@@ -29,6 +29,7 @@ struct Memory<'a, S: Service> {
     tx: rotorhive_transport::Sender<S, u16, MinibatchHeader>,
     tel: Counters<S>,
     receipts: Receipts<S>,
+    seq_log: SeqLog,
     prio: Feedback<S>,
     picks: Vec<Pick>,
     last_sync: Instant,
@@ -55,9 +56,11 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     )?;
     let tel = crate::counters(hub, RoleKind::Replay, 0, roles_of(cfg))?;
     let receipts = Receipts::new(hub, cfg.sim.envs)?;
+    let seq_log = SeqLog::open(cx.run_dir, hub.prefix(), cfg.sim.envs);
     let picks = vec![Pick::default(); r.batch];
     let last_sync = Instant::now();
-    let mut m = Memory { cfg, hub, mem, journal, rx, tx, tel, receipts, prio, picks, last_sync };
+    let mut m =
+        Memory { cfg, hub, mem, journal, rx, tx, tel, receipts, seq_log, prio, picks, last_sync };
     if cfg.deterministic {
         m.run_scheduled()?
     } else {
@@ -78,7 +81,7 @@ impl<S: Service> Memory<'_, S> {
         // Actors of other hosts come through the link with indexes after ours.
         // This host's actors only: another host's gaps are its link's to
         // count (the head's link takes each host's batches in order).
-        let mut next_seq = SeqTracker::new(self.cfg.sim.envs);
+        let mut next_seq = self.seq_log.resume();
         let mut mb_seq = 0u64;
         let mut backoff_until = Instant::now();
         let mut limit = SampleLimit::new(self.cfg);
@@ -95,6 +98,7 @@ impl<S: Service> Memory<'_, S> {
                 let lost = &mut self.tel.sample.lost;
                 ingest(&m, &mut self.mem, self.journal.as_mut(), &mut next_seq, lost)?;
                 self.receipts.took(m.user_header());
+                self.seq_log.record(m.user_header());
                 got = true;
             }
             self.tel.sample.time_stage(ReplayStage::Insert, t);
@@ -119,6 +123,7 @@ impl<S: Service> Memory<'_, S> {
                     let lost = &mut self.tel.sample.lost;
                     ingest(&m, &mut self.mem, self.journal.as_mut(), &mut next_seq, lost)?;
                     self.receipts.took(m.user_header());
+                    self.seq_log.record(m.user_header());
                 }
                 self.tel.sample.time_stage(ReplayStage::Idle, t);
             }
@@ -149,6 +154,68 @@ impl<S: Service> Memory<'_, S> {
         self.tel.sample.value_milli = self.mem.len() as i64;
         self.tel.tick(false, Telemetry::beat);
         Ok(())
+    }
+}
+
+/// Where the free-running replay's view of its own host's actors'
+/// sequence numbers stands, kept in `RUN_DIR/replay-seq` as it goes (the
+/// run's prefix hashed, then each actor's next batch plus one, 0 for none;
+/// one 8-byte write a batch): a replay that dies and is started again in
+/// the same run takes it up, so what its predecessor's queue held shows as
+/// a gap at each actor's next batch and is counted lost. A file of another
+/// run (another prefix) is not taken up.
+struct SeqLog {
+    file: Option<std::fs::File>,
+    next: Vec<Option<u64>>,
+}
+
+impl SeqLog {
+    /// The log of run `prefix` for `envs` actors in `run_dir` (none without
+    /// one: a thread run), taking up what a predecessor of this run wrote.
+    fn open(run_dir: Option<&std::path::Path>, prefix: &str, envs: usize) -> Self {
+        use std::hash::{Hash, Hasher};
+        let mut h = std::collections::hash_map::DefaultHasher::new();
+        prefix.hash(&mut h);
+        let tag = h.finish().to_le_bytes();
+        let Some(path) = run_dir.map(|d| d.join("replay-seq")) else {
+            return Self { file: None, next: vec![None; envs] };
+        };
+        let old = std::fs::read(&path).unwrap_or_default();
+        let next = match old.len() == 8 * (envs + 1) && old[..8] == tag {
+            true => old[8..]
+                .chunks_exact(8)
+                .map(|c| u64::from_le_bytes(c.try_into().unwrap_or_default()).checked_sub(1))
+                .collect(),
+            false => vec![None; envs],
+        };
+        if next.iter().any(Option::is_some) {
+            tracing::info!("taking up the sequence numbers of this run's earlier replay");
+        }
+        let mut bytes = tag.to_vec();
+        for n in &next {
+            bytes.extend_from_slice(&n.map_or(0, |n: u64| n + 1).to_le_bytes());
+        }
+        let file = std::fs::write(&path, &bytes)
+            .and_then(|()| std::fs::OpenOptions::new().write(true).open(&path))
+            .map_err(|e| tracing::warn!("cannot keep {}: {e}", path.display()))
+            .ok();
+        Self { file, next }
+    }
+
+    /// The tracker to go on with.
+    fn resume(&self) -> SeqTracker {
+        SeqTracker::resume(self.next.clone())
+    }
+
+    /// Batch `h` was taken (another host's is its link's to track).
+    fn record(&self, h: &TransitionHeader) {
+        use std::os::unix::fs::FileExt;
+        if let Some(f) = &self.file
+            && (h.actor as usize) < self.next.len()
+        {
+            let at = 8 * (h.actor as u64 + 1);
+            let _ = f.write_all_at(&h.seq.saturating_add(2).to_le_bytes(), at);
+        }
     }
 }
 
@@ -563,7 +630,32 @@ fn minibatch_header(batch: usize, seq: u64, acted: Acted) -> MinibatchHeader {
 
 #[cfg(test)]
 mod tests {
-    use super::SampleLimit;
+    use super::{SampleLimit, SeqLog};
+    use rotorhive_msg::TransitionHeader;
+
+    #[test]
+    fn a_replay_started_again_in_its_run_takes_up_its_predecessors_sequence_numbers() {
+        let dir = std::env::temp_dir().join(format!("rotorhive-seqlog-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let h = |actor, seq| TransitionHeader { actor, count: 4, seq, weight_version: 0 };
+        let log = SeqLog::open(Some(&dir), "run-a", 2);
+        let mut t = log.resume();
+        for seq in 0..5 {
+            assert_eq!(t.observe(0, seq), 0);
+            log.record(&h(0, seq));
+        }
+        // Killed with batches 5 and 6 in its queue; the next one takes up
+        // where its predecessor stood.
+        drop(log);
+        let log = SeqLog::open(Some(&dir), "run-a", 2);
+        let mut t = log.resume();
+        assert_eq!(t.observe(0, 7), 2, "batches 5 and 6 lost");
+        assert_eq!(t.observe(1, 3), 0, "an actor never seen before");
+        // Another run's replay in the same directory starts afresh.
+        let log = SeqLog::open(Some(&dir), "run-b", 2);
+        assert_eq!(log.resume().observe(0, 9), 0);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 
     #[test]
     fn sampling_waits_for_inserts_past_the_buffer() {
