@@ -256,12 +256,10 @@ fn head_side(
     head.admit(|_| (String::new(), String::new()));
     let hub = Hub::<Ipc>::new(RUN, "bench-consumer")?;
     let mut rx = hub.receiver::<u16, TransitionHeader>(&Channel::transitions(1))?;
-    // The consumer stands in for the replay: its receipts are what the
-    // head's link acknowledges the worker's batches on.
-    let first = rotorhive_msg::Receipt { incarnation: 1, ..Default::default() };
-    let mut receipts = rotorhive_transport::Periodic::new(&hub, &Channel::receipts(), first)?;
-    receipts.send(first);
-    let mut receipted = Instant::now();
+    // The consumer stands in for the replay (of a head with one
+    // environment): its receipts are what the head's link acknowledges the
+    // worker's batches on.
+    let mut receipts = rotorhive_roles::replay::Receipts::new(&hub, 1)?;
     let mut link = head.bridge::<Ipc>(
         RUN.into(),
         1,
@@ -286,11 +284,8 @@ fn head_side(
         }
         first.get_or_insert_with(Instant::now);
         got += h.count as u64;
-        receipts.sample.took(&h);
-        if receipted.elapsed() >= Duration::from_millis(1) {
-            receipted = Instant::now();
-            receipts.send(receipts.sample);
-        }
+        receipts.took(&h);
+        receipts.publish();
     }
     let secs = first.map_or(0.0, |t| t.elapsed().as_secs_f64());
     link.stop()?;

@@ -177,14 +177,7 @@ impl<P: Clone> Outbox<P> {
 /// with the time), so that a batch of an earlier join is never taken as one
 /// of this join's.
 pub fn new_epoch() -> u64 {
-    use std::hash::{BuildHasher, Hasher};
-    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
-    h.write_u128(
-        std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_nanos()),
-    );
-    h.finish()
+    rotorhive_transport::fresh_id()
 }
 
 #[cfg(test)]

@@ -131,13 +131,13 @@ impl Flows {
             self.replay_restarted();
         }
         self.incarnation = Some(r.incarnation);
+        if r.batches == 0 {
+            return;
+        }
         let Self { slots, queued, .. } = self;
         let Some(last) = queued.iter().position(|u| (u.actor, u.seq) == (r.actor, r.seq)) else {
             return;
         };
-        if r.batches == 0 {
-            return;
-        }
         for u in queued.drain(..=last) {
             if let Some(s) = u.of(slots) {
                 s.inflow.confirm(u.link.seq);

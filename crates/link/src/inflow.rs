@@ -92,13 +92,10 @@ impl Inflow {
     /// acknowledgement of new batches ([`ACK_EVERY`]) or where the slot
     /// stands ([`HEARTBEAT`]).
     pub fn answer(&mut self, gap: bool, now: Instant) -> Option<Ack> {
-        if std::mem::take(&mut self.rewound) {
-            self.nacked = Some((self.next, now));
-            return Some(self.ack(self.next + 1, now));
-        }
-        if gap {
+        let rewound = std::mem::take(&mut self.rewound);
+        if rewound || gap {
             let asked = self.nacked.is_some_and(|(n, at)| n == self.next && now - at < NACK_EVERY);
-            if asked {
+            if asked && !rewound {
                 return None;
             }
             self.nacked = Some((self.next, now));

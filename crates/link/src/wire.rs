@@ -71,8 +71,9 @@ pub struct Hello {
 }
 
 /// A worker process's epoch and the transitions it had sent under it (all
-/// 0: none known).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+/// 0: none known); its bytes go as they are, in the join and in the log.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
 pub struct Earlier {
     /// The epoch its join had.
     pub epoch: u64,
@@ -149,8 +150,7 @@ impl Hello {
         out.extend_from_slice(&self.agents.to_le_bytes());
         put_str(&mut out, &self.host);
         put_str(&mut out, &self.token);
-        out.extend_from_slice(&self.earlier.epoch.to_le_bytes());
-        out.extend_from_slice(&self.earlier.sent.to_le_bytes());
+        out.extend_from_slice(header_bytes(&self.earlier));
         out
     }
 
@@ -166,7 +166,7 @@ impl Hello {
             agents: r.u32()?,
             host: r.str()?,
             token: r.str()?,
-            earlier: Earlier { epoch: r.u64()?, sent: r.u64()? },
+            earlier: header_from(r.take(std::mem::size_of::<Earlier>())?)?,
         })
     }
 }

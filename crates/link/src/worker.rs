@@ -8,7 +8,7 @@ use zenoh::Wait;
 use crate::error::{LinkError, Result, zerr};
 use crate::options::{LinkOptions, open};
 use crate::shared::JOIN;
-use crate::wire::{Earlier, Hello, Welcome};
+use crate::wire::{self, Earlier, Hello, Welcome};
 
 /// How a worker's link ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -157,24 +157,35 @@ impl SentLog {
         Ok(Self { file: std::fs::File::create(path)? })
     }
 
-    /// What the earlier process's log at `path` says (nothing known: 0, 0).
+    /// What the earlier process's log at `path` says (nothing known, or a
+    /// file of another size: 0, 0).
     pub fn read(path: &std::path::Path) -> Earlier {
-        let Ok(b) = std::fs::read(path) else { return Earlier::default() };
-        match <[u8; 16]>::try_from(b.as_slice()) {
-            Ok(b) => Earlier {
-                epoch: u64::from_le_bytes(b[..8].try_into().unwrap_or_default()),
-                sent: u64::from_le_bytes(b[8..].try_into().unwrap_or_default()),
-            },
-            Err(_) => Earlier::default(),
-        }
+        std::fs::read(path).ok().and_then(|b| wire::header_from(&b)).unwrap_or_default()
     }
 
     /// Records `e` (a failed write only makes the count less exact).
     pub(crate) fn record(&self, e: Earlier) {
         use std::os::unix::fs::FileExt;
-        let mut b = [0u8; 16];
-        b[..8].copy_from_slice(&e.epoch.to_le_bytes());
-        b[8..].copy_from_slice(&e.sent.to_le_bytes());
-        let _ = self.file.write_all_at(&b, 0);
+        let _ = self.file.write_all_at(wire::header_bytes(&e), 0);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_sent_log_reads_back_and_a_damaged_one_reads_as_nothing() {
+        let dir = std::env::temp_dir().join(format!("rotorhive-sentlog-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("link-sent");
+        assert_eq!(SentLog::read(&path), Earlier::default(), "no file");
+        let log = SentLog::create(&path).unwrap();
+        log.record(Earlier { epoch: 7, sent: 100 });
+        log.record(Earlier { epoch: 7, sent: 150 });
+        assert_eq!(SentLog::read(&path), Earlier { epoch: 7, sent: 150 });
+        std::fs::write(&path, b"short").unwrap();
+        assert_eq!(SentLog::read(&path), Earlier::default(), "a file of another size");
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }

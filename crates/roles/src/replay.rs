@@ -195,8 +195,8 @@ impl SeqLog {
         for n in &next {
             bytes.extend_from_slice(&n.map_or(0, |n: u64| n + 1).to_le_bytes());
         }
-        let file = std::fs::write(&path, &bytes)
-            .and_then(|()| std::fs::OpenOptions::new().write(true).open(&path))
+        let file = std::fs::File::create(&path)
+            .and_then(|mut f| std::io::Write::write_all(&mut f, &bytes).map(|()| f))
             .map_err(|e| tracing::warn!("cannot keep {}: {e}", path.display()))
             .ok();
         Self { file, next }
@@ -225,7 +225,7 @@ const RECEIPT_EVERY: Duration = Duration::from_millis(1);
 /// The replay's receipts for other hosts' batches to its host's link
 /// ([`Receipt`]): the head acknowledges a worker's batch once it is here,
 /// not when the replay's queue took it.
-struct Receipts<S: Service> {
+pub struct Receipts<S: Service> {
     out: rotorhive_transport::Periodic<S, Receipt>,
     /// This host's environments: actors from here on are other hosts'.
     local: usize,
@@ -235,12 +235,10 @@ struct Receipts<S: Service> {
 }
 
 impl<S: Service> Receipts<S> {
-    /// A new incarnation's receipts (the first, for no batch, goes at once).
-    fn new(hub: &rotorhive_transport::Hub<S>, local: usize) -> Result<Self> {
-        use std::hash::{BuildHasher, Hasher};
-        let mut h = std::collections::hash_map::RandomState::new().build_hasher();
-        h.write_u32(std::process::id());
-        let first = Receipt { incarnation: h.finish(), ..Receipt::default() };
+    /// A new incarnation's receipts, for a host of `local` environments
+    /// (the first, for no batch, goes at once).
+    pub fn new(hub: &rotorhive_transport::Hub<S>, local: usize) -> Result<Self> {
+        let first = Receipt { incarnation: rotorhive_transport::fresh_id(), ..Receipt::default() };
         let mut out = rotorhive_transport::Periodic::new(hub, &Channel::receipts(), first)
             .doing("opening the receipts channel")?;
         out.send(first);
@@ -248,7 +246,7 @@ impl<S: Service> Receipts<S> {
     }
 
     /// Takes note of a batch taken off the transitions channel.
-    fn took(&mut self, h: &TransitionHeader) {
+    pub fn took(&mut self, h: &TransitionHeader) {
         if h.actor as usize >= self.local {
             self.out.sample.took(h);
         }
@@ -256,7 +254,7 @@ impl<S: Service> Receipts<S> {
 
     /// Sends the receipt when it covers new batches (at most every
     /// millisecond: the link reads them no more often).
-    fn publish(&mut self) {
+    pub fn publish(&mut self) {
         if self.out.sample.batches != self.sent && self.sent_at.elapsed() >= RECEIPT_EVERY {
             (self.sent, self.sent_at) = (self.out.sample.batches, Instant::now());
             self.out.send(self.out.sample);

@@ -791,6 +791,20 @@ extern "C" fn on_hangup(_: libc::c_int) {
     STOP.store(true, Ordering::SeqCst);
 }
 
+/// A number no other process (or call) is likely to draw: std's random
+/// per-process hash keys over the time. For a link's epoch and a replay's
+/// incarnation.
+pub fn fresh_id() -> u64 {
+    use std::hash::{BuildHasher, Hasher};
+    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+    h.write_u128(
+        std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos()),
+    );
+    h.finish()
+}
+
 /// A service-name prefix no other run on this machine uses: `kind`, this
 /// process's id and the clock's nanoseconds (`run-4242-1a2b3c`), so that a
 /// run started again by the same pid after a crash does not meet the first
