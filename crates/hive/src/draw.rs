@@ -10,7 +10,7 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
 use rotorhive_records::plot::{font, plot_err};
-use rotorhive_sim::{Arena, Obstacle, SimConfig, VecEnv};
+use rotorhive_sim::{Arena, Motion, Obstacle, SimConfig, VecEnv};
 
 /// `hive render-arena`.
 #[derive(Args, Debug)]
@@ -179,9 +179,9 @@ fn draw_arena(arena: &Arena, paths: &[Vec<(f32, f32)>], out: &Path) -> Result<()
             GREEN.mix(0.5).filled(),
         )))
         .map_err(plot_err)?;
-    for o in &arena.obstacles {
-        match *o {
-            Obstacle::Box { center, half_extents } => {
+    for o in arena.obstacles.iter().map(|o| o.at(0.0)) {
+        match o {
+            Obstacle::Box { center, half_extents, .. } => {
                 chart
                     .draw_series(std::iter::once(Rectangle::new(
                         [
@@ -203,6 +203,26 @@ fn draw_arena(arena: &Arena, paths: &[Vec<(f32, f32)>], out: &Path) -> Result<()
                     .draw_series(std::iter::once(Polygon::new(pts, BLACK.mix(0.7).filled())))
                     .map_err(plot_err)?;
             }
+        }
+    }
+    // A moving obstacle is drawn where it starts, with the track its centre follows.
+    for o in &arena.obstacles {
+        if let Some(m) = o.motion() {
+            let c = o.center();
+            let track: Vec<(f32, f32)> = match *m {
+                Motion::Segment { offset, .. } => {
+                    vec![(c[0], c[1]), (c[0] + offset[0], c[1] + offset[1])]
+                }
+                Motion::Circle { radius, .. } => (0..=48)
+                    .map(|k| {
+                        let a = k as f32 / 48.0 * std::f32::consts::TAU;
+                        (c[0] + radius * a.cos(), c[1] + radius * a.sin())
+                    })
+                    .collect(),
+            };
+            chart
+                .draw_series(LineSeries::new(track, RED.mix(0.6).stroke_width(2)))
+                .map_err(plot_err)?;
         }
     }
     for (i, p) in paths.iter().enumerate() {

@@ -9,7 +9,7 @@ import rotorhive
 from rotorhive import _rotorhive
 
 
-@pytest.mark.parametrize("level", ["dense", "forest", "noisy"])
+@pytest.mark.parametrize("level", ["dense", "forest", "noisy", "moving"])
 def test_every_level_is_a_vector_environment_with_its_own_lanes(level):
     env_id = rotorhive.LEVELS[level]
     envs = gym.make_vec(env_id, num_envs=4, seed=3)

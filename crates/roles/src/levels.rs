@@ -10,6 +10,7 @@ pub const LEVELS: &[(&str, &str, &str)] = &[
     ("dense", "rotorhive/Dense-v0", include_str!("../../../configs/levels/dense.toml")),
     ("forest", "rotorhive/Forest-v0", include_str!("../../../configs/levels/forest.toml")),
     ("noisy", "rotorhive/Noisy-v0", include_str!("../../../configs/levels/noisy.toml")),
+    ("moving", "rotorhive/Moving-v0", include_str!("../../../configs/levels/moving.toml")),
 ];
 
 /// The names of the levels, in order of difficulty.

@@ -51,7 +51,111 @@ pub struct Spawn {
     pub z: f32,
 }
 
+/// How an obstacle moves: its centre's offset from the obstacle's `center`
+/// as a function of the world's clock (seconds). A moving obstacle is where
+/// its motion puts it at every physics step, for collisions and cameras alike.
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq)]
+#[serde(tag = "kind", rename_all = "lowercase", deny_unknown_fields)]
+pub enum Motion {
+    /// Back and forth at `speed` (m/s) between `center` and `center +
+    /// offset` (x, y; metres).
+    Segment {
+        /// The far end of the segment, from `center` (metres).
+        offset: [f32; 2],
+        /// Speed along the segment (m/s).
+        speed: f32,
+        /// Where on its cycle it is at time 0, as a fraction in [0, 1).
+        #[serde(default)]
+        phase: f32,
+    },
+    /// Around a horizontal circle of `radius` centred on `center` at
+    /// `speed` (m/s; negative: clockwise).
+    Circle {
+        /// Radius of the circle its centre follows (metres).
+        radius: f32,
+        /// Speed along the circle (m/s; negative: clockwise).
+        speed: f32,
+        /// Where on its cycle it is at time 0, as a fraction in [0, 1).
+        #[serde(default)]
+        phase: f32,
+    },
+}
+
+impl Motion {
+    /// The centre's offset (x, y) at time `t` (seconds of the world's clock).
+    pub fn offset(&self, t: f64) -> [f32; 2] {
+        match *self {
+            Motion::Segment { offset, speed, phase } => {
+                let len = f64::from(offset[0].hypot(offset[1]));
+                if len <= 0.0 {
+                    return [0.0; 2];
+                }
+                let cycle = 2.0 * len;
+                let s = (f64::from(phase) * cycle + f64::from(speed.abs()) * t).rem_euclid(cycle);
+                let along = if s < len { s } else { cycle - s };
+                let f = (along / len) as f32;
+                [offset[0] * f, offset[1] * f]
+            }
+            Motion::Circle { radius, speed, phase } => {
+                let r = f64::from(radius);
+                let a = std::f64::consts::TAU * f64::from(phase) + f64::from(speed) * t / r;
+                [(r * a.cos()) as f32, (r * a.sin()) as f32]
+            }
+        }
+    }
+
+    /// The corners (x, y) of the box every offset lies in.
+    pub fn reach(&self) -> ([f32; 2], [f32; 2]) {
+        match *self {
+            Motion::Segment { offset, .. } => {
+                ([offset[0].min(0.0), offset[1].min(0.0)], [offset[0].max(0.0), offset[1].max(0.0)])
+            }
+            Motion::Circle { radius, .. } => ([-radius; 2], [radius; 2]),
+        }
+    }
+
+    /// Its speed (m/s).
+    pub fn speed(&self) -> f32 {
+        match *self {
+            Motion::Segment { speed, .. } | Motion::Circle { speed, .. } => speed.abs(),
+        }
+    }
+
+    /// Checks its numbers: the field and what is wrong.
+    fn check(&self) -> Result<(), (&'static str, String)> {
+        let (speed, phase) = match *self {
+            Motion::Segment { offset, speed, phase } => {
+                if !offset.iter().all(|v| v.is_finite()) {
+                    return Err(("motion.offset", format!("must be finite, got {offset:?}")));
+                }
+                (speed, phase)
+            }
+            Motion::Circle { radius, speed, phase } => {
+                if !(radius.is_finite() && radius > 0.0) {
+                    return Err(("motion.radius", format!("must be positive, got {radius}")));
+                }
+                (speed, phase)
+            }
+        };
+        if !(speed.is_finite() && speed.abs() <= MAX_OBSTACLE_SPEED) {
+            let message = format!(
+                "must lie in [-{MAX_OBSTACLE_SPEED}, {MAX_OBSTACLE_SPEED}] m/s, got {speed}"
+            );
+            return Err(("motion.speed", message));
+        }
+        if !(phase.is_finite() && (0.0..1.0).contains(&phase)) {
+            return Err(("motion.phase", format!("must lie in [0, 1), got {phase}")));
+        }
+        Ok(())
+    }
+}
+
+/// The fastest an obstacle may move (m/s): the collision query and the
+/// rapier path are checked for tunnelling up to it (`tests/moving.rs`).
+pub const MAX_OBSTACLE_SPEED: f32 = 10.0;
+
 /// One obstacle. Boxes are axis-aligned; cylinders have a vertical axis.
+/// Either may move (`motion`, absent: it stands still).
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(tag = "kind", rename_all = "lowercase", deny_unknown_fields)]
 pub enum Obstacle {
@@ -61,6 +165,9 @@ pub enum Obstacle {
         center: [f32; 3],
         /// Half sizes along x, y, z (metres).
         half_extents: [f32; 3],
+        /// How it moves (absent: it stands still).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        motion: Option<Motion>,
     },
     /// A cylinder with a vertical axis.
     Cylinder {
@@ -70,26 +177,93 @@ pub enum Obstacle {
         radius: f32,
         /// Half of the height (metres).
         half_height: f32,
+        /// How it moves (absent: it stands still).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        motion: Option<Motion>,
     },
 }
 
 impl Obstacle {
-    /// Centre of the obstacle.
+    /// A box that stands still.
+    pub fn still_box(center: [f32; 3], half_extents: [f32; 3]) -> Self {
+        Obstacle::Box { center, half_extents, motion: None }
+    }
+
+    /// A cylinder that stands still.
+    pub fn still_cylinder(center: [f32; 3], radius: f32, half_height: f32) -> Self {
+        Obstacle::Cylinder { center, radius, half_height, motion: None }
+    }
+
+    /// Centre of the obstacle (where its motion starts from).
     pub fn center(&self) -> [f32; 3] {
         match self {
             Obstacle::Box { center, .. } | Obstacle::Cylinder { center, .. } => *center,
         }
     }
 
-    /// Axis-aligned bounds `(min, max)`.
+    /// How it moves, if it does.
+    pub fn motion(&self) -> Option<&Motion> {
+        match self {
+            Obstacle::Box { motion, .. } | Obstacle::Cylinder { motion, .. } => motion.as_ref(),
+        }
+    }
+
+    /// Sets (or clears) how it moves.
+    pub fn set_motion(&mut self, m: Option<Motion>) {
+        match self {
+            Obstacle::Box { motion, .. } | Obstacle::Cylinder { motion, .. } => *motion = m,
+        }
+    }
+
+    /// The same obstacle moved by `d` (metres), its motion kept.
+    pub fn shifted(&self, d: [f32; 3]) -> Self {
+        let mut o = self.clone();
+        match &mut o {
+            Obstacle::Box { center, .. } | Obstacle::Cylinder { center, .. } => {
+                for k in 0..3 {
+                    center[k] += d[k];
+                }
+            }
+        }
+        o
+    }
+
+    /// Where it is at time `t` of the world's clock: a still obstacle at
+    /// its motion's offset (itself when it does not move).
+    pub fn at(&self, t: f64) -> Self {
+        match self.motion() {
+            None => self.clone(),
+            Some(m) => {
+                let [dx, dy] = m.offset(t);
+                let mut o = self.shifted([dx, dy, 0.0]);
+                o.set_motion(None);
+                o
+            }
+        }
+    }
+
+    /// Axis-aligned bounds `(min, max)` at its centre.
     pub fn aabb(&self) -> ([f32; 3], [f32; 3]) {
         let (c, h) = match self {
-            Obstacle::Box { center, half_extents } => (*center, *half_extents),
-            Obstacle::Cylinder { center, radius, half_height } => {
+            Obstacle::Box { center, half_extents, .. } => (*center, *half_extents),
+            Obstacle::Cylinder { center, radius, half_height, .. } => {
                 (*center, [*radius, *radius, *half_height])
             }
         };
         ([c[0] - h[0], c[1] - h[1], c[2] - h[2]], [c[0] + h[0], c[1] + h[1], c[2] + h[2]])
+    }
+
+    /// Axis-aligned bounds `(min, max)` of everywhere it goes.
+    pub fn swept_aabb(&self) -> ([f32; 3], [f32; 3]) {
+        let (mut lo, mut hi) = self.aabb();
+        if let Some(m) = self.motion() {
+            let (a, b) = m.reach();
+            for k in 0..2 {
+                lo[k] += a[k];
+                hi[k] += b[k];
+            }
+        }
+        (lo, hi)
     }
 }
 
@@ -173,30 +347,18 @@ impl Lanes {
             let off = -total / 2.0 + pitch * (k as f32 + 0.5);
             offsets.push(off);
             bounds.push([off - a.width / 2.0, off + a.width / 2.0]);
-            for o in &a.obstacles {
-                obstacles.push(match *o {
-                    Obstacle::Box { center, half_extents } => Obstacle::Box {
-                        center: [center[0], center[1] + off, center[2]],
-                        half_extents,
-                    },
-                    Obstacle::Cylinder { center, radius, half_height } => Obstacle::Cylinder {
-                        center: [center[0], center[1] + off, center[2]],
-                        radius,
-                        half_height,
-                    },
-                });
-            }
+            obstacles.extend(a.obstacles.iter().map(|o| o.shifted([0.0, off, 0.0])));
             // The lane's own walls, longer than the camera sees past either end.
             let hl = a.length / 2.0 + 40.0;
             for side in [-1.0f32, 1.0] {
-                obstacles.push(Obstacle::Box {
-                    center: [
+                obstacles.push(Obstacle::still_box(
+                    [
                         a.length / 2.0,
                         off + side * (a.width / 2.0 + LANE_WALL / 2.0),
                         a.height / 2.0,
                     ],
-                    half_extents: [hl, LANE_WALL / 2.0, a.height / 2.0],
-                });
+                    [hl, LANE_WALL / 2.0, a.height / 2.0],
+                ));
             }
         }
         let world = Arena {
@@ -321,7 +483,11 @@ impl Arena {
         if c.iter().any(|v| !v.is_finite()) {
             return Err((what, "center", format!("must be finite, got {c:?}")));
         }
-        let (lo, hi) = o.aabb();
+        if let Some(m) = o.motion() {
+            m.check().map_err(|(field, message)| (what.clone(), field, message))?;
+        }
+        // A moving obstacle must stay inside wherever it goes.
+        let (lo, hi) = o.swept_aabb();
         let hw = self.width / 2.0;
         if lo[0] < -EPS
             || hi[0] > self.length + EPS
@@ -330,12 +496,14 @@ impl Arena {
             || lo[2] < -EPS
             || hi[2] > self.height + EPS
         {
+            let moving = if o.motion().is_some() { " (where its motion takes it)" } else { "" };
             let message = format!(
-                "obstacle spans x {:.2}..{:.2}, y {:.2}..{:.2}, z {:.2}..{:.2}, outside the arena \
-                 (x 0..{}, y -{hw}..{hw}, z 0..{})",
+                "obstacle spans x {:.2}..{:.2}, y {:.2}..{:.2}, z {:.2}..{:.2}{moving}, outside \
+                 the arena (x 0..{}, y -{hw}..{hw}, z 0..{})",
                 lo[0], hi[0], lo[1], hi[1], lo[2], hi[2], self.length, self.height
             );
-            return Err((what, "center", message));
+            let field = if o.motion().is_some() { "motion" } else { "center" };
+            return Err((what, field, message));
         }
         Ok(())
     }
@@ -416,6 +584,56 @@ half_height = 2.5
         assert!(m.contains("obstacle 2") && m.contains("radius"), "{m}");
         let m = err(&GOOD.replace("width = 10.0", "width = -10.0"));
         assert!(m.contains("width") && m.contains("positive"), "{m}");
+    }
+
+    const MOVING: &str = r#"
+[[obstacle]]
+kind = "box"
+center = [20.0, 1.0, 2.5]
+half_extents = [0.5, 0.5, 2.5]
+motion = { kind = "segment", offset = [0.0, -3.0], speed = 0.5 }
+
+[[obstacle]]
+kind = "cylinder"
+center = [30.0, 0.0, 2.5]
+radius = 0.5
+half_height = 2.5
+motion = { kind = "circle", radius = 1.5, speed = -0.4, phase = 0.25 }
+"#;
+
+    #[test]
+    fn moving_obstacles_parse_move_and_stay_inside() {
+        let head = GOOD.split("[[obstacle]]").next().unwrap();
+        let a = Arena::parse(&format!("{head}{MOVING}"), "m.toml").unwrap();
+        assert_eq!(Arena::parse(&a.to_toml(), "x").unwrap(), a);
+        // A still file writes no motion.
+        assert!(!Arena::parse(GOOD, "g").unwrap().to_toml().contains("motion"));
+        let seg = &a.obstacles[0];
+        // Back and forth at 0.5 m/s over 3 m: at the far end after 6 s, home after 12 s.
+        assert_eq!(seg.at(0.0).center(), [20.0, 1.0, 2.5]);
+        assert!((seg.at(3.0).center()[1] - -0.5).abs() < 1e-5);
+        assert!((seg.at(6.0).center()[1] - -2.0).abs() < 1e-5);
+        assert!((seg.at(9.0).center()[1] - -0.5).abs() < 1e-5);
+        assert!((seg.at(12.0).center()[1] - 1.0).abs() < 1e-4);
+        assert!(seg.at(3.0).motion().is_none());
+        // The circle: a quarter turn in, at its top; clockwise a quarter
+        // turn later (0.4 m/s on a 1.5 m circle) on its right.
+        let c = &a.obstacles[1];
+        let at = |t: f64| c.at(t).center();
+        assert!((at(0.0)[0] - 30.0).abs() < 1e-5 && (at(0.0)[1] - 1.5).abs() < 1e-5);
+        let quarter = std::f64::consts::FRAC_PI_2 * 1.5 / 0.4;
+        assert!((at(quarter)[0] - 31.5).abs() < 1e-4 && at(quarter)[1].abs() < 1e-4);
+        assert_eq!(c.swept_aabb().0[1], -2.0);
+        // Where the motion leaves the arena, the file is refused by name.
+        let m = err(&format!("{head}{}", MOVING.replace("[0.0, -3.0]", "[0.0, -6.0]")));
+        assert!(
+            m.contains("obstacle 1") && m.contains("motion") && m.contains("where its motion"),
+            "{m}"
+        );
+        let m = err(&format!("{head}{}", MOVING.replace("speed = -0.4", "speed = 40.0")));
+        assert!(m.contains("obstacle 2") && m.contains("motion.speed"), "{m}");
+        let m = err(&format!("{head}{}", MOVING.replace("kind = \"circle\"", "kind = \"spiral\"")));
+        assert!(m.contains("spiral"), "{m}");
     }
 
     #[test]

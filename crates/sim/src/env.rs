@@ -194,7 +194,8 @@ enum Physics {
 /// What an environment builds from its world (the lanes side by side):
 /// the flight at the world's altitude, the physics, the CPU scene with the
 /// lanes' bounds and, with the wgpu renderer, its scene on the GPU. A new
-/// world (a curriculum's next stage) builds them again the same way.
+/// world (a curriculum's next stage) builds them again the same way, its
+/// moving obstacles where they are at the world's time.
 struct World {
     flight: Flight,
     physics: Physics,
@@ -203,7 +204,7 @@ struct World {
 }
 
 impl World {
-    fn new(cfg: &SimConfig, arena: &Arena, bounds: &[[f32; 2]]) -> Result<Self, GpuError> {
+    fn new(cfg: &SimConfig, arena: &Arena, bounds: &[[f32; 2]], t: f64) -> Result<Self, GpuError> {
         let flight = Flight {
             quad: cfg.quad,
             gains: cfg.gains,
@@ -219,13 +220,19 @@ impl World {
                 &flight,
                 cfg.drone_radius,
                 cfg.interactive,
+                t,
             ))),
         };
         let mut scene = Scene::new(arena);
         scene.set_lanes(bounds);
+        scene.set_time(t);
         let gpu = match cfg.renderer {
             RendererKind::Cpu => None,
-            RendererKind::Wgpu => Some(GpuDepthRenderer::new(cfg.camera, &scene)?),
+            RendererKind::Wgpu => {
+                let mut g = GpuDepthRenderer::new(cfg.camera, &scene)?;
+                g.set_time(t);
+                Some(g)
+            }
         };
         Ok(Self { flight, physics, scene, gpu })
     }
@@ -273,6 +280,8 @@ pub struct VecEnv {
     finished: Vec<Episode>,
     timing: StepTiming,
     total_steps: u64,
+    /// Physics steps flown: the world's clock, which moves the obstacles.
+    ticks: u64,
     /// When an agent whose episode ends starts its next one.
     autoreset: Autoreset,
     /// Agents that started a new episode in the last step (`NextStep`).
@@ -300,7 +309,7 @@ impl VecEnv {
         let Lanes { world: arena, offsets: lane_offsets, spawns: lane_spawns, bounds: lane_bounds } =
             lanes;
         assert!(cfg.agents > 0, "a VecEnv needs at least one agent");
-        let World { flight, physics, scene, gpu } = World::new(&cfg, &arena, &lane_bounds)?;
+        let World { flight, physics, scene, gpu } = World::new(&cfg, &arena, &lane_bounds, 0.0)?;
         let n = cfg.agents;
         let px = cfg.camera.side * cfg.camera.side;
         let obs_len = 2 * px + 3;
@@ -332,6 +341,7 @@ impl VecEnv {
             finished: Vec::new(),
             timing: StepTiming::default(),
             total_steps: 0,
+            ticks: 0,
             autoreset: Autoreset::SameStep,
             restarted: vec![false; n],
             cfg,
@@ -435,13 +445,20 @@ impl VecEnv {
         self.advance(steps, false);
     }
 
+    /// The world's clock (seconds): where moving obstacles are.
+    pub fn time(&self) -> f64 {
+        self.ticks as f64 * f64::from(self.cfg.physics_dt)
+    }
+
     /// Runs `steps` physics steps of every agent and, with `detect`, marks
     /// those that touched something.
     fn advance(&mut self, steps: usize, detect: bool) {
+        let (t0, dt) = (self.time(), f64::from(self.cfg.physics_dt));
+        self.ticks += steps as u64;
         match &mut self.physics {
             Physics::Rapier(r) => {
-                for _ in 0..steps {
-                    r.step(&self.flight, &mut self.drones);
+                for k in 0..steps {
+                    r.step(&self.flight, &mut self.drones, t0 + k as f64 * dt);
                     if detect && self.cfg.interactive {
                         let n = self.drones.len();
                         let p: Vec<Vector> = self.drones.iter().map(|d| d.p).collect();
@@ -459,7 +476,7 @@ impl VecEnv {
                     flight.fly(drones, path, steps);
                     if detect {
                         for (d, path) in drones.iter_mut().zip(path.chunks_exact(stride)) {
-                            if !d.collided && geometry.path_hits(path, radius) {
+                            if !d.collided && geometry.path_hits(path, radius, t0, dt) {
                                 d.collided = true;
                             }
                         }
@@ -647,7 +664,8 @@ impl VecEnv {
     /// Swaps the world for `lanes` in the middle of a step, after scoring.
     fn change_world(&mut self, lanes: Lanes) -> Result<(), GpuError> {
         let Lanes { world, offsets, spawns, bounds } = lanes;
-        let World { flight, physics, scene, gpu } = World::new(&self.cfg, &world, &bounds)?;
+        let World { flight, physics, scene, gpu } =
+            World::new(&self.cfg, &world, &bounds, self.time())?;
         (self.flight, self.physics, self.scene, self.gpu) = (flight, physics, scene, gpu);
         self.arena = world;
         self.lane_offsets = offsets;
@@ -685,6 +703,11 @@ impl VecEnv {
     }
 
     fn render(&mut self) -> Result<(), GpuError> {
+        let t = self.time();
+        self.scene.set_time(t);
+        if let Some(g) = &mut self.gpu {
+            g.set_time(t);
+        }
         let cams: Vec<CameraPose> = (0..self.cfg.agents).map(|i| self.camera_at(i)).collect();
         let positions: Vec<Vector> = cams.iter().map(|c| c.position).collect();
         let drones = self

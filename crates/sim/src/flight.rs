@@ -27,11 +27,11 @@
 //! drones scalar), 2.0 µs with the groups.
 
 use rapier3d::math::{Pose, Rotation, Vector};
-use rapier3d::parry::bounding_volume::Aabb;
+use rapier3d::parry::bounding_volume::{Aabb, BoundingVolume};
 use rapier3d::parry::partitioning::{Bvh, BvhBuildStrategy};
 use rapier3d::parry::shape::SharedShape;
 
-use crate::arena::{Arena, Obstacle};
+use crate::arena::{Arena, Motion, Obstacle};
 use crate::dynamics::{GRAVITY, Gains, Kinematics, QuadParams, thrusts, wrench};
 use crate::lane::{LANES, Lane, Wide, cross};
 
@@ -324,40 +324,64 @@ fn normalize_q<T: Lane>(q: [T; 4]) -> [T; 4] {
     q.map(|x| x * inv)
 }
 
-/// The arena's solid shapes (obstacles, walls, floor and ceiling) and a
-/// bounding-volume hierarchy over them.
+/// The arena's solid shapes (still obstacles, walls, floor and ceiling), a
+/// bounding-volume hierarchy over them, and the moving obstacles beside it.
 pub(crate) struct Geometry {
     shapes: Vec<(Pose, SharedShape)>,
     bvh: Bvh,
+    movers: Vec<Mover>,
 }
 
 impl std::fmt::Debug for Geometry {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Geometry").field("shapes", &self.shapes.len()).finish()
+        f.debug_struct("Geometry")
+            .field("shapes", &self.shapes.len())
+            .field("movers", &self.movers.len())
+            .finish()
     }
 }
 
-/// Every solid of an arena as a parry shape at its pose: the obstacles, and
-/// walls, floor and ceiling as slabs 1 m thick that reach 5 m past each end.
+/// A moving obstacle: its shape at its centre, its motion, and the box of
+/// everywhere it goes.
+#[derive(Clone)]
+pub(crate) struct Mover {
+    pub(crate) pose: Pose,
+    pub(crate) shape: SharedShape,
+    pub(crate) motion: Motion,
+    swept: Aabb,
+}
+
+impl Mover {
+    /// Its pose at time `t` of the world's clock.
+    pub(crate) fn pose_at(&self, t: f64) -> Pose {
+        let [dx, dy] = self.motion.offset(t);
+        Pose::from_parts(self.pose.translation + Vector::new(dx, dy, 0.0), self.pose.rotation)
+    }
+}
+
+/// An obstacle's parry shape at its pose (at its centre, for one that moves).
+fn solid(o: &Obstacle) -> (Pose, SharedShape) {
+    match *o {
+        Obstacle::Box { center, half_extents: h, .. } => {
+            (Pose::from_translation(Vector::from(center)), SharedShape::cuboid(h[0], h[1], h[2]))
+        }
+        // Parry's cylinders stand along y; turn them upright.
+        Obstacle::Cylinder { center, radius, half_height, .. } => (
+            Pose::from_parts(
+                Vector::from(center),
+                Rotation::from_rotation_x(std::f32::consts::FRAC_PI_2),
+            ),
+            SharedShape::cylinder(half_height, radius),
+        ),
+    }
+}
+
+/// Every still solid of an arena as a parry shape at its pose: the
+/// obstacles that do not move, and walls, floor and ceiling as slabs 1 m
+/// thick that reach 5 m past each end.
 pub(crate) fn solids(arena: &Arena) -> Vec<(Pose, SharedShape)> {
-    let mut out: Vec<(Pose, SharedShape)> = arena
-        .obstacles
-        .iter()
-        .map(|o| match *o {
-            Obstacle::Box { center, half_extents: h } => (
-                Pose::from_translation(Vector::from(center)),
-                SharedShape::cuboid(h[0], h[1], h[2]),
-            ),
-            // Parry's cylinders stand along y; turn them upright.
-            Obstacle::Cylinder { center, radius, half_height } => (
-                Pose::from_parts(
-                    Vector::from(center),
-                    Rotation::from_rotation_x(std::f32::consts::FRAC_PI_2),
-                ),
-                SharedShape::cylinder(half_height, radius),
-            ),
-        })
-        .collect();
+    let mut out: Vec<(Pose, SharedShape)> =
+        arena.obstacles.iter().filter(|o| o.motion().is_none()).map(solid).collect();
     let (l, hw, h) = (arena.length, arena.width / 2.0, arena.height);
     let slabs = [
         (Vector::new(l / 2.0, hw + 0.5, h / 2.0), Vector::new(l / 2.0 + 5.0, 0.5, h / 2.0 + 1.0)),
@@ -373,19 +397,35 @@ pub(crate) fn solids(arena: &Arena) -> Vec<(Pose, SharedShape)> {
     out
 }
 
+/// The arena's moving obstacles.
+pub(crate) fn movers(arena: &Arena) -> Vec<Mover> {
+    arena
+        .obstacles
+        .iter()
+        .filter_map(|o| {
+            let motion = *o.motion()?;
+            let (pose, shape) = solid(o);
+            let (lo, hi) = o.swept_aabb();
+            Some(Mover { pose, shape, motion, swept: Aabb::new(lo.into(), hi.into()) })
+        })
+        .collect()
+}
+
 impl Geometry {
     pub(crate) fn new(arena: &Arena) -> Self {
         let shapes = solids(arena);
         let boxes: Vec<Aabb> = shapes.iter().map(|(pose, s)| s.compute_aabb(pose)).collect();
         let bvh = Bvh::from_leaves(BvhBuildStrategy::default(), &boxes);
-        Self { shapes, bvh }
+        Self { shapes, bvh, movers: movers(arena) }
     }
 
     /// Whether a sphere of `radius` moved along `path` (its positions, the
-    /// start first) touches any solid. Between two points further apart
-    /// than half the radius, points are added so that none of the path is
-    /// skipped.
-    pub(crate) fn path_hits(&self, path: &[Vector], radius: f32) -> bool {
+    /// start first, at time `t0` of the world's clock and every `dt` after)
+    /// touches any solid. Between two points further apart than half the
+    /// radius, points are added so that none of the path is skipped; against
+    /// a moving obstacle, the points are as close in the motion relative to
+    /// it, each tested against where the obstacle is at its own time.
+    pub(crate) fn path_hits(&self, path: &[Vector], radius: f32, t0: f64, dt: f64) -> bool {
         let Some(first) = path.first() else {
             return false;
         };
@@ -394,7 +434,7 @@ impl Geometry {
         let touches = |pose: &Pose, shape: &SharedShape, p: Vector| {
             shape.distance_to_point(pose, p, true) <= radius
         };
-        self.bvh.intersect_aabb(&query).any(|leaf| {
+        let still = self.bvh.intersect_aabb(&query).any(|leaf| {
             let (pose, shape) = &self.shapes[leaf as usize];
             let mut prev = *first;
             path.iter().any(|p| {
@@ -406,7 +446,23 @@ impl Geometry {
                 prev = *p;
                 hit
             })
-        })
+        });
+        still
+            || self.movers.iter().filter(|m| m.swept.intersects(&query)).any(|m| {
+                touches(&m.pose_at(t0), &m.shape, *first)
+                    || path.windows(2).enumerate().any(|(k, w)| {
+                        // The relative motion over the step is at most the
+                        // drone's plus the obstacle's path length.
+                        let reach = (w[1] - w[0]).length() + m.motion.speed() * dt as f32;
+                        let extra = ((reach / (0.5 * radius)).ceil() as usize).max(1);
+                        let ta = t0 + k as f64 * dt;
+                        (1..=extra).any(|j| {
+                            let f = j as f32 / extra as f32;
+                            let t = ta + f64::from(f) * dt;
+                            touches(&m.pose_at(t), &m.shape, w[0].lerp(w[1], f))
+                        })
+                    })
+            })
     }
 }
 
@@ -504,22 +560,188 @@ mod tests {
 
     #[test]
     fn a_path_touches_what_lies_within_the_radius_and_nothing_else() {
-        let g = Geometry::new(&arena(vec![Obstacle::Box {
-            center: [10.0, 0.0, 2.0],
-            half_extents: [0.5, 0.5, 2.0],
-        }]));
+        let g = Geometry::new(&arena(vec![Obstacle::still_box([10.0, 0.0, 2.0], [0.5, 0.5, 2.0])]));
         let z = 2.0;
         // Ends 0.31 m before the box's face at x = 9.5: clear.
-        assert!(!g.path_hits(&[Vector::new(8.0, 0.0, z), Vector::new(9.19, 0.0, z)], 0.3));
+        assert!(!g.path_hits(
+            &[Vector::new(8.0, 0.0, z), Vector::new(9.19, 0.0, z)],
+            0.3,
+            0.0,
+            0.02
+        ));
         // Ends 0.29 m before it: touching.
-        assert!(g.path_hits(&[Vector::new(8.0, 0.0, z), Vector::new(9.21, 0.0, z)], 0.3));
+        assert!(g.path_hits(
+            &[Vector::new(8.0, 0.0, z), Vector::new(9.21, 0.0, z)],
+            0.3,
+            0.0,
+            0.02
+        ));
         // Jumps clean over a thin box in one long step: the added points see it.
-        let thin = Geometry::new(&arena(vec![Obstacle::Box {
-            center: [10.0, 0.0, 2.0],
-            half_extents: [0.001, 3.0, 2.0],
-        }]));
-        assert!(thin.path_hits(&[Vector::new(5.0, 0.0, z), Vector::new(15.0, 0.0, z)], 0.3));
+        let thin =
+            Geometry::new(&arena(vec![Obstacle::still_box([10.0, 0.0, 2.0], [0.001, 3.0, 2.0])]));
+        assert!(thin.path_hits(
+            &[Vector::new(5.0, 0.0, z), Vector::new(15.0, 0.0, z)],
+            0.3,
+            0.0,
+            0.02
+        ));
         // The floor slab is a solid too.
-        assert!(g.path_hits(&[Vector::new(3.0, 0.0, 0.2)], 0.3));
+        assert!(g.path_hits(&[Vector::new(3.0, 0.0, 0.2)], 0.3, 0.0, 0.02));
+    }
+
+    /// Obstacles moving across the corridor and around a circle at the
+    /// moving level's top speed (0.6 m/s), and with `fast`, a thin one at
+    /// the fastest speed an arena allows.
+    fn moving_arena(fast: bool) -> Arena {
+        let seg = |offset, speed, phase| Some(Motion::Segment { offset, speed, phase });
+        let mut obstacles = vec![
+            Obstacle::Box {
+                center: [20.0, -1.5, 3.0],
+                half_extents: [0.4, 0.6, 3.0],
+                motion: seg([0.0, 3.0], 0.6, 0.0),
+            },
+            Obstacle::Cylinder {
+                center: [28.0, 0.0, 3.0],
+                radius: 0.5,
+                half_height: 3.0,
+                motion: Some(Motion::Circle { radius: 1.5, speed: 0.6, phase: 0.0 }),
+            },
+            Obstacle::Box {
+                center: [36.0, -4.0, 3.0],
+                half_extents: [0.3, 0.8, 3.0],
+                motion: seg([0.0, 8.0], -0.6, 0.5),
+            },
+        ];
+        if fast {
+            obstacles.push(Obstacle::Box {
+                center: [44.0, -5.0, 3.0],
+                half_extents: [0.05, 0.5, 3.0],
+                motion: seg([0.0, 10.0], crate::arena::MAX_OBSTACLE_SPEED, 0.0),
+            });
+        }
+        let a = arena(obstacles);
+        a.validate("moving").unwrap();
+        a
+    }
+
+    /// 48 drones across the corridor, staggered along x, flying straight on.
+    fn moving_drones(flight: &Flight) -> Vec<Drone> {
+        (0..48)
+            .map(|i| {
+                let (y, x) = (-5.0 + 10.0 * i as f32 / 47.0, 2.0 + (i as f32 * 0.61) % 4.0);
+                Drone::at(Vector::new(x, y, 3.0), Vector::new(1.0, 0.0, 0.0), flight.nominal())
+            })
+            .collect()
+    }
+
+    /// The least distance (between the drone's centre and the obstacle's
+    /// surface) over a physics step from `a` to `b` starting at `t`,
+    /// sampled 200 times: the truth the collision queries are held to.
+    fn least_distance(movers: &[Mover], a: Vector, b: Vector, t: f64, dt: f64) -> f32 {
+        let near = Aabb::new(a.min(b) - Vector::splat(1.0), a.max(b) + Vector::splat(1.0));
+        movers
+            .iter()
+            .filter(|m| m.swept.intersects(&near))
+            .flat_map(|m| {
+                (0..=200).map(move |j| {
+                    let f = j as f32 / 200.0;
+                    let pose = m.pose_at(t + f64::from(f) * dt);
+                    m.shape.distance_to_point(&pose, a.lerp(b, f), true)
+                })
+            })
+            .fold(f32::INFINITY, f32::min)
+    }
+
+    fn moving_flight() -> Flight {
+        Flight {
+            quad: QuadParams::default(),
+            gains: Gains::default(),
+            dt: 0.02,
+            forward_speed: 1.0,
+            altitude: 3.0,
+        }
+    }
+
+    /// Checks what a path found (`found[i]`: the first step it saw drone
+    /// `i` touch) against the truth (`truth[i]`: the first step it came
+    /// within 95 % of the radius; `least[i][k]`: its least distance in step
+    /// k): every contact found, no later than `late` steps after it began,
+    /// and nothing found that did not touch. Returns the drones that hit.
+    fn every_contact_found(found: &[Option<usize>], least: &[Vec<f32>], late: usize) -> usize {
+        let r = 0.3;
+        let mut hits = 0;
+        for (i, (f, l)) in found.iter().zip(least).enumerate() {
+            let truth = l.iter().position(|d| *d < 0.95 * r);
+            if let Some(t) = truth {
+                let f = f
+                    .unwrap_or_else(|| panic!("drone {i} came within {} m and was not seen", l[t]));
+                assert!(f <= t + late, "drone {i}: touched in step {t}, seen in step {f}");
+                hits += 1;
+            }
+            if let Some(f) = *f {
+                let near =
+                    l[f.saturating_sub(late)..=f].iter().copied().fold(f32::INFINITY, f32::min);
+                assert!(near <= r + 1e-3, "drone {i} seen touching in step {f} at {near} m");
+            }
+        }
+        hits
+    }
+
+    #[test]
+    fn the_direct_path_finds_every_contact_with_moving_obstacles() {
+        let a = moving_arena(true);
+        let (g, movers) = (Geometry::new(&a), movers(&a));
+        let flight = moving_flight();
+        let mut drones = moving_drones(&flight);
+        let (steps, dt) = (50, f64::from(flight.dt));
+        let mut path = vec![Vector::ZERO; drones.len() * (steps + 1)];
+        let mut found = vec![None; drones.len()];
+        let mut least = vec![Vec::new(); drones.len()];
+        for action in 0..50 {
+            let t0 = action as f64 * steps as f64 * dt;
+            flight.fly(&mut drones, &mut path, steps);
+            for (i, p) in path.chunks_exact(steps + 1).enumerate() {
+                if found[i].is_none() && g.path_hits(p, 0.3, t0, dt) {
+                    found[i] = Some(action);
+                }
+                let l = (0..steps)
+                    .map(|k| least_distance(&movers, p[k], p[k + 1], t0 + k as f64 * dt, dt))
+                    .fold(f32::INFINITY, f32::min);
+                least[i].push(l);
+            }
+        }
+        let hits = every_contact_found(&found, &least, 0);
+        println!("direct: {hits} of 48 drones hit");
+        assert!((5..=43).contains(&hits), "{hits} of 48 drones hit: the test must see both");
+    }
+
+    #[test]
+    fn the_rapier_path_finds_every_contact_with_moving_obstacles() {
+        let a = moving_arena(false);
+        let movers = movers(&a);
+        let flight = moving_flight();
+        let mut drones = moving_drones(&flight);
+        let mut world =
+            crate::rapier_flight::RapierFlight::new(&a, drones.len(), &flight, 0.3, false, 0.0);
+        for (i, d) in drones.iter().enumerate() {
+            world.load(i, d);
+        }
+        let dt = f64::from(flight.dt);
+        let mut found = vec![None; drones.len()];
+        let mut least = vec![Vec::new(); drones.len()];
+        for k in 0..2500 {
+            let before: Vec<Vector> = drones.iter().map(|d| d.p).collect();
+            world.step(&flight, &mut drones, k as f64 * dt);
+            for (i, d) in drones.iter().enumerate() {
+                if found[i].is_none() && d.collided {
+                    found[i] = Some(k);
+                }
+                least[i].push(least_distance(&movers, before[i], d.p, k as f64 * dt, dt));
+            }
+        }
+        // Contacts are read at the end of each step: within one step of the truth.
+        let hits = every_contact_found(&found, &least, 1);
+        println!("rapier: {hits} of 48 drones hit");
+        assert!((5..=43).contains(&hits), "{hits} of 48 drones hit: the test must see both");
     }
 }

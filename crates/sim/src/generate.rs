@@ -10,7 +10,7 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use serde::{Deserialize, Serialize};
 
-use crate::arena::{Arena, Obstacle, Spawn, first_unblocked_line};
+use crate::arena::{Arena, MAX_OBSTACLE_SPEED, Motion, Obstacle, Spawn, first_unblocked_line};
 
 /// How obstacles are placed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -69,6 +69,16 @@ pub struct GenParams {
     /// Steepest lateral slope of that path (metres sideways per metre
     /// forward): what the drone's lateral acceleration allows, with margin.
     pub path_slope: f32,
+    /// Share of the rows' (or the forest's) obstacles that move (0: none,
+    /// and nothing more is drawn, so the layouts are those of before).
+    /// Half of them go back and forth across the corridor, half around a
+    /// circle; the path check looks at the obstacles that stand still.
+    pub moving_share: f32,
+    /// Range of a moving obstacle's speed (m/s).
+    pub moving_speed: [f32; 2],
+    /// Range of a moving obstacle's travel: a segment's length, a circle's
+    /// diameter (metres).
+    pub moving_span: [f32; 2],
     /// Radius of the drone (metres): set from `sim.drone_radius`.
     #[serde(skip)]
     pub drone_radius: f32,
@@ -95,6 +105,9 @@ impl Default for GenParams {
             min_gap: 0.0,
             require_path: false,
             path_slope: 0.5,
+            moving_share: 0.0,
+            moving_speed: [0.2, 0.6],
+            moving_span: [1.0, 3.0],
             drone_radius: 0.3,
         }
     }
@@ -191,6 +204,32 @@ impl GenParams {
         if !(self.path_slope.is_finite() && self.path_slope > 0.0 && self.path_slope <= 3.0) {
             return bad("path_slope", format!("must lie in (0, 3], got {}", self.path_slope));
         }
+        if !(self.moving_share.is_finite() && (0.0..=1.0).contains(&self.moving_share)) {
+            return bad("moving_share", format!("must lie in [0, 1], got {}", self.moving_share));
+        }
+        let [s0, s1] = self.moving_speed;
+        if !(s0.is_finite() && s1.is_finite() && 0.0 <= s0 && s0 <= s1 && s1 <= MAX_OBSTACLE_SPEED)
+        {
+            return bad(
+                "moving_speed",
+                format!(
+                    "must be an ordered range in [0, {MAX_OBSTACLE_SPEED}] m/s, got {:?}",
+                    self.moving_speed
+                ),
+            );
+        }
+        let [a, b] = self.moving_span;
+        if !(a.is_finite() && b.is_finite() && 0.0 < a && a <= b && b <= self.width / 2.0) {
+            return bad(
+                "moving_span",
+                format!(
+                    "must be an ordered range of positive lengths up to half the width ({} m), \
+                     got {:?}",
+                    self.width / 2.0,
+                    self.moving_span
+                ),
+            );
+        }
         Ok(())
     }
 
@@ -235,7 +274,8 @@ impl Arena {
     /// to the end of the arena keeping `clearance` from every obstacle and
     /// wall, with a lateral slope of at most `slope`. A grid search in the
     /// horizontal plane (obstacles that do not span the spawn altitude are
-    /// ignored): x every 0.25 m, y every 0.05 m.
+    /// ignored, and so are moving ones: they leave any place they cross
+    /// free most of the time): x every 0.25 m, y every 0.05 m.
     pub fn has_path(&self, clearance: f32, slope: f32) -> bool {
         const DX: f32 = 0.25;
         const DY: f32 = 0.05;
@@ -252,13 +292,13 @@ impl Arena {
             .iter()
             .filter(|o| {
                 let (lo, hi) = o.aabb();
-                lo[2] - clearance < z && hi[2] + clearance > z
+                o.motion().is_none() && lo[2] - clearance < z && hi[2] + clearance > z
             })
             .collect();
         solids.sort_by(|a, b| a.aabb().0[0].total_cmp(&b.aabb().0[0]));
         let blocked = |x: f32, y: f32, near: &[&Obstacle]| {
             near.iter().any(|o| match **o {
-                Obstacle::Box { center, half_extents } => {
+                Obstacle::Box { center, half_extents, .. } => {
                     let dx = ((x - center[0]).abs() - half_extents[0]).max(0.0);
                     let dy = ((y - center[1]).abs() - half_extents[1]).max(0.0);
                     dx * dx + dy * dy < clearance * clearance
@@ -323,6 +363,13 @@ fn layout(name: &str, rng: &mut Pcg64Mcg, params: &GenParams) -> Arena {
         GenMode::Rows => rows(rng, params, end),
         GenMode::Forest => forest(rng, params, end),
     };
+    if params.moving_share > 0.0 {
+        for o in &mut obstacles {
+            if rng.random_bool(f64::from(params.moving_share)) {
+                set_moving(rng, params, o);
+            }
+        }
+    }
     if params.door_every > 0.0 {
         walls(rng, params, end, &mut obstacles);
     }
@@ -357,11 +404,42 @@ fn random_obstacle(rng: &mut Pcg64Mcg, params: &GenParams, x: f32, y: f32) -> Ob
     if rng.random_bool(0.5) {
         let hx = draw(rng, params.box_half_x);
         let hy = draw(rng, params.box_half_y);
-        Obstacle::Box { center: [x, y.clamp(-hw + hy, hw - hy), hz], half_extents: [hx, hy, hz] }
+        Obstacle::still_box([x, y.clamp(-hw + hy, hw - hy), hz], [hx, hy, hz])
     } else {
         let r = draw(rng, params.cylinder_radius);
-        Obstacle::Cylinder { center: [x, y.clamp(-hw + r, hw - r), hz], radius: r, half_height: hz }
+        Obstacle::still_cylinder([x, y.clamp(-hw + r, hw - r), hz], r, hz)
     }
+}
+
+/// Makes `o` move: back and forth across the corridor over a span drawn
+/// from `moving_span`, or around a circle of that diameter (even odds), at
+/// a speed drawn from `moving_speed`, from a random point of its cycle; its
+/// centre moved so that everywhere it goes lies inside the walls.
+fn set_moving(rng: &mut Pcg64Mcg, params: &GenParams, o: &mut Obstacle) {
+    let hw = params.width / 2.0;
+    let half_y = o.aabb().1[1] - o.center()[1];
+    let room = (params.width - 2.0 * half_y - 0.02).max(0.0);
+    let span = draw(rng, params.moving_span).min(room);
+    let speed = draw(rng, params.moving_speed);
+    let phase = rng.random_range(0.0..1.0);
+    let y = o.center()[1];
+    let (motion, lo, hi) = if rng.random_bool(0.5) {
+        // From `y - span / 2` to `y + span / 2`.
+        let m = Motion::Segment { offset: [0.0, span], speed, phase };
+        (m, -hw + half_y + 0.01, hw - half_y - 0.01 - span)
+    } else {
+        let r = span / 2.0;
+        let sign = if rng.random_bool(0.5) { 1.0 } else { -1.0 };
+        let m = Motion::Circle { radius: r.max(0.01), speed: sign * speed, phase };
+        (m, -hw + half_y + r + 0.01, hw - half_y - r - 0.01)
+    };
+    let base = match motion {
+        Motion::Segment { .. } => y - span / 2.0,
+        Motion::Circle { .. } => y,
+    };
+    let cy = if lo <= hi { base.clamp(lo, hi) } else { (lo + hi) / 2.0 };
+    *o = o.shifted([0.0, cy - y, 0.0]);
+    o.set_motion(Some(motion));
 }
 
 /// Rows `spacing` apart (±40 %) up to `end`, of 1 to `per_row` obstacles.
@@ -392,7 +470,7 @@ fn forest(rng: &mut Pcg64Mcg, params: &GenParams, end: f32) -> Vec<Obstacle> {
             let r = draw(rng, params.forest_radius);
             let x = rng.random_range(params.first_x..end);
             let y = rng.random_range(-hw + r..hw - r);
-            Obstacle::Cylinder { center: [x, y, hz], radius: r, half_height: hz }
+            Obstacle::still_cylinder([x, y, hz], r, hz)
         })
         .collect()
 }
@@ -406,10 +484,10 @@ fn walls(rng: &mut Pcg64Mcg, params: &GenParams, end: f32, obstacles: &mut Vec<O
         let c = rng.random_range(-hw + w / 2.0..=hw - w / 2.0);
         for (lo, hi) in [(-hw, c - w / 2.0), (c + w / 2.0, hw)] {
             if hi - lo > 0.05 {
-                obstacles.push(Obstacle::Box {
-                    center: [x, (lo + hi) / 2.0, hz],
-                    half_extents: [0.25, (hi - lo) / 2.0, hz],
-                });
+                obstacles.push(Obstacle::still_box(
+                    [x, (lo + hi) / 2.0, hz],
+                    [0.25, (hi - lo) / 2.0, hz],
+                ));
             }
         }
         x += params.door_every;
@@ -449,6 +527,37 @@ mod tests {
     }
 
     #[test]
+    fn a_share_of_obstacles_moves_inside_the_walls_and_none_without_it() {
+        let dense = GenParams {
+            spacing: 3.0,
+            per_row: 2,
+            box_half_y: [0.6, 1.5],
+            min_gap: 1.2,
+            require_path: true,
+            ..GenParams::default()
+        };
+        let moving = GenParams { moving_share: 0.3, moving_speed: [0.2, 0.6], ..dense.clone() };
+        let (mut movers, mut total, mut circles) = (0, 0, 0);
+        for seed in 0..20 {
+            let a = Arena::generate("m", seed, &moving);
+            a.validate("moving").unwrap();
+            assert!(a.has_path(moving.clearance(), moving.path_slope));
+            total += a.obstacles.len();
+            for m in a.obstacles.iter().filter_map(|o| o.motion()) {
+                movers += 1;
+                assert!((0.2..=0.6).contains(&m.speed()), "{m:?}");
+                circles += usize::from(matches!(m, Motion::Circle { .. }));
+            }
+            // Without a share nothing moves and nothing more is drawn.
+            let still = Arena::generate("m", seed, &dense);
+            assert!(still.obstacles.iter().all(|o| o.motion().is_none()));
+        }
+        let share = movers as f64 / total as f64;
+        assert!((0.15..0.35).contains(&share), "{movers} of {total} move");
+        assert!(circles > movers / 4 && circles < 3 * movers / 4, "{circles} circles of {movers}");
+    }
+
+    #[test]
     fn the_path_check_finds_a_closed_corridor_and_a_door() {
         let wall = |door: Option<(f32, f32)>| {
             let mut a = Arena::generate(
@@ -465,16 +574,13 @@ mod tests {
             a.obstacles.clear();
             let hw = a.width / 2.0;
             match door {
-                None => a.obstacles.push(Obstacle::Box {
-                    center: [10.0, 0.0, 3.0],
-                    half_extents: [0.25, hw, 3.0],
-                }),
+                None => a.obstacles.push(Obstacle::still_box([10.0, 0.0, 3.0], [0.25, hw, 3.0])),
                 Some((c, dw)) => {
                     for (lo, hi) in [(-hw, c - dw / 2.0), (c + dw / 2.0, hw)] {
-                        a.obstacles.push(Obstacle::Box {
-                            center: [10.0, (lo + hi) / 2.0, 3.0],
-                            half_extents: [0.25, (hi - lo) / 2.0, 3.0],
-                        });
+                        a.obstacles.push(Obstacle::still_box(
+                            [10.0, (lo + hi) / 2.0, 3.0],
+                            [0.25, (hi - lo) / 2.0, 3.0],
+                        ));
                     }
                 }
             }

@@ -17,6 +17,7 @@ use std::sync::mpsc;
 use rapier3d::math::Vector;
 use wgpu::util::DeviceExt;
 
+use crate::arena::Motion;
 use crate::render::{CameraPose, CameraSpec, Drones, Scene, Shape, frustum_floor_plan};
 
 /// wgpu's error as it came (boxed: wgpu has one type per operation).
@@ -139,6 +140,46 @@ pub struct GpuDepthRenderer {
     frame: Option<Frame>,
     staging: Vec<GpuCamera>,
     submissions: u64,
+    /// The moving obstacles (none: every obstacle stands still).
+    movers: Option<Movers>,
+}
+
+/// The moving obstacles' triangles, written into their vertex buffer where
+/// the obstacles are at every [`GpuDepthRenderer::set_time`], and drawn
+/// after the still scene by the cameras whose view reaches them.
+struct Movers {
+    /// Every mover's triangles at its centre, one mover after another.
+    base: Vec<[f32; 3]>,
+    /// Per mover: its vertices, its floor-plan bounds at its centre, its motion.
+    parts: Vec<(std::ops::Range<u32>, [f32; 2], [f32; 2], Motion)>,
+    /// Per mover: where it is now, from its centre.
+    offsets: Vec<[f32; 2]>,
+    moved: Vec<[f32; 3]>,
+    buffer: wgpu::Buffer,
+}
+
+impl Movers {
+    fn new(device: &wgpu::Device, scene: &Scene) -> Option<Self> {
+        if scene.movers.is_empty() {
+            return None;
+        }
+        let mut base = Vec::new();
+        let mut parts = Vec::new();
+        for &(_, shape, motion) in &scene.movers {
+            let first = base.len() as u32;
+            base.extend(shape_triangles(&shape, scene.height));
+            let (lo, hi) = shape.aabb();
+            parts.push((first..base.len() as u32, [lo.x, lo.y], [hi.x, hi.y], motion));
+        }
+        let buffer = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("moving obstacles"),
+            size: (base.len() * std::mem::size_of::<[f32; 3]>()) as u64,
+            usage: wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let offsets = vec![[0.0; 2]; parts.len()];
+        Some(Self { moved: base.clone(), base, parts, offsets, buffer })
+    }
 }
 
 impl std::fmt::Debug for GpuDepthRenderer {
@@ -260,6 +301,7 @@ impl GpuDepthRenderer {
         let (device, queue, adapter_name) = open_device()?;
         let (layout, scene_pipeline, drone_pipeline) = pipelines(&device);
         let layout_cull = SceneLayout::new(scene, spec.range);
+        let movers = Movers::new(&device, scene);
         let sphere = sphere_triangles();
         let vbuf = |label, v: &[[f32; 3]]| {
             device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -281,7 +323,7 @@ impl GpuDepthRenderer {
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        Ok(Self {
+        let mut me = Self {
             spec,
             device,
             queue,
@@ -299,7 +341,27 @@ impl GpuDepthRenderer {
             frame: None,
             staging: Vec::new(),
             submissions: 0,
-        })
+            movers,
+        };
+        me.set_time(0.0);
+        Ok(me)
+    }
+
+    /// Puts the moving obstacles where they are at time `t` of the world's
+    /// clock (as [`Scene::set_time`] does for the CPU renderer).
+    pub fn set_time(&mut self, t: f64) {
+        let Some(m) = &mut self.movers else {
+            return;
+        };
+        for (k, (range, _, _, motion)) in m.parts.iter().enumerate() {
+            let [dx, dy] = motion.offset(t);
+            m.offsets[k] = [dx, dy];
+            let r = range.start as usize..range.end as usize;
+            for (to, from) in m.moved[r.clone()].iter_mut().zip(&m.base[r]) {
+                *to = [from[0] + dx, from[1] + dy, from[2]];
+            }
+        }
+        self.queue.write_buffer(&m.buffer, 0, bytemuck::cast_slice(&m.moved));
     }
 
     /// The adapter in use, e.g. "llvmpipe (LLVM 15.0.6, 256 bits) (Vulkan, llvmpipe)".
@@ -472,6 +534,18 @@ impl GpuDepthRenderer {
             for r in &self.ranges {
                 pass.draw_indexed(r.clone(), 0, i..i + 1);
             }
+            if let Some(m) = &self.movers {
+                pass.set_vertex_buffer(0, m.buffer.slice(..));
+                for ((range, a, b, _), [dx, dy]) in m.parts.iter().zip(&m.offsets) {
+                    let seen = a[0] + dx <= hi[0]
+                        && b[0] + dx >= lo[0]
+                        && a[1] + dy <= hi[1]
+                        && b[1] + dy >= lo[1];
+                    if seen {
+                        pass.draw(range.clone(), i..i + 1);
+                    }
+                }
+            }
             if nd > 0 {
                 pass.set_pipeline(&self.drone_pipeline);
                 pass.set_vertex_buffer(0, self.sphere_vertices.slice(..));
@@ -620,7 +694,9 @@ impl SceneLayout {
         orient(&mut always, |c| [0.0, -c[1], h / 2.0 - c[2]]);
         let mut banded: Vec<(i32, f32, Vec<[f32; 3]>)> = Vec::new();
         let mut margin = 0.0f32;
-        for sh in &scene.shapes {
+        let moving: std::collections::HashSet<u32> = scene.movers.iter().map(|m| m.0).collect();
+        let still = scene.shapes.iter().enumerate().filter(|(i, _)| !moving.contains(&(*i as u32)));
+        for (_, sh) in still {
             let (cx, cy, ex, ey) = match *sh {
                 Shape::Box { min, max } => (
                     (min.x + max.x) / 2.0,

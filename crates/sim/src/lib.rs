@@ -17,7 +17,7 @@ pub mod realism;
 pub mod render;
 pub mod view;
 
-pub use arena::{Arena, ArenaError, Lanes, Obstacle, Spawn};
+pub use arena::{Arena, ArenaError, Lanes, MAX_OBSTACLE_SPEED, Motion, Obstacle, Spawn};
 pub use env::{
     Autoreset, Done, Episode, LanesError, PhysicsKind, RendererKind, SimConfig, StepTiming, VecEnv,
 };

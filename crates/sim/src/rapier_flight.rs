@@ -4,12 +4,18 @@
 //! narrow phase (the drone a sensor ball) after each. It is the reference the
 //! direct path (`flight.rs`) is tested against, and the path a researcher can
 //! compare with, side by side, in `hive bench sim --physics rapier`.
+//!
+//! Moving obstacles are kinematic bodies moved to where their motion puts
+//! them at the end of every physics step; contacts are found at each step's
+//! end, so an obstacle at the fastest speed an arena allows
+//! ([`MAX_OBSTACLE_SPEED`](crate::arena::MAX_OBSTACLE_SPEED), 0.2 m a step
+//! at 0.02 s) cannot pass through a drone's 0.3 m ball unseen.
 
 use rapier3d::prelude::*;
 
 use crate::arena::Arena;
 use crate::dynamics::{DroneState, control};
-use crate::flight::{Drone, Flight, LINEAR_DAMPING, solids};
+use crate::flight::{Drone, Flight, LINEAR_DAMPING, Mover, movers, solids};
 
 const GROUP_DRONE: Group = Group::GROUP_1;
 const GROUP_WORLD: Group = Group::GROUP_2;
@@ -19,6 +25,8 @@ pub(crate) struct RapierFlight {
     world: PhysicsWorld,
     bodies: Vec<RigidBodyHandle>,
     colliders: Vec<ColliderHandle>,
+    /// The moving obstacles and their kinematic bodies.
+    movers: Vec<(Mover, RigidBodyHandle)>,
 }
 
 impl std::fmt::Debug for RapierFlight {
@@ -28,13 +36,16 @@ impl std::fmt::Debug for RapierFlight {
 }
 
 impl RapierFlight {
-    /// The arena's solids as fixed colliders and one body per agent.
+    /// The arena's still solids as fixed colliders, its moving obstacles as
+    /// kinematic bodies where they are at time `t` of the world's clock, and
+    /// one body per agent.
     pub(crate) fn new(
         arena: &Arena,
         agents: usize,
         flight: &Flight,
         radius: f32,
         interactive: bool,
+        t: f64,
     ) -> Self {
         let mut world = PhysicsWorld::new();
         world.gravity = Vector::new(0.0, 0.0, -crate::dynamics::GRAVITY);
@@ -45,6 +56,15 @@ impl RapierFlight {
                 .colliders
                 .insert(ColliderBuilder::new(shape).position(pose).collision_groups(fixed));
         }
+        let movers = movers(arena)
+            .into_iter()
+            .map(|m| {
+                let body = RigidBodyBuilder::kinematic_position_based().pose(m.pose_at(t));
+                let collider = ColliderBuilder::new(m.shape.clone()).collision_groups(fixed);
+                let (handle, _) = world.insert(body, collider);
+                (m, handle)
+            })
+            .collect();
         let filter = if interactive { GROUP_WORLD | GROUP_DRONE } else { GROUP_WORLD };
         let groups = InteractionGroups::new(GROUP_DRONE, filter, InteractionTestMode::And);
         let q = flight.quad;
@@ -72,7 +92,7 @@ impl RapierFlight {
             bodies.push(b);
             colliders.push(c);
         }
-        Self { world, bodies, colliders }
+        Self { world, bodies, colliders, movers }
     }
 
     /// Sets body `i` to a drone's state.
@@ -85,9 +105,14 @@ impl RapierFlight {
         b.reset_torques(false);
     }
 
-    /// One physics step of every drone, then the collisions it found marked
-    /// on the drones, whose state is read back.
-    pub(crate) fn step(&mut self, flight: &Flight, drones: &mut [Drone]) {
+    /// One physics step of every drone from time `t` of the world's clock
+    /// (the moving obstacles moving on to where they are at its end), then
+    /// the collisions it found marked on the drones, whose state is read back.
+    pub(crate) fn step(&mut self, flight: &Flight, drones: &mut [Drone], t: f64) {
+        let end = t + f64::from(flight.dt);
+        for (m, h) in &self.movers {
+            self.world.bodies[*h].set_next_kinematic_position(m.pose_at(end));
+        }
         for (d, h) in drones.iter().zip(&self.bodies) {
             let b = &mut self.world.bodies[*h];
             let s = DroneState {

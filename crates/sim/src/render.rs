@@ -12,7 +12,7 @@ use std::sync::{Mutex, PoisonError};
 
 use rapier3d::math::{Rotation, Vector};
 
-use crate::arena::{Arena, Obstacle};
+use crate::arena::{Arena, Motion, Obstacle};
 use crate::pool::Pool;
 
 /// Intrinsics shared by every camera.
@@ -49,8 +49,21 @@ pub(crate) enum Shape {
 }
 
 impl Shape {
+    /// The same shape moved by `(dx, dy)`.
+    pub(crate) fn moved(&self, [dx, dy]: [f32; 2]) -> Self {
+        match *self {
+            Shape::Box { min, max } => {
+                let d = Vector::new(dx, dy, 0.0);
+                Shape::Box { min: min + d, max: max + d }
+            }
+            Shape::Cylinder { cx, cy, r2, zmin, zmax } => {
+                Shape::Cylinder { cx: cx + dx, cy: cy + dy, r2, zmin, zmax }
+            }
+        }
+    }
+
     /// Axis-aligned bounds.
-    fn aabb(&self) -> (Vector, Vector) {
+    pub(crate) fn aabb(&self) -> (Vector, Vector) {
         match *self {
             Shape::Box { min, max } => (min, max),
             Shape::Cylinder { cx, cy, r2, zmin, zmax } => {
@@ -61,10 +74,14 @@ impl Shape {
     }
 }
 
-/// The static scene: obstacles in a grid, and the corridor's bounding planes.
+/// The scene: obstacles in a grid, and the corridor's bounding planes. A
+/// moving obstacle sits in every cell it passes through, and its shape is
+/// where [`Scene::set_time`] last put it.
 #[derive(Debug, Clone)]
 pub struct Scene {
     pub(crate) shapes: Vec<Shape>,
+    /// The moving obstacles: index in `shapes`, shape at its centre, motion.
+    pub(crate) movers: Vec<(u32, Shape, Motion)>,
     nx: usize,
     ny: usize,
     x0: f32,
@@ -87,16 +104,16 @@ const CELL: f32 = 2.0;
 impl Scene {
     /// Builds the scene and its grid index from an arena.
     pub fn new(arena: &Arena) -> Self {
-        let shapes: Vec<Shape> = arena
+        let mut shapes: Vec<Shape> = arena
             .obstacles
             .iter()
             .map(|o| match *o {
-                Obstacle::Box { center, half_extents } => {
+                Obstacle::Box { center, half_extents, .. } => {
                     let c = Vector::from(center);
                     let h = Vector::from(half_extents);
                     Shape::Box { min: c - h, max: c + h }
                 }
-                Obstacle::Cylinder { center, radius, half_height } => Shape::Cylinder {
+                Obstacle::Cylinder { center, radius, half_height, .. } => Shape::Cylinder {
                     cx: center[0],
                     cy: center[1],
                     r2: radius * radius,
@@ -112,7 +129,7 @@ impl Scene {
         let ny = ((arena.width + 2.0 * CELL) / CELL).ceil() as usize + 1;
         let mut cells = vec![Vec::new(); nx * ny];
         for (i, o) in arena.obstacles.iter().enumerate() {
-            let (lo, hi) = o.aabb();
+            let (lo, hi) = o.swept_aabb();
             let (ax, ay) = cell_of(x0, y0, lo[0], lo[1], nx, ny);
             let (bx, by) = cell_of(x0, y0, hi[0], hi[1], nx, ny);
             for gx in ax..=bx {
@@ -121,8 +138,18 @@ impl Scene {
                 }
             }
         }
+        let movers: Vec<(u32, Shape, Motion)> = arena
+            .obstacles
+            .iter()
+            .enumerate()
+            .filter_map(|(i, o)| Some((i as u32, shapes[i], *o.motion()?)))
+            .collect();
+        for &(i, base, m) in &movers {
+            shapes[i as usize] = base.moved(m.offset(0.0));
+        }
         Self {
             shapes,
+            movers,
             nx,
             ny,
             x0,
@@ -132,6 +159,14 @@ impl Scene {
             height: arena.height,
             x_extent: (0.0, arena.length),
             lanes: Vec::new(),
+        }
+    }
+
+    /// Puts every moving obstacle where it is at time `t` (seconds of the
+    /// world's clock).
+    pub fn set_time(&mut self, t: f64) {
+        for &(i, base, m) in &self.movers {
+            self.shapes[i as usize] = base.moved(m.offset(t));
         }
     }
 
@@ -701,10 +736,7 @@ mod tests {
     fn a_wall_at_distance_d_reads_d() {
         let spec = CameraSpec { range: 30.0, ..CameraSpec::default() };
         for d in [1.0f32, 3.5, 12.25] {
-            let wall = Obstacle::Box {
-                center: [10.0 + d + 0.5, 0.0, 5.0],
-                half_extents: [0.5, 19.0, 4.9],
-            };
+            let wall = Obstacle::still_box([10.0 + d + 0.5, 0.0, 5.0], [0.5, 19.0, 4.9]);
             let img = render(
                 &arena(vec![wall]),
                 CameraPose { position: Vector::new(10.0, 0.0, 5.0), rotation: Rotation::IDENTITY },
@@ -724,7 +756,7 @@ mod tests {
     #[test]
     fn cylinder_depth_matches_the_analytic_distance() {
         let spec = CameraSpec { range: 30.0, ..CameraSpec::default() };
-        let cyl = Obstacle::Cylinder { center: [20.0, 0.0, 5.0], radius: 1.0, half_height: 5.0 };
+        let cyl = Obstacle::still_cylinder([20.0, 0.0, 5.0], 1.0, 5.0);
         let img = render(
             &arena(vec![cyl]),
             CameraPose { position: Vector::new(10.0, 0.0, 5.0), rotation: Rotation::IDENTITY },

@@ -229,7 +229,7 @@ pub fn draw(env: &VecEnv, tracks: &Tracks, focus: Focus<'_>, canvas: &mut Canvas
     let scale = (TOP as f32 / (BEHIND + AHEAD)).min((HEIGHT - 8) as f32 / arena.width);
     let top = (HEIGHT as f32 - arena.width * scale) / 2.0;
     let to_px = |x: f32, y: f32| ((x - x0) * scale, top + (arena.width / 2.0 - y) * scale);
-    top_view(canvas, arena, &to_px, scale);
+    top_view(canvas, arena, &to_px, (scale, env.time()));
     for (i, path) in tracks.paths.iter().enumerate() {
         let c = AGENT + (i % AGENT_COLOURS) as u8;
         for w in path.windows(2) {
@@ -261,7 +261,7 @@ fn top_view(
     canvas: &mut Canvas,
     arena: &Arena,
     to_px: &impl Fn(f32, f32) -> (f32, f32),
-    scale: f32,
+    (scale, t): (f32, f64),
 ) {
     let (lx, ty) = to_px(0.0, arena.width / 2.0);
     let (rx, by) = to_px(arena.length, -arena.width / 2.0);
@@ -270,9 +270,10 @@ fn top_view(
     canvas.rect(0, by.ceil() as i32, TOP as i32, HEIGHT as i32, WALL, TOP);
     canvas.rect(rx as i32, ty as i32, rx as i32 + 2, by as i32, GOAL, TOP);
     canvas.rect(lx as i32 - 2, ty as i32, lx as i32, by as i32, WALL, TOP);
-    for o in &arena.obstacles {
-        match *o {
-            Obstacle::Box { center: c, half_extents: h } => {
+    // Moving obstacles where they are now.
+    for o in arena.obstacles.iter().map(|o| o.at(t)) {
+        match o {
+            Obstacle::Box { center: c, half_extents: h, .. } => {
                 let (ax, ay) = to_px(c[0] - h[0], c[1] + h[1]);
                 let (bx, by) = to_px(c[0] + h[0], c[1] - h[1]);
                 canvas.rect(

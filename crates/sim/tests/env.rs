@@ -60,7 +60,7 @@ fn velocity_setpoint_is_tracked_within_ten_percent_after_two_seconds() {
 #[test]
 fn flying_into_an_obstacle_is_a_collision_and_resets_only_that_agent() {
     // Agent 0 spawns right in front of a wall; agent 1 flies in open air beside it.
-    let wall = Obstacle::Box { center: [5.0, -5.0, 4.0], half_extents: [0.5, 4.0, 4.0] };
+    let wall = Obstacle::still_box([5.0, -5.0, 4.0], [0.5, 4.0, 4.0]);
     let mut env = VecEnv::new(cfg(2), open_arena(100.0, vec![wall]), 3).unwrap();
     env.place(0, [2.0, -5.0, 3.0], [1.0, 0.0, 0.0]);
     env.place(1, [2.0, 5.0, 3.0], [1.0, 0.0, 0.0]);
@@ -254,10 +254,7 @@ fn shipped_arenas_punish_trivial_policies() {
 fn lanes_put_arenas_side_by_side_and_keep_them_apart() {
     use rotorhive_sim::{CameraPose, CameraSpec, DepthRenderer, Lanes, Scene};
     let a = open_arena(100.0, vec![]);
-    let b = open_arena(
-        100.0,
-        vec![Obstacle::Box { center: [30.0, 0.0, 4.0], half_extents: [1.0, 1.0, 4.0] }],
-    );
+    let b = open_arena(100.0, vec![Obstacle::still_box([30.0, 0.0, 4.0], [1.0, 1.0, 4.0])]);
     let lanes = Lanes::new(&[a.clone(), b.clone()]).unwrap();
     assert_eq!(lanes.offsets.len(), 2);
     assert!((lanes.offsets[1] - lanes.offsets[0] - 21.0).abs() < 1e-4, "{:?}", lanes.offsets);
@@ -292,10 +289,7 @@ fn lanes_put_arenas_side_by_side_and_keep_them_apart() {
 
 #[test]
 fn without_autoreset_an_ended_agent_keeps_its_last_frames_until_it_is_reset() {
-    let arena = open_arena(
-        100.0,
-        vec![Obstacle::Box { center: [30.0, 0.0, 4.0], half_extents: [0.5, 10.0, 4.0] }],
-    );
+    let arena = open_arena(100.0, vec![Obstacle::still_box([30.0, 0.0, 4.0], [0.5, 10.0, 4.0])]);
     let mut env = VecEnv::new(SimConfig { max_steps: 3, ..cfg(2) }, arena, 7).unwrap();
     env.set_autoreset(Autoreset::Disabled);
     let start = env.observations().to_vec();
@@ -453,7 +447,7 @@ fn a_new_world_ends_every_flight_as_a_timeout_and_starts_the_next_in_it() {
     let mut env = VecEnv::new(cfg(4), open_arena(100.0, vec![]), 1).unwrap();
     env.step(&[0, 1, 0, 1]).unwrap();
     // The next world has a wall across the corridor at x = 10.
-    let wall = Obstacle::Box { center: [10.0, 0.0, 4.0], half_extents: [0.3, 10.0, 4.0] };
+    let wall = Obstacle::still_box([10.0, 0.0, 4.0], [0.3, 10.0, 4.0]);
     env.replace_arenas(&[open_arena(100.0, vec![wall])]).unwrap();
     env.step(&[0, 1, 0, 1]).unwrap();
     assert!(env.dones().iter().all(|d| *d == Done::Timeout), "{:?}", env.dones());

@@ -82,8 +82,8 @@ fn nothing_tunnels_through_the_thinnest_wall_at_the_highest_speed() {
     let cfg = SimConfig { agents, physics: PhysicsKind::Direct, ..SimConfig::default() };
     // A wall along the arena, 0.2 mm thick, crossed sideways at the largest
     // lateral speed; and one across it, met head on.
-    let along = Obstacle::Box { center: [100.0, 3.0, 4.0], half_extents: [95.0, THIN, 4.0] };
-    let across = Obstacle::Box { center: [150.0, -6.0, 4.0], half_extents: [THIN, 3.0, 4.0] };
+    let along = Obstacle::still_box([100.0, 3.0, 4.0], [95.0, THIN, 4.0]);
+    let across = Obstacle::still_box([150.0, -6.0, 4.0], [THIN, 3.0, 4.0]);
     let arena = open_arena(200.0, 30.0, vec![along, across]);
     let mut env = VecEnv::new(cfg.clone(), arena.clone(), 9).unwrap();
     env.set_autoreset(Autoreset::Disabled);

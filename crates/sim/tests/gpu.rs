@@ -8,7 +8,9 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use rapier3d::math::{Rotation, Vector};
 use rotorhive_sim::render::Drones;
-use rotorhive_sim::{Arena, CameraPose, CameraSpec, DepthRenderer, GpuDepthRenderer, Scene};
+use rotorhive_sim::{
+    Arena, CameraPose, CameraSpec, DepthRenderer, GenParams, GpuDepthRenderer, Scene,
+};
 
 fn arena() -> Arena {
     Arena::load(&PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../configs/arenas/train.toml"))
@@ -34,7 +36,7 @@ fn random_views(arena: &Arena, n: usize, seed: u64) -> Vec<CameraPose> {
             * Rotation::from_rotation_x(rng.random_range(-0.2..0.2));
         // Where a drone can be: not inside or touching an obstacle.
         let clear = arena.obstacles.iter().all(|o| {
-            let (lo, hi) = o.aabb();
+            let (lo, hi) = o.swept_aabb();
             (0..3).any(|k| position[k] < lo[k] - 0.5 || position[k] > hi[k] + 0.5)
         });
         if clear {
@@ -117,6 +119,38 @@ fn wgpu_matches_cpu_on_random_views() {
     // Pixels that differ are rare (edges, where a ray grazes a corner).
     assert!(off < 0.01, "{} % of pixels differ by more than 5 cm", off * 100.0);
     assert_eq!(g.submissions(), 1, "one submission for all cameras");
+}
+
+#[test]
+fn wgpu_matches_cpu_where_obstacles_move() {
+    let params = GenParams { spacing: 3.0, per_row: 2, moving_share: 0.5, ..GenParams::default() };
+    let arena = Arena::generate("moving", 5, &params);
+    let moving = arena.obstacles.iter().filter(|o| o.motion().is_some()).count();
+    assert!(moving > 10, "{moving} obstacles move");
+    let mut scene = Scene::new(&arena);
+    let spec = CameraSpec::default();
+    let cams = random_views(&arena, 60, 11);
+    let px = spec.side * spec.side;
+    let agents: Vec<u32> = (0..cams.len() as u32).collect();
+    let mut g = gpu(spec, &scene);
+    let mut before: Option<Vec<f32>> = None;
+    for t in [0.0, 4.0, 11.5] {
+        scene.set_time(t);
+        g.set_time(t);
+        let mut cpu = vec![0.0; cams.len() * px];
+        let mut out = vec![0.0; cams.len() * px];
+        DepthRenderer::new(spec, 1).render(&scene, &cams, 0, None, &mut cpu);
+        g.render(&cams, &agents, None, &mut out).unwrap();
+        let (mae, off) = compare(&cpu, &out, spec);
+        assert!(mae < 0.01, "t = {t}: mean absolute error {mae} m over non-edge pixels");
+        assert!(off < 0.01, "t = {t}: {} % of pixels differ by more than 5 cm", off * 100.0);
+        // The obstacles did move: the views changed.
+        if let Some(b) = &before {
+            let changed = b.iter().zip(&cpu).filter(|(a, c)| (*a - *c).abs() * spec.range > 0.1);
+            assert!(changed.count() > 200, "t = {t}: the views hardly changed");
+        }
+        before = Some(cpu);
+    }
 }
 
 #[test]
