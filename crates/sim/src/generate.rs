@@ -204,6 +204,12 @@ impl GenParams {
         if !(self.path_slope.is_finite() && self.path_slope > 0.0 && self.path_slope <= 3.0) {
             return bad("path_slope", format!("must lie in (0, 3], got {}", self.path_slope));
         }
+        self.validate_moving()
+    }
+
+    /// Checks the keys of moving obstacles.
+    fn validate_moving(&self) -> Result<(), GenParamError> {
+        let bad = |key, message: String| Err(GenParamError { key, message });
         if !(self.moving_share.is_finite() && (0.0..=1.0).contains(&self.moving_share)) {
             return bad("moving_share", format!("must lie in [0, 1], got {}", self.moving_share));
         }
@@ -526,16 +532,21 @@ mod tests {
         }
     }
 
-    #[test]
-    fn a_share_of_obstacles_moves_inside_the_walls_and_none_without_it() {
-        let dense = GenParams {
+    /// Rows of one or two obstacles every 3 m or so, with a path (L1's).
+    fn dense() -> GenParams {
+        GenParams {
             spacing: 3.0,
             per_row: 2,
-            box_half_y: [0.6, 1.5],
+            box_half_y: [0.6, 1.8],
             min_gap: 1.2,
             require_path: true,
             ..GenParams::default()
-        };
+        }
+    }
+
+    #[test]
+    fn a_share_of_obstacles_moves_inside_the_walls_and_none_without_it() {
+        let dense = dense();
         let moving = GenParams { moving_share: 0.3, moving_speed: [0.2, 0.6], ..dense.clone() };
         let (mut movers, mut total, mut circles) = (0, 0, 0);
         for seed in 0..20 {
@@ -598,14 +609,7 @@ mod tests {
 
     #[test]
     fn every_level_layout_has_a_path() {
-        let dense = GenParams {
-            spacing: 3.0,
-            per_row: 2,
-            box_half_y: [0.6, 1.8],
-            min_gap: 1.2,
-            require_path: true,
-            ..GenParams::default()
-        };
+        let dense = dense();
         let forest = GenParams {
             mode: GenMode::Forest,
             length: 300.0,

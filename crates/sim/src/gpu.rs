@@ -151,12 +151,15 @@ struct Movers {
     /// Every mover's triangles at its centre, one mover after another.
     base: Vec<[f32; 3]>,
     /// Per mover: its vertices, its floor-plan bounds at its centre, its motion.
-    parts: Vec<(std::ops::Range<u32>, [f32; 2], [f32; 2], Motion)>,
+    parts: Vec<MoverPart>,
     /// Per mover: where it is now, from its centre.
     offsets: Vec<[f32; 2]>,
     moved: Vec<[f32; 3]>,
     buffer: wgpu::Buffer,
 }
+
+/// One moving obstacle's vertices, floor-plan bounds (at its centre) and motion.
+type MoverPart = (std::ops::Range<u32>, [f32; 2], [f32; 2], Motion);
 
 impl Movers {
     fn new(device: &wgpu::Device, scene: &Scene) -> Option<Self> {
