@@ -193,12 +193,7 @@ fn draw_arena(arena: &Arena, paths: &[Vec<(f32, f32)>], out: &Path) -> Result<()
                     .map_err(plot_err)?;
             }
             Obstacle::Cylinder { center, radius, .. } => {
-                let pts: Vec<(f32, f32)> = (0..24)
-                    .map(|k| {
-                        let t = k as f32 / 24.0 * std::f32::consts::TAU;
-                        (center[0] + radius * t.cos(), center[1] + radius * t.sin())
-                    })
-                    .collect();
+                let pts = circle([center[0], center[1]], radius, 24);
                 chart
                     .draw_series(std::iter::once(Polygon::new(pts, BLACK.mix(0.7).filled())))
                     .map_err(plot_err)?;
@@ -213,12 +208,11 @@ fn draw_arena(arena: &Arena, paths: &[Vec<(f32, f32)>], out: &Path) -> Result<()
                 Motion::Segment { offset, .. } => {
                     vec![(c[0], c[1]), (c[0] + offset[0], c[1] + offset[1])]
                 }
-                Motion::Circle { radius, .. } => (0..=48)
-                    .map(|k| {
-                        let a = k as f32 / 48.0 * std::f32::consts::TAU;
-                        (c[0] + radius * a.cos(), c[1] + radius * a.sin())
-                    })
-                    .collect(),
+                Motion::Circle { radius, .. } => {
+                    let mut ring = circle([c[0], c[1]], radius, 48);
+                    ring.push(ring[0]);
+                    ring
+                }
             };
             chart
                 .draw_series(LineSeries::new(track, RED.mix(0.6).stroke_width(2)))
@@ -255,4 +249,14 @@ pub fn show_depth(a: ShowDepthArgs) -> Result<()> {
     img.save(&a.out).with_context(|| format!("cannot write {}", a.out.display()))?;
     println!("wrote {} (previous | current frame, white = far)", a.out.display());
     Ok(())
+}
+
+/// `n` points evenly around a circle of `radius` about `c`, from angle 0.
+fn circle(c: [f32; 2], radius: f32, n: usize) -> Vec<(f32, f32)> {
+    (0..n)
+        .map(|k| {
+            let a = k as f32 / n as f32 * std::f32::consts::TAU;
+            (c[0] + radius * a.cos(), c[1] + radius * a.sin())
+        })
+        .collect()
 }

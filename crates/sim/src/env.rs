@@ -194,8 +194,9 @@ enum Physics {
 /// What an environment builds from its world (the lanes side by side):
 /// the flight at the world's altitude, the physics, the CPU scene with the
 /// lanes' bounds and, with the wgpu renderer, its scene on the GPU. A new
-/// world (a curriculum's next stage) builds them again the same way, its
-/// moving obstacles where they are at the world's time.
+/// world (a curriculum's next stage) builds them again the same way (the
+/// rapier path's moving obstacles where they are at the world's time; the
+/// scenes are put there before each render).
 struct World {
     flight: Flight,
     physics: Physics,
@@ -225,14 +226,9 @@ impl World {
         };
         let mut scene = Scene::new(arena);
         scene.set_lanes(bounds);
-        scene.set_time(t);
         let gpu = match cfg.renderer {
             RendererKind::Cpu => None,
-            RendererKind::Wgpu => {
-                let mut g = GpuDepthRenderer::new(cfg.camera, &scene)?;
-                g.set_time(t);
-                Some(g)
-            }
+            RendererKind::Wgpu => Some(GpuDepthRenderer::new(cfg.camera, &scene)?),
         };
         Ok(Self { flight, physics, scene, gpu })
     }
@@ -702,12 +698,17 @@ impl VecEnv {
         cam
     }
 
-    fn render(&mut self) -> Result<(), GpuError> {
+    /// Puts the renderers' moving obstacles where they are now.
+    fn place_obstacles(&mut self) {
         let t = self.time();
         self.scene.set_time(t);
         if let Some(g) = &mut self.gpu {
             g.set_time(t);
         }
+    }
+
+    fn render(&mut self) -> Result<(), GpuError> {
+        self.place_obstacles();
         let cams: Vec<CameraPose> = (0..self.cfg.agents).map(|i| self.camera_at(i)).collect();
         let positions: Vec<Vector> = cams.iter().map(|c| c.position).collect();
         let drones = self
@@ -790,6 +791,7 @@ impl VecEnv {
             self.render()?;
         } else {
             // Only the reset agents' views change: draw just those.
+            self.place_obstacles();
             let mut img = vec![0.0; reset.len() * px];
             let cams: Vec<CameraPose> = reset.iter().map(|i| self.camera(*i)).collect();
             match &mut self.gpu {

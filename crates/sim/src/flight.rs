@@ -431,37 +431,45 @@ impl Geometry {
         };
         let (lo, hi) = path.iter().fold((*first, *first), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
         let query = Aabb::new(lo - Vector::splat(radius), hi + Vector::splat(radius));
-        let touches = |pose: &Pose, shape: &SharedShape, p: Vector| {
-            shape.distance_to_point(pose, p, true) <= radius
-        };
-        let still = self.bvh.intersect_aabb(&query).any(|leaf| {
+        let sweep = Sweep { path, radius, t0, dt };
+        self.bvh.intersect_aabb(&query).any(|leaf| {
             let (pose, shape) = &self.shapes[leaf as usize];
-            let mut prev = *first;
-            path.iter().any(|p| {
-                let gap = (*p - prev).length();
-                let extra = (gap / (0.5 * radius)).ceil() as usize;
-                let hit = (1..extra)
-                    .any(|k| touches(pose, shape, prev.lerp(*p, k as f32 / extra as f32)))
-                    || touches(pose, shape, *p);
-                prev = *p;
-                hit
-            })
-        });
-        still
-            || self.movers.iter().filter(|m| m.swept.intersects(&query)).any(|m| {
-                touches(&m.pose_at(t0), &m.shape, *first)
-                    || path.windows(2).enumerate().any(|(k, w)| {
-                        // The relative motion over the step is at most the
-                        // drone's plus the obstacle's path length.
-                        let reach = (w[1] - w[0]).length() + m.motion.speed() * dt as f32;
-                        let extra = ((reach / (0.5 * radius)).ceil() as usize).max(1);
-                        let ta = t0 + k as f64 * dt;
-                        (1..=extra).any(|j| {
-                            let f = j as f32 / extra as f32;
-                            let t = ta + f64::from(f) * dt;
-                            touches(&m.pose_at(t), &m.shape, w[0].lerp(w[1], f))
-                        })
-                    })
+            sweep.touches(shape, 0.0, |_| *pose)
+        }) || self
+            .movers
+            .iter()
+            .filter(|m| m.swept.intersects(&query))
+            .any(|m| sweep.touches(&m.shape, m.motion.speed(), |t| m.pose_at(t)))
+    }
+}
+
+/// A sphere of `radius` moved along `path` (its positions at time `t0` of
+/// the world's clock and every `dt` after).
+struct Sweep<'a> {
+    path: &'a [Vector],
+    radius: f32,
+    t0: f64,
+    dt: f64,
+}
+
+impl Sweep<'_> {
+    /// Whether it touches `shape`, which moves at `speed` and is at
+    /// `pose_at(t)` at time `t`: each point of the path is tested, and
+    /// points are added between two wherever the drone's and the shape's
+    /// travel over the step sum to more than half the radius, each tested
+    /// against where the shape is at its own time.
+    fn touches(&self, shape: &SharedShape, speed: f32, pose_at: impl Fn(f64) -> Pose) -> bool {
+        let (path, r, dt) = (self.path, self.radius, self.dt);
+        let near = |t: f64, p: Vector| shape.distance_to_point(&pose_at(t), p, true) <= r;
+        near(self.t0, path[0])
+            || path.windows(2).enumerate().any(|(k, w)| {
+                let reach = (w[1] - w[0]).length() + speed * dt as f32;
+                let extra = ((reach / (0.5 * r)).ceil() as usize).max(1);
+                let ta = self.t0 + k as f64 * dt;
+                (1..extra).any(|j| {
+                    let f = j as f32 / extra as f32;
+                    near(ta + f64::from(f) * dt, w[0].lerp(w[1], f))
+                }) || near(ta + dt, w[1])
             })
     }
 }
