@@ -20,7 +20,10 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use crate::error::{Doing, Result, failed, usage};
-use rotorhive_msg::{ActionHeader, OBS_LEN, ObsHeader, PACKED_LEN, obs_batch_len};
+use rotorhive_msg::{ActionHeader, ObsHeader, Shapes};
+
+const OBS_LEN: usize = Shapes::PAPER.obs_len();
+const PACKED_LEN: usize = Shapes::PAPER.packed_len();
 use rotorhive_transport::{Channel, Hub, Ipc, services_of_run};
 use serde::{Deserialize, Serialize};
 use serde_json::json;
@@ -29,9 +32,9 @@ use serde_json::json;
 /// packed transitions).
 fn kinds() -> [(&'static str, usize); 4] {
     [
-        ("obs_batch", obs_batch_len(50)),
+        ("obs_batch", Shapes::PAPER.obs_batch_len(50)),
         ("transition_batch", 50 * PACKED_LEN / 2),
-        ("weights", rotorhive_model::num_params()),
+        ("weights", rotorhive_model::num_params(Shapes::PAPER)),
         ("empty", 1),
     ]
 }

@@ -7,7 +7,10 @@ use crate::error::{Result, usage};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use rotorhive_model::{Device, Dqn, DqnConfig};
-use rotorhive_msg::{OBS_LEN, TRANSITION_LEN};
+use rotorhive_msg::Shapes;
+
+const OBS_LEN: usize = Shapes::PAPER.obs_len();
+const TRANSITION_LEN: usize = Shapes::PAPER.transition_len();
 use rotorhive_roles::Config;
 use rotorhive_roles::learner::dqn_config;
 

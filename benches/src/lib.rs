@@ -513,7 +513,7 @@ impl ObsHop {
         let hub = Hub::<Ipc>::new(&prefix, "bench-render-sim")?;
         let tx = hub.sender::<f32, rotorhive_msg::ObsHeader>(
             &ch,
-            rotorhive_msg::obs_batch_len(n),
+            rotorhive_msg::Shapes::PAPER.obs_batch_len(n),
             std::time::Duration::from_secs(5),
         )?;
         let (done_tx, gathered) = std::sync::mpsc::channel();
@@ -524,7 +524,8 @@ impl ObsHop {
             let hub = Hub::<Ipc>::new(&prefix, "bench-render-actor")?;
             let mut rx = hub.receiver::<f32, rotorhive_msg::ObsHeader>(&ch)?;
             let _ = ready_tx.send(());
-            let mut gather = rotorhive_roles::actor::Gather::new(n);
+            let mut gather =
+                rotorhive_roles::actor::Gather::new(n, rotorhive_msg::Shapes::PAPER.obs_len());
             while !halt.load(std::sync::atomic::Ordering::Relaxed) {
                 let Some(m) = rx.recv_timeout(std::time::Duration::from_millis(10))? else {
                     continue;

@@ -14,7 +14,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use crate::error::{BenchError, Doing, Result, failed, usage};
-use rotorhive_msg::{PACKED_LEN, TransitionHeader};
+use rotorhive_msg::{Shapes, TransitionHeader};
+
+const PACKED_LEN: usize = Shapes::PAPER.packed_len();
 use rotorhive_transport::{Channel, Hub, Ipc};
 use serde::{Deserialize, Serialize};
 use serde_json::json;
@@ -27,7 +29,8 @@ const RUN: &str = "bench-link";
 /// (smooth ramps between 0.2 and 1 of the range, open sky at 1), the same
 /// bytes on both paths: raw through the link, msgpack-encoded in the baseline.
 fn sample_batch(batch: usize) -> Vec<u16> {
-    use rotorhive_msg::{DEPTH_PIXELS, FRAMES, OBS_LEN};
+    use rotorhive_msg::{DEPTH_PIXELS, FRAMES};
+    const OBS_LEN: usize = Shapes::PAPER.obs_len();
     let mut out = vec![0u16; batch * PACKED_LEN];
     let mut s = vec![0f32; OBS_LEN];
     let mut next = vec![0f32; OBS_LEN];
@@ -42,7 +45,7 @@ fn sample_batch(batch: usize) -> Vec<u16> {
             s[FRAMES * DEPTH_PIXELS + v] = 0.5 + v as f32;
             next[FRAMES * DEPTH_PIXELS + v] = 0.6 + v as f32;
         }
-        rotorhive_msg::pack_transition(&s, &next, (k % 2) as f32, 1.5, 0.0, o);
+        Shapes::PAPER.pack(&s, &next, [(k % 2) as f32, 1.5, 0.0], o);
     }
     out
 }
@@ -218,7 +221,7 @@ pub fn side(
     batch: usize,
     tls: Option<std::path::PathBuf>,
 ) -> Result<()> {
-    let layout = rotorhive_link::layout(rotorhive_model::num_params());
+    let layout = rotorhive_link::layout(rotorhive_model::num_params(Shapes::PAPER));
     // The run's access control as `hive train` and `hive worker` set it.
     match side {
         "head" => head_side(
@@ -331,9 +334,10 @@ fn worker_side(
     let (ready_tx, ready_rx) = std::sync::mpsc::channel::<()>();
     let producer = spawn_producer(batch, stop.clone(), ready_rx);
     let mut stats = rotorhive_link::WorkerStats::default();
-    let end = w.bridge(&hub, 1, 2, rotorhive_model::num_params(), &mut stats, move || {
-        let _ = ready_tx.send(());
-    });
+    let end =
+        w.bridge(&hub, 1, 2, rotorhive_model::num_params(Shapes::PAPER), &mut stats, move || {
+            let _ = ready_tx.send(());
+        });
     stop.store(true, Ordering::SeqCst);
     let produced =
         producer.join().map_err(|_| BenchError::Failed("producer panicked".into()))??;

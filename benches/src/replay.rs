@@ -13,12 +13,14 @@ use std::time::{Duration, Instant};
 
 use crate::error::{Doing, Result, failed, usage};
 use rotorhive_msg::{
-    MinibatchHeader, OBS_LEN, PACKED_LEN, PICK_WORDS, Pick, PriorityHeader, Telemetry,
-    TransitionHeader, pack_transition,
+    MinibatchHeader, PICK_WORDS, Pick, PriorityHeader, Shapes, Telemetry, TransitionHeader,
 };
 use rotorhive_roles::replay::minibatch_len;
 use rotorhive_transport::{Channel, Hub, Ipc, services_of_run};
 use serde_json::json;
+
+const OBS_LEN: usize = Shapes::PAPER.obs_len();
+const PACKED_LEN: usize = Shapes::PAPER.packed_len();
 
 /// Transitions per producer message (one actor's batch for 50 agents).
 const PER_MSG: usize = 50;
@@ -36,7 +38,7 @@ pub fn producer(prefix: &str, index: usize, producers: usize, batches: usize) ->
     let mut src = vec![0u16; PER_MSG * PACKED_LEN];
     let obs = vec![0.5f32; OBS_LEN];
     for (i, t) in src.chunks_exact_mut(PACKED_LEN).enumerate() {
-        pack_transition(&obs, &obs, (i % 2) as f32, 3.0, 0.0, t);
+        Shapes::PAPER.pack(&obs, &obs, [(i % 2) as f32, 3.0, 0.0], t);
     }
     // A burst sent right after a publisher's creation can lose messages to
     // the subscriber made before it (iceoryx2 0.10, seen in `bench link`
@@ -308,7 +310,7 @@ fn sample_for(
     let mut n = 0u64;
     while t.elapsed().as_secs_f64() < secs {
         if let Some(m) = rx.recv_timeout(Duration::from_millis(500))? {
-            if m.payload().len() != minibatch_len(32) {
+            if m.payload().len() != minibatch_len(Shapes::PAPER, 32) {
                 failed!("minibatch of the wrong size");
             }
             feed_back(&m)?;

@@ -76,7 +76,10 @@ pub fn run(a: EvalArgs) -> Result<()> {
         bail!("--episodes must be positive");
     }
     let policy = a.policy.unwrap_or(PolicyKind::Greedy);
-    let net = QNet::new(0, &Device::Cpu)?;
+    let (cfg, source) = config(&a)?;
+    // The network of the task flown: a checkpoint of other shapes (a goal
+    // task's on the paper's, say) is refused, naming them.
+    let net = QNet::with_shapes(cfg.shapes(), 0, &Device::Cpu)?;
     match (policy, &a.checkpoint) {
         (PolicyKind::Greedy, Some(c)) => net.load(c)?,
         (PolicyKind::Greedy, None) => bail!("--policy greedy needs --checkpoint"),
@@ -85,7 +88,6 @@ pub fn run(a: EvalArgs) -> Result<()> {
         }
         (PolicyKind::Reactive, None) => {}
     }
-    let (cfg, source) = config(&a)?;
     let layouts: Vec<Arena> = if a.arena.is_empty() {
         cfg.test_arenas()?
     } else {

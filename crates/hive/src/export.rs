@@ -21,12 +21,15 @@ pub fn run(a: ExportArgs) -> Result<()> {
     if a.out.extension().and_then(|e| e.to_str()) != Some("onnx") {
         bail!("--out {}: the file must end in .onnx", a.out.display());
     }
-    let net = QNet::new(0, &Device::Cpu)?;
+    let shapes = rotorhive_model::checkpoint_shapes(&a.checkpoint)?;
+    let net = QNet::with_shapes(shapes, 0, &Device::Cpu)?;
     net.load(&a.checkpoint)?;
     net.to_onnx(&a.out, &[("source", a.checkpoint.display().to_string())])?;
     println!(
-        "{}: inputs depth (B, 2, 32, 32) and velocity (B, 3), output q (B, 2)",
-        a.out.display()
+        "{}: inputs depth (B, 2, 32, 32) and velocity (B, {}), output q (B, {})",
+        a.out.display(),
+        shapes.scalars,
+        shapes.actions
     );
     Ok(())
 }

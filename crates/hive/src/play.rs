@@ -58,7 +58,8 @@ pub fn run(a: PlayArgs) -> Result<()> {
     if a.out.extension().and_then(|e| e.to_str()) != Some("gif") {
         bail!("--out {}: only .gif videos are written", a.out.display());
     }
-    let net = QNet::new(0, &Device::Cpu)?;
+    let shapes = rotorhive_model::checkpoint_shapes(&a.checkpoint)?;
+    let net = QNet::with_shapes(shapes, 0, &Device::Cpu)?;
     net.load(&a.checkpoint)?;
     let arena = Arena::load(&a.arena)?;
     let start = Instant::now();
@@ -111,7 +112,12 @@ impl<W: std::io::Write> Recording<W> {
     /// `seed + round`) to its end, a frame per action step, following the
     /// focused drone and then the next one still flying.
     fn round(&mut self, a: &PlayArgs, net: &QNet, arena: &Arena, round: usize) -> Result<()> {
-        let cfg = SimConfig { agents: a.agents, ..SimConfig::default() };
+        // A checkpoint of a task with a goal or the hold action flies with
+        // them (the goal's default settings).
+        let shapes = net.shapes();
+        let mut cfg = SimConfig { agents: a.agents, ..SimConfig::default() };
+        cfg.goal.enabled = shapes.scalars > rotorhive_msg::VEL_DIM;
+        cfg.hold_action = shapes.actions > rotorhive_msg::NUM_ACTIONS;
         let mut env = VecEnv::new(cfg, arena.clone(), a.seed + round as u64)?;
         env.set_autoreset(Autoreset::Disabled);
         let mut tracks = Tracks::new(&env);
@@ -120,9 +126,11 @@ impl<W: std::io::Write> Recording<W> {
         let mut focus = a.focus;
         for _ in 0..=env.config().max_steps {
             let q = net.q_values(env.observations())?;
-            let actions: Vec<u8> = q.chunks_exact(2).map(|q| u8::from(q[1] > q[0])).collect();
-            let depth = &env.observations()[focus * obs_len..focus * obs_len + obs_len - 3];
-            let focus_q = [q[2 * focus], q[2 * focus + 1]];
+            let na = shapes.actions;
+            let actions = net.greedy(env.observations())?;
+            let depth =
+                &env.observations()[focus * obs_len..focus * obs_len + obs_len - shapes.scalars];
+            let focus_q = &q[na * focus..na * focus + na];
             let shown =
                 Focus { agent: focus, depth, q: Some(focus_q), action: Some(actions[focus]) };
             view::draw(&env, &tracks, shown, &mut canvas);

@@ -64,7 +64,7 @@ pub fn run(a: WorkerArgs) -> Result<()> {
     let token = join_token(&run_dir)?;
     let sent_log = run_dir.join("link-sent");
     let hello = Hello {
-        layout: rotorhive_link::layout(rotorhive_model::num_params()),
+        layout: rotorhive_link::layout(rotorhive_model::num_params(rotorhive_msg::Shapes::PAPER)),
         envs: a.envs,
         agents: a.agents.unwrap_or(0),
         host: name.clone(),
@@ -156,7 +156,7 @@ fn serve(
                 &hub,
                 cfg.sim.envs,
                 roles_of(cfg),
-                rotorhive_model::num_params(),
+                rotorhive_model::num_params(cfg.shapes()),
                 stats,
                 move || {
                     let _ = ready_tx.send(());

@@ -7,8 +7,8 @@
 //! whatever the bytes (property-tested below).
 
 use rotorhive_msg::{
-    EPISODE_FIELDS, EpisodeHeader, PACKED_DEPTH, PACKED_LEN, PACKED_SCALARS, RoleKind, Telemetry,
-    TransitionHeader, WeightsHeader, episode_corrupt, scalars_corrupt,
+    EPISODE_FIELDS, EpisodeHeader, PACKED_DEPTH, RoleKind, Shapes, Telemetry, TransitionHeader,
+    WeightsHeader, episode_corrupt,
 };
 
 use crate::delivery::LinkHeader;
@@ -56,10 +56,11 @@ impl<'a> Fragments<'a> {
 
 /// Checks a transition batch from `host`: headers (the batch's, then its
 /// place in the link's stream), exact length, the sender's environment, and
-/// every transition's scalars (the depth words have no invalid value). The
-/// payload stays in its fragments.
+/// every transition's scalars for the run's `shapes` (the depth words have
+/// no invalid value). The payload stays in its fragments.
 pub fn transitions(
     host: &Host,
+    shapes: Shapes,
     attachment: Option<&[u8]>,
     frags: &[&[u8]],
 ) -> Result<(TransitionHeader, LinkHeader), Reject> {
@@ -68,7 +69,8 @@ pub fn transitions(
         return Err(Reject::Count(h.count));
     }
     let got: usize = frags.iter().map(|f| f.len()).sum();
-    let want = h.count as usize * PACKED_LEN * 2;
+    let packed = shapes.packed_len();
+    let want = h.count as usize * packed * 2;
     if got != want {
         return Err(Reject::Length { got, want });
     }
@@ -76,17 +78,17 @@ pub fn transitions(
         return Err(Reject::Actor(h.actor));
     }
     let mut cur = Fragments::new(frags);
-    let mut raw = [0u8; PACKED_SCALARS * 4];
+    let mut raw = vec![0u8; shapes.packed_scalars() * 4];
+    let mut s = vec![0f32; shapes.packed_scalars()];
     let mut bad = 0;
     for i in 0..h.count as usize {
-        if !cur.read((i * PACKED_LEN + PACKED_DEPTH) * 2, &mut raw) {
+        if !cur.read((i * packed + PACKED_DEPTH) * 2, &mut raw) {
             return Err(Reject::Length { got, want });
         }
-        let mut s = [0f32; PACKED_SCALARS];
         for (v, b) in s.iter_mut().zip(raw.chunks_exact(4)) {
             *v = f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
         }
-        bad += scalars_corrupt(&s) as u64;
+        bad += shapes.scalars_corrupt(&s) as u64;
     }
     if bad > 0 {
         return Err(Reject::Values(bad));
@@ -185,7 +187,7 @@ pub fn weights(
 mod tests {
     use super::*;
     use proptest::prelude::*;
-    use rotorhive_msg::{OBS_LEN, pack_transition};
+    const PACKED_LEN: usize = Shapes::PAPER.packed_len();
 
     fn host() -> Host {
         Host {
@@ -200,10 +202,10 @@ mod tests {
     }
 
     fn batch(actor: u32, rows: &[(f32, f32, f32)]) -> (Vec<u8>, Vec<u8>) {
-        let obs = vec![0.5f32; OBS_LEN];
+        let obs = vec![0.5f32; Shapes::PAPER.obs_len()];
         let mut words = vec![0u16; rows.len() * PACKED_LEN];
         for (t, &(a, r, d)) in words.chunks_exact_mut(PACKED_LEN).zip(rows) {
-            pack_transition(&obs, &obs, a, r, d, t);
+            Shapes::PAPER.pack(&obs, &obs, [a, r, d], t);
         }
         let h = TransitionHeader { actor, count: rows.len() as u32, seq: 0, weight_version: 0 };
         let link = LinkHeader { epoch: 0, seq: 0 };
@@ -215,29 +217,47 @@ mod tests {
         let good = [(1.0, 3.0, 0.0), (0.0, -100.0, 1.0)];
         let (h, p) = batch(2, &good);
         // Whole, and in fragments cut anywhere (also inside a scalar).
-        assert!(transitions(&host(), Some(&h), &[&p]).is_ok());
+        assert!(transitions(&host(), Shapes::PAPER, Some(&h), &[&p]).is_ok());
         for cut in [1, 7, PACKED_DEPTH * 2 + 3, p.len() - 1] {
             let (a, b) = p.split_at(cut);
-            assert!(transitions(&host(), Some(&h), &[a, b]).is_ok(), "cut at {cut}");
+            assert!(transitions(&host(), Shapes::PAPER, Some(&h), &[a, b]).is_ok(), "cut at {cut}");
         }
         assert_eq!(
-            transitions(&host(), Some(&h), &[&p[1..]]).unwrap_err(),
+            transitions(&host(), Shapes::PAPER, Some(&h), &[&p[1..]]).unwrap_err(),
             Reject::Length { got: p.len() - 1, want: p.len() }
         );
         let odd = [&p[..], &[0u8][..]].concat();
-        assert!(matches!(transitions(&host(), Some(&h), &[&odd]), Err(Reject::Length { .. })));
-        assert_eq!(transitions(&host(), Some(&h[1..]), &[&p]).unwrap_err(), Reject::Header);
-        assert_eq!(transitions(&host(), None, &[&p]).unwrap_err(), Reject::Header);
+        assert!(matches!(
+            transitions(&host(), Shapes::PAPER, Some(&h), &[&odd]),
+            Err(Reject::Length { .. })
+        ));
+        assert_eq!(
+            transitions(&host(), Shapes::PAPER, Some(&h[1..]), &[&p]).unwrap_err(),
+            Reject::Header
+        );
+        assert_eq!(transitions(&host(), Shapes::PAPER, None, &[&p]).unwrap_err(), Reject::Header);
         // Environment 0 is the head's and 3 is past this host's two.
         for actor in [0, 3, u32::MAX] {
             let (h, p) = batch(actor, &good);
-            assert_eq!(transitions(&host(), Some(&h), &[&p]).unwrap_err(), Reject::Actor(actor));
+            assert_eq!(
+                transitions(&host(), Shapes::PAPER, Some(&h), &[&p]).unwrap_err(),
+                Reject::Actor(actor)
+            );
         }
         let (h, p) = batch(1, &[(1.0, f32::NAN, 0.0), (2.0, 1.0, 0.0), (0.0, 1.0, 0.5)]);
         let (a, b) = p.split_at(PACKED_DEPTH * 2 + 1);
-        assert_eq!(transitions(&host(), Some(&h), &[a, b]).unwrap_err(), Reject::Values(3));
+        assert_eq!(
+            transitions(&host(), Shapes::PAPER, Some(&h), &[a, b]).unwrap_err(),
+            Reject::Values(3)
+        );
+        // With the hold action, action 2 is one of the run's.
+        let hold = Shapes::task(false, true);
+        assert_eq!(transitions(&host(), hold, Some(&h), &[a, b]).unwrap_err(), Reject::Values(2));
         let (h, _) = batch(1, &[]);
-        assert_eq!(transitions(&host(), Some(&h), &[]).unwrap_err(), Reject::Count(0));
+        assert_eq!(
+            transitions(&host(), Shapes::PAPER, Some(&h), &[]).unwrap_err(),
+            Reject::Count(0)
+        );
     }
 
     #[test]
@@ -317,7 +337,7 @@ mod tests {
         fn arbitrary_bytes_are_refused_or_read_never_a_panic(att in proptest::collection::vec(any::<u8>(), 0..200), p in proptest::collection::vec(any::<u8>(), 0..20_000), cut in 0usize..20_000) {
             let cut = cut.min(p.len());
             let (a, b) = p.split_at(cut);
-            let _ = transitions(&host(), Some(&att), &[a, b]);
+            let _ = transitions(&host(), Shapes::PAPER, Some(&att), &[a, b]);
             let _ = episodes(&host(), Some(&att), &p);
             let _ = telemetry(&host(), Some(&att), p.len());
             let _ = weights(3, Some(&att), &p);
@@ -331,7 +351,7 @@ mod tests {
         fn arbitrary_headers_with_arbitrary_payloads(actor in any::<u32>(), count in any::<u32>(), p in proptest::collection::vec(any::<u8>(), 0..40_000)) {
             let h = TransitionHeader { actor, count, seq: 0, weight_version: 0 };
             let att = wire::transition_attachment(&h, &LinkHeader::default());
-            let r = transitions(&host(), Some(&att), &[&p]);
+            let r = transitions(&host(), Shapes::PAPER, Some(&att), &[&p]);
             prop_assert!(r.is_err() || p.len() == count as usize * PACKED_LEN * 2);
             let e = EpisodeHeader { actor, count, epsilon_micro: 0, step: 0 };
             let r = episodes(&host(), Some(wire::header_bytes(&e)), &p);

@@ -106,7 +106,7 @@ pub(crate) fn head_loop<S: Service>(
     };
     let end_pub = publisher("end", CongestionControl::Block)?;
     let total_envs = envs + head.hosts.iter().map(|h| h.envs as usize).sum::<usize>();
-    let max_batch = rotorhive_msg::PACKED_LEN * check::MAX_BATCH;
+    let max_batch = head.shapes.packed_len() * check::MAX_BATCH;
     if let Ok(mut l) = stats.lost_by_env.lock() {
         *l = vec![0; total_envs];
     }
@@ -233,11 +233,12 @@ impl<S: Service> HeadBridge<'_, S> {
     /// send retried while the replay is full or restarting).
     fn transitions_in(&mut self, smp: &zenoh::sample::Sample) -> Result<()> {
         let (stats, hosts, run) = (self.stats, &self.head.hosts, &self.head.run);
+        let shapes = self.head.shapes;
         let t = Instant::now();
         let payload = smp.payload();
         let frags: Vec<&[u8]> = payload.slices().collect();
         let Some((slot, h, link)) = accept(stats, hosts, smp, run, "transitions", |host, att| {
-            check::transitions(host, att, &frags).map(|(h, l)| (host.slot, h, l))
+            check::transitions(host, shapes, att, &frags).map(|(h, l)| (host.slot, h, l))
         }) else {
             return Ok(());
         };

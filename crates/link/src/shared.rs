@@ -20,11 +20,13 @@ pub(crate) const MAX_EPISODES_BYTES: usize = check::MAX_EPISODES * EPISODE_FIELD
 pub(crate) const MAX_TELEMETRY_BYTES: usize = 4096;
 
 /// The layout this build sends: the message layout, the link's delivery
-/// headers and the model's size.
+/// headers and the model's size, of the paper's task (a worker says it
+/// before it has the run's config; the shapes then come with the config,
+/// the same for every host of one build).
 pub fn layout(num_params: usize) -> u64 {
     let delivery = std::mem::size_of::<crate::delivery::LinkHeader>()
         + std::mem::size_of::<crate::delivery::Ack>();
-    rotorhive_msg::layout_fingerprint()
+    rotorhive_msg::layout_fingerprint(rotorhive_msg::Shapes::PAPER)
         ^ (num_params as u64).rotate_left(17)
         ^ (delivery as u64).rotate_left(41)
 }

@@ -9,9 +9,9 @@ use std::time::Instant;
 
 use candle_core::{D, DType, Tensor};
 
-use crate::kernels::{OFFSETS, Rows, Workspace, poisoned};
+use crate::kernels::{Rows, Workspace, offsets, poisoned};
 use crate::ops::{AdamHyper, AdamStep, adam};
-use crate::{ACTIONS, ModelError, OBS_LEN, PARAMS, QNet, Result, TRANSITION_LEN, argmax};
+use crate::{ModelError, QNet, Result, Shapes, argmax, params};
 
 /// Hyper-parameters of the DQN update.
 #[derive(Debug, Clone, Copy)]
@@ -87,8 +87,9 @@ struct Adam {
 }
 
 impl Adam {
-    fn new(cfg: &DqnConfig) -> Self {
-        let sizes = PARAMS.iter().map(|(_, s)| s.iter().product::<usize>());
+    fn new(cfg: &DqnConfig, shapes: Shapes) -> Self {
+        let specs = params(shapes);
+        let sizes = specs.iter().map(|(_, s)| s.iter().product::<usize>());
         Self {
             lr: cfg.lr as f32,
             lr_final: cfg.lr_final as f32,
@@ -112,10 +113,11 @@ impl Adam {
     /// One step with the gradients of every parameter, flat in canonical order.
     fn step(&mut self, net: &QNet, grads: &[f32]) -> Result<()> {
         self.t += 1;
+        let off = offsets(net.shapes());
         let hyper =
             AdamHyper { lr: self.lr_at(self.t), beta1: 0.9, beta2: 0.999, eps: 1e-8, t: self.t };
         for (i, ((var, m), v)) in net.vars().iter().zip(&mut self.m).zip(&mut self.v).enumerate() {
-            let g = &grads[OFFSETS[i]..OFFSETS[i + 1]];
+            let g = &grads[off[i]..off[i + 1]];
             if var.device().is_cpu() {
                 var.as_tensor().inplace_op1(&AdamStep {
                     grad: g,
@@ -164,48 +166,56 @@ pub struct Dqn {
 
 /// The gradients [`Dqn::compute_gradients`] left, flat in canonical order.
 fn gradients_in<'a>(
-    fused: bool,
+    net: &QNet,
     generic: &'a mut [f32],
     work: &'a mut [Mutex<Workspace>],
 ) -> Result<&'a mut [f32]> {
-    match (fused, work.first_mut()) {
-        (true, Some(ws)) => Ok(&mut ws.get_mut().map_err(poisoned)?.grads[..OFFSETS[10]]),
+    match (net.fused(), work.first_mut()) {
+        (true, Some(ws)) => Ok(&mut ws.get_mut().map_err(poisoned)?.grads[..net.num_params()]),
         (true, None) => Err(ModelError::NoGradient("none computed yet")),
         (false, _) => Ok(generic),
     }
 }
 
 /// Checks a minibatch's size and actions; returns its rows.
-fn rows_of(batch: &[f32]) -> Result<usize> {
-    if batch.is_empty() || !batch.len().is_multiple_of(TRANSITION_LEN) {
-        return Err(ModelError::Shape {
-            what: "minibatch",
-            expected: TRANSITION_LEN,
-            got: batch.len(),
-        });
+fn rows_of(batch: &[f32], shapes: Shapes) -> Result<usize> {
+    let len = shapes.transition_len();
+    if batch.is_empty() || !batch.len().is_multiple_of(len) {
+        return Err(ModelError::Shape { what: "minibatch", expected: len, got: batch.len() });
     }
-    for t in batch.chunks_exact(TRANSITION_LEN) {
-        let a = t[2 * OBS_LEN];
-        if !(a >= 0.0 && (a as usize) < ACTIONS && a.fract() == 0.0) {
+    for t in batch.chunks_exact(len) {
+        let a = t[2 * shapes.obs_len()];
+        if !(a >= 0.0 && (a as usize) < shapes.actions && a.fract() == 0.0) {
             return Err(ModelError::Shape {
-                what: "minibatch action (0 or 1)",
-                expected: ACTIONS,
+                what: "minibatch action (one of the actions)",
+                expected: shapes.actions,
                 got: a as usize,
             });
         }
     }
-    Ok(batch.len() / TRANSITION_LEN)
+    Ok(batch.len() / len)
 }
 
 impl Dqn {
-    /// A learner with freshly initialised networks.
+    /// A learner with freshly initialised networks of the paper's task's
+    /// shapes; see [`Dqn::with_shapes`].
     pub fn new(cfg: DqnConfig, seed: u64, device: &candle_core::Device) -> Result<Self> {
-        let online = QNet::new(seed, device)?;
-        let target = QNet::new(seed, device)?;
+        Self::with_shapes(cfg, Shapes::PAPER, seed, device)
+    }
+
+    /// A learner with freshly initialised networks for `shapes`.
+    pub fn with_shapes(
+        cfg: DqnConfig,
+        shapes: Shapes,
+        seed: u64,
+        device: &candle_core::Device,
+    ) -> Result<Self> {
+        let online = QNet::with_shapes(shapes, seed, device)?;
+        let target = QNet::with_shapes(shapes, seed, device)?;
         Ok(Self {
             online,
             target,
-            opt: Adam::new(&cfg),
+            opt: Adam::new(&cfg, shapes),
             cfg,
             updates: 0,
             timing: UpdateTiming::default(),
@@ -269,7 +279,8 @@ impl Dqn {
     /// of `s'`.
     fn target_of(&self, t: &[f32], q_target: &[f32], q_online: &[f32]) -> f32 {
         let pick = if self.cfg.double { q_online } else { q_target };
-        let (r, done) = (t[2 * OBS_LEN + 1], t[2 * OBS_LEN + 2]);
+        let at = 2 * self.online.shapes().obs_len();
+        let (r, done) = (t[at + 1], t[at + 2]);
         r * self.cfg.reward_scale + self.cfg.gamma * (1.0 - done) * q_target[argmax(pick)]
     }
 
@@ -280,11 +291,11 @@ impl Dqn {
         (loss, e.clamp(-d, d))
     }
 
-    /// The mean Huber TD loss of a minibatch (`n × TRANSITION_LEN` floats) as
+    /// The mean Huber TD loss of a minibatch (`n × transition_len` floats) as
     /// a differentiable candle tensor over stock candle ops: the reference
     /// the fused path is tested against, and the path off the CPU.
     pub fn loss(&self, batch: &[f32]) -> Result<Tensor> {
-        let n = rows_of(batch)?;
+        let n = rows_of(batch, self.online.shapes())?;
         Ok(self.loss_generic(batch, n, None)?.0)
     }
 
@@ -297,10 +308,12 @@ impl Dqn {
         weights: Option<&[f32]>,
     ) -> Result<(Tensor, Vec<f32>)> {
         let dev = self.online.device();
+        let shapes = self.online.shapes();
+        let (ol, tl, na) = (shapes.obs_len(), shapes.transition_len(), shapes.actions);
         let column = |from: usize, len: usize| -> Vec<f32> {
-            batch.chunks_exact(TRANSITION_LEN).flat_map(|t| t[from..from + len].to_vec()).collect()
+            batch.chunks_exact(tl).flat_map(|t| t[from..from + len].to_vec()).collect()
         };
-        let s2 = Tensor::from_vec(column(OBS_LEN, OBS_LEN), (n, OBS_LEN), dev)?;
+        let s2 = Tensor::from_vec(column(ol, ol), (n, ol), dev)?;
         let q_target =
             self.target.forward_generic(&s2)?.detach().flatten_all()?.to_vec1::<f32>()?;
         let q_online = if self.cfg.double {
@@ -309,23 +322,14 @@ impl Dqn {
             q_target.clone()
         };
         let y: Vec<f32> = batch
-            .chunks_exact(TRANSITION_LEN)
+            .chunks_exact(tl)
             .enumerate()
             .map(|(i, t)| {
-                self.target_of(
-                    t,
-                    &q_target[i * ACTIONS..(i + 1) * ACTIONS],
-                    &q_online[i * ACTIONS..(i + 1) * ACTIONS],
-                )
+                self.target_of(t, &q_target[i * na..(i + 1) * na], &q_online[i * na..(i + 1) * na])
             })
             .collect();
-        let actions: Vec<u32> =
-            batch.chunks_exact(TRANSITION_LEN).map(|t| t[2 * OBS_LEN] as u32).collect();
-        let q = self.online.forward_generic(&Tensor::from_vec(
-            column(0, OBS_LEN),
-            (n, OBS_LEN),
-            dev,
-        )?)?;
+        let actions: Vec<u32> = batch.chunks_exact(tl).map(|t| t[2 * ol] as u32).collect();
+        let q = self.online.forward_generic(&Tensor::from_vec(column(0, ol), (n, ol), dev)?)?;
         let a = Tensor::from_vec(actions, (n, 1), dev)?;
         let y = Tensor::from_vec(y, (n, 1), dev)?;
         let abs = (q.gather(&a, D::Minus1)? - y)?.abs()?;
@@ -351,38 +355,38 @@ impl Dqn {
         ws: &mut Workspace,
     ) -> Result<Shard> {
         let t0 = Instant::now();
-        let n = part.len() / TRANSITION_LEN;
-        let s = Rows { data: part, stride: TRANSITION_LEN, offset: 0, n };
-        let s2 = Rows { offset: OBS_LEN, ..s };
+        let shapes = self.online.shapes();
+        let (ol, tl, na) = (shapes.obs_len(), shapes.transition_len(), shapes.actions);
+        let n = part.len() / tl;
+        let s = Rows { data: part, stride: tl, offset: 0, n, len: ol };
+        let s2 = Rows { offset: ol, ..s };
         self.target.with_weights(|w| ws.forward(w, &[s2]))?;
-        ws.keep_q(n);
+        ws.keep_q(n, na);
         self.online.with_weights(|w| {
             let both = [s, s2];
             ws.forward(w, if self.cfg.double { &both } else { &both[..1] })?;
             // Rows 0..n: Q(s); rows n..2n (double DQN): the online Q(s').
             let mut td = std::mem::take(&mut ws.td);
             td.clear();
-            let (q, q_target, dq) = ws.loss_view(n);
+            let (q, q_target, dq) = ws.loss_view(n, na);
             let mut loss = 0.0;
             let mut stats = UpdateStats { rows: n as u32, ..UpdateStats::default() };
-            for (i, t) in part.chunks_exact(TRANSITION_LEN).enumerate() {
-                let qt = &q_target[i * ACTIONS..(i + 1) * ACTIONS];
+            for (i, t) in part.chunks_exact(tl).enumerate() {
+                let qt = &q_target[i * na..(i + 1) * na];
                 let y = self.target_of(
                     t,
                     qt,
-                    if self.cfg.double { &q[(n + i) * ACTIONS..(n + i + 1) * ACTIONS] } else { qt },
+                    if self.cfg.double { &q[(n + i) * na..(n + i + 1) * na] } else { qt },
                 );
-                let at = i * ACTIONS + t[2 * OBS_LEN] as usize;
+                let at = i * na + t[2 * ol] as usize;
                 let (l, g) = self.huber(q[at] - y);
                 let w = weights.map_or(1.0, |w| w[i]);
                 loss += l * w;
                 dq[at] = g * w / denom as f32;
-                stats.max_q_sum += q[i * ACTIONS..(i + 1) * ACTIONS]
-                    .iter()
-                    .fold(f32::NEG_INFINITY, |m, v| m.max(*v))
-                    as f64;
+                stats.max_q_sum +=
+                    q[i * na..(i + 1) * na].iter().fold(f32::NEG_INFINITY, |m, v| m.max(*v)) as f64;
                 stats.abs_td_sum += (q[at] - y).abs() as f64;
-                stats.terminal += (t[2 * OBS_LEN + 2] != 0.0) as u32;
+                stats.terminal += (t[2 * ol + 2] != 0.0) as u32;
                 td.push((q[at] - y).abs());
             }
             ws.td = td;
@@ -397,18 +401,20 @@ impl Dqn {
         })
     }
 
-    /// Loss and flat gradients of a whole minibatch (`n × TRANSITION_LEN`
+    /// Loss and flat gradients of a whole minibatch (`n × transition_len`
     /// floats) on the path in use, without updating anything.
     pub fn gradients(&mut self, batch: &[f32]) -> Result<(f32, Vec<f32>)> {
         let loss = self.compute_gradients(batch, None)?.loss;
-        Ok((loss, gradients_in(self.online.fused(), &mut self.grads, &mut self.work)?.to_vec()))
+        Ok((loss, gradients_in(&self.online, &mut self.grads, &mut self.work)?.to_vec()))
     }
 
     /// Loss and gradients of a minibatch into `self.grads`: on the fused path
     /// with several threads, one shard per thread whose forward and backward
     /// passes run in parallel (each single-threaded), their gradients summed.
     fn compute_gradients(&mut self, batch: &[f32], weights: Option<&[f32]>) -> Result<Shard> {
-        let n = rows_of(batch)?;
+        let shapes = self.online.shapes();
+        let (tl, ol) = (shapes.transition_len(), shapes.obs_len());
+        let n = rows_of(batch, shapes)?;
         if let Some(w) = weights
             && w.len() != n
         {
@@ -433,9 +439,7 @@ impl Dqn {
             }
             // The generic path (off the CPU) reports the row and terminal
             // counts only.
-            let terminal =
-                batch.chunks_exact(TRANSITION_LEN).filter(|t| t[2 * OBS_LEN + 2] != 0.0).count()
-                    as u32;
+            let terminal = batch.chunks_exact(tl).filter(|t| t[2 * ol + 2] != 0.0).count() as u32;
             let stats = UpdateStats { rows: n as u32, terminal, ..UpdateStats::default() };
             return Ok(Shard {
                 loss: loss.to_scalar::<f32>()?,
@@ -449,7 +453,7 @@ impl Dqn {
             self.work.push(Mutex::new(Workspace::default()));
         }
         let rows_per = n.div_ceil(shards);
-        let parts: Vec<&[f32]> = batch.chunks(rows_per * TRANSITION_LEN).collect();
+        let parts: Vec<&[f32]> = batch.chunks(rows_per * tl).collect();
         let part_weights =
             |i: usize| weights.map(|w| &w[i * rows_per..((i + 1) * rows_per).min(n)]);
         let results = crate::ops::sharded(parts.len(), |i| {
@@ -469,7 +473,7 @@ impl Dqn {
             self.td.extend_from_slice(&ws.get_mut().map_err(poisoned)?.td);
         }
         let (head, tail) = self.work.split_at_mut(1);
-        let sum = &mut head[0].get_mut().map_err(poisoned)?.grads[..OFFSETS[10]];
+        let sum = &mut head[0].get_mut().map_err(poisoned)?.grads[..self.online.num_params()];
         for (r, ws) in results.zip(tail) {
             let r = r?;
             total.loss += r.loss;
@@ -479,7 +483,7 @@ impl Dqn {
         Ok(total)
     }
 
-    /// One update on a minibatch of `n × TRANSITION_LEN` floats; returns the
+    /// One update on a minibatch of `n × transition_len` floats; returns the
     /// loss. A loss or gradient that is not finite skips the step (the
     /// weights and Adam's moments stay as they were), counts in
     /// [`Dqn::skipped`] and returns the non-finite loss; the minibatch still
@@ -496,7 +500,7 @@ impl Dqn {
     pub fn update_weighted(&mut self, batch: &[f32], weights: Option<&[f32]>) -> Result<f32> {
         let mut total = self.compute_gradients(batch, weights)?;
         let t2 = Instant::now();
-        let grads = gradients_in(self.online.fused(), &mut self.grads, &mut self.work)?;
+        let grads = gradients_in(&self.online, &mut self.grads, &mut self.work)?;
         let norm = grads.iter().map(|g| (*g as f64) * (*g as f64)).sum::<f64>().sqrt();
         total.stats.grad_norm = norm;
         self.stats = total.stats;
@@ -530,7 +534,7 @@ impl Dqn {
     pub fn save_state(&self, path: &Path) -> Result<()> {
         let dev = candle_core::Device::Cpu;
         let mut map: HashMap<String, Tensor> = HashMap::new();
-        for ((name, shape), ((o, t), (m, v))) in PARAMS.iter().zip(
+        for ((name, shape), ((o, t), (m, v))) in params(self.online.shapes()).iter().zip(
             self.online
                 .vars()
                 .iter()
@@ -539,8 +543,8 @@ impl Dqn {
         ) {
             map.insert(format!("online.{name}"), o.as_tensor().to_device(&dev)?);
             map.insert(format!("target.{name}"), t.as_tensor().to_device(&dev)?);
-            map.insert(format!("adam_m.{name}"), Tensor::from_slice(m, *shape, &dev)?);
-            map.insert(format!("adam_v.{name}"), Tensor::from_slice(v, *shape, &dev)?);
+            map.insert(format!("adam_m.{name}"), Tensor::from_slice(m, shape.as_slice(), &dev)?);
+            map.insert(format!("adam_v.{name}"), Tensor::from_slice(v, shape.as_slice(), &dev)?);
         }
         map.insert("adam_t".into(), Tensor::new(&[self.opt.t as i64], &dev)?);
         map.insert("updates".into(), Tensor::new(&[self.updates as i64], &dev)?);
@@ -580,7 +584,7 @@ impl Dqn {
         for prefix in ["adam_m.", "adam_v."] {
             let part = sub(prefix);
             let mut vecs = Vec::new();
-            for (name, shape) in PARAMS {
+            for (name, shape) in params(self.online.shapes()) {
                 let x = part
                     .get(name)
                     .ok_or_else(|| bad(format!("tensor `{prefix}{name}` is missing")))?;
@@ -634,13 +638,13 @@ mod schedule_tests {
             reward_scale: 1.0,
             max_grad_norm: 0.0,
         };
-        let adam = Adam::new(&cfg);
+        let adam = Adam::new(&cfg, Shapes::PAPER);
         let close = |a: f32, b: f32| (a - b).abs() < 1e-9;
         assert!(close(adam.lr_at(1), 1e-3));
         assert!(close(adam.lr_at(51), 6e-4), "{}", adam.lr_at(51));
         assert!(close(adam.lr_at(101), 2e-4));
         assert!(close(adam.lr_at(10_000), 2e-4));
-        let constant = Adam::new(&DqnConfig { lr_decay_updates: 0, ..cfg });
+        let constant = Adam::new(&DqnConfig { lr_decay_updates: 0, ..cfg }, Shapes::PAPER);
         assert!(close(constant.lr_at(10_000), 1e-3));
     }
 }

@@ -30,9 +30,7 @@
 use multiversion::multiversion;
 
 use crate::ops::{View, matmul};
-use crate::{
-    ACTIONS, C1, C2, FEAT, FRAMES, H1, H2, HID, HP, K1, K2, OBS_LEN, S1, SIDE, VEL, VEL_H,
-};
+use crate::{C1, C2, FEAT, FRAMES, H1, H2, HID, HP, K1, K2, OBS_DEPTH, S1, SIDE, Shapes, VEL_H};
 
 /// Columns of conv1's patch matrix: (frame, ky, kx).
 const P1: usize = FRAMES * K1 * K1;
@@ -41,39 +39,41 @@ const P2: usize = K2 * K2 * C1;
 /// Features entering fc1: the pooled map and the velocity branch.
 const F: usize = FEAT + VEL_H;
 
-/// The ten parameter slices, in canonical order.
-pub(crate) struct Weights<'a>(pub(crate) [&'a [f32]; 10]);
+/// The ten parameter slices, in canonical order, and the network's shapes.
+pub(crate) struct Weights<'a>(pub(crate) [&'a [f32]; 10], pub(crate) Shapes);
 
-/// Offsets of each parameter in the flat gradient vector.
-pub(crate) const OFFSETS: [usize; 11] = {
+/// Offsets of each parameter in the flat gradient vector of a network for
+/// `shapes`.
+pub(crate) fn offsets(shapes: Shapes) -> [usize; 11] {
+    let (vel, actions) = (shapes.scalars, shapes.actions);
     let sizes =
-        [C1 * P1, C1, C2 * P2, C2, VEL_H * VEL, VEL_H, HID * F, HID, ACTIONS * HID, ACTIONS];
+        [C1 * P1, C1, C2 * P2, C2, VEL_H * vel, VEL_H, HID * F, HID, actions * HID, actions];
     let mut off = [0; 11];
-    let mut i = 0;
-    while i < 10 {
+    for i in 0..10 {
         off[i + 1] = off[i] + sizes[i];
-        i += 1;
     }
     off
-};
+}
 
-/// Observations to read: rows `i < n` at `data[i * stride + offset ..][.. OBS_LEN]`.
+/// Observations to read: rows `i < n` at `data[i * stride + offset ..][.. len]`.
 #[derive(Clone, Copy)]
 pub(crate) struct Rows<'a> {
     pub(crate) data: &'a [f32],
     pub(crate) stride: usize,
     pub(crate) offset: usize,
     pub(crate) n: usize,
+    /// Floats per observation.
+    pub(crate) len: usize,
 }
 
 impl<'a> Rows<'a> {
-    /// `n` contiguous observations.
-    pub(crate) fn packed(data: &'a [f32]) -> Self {
-        Self { data, stride: OBS_LEN, offset: 0, n: data.len() / OBS_LEN }
+    /// Contiguous observations of `len` floats.
+    pub(crate) fn packed(data: &'a [f32], len: usize) -> Self {
+        Self { data, stride: len, offset: 0, n: data.len() / len, len }
     }
 
     fn row(&self, i: usize) -> &'a [f32] {
-        &self.data[i * self.stride + self.offset..][..OBS_LEN]
+        &self.data[i * self.stride + self.offset..][..self.len]
     }
 }
 
@@ -82,6 +82,8 @@ impl<'a> Rows<'a> {
 #[derive(Default)]
 pub(crate) struct Workspace {
     rows: usize,
+    /// The shapes the buffers were sized for.
+    shapes: Option<Shapes>,
     cols1: Vec<f32>,
     a1: Vec<f32>,
     cols2: Vec<f32>,
@@ -273,11 +275,13 @@ fn unpool(dfeat: &[f32], arg: &[u8], da2: &mut [f32], db2: &mut [f32], n: usize)
 }
 
 impl Workspace {
-    fn reserve(&mut self, rows: usize) {
-        if rows <= self.rows {
+    fn reserve(&mut self, rows: usize, shapes: Shapes) {
+        if rows <= self.rows && self.shapes == Some(shapes) {
             return;
         }
-        self.rows = rows;
+        (self.rows, self.shapes) = (rows.max(self.rows), Some(shapes));
+        let rows = self.rows;
+        let (vel, actions) = (shapes.scalars, shapes.actions);
         let hw1 = H1 * H1;
         let hw2 = H2 * H2;
         for (v, len) in [
@@ -286,10 +290,10 @@ impl Workspace {
             (&mut self.cols2, rows * hw2 * P2),
             (&mut self.a2, rows * hw2 * C2),
             (&mut self.feat, rows * F),
-            (&mut self.vel, rows * VEL),
+            (&mut self.vel, rows * vel),
             (&mut self.h, rows * HID),
-            (&mut self.q, rows * ACTIONS),
-            (&mut self.dq, rows * ACTIONS),
+            (&mut self.q, rows * actions),
+            (&mut self.dq, rows * actions),
             (&mut self.dh, rows * HID),
             (&mut self.dfeat, rows * F),
             (&mut self.da2, rows * hw2 * C2),
@@ -299,15 +303,16 @@ impl Workspace {
             fit(v, len);
         }
         self.arg.resize(rows * FEAT, 0);
-        fit(&mut self.grads, OFFSETS[10]);
+        fit(&mut self.grads, offsets(shapes)[10]);
     }
 
     /// Q-values of every row of `parts` (in order) into `self.q`, keeping the
     /// activations for [`Workspace::backward`]. Returns the rows forwarded.
     pub(crate) fn forward(&mut self, w: &Weights, parts: &[Rows]) -> crate::Result<usize> {
         let n: usize = parts.iter().map(|p| p.n).sum();
-        self.reserve(n);
+        self.reserve(n, w.1);
         let [w1, b1, w2, b2, wv, bv, w3, b3, w4, b4] = w.0;
+        let (vel, actions) = (w.1.scalars, w.1.actions);
         let (hw1, hw2) = (H1 * H1, H2 * H2);
         // conv1: patches straight from the observation rows, runs of K1 pixels.
         let mut i = 0;
@@ -315,12 +320,13 @@ impl Workspace {
             for r in 0..p.n {
                 let obs = p.row(r);
                 im2col1(obs, &mut self.cols1[i * hw1 * P1..(i + 1) * hw1 * P1]);
-                // The velocity branch, 3 → 16, into the features' tail.
-                let v = &obs[FRAMES * SIDE * SIDE..];
-                self.vel[i * VEL..(i + 1) * VEL].copy_from_slice(v);
+                // The velocity branch (and the goal's), 3 or 6 → 16, into
+                // the features' tail.
+                let v = &obs[OBS_DEPTH..];
+                self.vel[i * vel..(i + 1) * vel].copy_from_slice(v);
                 let tail = &mut self.feat[i * F + FEAT..(i + 1) * F];
                 for (j, t) in tail.iter_mut().enumerate() {
-                    let s = bv[j] + (0..VEL).map(|k| wv[j * VEL + k] * v[k]).sum::<f32>();
+                    let s = bv[j] + (0..vel).map(|k| wv[j * vel + k] * v[k]).sum::<f32>();
                     *t = s.max(0.0);
                 }
                 i += 1;
@@ -337,7 +343,7 @@ impl Workspace {
         let h = &mut self.h[..n * HID];
         matmul(n, HID, F, View::rows(&self.feat, F), View::transposed(w3, F), h, false)?;
         bias_relu::<HID>(h, b3);
-        for (q, h) in self.q[..n * ACTIONS].chunks_exact_mut(ACTIONS).zip(h.chunks_exact(HID)) {
+        for (q, h) in self.q[..n * actions].chunks_exact_mut(actions).zip(h.chunks_exact(HID)) {
             for (a, q) in q.iter_mut().enumerate() {
                 *q = b4[a]
                     + w4[a * HID..(a + 1) * HID].iter().zip(h).map(|(w, x)| w * x).sum::<f32>();
@@ -348,17 +354,17 @@ impl Workspace {
 
     /// Keeps the Q-values of the last forward pass's first `n` rows (the
     /// target network's, of `s'`) for [`Workspace::loss_view`].
-    pub(crate) fn keep_q(&mut self, n: usize) {
+    pub(crate) fn keep_q(&mut self, n: usize, actions: usize) {
         self.q_kept.clear();
-        self.q_kept.extend_from_slice(&self.q[..n * ACTIONS]);
+        self.q_kept.extend_from_slice(&self.q[..n * actions]);
     }
 
     /// What the loss reads and writes: the last forward pass's Q-values,
     /// the kept ones, and the gradient with respect to the Q-values of the
     /// first `n` rows (`[n, 2]`, zeroed) for the caller to write before
     /// [`Workspace::backward`].
-    pub(crate) fn loss_view(&mut self, n: usize) -> (&[f32], &[f32], &mut [f32]) {
-        let dq = &mut self.dq[..n * ACTIONS];
+    pub(crate) fn loss_view(&mut self, n: usize, actions: usize) -> (&[f32], &[f32], &mut [f32]) {
+        let dq = &mut self.dq[..n * actions];
         dq.fill(0.0);
         (&self.q, &self.q_kept, dq)
     }
@@ -368,25 +374,27 @@ impl Workspace {
     /// [`Workspace::loss_view`].
     pub(crate) fn backward(&mut self, w: &Weights, n: usize) -> crate::Result<()> {
         let [_, _, w2, _, _, _, w3, _, w4, _] = w.0;
+        let (vel, actions) = (w.1.scalars, w.1.actions);
         let (hw1, hw2) = (H1 * H1, H2 * H2);
-        let g = &mut self.grads[..OFFSETS[10]];
-        let (g1, rest) = g.split_at_mut(OFFSETS[1]);
+        let off = offsets(w.1);
+        let g = &mut self.grads[..off[10]];
+        let (g1, rest) = g.split_at_mut(off[1]);
         let (gb1, rest) = rest.split_at_mut(C1);
         let (g2, rest) = rest.split_at_mut(C2 * P2);
         let (gb2, rest) = rest.split_at_mut(C2);
-        let (gv, rest) = rest.split_at_mut(VEL_H * VEL);
+        let (gv, rest) = rest.split_at_mut(VEL_H * vel);
         let (gbv, rest) = rest.split_at_mut(VEL_H);
         let (g3, rest) = rest.split_at_mut(HID * F);
         let (gb3, rest) = rest.split_at_mut(HID);
-        let (g4, gb4) = rest.split_at_mut(ACTIONS * HID);
+        let (g4, gb4) = rest.split_at_mut(actions * HID);
         // The products overwrite g1, g2 and g3; the rest accumulates.
         for acc in [&mut *gb1, gb2, gv, gbv, gb3, g4, gb4] {
             acc.fill(0.0);
         }
         // fc2 (2 outputs): by hand.
-        let (dq, h, dh) = (&self.dq[..n * ACTIONS], &self.h[..n * HID], &mut self.dh[..n * HID]);
+        let (dq, h, dh) = (&self.dq[..n * actions], &self.h[..n * HID], &mut self.dh[..n * HID]);
         for ((dq, h), dh) in
-            dq.chunks_exact(ACTIONS).zip(h.chunks_exact(HID)).zip(dh.chunks_exact_mut(HID))
+            dq.chunks_exact(actions).zip(h.chunks_exact(HID)).zip(dh.chunks_exact_mut(HID))
         {
             dh.fill(0.0);
             for (a, &d) in dq.iter().enumerate() {
@@ -409,11 +417,11 @@ impl Workspace {
         // The velocity branch, from the inputs the forward pass kept.
         for s in 0..n {
             let d = &dfeat[s * F + FEAT..(s + 1) * F];
-            let v = &self.vel[s * VEL..(s + 1) * VEL];
+            let v = &self.vel[s * vel..(s + 1) * vel];
             for j in 0..VEL_H {
                 gbv[j] += d[j];
-                for k in 0..VEL {
-                    gv[j * VEL + k] += d[j] * v[k];
+                for k in 0..vel {
+                    gv[j * vel + k] += d[j] * v[k];
                 }
             }
         }

@@ -1,7 +1,10 @@
 //! The Q-network and the DQN update, on candle.
 //!
 //! The network is the design's: conv 2→16 (6×6, stride 2) → conv 16→32 (3×3)
-//! → max-pool 2 → 1152 features; velocity 3→16; concat → 64 → 2 Q-values.
+//! → max-pool 2 → 1152 features; velocity 3→16 (with a goal: velocity and
+//! goal, 6→16); concat → 64 → one Q-value per action (2, or 3 with hold).
+//! The observation and action shapes come from the run's config
+//! ([`Shapes`]).
 //!
 //! Two paths compute the same function and gradients:
 //! - the fused CPU path ([`kernels`]): forward and hand-written backward over
@@ -14,7 +17,7 @@
 //!   there is a reshape and two `max` reductions, whose gradient is exact
 //!   (candle-nn 0.11.1's `max_pool2d` backward is 4× too small).
 //!
-//! Weights travel as one flat `f32` vector in a canonical order ([`PARAMS`]) and
+//! Weights travel as one flat `f32` vector in a canonical order ([`params`]) and
 //! are saved as safetensors.
 
 mod dqn;
@@ -56,9 +59,7 @@ pub fn device(kind: DeviceKind) -> Result<Device> {
 // The observation and transition layout, defined once in `rotorhive-msg`
 // (without its iceoryx2 feature): depth side, frames, velocity components,
 // floats per observation, actions, floats per transition.
-pub use rotorhive_msg::{
-    DEPTH_SIDE as SIDE, FRAMES, NUM_ACTIONS as ACTIONS, OBS_LEN, TRANSITION_LEN, VEL_DIM as VEL,
-};
+pub use rotorhive_msg::{DEPTH_SIDE as SIDE, FRAMES, OBS_DEPTH, Shapes};
 
 const C1: usize = 16; // conv1 channels
 const K1: usize = 6;
@@ -72,23 +73,27 @@ const FEAT: usize = HP * HP * C2; // 1152
 const VEL_H: usize = 16;
 const HID: usize = 64;
 
-/// Parameter names and shapes, in the canonical (flat) order.
-pub const PARAMS: [(&str, &[usize]); 10] = [
-    ("conv1.weight", &[C1, FRAMES * K1 * K1]),
-    ("conv1.bias", &[C1]),
-    ("conv2.weight", &[C2, K2 * K2 * C1]),
-    ("conv2.bias", &[C2]),
-    ("vel.weight", &[VEL_H, VEL]),
-    ("vel.bias", &[VEL_H]),
-    ("fc1.weight", &[HID, FEAT + VEL_H]),
-    ("fc1.bias", &[HID]),
-    ("fc2.weight", &[ACTIONS, HID]),
-    ("fc2.bias", &[ACTIONS]),
-];
+/// Parameter names and shapes of a network for `shapes`, in the canonical
+/// (flat) order: the observation's scalars enter `vel.weight` (the velocity
+/// branch, the goal's floats after the velocity), the actions leave `fc2`.
+pub fn params(shapes: Shapes) -> [(&'static str, Vec<usize>); 10] {
+    [
+        ("conv1.weight", vec![C1, FRAMES * K1 * K1]),
+        ("conv1.bias", vec![C1]),
+        ("conv2.weight", vec![C2, K2 * K2 * C1]),
+        ("conv2.bias", vec![C2]),
+        ("vel.weight", vec![VEL_H, shapes.scalars]),
+        ("vel.bias", vec![VEL_H]),
+        ("fc1.weight", vec![HID, FEAT + VEL_H]),
+        ("fc1.bias", vec![HID]),
+        ("fc2.weight", vec![shapes.actions, HID]),
+        ("fc2.bias", vec![shapes.actions]),
+    ]
+}
 
-/// Number of floats in the flat weight vector.
-pub fn num_params() -> usize {
-    PARAMS.iter().map(|(_, s)| s.iter().product::<usize>()).sum()
+/// Number of floats in the flat weight vector of a network for `shapes`.
+pub fn num_params(shapes: Shapes) -> usize {
+    params(shapes).iter().map(|(_, s)| s.iter().product::<usize>()).sum()
 }
 
 /// Errors of the model layer.
@@ -167,6 +172,7 @@ impl Scratch {
 #[derive(Debug, Clone)]
 pub struct QNet {
     params: Vec<Var>,
+    shapes: Shapes,
     scratch: Arc<Scratch>,
     device: Device,
     fused: bool,
@@ -174,26 +180,45 @@ pub struct QNet {
 }
 
 impl QNet {
-    /// A freshly initialised network (PyTorch's default uniform ±1/√fan_in),
-    /// deterministic for a seed.
+    /// A freshly initialised network of the paper's task's shapes
+    /// ([`Shapes::PAPER`]); see [`QNet::with_shapes`].
     pub fn new(seed: u64, device: &Device) -> Result<Self> {
+        Self::with_shapes(Shapes::PAPER, seed, device)
+    }
+
+    /// A freshly initialised network for observations and actions of
+    /// `shapes` (PyTorch's default uniform ±1/√fan_in), deterministic for a
+    /// seed.
+    pub fn with_shapes(shapes: Shapes, seed: u64, device: &Device) -> Result<Self> {
         let mut rng = Pcg64Mcg::seed_from_u64(seed);
-        let mut params = Vec::with_capacity(PARAMS.len());
-        for (i, (_, shape)) in PARAMS.iter().enumerate() {
+        let specs = params(shapes);
+        let mut vars = Vec::with_capacity(specs.len());
+        for (i, (_, shape)) in specs.iter().enumerate() {
             // A bias shares the fan-in of the weight before it.
-            let fan_in = if i % 2 == 0 { shape[1] } else { PARAMS[i - 1].1[1] };
+            let fan_in = if i % 2 == 0 { shape[1] } else { specs[i - 1].1[1] };
             let bound = 1.0 / (fan_in as f32).sqrt();
             let n: usize = shape.iter().product();
             let data: Vec<f32> = (0..n).map(|_| rng.random_range(-bound..bound)).collect();
-            params.push(Var::from_tensor(&Tensor::from_vec(data, *shape, device)?)?);
+            vars.push(Var::from_tensor(&Tensor::from_vec(data, shape.as_slice(), device)?)?);
         }
         Ok(Self {
-            params,
+            params: vars,
+            shapes,
             scratch: Arc::default(),
             device: device.clone(),
             fused: device.is_cpu(),
             threads: 1,
         })
+    }
+
+    /// The observation and action shapes the network takes and gives.
+    pub fn shapes(&self) -> Shapes {
+        self.shapes
+    }
+
+    /// Floats in its flat weight vector.
+    pub fn num_params(&self) -> usize {
+        num_params(self.shapes)
     }
 
     /// The device the network lives on.
@@ -231,7 +256,7 @@ impl QNet {
         self.threads = threads.max(1);
     }
 
-    /// Q-values `[B, 2]` of observations `[B, OBS_LEN]`.
+    /// Q-values `[B, actions]` of observations `[B, obs_len]`.
     pub fn forward(&self, obs: &Tensor) -> Result<Tensor> {
         if self.fused { self.forward_fused(obs) } else { self.forward_generic(obs) }
     }
@@ -239,7 +264,7 @@ impl QNet {
     fn forward_fused(&self, obs: &Tensor) -> Result<Tensor> {
         let b = obs.dim(0)?;
         let q = self.q_values(&obs.flatten_all()?.to_vec1::<f32>()?)?;
-        Ok(Tensor::from_vec(q, (b, ACTIONS), &self.device)?)
+        Ok(Tensor::from_vec(q, (b, self.shapes.actions), &self.device)?)
     }
 
     /// Runs `f` on the parameters' CPU slices (read-locked for its duration).
@@ -256,7 +281,7 @@ impl QNet {
             };
             *slot = &cpu.as_slice::<f32>()?[start..end];
         }
-        f(&Weights(w))
+        f(&Weights(w, self.shapes))
     }
 
     /// The same network with stock candle ops (channels-first `conv2d`),
@@ -279,50 +304,51 @@ impl QNet {
             .max(3)?
             .permute((0, 2, 3, 1))?
             .reshape((b, FEAT))?;
-        let v = obs.narrow(1, FRAMES * SIDE * SIDE, VEL)?;
+        let v = obs.narrow(1, OBS_DEPTH, self.shapes.scalars)?;
         let v = v.matmul(&self.p(4).t()?)?.broadcast_add(self.p(5))?.relu()?;
         let h = Tensor::cat(&[&x, &v], 1)?;
         let h = h.matmul(&self.p(6).t()?)?.broadcast_add(self.p(7))?.relu()?;
         Ok(h.matmul(&self.p(8).t()?)?.broadcast_add(self.p(9))?)
     }
 
-    /// Q-values of a flat batch of observations (`n × OBS_LEN` floats); on
+    /// Q-values of a flat batch of observations (`n × obs_len` floats); on
     /// the fused path, batches of 16 or more are split over the threads.
     pub fn q_values(&self, obs: &[f32]) -> Result<Vec<f32>> {
-        let n = obs.len() / OBS_LEN;
+        let n = obs.len() / self.shapes.obs_len();
         let shards = if self.fused { self.threads.min(n / 8).max(1) } else { 1 };
         self.q_values_sharded(obs, shards)
     }
 
     /// [`QNet::q_values`] in `shards` data-parallel parts.
     pub fn q_values_sharded(&self, obs: &[f32], shards: usize) -> Result<Vec<f32>> {
-        if !obs.len().is_multiple_of(OBS_LEN) || obs.is_empty() {
+        let (len, actions) = (self.shapes.obs_len(), self.shapes.actions);
+        if !obs.len().is_multiple_of(len) || obs.is_empty() {
             return Err(ModelError::Shape {
                 what: "observation batch",
-                expected: OBS_LEN,
+                expected: len,
                 got: obs.len(),
             });
         }
-        let n = obs.len() / OBS_LEN;
+        let n = obs.len() / len;
         if !self.fused {
-            let t = Tensor::from_slice(obs, (n, OBS_LEN), &self.device)?;
+            let t = Tensor::from_slice(obs, (n, len), &self.device)?;
             return Ok(self.forward_generic(&t)?.flatten_all()?.to_vec1::<f32>()?);
         }
-        let parts: Vec<&[f32]> = obs.chunks(n.div_ceil(shards.max(1)) * OBS_LEN).collect();
+        let parts: Vec<&[f32]> = obs.chunks(n.div_ceil(shards.max(1)) * len).collect();
         let mut spaces: Vec<Mutex<Workspace>> =
             parts.iter().map(|_| Mutex::new(self.scratch.take())).collect();
         let done = self.with_weights(|w| {
             ops::sharded(parts.len(), |i| {
                 let mut ws = spaces[i].lock().map_err(kernels::poisoned)?;
-                ws.forward(w, &[Rows::packed(parts[i])])
+                ws.forward(w, &[Rows::packed(parts[i], len)])
             })
             .into_iter()
             .collect::<Result<Vec<usize>>>()
         });
-        let mut q = Vec::with_capacity(n * ACTIONS);
+        let mut q = Vec::with_capacity(n * actions);
         for (ws, rows) in spaces.iter_mut().zip(done.as_deref().unwrap_or(&[])) {
             if let Ok(ws) = ws.get_mut() {
-                q.extend_from_slice(&ws.q[..rows * ACTIONS]);
+                q.extend_from_slice(&ws.q[..rows * actions]);
             }
         }
         for ws in spaces {
@@ -335,12 +361,12 @@ impl QNet {
     /// Greedy actions of a flat batch of observations.
     pub fn greedy(&self, obs: &[f32]) -> Result<Vec<u8>> {
         let q = self.q_values(obs)?;
-        Ok(q.chunks(ACTIONS).map(|c| argmax(c) as u8).collect())
+        Ok(q.chunks(self.shapes.actions).map(|c| argmax(c) as u8).collect())
     }
 
     /// The weights as one flat vector in canonical order.
     pub fn to_flat(&self) -> Result<Vec<f32>> {
-        let mut out = Vec::with_capacity(num_params());
+        let mut out = Vec::with_capacity(self.num_params());
         for v in &self.params {
             out.extend(v.as_tensor().flatten_all()?.to_vec1::<f32>()?);
         }
@@ -350,10 +376,10 @@ impl QNet {
     /// Writes the weights, flat in canonical order, into `into` (one copy
     /// from each variable's storage on the CPU).
     pub fn write_flat(&self, into: &mut [f32]) -> Result<()> {
-        if into.len() != num_params() {
+        if into.len() != self.num_params() {
             return Err(ModelError::Shape {
                 what: "weights buffer",
-                expected: num_params(),
+                expected: self.num_params(),
                 got: into.len(),
             });
         }
@@ -374,29 +400,36 @@ impl QNet {
     /// Replaces the weights with a flat vector in canonical order (in place
     /// on the CPU: one copy into each variable's storage).
     pub fn load_flat(&self, flat: &[f32]) -> Result<()> {
-        if flat.len() != num_params() {
+        if flat.len() != self.num_params() {
             return Err(ModelError::Shape {
                 what: "weights",
-                expected: num_params(),
+                expected: self.num_params(),
                 got: flat.len(),
             });
         }
         let mut off = 0;
-        for (v, (_, shape)) in self.params.iter().zip(PARAMS) {
+        for (v, (_, shape)) in self.params.iter().zip(params(self.shapes)) {
             let n: usize = shape.iter().product();
             let part = &flat[off..off + n];
             if self.device.is_cpu() {
                 v.as_tensor().inplace_op1(&ops::CopyIn(part))?;
             } else {
-                v.set(&Tensor::from_slice(part, shape, &self.device)?)?;
+                v.set(&Tensor::from_slice(part, shape.as_slice(), &self.device)?)?;
             }
             off += n;
         }
         Ok(())
     }
 
-    /// Copies another network's weights into this one.
+    /// Copies another network's weights into this one (of the same shapes).
     pub fn copy_from(&self, other: &QNet) -> Result<()> {
+        if other.shapes != self.shapes {
+            return Err(ModelError::Shape {
+                what: "network to copy",
+                expected: self.num_params(),
+                got: other.num_params(),
+            });
+        }
         for (a, b) in self.params.iter().zip(&other.params) {
             a.set(&b.as_tensor().copy()?)?;
         }
@@ -405,7 +438,7 @@ impl QNet {
 
     /// The weights by name.
     pub fn named(&self) -> HashMap<String, Tensor> {
-        PARAMS
+        params(self.shapes)
             .iter()
             .zip(&self.params)
             .map(|((n, _), v)| (n.to_string(), v.as_tensor().clone()))
@@ -414,7 +447,7 @@ impl QNet {
 
     /// Loads weights by name, checking every name and shape.
     pub fn load_named(&self, tensors: &HashMap<String, Tensor>, file: &str) -> Result<()> {
-        for ((name, shape), v) in PARAMS.iter().zip(&self.params) {
+        for ((name, shape), v) in params(self.shapes).iter().zip(&self.params) {
             let t = tensors.get(*name).ok_or_else(|| ModelError::Checkpoint {
                 file: file.into(),
                 message: format!("tensor `{name}` is missing"),
@@ -443,7 +476,7 @@ impl QNet {
     /// [`QNet::save`] with more header entries (the learner adds the hash
     /// of its run's config).
     pub fn save_with(&self, path: &Path, extra: &[(&str, String)]) -> Result<()> {
-        let mut meta = checkpoint_metadata();
+        let mut meta = checkpoint_metadata(self.shapes);
         meta.extend(extra.iter().map(|(k, v)| (k.to_string(), v.clone())));
         let named = self.named();
         let cpu: Vec<(String, Tensor)> = named
@@ -463,13 +496,15 @@ impl QNet {
     }
 
     /// Writes the network as an ONNX model (see `onnx.rs`): inputs `depth`
-    /// `(B, 2, 32, 32)` and `velocity` `(B, 3)`, output `q` `(B, 2)`; the
-    /// checkpoint's header entries (and `extra`) as metadata properties.
+    /// `(B, 2, 32, 32)` and `velocity` `(B, scalars)` (3, or 6 with a goal),
+    /// output `q` `(B, actions)`; the checkpoint's header entries (and
+    /// `extra`) as metadata properties.
     pub fn to_onnx(&self, path: &Path, extra: &[(&str, String)]) -> Result<()> {
-        let mut meta: Vec<(String, String)> = checkpoint_metadata().into_iter().collect();
+        let mut meta: Vec<(String, String)> =
+            checkpoint_metadata(self.shapes).into_iter().collect();
         meta.extend(extra.iter().map(|(k, v)| (k.to_string(), v.clone())));
         meta.sort();
-        let bytes = onnx::model(&self.named(), &meta)?;
+        let bytes = onnx::model(&self.named(), self.shapes, &meta)?;
         std::fs::write(path, bytes).map_err(|e| ModelError::Checkpoint {
             file: path.display().to_string(),
             message: format!("cannot write: {e}"),
@@ -484,7 +519,7 @@ impl QNet {
             file: file.clone(),
             message: format!("cannot read: {e}"),
         })?;
-        check_layout(&bytes, &file)?;
+        check_layout(&bytes, &file, self.shapes)?;
         let tensors = candle_core::safetensors::load_buffer(&bytes, &self.device).map_err(|e| {
             ModelError::Checkpoint {
                 file: file.clone(),
@@ -500,20 +535,49 @@ impl QNet {
 /// features channels-last. A change of any of them changes it.
 pub const CHECKPOINT_LAYOUT: &str = "rotorhive-qnet/1";
 
-/// What a checkpoint's safetensors header says of the network: `layout`
-/// ([`CHECKPOINT_LAYOUT`]), `observation`, `obs_len` and `actions`.
-pub fn checkpoint_metadata() -> HashMap<String, String> {
+/// What a checkpoint's safetensors header says of a network for `shapes`:
+/// `layout` ([`CHECKPOINT_LAYOUT`]), `observation`, `obs_len`, `scalars`
+/// and `actions`.
+pub fn checkpoint_metadata(shapes: Shapes) -> HashMap<String, String> {
+    let goal = if shapes.scalars > rotorhive_msg::VEL_DIM {
+        ", then the goal's bearing (rad), distance and lateral offset (10 m)"
+    } else {
+        ""
+    };
     HashMap::from([
         ("layout".to_string(), CHECKPOINT_LAYOUT.to_string()),
         (
             "observation".to_string(),
             format!(
-                "depth {FRAMES}x{SIDE}x{SIDE} in [0, 1], then velocity {VEL} (m/s, body frame)"
+                "depth {FRAMES}x{SIDE}x{SIDE} in [0, 1], then velocity 3 (m/s, body frame){goal}"
             ),
         ),
-        ("obs_len".to_string(), OBS_LEN.to_string()),
-        ("actions".to_string(), ACTIONS.to_string()),
+        ("obs_len".to_string(), shapes.obs_len().to_string()),
+        ("scalars".to_string(), shapes.scalars.to_string()),
+        ("actions".to_string(), shapes.actions.to_string()),
     ])
+}
+
+/// The shapes a checkpoint was written for, from its header (`scalars`
+/// and `actions`; a checkpoint of an earlier build, without them, is the
+/// paper's task), checked to be ones a task has.
+pub fn checkpoint_shapes(path: &Path) -> Result<Shapes> {
+    let file = path.display().to_string();
+    let bad = |message: String| ModelError::Checkpoint { file: file.clone(), message };
+    let bytes = std::fs::read(path).map_err(|e| bad(format!("cannot read: {e}")))?;
+    let (_, header) = safetensors::SafeTensors::read_metadata(&bytes)
+        .map_err(|e| bad(format!("not a valid safetensors file: {e}")))?;
+    let meta = header.metadata().clone().unwrap_or_default();
+    let field = |k: &str, default: usize| -> Result<usize> {
+        meta.get(k).map_or(Ok(default), |v| {
+            v.parse().map_err(|_| bad(format!("header entry `{k}` is {v:?}, not a count")))
+        })
+    };
+    let shapes = Shapes {
+        scalars: field("scalars", Shapes::PAPER.scalars)?,
+        actions: field("actions", Shapes::PAPER.actions)?,
+    };
+    shapes.check().map_err(|m| bad(format!("header claims {m}")))
 }
 
 /// Rewrites a safetensors file's JSON header with its keys sorted, so that
@@ -545,21 +609,21 @@ fn sort_header(bytes: &mut [u8]) {
 /// Refuses a checkpoint whose header describes another network, naming
 /// each difference; a header without these entries (a checkpoint of an
 /// earlier build) is left to the name and shape checks.
-fn check_layout(bytes: &[u8], file: &str) -> Result<()> {
+fn check_layout(bytes: &[u8], file: &str, shapes: Shapes) -> Result<()> {
     let Ok((_, header)) = safetensors::SafeTensors::read_metadata(bytes) else {
         return Ok(());
     };
     let Some(theirs) = header.metadata() else {
         return Ok(());
     };
-    let ours = checkpoint_metadata();
-    let diffs: Vec<String> = ["layout", "obs_len", "actions"]
+    let ours = checkpoint_metadata(shapes);
+    let diffs: Vec<String> = ["layout", "obs_len", "scalars", "actions"]
         .iter()
         .filter_map(|k| {
             theirs
                 .get(*k)
                 .filter(|v| Some(*v) != ours.get(*k))
-                .map(|v| format!("{k} {v} (this build: {})", ours[*k]))
+                .map(|v| format!("{k} {v} (this network: {})", ours[*k]))
         })
         .collect();
     if diffs.is_empty() {

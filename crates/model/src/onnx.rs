@@ -1,8 +1,9 @@
 //! The network as an ONNX model (`hive export`, `QNetwork.to_onnx`), for
 //! any runtime that reads ONNX (onnxruntime, TensorRT, OpenVINO, a browser).
 //!
-//! Inputs `depth` `(B, 2, 32, 32)` and `velocity` `(B, 3)`, output `q`
-//! `(B, 2)`: conv 6×6/2 → ReLU → conv 3×3 → ReLU → max-pool 2 → flatten;
+//! Inputs `depth` `(B, 2, 32, 32)` and `velocity` `(B, scalars)` (the
+//! velocity, 3; with a goal, the velocity then the goal's 3), output `q`
+//! `(B, actions)`: conv 6×6/2 → ReLU → conv 3×3 → ReLU → max-pool 2 → flatten;
 //! velocity → Gemm → ReLU; concatenated → Gemm → ReLU → Gemm. The weights go
 //! in ONNX's (PyTorch's) layout: conv2's `(out, kh, kw, in)` becomes
 //! `(out, in, kh, kw)` and fc1's pooled columns `(y, x, c)` become
@@ -19,7 +20,7 @@ use std::collections::HashMap;
 use candle_core::Tensor;
 use rotorhive_msg::protobuf::{bytes, int};
 
-use crate::{C1, C2, FEAT, FRAMES, HP, K1, K2, PARAMS, Result, S1, SIDE, VEL};
+use crate::{C1, C2, FEAT, FRAMES, HP, K1, K2, Result, S1, SIDE, Shapes, params};
 
 /// The IR version written (ONNX 1.14 and later read it).
 const IR_VERSION: u64 = 9;
@@ -30,10 +31,12 @@ const OPSET: u64 = 17;
 /// with `metadata` as its metadata properties.
 pub(crate) fn model(
     named: &HashMap<String, Tensor>,
+    shapes: Shapes,
     metadata: &[(String, String)],
 ) -> Result<Vec<u8>> {
+    let (vel, actions) = (shapes.scalars, shapes.actions);
     let mut weights: HashMap<&str, Vec<f32>> = HashMap::new();
-    for (name, _) in PARAMS {
+    for (name, _) in params(shapes) {
         weights.insert(name, named[name].flatten_all()?.to_vec1::<f32>()?);
     }
     let (conv2, fc1) = torch_layout(&weights["conv2.weight"], &weights["fc1.weight"]);
@@ -49,18 +52,18 @@ pub(crate) fn model(
         init("conv1.bias", &[C1], &weights["conv1.bias"]),
         init("conv2.weight", &[C2, C1, K2, K2], &conv2),
         init("conv2.bias", &[C2], &weights["conv2.bias"]),
-        init("vel.weight", &[crate::VEL_H, VEL], &weights["vel.weight"]),
+        init("vel.weight", &[crate::VEL_H, vel], &weights["vel.weight"]),
         init("vel.bias", &[crate::VEL_H], &weights["vel.bias"]),
         init("fc1.weight", &[crate::HID, cols], &fc1),
         init("fc1.bias", &[crate::HID], &weights["fc1.bias"]),
-        init("fc2.weight", &[crate::ACTIONS, crate::HID], &weights["fc2.weight"]),
-        init("fc2.bias", &[crate::ACTIONS], &weights["fc2.bias"]),
+        init("fc2.weight", &[actions, crate::HID], &weights["fc2.weight"]),
+        init("fc2.bias", &[actions], &weights["fc2.bias"]),
     ] {
         bytes(&mut graph, 5, &t);
     }
     bytes(&mut graph, 11, &value_info("depth", &[None, Some(FRAMES), Some(SIDE), Some(SIDE)]));
-    bytes(&mut graph, 11, &value_info("velocity", &[None, Some(VEL)]));
-    bytes(&mut graph, 12, &value_info("q", &[None, Some(crate::ACTIONS)]));
+    bytes(&mut graph, 11, &value_info("velocity", &[None, Some(vel)]));
+    bytes(&mut graph, 12, &value_info("q", &[None, Some(actions)]));
 
     let mut m = Vec::new();
     int(&mut m, 1, IR_VERSION);

@@ -2,6 +2,10 @@
 
 use super::*;
 
+// The paper's task's shapes, as most checks here use them.
+const OBS_LEN: usize = Shapes::PAPER.obs_len();
+const TRANSITION_LEN: usize = Shapes::PAPER.transition_len();
+
 fn random(n: usize, seed: u64, lo: f32, hi: f32) -> Vec<f32> {
     let mut rng = Pcg64Mcg::seed_from_u64(seed);
     (0..n).map(|_| rng.random_range(lo..hi)).collect()
@@ -15,11 +19,17 @@ fn generic(net: &QNet) -> QNet {
 
 /// A batch of transitions with valid actions, rewards and dones.
 fn transitions(n: usize, seed: u64) -> Vec<f32> {
-    let mut data = random(n * TRANSITION_LEN, seed, 0.0, 1.0);
+    transitions_of(Shapes::PAPER, n, seed)
+}
+
+/// [`transitions`] for a network of `shapes`: every action taken.
+fn transitions_of(shapes: Shapes, n: usize, seed: u64) -> Vec<f32> {
+    let (tl, ol) = (shapes.transition_len(), shapes.obs_len());
+    let mut data = random(n * tl, seed, 0.0, 1.0);
     for i in 0..n {
-        data[i * TRANSITION_LEN + 2 * OBS_LEN] = (i % 2) as f32;
-        data[i * TRANSITION_LEN + 2 * OBS_LEN + 1] = if i % 3 == 0 { -100.0 } else { 3.0 };
-        data[i * TRANSITION_LEN + 2 * OBS_LEN + 2] = if i % 3 == 0 { 1.0 } else { 0.0 };
+        data[i * tl + 2 * ol] = (i % shapes.actions) as f32;
+        data[i * tl + 2 * ol + 1] = if i % 3 == 0 { -100.0 } else { 3.0 };
+        data[i * tl + 2 * ol + 2] = if i % 3 == 0 { 1.0 } else { 0.0 };
     }
     data
 }
@@ -50,9 +60,10 @@ fn autograd(dqn: &Dqn, batch: &[f32]) -> Vec<f32> {
         .collect()
 }
 
-/// The slice of parameter `i` in a flat vector.
-fn part(flat: &[f32], i: usize) -> &[f32] {
-    &flat[kernels::OFFSETS[i]..kernels::OFFSETS[i + 1]]
+/// The slice of parameter `i` in a flat vector of a network for `shapes`.
+fn part(flat: &[f32], shapes: Shapes, i: usize) -> &[f32] {
+    let off = kernels::offsets(shapes);
+    &flat[off[i]..off[i + 1]]
 }
 
 fn close(a: &[f32], b: &[f32], tol: f32, what: &str) {
@@ -81,20 +92,27 @@ fn forward_matches_stock_candle_convolutions() {
 /// Gradients of the whole loss on the fused path (hand-written backward:
 /// convolutions, pooling to its argmax, ReLU masks, the TD-Huber loss)
 /// against candle's autograd over stock ops, plain and double DQN, one shard
-/// and two.
+/// and two, for the paper's shapes and a goal task's (six scalars, three
+/// actions).
 #[test]
 fn fused_gradients_match_stock_candle() {
-    for (seed, double, threads) in [(1, false, 1), (2, true, 1), (3, true, 2)] {
-        let mut dqn = Dqn::new(cfg(double), seed, &Device::Cpu).unwrap();
+    let goal = Shapes::task(true, true);
+    for (seed, double, threads, shapes) in [
+        (1, false, 1, Shapes::PAPER),
+        (2, true, 1, Shapes::PAPER),
+        (3, true, 2, Shapes::PAPER),
+        (4, true, 2, goal),
+    ] {
+        let mut dqn = Dqn::with_shapes(cfg(double), shapes, seed, &Device::Cpu).unwrap();
         dqn.set_threads(threads);
-        dqn.target.load_flat(&random(num_params(), seed + 50, -0.1, 0.1)).unwrap();
-        let batch = transitions(17, seed + 20);
+        dqn.target.load_flat(&random(num_params(shapes), seed + 50, -0.1, 0.1)).unwrap();
+        let batch = transitions_of(shapes, 17, seed + 20);
         let (l1, fused) = dqn.gradients(&batch).unwrap();
         let plain = autograd(&dqn, &batch);
         let l2 = dqn.loss(&batch).unwrap().to_scalar::<f32>().unwrap();
         assert!((l1 - l2).abs() <= 1e-4 * l2.abs().max(1.0), "loss {l1} vs {l2}");
-        for (i, (name, _)) in PARAMS.iter().enumerate() {
-            close(part(&fused, i), part(&plain, i), 1e-3, name);
+        for (i, (name, _)) in params(shapes).iter().enumerate() {
+            close(part(&fused, shapes, i), part(&plain, shapes, i), 1e-3, name);
         }
         dqn.set_fused(false).unwrap();
         let (l3, generic) = dqn.gradients(&batch).unwrap();
@@ -183,7 +201,7 @@ fn gradients_match_finite_differences() {
     let dev = Device::Cpu;
     let mut dqn = Dqn::new(cfg(false), 4, &dev).unwrap();
     // Push the target net away from the online one so the TD error is not zero.
-    dqn.target.load_flat(&random(num_params(), 99, -0.1, 0.1)).unwrap();
+    dqn.target.load_flat(&random(num_params(Shapes::PAPER), 99, -0.1, 0.1)).unwrap();
     let n = 6;
     let mut data = random(n * TRANSITION_LEN, 5, 0.0, 1.0);
     for i in 0..n {
@@ -197,10 +215,14 @@ fn gradients_match_finite_differences() {
     let mut rng = Pcg64Mcg::seed_from_u64(7);
     let mut off = 0;
     let mut checked = 0;
-    for (pi, (name, shape)) in PARAMS.iter().enumerate() {
+    for (pi, (name, shape)) in params(Shapes::PAPER).iter().enumerate() {
         let len: usize = shape.iter().product();
-        assert_eq!(len, kernels::OFFSETS[pi + 1] - kernels::OFFSETS[pi], "{name}");
-        let g = part(&grads, pi).to_vec();
+        assert_eq!(
+            len,
+            kernels::offsets(Shapes::PAPER)[pi + 1] - kernels::offsets(Shapes::PAPER)[pi],
+            "{name}"
+        );
+        let g = part(&grads, Shapes::PAPER, pi).to_vec();
         // The largest-gradient entry and a few random ones.
         let mut idx: Vec<usize> = (0..4).map(|_| rng.random_range(0..len)).collect();
         idx.push((0..len).max_by(|a, b| g[*a].abs().total_cmp(&g[*b].abs())).unwrap());
@@ -241,10 +263,10 @@ fn flat_weights_and_checkpoints_round_trip() {
     assert_ne!(a.to_flat().unwrap(), b.to_flat().unwrap());
     b.load_flat(&a.to_flat().unwrap()).unwrap();
     assert_eq!(a.to_flat().unwrap(), b.to_flat().unwrap());
-    assert_eq!(a.to_flat().unwrap().len(), num_params());
+    assert_eq!(a.to_flat().unwrap().len(), num_params(Shapes::PAPER));
     // Written straight into a buffer (as into a loaned message): the same
     // floats; a buffer of the wrong size is refused.
-    let mut buf = vec![f32::NAN; num_params()];
+    let mut buf = vec![f32::NAN; num_params(Shapes::PAPER)];
     b.write_flat(&mut buf).unwrap();
     assert_eq!(buf, a.to_flat().unwrap());
     assert!(b.write_flat(&mut buf[1..]).unwrap_err().to_string().contains("weights buffer"));
@@ -288,16 +310,41 @@ fn flat_weights_and_checkpoints_round_trip() {
         a.save_with(&path, &[("config_crc32c", "1234abcd".into())]).unwrap();
         assert_eq!(std::fs::read(&path).unwrap(), bytes);
     }
-    let mut foreign = checkpoint_metadata();
+    let mut foreign = checkpoint_metadata(Shapes::PAPER);
     foreign.insert("layout".into(), "rotorhive-qnet/0".into());
     foreign.insert("actions".into(), "3".into());
     let tensors: Vec<(String, Tensor)> = a.named().into_iter().collect();
     safetensors::serialize_to_file(tensors, Some(foreign), &path).unwrap();
     let e = c.load(&path).unwrap_err().to_string();
     assert!(
-        e.contains("layout rotorhive-qnet/0") && e.contains("actions 3 (this build: 2)"),
+        e.contains("layout rotorhive-qnet/0") && e.contains("actions 3 (this network: 2)"),
         "{e}"
     );
+    // A goal task's network: its header says its shapes, a network of the
+    // paper's refuses it by name, and one of its shapes loads it.
+    let goal = Shapes::task(true, true);
+    let g = QNet::with_shapes(goal, 9, &dev).unwrap();
+    g.save(&path).unwrap();
+    assert_eq!(checkpoint_shapes(&path).unwrap(), goal);
+    let e = c.load(&path).unwrap_err().to_string();
+    assert!(
+        e.contains("obs_len 2054 (this network: 2051)")
+            && e.contains("scalars 6 (this network: 3)")
+            && e.contains("actions 3 (this network: 2)"),
+        "{e}"
+    );
+    let h = QNet::with_shapes(checkpoint_shapes(&path).unwrap(), 0, &dev).unwrap();
+    h.load(&path).unwrap();
+    let obs = random(2 * goal.obs_len(), 5, 0.0, 1.0);
+    assert_eq!(h.q_values(&obs).unwrap(), g.q_values(&obs).unwrap());
+    assert_eq!(h.q_values(&obs).unwrap().len(), 2 * 3);
+    // A header that claims shapes no task has is refused by name.
+    let mut odd = checkpoint_metadata(goal);
+    odd.insert("scalars".into(), "7".into());
+    let tensors: Vec<(String, Tensor)> = g.named().into_iter().collect();
+    safetensors::serialize_to_file(tensors, Some(odd), &path).unwrap();
+    let e = checkpoint_shapes(&path).unwrap_err().to_string();
+    assert!(e.contains("header claims 7 observation scalars"), "{e}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -29,10 +29,189 @@ pub const DEPTH_PIXELS: usize = DEPTH_SIDE * DEPTH_SIDE;
 pub const FRAMES: usize = 2;
 /// Components of the body-frame linear velocity in an observation.
 pub const VEL_DIM: usize = 3;
-/// Floats in one observation: the stacked depth frames, then the velocity.
-pub const OBS_LEN: usize = FRAMES * DEPTH_PIXELS + VEL_DIM;
-/// Number of discrete actions (lateral velocity −0.25 m/s, +0.25 m/s).
+/// Floats of the goal in an observation of a task with a goal
+/// (`[sim.goal]`): its bearing (rad, body frame), its distance and its
+/// lateral offset (body frame), both in tens of metres.
+pub const GOAL_DIM: usize = 3;
+/// Number of discrete actions of the paper's task (lateral velocity
+/// −0.25 m/s, +0.25 m/s); a task with the hold action has a third.
 pub const NUM_ACTIONS: usize = 2;
+/// Depth values in one observation: the stacked frames.
+pub const OBS_DEPTH: usize = FRAMES * DEPTH_PIXELS;
+
+/// The shapes of a run's observations and actions, taken from its config
+/// (`Config::shapes` in the roles): every layout that depends on them
+/// (observation batches, transitions as they travel and as the learner reads
+/// them, the network's input and output) is computed here from one value,
+/// so a sender and a receiver of one run never disagree.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Shapes {
+    /// Floats after the depth frames: the body-frame velocity, then (with a
+    /// goal) the goal's [`GOAL_DIM`] floats.
+    pub scalars: usize,
+    /// Discrete actions.
+    pub actions: usize,
+}
+
+impl Shapes {
+    /// The paper's task: velocity only, two actions.
+    pub const PAPER: Shapes = Shapes { scalars: VEL_DIM, actions: NUM_ACTIONS };
+    /// The most actions any task has.
+    pub const MAX_ACTIONS: usize = NUM_ACTIONS + 1;
+
+    /// The shapes of a task: with or without a goal in the observation, with
+    /// or without the hold action.
+    pub const fn task(goal: bool, hold: bool) -> Self {
+        Self {
+            scalars: VEL_DIM + if goal { GOAL_DIM } else { 0 },
+            actions: NUM_ACTIONS + hold as usize,
+        }
+    }
+
+    /// Floats in one observation: the stacked depth frames, then the scalars.
+    pub const fn obs_len(self) -> usize {
+        OBS_DEPTH + self.scalars
+    }
+
+    /// Length of the `f32` payload of an observation batch of `agents`.
+    pub const fn obs_batch_len(self, agents: usize) -> usize {
+        agents * (self.obs_len() + 2)
+    }
+
+    /// Floats in one transition as the learner uses it: `s (obs_len) | s'
+    /// (obs_len) | action | reward | done (0 or 1)`.
+    pub const fn transition_len(self) -> usize {
+        2 * self.obs_len() + 3
+    }
+
+    /// `f32` scalars in one packed transition: `s`'s scalars, `s'`'s,
+    /// action, reward, done.
+    pub const fn packed_scalars(self) -> usize {
+        2 * self.scalars + 3
+    }
+
+    /// `u16` words in one packed transition, as transitions travel (actor →
+    /// replay → learner) and as the replay stores them: depth as 16-bit
+    /// fixed point (normalised depth × 65,535, rounded: 0.3 mm at a 20 m
+    /// range, far under the renderers' 1 cm agreement), then each scalar's
+    /// `f32` bits as two words (low, high). Half the bytes of
+    /// [`Shapes::transition_len`] floats.
+    pub const fn packed_len(self) -> usize {
+        PACKED_DEPTH + 2 * self.packed_scalars()
+    }
+
+    /// Packs one transition given as its parts (`s` and `s'` of
+    /// [`Shapes::obs_len`] floats each, then action, reward and done) into
+    /// `out` ([`Shapes::packed_len`] words).
+    pub fn pack(self, s: &[f32], next: &[f32], tail: [f32; 3], out: &mut [u16]) {
+        let n = self.obs_len();
+        assert!(
+            s.len() == n && next.len() == n && out.len() == self.packed_len(),
+            "pack: wrong lengths"
+        );
+        let fd = OBS_DEPTH;
+        let (depth, scalars) = out.split_at_mut(PACKED_DEPTH);
+        for (o, v) in depth[..fd].iter_mut().zip(&s[..fd]) {
+            *o = quantize_depth(*v);
+        }
+        for (o, v) in depth[fd..].iter_mut().zip(&next[..fd]) {
+            *o = quantize_depth(*v);
+        }
+        let values = s[fd..].iter().chain(&next[fd..]).copied().chain(tail);
+        for (o, v) in scalars.chunks_exact_mut(2).zip(values) {
+            let b = v.to_bits();
+            o[0] = b as u16;
+            o[1] = (b >> 16) as u16;
+        }
+    }
+
+    /// Unpacks one transition ([`Shapes::packed_len`] words) into `out`
+    /// ([`Shapes::transition_len`] floats, the learner's layout).
+    pub fn unpack(self, p: &[u16], out: &mut [f32]) {
+        assert!(
+            p.len() == self.packed_len() && out.len() == self.transition_len(),
+            "unpack: wrong lengths"
+        );
+        let (fd, k) = (OBS_DEPTH, self.scalars);
+        let (s, rest) = out.split_at_mut(self.obs_len());
+        let (next, tail) = rest.split_at_mut(self.obs_len());
+        for (o, q) in s[..fd].iter_mut().zip(&p[..fd]) {
+            *o = dequantize_depth(*q);
+        }
+        for (o, q) in next[..fd].iter_mut().zip(&p[fd..PACKED_DEPTH]) {
+            *o = dequantize_depth(*q);
+        }
+        for j in 0..k {
+            s[fd + j] = packed_scalar(p, j);
+            next[fd + j] = packed_scalar(p, k + j);
+        }
+        for (j, o) in tail.iter_mut().enumerate() {
+            *o = packed_scalar(p, 2 * k + j);
+        }
+    }
+
+    /// True when a packed transition's scalars ([`Shapes::packed_scalars`]
+    /// of them, see [`packed_scalar`]) are not what an actor writes: an
+    /// action that is not one of the run's, a done flag other than 0 or 1,
+    /// or a scalar that is not finite. A torn or forged write shows here
+    /// (16-bit depth has no invalid value to look for).
+    pub fn scalars_corrupt(self, scalars: &[f32]) -> bool {
+        if scalars.len() != self.packed_scalars() {
+            return true;
+        }
+        let (action, done) = (scalars[2 * self.scalars], scalars[2 * self.scalars + 2]);
+        let known = action >= 0.0 && action < self.actions as f32 && action.fract() == 0.0;
+        !known || !(done == 0.0 || done == 1.0) || scalars.iter().any(|v| !v.is_finite())
+    }
+
+    /// Corrupt transitions (by [`Shapes::scalars_corrupt`]) in a batch of
+    /// packed ones.
+    pub fn corrupt_transitions(self, batch: &[u16]) -> u64 {
+        let mut s = vec![0f32; self.packed_scalars()];
+        batch
+            .chunks_exact(self.packed_len())
+            .filter(|t| {
+                for (k, v) in s.iter_mut().enumerate() {
+                    *v = packed_scalar(t, k);
+                }
+                self.scalars_corrupt(&s)
+            })
+            .count() as u64
+    }
+
+    /// Checks that the shapes are ones a task has (as a checkpoint's header
+    /// claims them): the velocity with or without the goal, two actions or
+    /// three.
+    pub fn check(self) -> Result<Self, String> {
+        if self.scalars != VEL_DIM && self.scalars != VEL_DIM + GOAL_DIM {
+            return Err(format!(
+                "{} observation scalars (a task has {VEL_DIM}, or {} with a goal)",
+                self.scalars,
+                VEL_DIM + GOAL_DIM
+            ));
+        }
+        if !(NUM_ACTIONS..=Self::MAX_ACTIONS).contains(&self.actions) {
+            return Err(format!(
+                "{} actions (a task has {NUM_ACTIONS}, or {} with hold)",
+                self.actions,
+                Self::MAX_ACTIONS
+            ));
+        }
+        Ok(self)
+    }
+}
+
+impl Default for Shapes {
+    fn default() -> Self {
+        Self::PAPER
+    }
+}
+
+impl std::fmt::Display for Shapes {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "observations of {} floats, {} actions", self.obs_len(), self.actions)
+    }
+}
 
 /// Why an agent's episode ended at a step; stored as `f32` in the observation
 /// slice and as `u8` elsewhere.
@@ -74,7 +253,7 @@ pub const MAX_AGENTS_PER_ENV: usize = 4096;
 
 /// Header of an observation batch, sim → actor.
 ///
-/// Payload: `[f32]` of length [`obs_batch_len`]`(agents)`: `agents × OBS_LEN`
+/// Payload: `[f32]` of length [`Shapes::obs_batch_len`]`(agents)`: `agents × obs_len`
 /// observations, then `agents` rewards, then `agents` done codes
 /// ([`DoneKind`] as `f32`). Rows of agents that were reset in this step hold the
 /// first observation of their new episode.
@@ -96,11 +275,6 @@ pub struct ObsHeader {
     pub step: u64,
 }
 
-/// Length of the `f32` payload of an observation batch.
-pub const fn obs_batch_len(agents: usize) -> usize {
-    agents * (OBS_LEN + 2)
-}
-
 /// Header of an action batch, actor → sim. Payload: `[u8]`, one action per agent.
 #[derive(Debug, Clone, Copy, Default)]
 #[cfg_attr(feature = "zero-copy", derive(ZeroCopySend), type_name("rotorhive::ActionHeader"))]
@@ -110,22 +284,9 @@ pub struct ActionHeader {
     pub step: u64,
 }
 
-/// Floats in one transition as the learner uses it: `s (OBS_LEN) | s'
-/// (OBS_LEN) | action | reward | done (0 or 1)`.
-pub const TRANSITION_LEN: usize = 2 * OBS_LEN + 3;
-
 /// Depth values in one packed transition: the two frames of `s`, then the
 /// two of `s'`.
-pub const PACKED_DEPTH: usize = 2 * FRAMES * DEPTH_PIXELS;
-/// `f32` scalars in one packed transition: `s`'s velocity, `s'`'s velocity,
-/// action, reward, done.
-pub const PACKED_SCALARS: usize = 2 * VEL_DIM + 3;
-/// `u16` words in one packed transition, as transitions travel (actor →
-/// replay → learner) and as the replay stores them: depth as 16-bit fixed
-/// point (normalised depth × 65,535, rounded: 0.3 mm at a 20 m range, far
-/// under the renderers' 1 cm agreement), then each scalar's `f32` bits as two
-/// words (low, high). Half the bytes of [`TRANSITION_LEN`] floats.
-pub const PACKED_LEN: usize = PACKED_DEPTH + 2 * PACKED_SCALARS;
+pub const PACKED_DEPTH: usize = 2 * OBS_DEPTH;
 
 /// A normalised depth in [0, 1] as 16-bit fixed point (clamped).
 #[inline]
@@ -139,98 +300,18 @@ pub fn dequantize_depth(q: u16) -> f32 {
     q as f32 / 65535.0
 }
 
-/// Packs one transition given as its parts (`s` and `s'` of `OBS_LEN`
-/// floats each) into `out` (`PACKED_LEN` words).
-pub fn pack_transition(
-    s: &[f32],
-    next: &[f32],
-    action: f32,
-    reward: f32,
-    done: f32,
-    out: &mut [u16],
-) {
-    assert!(
-        s.len() == OBS_LEN && next.len() == OBS_LEN && out.len() == PACKED_LEN,
-        "pack_transition: wrong lengths"
-    );
-    let fd = FRAMES * DEPTH_PIXELS;
-    let (depth, scalars) = out.split_at_mut(PACKED_DEPTH);
-    for (o, v) in depth[..fd].iter_mut().zip(&s[..fd]) {
-        *o = quantize_depth(*v);
-    }
-    for (o, v) in depth[fd..].iter_mut().zip(&next[..fd]) {
-        *o = quantize_depth(*v);
-    }
-    let values = s[fd..].iter().chain(&next[fd..]).copied().chain([action, reward, done]);
-    for (o, v) in scalars.chunks_exact_mut(2).zip(values) {
-        let b = v.to_bits();
-        o[0] = b as u16;
-        o[1] = (b >> 16) as u16;
-    }
-}
-
-/// The `i`-th scalar of a packed transition (0..3 `s`'s velocity, 3..6
-/// `s'`'s, 6 action, 7 reward, 8 done).
+/// The `i`-th scalar of a packed transition (with `k` scalars per
+/// observation: `0..k` `s`'s, `k..2k` `s'`'s, then action, reward, done).
 #[inline]
 pub fn packed_scalar(p: &[u16], i: usize) -> f32 {
     let w = &p[PACKED_DEPTH + 2 * i..PACKED_DEPTH + 2 * i + 2];
     f32::from_bits(w[0] as u32 | (w[1] as u32) << 16)
 }
 
-/// True when a packed transition's scalars (see [`packed_scalar`]) are not
-/// what an actor writes: an action or done flag other than 0 or 1, or a
-/// velocity or reward that is not finite. A torn or forged write shows here
-/// (16-bit depth has no invalid value to look for).
-pub fn scalars_corrupt(scalars: &[f32; PACKED_SCALARS]) -> bool {
-    let flag = |v: f32| v == 0.0 || v == 1.0;
-    !flag(scalars[2 * VEL_DIM])
-        || !flag(scalars[2 * VEL_DIM + 2])
-        || scalars.iter().any(|v| !v.is_finite())
-}
-
-/// Corrupt transitions (by [`scalars_corrupt`]) in a batch of packed ones.
-pub fn corrupt_transitions(batch: &[u16]) -> u64 {
-    batch
-        .chunks_exact(PACKED_LEN)
-        .filter(|t| {
-            let mut s = [0f32; PACKED_SCALARS];
-            for (k, v) in s.iter_mut().enumerate() {
-                *v = packed_scalar(t, k);
-            }
-            scalars_corrupt(&s)
-        })
-        .count() as u64
-}
-
-/// Unpacks one transition (`PACKED_LEN` words) into `out` (`TRANSITION_LEN`
-/// floats, the learner's layout).
-pub fn unpack_transition(p: &[u16], out: &mut [f32]) {
-    assert!(
-        p.len() == PACKED_LEN && out.len() == TRANSITION_LEN,
-        "unpack_transition: wrong lengths"
-    );
-    let fd = FRAMES * DEPTH_PIXELS;
-    let (s, rest) = out.split_at_mut(OBS_LEN);
-    let (next, tail) = rest.split_at_mut(OBS_LEN);
-    for (o, q) in s[..fd].iter_mut().zip(&p[..fd]) {
-        *o = dequantize_depth(*q);
-    }
-    for (o, q) in next[..fd].iter_mut().zip(&p[fd..PACKED_DEPTH]) {
-        *o = dequantize_depth(*q);
-    }
-    for k in 0..VEL_DIM {
-        s[fd + k] = packed_scalar(p, k);
-        next[fd + k] = packed_scalar(p, VEL_DIM + k);
-    }
-    for (k, o) in tail.iter_mut().enumerate() {
-        *o = packed_scalar(p, 2 * VEL_DIM + k);
-    }
-}
-
 /// Header of a transition batch, actor → replay.
 ///
-/// Payload: `[u16]` of `count × PACKED_LEN`, each transition packed by
-/// [`pack_transition`].
+/// Payload: `[u16]` of `count × packed_len` ([`Shapes::packed_len`]), each
+/// transition packed by [`Shapes::pack`].
 // Pod: no padding and no invalid bit pattern (checked by the derive), so
 // the link sends and reads it as bytes.
 #[derive(Debug, Clone, Copy, Default, bytemuck::Pod, bytemuck::Zeroable)]
@@ -289,7 +370,7 @@ impl Pick {
 }
 
 /// Header of a minibatch, replay → learner. Payload: `[u16]` of
-/// `batch × PACKED_LEN` (packed transitions as in a transition batch), then
+/// `batch × packed_len` (packed transitions as in a transition batch), then
 /// `batch × PICK_WORDS`: each row's [`Pick`] with its importance weight
 /// (1 with uniform sampling).
 #[derive(Debug, Clone, Copy, Default)]
@@ -619,8 +700,9 @@ pub fn stage_names(role: RoleKind) -> [&'static str; STAGES] {
 
 /// A fingerprint of the message layout: every header's size and every
 /// payload length this build sends. Two hosts carry messages as raw bytes,
-/// so they must agree on it (the link refuses a host whose layout differs).
-pub fn layout_fingerprint() -> u64 {
+/// so they must agree on it (the link refuses a host whose layout differs),
+/// and on the run's shapes.
+pub fn layout_fingerprint(shapes: Shapes) -> u64 {
     use std::mem::size_of;
     let parts = [
         size_of::<ObsHeader>(),
@@ -632,9 +714,9 @@ pub fn layout_fingerprint() -> u64 {
         size_of::<Telemetry>(),
         size_of::<PriorityHeader>(),
         PICK_WORDS,
-        OBS_LEN,
-        PACKED_LEN,
-        NUM_ACTIONS,
+        shapes.obs_len(),
+        shapes.packed_len(),
+        shapes.actions,
         STAGES,
         DoneKind::Timeout as usize,
         EPISODE_FIELDS,
@@ -726,19 +808,26 @@ mod tests {
 
     #[test]
     fn what_an_honest_actor_never_writes_is_corrupt() {
-        let obs = vec![0.5f32; OBS_LEN];
-        let mut batch = vec![0u16; 5 * PACKED_LEN];
-        for (t, (a, r, d)) in batch.chunks_exact_mut(PACKED_LEN).zip([
+        let shapes = Shapes::PAPER;
+        let obs = vec![0.5f32; shapes.obs_len()];
+        let len = shapes.packed_len();
+        let mut batch = vec![0u16; 6 * len];
+        for (t, (a, r, d)) in batch.chunks_exact_mut(len).zip([
             (1.0, 3.0, 0.0),
             (0.5, 3.0, 0.0),
             (0.0, f32::NAN, 1.0),
             (0.0, -100.0, 2.0),
             (0.0, -100.0, 1.0),
+            (2.0, 3.0, 0.0),
         ]) {
-            pack_transition(&obs, &obs, a, r, d, t);
+            shapes.pack(&obs, &obs, [a, r, d], t);
         }
-        assert_eq!(corrupt_transitions(&batch[..PACKED_LEN]), 0);
-        assert_eq!(corrupt_transitions(&batch), 3);
+        assert_eq!(shapes.corrupt_transitions(&batch[..len]), 0);
+        assert_eq!(shapes.corrupt_transitions(&batch), 4, "action 2 without hold");
+        // With the hold action, action 2 is one of the task's.
+        let hold = Shapes::task(false, true);
+        assert_eq!(hold.packed_len(), len);
+        assert_eq!(hold.corrupt_transitions(&batch), 3);
         assert!(!episode_corrupt(&[-100.0, 12.0, 1.0, 0.4]));
         assert!(!episode_corrupt(&[450.0, 150.0, 3.0, 0.0]));
         for bad in [
@@ -756,12 +845,16 @@ mod tests {
 
     #[test]
     fn packed_transitions_round_trip_within_the_fixed_point_step() {
-        let s: Vec<f32> = (0..OBS_LEN)
+        // A task with a goal: six scalars per observation.
+        let shapes = Shapes::task(true, true);
+        let (obs_len, fd) = (shapes.obs_len(), OBS_DEPTH);
+        assert_eq!(obs_len, 2 * 1024 + 6);
+        let s: Vec<f32> = (0..obs_len)
             .map(|i| {
                 if i < FRAMES * DEPTH_PIXELS { (i as f32 * 0.618).fract() } else { -1.5 + i as f32 }
             })
             .collect();
-        let next: Vec<f32> = (0..OBS_LEN)
+        let next: Vec<f32> = (0..obs_len)
             .map(|i| {
                 if i < FRAMES * DEPTH_PIXELS {
                     1.0 - (i as f32 * 0.377).fract()
@@ -770,21 +863,20 @@ mod tests {
                 }
             })
             .collect();
-        let mut p = vec![0u16; PACKED_LEN];
-        pack_transition(&s, &next, 1.0, -100.0, 1.0, &mut p);
-        let mut t = vec![0f32; TRANSITION_LEN];
-        unpack_transition(&p, &mut t);
-        let fd = FRAMES * DEPTH_PIXELS;
+        let mut p = vec![0u16; shapes.packed_len()];
+        shapes.pack(&s, &next, [2.0, -100.0, 1.0], &mut p);
+        let mut t = vec![0f32; shapes.transition_len()];
+        shapes.unpack(&p, &mut t);
         for (a, b) in
-            t[..fd].iter().zip(&s[..fd]).chain(t[OBS_LEN..OBS_LEN + fd].iter().zip(&next[..fd]))
+            t[..fd].iter().zip(&s[..fd]).chain(t[obs_len..obs_len + fd].iter().zip(&next[..fd]))
         {
             assert!((a - b).abs() <= 0.5 / 65535.0 + 1e-7, "{a} vs {b}");
             assert!((0.0..=1.0).contains(a));
         }
         // Scalars travel bit for bit.
-        assert_eq!(&t[fd..OBS_LEN], &s[fd..]);
-        assert_eq!(&t[OBS_LEN + fd..2 * OBS_LEN], &next[fd..]);
-        assert_eq!(&t[2 * OBS_LEN..], &[1.0, -100.0, 1.0]);
+        assert_eq!(&t[fd..obs_len], &s[fd..]);
+        assert_eq!(&t[obs_len + fd..2 * obs_len], &next[fd..]);
+        assert_eq!(&t[2 * obs_len..], &[2.0, -100.0, 1.0]);
         assert_eq!(
             (dequantize_depth(quantize_depth(0.0)), dequantize_depth(quantize_depth(1.0))),
             (0.0, 1.0)

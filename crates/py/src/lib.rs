@@ -22,7 +22,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
-use rotorhive_model::{Device, OBS_LEN, PARAMS, QNet};
+use rotorhive_model::{Device, QNet, Shapes, checkpoint_shapes, params};
 use rotorhive_roles::Config;
 use rotorhive_roles::config::SimSection;
 use rotorhive_sim::view::{self, Canvas, Focus, Tracks};
@@ -119,11 +119,11 @@ fn check_len(what: &str, got: usize, want: usize) -> PyResult<()> {
     Ok(())
 }
 
-fn check_actions(actions: &[u8], agents: usize) -> PyResult<()> {
+fn check_actions(actions: &[u8], agents: usize, count: usize) -> PyResult<()> {
     check_len("actions", actions.len(), agents)?;
-    if let Some(i) = actions.iter().position(|a| *a > 1) {
+    if let Some(i) = actions.iter().position(|a| *a as usize >= count) {
         return Err(value_error(format!(
-            "actions[{i}] = {} is out of range: the action space is Discrete(2)",
+            "actions[{i}] = {} is out of range: the action space is Discrete({count})",
             actions[i]
         )));
     }
@@ -238,7 +238,7 @@ impl Sim {
     ) -> PyResult<()> {
         let n = self.env.agents();
         let a = actions.as_slice()?;
-        check_actions(a, n)?;
+        check_actions(a, n, self.env.config().shapes().actions)?;
         let StepBuffers {
             mut depth,
             mut velocity,
@@ -319,7 +319,7 @@ impl Sim {
         let mut canvas = Canvas::default();
         let focus = Focus {
             agent,
-            depth: &row[..len - 3],
+            depth: &row[..len - self.env.config().shapes().scalars],
             q: None,
             action: self.last_actions.get(agent).copied(),
         };
@@ -327,6 +327,32 @@ impl Sim {
         Ok(Array3::from_shape_vec((view::HEIGHT, view::WIDTH, 3), canvas.rgb())
             .expect("an RGB picture")
             .into_pyarray(py))
+    }
+
+    /// Number of actions: 2, or 3 with `sim.hold_action` (2 holds the
+    /// lateral setpoint).
+    #[getter]
+    fn num_actions(&self) -> usize {
+        self.env.config().shapes().actions
+    }
+
+    /// Whether episodes have a goal (`[sim.goal]`): observations then have
+    /// a `goal` part.
+    #[getter]
+    fn has_goal(&self) -> bool {
+        self.env.config().goal.enabled
+    }
+
+    /// Writes every agent's goal floats (`agents × 3`: bearing in rad, then
+    /// distance and lateral offset in tens of metres, body frame; zeros
+    /// without a goal).
+    fn observe_goal(&self, mut goal: PyReadwriteArray2<'_, f32>) -> PyResult<()> {
+        let g = goal.as_slice_mut()?;
+        check_len("goal", g.len(), self.env.agents() * 3)?;
+        for (i, row) in g.chunks_exact_mut(3).enumerate() {
+            row.copy_from_slice(&self.env.goal_observation(i));
+        }
+        Ok(())
     }
 
     /// Writes every agent's current observation.
@@ -390,7 +416,7 @@ fn rust_agent_steps_per_second(
             (0..64 * agents).map(|_| rng.random_range(0..2)).collect()
         }
     };
-    check_actions(&rows[..agents], agents)?;
+    check_actions(&rows[..agents], agents, env.config().shapes().actions)?;
     py.detach(|| {
         // The start of the bench's Python environments: `reset(seed=1)`.
         env.reseed(1);
@@ -436,7 +462,7 @@ fn reference_rollout<'py>(
     obs.as_slice_mut().expect("contiguous")[..n * len].copy_from_slice(env.observations());
     for s in 0..t {
         let a: Vec<u8> = acts.row(s).to_vec();
-        check_actions(&a, n)?;
+        check_actions(&a, n, env.config().shapes().actions)?;
         env.step(&a).map_err(render_error)?;
         obs.as_slice_mut().expect("contiguous")[(s + 1) * n * len..(s + 2) * n * len]
             .copy_from_slice(env.observations());
@@ -476,19 +502,36 @@ fn model_error(e: rotorhive_model::ModelError) -> PyErr {
 
 #[pymethods]
 impl QNetwork {
-    /// A freshly initialised network, deterministic for a seed.
+    /// A freshly initialised network, deterministic for a seed: for the
+    /// paper's task, or with the goal's floats in its observation (`goal`)
+    /// and the hold action (`hold`).
     #[new]
-    #[pyo3(signature = (seed=0))]
-    fn new(seed: u64) -> PyResult<Self> {
-        Ok(Self { net: QNet::new(seed, &Device::Cpu).map_err(model_error)? })
+    #[pyo3(signature = (seed=0, goal=false, hold=false))]
+    fn new(seed: u64, goal: bool, hold: bool) -> PyResult<Self> {
+        let shapes = Shapes::task(goal, hold);
+        Ok(Self { net: QNet::with_shapes(shapes, seed, &Device::Cpu).map_err(model_error)? })
     }
 
-    /// Loads a checkpoint written by `hive train` (`checkpoints/*.safetensors`).
+    /// Loads a checkpoint written by `hive train` (`checkpoints/*.safetensors`),
+    /// of the shapes its header gives.
     #[staticmethod]
     fn load(path: PathBuf) -> PyResult<Self> {
-        let net = QNet::new(0, &Device::Cpu).map_err(model_error)?;
+        let shapes = checkpoint_shapes(&path).map_err(model_error)?;
+        let net = QNet::with_shapes(shapes, 0, &Device::Cpu).map_err(model_error)?;
         net.load(&path).map_err(model_error)?;
         Ok(Self { net })
+    }
+
+    /// Floats of one flat observation (2051, or 2054 with a goal).
+    #[getter]
+    fn obs_len(&self) -> usize {
+        self.net.shapes().obs_len()
+    }
+
+    /// Number of actions (2, or 3 with hold).
+    #[getter]
+    fn actions(&self) -> usize {
+        self.net.shapes().actions
     }
 
     /// Saves the weights as a rotorhive checkpoint.
@@ -497,29 +540,32 @@ impl QNetwork {
     }
 
     /// Writes the network as an ONNX model: inputs `depth` `(B, 2, 32, 32)`
-    /// and `velocity` `(B, 3)`, output `q` `(B, 2)` (as `hive export`).
+    /// and `velocity` `(B, 3)` (with a goal `(B, 6)`: the velocity, then the
+    /// goal's floats), output `q` `(B, actions)` (as `hive export`).
     fn to_onnx(&self, path: PathBuf) -> PyResult<()> {
         self.net.to_onnx(&path, &[]).map_err(model_error)
     }
 
-    /// Q-values `(B, 2)` of flat observations `(B, 2051)`: the previous and
-    /// the current depth frame, row-major, then the body-frame velocity.
+    /// Q-values `(B, actions)` of flat observations `(B, obs_len)`: the
+    /// previous and the current depth frame, row-major, then the body-frame
+    /// velocity (and, with a goal, the goal's floats).
     fn q_values<'py>(
         &self,
         py: Python<'py>,
         obs: PyReadonlyArray2<'py, f32>,
     ) -> PyResult<Bound<'py, PyArray2<f32>>> {
         let b = obs.shape()[0];
-        if obs.shape()[1] != OBS_LEN || b == 0 {
+        let (len, actions) = (self.net.shapes().obs_len(), self.net.shapes().actions);
+        if obs.shape()[1] != len || b == 0 {
             return Err(value_error(format!(
-                "observations must have shape (B, {OBS_LEN}) with B >= 1, got {:?}",
+                "observations must have shape (B, {len}) with B >= 1, got {:?}",
                 obs.shape()
             )));
         }
         let flat: Vec<f32> = obs.as_array().iter().copied().collect();
         let q = self.net.q_values(&flat).map_err(model_error)?;
-        Ok(Array2::from_shape_vec((b, 2), q)
-            .expect("two Q-values per observation")
+        Ok(Array2::from_shape_vec((b, actions), q)
+            .expect("one Q-value per action and observation")
             .into_pyarray(py))
     }
 
@@ -528,13 +574,13 @@ impl QNetwork {
     fn weights<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let d = PyDict::new(py);
         let named = self.net.named();
-        for (name, shape) in PARAMS {
+        for (name, shape) in params(self.net.shapes()) {
             let data: Vec<f32> = named[name]
                 .flatten_all()
                 .and_then(|t| t.to_vec1())
                 .map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
-            let a = numpy::ndarray::ArrayD::from_shape_vec(shape.to_vec(), data)
-                .expect("the parameter's shape");
+            let a =
+                numpy::ndarray::ArrayD::from_shape_vec(shape, data).expect("the parameter's shape");
             d.set_item(name, a.into_pyarray(py))?;
         }
         Ok(d)
@@ -549,7 +595,8 @@ fn _rotorhive(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(reference_rollout, m)?)?;
     m.add_function(wrap_pyfunction!(sim_keys, m)?)?;
     m.add_function(wrap_pyfunction!(levels, m)?)?;
-    m.add("OBS_LEN", OBS_LEN)?;
+    // The paper's task's observation length (a goal task's is longer).
+    m.add("OBS_LEN", Shapes::PAPER.obs_len())?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }

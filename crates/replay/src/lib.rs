@@ -148,6 +148,11 @@ impl Replay {
         true
     }
 
+    /// Words per stored transition.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
     /// Transitions held.
     pub fn len(&self) -> usize {
         self.len

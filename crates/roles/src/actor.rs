@@ -10,8 +10,8 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use rotorhive_model::QNet;
 use rotorhive_msg::{
-    ActionHeader, ActorStage, EPISODE_FIELDS, OBS_LEN, ObsHeader, PACKED_LEN, RoleKind, Telemetry,
-    TransitionHeader, WeightsHeader, pack_transition,
+    ActionHeader, ActorStage, EPISODE_FIELDS, ObsHeader, RoleKind, Shapes, Telemetry,
+    TransitionHeader, WeightsHeader,
 };
 use rotorhive_transport::Channel;
 
@@ -78,7 +78,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, e: usize) -> Result<()> {
     let mut obs_rx =
         hub.receiver::<f32, ObsHeader>(&Channel::obs(e, cfg.obs_messages_per_step()))?;
     let mut a = Actor::new(cfg, hub, e)?;
-    let mut gather = Gather::new(a.n);
+    let mut gather = Gather::new(a.n, a.shapes.obs_len());
     if a.schedule.is_some() && !a.wait_for_receivers() {
         return Ok(());
     }
@@ -96,7 +96,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, e: usize) -> Result<()> {
         let n = a.n;
         if h.total as usize != n
             || h.first as usize + h.agents as usize > n
-            || msg.payload().len() != rotorhive_msg::obs_batch_len(h.agents as usize)
+            || msg.payload().len() != a.shapes.obs_batch_len(h.agents as usize)
         {
             protocol_err!(
                 "observation batch from sim {e} has agents {}..{} of {}, the config says {n}",
@@ -146,6 +146,8 @@ struct Actor<'a, S: Service> {
     e: usize,
     n: usize,
     net: QNet,
+    /// The run's observation and action shapes.
+    shapes: Shapes,
     act_tx: Sender<S, u8, ActionHeader>,
     trans_tx: Sender<S, u16, TransitionHeader>,
     w_rx: Receiver<S, f32, WeightsHeader>,
@@ -180,7 +182,9 @@ struct Actor<'a, S: Service> {
 impl<'a, S: Service> Actor<'a, S> {
     fn new(cfg: &'a Config, hub: &'a rotorhive_transport::Hub<S>, e: usize) -> Result<Self> {
         let (n, envs) = (cfg.sim.agents, cfg.sim.envs);
-        let mut net = QNet::new(
+        let shapes = cfg.shapes();
+        let mut net = QNet::with_shapes(
+            shapes,
             crate::seeds::network(cfg.seed),
             &rotorhive_model::device(cfg.actor.device.kind())?,
         )?;
@@ -191,7 +195,7 @@ impl<'a, S: Service> Actor<'a, S> {
             // An episode's end can release up to n transitions of one agent.
             trans_tx: hub.sender::<u16, TransitionHeader>(
                 &Channel::transitions(envs),
-                steps_n * n * PACKED_LEN,
+                steps_n * n * shapes.packed_len(),
                 STALL_TIMEOUT,
             )?,
             w_rx: hub.receiver::<f32, WeightsHeader>(&Channel::weights(envs))?,
@@ -203,7 +207,7 @@ impl<'a, S: Service> Actor<'a, S> {
             tel: crate::counters(hub, RoleKind::Actor, e, roles_of(cfg))?,
             rng: Pcg64Mcg::seed_from_u64(crate::seeds::actor(cfg.seed, cfg.cluster.env_offset + e)),
             schedule: cfg.deterministic.then(|| Schedule::new(cfg)),
-            nstep: NStep::new(steps_n, cfg.learner.gamma as f32, n),
+            nstep: NStep::new(steps_n, cfg.learner.gamma as f32, n, shapes.obs_len()),
             actions: vec![0; n],
             prev_actions: vec![0; n],
             returns: vec![0.0; n],
@@ -224,6 +228,7 @@ impl<'a, S: Service> Actor<'a, S> {
             e,
             n,
             net,
+            shapes,
         })
     }
 
@@ -252,7 +257,7 @@ impl<'a, S: Service> Actor<'a, S> {
             self.nstep.clear();
         }
         self.expected_step = h.step + 1;
-        let (obs, rest) = p.split_at(n * OBS_LEN);
+        let (obs, rest) = p.split_at(n * self.shapes.obs_len());
         let (rewards, dones) = rest.split_at(n);
         if !self.wait_weights(h.step)? {
             return Ok(false);
@@ -261,10 +266,11 @@ impl<'a, S: Service> Actor<'a, S> {
         // The episodes that end at this step were acted with the rates of
         // the steps before it: the rates are set after they are reported.
         let greedy = self.net.greedy(obs)?;
+        let actions = self.shapes.actions as u8;
         for (i, g) in greedy.into_iter().enumerate() {
             let eps = self.eps[i];
             self.actions[i] =
-                if self.rng.random::<f64>() < eps { self.rng.random_range(0..2u8) } else { g };
+                if self.rng.random::<f64>() < eps { self.rng.random_range(0..actions) } else { g };
             // An agent whose episode ended acts on its next episode's first
             // observation (same-step reset).
             if dones[i] != 0.0 {
@@ -359,18 +365,13 @@ impl<'a, S: Service> Actor<'a, S> {
         // found no receiver within the stall timeout gives the batch up.
         let hub = self.hub;
         let give_up = |receivers| receivers == 0 || hub.shutdown_requested();
-        let sent = self.trans_tx.send_retrying(count * PACKED_LEN, give_up, |th, out| {
+        let (shapes, ol) = (self.shapes, self.shapes.obs_len());
+        let sent = self.trans_tx.send_retrying(count * shapes.packed_len(), give_up, |th, out| {
             *th = header;
-            for (o, t) in out.chunks_exact_mut(PACKED_LEN).zip(&nstep.out) {
-                let next = &obs[t.agent * OBS_LEN..(t.agent + 1) * OBS_LEN];
-                pack_transition(
-                    nstep.obs(t.slot, t.agent),
-                    next,
-                    t.action as f32,
-                    t.ret,
-                    if t.done { 1.0 } else { 0.0 },
-                    o,
-                );
+            for (o, t) in out.chunks_exact_mut(shapes.packed_len()).zip(&nstep.out) {
+                let next = &obs[t.agent * ol..(t.agent + 1) * ol];
+                let tail = [t.action as f32, t.ret, if t.done { 1.0 } else { 0.0 }];
+                shapes.pack(nstep.obs(t.slot, t.agent), next, tail, o);
             }
         });
         match sent {
@@ -483,6 +484,8 @@ pub struct NStep {
     n: usize,
     gamma: f32,
     agents: usize,
+    /// Floats per observation.
+    len: usize,
     ring: Vec<f32>,
     /// Slot of the newest stored observation batch.
     slot: usize,
@@ -492,13 +495,15 @@ pub struct NStep {
 }
 
 impl NStep {
-    /// n-step returns with discount `gamma` for `agents` agents.
-    pub fn new(n: usize, gamma: f32, agents: usize) -> Self {
+    /// n-step returns with discount `gamma` for `agents` agents whose
+    /// observations are `len` floats.
+    pub fn new(n: usize, gamma: f32, agents: usize, len: usize) -> Self {
         Self {
             n,
             gamma,
             agents,
-            ring: vec![0.0; (n + 1) * agents * OBS_LEN],
+            len,
+            ring: vec![0.0; (n + 1) * agents * len],
             slot: 0,
             queue: vec![Default::default(); agents],
             out: Vec::new(),
@@ -513,15 +518,15 @@ impl NStep {
 
     /// The observation of `agent` stored in ring slot `slot`.
     pub fn obs(&self, slot: usize, agent: usize) -> &[f32] {
-        let at = (slot * self.agents + agent) * OBS_LEN;
-        &self.ring[at..at + OBS_LEN]
+        let at = (slot * self.agents + agent) * self.len;
+        &self.ring[at..at + self.len]
     }
 
     /// Stores the observations the next actions are taken on.
     pub fn store(&mut self, obs: &[f32]) {
         self.slot = (self.slot + 1) % (self.n + 1);
-        let at = self.slot * self.agents * OBS_LEN;
-        self.ring[at..at + self.agents * OBS_LEN].copy_from_slice(obs);
+        let at = self.slot * self.agents * self.len;
+        self.ring[at..at + self.agents * self.len].copy_from_slice(obs);
     }
 
     /// Records the outcome of the last actions and fills `out` with the
@@ -563,15 +568,17 @@ impl NStep {
 /// from per-agent messages, as the non-batched mode sends them.
 pub struct Gather {
     n: usize,
+    /// Floats per observation.
+    len: usize,
     buf: Vec<f32>,
     step: u64,
     have: usize,
 }
 
 impl Gather {
-    /// A gatherer of `n` agents' observations.
-    pub fn new(n: usize) -> Self {
-        Self { n, buf: vec![0.0; rotorhive_msg::obs_batch_len(n)], step: u64::MAX, have: 0 }
+    /// A gatherer of `n` agents' observations of `len` floats.
+    pub fn new(n: usize, len: usize) -> Self {
+        Self { n, len, buf: vec![0.0; n * (len + 2)], step: u64::MAX, have: 0 }
     }
 
     /// Copies in the agents of one message; true once all agents of its
@@ -583,10 +590,10 @@ impl Gather {
             self.have = 0;
         }
         let (a, k) = (h.first as usize, h.agents as usize);
-        let g = &mut self.buf;
-        g[a * OBS_LEN..(a + k) * OBS_LEN].copy_from_slice(&src[..k * OBS_LEN]);
-        g[n * OBS_LEN + a..n * OBS_LEN + a + k].copy_from_slice(&src[k * OBS_LEN..k * OBS_LEN + k]);
-        g[n * OBS_LEN + n + a..n * OBS_LEN + n + a + k].copy_from_slice(&src[k * OBS_LEN + k..]);
+        let (g, l) = (&mut self.buf, self.len);
+        g[a * l..(a + k) * l].copy_from_slice(&src[..k * l]);
+        g[n * l + a..n * l + a + k].copy_from_slice(&src[k * l..k * l + k]);
+        g[n * l + n + a..n * l + n + a + k].copy_from_slice(&src[k * l + k..]);
         self.have += k;
         if self.have < n {
             return false;
@@ -656,8 +663,9 @@ mod tests {
 
     #[test]
     fn n_step_returns_and_episode_ends() {
-        let mut s = NStep::new(3, 0.5, 1);
-        let obs = |v: f32| vec![v; OBS_LEN];
+        let len = Shapes::PAPER.obs_len();
+        let mut s = NStep::new(3, 0.5, 1, len);
+        let obs = |v: f32| vec![v; len];
         s.store(&obs(0.0));
         // Steps with rewards 1, 2, 4: the first transition leaves with
         // 1 + 0.5·2 + 0.25·4 = 3, from observation 0, not done.
@@ -674,7 +682,7 @@ mod tests {
         let got: Vec<_> = s.out.iter().map(|t| (s.obs(t.slot, 0)[0], t.ret, t.done)).collect();
         assert_eq!(got, vec![(1.0, 2.0, true), (2.0, 0.0, true), (3.0, -8.0, true)]);
         // One-step returns are the plain transitions.
-        let mut one = NStep::new(1, 0.99, 2);
+        let mut one = NStep::new(1, 0.99, 2, len);
         one.store(&[obs(5.0), obs(6.0)].concat());
         one.push(&[0, 1], &[3.0, -100.0], &[0.0, 1.0]);
         let got: Vec<_> =

@@ -8,8 +8,9 @@ use std::path::{Path, PathBuf};
 use crate::error::{Doing, Result, RoleError, config_err};
 use serde::{Deserialize, Serialize};
 
+use rotorhive_msg::Shapes;
 use rotorhive_sim::{
-    Arena, CameraSpec, GenParams, Noise, PhysicsKind, Randomize, RendererKind, SimConfig,
+    Arena, CameraSpec, GenParams, Goal, Noise, PhysicsKind, Randomize, RendererKind, SimConfig,
 };
 
 /// `sim.observation_mode`: the records' enum, so that `summary.json` names
@@ -242,6 +243,13 @@ pub struct SimSection {
     pub randomize: Randomize,
     /// A generator parameter ramped over the run (training lanes only).
     pub curriculum: Option<Curriculum>,
+    /// A goal to reach (`[sim.goal]`; off: the paper's task). With it the
+    /// observation gains the goal's floats.
+    #[serde(skip_serializing_if = "Goal::is_off")]
+    pub goal: Goal,
+    /// A third action that holds the lateral setpoint.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub hold_action: bool,
 }
 
 /// `[sim.curriculum]`: one key of `[sim.generator]` ramps linearly from
@@ -422,6 +430,8 @@ impl Default for SimSection {
             noise: Noise::default(),
             randomize: Randomize::default(),
             curriculum: None,
+            goal: Goal::default(),
+            hold_action: false,
         }
     }
 }
@@ -676,6 +686,7 @@ impl Config {
         s.randomize
             .validate()
             .map_err(|(k, m)| RoleError::Config(format!("key `sim.randomize.{k}` {m}")))?;
+        s.goal.validate().map_err(|(k, m)| RoleError::Config(format!("key `sim.goal.{k}` {m}")))?;
         let latency = s.noise.latency_s != [0.0, 0.0];
         if s.physics == PhysicsKind::Rapier && (latency || s.randomize.dynamics()) {
             config_err!(
@@ -995,8 +1006,16 @@ impl Config {
             reward_goal: s.reward_goal,
             noise: s.noise.clone(),
             randomize: s.randomize.clone(),
+            goal: s.goal.clone(),
+            hold_action: s.hold_action,
             ..SimConfig::default()
         }
+    }
+
+    /// The run's observation and action shapes (from `[sim.goal]` and
+    /// `sim.hold_action`): every role's layouts and the network follow them.
+    pub fn shapes(&self) -> Shapes {
+        Shapes::task(self.sim.goal.enabled, self.sim.hold_action)
     }
 
     /// The resolved config as TOML.

@@ -86,14 +86,18 @@ const REACTIVE_NEAR: f32 = 0.5;
 const REACTIVE_WINDOW: usize = 4;
 /// Lateral speed wanted per column of the target off the centre (m/s).
 const REACTIVE_GAIN: f32 = 0.12;
+/// With a goal: lateral speed wanted per metre of the goal's lateral
+/// offset while the way ahead is clear (m/s per m, at most 1 m/s).
+const REACTIVE_GOAL_GAIN: f32 = 0.3;
 
 /// A scripted reactive policy on one observation (`side`² pixels of the
 /// previous and the current depth frame, then the body velocity): the
 /// nearest depth of each column over the middle rows, widened to the
 /// minimum over `REACTIVE_WINDOW` neighbours each side; when straight
 /// ahead is nearer than `REACTIVE_NEAR` of the range, the lateral velocity
-/// is pushed toward the clearest column, else toward zero. Action 1 raises
-/// the lateral setpoint, 0 lowers it.
+/// is pushed toward the clearest column, else toward zero (with a goal:
+/// toward the goal's side). Action 1 raises the lateral setpoint, 0 lowers
+/// it.
 pub fn reactive(obs: &[f32], side: usize) -> u8 {
     let px = side * side;
     let cur = &obs[px..2 * px];
@@ -121,7 +125,13 @@ pub fn reactive(obs: &[f32], side: usize) -> u8 {
         }
     }
     let centre = clear[side / 2 - 1].min(clear[side / 2]);
-    let want = if centre > REACTIVE_NEAR { 0.0 } else { -REACTIVE_GAIN * (target as f32 - mid) };
+    // With a goal (its floats after the velocity), a clear way ahead
+    // steers toward the goal's lateral offset instead of straight on.
+    let cruise = match obs.get(2 * px + 5) {
+        Some(lat) => (REACTIVE_GOAL_GAIN * 10.0 * lat).clamp(-1.0, 1.0),
+        None => 0.0,
+    };
+    let want = if centre > REACTIVE_NEAR { cruise } else { -REACTIVE_GAIN * (target as f32 - mid) };
     let vy = obs[2 * px + 1];
     u8::from(want > vy)
 }

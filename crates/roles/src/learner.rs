@@ -8,8 +8,8 @@ use std::time::{Duration, Instant};
 use crate::error::{Doing, Result, RoleError, protocol_err};
 use rotorhive_model::{Dqn, DqnConfig, QNet, num_params};
 use rotorhive_msg::{
-    LearnerStage, MinibatchHeader, PACKED_LEN, PICK_WORDS, Pick, PriorityHeader, RoleKind,
-    TRANSITION_LEN, Telemetry, WeightsHeader, unpack_transition,
+    LearnerStage, MinibatchHeader, PICK_WORDS, Pick, PriorityHeader, RoleKind, Shapes, Telemetry,
+    WeightsHeader,
 };
 use rotorhive_transport::Channel;
 
@@ -49,8 +49,9 @@ fn save_state_atomic(dqn: &Dqn, path: &Path) -> Result<()> {
 /// resumed) one goes on from its last saved state at `state_path`:
 /// weights, target, Adam moments and counters.
 fn restore(cfg: &crate::config::Config, state_path: &Path) -> Result<Dqn> {
-    let mut dqn = Dqn::new(
+    let mut dqn = Dqn::with_shapes(
         dqn_config(cfg),
+        cfg.shapes(),
         crate::seeds::network(cfg.seed),
         &rotorhive_model::device(cfg.learner.device.kind())?,
     )?;
@@ -98,7 +99,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     let mut mb_in = Minibatch::new(hub, cfg)?;
     let mut w_tx = hub.sender::<f32, WeightsHeader>(
         &Channel::weights(cfg.sim.envs),
-        num_params(),
+        num_params(cfg.shapes()),
         STALL_TIMEOUT,
     )?;
     let mut tel = crate::counters(hub, RoleKind::Learner, 0, roles_of(cfg))?;
@@ -132,7 +133,8 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
         }
         last_update = Instant::now();
         let mb = *msg.user_header();
-        unpack_batch(msg.payload(), mb.batch as usize, &mut mb_in.batch, &mut mb_in.picks)?;
+        let (batch, picks) = (&mut mb_in.batch, &mut mb_in.picks);
+        unpack_batch(cfg.shapes(), msg.payload(), mb.batch as usize, batch, picks)?;
         drop(msg);
         let loss = mb_in.learn(&mut dqn, mb.seq, cfg.deterministic, &mut tel.sample.lost)?;
         let tm = dqn.timing();
@@ -178,8 +180,9 @@ fn publish<S: Service>(
     let v = *version + 1;
     let updates = dqn.updates();
     let net = &dqn.online;
-    let sent = w_tx.try_send_with(num_params(), |h, p| {
-        *h = WeightsHeader { version: v, updates, len: num_params() as u64 };
+    let len = net.num_params();
+    let sent = w_tx.try_send_with(len, |h, p| {
+        *h = WeightsHeader { version: v, updates, len: len as u64 };
         net.write_flat(p)?;
         match p.iter().position(|x| !x.is_finite()) {
             Some(i) => Err(RoleError::Protocol(format!("parameter {i} is {}", p[i]))),
@@ -298,25 +301,27 @@ impl Gauges {
 }
 
 /// Unpacks a minibatch of `rows` packed transitions and their picks into
-/// `out`, the learner's float layout (`TRANSITION_LEN` per transition), and
-/// `picks` (each row's place and importance weight).
+/// `out`, the learner's float layout (`transition_len` per transition),
+/// and `picks` (each row's place and importance weight).
 fn unpack_batch(
+    shapes: Shapes,
     packed: &[u16],
     rows: usize,
     out: &mut Vec<f32>,
     picks: &mut Vec<Pick>,
 ) -> Result<()> {
-    if rows == 0 || packed.len() != rows * (PACKED_LEN + PICK_WORDS) {
+    let (pl, tl) = (shapes.packed_len(), shapes.transition_len());
+    if rows == 0 || packed.len() != rows * (pl + PICK_WORDS) {
         protocol_err!(
             "a minibatch of {} words is not {rows} packed transitions and their picks ({} words each)",
             packed.len(),
-            PACKED_LEN + PICK_WORDS
+            pl + PICK_WORDS
         );
     }
-    let (data, tail) = packed.split_at(rows * PACKED_LEN);
-    out.resize(rows * TRANSITION_LEN, 0.0);
-    for (p, o) in data.chunks_exact(PACKED_LEN).zip(out.chunks_exact_mut(TRANSITION_LEN)) {
-        unpack_transition(p, o);
+    let (data, tail) = packed.split_at(rows * pl);
+    out.resize(rows * tl, 0.0);
+    for (p, o) in data.chunks_exact(pl).zip(out.chunks_exact_mut(tl)) {
+        shapes.unpack(p, o);
     }
     picks.clear();
     picks.extend(tail.chunks_exact(PICK_WORDS).map(Pick::unpack));

@@ -11,6 +11,7 @@ pub const LEVELS: &[(&str, &str, &str)] = &[
     ("forest", "rotorhive/Forest-v0", include_str!("../../../configs/levels/forest.toml")),
     ("noisy", "rotorhive/Noisy-v0", include_str!("../../../configs/levels/noisy.toml")),
     ("moving", "rotorhive/Moving-v0", include_str!("../../../configs/levels/moving.toml")),
+    ("goal", "rotorhive/Goal-v0", include_str!("../../../configs/levels/goal.toml")),
 ];
 
 /// The names of the levels, in order of difficulty.

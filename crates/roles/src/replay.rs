@@ -7,8 +7,8 @@ use std::time::{Duration, Instant};
 
 use crate::error::{Doing, Result, protocol_err};
 use rotorhive_msg::{
-    MinibatchHeader, PACKED_LEN, PICK_WORDS, PriorityHeader, Receipt, ReplayStage, RoleKind,
-    SeqTracker, Telemetry, TransitionHeader,
+    MinibatchHeader, PICK_WORDS, PriorityHeader, Receipt, ReplayStage, RoleKind, SeqTracker,
+    Shapes, Telemetry, TransitionHeader,
 };
 use rotorhive_replay::{Acted, Journal, Pick, Replay};
 use rotorhive_transport::{Channel, TransportError};
@@ -51,7 +51,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     // after a millisecond and the replay goes back to inserting.
     let tx = hub.sender::<u16, MinibatchHeader>(
         &Channel::minibatches(r.prefetch),
-        minibatch_len(r.batch),
+        minibatch_len(cfg.shapes(), r.batch),
         Duration::from_millis(1),
     )?;
     let tel = crate::counters(hub, RoleKind::Replay, 0, roles_of(cfg))?;
@@ -96,7 +96,8 @@ impl<S: Service> Memory<'_, S> {
                     break;
                 };
                 let lost = &mut self.tel.sample.lost;
-                ingest(&m, &mut self.mem, self.journal.as_mut(), &mut next_seq, lost)?;
+                let seen = (&mut next_seq, lost);
+                ingest(&m, self.cfg.shapes(), &mut self.mem, self.journal.as_mut(), seen)?;
                 self.receipts.took(m.user_header());
                 self.seq_log.record(m.user_header());
                 got = true;
@@ -121,7 +122,8 @@ impl<S: Service> Memory<'_, S> {
                 let wait = if ready { Duration::from_millis(2) } else { crate::POLL };
                 if let Some(m) = self.rx.recv_timeout(wait).doing("waiting for transitions")? {
                     let lost = &mut self.tel.sample.lost;
-                    ingest(&m, &mut self.mem, self.journal.as_mut(), &mut next_seq, lost)?;
+                    let seen = (&mut next_seq, lost);
+                    ingest(&m, self.cfg.shapes(), &mut self.mem, self.journal.as_mut(), seen)?;
                     self.receipts.took(m.user_header());
                     self.seq_log.record(m.user_header());
                 }
@@ -137,7 +139,7 @@ impl<S: Service> Memory<'_, S> {
         let (batch, beta) = (self.cfg.replay.batch, self.cfg.replay.priority_beta);
         let t = Instant::now();
         let (mem, picks) = (&mut self.mem, &mut self.picks);
-        let res = self.tx.send_with(minibatch_len(batch), |h, out| {
+        let res = self.tx.send_with(minibatch_len(self.cfg.shapes(), batch), |h, out| {
             let acted = sample(mem, out, picks, beta);
             *h = minibatch_header(batch, seq, acted);
         });
@@ -274,14 +276,14 @@ fn sent_or_stalled(res: std::result::Result<(), TransportError>) -> Result<bool>
 
 /// Words of a minibatch message of `batch` rows: the packed rows, then a
 /// [`Pick`] per row.
-pub fn minibatch_len(batch: usize) -> usize {
-    batch * (PACKED_LEN + PICK_WORDS)
+pub fn minibatch_len(shapes: Shapes, batch: usize) -> usize {
+    batch * (shapes.packed_len() + PICK_WORDS)
 }
 
 /// Samples a minibatch into a message's payload: the rows, then each row's
 /// pick (its place and importance weight).
 fn sample(mem: &mut Replay, out: &mut [u16], picks: &mut [Pick], beta: f64) -> Acted {
-    let (rows, tail) = out.split_at_mut(picks.len() * PACKED_LEN);
+    let (rows, tail) = out.split_at_mut(picks.len() * mem.width());
     let acted = mem.sample_into(rows, picks, beta);
     for (p, w) in picks.iter().zip(tail.chunks_exact_mut(PICK_WORDS)) {
         p.pack(w);
@@ -375,7 +377,7 @@ fn open_memory(
             let (m, j) = Journal::open(
                 &d.join("replay.bin"),
                 r.capacity,
-                PACKED_LEN,
+                cfg.shapes().packed_len(),
                 crate::seeds::replay(cfg.seed),
             )
             .doing("restoring the replay memory")?;
@@ -388,7 +390,10 @@ fn open_memory(
             }
             (m, Some(j))
         }
-        _ => (Replay::new(r.capacity, PACKED_LEN, crate::seeds::replay(cfg.seed)), None),
+        _ => (
+            Replay::new(r.capacity, cfg.shapes().packed_len(), crate::seeds::replay(cfg.seed)),
+            None,
+        ),
     })
 }
 
@@ -443,7 +448,7 @@ impl<S: Service> Memory<'_, S> {
         let mut next_seq = SeqTracker::new(cfg.sim.envs);
         let (mut rounds, mut sent) = (0u64, 0u64);
         // The next minibatch, sampled once and offered until the learner takes it.
-        let mut minibatch = vec![0u16; minibatch_len(batch)];
+        let mut minibatch = vec![0u16; minibatch_len(cfg.shapes(), batch)];
         let mut drawn: Option<Acted> = None;
         // A minibatch sent before the learner subscribes would be lost.
         while self.tx.receivers() == 0 && !self.hub.shutdown_requested() {
@@ -453,7 +458,12 @@ impl<S: Service> Memory<'_, S> {
             let t = Instant::now();
             let mut busy = false;
             while let Some(m) = self.rx.try_recv().doing("receiving transitions")? {
-                enqueue(&m, &mut pending, &mut next_seq, &mut self.tel.sample.lost)?;
+                enqueue(
+                    &m,
+                    &mut pending,
+                    cfg.shapes(),
+                    (&mut next_seq, &mut self.tel.sample.lost),
+                )?;
                 self.receipts.took(m.user_header());
                 busy = true;
             }
@@ -485,7 +495,12 @@ impl<S: Service> Memory<'_, S> {
                 let t = Instant::now();
                 let wait = Duration::from_millis(1);
                 if let Some(m) = self.rx.recv_timeout(wait).doing("waiting for transitions")? {
-                    enqueue(&m, &mut pending, &mut next_seq, &mut self.tel.sample.lost)?;
+                    enqueue(
+                        &m,
+                        &mut pending,
+                        cfg.shapes(),
+                        (&mut next_seq, &mut self.tel.sample.lost),
+                    )?;
                     self.receipts.took(m.user_header());
                 }
                 self.tel.sample.time_stage(ReplayStage::Idle, t);
@@ -527,8 +542,8 @@ fn insert_round(
 fn enqueue<S: Service>(
     m: &rotorhive_transport::Msg<S, u16, TransitionHeader>,
     pending: &mut [VecDeque<(u64, Vec<u16>)>],
-    next_seq: &mut SeqTracker,
-    lost: &mut u64,
+    shapes: Shapes,
+    (next_seq, lost): (&mut SeqTracker, &mut u64),
 ) -> Result<()> {
     let h = *m.user_header();
     let envs = pending.len();
@@ -536,7 +551,7 @@ fn enqueue<S: Service>(
         protocol_err!("transitions from actor {} of a run with {envs} environments", h.actor);
     };
     // A corrupt batch is refused; the round stays whole without it.
-    let clean = check(m, next_seq, lost);
+    let clean = check(m, shapes, next_seq, lost);
     q.push_back((h.weight_version, if clean { m.payload().to_vec() } else { Vec::new() }));
     Ok(())
 }
@@ -549,14 +564,15 @@ fn enqueue<S: Service>(
 /// learner).
 fn check<S: Service>(
     m: &rotorhive_transport::Msg<S, u16, TransitionHeader>,
+    shapes: Shapes,
     next_seq: &mut SeqTracker,
     lost: &mut u64,
 ) -> bool {
     let h = m.user_header();
     *lost += next_seq.observe(h.actor as usize, h.seq).saturating_mul(h.count as u64);
-    let bad = rotorhive_msg::corrupt_transitions(m.payload());
+    let bad = shapes.corrupt_transitions(m.payload());
     *lost += bad;
-    let whole = m.payload().len().is_multiple_of(PACKED_LEN);
+    let whole = m.payload().len().is_multiple_of(shapes.packed_len());
     if !whole {
         *lost += (h.count as u64).max(1);
     }
@@ -572,12 +588,12 @@ const INGEST_PER_LOOP: usize = 4;
 /// dropped.
 fn ingest<S: Service>(
     m: &rotorhive_transport::Msg<S, u16, TransitionHeader>,
+    shapes: Shapes,
     mem: &mut Replay,
     journal: Option<&mut Journal>,
-    next_seq: &mut SeqTracker,
-    lost: &mut u64,
+    (next_seq, lost): (&mut SeqTracker, &mut u64),
 ) -> Result<()> {
-    if !check(m, next_seq, lost) {
+    if !check(m, shapes, next_seq, lost) {
         return Ok(());
     }
     store(mem, journal, m.payload(), m.user_header().weight_version)
@@ -611,7 +627,7 @@ fn store(
     }
     mem.insert_acted(batch, version);
     if let Some(j) = journal {
-        j.record(mem, batch.len() / PACKED_LEN)?;
+        j.record(mem, batch.len() / mem.width())?;
     }
     Ok(())
 }

@@ -4,9 +4,7 @@
 use std::time::Instant;
 
 use crate::error::{Doing, Result, config_err};
-use rotorhive_msg::{
-    ActionHeader, OBS_LEN, ObsHeader, RoleKind, SimStage, Telemetry, WeightsHeader, obs_batch_len,
-};
+use rotorhive_msg::{ActionHeader, ObsHeader, RoleKind, SimStage, Telemetry, WeightsHeader};
 use rotorhive_sim::VecEnv;
 use rotorhive_transport::Channel;
 
@@ -24,12 +22,13 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
     let n = cfg.sim.agents;
     let mut env = open_env(cfg, env_index)?;
     let batched = cfg.batched();
-    assert_eq!(env.obs_len(), OBS_LEN, "simulator and message layouts disagree");
+    let shapes = cfg.shapes();
+    assert_eq!(env.obs_len(), shapes.obs_len(), "simulator and message layouts disagree");
     // Observations are assembled straight into the loaned sample (send_obs).
     env.drop_observation_buffer();
     let mut obs_tx = hub.sender::<f32, ObsHeader>(
         &Channel::obs(env_index, cfg.obs_messages_per_step()),
-        obs_batch_len(n),
+        shapes.obs_batch_len(n),
         STALL_TIMEOUT,
     )?;
     let mut act_rx = hub.receiver::<u8, ActionHeader>(&Channel::actions(env_index))?;
@@ -261,10 +260,11 @@ pub fn send_obs<S: Service>(
     batched: bool,
 ) -> rotorhive_transport::Result<()> {
     let total = env.agents();
+    let shapes = env.config().shapes();
     let per = if batched { total } else { 1 };
     for first in (0..total).step_by(per) {
         let n = per.min(total - first);
-        tx.send_with(obs_batch_len(n), |h, p| {
+        tx.send_with(shapes.obs_batch_len(n), |h, p| {
             *h = ObsHeader {
                 agents: n as u32,
                 first: first as u32,
@@ -272,7 +272,7 @@ pub fn send_obs<S: Service>(
                 reserved: 0,
                 step,
             };
-            let (obs, rest) = p.split_at_mut(n * OBS_LEN);
+            let (obs, rest) = p.split_at_mut(n * shapes.obs_len());
             env.write_observations(first, obs);
             let (rew, done) = rest.split_at_mut(n);
             rew.copy_from_slice(&env.rewards()[first..first + n]);

@@ -16,6 +16,7 @@ use rapier3d::math::Vector;
 use crate::arena::{Arena, ArenaError, Lanes, Spawn};
 use crate::dynamics::{DroneState, Gains, QuadParams};
 use crate::flight::{Body, Drone, Flight, Geometry};
+use crate::goal::{Goal, Progress};
 use crate::gpu::{GpuDepthRenderer, GpuError};
 use crate::rapier_flight::RapierFlight;
 use crate::realism::{Noise, PixelNoise, Randomize, WIND_DRAG};
@@ -24,6 +25,7 @@ use crate::render::{CameraPose, CameraSpec, DepthRenderer, Drones, Scene};
 /// Why an episode ended: the done codes every process shares (one type,
 /// `rotorhive_msg::DoneKind`, so the codes cannot drift apart).
 pub use rotorhive_msg::DoneKind as Done;
+use rotorhive_msg::Shapes;
 
 /// When an agent whose episode ended starts its next one (Gymnasium's
 /// autoreset modes).
@@ -125,6 +127,18 @@ pub struct SimConfig {
     pub quad: QuadParams,
     /// Controller gains.
     pub gains: Gains,
+    /// A goal to reach (off: the paper's task, through the far end).
+    pub goal: Goal,
+    /// A third action, 2, that holds the lateral setpoint.
+    pub hold_action: bool,
+}
+
+impl SimConfig {
+    /// The observation and action shapes of this task: the goal's floats
+    /// with a goal, the third action with hold.
+    pub fn shapes(&self) -> Shapes {
+        Shapes::task(self.goal.enabled, self.hold_action)
+    }
 }
 
 impl Default for SimConfig {
@@ -152,6 +166,8 @@ impl Default for SimConfig {
             drone_radius: 0.3,
             quad: QuadParams::default(),
             gains: Gains::default(),
+            goal: Goal::default(),
+            hold_action: false,
         }
     }
 }
@@ -278,6 +294,12 @@ pub struct VecEnv {
     total_steps: u64,
     /// Physics steps flown: the world's clock, which moves the obstacles.
     ticks: u64,
+    /// Each agent's goal (x, y) this episode, and its horizontal distance
+    /// after the last step (with a goal).
+    goals: Vec<[f32; 2]>,
+    goal_dist: Vec<f32>,
+    /// Each agent's position before the step (with a goal).
+    before: Vec<Vector>,
     /// When an agent whose episode ends starts its next one.
     autoreset: Autoreset,
     /// Agents that started a new episode in the last step (`NextStep`).
@@ -308,7 +330,7 @@ impl VecEnv {
         let World { flight, physics, scene, gpu } = World::new(&cfg, &arena, &lane_bounds, 0.0)?;
         let n = cfg.agents;
         let px = cfg.camera.side * cfg.camera.side;
-        let obs_len = 2 * px + 3;
+        let obs_len = 2 * px + cfg.shapes().scalars;
         let mut env = Self {
             renderer: DepthRenderer::new(cfg.camera, cfg.render_threads),
             gpu,
@@ -338,6 +360,9 @@ impl VecEnv {
             timing: StepTiming::default(),
             total_steps: 0,
             ticks: 0,
+            goals: vec![[0.0; 2]; n],
+            goal_dist: vec![0.0; n],
+            before: vec![Vector::ZERO; n],
             autoreset: Autoreset::SameStep,
             restarted: vec![false; n],
             cfg,
@@ -361,9 +386,15 @@ impl VecEnv {
         self.cfg.agents
     }
 
-    /// Floats per observation: two depth frames and the body-frame velocity.
+    /// Floats per observation: two depth frames, the body-frame velocity
+    /// and, with a goal, the goal's floats.
     pub fn obs_len(&self) -> usize {
-        2 * self.cfg.camera.side * self.cfg.camera.side + 3
+        2 * self.cfg.camera.side * self.cfg.camera.side + self.cfg.shapes().scalars
+    }
+
+    /// Each agent's goal this episode (x, y; meaningful with a goal).
+    pub fn goals(&self) -> &[[f32; 2]] {
+        &self.goals
     }
 
     /// The configuration.
@@ -510,14 +541,24 @@ impl VecEnv {
 
     /// Advances every agent by one action period.
     ///
-    /// `actions[i]` is 0 (lateral setpoint −`lateral_step`) or 1
-    /// (+`lateral_step`). Only the wgpu renderer can fail.
+    /// `actions[i]` is 0 (lateral setpoint −`lateral_step`), 1
+    /// (+`lateral_step`) or, with `hold_action`, 2 (the setpoint held).
+    /// Only the wgpu renderer can fail.
     pub fn step(&mut self, actions: &[u8]) -> Result<(), GpuError> {
         assert_eq!(actions.len(), self.cfg.agents, "one action per agent");
         let t0 = Instant::now();
         let cfg = &self.cfg;
+        if cfg.goal.enabled {
+            for (b, d) in self.before.iter_mut().zip(&self.drones) {
+                *b = d.p;
+            }
+        }
         for (d, a) in self.drones.iter_mut().zip(actions) {
-            let delta = if *a == 0 { -cfg.lateral_step } else { cfg.lateral_step };
+            let delta = match *a {
+                0 => -cfg.lateral_step,
+                2 if cfg.hold_action => 0.0,
+                _ => cfg.lateral_step,
+            };
             d.lateral_sp =
                 (d.lateral_sp + delta).clamp(-cfg.max_lateral_speed, cfg.max_lateral_speed);
             d.collided = false;
@@ -538,16 +579,7 @@ impl VecEnv {
                 continue;
             }
             self.steps[i] += 1;
-            let x = self.drones[i].p.x;
-            let (reward, done) = if self.drones[i].collided {
-                (self.cfg.reward_collision, Done::Collision)
-            } else if x >= self.arena.length {
-                (self.cfg.reward_goal, Done::Goal)
-            } else if self.steps[i] >= self.cfg.max_steps {
-                (self.cfg.reward_timeout, Done::Timeout)
-            } else {
-                (self.cfg.reward_step, Done::Running)
-            };
+            let (reward, done) = self.score(i);
             self.returns[i] += reward;
             self.rewards[i] = reward;
             self.dones[i] = done;
@@ -589,6 +621,31 @@ impl VecEnv {
         Ok(())
     }
 
+    /// The reward and end of agent `i`'s step: a collision, the far end
+    /// (the paper's task) or the goal reached or missed, the step limit.
+    fn score(&mut self, i: usize) -> (f32, Done) {
+        let cfg = &self.cfg;
+        let p = self.drones[i].p;
+        let goal = cfg.goal.enabled.then(|| cfg.goal.progress(self.goals[i], self.before[i], p));
+        let timeout = self.steps[i] >= cfg.max_steps;
+        match goal {
+            _ if self.drones[i].collided => (cfg.reward_collision, Done::Collision),
+            None if p.x >= self.arena.length => (cfg.reward_goal, Done::Goal),
+            None if timeout => (cfg.reward_timeout, Done::Timeout),
+            None => (cfg.reward_step, Done::Running),
+            Some(Progress::Reached) => (cfg.goal.reward_reach, Done::Goal),
+            Some(Progress::Missed) => (cfg.goal.reward_miss, Done::Timeout),
+            Some(Progress::Flying(_)) if p.x >= self.arena.length => {
+                (cfg.goal.reward_miss, Done::Timeout)
+            }
+            Some(Progress::Flying(d)) => {
+                let step = cfg.reward_step + cfg.goal.reward_progress * (self.goal_dist[i] - d);
+                self.goal_dist[i] = d;
+                if timeout { (cfg.reward_timeout, Done::Timeout) } else { (step, Done::Running) }
+            }
+        }
+    }
+
     fn reset_agent(&mut self, i: usize) {
         let lane = if self.lane_offsets.len() > 1 {
             self.rng.random_range(0..self.lane_offsets.len())
@@ -606,6 +663,14 @@ impl VecEnv {
         }
         if let Physics::Rapier(r) = &mut self.physics {
             r.load(i, &self.drones[i]);
+        }
+        if self.cfg.goal.enabled {
+            // Drawn after the spawn's draws: a task without a goal draws
+            // the same spawns as ever.
+            let g = &self.cfg.goal;
+            let y = self.lane_offsets[lane] + within(&mut self.rng, g.lateral);
+            self.goals[i] = [self.arena.length - g.from_end, y];
+            self.goal_dist[i] = Goal::distance(self.goals[i], self.drones[i].p);
         }
         self.steps[i] = 0;
         self.returns[i] = 0.0;
@@ -750,7 +815,7 @@ impl VecEnv {
     /// process assembles them in the loaned shared-memory sample this way.
     pub fn write_observations(&self, first: usize, out: &mut [f32]) {
         let px = self.cfg.camera.side * self.cfg.camera.side;
-        let len = 2 * px + 3;
+        let len = self.obs_len();
         assert!(
             out.len().is_multiple_of(len) && first + out.len() / len <= self.cfg.agents,
             "observation rows out of range"
@@ -759,8 +824,20 @@ impl VecEnv {
             let i = first + j;
             o[..px].copy_from_slice(&self.prev[i * px..(i + 1) * px]);
             o[px..2 * px].copy_from_slice(&self.cur[i * px..(i + 1) * px]);
-            o[2 * px..].copy_from_slice(&self.body_velocity(i));
+            o[2 * px..2 * px + 3].copy_from_slice(&self.body_velocity(i));
+            if self.cfg.goal.enabled {
+                o[2 * px + 3..].copy_from_slice(&self.goal_observation(i));
+            }
         }
+    }
+
+    /// Agent `i`'s goal floats (see [`crate::goal`]); zeros without a goal.
+    pub fn goal_observation(&self, i: usize) -> [f32; 3] {
+        if !self.cfg.goal.enabled {
+            return [0.0; 3];
+        }
+        let d = &self.drones[i];
+        Goal::observe(self.goals[i], d.p, d.q)
     }
 
     /// When an agent whose episode ends starts its next one (training uses

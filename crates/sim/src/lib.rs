@@ -9,6 +9,7 @@ pub mod dynamics;
 pub mod env;
 mod flight;
 pub mod generate;
+pub mod goal;
 pub mod gpu;
 mod lane;
 mod pool;
@@ -22,6 +23,7 @@ pub use env::{
     Autoreset, Done, Episode, LanesError, PhysicsKind, RendererKind, SimConfig, StepTiming, VecEnv,
 };
 pub use generate::{GenMode, GenParamError, GenParams};
+pub use goal::Goal;
 pub use gpu::{GpuDepthRenderer, GpuError};
 pub use realism::{Noise, Randomize};
 pub use render::{CameraPose, CameraSpec, DepthRenderer, Scene};

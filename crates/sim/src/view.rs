@@ -143,8 +143,9 @@ pub struct Focus<'a> {
     pub agent: usize,
     /// Its previous and current depth frames (`2 × side²`, in [0, 1]).
     pub depth: &'a [f32],
-    /// Q-values of its two actions, when a policy is flying.
-    pub q: Option<[f32; 2]>,
+    /// Q-values of its actions (two, or three with hold), when a policy
+    /// is flying.
+    pub q: Option<&'a [f32]>,
     /// The action it takes next (or took last).
     pub action: Option<u8>,
 }
@@ -314,19 +315,21 @@ fn depth_panel(canvas: &mut Canvas, focus: Focus<'_>, side: usize) {
             }
         }
     }
-    // The two actions (left, right) as bars: heights from the Q-values
+    // The actions (left, right, hold) as bars: heights from the Q-values
     // (their range scaled to the panel), or equal without a policy.
     let base = (24 + side * zoom + 80) as i32;
-    let heights = match focus.q {
-        Some([a, b]) if a.is_finite() && b.is_finite() => {
-            let (lo, hi) = (a.min(b), a.max(b));
+    let heights: Vec<f32> = match focus.q {
+        Some(q) if q.iter().all(|v| v.is_finite()) => {
+            let lo = q.iter().copied().fold(f32::INFINITY, f32::min);
+            let hi = q.iter().copied().fold(f32::NEG_INFINITY, f32::max);
             let span = (hi - lo).max(1e-6);
-            [a, b].map(|q| 20.0 + 50.0 * (q - lo) / span)
+            q.iter().map(|v| 20.0 + 50.0 * (v - lo) / span).collect()
         }
-        _ => [40.0, 40.0],
+        _ => vec![40.0; 2],
     };
+    let gap = if heights.len() > 2 { 70 } else { 90 };
     for (k, h) in heights.iter().enumerate() {
-        let x = (TOP + 40 + k * 90) as i32;
+        let x = (TOP + 40 + k * gap) as i32;
         let c = if focus.action == Some(k as u8) { CHOSEN } else { BAR };
         canvas.rect(x, base - *h as i32, x + 60, base, c, WIDTH);
     }
@@ -357,7 +360,7 @@ mod tests {
         draw(
             &env,
             &tracks,
-            Focus { agent: 0, depth: &depth[..2 * 32 * 32], q: Some([1.0, 2.0]), action: Some(1) },
+            Focus { agent: 0, depth: &depth[..2 * 32 * 32], q: Some(&[1.0, 2.0]), action: Some(1) },
             &mut canvas,
         );
         let count = |c: u8| canvas.px.iter().filter(|p| **p == c).count();

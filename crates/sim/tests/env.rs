@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use rotorhive_sim::{Arena, Autoreset, Done, Obstacle, SimConfig, Spawn, VecEnv};
+use rotorhive_sim::{Arena, Autoreset, Done, Goal, Obstacle, SimConfig, Spawn, VecEnv};
 
 fn open_arena(length: f32, obstacles: Vec<Obstacle>) -> Arena {
     Arena {
@@ -205,6 +205,61 @@ fn reaching_the_end_is_a_goal() {
         }
     }
     assert_eq!(done, Done::Goal);
+}
+
+/// With a goal: the observation gains its three floats and the action
+/// space the hold; a drone that steers to the goal's side reaches it (the
+/// step's reward is the arrival bonus), one that holds straight on past an
+/// offset goal misses it (a timeout with the miss penalty); the progress
+/// reward is the distance gained.
+#[test]
+fn a_goal_is_reached_by_steering_to_it_and_missed_by_flying_past() {
+    let goal = Goal { enabled: true, lateral: [3.0, 3.0], from_end: 5.0, ..Goal::default() };
+    let sim = SimConfig { agents: 2, goal, hold_action: true, ..SimConfig::default() };
+    assert_eq!(sim.shapes().scalars, 6);
+    assert_eq!(sim.shapes().actions, 3);
+    let mut env = VecEnv::new(sim, open_arena(40.0, vec![]), 1).unwrap();
+    assert_eq!(env.obs_len(), 2 * 32 * 32 + 6);
+    assert_eq!(env.goals()[0], [35.0, 3.0]);
+    let g = env.goal_observation(0);
+    assert!(
+        g[0] > 0.0 && (g[1] - 33.0f32.hypot(3.0) / 10.0).abs() < 0.01 && (g[2] - 0.3).abs() < 0.01
+    );
+    let row = &env.observations()[..env.obs_len()];
+    assert_eq!(&row[2 * 1024 + 3..], &g);
+    let (mut ends, mut rewards) = ([None, None], [0.0f32; 2]);
+    for t in 0..60 {
+        // Agent 0 steers left up to 0.5 m/s, then holds until level with
+        // the goal, then brakes; agent 1 holds straight on.
+        let vy = env.state(0).velocity.y;
+        let y = env.positions()[0][1];
+        let a0 = if y < 2.5 {
+            if vy < 0.5 { 1 } else { 2 }
+        } else if vy > 0.05 {
+            0
+        } else {
+            2
+        };
+        let x0 = env.positions()[1][0];
+        env.step(&[a0, 2]).unwrap();
+        for i in 0..2 {
+            if ends[i].is_none() && env.dones()[i] != Done::Running {
+                ends[i] = Some((env.dones()[i], t));
+                rewards[i] = env.rewards()[i];
+            }
+        }
+        if t == 3 {
+            let gained = env.positions()[1][0] - x0;
+            assert!((env.rewards()[1] - (3.0 + gained)).abs() < 0.05, "{}", env.rewards()[1]);
+        }
+        if ends.iter().all(Option::is_some) {
+            break;
+        }
+    }
+    assert_eq!(ends[0].map(|e| e.0), Some(Done::Goal), "{ends:?}");
+    assert_eq!(rewards[0], 100.0);
+    assert_eq!(ends[1].map(|e| e.0), Some(Done::Timeout), "{ends:?}");
+    assert_eq!(rewards[1], -10.0);
 }
 
 /// Straight flight, or always the same action, collides before earning 300

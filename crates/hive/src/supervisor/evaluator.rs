@@ -176,7 +176,7 @@ fn fly<S: Service>(job: Job) -> Result<()> {
     let cfg = &job.cfg;
     let hub = Hub::<S>::new(&job.prefix, "eval")?;
     let mut rx = hub.receiver::<f32, WeightsHeader>(&Channel::weights(cfg.sim.envs))?;
-    let mut net = QNet::new(0, &Device::Cpu)?;
+    let mut net = QNet::with_shapes(cfg.shapes(), 0, &Device::Cpu)?;
     net.set_threads(1);
     let mut judge = Judge { arenas: cfg.eval_arenas()?, confirmations: 0 };
     let mut cadence = Cadence::new(cfg);

@@ -226,7 +226,7 @@ fn gather_workers(
     let mut head = rotorhive_link::Head::listen(
         ep,
         prefix,
-        rotorhive_link::layout(rotorhive_model::num_params()),
+        rotorhive_link::layout(rotorhive_model::num_params(rotorhive_msg::Shapes::PAPER)),
         opts,
     )?;
     let wanted = cfg.cluster.workers;
@@ -324,7 +324,7 @@ fn supervise<S: Service>(
         rotorhive_roles::role_names(&cfg),
     )?;
     let link = match link {
-        Some((head, text)) => Some(head.bridge::<S>(
+        Some((head, text)) => Some(head.with_shapes(cfg.shapes()).bridge::<S>(
             prefix.clone(),
             cfg.sim.envs,
             roles_of(&cfg),

@@ -100,25 +100,47 @@ def _check_render_mode(render_mode: str | None) -> None:
         raise ValueError(f"render_mode {render_mode!r} is not supported: only 'rgb_array' (or None)")
 
 
-def _spaces(side: int) -> spaces.Dict:
-    return spaces.Dict(
-        {
-            "depth": spaces.Box(0.0, 1.0, (2, side, side), np.float32),
-            "velocity": spaces.Box(-np.inf, np.inf, (3,), np.float32),
-        }
-    )
+def _spaces(side: int, goal: bool) -> spaces.Dict:
+    parts = {
+        "depth": spaces.Box(0.0, 1.0, (2, side, side), np.float32),
+        "velocity": spaces.Box(-np.inf, np.inf, (3,), np.float32),
+    }
+    if goal:
+        # Bearing (rad), distance and lateral offset (tens of metres), body frame.
+        parts["goal"] = spaces.Box(-np.inf, np.inf, (3,), np.float32)
+    return spaces.Dict(parts)
 
 
 class _Buffers:
     """The arrays the simulator writes into, owned by the environment."""
 
-    def __init__(self, n: int, side: int) -> None:
+    def __init__(self, n: int, side: int, goal: bool = False) -> None:
         self.depth = np.zeros((n, 2, side, side), np.float32)
         self.velocity = np.zeros((n, 3), np.float32)
+        self.goal = np.zeros((n, 3), np.float32) if goal else None
         self.rewards = np.zeros(n, np.float32)
         self.dones = np.zeros(n, np.uint8)
         self.ep_return = np.zeros(n, np.float32)
         self.ep_length = np.zeros(n, np.int32)
+
+    def parts(self, i: Any = slice(None), copy: bool = True) -> dict[str, np.ndarray]:
+        """The observation (of agent `i`, or of all), copied or as views."""
+        out = {"depth": self.depth[i], "velocity": self.velocity[i]}
+        if self.goal is not None:
+            out["goal"] = self.goal[i]
+        return {k: v.copy() for k, v in out.items()} if copy else out
+
+    def read_goal(self, sim: Any) -> None:
+        """Takes the goal's part from the simulator, with a goal."""
+        if self.goal is not None:
+            sim.observe_goal(self.goal)
+
+
+def _check_action_values(a: np.ndarray, count: int) -> None:
+    bad = np.flatnonzero((a < 0) | (a >= count))
+    if bad.size:
+        i = int(bad[0])
+        raise ValueError(f"actions[{i}] = {a[i]} is out of range: each drone's action space is Discrete({count})")
 
 
 class NavigateVectorEnv(VectorEnv):
@@ -174,11 +196,11 @@ class NavigateVectorEnv(VectorEnv):
         self.num_envs = n
         self.copy = bool(copy)
         self.render_mode = render_mode
-        self.single_observation_space = _spaces(self._sim.side)
-        self.single_action_space = spaces.Discrete(2)
+        self.single_observation_space = _spaces(self._sim.side, self._sim.has_goal)
+        self.single_action_space = spaces.Discrete(self._sim.num_actions)
         self.observation_space = batch_space(self.single_observation_space, n)
         self.action_space = batch_space(self.single_action_space, n)
-        self._b = _Buffers(n, self._sim.side)
+        self._b = _Buffers(n, self._sim.side, self._sim.has_goal)
         # Agents whose episode ended and that have not started the next one.
         self._ended = np.zeros(n, np.bool_)
         self._needs_reset = True
@@ -189,20 +211,16 @@ class NavigateVectorEnv(VectorEnv):
         return self._sim.max_steps
 
     def _obs(self) -> dict[str, np.ndarray]:
-        if self.copy:
-            return {"depth": self._b.depth.copy(), "velocity": self._b.velocity.copy()}
-        return {"depth": self._b.depth, "velocity": self._b.velocity}
+        return self._b.parts(copy=self.copy)
 
     def _actions(self, actions: Any) -> np.ndarray:
         a = np.asarray(actions)
+        count = self._sim.num_actions
         if a.shape != (self.num_envs,):
             raise ValueError(f"actions must have shape ({self.num_envs},), got {a.shape}")
         if a.dtype.kind not in "iub":
-            raise TypeError(f"actions must be integers (Discrete(2) per drone), got dtype {a.dtype}")
-        lo, hi = a.min(), a.max()
-        if lo < 0 or hi > 1:
-            bad = int(np.flatnonzero((a < 0) | (a > 1))[0])
-            raise ValueError(f"actions[{bad}] = {a[bad]} is out of range: each drone's action space is Discrete(2)")
+            raise TypeError(f"actions must be integers (Discrete({count}) per drone), got dtype {a.dtype}")
+        _check_action_values(a, count)
         return np.ascontiguousarray(a, dtype=np.uint8)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
@@ -232,6 +250,7 @@ class NavigateVectorEnv(VectorEnv):
             self._sim.observe(b.depth, b.velocity)
         else:
             self._sim.reset(b.depth, b.velocity, mask)
+        b.read_goal(self._sim)
         self._fresh = False
         if mask is None:
             self._ended[:] = False
@@ -268,6 +287,7 @@ class NavigateVectorEnv(VectorEnv):
             )
         b = self._b
         self._sim.step(a, b)
+        b.read_goal(self._sim)
         terminated = (b.dones == COLLISION) | (b.dones == GOAL)
         truncated = b.dones == TIMEOUT
         rewards = b.rewards.astype(np.float64)
@@ -276,12 +296,13 @@ class NavigateVectorEnv(VectorEnv):
         if mode == AutoresetMode.SAME_STEP and ended.any():
             final_obs = np.full(self.num_envs, None, dtype=object)
             for i in np.flatnonzero(ended):
-                final_obs[i] = {"depth": b.depth[i].copy(), "velocity": b.velocity[i].copy()}
+                final_obs[i] = b.parts(i)
             infos["final_obs"] = final_obs
             infos["_final_obs"] = ended.copy()
             infos["final_info"] = self._episode_infos(ended)
             infos["_final_info"] = ended.copy()
             self._sim.reset(b.depth, b.velocity, np.ascontiguousarray(ended))
+            b.read_goal(self._sim)
         elif mode == AutoresetMode.DISABLED:
             self._ended = ended
         return self._obs(), rewards, terminated, truncated, infos
@@ -316,14 +337,14 @@ class NavigateEnv(gym.Env):
         _check_render_mode(render_mode)
         self._sim = _rotorhive.Sim(1, seed, _arena(arena), arena_seed, _overrides("rotorhive/NavigateSingle-v0", sim), _level(level))
         self.render_mode = render_mode
-        self.observation_space = _spaces(self._sim.side)
-        self.action_space = spaces.Discrete(2)
-        self._b = _Buffers(1, self._sim.side)
+        self.observation_space = _spaces(self._sim.side, self._sim.has_goal)
+        self.action_space = spaces.Discrete(self._sim.num_actions)
+        self._b = _Buffers(1, self._sim.side, self._sim.has_goal)
         self._a = np.zeros(1, np.uint8)
         self._needs_reset = True
 
     def _obs(self) -> dict[str, np.ndarray]:
-        return {"depth": self._b.depth[0].copy(), "velocity": self._b.velocity[0].copy()}
+        return self._b.parts(0)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
@@ -332,6 +353,7 @@ class NavigateEnv(gym.Env):
         if seed is not None:
             self._sim.reseed(_check_int("seed", seed, 0))
         self._sim.reset(self._b.depth, self._b.velocity, None)
+        self._b.read_goal(self._sim)
         self._needs_reset = False
         return self._obs(), {}
 
@@ -339,13 +361,15 @@ class NavigateEnv(gym.Env):
         if self._needs_reset:
             raise gym.error.ResetNeeded("call reset() before step()")
         a = np.asarray(action)
+        count = self._sim.num_actions
         if a.shape != () or a.dtype.kind not in "iub":
-            raise TypeError(f"the action must be an int (Discrete(2)), got {action!r}")
-        if not 0 <= int(a) <= 1:
-            raise ValueError(f"action {int(a)} is out of range: the action space is Discrete(2)")
+            raise TypeError(f"the action must be an int (Discrete({count})), got {action!r}")
+        if not 0 <= int(a) < count:
+            raise ValueError(f"action {int(a)} is out of range: the action space is Discrete({count})")
         self._a[0] = int(a)
         b = self._b
         self._sim.step(self._a, b)
+        b.read_goal(self._sim)
         done = int(b.dones[0])
         terminated, truncated = done in (COLLISION, GOAL), done == TIMEOUT
         info: dict[str, Any] = {}
