@@ -37,6 +37,32 @@ def test_the_noisy_level_sees_dropped_pixels_and_the_dense_one_does_not():
     assert zeros("dense") == 0
 
 
+def test_the_goal_level_observes_its_goal_holds_and_matches_the_rust_env_step_for_step():
+    """L5 `goal`: the Dict observation gains `goal` (bearing, distance and
+    lateral offset), the action space a third action (hold), and the
+    Python environment flies exactly as the Rust `VecEnv` of `hive train`."""
+    envs = gym.make_vec(rotorhive.LEVELS["goal"], num_envs=3, seed=4, autoreset_mode="SameStep")
+    assert envs.single_action_space == gym.spaces.Discrete(3)
+    assert envs.single_observation_space["goal"].shape == (3,)
+    obs, _ = envs.reset()
+    assert obs["goal"].shape == (3, 3)
+    # Distance in tens of metres: the goal 5 m before the far end of 150;
+    # the bearing in the body frame (spawn headings vary by ±10°).
+    assert (obs["goal"][:, 1] > 12.0).all() and (np.abs(obs["goal"][:, 0]) < 0.3).all()
+    rng = np.random.default_rng(2)
+    actions = rng.integers(0, 3, size=(12, 3)).astype(np.uint8)
+    want_obs, want_rew, want_done = _rotorhive.reference_rollout(actions, 4, level="goal")
+    assert want_obs.shape[2] == 2 * 32 * 32 + 6
+    for t, a in enumerate(actions):
+        flat = np.concatenate([obs["depth"].reshape(3, -1), obs["velocity"], obs["goal"]], axis=1)
+        np.testing.assert_array_equal(flat, want_obs[t])
+        obs, rew, term, trunc, _ = envs.step(a)
+        np.testing.assert_array_equal(rew, want_rew[t])
+    with pytest.raises(ValueError, match="Discrete\\(3\\)"):
+        envs.step(np.array([3, 0, 0]))
+    envs.close()
+
+
 def test_a_level_that_does_not_exist_is_named():
     with pytest.raises(ValueError, match="lava"):
         gym.make_vec("rotorhive/Navigate-v0", num_envs=2, level="lava")

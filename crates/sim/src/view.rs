@@ -231,6 +231,14 @@ pub fn draw(env: &VecEnv, tracks: &Tracks, focus: Focus<'_>, canvas: &mut Canvas
     let top = (HEIGHT as f32 - arena.width * scale) / 2.0;
     let to_px = |x: f32, y: f32| ((x - x0) * scale, top + (arena.width / 2.0 - y) * scale);
     top_view(canvas, arena, &to_px, (scale, env.time()));
+    // With a goal: the focused drone's, as a ring of its radius.
+    let goal = &env.config().goal;
+    if let Some(g) = env.goals().get(focus.agent).filter(|_| goal.enabled) {
+        let (gx, gy) = to_px(g[0], g[1]);
+        let r = (goal.radius * scale).max(3.0);
+        canvas.disk(gx, gy, r, GOAL, TOP);
+        canvas.disk(gx, gy, (r - 2.0).max(1.0), BG, TOP);
+    }
     for (i, path) in tracks.paths.iter().enumerate() {
         let c = AGENT + (i % AGENT_COLOURS) as u8;
         for w in path.windows(2) {

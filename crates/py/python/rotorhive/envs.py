@@ -123,11 +123,14 @@ class _Buffers:
         self.ep_return = np.zeros(n, np.float32)
         self.ep_length = np.zeros(n, np.int32)
 
-    def parts(self, i: Any = slice(None), copy: bool = True) -> dict[str, np.ndarray]:
-        """The observation (of agent `i`, or of all), copied or as views."""
-        out = {"depth": self.depth[i], "velocity": self.velocity[i]}
+    def parts(self, i: int | None = None, copy: bool = True) -> dict[str, np.ndarray]:
+        """The observation (of agent `i`, or of all: the buffers themselves
+        unless copied)."""
+        out = {"depth": self.depth, "velocity": self.velocity}
         if self.goal is not None:
-            out["goal"] = self.goal[i]
+            out["goal"] = self.goal
+        if i is not None:
+            out = {k: v[i] for k, v in out.items()}
         return {k: v.copy() for k, v in out.items()} if copy else out
 
     def read_goal(self, sim: Any) -> None:
