@@ -77,8 +77,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
     }
     let policy = a.policy.unwrap_or(PolicyKind::Greedy);
     let (cfg, source) = config(&a)?;
-    // The network of the task flown: a checkpoint of other shapes (a goal
-    // task's on the paper's, say) is refused, naming them.
+    // The task's network: a checkpoint of other shapes is refused by name.
     let net = QNet::with_shapes(cfg.shapes(), 0, &Device::Cpu)?;
     match (policy, &a.checkpoint) {
         (PolicyKind::Greedy, Some(c)) => net.load(c)?,

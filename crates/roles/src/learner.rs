@@ -103,8 +103,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
         STALL_TIMEOUT,
     )?;
     let mut tel = crate::counters(hub, RoleKind::Learner, 0, roles_of(cfg))?;
-    // Versions go on increasing across restarts.
-    let mut version = dqn.updates();
+    let mut version = dqn.updates(); // increasing across restarts
     publish(&mut w_tx, &dqn, &mut version)?;
     let min_period = if cfg.learner.max_rate_hz > 0.0 {
         Duration::from_secs_f64(1.0 / cfg.learner.max_rate_hz)
