@@ -279,7 +279,7 @@ fn test_success(
     episodes: usize,
 ) -> Result<f64> {
     let cfg = Config::load(Some(&run_dir.join("config.toml")), &[])?;
-    let net = rotorhive_model::QNet::new(0, &rotorhive_model::Device::Cpu)?;
+    let net = rotorhive_model::QNet::with_shapes(cfg.shapes(), 0, &rotorhive_model::Device::Cpu)?;
     net.load(checkpoint)?;
     pooled_success(&cfg, rotorhive_roles::eval::Pilot::Net(&net), arena, episodes)
 }

@@ -61,6 +61,11 @@ def test_the_goal_level_observes_its_goal_holds_and_matches_the_rust_env_step_fo
     with pytest.raises(ValueError, match="Discrete\\(3\\)"):
         envs.step(np.array([3, 0, 0]))
     envs.close()
+    # The hold action as a keyword on the paper's task: three actions, no goal.
+    paper = gym.make_vec("rotorhive/Navigate-v0", num_envs=2, hold_action=True)
+    assert paper.single_action_space == gym.spaces.Discrete(3)
+    assert "goal" not in paper.single_observation_space.spaces
+    paper.close()
 
 
 def test_a_level_that_does_not_exist_is_named():

@@ -458,13 +458,7 @@ impl<S: Service> Memory<'_, S> {
             let t = Instant::now();
             let mut busy = false;
             while let Some(m) = self.rx.try_recv().doing("receiving transitions")? {
-                enqueue(
-                    &m,
-                    &mut pending,
-                    cfg.shapes(),
-                    (&mut next_seq, &mut self.tel.sample.lost),
-                )?;
-                self.receipts.took(m.user_header());
+                self.queue(&m, &mut pending, &mut next_seq)?;
                 busy = true;
             }
             self.tel.sample.time_stage(ReplayStage::Insert, t);
@@ -495,17 +489,25 @@ impl<S: Service> Memory<'_, S> {
                 let t = Instant::now();
                 let wait = Duration::from_millis(1);
                 if let Some(m) = self.rx.recv_timeout(wait).doing("waiting for transitions")? {
-                    enqueue(
-                        &m,
-                        &mut pending,
-                        cfg.shapes(),
-                        (&mut next_seq, &mut self.tel.sample.lost),
-                    )?;
-                    self.receipts.took(m.user_header());
+                    self.queue(&m, &mut pending, &mut next_seq)?;
                 }
                 self.tel.sample.time_stage(ReplayStage::Idle, t);
             }
         }
+        Ok(())
+    }
+
+    /// Queues a deterministic run's transition batch (see [`enqueue`])
+    /// and notes it in the receipts.
+    fn queue(
+        &mut self,
+        m: &rotorhive_transport::Msg<S, u16, TransitionHeader>,
+        pending: &mut [VecDeque<(u64, Vec<u16>)>],
+        next_seq: &mut SeqTracker,
+    ) -> Result<()> {
+        let lost = &mut self.tel.sample.lost;
+        enqueue(m, pending, self.cfg.shapes(), (next_seq, lost))?;
+        self.receipts.took(m.user_header());
         Ok(())
     }
 

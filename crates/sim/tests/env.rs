@@ -3,7 +3,9 @@
 
 use std::path::PathBuf;
 
-use rotorhive_sim::{Arena, Autoreset, Done, Goal, Obstacle, SimConfig, Spawn, VecEnv};
+use rotorhive_sim::{
+    Arena, Autoreset, Done, Goal, Obstacle, PhysicsKind, SimConfig, Spawn, VecEnv,
+};
 
 fn open_arena(length: f32, obstacles: Vec<Obstacle>) -> Arena {
     Arena {
@@ -211,11 +213,17 @@ fn reaching_the_end_is_a_goal() {
 /// space the hold; a drone that steers to the goal's side reaches it (the
 /// step's reward is the arrival bonus), one that holds straight on past an
 /// offset goal misses it (a timeout with the miss penalty); the progress
-/// reward is the distance gained.
+/// reward is the distance gained. On both physics paths.
 #[test]
 fn a_goal_is_reached_by_steering_to_it_and_missed_by_flying_past() {
+    for physics in [PhysicsKind::Direct, PhysicsKind::Rapier] {
+        fly_to_a_goal(physics);
+    }
+}
+
+fn fly_to_a_goal(physics: PhysicsKind) {
     let goal = Goal { enabled: true, lateral: [3.0, 3.0], from_end: 5.0, ..Goal::default() };
-    let sim = SimConfig { agents: 2, goal, hold_action: true, ..SimConfig::default() };
+    let sim = SimConfig { agents: 2, goal, hold_action: true, physics, ..SimConfig::default() };
     assert_eq!(sim.shapes().scalars, 6);
     assert_eq!(sim.shapes().actions, 3);
     let mut env = VecEnv::new(sim, open_arena(40.0, vec![]), 1).unwrap();
