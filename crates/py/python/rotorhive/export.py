@@ -7,8 +7,11 @@ ONNX (onnxruntime, TensorRT, OpenVINO, a browser); the same file as
 The model has two inputs, ``depth`` ``(B, 2, 32, 32)`` (the previous and
 the current normalised depth frame) and ``velocity`` ``(B, 3)`` (body
 frame, m/s), and one output, ``q`` ``(B, 2)``: the Q-values of "left" and
-"right"; the greedy action is their argmax. Its metadata properties give
-the checkpoint layout, the observation and the action count.
+"right"; the greedy action is their argmax. A checkpoint of a task with a
+goal takes ``velocity`` ``(B, 6)`` (the velocity, then the goal's bearing,
+distance and lateral offset) and, with the hold action, gives ``q``
+``(B, 3)``. Its metadata properties give the checkpoint layout, the
+observation and the action count.
 """
 
 from __future__ import annotations
