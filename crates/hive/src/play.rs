@@ -83,7 +83,7 @@ pub fn run(a: PlayArgs) -> Result<()> {
     let secs = start.elapsed().as_secs_f64();
     let episodes = a.agents * a.episodes;
     println!(
-        "{}: {frames} frames of {episodes} episodes ({goals} reached the end, {crashes} collided) in {secs:.1} s, {:.1} MB",
+        "{}: {frames} frames of {episodes} episodes ({goals} reached the goal, {crashes} collided) in {secs:.1} s, {:.1} MB",
         a.out.display(),
         bytes as f64 / 1e6
     );

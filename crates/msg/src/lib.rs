@@ -222,7 +222,7 @@ pub enum DoneKind {
     Running = 0,
     /// The drone touched an obstacle, a wall, the floor or (interactive) a drone.
     Collision = 1,
-    /// The drone reached the end of the arena.
+    /// The drone reached the end of the arena (with `[sim.goal]`: the goal).
     Goal = 2,
     /// The episode hit the step limit.
     Timeout = 3,
