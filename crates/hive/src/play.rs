@@ -127,7 +127,8 @@ impl<W: std::io::Write> Recording<W> {
         for _ in 0..=env.config().max_steps {
             let q = net.q_values(env.observations())?;
             let na = shapes.actions;
-            let actions = net.greedy(env.observations())?;
+            let actions: Vec<u8> =
+                q.chunks_exact(na).map(|c| rotorhive_model::argmax(c) as u8).collect();
             let depth =
                 &env.observations()[focus * obs_len..focus * obs_len + obs_len - shapes.scalars];
             let focus_q = &q[na * focus..na * focus + na];

@@ -26,7 +26,7 @@ pub(crate) const MAX_TELEMETRY_BYTES: usize = 4096;
 pub fn layout(num_params: usize) -> u64 {
     let delivery = std::mem::size_of::<crate::delivery::LinkHeader>()
         + std::mem::size_of::<crate::delivery::Ack>();
-    rotorhive_msg::layout_fingerprint(rotorhive_msg::Shapes::PAPER)
+    rotorhive_msg::layout_fingerprint()
         ^ (num_params as u64).rotate_left(17)
         ^ (delivery as u64).rotate_left(41)
 }

@@ -636,7 +636,9 @@ fn check_layout(bytes: &[u8], file: &str, shapes: Shapes) -> Result<()> {
     }
 }
 
-pub(crate) fn argmax(v: &[f32]) -> usize {
+/// The index of the largest value (the first of equals): the greedy action
+/// of one row of Q-values.
+pub fn argmax(v: &[f32]) -> usize {
     let mut best = 0;
     for (i, x) in v.iter().enumerate() {
         if *x > v[best] {

@@ -201,18 +201,6 @@ impl Shapes {
     }
 }
 
-impl Default for Shapes {
-    fn default() -> Self {
-        Self::PAPER
-    }
-}
-
-impl std::fmt::Display for Shapes {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "observations of {} floats, {} actions", self.obs_len(), self.actions)
-    }
-}
-
 /// Why an agent's episode ended at a step; stored as `f32` in the observation
 /// slice and as `u8` elsewhere.
 #[repr(u8)]
@@ -700,9 +688,10 @@ pub fn stage_names(role: RoleKind) -> [&'static str; STAGES] {
 
 /// A fingerprint of the message layout: every header's size and every
 /// payload length this build sends. Two hosts carry messages as raw bytes,
-/// so they must agree on it (the link refuses a host whose layout differs),
-/// and on the run's shapes.
-pub fn layout_fingerprint(shapes: Shapes) -> u64 {
+/// so they must agree on it (the link refuses a host whose layout differs).
+/// Of the paper's task's shapes: a run's own come with its config.
+pub fn layout_fingerprint() -> u64 {
+    let shapes = Shapes::PAPER;
     use std::mem::size_of;
     let parts = [
         size_of::<ObsHeader>(),

@@ -484,13 +484,10 @@ fn levels() -> Vec<(&'static str, &'static str)> {
 /// keyword arguments.
 #[pyfunction]
 fn sim_keys() -> Vec<String> {
-    let mut keys: Vec<String> = match toml::Value::try_from(SimSection::default()) {
+    match toml::Value::try_from(SimSection::default()) {
         Ok(toml::Value::Table(t)) => t.keys().cloned().collect(),
         _ => Vec::new(),
-    };
-    // A default config does not write it (off).
-    keys.push("hold_action".into());
-    keys
+    }
 }
 
 /// The learner's Q-network (`hive eval`'s network), on the CPU.

@@ -248,7 +248,6 @@ pub struct SimSection {
     #[serde(skip_serializing_if = "Goal::is_off")]
     pub goal: Goal,
     /// A third action that holds the lateral setpoint.
-    #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub hold_action: bool,
 }
 

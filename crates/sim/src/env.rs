@@ -294,11 +294,10 @@ pub struct VecEnv {
     total_steps: u64,
     /// Physics steps flown: the world's clock, which moves the obstacles.
     ticks: u64,
-    /// Each agent's goal (x, y) this episode, and its horizontal distance
-    /// after the last step (with a goal).
+    /// Each agent's goal (x, y) this episode (with a goal).
     goals: Vec<[f32; 2]>,
-    goal_dist: Vec<f32>,
-    /// Each agent's position before the step (with a goal).
+    /// Each agent's position before the step (with a goal): the step's
+    /// segment and the distance its progress is measured from.
     before: Vec<Vector>,
     /// When an agent whose episode ends starts its next one.
     autoreset: Autoreset,
@@ -361,7 +360,6 @@ impl VecEnv {
             total_steps: 0,
             ticks: 0,
             goals: vec![[0.0; 2]; n],
-            goal_dist: vec![0.0; n],
             before: vec![Vector::ZERO; n],
             autoreset: Autoreset::SameStep,
             restarted: vec![false; n],
@@ -623,7 +621,7 @@ impl VecEnv {
 
     /// The reward and end of agent `i`'s step: a collision, the far end
     /// (the paper's task) or the goal reached or missed, the step limit.
-    fn score(&mut self, i: usize) -> (f32, Done) {
+    fn score(&self, i: usize) -> (f32, Done) {
         let cfg = &self.cfg;
         let p = self.drones[i].p;
         let goal = cfg.goal.enabled.then(|| cfg.goal.progress(self.goals[i], self.before[i], p));
@@ -639,8 +637,8 @@ impl VecEnv {
                 (cfg.goal.reward_miss, Done::Timeout)
             }
             Some(Progress::Flying(d)) => {
-                let step = cfg.reward_step + cfg.goal.reward_progress * (self.goal_dist[i] - d);
-                self.goal_dist[i] = d;
+                let gained = Goal::distance(self.goals[i], self.before[i]) - d;
+                let step = cfg.reward_step + cfg.goal.reward_progress * gained;
                 if timeout { (cfg.reward_timeout, Done::Timeout) } else { (step, Done::Running) }
             }
         }
@@ -670,7 +668,6 @@ impl VecEnv {
             let g = &self.cfg.goal;
             let y = self.lane_offsets[lane] + within(&mut self.rng, g.lateral);
             self.goals[i] = [self.arena.length - g.from_end, y];
-            self.goal_dist[i] = Goal::distance(self.goals[i], self.drones[i].p);
         }
         self.steps[i] = 0;
         self.returns[i] = 0.0;
