@@ -397,7 +397,12 @@ fn a_killed_worker_comes_back_and_a_killed_head_is_noticed() {
     let dir = tmp("restart");
     let ep = format!("tcp/127.0.0.1:{}", free_port());
     // A worker waits 3 s (not 60) for a head that went away to come back.
-    let mut head = small_head("cluster-head", &ep, "30", &dir, &["--set", "cluster.reconnect_s=3"]);
+    // The head is killed below, so its budget only has to outlast the test
+    // on a loaded machine (30 s may not have on CI: a run that ends stops
+    // the telemetry the test waits on).
+    let head_started = Instant::now();
+    let mut head =
+        small_head("cluster-head", &ep, "180", &dir, &["--set", "cluster.reconnect_s=3"]);
     // One run directory for both starts of the host: it keeps the join token.
     let wdir = tmp("restart-worker").display().to_string();
     let worker = |domain: &str| {
@@ -493,14 +498,26 @@ fn a_killed_worker_comes_back_and_a_killed_head_is_noticed() {
     // The restarted worker's sim reports to the head: in the head's
     // telemetry, sim 1's heartbeat starts again (a new process; a remote
     // pid means nothing on the head and is sent as 0) and goes on rising.
-    common::wait_for(
-        "the restarted worker's sim in the head's telemetry",
-        Duration::from_secs(20),
-        || {
-            let beats = sim_heartbeats(&dir, 1);
-            let restart = beats.windows(2).position(|w| w[1] < w[0]);
-            restart.is_some_and(|r| beats[r + 1..].iter().max().is_some_and(|m| *m >= 3))
-        },
+    let restarted_sim = || {
+        let beats = sim_heartbeats(&dir, 1);
+        let restart = beats.windows(2).position(|w| w[1] < w[0]);
+        restart.is_some_and(|r| beats[r + 1..].iter().max().is_some_and(|m| *m >= 3))
+    };
+    let waiting = Instant::now();
+    while !restarted_sim() {
+        assert!(
+            waiting.elapsed() < Duration::from_secs(30),
+            "the restarted worker's sim never showed in the head's telemetry; \
+             sim 1's heartbeats: {:?}; telemetry.csv: {:?}; head exited: {:?}",
+            sim_heartbeats(&dir, 1),
+            rotorhive_records::telemetry::read(&dir).err(),
+            head.try_wait()
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    eprintln!(
+        "the restarted worker's sim showed {:.1} s after the head started",
+        head_started.elapsed().as_secs_f64()
     );
     // Now the head dies without ending the run: the worker notices.
     head.kill().unwrap();
