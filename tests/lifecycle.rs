@@ -3,7 +3,8 @@
 //! records; a second `hive train` or `--resume` on a live run directory is
 //! refused and the first run goes on unharmed; a learner killed right after
 //! and right before a checkpoint loses at most 2 s of updates; and when the
-//! supervisor is SIGKILLed, no role outlives it by 2 s.
+//! supervisor is SIGKILLed, no role outlives it by 2 s; nor does a run of
+//! `hive bench seeds` outlive the harness that started it.
 
 mod common;
 
@@ -243,4 +244,56 @@ fn no_role_outlives_a_killed_supervisor() {
     let summary = common::summary(&dir);
     assert!(summary.leftover_services.is_empty(), "{summary:?}");
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The processes whose parent is `pid`.
+fn children_of(pid: u32) -> Vec<i32> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir("/proc").unwrap().flatten() {
+        let Ok(p) = e.file_name().to_string_lossy().parse::<i32>() else {
+            continue;
+        };
+        let Ok(stat) = std::fs::read_to_string(format!("/proc/{p}/stat")) else {
+            continue;
+        };
+        // The parent's pid is the second field after the command's ")".
+        let ppid = stat.rsplit_once(')').and_then(|(_, rest)| rest.split_whitespace().nth(1));
+        if ppid.and_then(|v| v.parse::<u32>().ok()) == Some(pid) {
+            out.push(p);
+        }
+    }
+    out
+}
+
+#[test]
+#[ignore = "slow multi-process test: scripts/test runs it (--include-ignored)"]
+fn a_killed_seed_harness_stops_its_run() {
+    let _turn = TURN.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    let out = tmp("harness");
+    let mut harness = Command::new(env!("CARGO_BIN_EXE_hive"))
+        .current_dir(root())
+        .args(["bench", "seeds", "configs/default.toml", "--seeds", "1", "--budget-s", "120"])
+        .args(common::SMALL_RUN)
+        .args(["--set", "eval.every_s=0", "--out"])
+        .arg(&out)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let dir = out.join("config-seed1");
+    wait_for("the harness's run to train", Duration::from_secs(60), || {
+        role_state(&dir, Member::Learner).is_some_and(|(_, _, u)| u > 5)
+    });
+    let runs = children_of(harness.id());
+    assert_eq!(runs.len(), 1, "the harness's children: {runs:?}");
+    // A scheduler's SIGKILL: the harness has no chance to stop its run.
+    harness.kill().unwrap();
+    harness.wait().unwrap();
+    wait_for("the killed harness's run to stop", Duration::from_secs(30), || gone(runs[0]));
+    // It stopped as an interrupted run does, with its records and nothing
+    // of its shared memory left.
+    let s = common::summary(&dir);
+    assert!(s.interrupted, "{s:?}");
+    assert!(s.leftover_services.is_empty(), "{s:?}");
+    let _ = std::fs::remove_dir_all(&out);
 }
