@@ -385,7 +385,7 @@ fn train(
         cmd.arg("--set").arg(s);
     }
     cmd.stdout(std::process::Stdio::null());
-    crate::stops_with_this_process(&mut cmd);
+    crate::child::stops_with_this_process(&mut cmd);
     cmd.status().doing_with(|| format!("arm {} seed {seed}: cannot start hive train", arm.name))
 }
 

@@ -364,7 +364,7 @@ fn run_cell(
     for s in tc.set.iter().cloned().chain(sets) {
         cmd.arg("--set").arg(s);
     }
-    crate::stops_with_this_process(&mut cmd);
+    crate::child::stops_with_this_process(&mut cmd);
     let mut head = cmd.spawn().doing_with(|| format!("cell {name}: cannot start hive train"))?;
     let mut workers = Vec::new();
     for h in 1..hosts {
@@ -373,7 +373,7 @@ fn run_cell(
         w.args(["--agents", &agents.to_string(), "--name", &format!("host{h}"), "--run-dir"])
             .arg(dir.join(format!("worker-{h}")));
         w.stdout(std::process::Stdio::null());
-        crate::stops_with_this_process(&mut w);
+        crate::child::stops_with_this_process(&mut w);
         workers.push(w.spawn().doing_with(|| format!("cell {name}: cannot start hive worker"))?);
     }
     let status = head.wait()?;
