@@ -337,36 +337,6 @@ fn read_lines(
     rx
 }
 
-/// The child processes of `pid`, with their command lines.
-fn children_of(pid: u32) -> Vec<(i32, String)> {
-    let mut out = Vec::new();
-    for e in std::fs::read_dir("/proc").unwrap().flatten() {
-        let Ok(p) = e.file_name().to_string_lossy().parse::<i32>() else {
-            continue;
-        };
-        let Ok(stat) = std::fs::read_to_string(format!("/proc/{p}/stat")) else {
-            continue;
-        };
-        // The parent's pid is the second field after the command's ")".
-        let ppid = stat
-            .rsplit_once(')')
-            .and_then(|(_, rest)| rest.split_whitespace().nth(1))
-            .and_then(|v| v.parse::<u32>().ok());
-        if ppid == Some(pid) {
-            let cmd = std::fs::read(format!("/proc/{p}/cmdline")).unwrap_or_default();
-            out.push((p, String::from_utf8_lossy(&cmd).replace('\0', " ")));
-        }
-    }
-    out
-}
-
-/// Whether process `pid` still runs (a zombie does not).
-fn alive(pid: i32) -> bool {
-    std::fs::read_to_string(format!("/proc/{pid}/stat")).is_ok_and(|s| {
-        s.rsplit_once(')').and_then(|(_, r)| r.split_whitespace().next()) != Some("Z")
-    })
-}
-
 /// The heartbeats of sim `index`'s rows in a run's telemetry table, in
 /// order (they start again at 1 when the sim is a new process).
 fn sim_heartbeats(run_dir: &std::path::Path, index: u32) -> Vec<u64> {
@@ -428,9 +398,9 @@ fn a_killed_worker_comes_back_and_a_killed_head_is_noticed() {
     // The worker's roles are processes of its own: an actor killed with
     // SIGKILL is started again by the worker.
     common::wait_for("the worker's sim and actor", Duration::from_secs(20), || {
-        children_of(first.id()).len() == 2
+        common::children_of(first.id()).len() == 2
     });
-    let roles = children_of(first.id());
+    let roles = common::children_of(first.id());
     let actor = roles
         .iter()
         .find(|(_, cmd)| cmd.contains("actor"))
@@ -438,7 +408,7 @@ fn a_killed_worker_comes_back_and_a_killed_head_is_noticed() {
         .0;
     common::signal(actor, Signal::KILL);
     let restarted = || {
-        children_of(first.id())
+        common::children_of(first.id())
             .into_iter()
             .find(|(p, cmd)| cmd.contains("actor") && *p != actor)
             .map(|(p, _)| p)
@@ -448,7 +418,7 @@ fn a_killed_worker_comes_back_and_a_killed_head_is_noticed() {
     });
     let again = restarted().unwrap();
     std::thread::sleep(Duration::from_secs(3));
-    let roles = children_of(first.id());
+    let roles = common::children_of(first.id());
     assert!(roles.iter().any(|(p, _)| *p == again), "the restarted actor died: {roles:?}");
     // The worker itself killed: its roles stop (the design says within
     // 2 s; a test asserts no time, it prints it).
@@ -456,7 +426,7 @@ fn a_killed_worker_comes_back_and_a_killed_head_is_noticed() {
     let killed = Instant::now();
     first.wait().unwrap();
     common::wait_for("the killed worker's roles to stop", Duration::from_secs(20), || {
-        roles.iter().all(|(p, _)| !alive(*p))
+        roles.iter().all(|(p, _)| !common::alive(*p))
     });
     eprintln!("the killed worker's roles stopped after {:.2} s", killed.elapsed().as_secs_f64());
     // The same host comes back in the same domain (cleaning what the

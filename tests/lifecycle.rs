@@ -78,14 +78,6 @@ fn kill(pid: i32, sig: Signal) {
     common::signal(pid, sig);
 }
 
-/// Whether a process is gone (or a zombie, dead but not yet reaped).
-fn gone(pid: i32) -> bool {
-    match std::fs::read_to_string(format!("/proc/{pid}/stat")) {
-        Err(_) => true,
-        Ok(s) => s.rsplit(')').next().is_some_and(|rest| rest.trim_start().starts_with('Z')),
-    }
-}
-
 /// The roles of a run.
 const ROLES: [Member; 4] = [Member::Sim, Member::Actor, Member::Replay, Member::Learner];
 
@@ -220,13 +212,13 @@ fn no_role_outlives_a_killed_supervisor() {
     });
     let pids: Vec<(Member, i32)> =
         ROLES.iter().map(|r| (*r, role_state(&dir, *r).unwrap().1)).collect();
-    assert!(pids.iter().all(|(_, p)| !gone(*p)), "{pids:?}");
+    assert!(pids.iter().all(|(_, p)| common::alive(*p)), "{pids:?}");
     let out = run.signal_and_wait(Signal::KILL);
     assert!(!out.status.success());
     // The design gives them 2 s; a test asserts no time, it prints it.
     let killed = std::time::Instant::now();
     wait_for("the roles of a killed supervisor to exit", Duration::from_secs(20), || {
-        pids.iter().all(|(_, p)| gone(*p))
+        pids.iter().all(|(_, p)| !common::alive(*p))
     });
     eprintln!(
         "the roles exited {:.2} s after their supervisor was killed",
@@ -244,25 +236,6 @@ fn no_role_outlives_a_killed_supervisor() {
     let summary = common::summary(&dir);
     assert!(summary.leftover_services.is_empty(), "{summary:?}");
     let _ = std::fs::remove_dir_all(&dir);
-}
-
-/// The processes whose parent is `pid`.
-fn children_of(pid: u32) -> Vec<i32> {
-    let mut out = Vec::new();
-    for e in std::fs::read_dir("/proc").unwrap().flatten() {
-        let Ok(p) = e.file_name().to_string_lossy().parse::<i32>() else {
-            continue;
-        };
-        let Ok(stat) = std::fs::read_to_string(format!("/proc/{p}/stat")) else {
-            continue;
-        };
-        // The parent's pid is the second field after the command's ")".
-        let ppid = stat.rsplit_once(')').and_then(|(_, rest)| rest.split_whitespace().nth(1));
-        if ppid.and_then(|v| v.parse::<u32>().ok()) == Some(pid) {
-            out.push(p);
-        }
-    }
-    out
 }
 
 #[test]
@@ -284,12 +257,14 @@ fn a_killed_seed_harness_stops_its_run() {
     wait_for("the harness's run to train", Duration::from_secs(60), || {
         role_state(&dir, Member::Learner).is_some_and(|(_, _, u)| u > 5)
     });
-    let runs = children_of(harness.id());
+    let runs: Vec<i32> = common::children_of(harness.id()).into_iter().map(|(p, _)| p).collect();
     assert_eq!(runs.len(), 1, "the harness's children: {runs:?}");
     // A scheduler's SIGKILL: the harness has no chance to stop its run.
     harness.kill().unwrap();
     harness.wait().unwrap();
-    wait_for("the killed harness's run to stop", Duration::from_secs(30), || gone(runs[0]));
+    wait_for("the killed harness's run to stop", Duration::from_secs(30), || {
+        !common::alive(runs[0])
+    });
     // It stopped as an interrupted run does, with its records and nothing
     // of its shared memory left.
     let s = common::summary(&dir);

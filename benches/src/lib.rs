@@ -25,7 +25,6 @@ use serde_json::json;
 
 use rotorhive_sim::{Arena, PhysicsKind, RendererKind, SimConfig, VecEnv};
 
-mod child;
 pub mod error;
 mod ipc;
 mod learner;

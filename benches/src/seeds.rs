@@ -385,7 +385,8 @@ fn train(
         cmd.arg("--set").arg(s);
     }
     cmd.stdout(std::process::Stdio::null());
-    crate::child::stops_with_this_process(&mut cmd);
+    // A killed harness stops its run, as Ctrl-C would (it would train on).
+    rotorhive_transport::dies_with_this_process(&mut cmd, rustix::process::Signal::INT);
     cmd.status().doing_with(|| format!("arm {} seed {seed}: cannot start hive train", arm.name))
 }
 

@@ -364,7 +364,8 @@ fn run_cell(
     for s in tc.set.iter().cloned().chain(sets) {
         cmd.arg("--set").arg(s);
     }
-    crate::child::stops_with_this_process(&mut cmd);
+    // A killed harness stops its cell's hosts, as Ctrl-C would.
+    rotorhive_transport::dies_with_this_process(&mut cmd, rustix::process::Signal::INT);
     let mut head = cmd.spawn().doing_with(|| format!("cell {name}: cannot start hive train"))?;
     let mut workers = Vec::new();
     for h in 1..hosts {
@@ -373,7 +374,7 @@ fn run_cell(
         w.args(["--agents", &agents.to_string(), "--name", &format!("host{h}"), "--run-dir"])
             .arg(dir.join(format!("worker-{h}")));
         w.stdout(std::process::Stdio::null());
-        crate::child::stops_with_this_process(&mut w);
+        rotorhive_transport::dies_with_this_process(&mut w, rustix::process::Signal::INT);
         workers.push(w.spawn().doing_with(|| format!("cell {name}: cannot start hive worker"))?);
     }
     let status = head.wait()?;

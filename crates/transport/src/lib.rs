@@ -831,6 +831,32 @@ pub fn handle_hangup() {
     }
 }
 
+/// Makes a child process about to be started by `cmd` receive `signal` when
+/// this process's spawning thread ends, however it ends (SIGKILL, the OOM
+/// killer): `PR_SET_PDEATHSIG`, set in the child before it runs, and the
+/// signal sent at once if this process died before that took effect. The
+/// supervisor ties its roles to itself (SIGTERM); `hive bench seeds` and
+/// `bench table` tie their runs (SIGINT, which ends a run as Ctrl-C does).
+pub fn dies_with_this_process(cmd: &mut std::process::Command, signal: rustix::process::Signal) {
+    use std::os::unix::process::CommandExt;
+    let parent = std::process::id();
+    // SAFETY: a pre_exec hook runs in the forked child before exec and may
+    // only make async-signal-safe calls: these are plain system calls
+    // through rustix (prctl(2), getppid(2), getpid(2), kill(2)), which
+    // allocate nothing and take no lock.
+    unsafe {
+        cmd.pre_exec(move || {
+            use rustix::process::{getpid, getppid, kill_process};
+            rustix::process::set_parent_process_death_signal(Some(signal))?;
+            // The parent may have died before the prctl took effect.
+            if getppid().map(|p| p.as_raw_pid() as u32) != Some(parent) {
+                kill_process(getpid(), signal)?;
+            }
+            Ok(())
+        });
+    }
+}
+
 /// The name of the supervisor's node of run `prefix`: roles watch for it.
 pub fn supervisor_node_name(prefix: &str) -> String {
     format!("train.{prefix}")

@@ -50,21 +50,7 @@ impl Launcher {
         // they die with the supervisor however it dies (PR_SET_PDEATHSIG,
         // plus the supervisor watch of every role).
         cmd.process_group(0).env(crate::role_cmd::SUPERVISOR_PID_ENV, supervisor.to_string());
-        // SAFETY: a pre_exec hook runs in the forked child before exec and
-        // may only make async-signal-safe calls: these are plain system
-        // calls through rustix (prctl(2), getppid(2), getpid(2), kill(2)),
-        // which allocate nothing and take no lock.
-        unsafe {
-            cmd.pre_exec(move || {
-                use rustix::process::{Signal, getpid, getppid, kill_process};
-                rustix::process::set_parent_process_death_signal(Some(Signal::TERM))?;
-                // The supervisor may have died before the prctl took effect.
-                if getppid().map(|p| p.as_raw_pid() as u32) != Some(supervisor) {
-                    kill_process(getpid(), Signal::TERM)?;
-                }
-                Ok(())
-            });
-        }
+        rotorhive_transport::dies_with_this_process(&mut cmd, rustix::process::Signal::TERM);
         let log = std::fs::OpenOptions::new()
             .create(true)
             .append(append)
