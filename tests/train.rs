@@ -173,6 +173,35 @@ fn fails_with(args: &[&str], needles: &[&str]) {
     }
 }
 
+/// `hive eval --json`'s last line.
+fn eval_json(args: &[&str]) -> serde_json::Value {
+    let out = hive().arg("eval").args(args).arg("--json").output().unwrap();
+    assert!(out.status.success(), "{args:?}: {}", String::from_utf8_lossy(&out.stderr));
+    let last = String::from_utf8_lossy(&out.stdout).lines().last().unwrap().to_string();
+    serde_json::from_str(&last).unwrap()
+}
+
+#[test]
+fn the_scripted_pilots_fly_a_levels_test_layouts() {
+    // L4's held-out layouts: the planner, which knows where every moving
+    // obstacle will be, flies most of their episodes; the reactive rule,
+    // which sees only the depth images, hardly any.
+    let args = ["--level", "moving", "--episodes", "100"];
+    let planner = eval_json(&[&args[..], &["--policy", "planner"]].concat());
+    let reactive = eval_json(&[&args[..], &["--policy", "reactive"]].concat());
+    assert_eq!(planner["policy"], "planner");
+    assert_eq!(planner["episodes"].as_u64(), Some(100));
+    assert_eq!(planner["layouts"].as_array().map(Vec::len), Some(5));
+    let (p, r) =
+        (planner["success_rate"].as_f64().unwrap(), reactive["success_rate"].as_f64().unwrap());
+    assert!(p >= 0.7 && p > r + 0.5, "planner {p}, reactive rule {r}");
+    // Episodes it found no way through from the spawn are among those it
+    // did not fly; the other pilots report none.
+    let hopeless = planner["hopeless"].as_f64().unwrap();
+    assert!(hopeless <= 100.0 * (1.0 - p) + 1e-9, "{hopeless} hopeless at {p}");
+    assert!(reactive["hopeless"].is_null());
+}
+
 #[test]
 fn bad_input_is_refused_clearly() {
     let dir = tmp("bad");
@@ -213,6 +242,10 @@ fn bad_input_is_refused_clearly() {
         &["w.safetensors"],
     );
     fails_with(&["export", "--checkpoint", "c.safetensors", "--out", "x.txt"], &["x.txt", ".onnx"]);
+    fails_with(
+        &["eval", "--policy", "planner", "--checkpoint", "c.safetensors"],
+        &["--policy planner", "--checkpoint"],
+    );
     fails_with(&["train", "--resume", dir.to_str().unwrap()], &["--resume", "learner state"]);
     fails_with(&["train", "--set", "sim.renderer=\"vulkan\""], &["sim.renderer"]);
     fails_with(&["train", "--set", "eval.target_success=2"], &["eval.target_success"]);

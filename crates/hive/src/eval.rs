@@ -12,7 +12,7 @@ use rotorhive_model::{Device, QNet};
 use rotorhive_roles::Config;
 pub use rotorhive_roles::eval::fly_greedy;
 use rotorhive_roles::eval::{EvalStats, Pilot, fly_layouts};
-use rotorhive_sim::Arena;
+use rotorhive_sim::{Arena, Sight};
 
 /// Who flies in `hive eval`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -22,6 +22,34 @@ pub enum PolicyKind {
     /// The scripted reactive rule on the same depth images and velocity
     /// (no checkpoint): the floor a learned policy must beat.
     Reactive,
+    /// A search that knows where every obstacle is and will be (no
+    /// checkpoint; privileged, no drone could fly it): a floor under the
+    /// share of episodes that can be flown at all.
+    Planner,
+}
+
+/// What `--policy planner` knows (`rotorhive_sim::Sight`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum SightArg {
+    /// Every obstacle, and where each moving one will be.
+    All,
+    /// What the camera shows now (depth range and field of view, and what
+    /// is beside the drone), with the moving ones' future.
+    View,
+    /// What the camera shows now, each moving one guessed to keep its
+    /// present velocity for 3 s and turn back.
+    ViewVelocity,
+}
+
+impl PolicyKind {
+    /// Its name on the command line and in JSON.
+    fn name(self) -> &'static str {
+        match self {
+            PolicyKind::Greedy => "greedy",
+            PolicyKind::Reactive => "reactive",
+            PolicyKind::Planner => "planner",
+        }
+    }
 }
 
 #[derive(Args, Debug)]
@@ -32,6 +60,9 @@ pub struct EvalArgs {
     /// Who flies: the checkpoint's greedy policy or the reactive rule.
     #[arg(long, value_enum)]
     pub policy: Option<PolicyKind>,
+    /// What the planner knows (with `--policy planner`).
+    #[arg(long, value_enum, default_value_t = SightArg::All)]
+    pub sight: SightArg,
     /// A level (`configs/levels/NAME.toml`): its sim settings and its
     /// held-out test layouts. Without it: the settings of the run that
     /// wrote the checkpoint (its `config.toml`), else the defaults.
@@ -82,10 +113,10 @@ pub fn run(a: EvalArgs) -> Result<()> {
     match (policy, &a.checkpoint) {
         (PolicyKind::Greedy, Some(c)) => net.load(c)?,
         (PolicyKind::Greedy, None) => bail!("--policy greedy needs --checkpoint"),
-        (PolicyKind::Reactive, Some(_)) => {
-            bail!("--policy reactive flies no checkpoint: leave out --checkpoint")
+        (_, Some(_)) => {
+            bail!("--policy {} flies no checkpoint: leave out --checkpoint", policy.name())
         }
-        (PolicyKind::Reactive, None) => {}
+        (PolicyKind::Reactive | PolicyKind::Planner, None) => {}
     }
     let layouts: Vec<Arena> = if a.arena.is_empty() {
         cfg.test_arenas()?
@@ -96,6 +127,11 @@ pub fn run(a: EvalArgs) -> Result<()> {
     let pilot = match policy {
         PolicyKind::Greedy => Pilot::Net(&net),
         PolicyKind::Reactive => Pilot::Reactive,
+        PolicyKind::Planner => Pilot::Planner(match a.sight {
+            SightArg::All => Sight::All,
+            SightArg::View => Sight::View,
+            SightArg::ViewVelocity => Sight::ViewVelocity,
+        }),
     };
     let stats = fly_layouts(pilot, &cfg.sim_config(), &layouts, per_layout, a.seed)?;
     let pooled = EvalStats::pooled(&stats);
@@ -108,6 +144,14 @@ pub fn run(a: EvalArgs) -> Result<()> {
             a.checkpoint.as_ref().map_or(String::new(), |c| c.display().to_string())
         }
         PolicyKind::Reactive => "the reactive rule".into(),
+        PolicyKind::Planner => format!(
+            "the planner (privileged), knowing {}",
+            match a.sight {
+                SightArg::All => "every obstacle's motion",
+                SightArg::View => "what the camera shows, with the movers' future",
+                SightArg::ViewVelocity => "what the camera shows, the movers' velocity kept 3 s",
+            }
+        ),
     };
     println!("{who}, settings of {source}:");
     for (l, s) in layouts.iter().zip(&stats) {
@@ -128,6 +172,12 @@ pub fn run(a: EvalArgs) -> Result<()> {
         pooled.collisions,
         pooled.mean_reward
     );
+    if policy == PolicyKind::Planner {
+        println!(
+            "  no way through from the spawn (in the planner's model): {} of {} episodes",
+            pooled.hopeless, pooled.episodes
+        );
+    }
     if a.json {
         let layouts_json: Vec<serde_json::Value> = layouts
             .iter()
@@ -142,8 +192,10 @@ pub fn run(a: EvalArgs) -> Result<()> {
                 "mean_reward": pooled.mean_reward,
                 "episodes": pooled.episodes,
                 "collisions": pooled.collisions,
+                "hopeless": (policy == PolicyKind::Planner).then_some(pooled.hopeless),
+                "sight": (policy == PolicyKind::Planner).then(|| format!("{:?}", a.sight).to_lowercase()),
                 "layouts": layouts_json,
-                "policy": match policy { PolicyKind::Greedy => "greedy", PolicyKind::Reactive => "reactive" },
+                "policy": policy.name(),
                 "level": a.level,
                 "settings": source,
             })

@@ -7,7 +7,7 @@
 
 use crate::error::Result;
 use rotorhive_model::QNet;
-use rotorhive_sim::{Arena, Done, SimConfig, VecEnv};
+use rotorhive_sim::{Arena, Done, Planner, Sight, SimConfig, VecEnv};
 
 /// What a greedy evaluation found.
 #[derive(Debug, Clone, Copy)]
@@ -20,6 +20,9 @@ pub struct EvalStats {
     pub collisions: usize,
     /// Mean episode return.
     pub mean_reward: f64,
+    /// With the planner: episodes in which it found no way through from
+    /// the spawn ([`Planner::hopeless_starts`]); 0 with other pilots.
+    pub hopeless: usize,
 }
 
 impl EvalStats {
@@ -42,6 +45,7 @@ impl EvalStats {
             successes: all.iter().map(|s| s.successes).sum(),
             collisions: all.iter().map(|s| s.collisions).sum(),
             mean_reward: reward / episodes.max(1) as f64,
+            hopeless: all.iter().map(|s| s.hopeless).sum(),
         }
     }
 }
@@ -65,6 +69,11 @@ pub enum Pilot<'a> {
     Net(&'a QNet),
     /// [`reactive`]: steer toward the clearest columns of the depth image.
     Reactive,
+    /// [`Planner`]: a search that knows every obstacle's motion
+    /// ([`Sight::All`]; privileged: what it flies is a floor under what the
+    /// episodes allow), or what the camera shows ([`Sight::View`],
+    /// [`Sight::ViewVelocity`]).
+    Planner(Sight),
 }
 
 impl Pilot<'_> {
@@ -74,6 +83,9 @@ impl Pilot<'_> {
         match self {
             Pilot::Net(net) => Ok(net.greedy(obs)?),
             Pilot::Reactive => Ok(obs.chunks_exact(obs_len).map(|o| reactive(o, side)).collect()),
+            Pilot::Planner(_) => Err(crate::error::RoleError::Config(
+                "the planner flies from the environment, not from observations".into(),
+            )),
         }
     }
 }
@@ -162,8 +174,18 @@ pub fn fly(
     let mut result: Vec<Option<(f32, Done)>> = vec![None; n];
     let max_steps = env.config().max_steps;
     let (obs_len, side) = (env.obs_len(), env.config().camera.side);
+    let mut planner = match pilot {
+        Pilot::Planner(sight) => Some(Planner::new(&env, sight)),
+        _ => None,
+    };
     for _ in 0..max_steps + 1 {
-        let actions = pilot.act(env.observations(), obs_len, side)?;
+        let actions = match planner.as_mut() {
+            Some(p) => {
+                let active: Vec<bool> = result.iter().map(Option::is_none).collect();
+                p.actions(&env, &active)
+            }
+            None => pilot.act(env.observations(), obs_len, side)?,
+        };
         env.step(&actions)?;
         for ep in env.finished() {
             result[ep.agent].get_or_insert((ep.reward, ep.done));
@@ -178,6 +200,7 @@ pub fn fly(
         successes: done.iter().filter(|(_, d)| *d == Done::Goal).count(),
         collisions: done.iter().filter(|(_, d)| *d == Done::Collision).count(),
         mean_reward: done.iter().map(|(r, _)| *r as f64).sum::<f64>() / done.len().max(1) as f64,
+        hopeless: planner.map_or(0, |p| p.hopeless_starts()),
     })
 }
 

@@ -448,6 +448,16 @@ impl VecEnv {
         DroneState { position: d.p, velocity: d.v, rotation: d.q, angvel: d.angvel_world() }
     }
 
+    /// Drone `i` as the physics holds it (the planner reads it).
+    pub(crate) fn drone(&self, i: usize) -> &Drone {
+        &self.drones[i]
+    }
+
+    /// Steps flown in agent `i`'s episode so far.
+    pub(crate) fn steps_of(&self, i: usize) -> u32 {
+        self.steps[i]
+    }
+
     /// Places a drone at a pose with a velocity, for tests and tools.
     pub fn place(&mut self, agent: usize, position: [f32; 3], velocity: [f32; 3]) {
         let d = &mut self.drones[agent];

@@ -12,6 +12,7 @@ pub mod generate;
 pub mod goal;
 pub mod gpu;
 mod lane;
+pub mod planner;
 mod pool;
 mod rapier_flight;
 pub mod realism;
@@ -25,5 +26,6 @@ pub use env::{
 pub use generate::{GenMode, GenParamError, GenParams};
 pub use goal::Goal;
 pub use gpu::{GpuDepthRenderer, GpuError};
+pub use planner::{Planner, Sight};
 pub use realism::{Noise, Randomize};
 pub use render::{CameraPose, CameraSpec, DepthRenderer, Scene};

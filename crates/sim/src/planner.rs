@@ -1,0 +1,419 @@
+//! A privileged planner: it knows every obstacle and where each moving one
+//! will be, and searches the drone's action sequences for one that flies
+//! through (to the far end, or to the goal) without a contact. It is not a
+//! policy a drone could have (it sees the future); `hive eval --policy
+//! planner` flies it to measure what a level's episodes allow: what it
+//! flies is a floor under the share of episodes that can be flown at all.
+//!
+//! The search runs in a kinematic model of the flight: forward at the
+//! drone's speed setpoint, the lateral velocity approaching its setpoint
+//! at the controller's gain (a first-order lag, with the drone's wind),
+//! each action moving the setpoint as [`VecEnv::step`] does. Paths are
+//! tested with the direct physics path's own collision query against
+//! where every obstacle is at each point's time, with a margin for the
+//! model's error. A breadth-first search over the actions, the states
+//! merged on a grid of lateral position and setpoint, reaches the far end
+//! (or passes the goal) or proves that no path in the model does. The
+//! planner follows its plan while the drone stays where the plan said, and
+//! plans again from the drone's true state when it strays.
+
+use std::collections::HashSet;
+
+use rapier3d::math::Vector;
+
+use crate::env::VecEnv;
+use crate::flight::Geometry;
+use crate::{Arena, Motion};
+
+/// Width of the grid cells that merge states (m of lateral position).
+const CELL_Y: f32 = 0.05;
+/// Points per action at which a path is tested (more are added near a
+/// moving obstacle).
+const POINTS: usize = 10;
+/// Margins added to the drone's radius in the search (m), widest first:
+/// a way through with room for the model's error where there is one.
+const MARGINS: [f32; 3] = [0.15, 0.05, 0.0];
+/// How far the drone may stray from its plan before a new one (m).
+const STRAY: f32 = 0.05;
+
+/// One state of the search: after some actions, the lateral position,
+/// velocity and setpoint, and how it was reached.
+#[derive(Clone, Copy)]
+struct Node {
+    x: f32,
+    y: f32,
+    vy: f32,
+    sp: f32,
+    parent: u32,
+    action: u8,
+}
+
+/// A plan: the actions from now on and the position (x, y) each leads to.
+#[derive(Default)]
+struct Plan {
+    steps: Vec<(u8, [f32; 2])>,
+    next: usize,
+    /// Whether it flies through (else it is the longest way found).
+    through: bool,
+}
+
+/// What the planner knows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Sight {
+    /// Every obstacle, and where each moving one will be.
+    All,
+    /// The obstacles the drone's camera shows now (within the depth range
+    /// and the field of view, occluded ones too) and those within
+    /// [`NEARBY`] of it (seen before), each moving one's future known. It
+    /// plans again at every step.
+    View,
+    /// As [`Sight::View`], but of each moving obstacle only its present
+    /// velocity (what two frames show): it is guessed to go on at that
+    /// velocity for [`GUESS_S`] and come back, over and over.
+    ViewVelocity,
+}
+
+/// Obstacles this close to a drone (m, from its surface) are known to a
+/// planner of [`Sight::View`] wherever they are.
+const NEARBY: f32 = 2.0;
+/// How long (s) a planner of [`Sight::ViewVelocity`] guesses a moving
+/// obstacle keeps its present velocity before it turns back (the levels'
+/// movers turn after 2-15 s).
+const GUESS_S: f32 = 3.0;
+
+/// Plans and flies every agent of an environment.
+pub struct Planner {
+    sight: Sight,
+    geometry: Geometry,
+    plans: Vec<Option<Plan>>,
+    /// Episodes whose first search, from the spawn, found no way through.
+    hopeless: usize,
+}
+
+impl Planner {
+    /// A planner for the world of `env` (its lanes side by side) that
+    /// knows what `sight` says.
+    pub fn new(env: &VecEnv, sight: Sight) -> Self {
+        Self {
+            sight,
+            geometry: Geometry::new(env.arena()),
+            plans: (0..env.agents()).map(|_| None).collect(),
+            hopeless: 0,
+        }
+    }
+
+    /// Episodes so far in which no way through was found from the spawn,
+    /// even with no margin: none in the model (an estimate, as the model
+    /// is, of the episodes no pilot could fly).
+    pub fn hopeless_starts(&self) -> usize {
+        self.hopeless
+    }
+
+    /// The next action of every agent; agents with `active` false get 0
+    /// and no search. An agent at the start of an episode plans anew.
+    pub fn actions(&mut self, env: &VecEnv, active: &[bool]) -> Vec<u8> {
+        (0..env.agents())
+            .map(|i| {
+                if !active[i] {
+                    self.plans[i] = None;
+                    return 0;
+                }
+                let at = env.drone(i).p;
+                let keep = self.sight == Sight::All
+                    && env.steps_of(i) > 0
+                    && self.plans[i].as_ref().is_some_and(|p| {
+                        p.next < p.steps.len()
+                            && (p.next == 0 || {
+                                let [x, y] = p.steps[p.next - 1].1;
+                                (x - at.x).abs().max((y - at.y).abs()) <= STRAY
+                            })
+                    });
+                if !keep {
+                    self.plans[i] = Some(self.search(env, i));
+                }
+                let plan = self.plans[i].as_mut().expect("planned above");
+                match plan.steps.get(plan.next) {
+                    Some(&(a, _)) => {
+                        plan.next += 1;
+                        a
+                    }
+                    None => 0,
+                }
+            })
+            .collect()
+    }
+
+    /// A plan for agent `i` from its true state now: with the widest
+    /// margin that finds a way through, else the longest way found.
+    fn search(&mut self, env: &VecEnv, i: usize) -> Plan {
+        let seen = (self.sight != Sight::All)
+            .then(|| Geometry::new(&in_view(env, i, self.sight == Sight::ViewVelocity)));
+        let geometry = seen.as_ref().unwrap_or(&self.geometry);
+        let mut longest = Plan::default();
+        for margin in MARGINS {
+            let plan = search(geometry, env, i, margin);
+            if plan.through {
+                return plan;
+            }
+            if plan.steps.len() > longest.steps.len() {
+                longest = plan;
+            }
+        }
+        if env.steps_of(i) == 0 {
+            self.hopeless += 1;
+        }
+        longest
+    }
+}
+
+/// The breadth-first search of [`Planner`] for agent `i` of `env`.
+fn search(geometry: &Geometry, env: &VecEnv, i: usize, margin: f32) -> Plan {
+    let cfg = env.config();
+    let d = env.drone(i);
+    let substeps = ((cfg.action_period / cfg.physics_dt).round() as usize).max(1);
+    let period = substeps as f64 * f64::from(cfg.physics_dt);
+    let dt = period / POINTS as f64;
+    // Forward at the speed the drone flies now (its controller holds it a
+    // little under the setpoint).
+    let (fwd, gain) = (d.v.x, d.body.vel_gain.max(1e-3));
+    // The wind's push moves the lateral velocity's resting point.
+    let drift = d.body.push / gain;
+    let radius = cfg.drone_radius + margin;
+    let goal = cfg.goal.enabled.then(|| (env.goals()[i], cfg.goal.radius));
+    let deltas: &[f32] = if cfg.hold_action {
+        &[-cfg.lateral_step, cfg.lateral_step, 0.0]
+    } else {
+        &[-cfg.lateral_step, cfg.lateral_step]
+    };
+    let (x0, z, t0) = (d.p.x, d.p.z, env.time());
+    let length = env.arena().length;
+    let limit = cfg.max_steps.saturating_sub(env.steps_of(i)) as usize;
+    let mut layers: Vec<Vec<Node>> =
+        vec![vec![Node { x: d.p.x, y: d.p.y, vy: d.v.y, sp: d.lateral_sp, parent: 0, action: 0 }]];
+    let mut path = [Vector::ZERO; POINTS + 1];
+    for k in 0..limit {
+        let xk = x0 + fwd * (k as f64 * period) as f32;
+        let tk = t0 + k as f64 * period;
+        let mut next: Vec<Node> = Vec::new();
+        let mut seen: HashSet<(i32, i32)> = HashSet::new();
+        for (n, node) in layers[k].iter().enumerate() {
+            for (a, delta) in deltas.iter().enumerate() {
+                let sp = (node.sp + delta).clamp(-cfg.max_lateral_speed, cfg.max_lateral_speed);
+                let rest = sp + drift;
+                for (j, p) in path.iter_mut().enumerate() {
+                    let t = (j as f64 * dt) as f32;
+                    let y = node.y + rest * t + (node.vy - rest) * (1.0 - (-gain * t).exp()) / gain;
+                    *p = Vector::new(xk + fwd * t, y, z);
+                }
+                if geometry.path_hits(&path, radius, tk, dt) {
+                    continue;
+                }
+                let end = path[POINTS];
+                let vy = rest + (node.vy - rest) * (-gain * period as f32).exp();
+                let reached = match goal {
+                    Some((at, r)) => match passes(at, r, margin, &path) {
+                        Some(true) => true,
+                        // Past the goal without passing within reach.
+                        Some(false) => continue,
+                        None => false,
+                    },
+                    None => end.x >= length,
+                };
+                let child = Node { x: end.x, y: end.y, vy, sp, parent: n as u32, action: a as u8 };
+                if reached {
+                    layers.push(vec![child]);
+                    return unwind(&layers, 0, true);
+                }
+                let key = ((end.y / CELL_Y).round() as i32, (sp / cfg.lateral_step).round() as i32);
+                if seen.insert(key) {
+                    next.push(child);
+                }
+            }
+        }
+        if next.is_empty() {
+            break;
+        }
+        layers.push(next);
+    }
+    // No way through in the model: the longest way found.
+    unwind(&layers, 0, false)
+}
+
+/// The world as agent `i`'s camera shows it now ([`Sight::View`]): the
+/// obstacles in view or nearby, moving as they do, or with `guess`, each
+/// moving one going on at its present velocity for [`GUESS_S`] and back.
+fn in_view(env: &VecEnv, i: usize, guess: bool) -> Arena {
+    let (cfg, d, t) = (env.config(), env.drone(i), env.time());
+    let ahead = d.q * Vector::X;
+    let half_fov = (cfg.camera.fov_deg / 2.0).to_radians();
+    let mut world = env.arena().clone();
+    world.obstacles = world
+        .obstacles
+        .iter()
+        .filter(|o| {
+            let now = o.at(t);
+            let (lo, hi) = now.aabb();
+            let reach = 0.5 * (hi[0] - lo[0]).hypot(hi[1] - lo[1]);
+            let c = now.center();
+            let to = Vector::new(c[0] - d.p.x, c[1] - d.p.y, 0.0);
+            let dist = to.length();
+            let bearing = (ahead.x * to.y - ahead.y * to.x).atan2(ahead.dot(to));
+            let seen =
+                dist - reach <= cfg.camera.range && bearing.abs() - reach.atan2(dist) <= half_fov;
+            seen || dist - reach <= NEARBY
+        })
+        .map(|o| {
+            let Some(m) = o.motion().filter(|_| guess) else { return o.clone() };
+            let now = o.at(t);
+            let (a, b) = (m.offset(t), m.offset(t + 0.01));
+            let v = [(b[0] - a[0]) / 0.01, (b[1] - a[1]) / 0.01];
+            let speed = v[0].hypot(v[1]);
+            let mut moving = now;
+            if speed > 1e-4 {
+                // Out along its velocity for GUESS_S from where it is now,
+                // and back: a segment whose start it is at now.
+                let phase = (-(t as f32) / (2.0 * GUESS_S)).rem_euclid(1.0);
+                let offset = [v[0] * GUESS_S, v[1] * GUESS_S];
+                moving.set_motion(Some(Motion::Segment { offset, speed, phase }));
+            }
+            moving
+        })
+        .collect();
+    world
+}
+
+/// Whether a step's `path` passes within `r` of the goal `at` less the
+/// margin (Some(true)), has gone `r` past it without (Some(false), the
+/// environment's miss), or has not reached it yet.
+fn passes(at: [f32; 2], r: f32, margin: f32, path: &[Vector]) -> Option<bool> {
+    let reach = (r - margin).max(0.05);
+    let near = path.windows(2).any(|w| {
+        let (a, b) = (w[0], w[1]);
+        let (dx, dy) = (b.x - a.x, b.y - a.y);
+        let len2 = dx * dx + dy * dy;
+        let f = if len2 > 0.0 {
+            (((at[0] - a.x) * dx + (at[1] - a.y) * dy) / len2).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        (at[0] - (a.x + f * dx)).hypot(at[1] - (a.y + f * dy)) <= reach
+    });
+    let end = path[path.len() - 1];
+    if near {
+        Some(true)
+    } else if end.x >= at[0] + r {
+        Some(false)
+    } else {
+        None
+    }
+}
+
+/// The actions from the root to node `n` of the last layer.
+fn unwind(layers: &[Vec<Node>], mut n: usize, through: bool) -> Plan {
+    let mut steps = Vec::with_capacity(layers.len());
+    for layer in layers[1..].iter().rev() {
+        let node = layer[n];
+        steps.push((node.action, [node.x, node.y]));
+        n = node.parent as usize;
+    }
+    steps.reverse();
+    Plan { steps, next: 0, through }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::Randomize;
+    use crate::generate::GenParams;
+    use crate::{Done, SimConfig};
+
+    /// Each agent's first episode in `arena`, flown by `pick` (the env and
+    /// the agents still in their first episode, to their actions).
+    fn first_episodes(
+        arena: &Arena,
+        seed: u64,
+        mut pick: impl FnMut(&VecEnv, &[bool]) -> Vec<u8>,
+    ) -> Vec<Done> {
+        let randomize = Randomize {
+            spawn_x: 8.0,
+            spawn_heading_deg: 10.0,
+            spawn_lateral_speed: 0.5,
+            ..Randomize::default()
+        };
+        let cfg = SimConfig { agents: 16, randomize, ..SimConfig::default() };
+        let mut env = VecEnv::new(cfg, arena.clone(), seed).unwrap();
+        let mut done: Vec<Option<Done>> = vec![None; env.agents()];
+        while done.iter().any(Option::is_none) {
+            let active: Vec<bool> = done.iter().map(Option::is_none).collect();
+            let actions = pick(&env, &active);
+            env.step(&actions).unwrap();
+            for ep in env.finished() {
+                done[ep.agent].get_or_insert(ep.done);
+            }
+        }
+        done.into_iter().flatten().collect()
+    }
+
+    #[test]
+    fn the_planner_flies_through_moving_obstacles_that_a_blind_flight_meets() {
+        // L4's generator: rows every 3 m, three in ten obstacles moving at
+        // 0.2-0.6 m/s, a path through the still ones.
+        let params = GenParams {
+            length: 80.0,
+            spacing: 3.0,
+            per_row: 2,
+            box_half_x: [0.3, 1.0],
+            box_half_y: [0.6, 1.5],
+            cylinder_radius: [0.4, 1.0],
+            min_gap: 1.2,
+            require_path: true,
+            moving_share: 0.3,
+            moving_speed: [0.2, 0.6],
+            ..GenParams::default()
+        };
+        let (mut flown, mut blind, mut episodes, mut hopeless) = ([0; 3], 0, 0, 0);
+        for seed in 0..4 {
+            let arena = Arena::generate("moving", seed, &params);
+            assert!(arena.obstacles.iter().any(|o| o.motion().is_some()), "seed {seed}");
+            for (k, sight) in [Sight::All, Sight::View, Sight::ViewVelocity].into_iter().enumerate()
+            {
+                let mut planner = None;
+                let runs = first_episodes(&arena, seed, |env, active| {
+                    planner.get_or_insert_with(|| Planner::new(env, sight)).actions(env, active)
+                });
+                flown[k] += runs.iter().filter(|d| **d == Done::Goal).count();
+                if sight == Sight::All {
+                    hopeless += planner.map_or(0, |p| p.hopeless_starts());
+                }
+            }
+            // The same spawns, flown straight on (the setpoint held near 0).
+            let mut t = 0u32;
+            let runs = first_episodes(&arena, seed, |env, _| {
+                t += 1;
+                vec![(t % 2) as u8; env.agents()]
+            });
+            blind += runs.iter().filter(|d| **d == Done::Goal).count();
+            episodes += runs.len();
+        }
+        let [all, view, velocity] = flown;
+        assert!(all * 10 >= episodes * 8, "planner: {all} of {episodes}");
+        // What it does not fly is mostly what it found no way through.
+        assert!(hopeless <= episodes - all, "{hopeless} hopeless, {all} flown");
+        assert!(blind * 4 <= episodes, "straight on: {blind} of {episodes}");
+        // Told only what the camera shows, it still flies most episodes
+        // when it knows where the movers go, and few when it knows only
+        // their present velocity.
+        assert!(view * 10 >= episodes * 6, "in view: {view} of {episodes}");
+        assert!(velocity * 2 < all, "velocity only: {velocity}, all: {all}");
+    }
+
+    #[test]
+    fn a_goal_is_passed_within_its_radius_or_missed() {
+        let path = |y: f32| [Vector::new(9.0, y, 2.0), Vector::new(10.0, y, 2.0)];
+        assert_eq!(passes([10.0, 0.5], 1.0, 0.0, &path(0.0)), Some(true));
+        // The margin narrows what counts as passing.
+        assert_eq!(passes([10.0, 0.9], 1.0, 0.2, &path(0.0)), None);
+        assert_eq!(passes([9.5, 3.0], 1.0, 0.0, &path(0.0)), None);
+        assert_eq!(passes([8.5, 3.0], 1.0, 0.0, &path(0.0)), Some(false));
+    }
+}
