@@ -4,9 +4,11 @@
 //! policy a drone could have (it sees the future); `hive eval --policy
 //! planner` flies it to measure what a level's episodes allow: what it
 //! flies is a floor under the share of episodes that can be flown at all.
+//! Told only what the camera shows ([`Sight::View`], [`Sight::ViewVelocity`]),
+//! it measures what the observation leaves out.
 //!
 //! The search runs in a kinematic model of the flight: forward at the
-//! drone's speed setpoint, the lateral velocity approaching its setpoint
+//! drone's present forward speed, the lateral velocity approaching its setpoint
 //! at the controller's gain (a first-order lag, with the drone's wind),
 //! each action moving the setpoint as [`VecEnv::step`] does. Paths are
 //! tested with the direct physics path's own collision query against
