@@ -190,6 +190,7 @@ fn the_scripted_pilots_fly_a_levels_test_layouts() {
     let planner = eval_json(&[&args[..], &["--policy", "planner"]].concat());
     let reactive = eval_json(&[&args[..], &["--policy", "reactive"]].concat());
     assert_eq!(planner["policy"], "planner");
+    assert_eq!(planner["sight"], "all");
     assert_eq!(planner["episodes"].as_u64(), Some(100));
     assert_eq!(planner["layouts"].as_array().map(Vec::len), Some(5));
     let (p, r) =

@@ -52,6 +52,28 @@ impl PolicyKind {
     }
 }
 
+impl SightArg {
+    /// What the planner is told.
+    fn sight(self) -> Sight {
+        match self {
+            SightArg::All => Sight::All,
+            SightArg::View => Sight::View,
+            SightArg::ViewVelocity => Sight::ViewVelocity,
+        }
+    }
+
+    /// Its name on the command line and in JSON, and what it means.
+    fn name(self) -> (&'static str, &'static str) {
+        match self {
+            SightArg::All => ("all", "every obstacle's motion"),
+            SightArg::View => ("view", "what the camera shows, with the movers' future"),
+            SightArg::ViewVelocity => {
+                ("view-velocity", "what the camera shows, the movers' velocity kept 3 s")
+            }
+        }
+    }
+}
+
 #[derive(Args, Debug)]
 pub struct EvalArgs {
     /// Weights (safetensors) written by `hive train`.
@@ -127,34 +149,31 @@ pub fn run(a: EvalArgs) -> Result<()> {
     let pilot = match policy {
         PolicyKind::Greedy => Pilot::Net(&net),
         PolicyKind::Reactive => Pilot::Reactive,
-        PolicyKind::Planner => Pilot::Planner(match a.sight {
-            SightArg::All => Sight::All,
-            SightArg::View => Sight::View,
-            SightArg::ViewVelocity => Sight::ViewVelocity,
-        }),
+        PolicyKind::Planner => Pilot::Planner(a.sight.sight()),
     };
     let stats = fly_layouts(pilot, &cfg.sim_config(), &layouts, per_layout, a.seed)?;
-    let pooled = EvalStats::pooled(&stats);
+    report(&a, policy, &source, &layouts, &stats);
+    Ok(())
+}
+
+/// Prints what an evaluation found: per layout and pooled, and with
+/// `--json` one object as the last line.
+fn report(a: &EvalArgs, policy: PolicyKind, source: &str, layouts: &[Arena], stats: &[EvalStats]) {
+    let pooled = EvalStats::pooled(stats);
     let pct = |s: &EvalStats| {
         let [lo, hi] = s.wilson();
         format!("{:.1} % [{:.1}, {:.1}]", s.success_rate() * 100.0, lo * 100.0, hi * 100.0)
     };
+    let planner = policy == PolicyKind::Planner;
     let who = match policy {
         PolicyKind::Greedy => {
             a.checkpoint.as_ref().map_or(String::new(), |c| c.display().to_string())
         }
         PolicyKind::Reactive => "the reactive rule".into(),
-        PolicyKind::Planner => format!(
-            "the planner (privileged), knowing {}",
-            match a.sight {
-                SightArg::All => "every obstacle's motion",
-                SightArg::View => "what the camera shows, with the movers' future",
-                SightArg::ViewVelocity => "what the camera shows, the movers' velocity kept 3 s",
-            }
-        ),
+        PolicyKind::Planner => format!("the planner (privileged), knowing {}", a.sight.name().1),
     };
     println!("{who}, settings of {source}:");
-    for (l, s) in layouts.iter().zip(&stats) {
+    for (l, s) in layouts.iter().zip(stats) {
         println!(
             "  {}: {} episodes, success {}, collisions {}, mean reward {:.1}",
             l.name,
@@ -172,7 +191,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
         pooled.collisions,
         pooled.mean_reward
     );
-    if policy == PolicyKind::Planner {
+    if planner {
         println!(
             "  no way through from the spawn (in the planner's model): {} of {} episodes",
             pooled.hopeless, pooled.episodes
@@ -181,7 +200,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
     if a.json {
         let layouts_json: Vec<serde_json::Value> = layouts
             .iter()
-            .zip(&stats)
+            .zip(stats)
             .map(|(l, s)| serde_json::json!({ "name": l.name, "success_rate": s.success_rate(), "ci": s.wilson(), "episodes": s.episodes, "mean_reward": s.mean_reward }))
             .collect();
         println!(
@@ -192,8 +211,8 @@ pub fn run(a: EvalArgs) -> Result<()> {
                 "mean_reward": pooled.mean_reward,
                 "episodes": pooled.episodes,
                 "collisions": pooled.collisions,
-                "hopeless": (policy == PolicyKind::Planner).then_some(pooled.hopeless),
-                "sight": (policy == PolicyKind::Planner).then(|| format!("{:?}", a.sight).to_lowercase()),
+                "hopeless": planner.then_some(pooled.hopeless),
+                "sight": planner.then(|| a.sight.name().0),
                 "layouts": layouts_json,
                 "policy": policy.name(),
                 "level": a.level,
@@ -201,5 +220,4 @@ pub fn run(a: EvalArgs) -> Result<()> {
             })
         );
     }
-    Ok(())
 }
