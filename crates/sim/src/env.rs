@@ -134,6 +134,11 @@ pub struct SimConfig {
 }
 
 impl SimConfig {
+    /// Physics steps per action (at least one).
+    pub fn substeps(&self) -> usize {
+        ((self.action_period / self.physics_dt).round() as usize).max(1)
+    }
+
     /// The observation and action shapes of this task: the goal's floats
     /// with a goal, the third action with hold.
     pub fn shapes(&self) -> Shapes {
@@ -571,7 +576,7 @@ impl VecEnv {
                 (d.lateral_sp + delta).clamp(-cfg.max_lateral_speed, cfg.max_lateral_speed);
             d.collided = false;
         }
-        let substeps = ((cfg.action_period / cfg.physics_dt).round() as usize).max(1);
+        let substeps = cfg.substeps();
         self.advance(substeps, true);
         let t1 = Instant::now();
 

@@ -89,11 +89,9 @@ impl Goal {
         (at[0] - p.x).hypot(at[1] - p.y)
     }
 
-    /// How a step from `from` to `to` went toward the goal at `at`: within
-    /// the radius anywhere on the straight segment between them is reached
-    /// (at 1 m/s and 1 s per action the ends alone could step over a 1 m
-    /// radius), past its line is missed.
-    pub(crate) fn progress(&self, at: [f32; 2], from: Vector, to: Vector) -> Progress {
+    /// The horizontal distance from `at` to the straight segment from
+    /// `from` to `to`.
+    pub(crate) fn closest(at: [f32; 2], from: Vector, to: Vector) -> f32 {
         let (ax, ay) = (from.x, from.y);
         let (dx, dy) = (to.x - ax, to.y - ay);
         let len2 = dx * dx + dy * dy;
@@ -102,8 +100,15 @@ impl Goal {
         } else {
             0.0
         };
-        let closest = (at[0] - (ax + t * dx)).hypot(at[1] - (ay + t * dy));
-        if closest <= self.radius {
+        (at[0] - (ax + t * dx)).hypot(at[1] - (ay + t * dy))
+    }
+
+    /// How a step from `from` to `to` went toward the goal at `at`: within
+    /// the radius anywhere on the straight segment between them is reached
+    /// (at 1 m/s and 1 s per action the ends alone could step over a 1 m
+    /// radius), past its line is missed.
+    pub(crate) fn progress(&self, at: [f32; 2], from: Vector, to: Vector) -> Progress {
+        if Self::closest(at, from, to) <= self.radius {
             Progress::Reached
         } else if to.x >= at[0] + self.radius {
             Progress::Missed

@@ -25,7 +25,7 @@ use rapier3d::math::Vector;
 
 use crate::env::VecEnv;
 use crate::flight::Geometry;
-use crate::{Arena, Motion};
+use crate::{Arena, Goal, Motion};
 
 /// Width of the grid cells that merge states (m of lateral position).
 const CELL_Y: f32 = 0.05;
@@ -172,8 +172,7 @@ impl Planner {
 fn search(geometry: &Geometry, env: &VecEnv, i: usize, margin: f32) -> Plan {
     let cfg = env.config();
     let d = env.drone(i);
-    let substeps = ((cfg.action_period / cfg.physics_dt).round() as usize).max(1);
-    let period = substeps as f64 * f64::from(cfg.physics_dt);
+    let period = cfg.substeps() as f64 * f64::from(cfg.physics_dt);
     let dt = period / POINTS as f64;
     // Forward at the speed the drone flies now (its controller holds it a
     // little under the setpoint).
@@ -248,8 +247,8 @@ fn in_view(env: &VecEnv, i: usize, guess: bool) -> Arena {
     let (cfg, d, t) = (env.config(), env.drone(i), env.time());
     let ahead = d.q * Vector::X;
     let half_fov = (cfg.camera.fov_deg / 2.0).to_radians();
-    let mut world = env.arena().clone();
-    world.obstacles = world
+    let world = env.arena();
+    let obstacles = world
         .obstacles
         .iter()
         .filter(|o| {
@@ -281,7 +280,7 @@ fn in_view(env: &VecEnv, i: usize, guess: bool) -> Arena {
             moving
         })
         .collect();
-    world
+    Arena { name: world.name.clone(), spawn: world.spawn.clone(), obstacles, ..*world }
 }
 
 /// Whether a step's `path` passes within `r` of the goal `at` less the
@@ -289,17 +288,7 @@ fn in_view(env: &VecEnv, i: usize, guess: bool) -> Arena {
 /// environment's miss), or has not reached it yet.
 fn passes(at: [f32; 2], r: f32, margin: f32, path: &[Vector]) -> Option<bool> {
     let reach = (r - margin).max(0.05);
-    let near = path.windows(2).any(|w| {
-        let (a, b) = (w[0], w[1]);
-        let (dx, dy) = (b.x - a.x, b.y - a.y);
-        let len2 = dx * dx + dy * dy;
-        let f = if len2 > 0.0 {
-            (((at[0] - a.x) * dx + (at[1] - a.y) * dy) / len2).clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
-        (at[0] - (a.x + f * dx)).hypot(at[1] - (a.y + f * dy)) <= reach
-    });
+    let near = path.windows(2).any(|w| Goal::closest(at, w[0], w[1]) <= reach);
     let end = path[path.len() - 1];
     if near {
         Some(true)
