@@ -112,10 +112,10 @@ impl<W: std::io::Write> Recording<W> {
     /// `seed + round`) to its end, a frame per action step, following the
     /// focused drone and then the next one still flying.
     fn round(&mut self, a: &PlayArgs, net: &QNet, arena: &Arena, round: usize) -> Result<()> {
-        // A checkpoint of a task with a goal or the hold action flies with
-        // them (the goal's default settings).
+        // A checkpoint of a task with a goal, the hold action or another
+        // count of frames flies with them (the goal's default settings).
         let shapes = net.shapes();
-        let mut cfg = SimConfig { agents: a.agents, ..SimConfig::default() };
+        let mut cfg = SimConfig { agents: a.agents, frames: shapes.frames, ..SimConfig::default() };
         cfg.goal.enabled = shapes.scalars > rotorhive_msg::VEL_DIM;
         cfg.hold_action = shapes.actions > rotorhive_msg::NUM_ACTIONS;
         let mut env = VecEnv::new(cfg, arena.clone(), a.seed + round as u64)?;

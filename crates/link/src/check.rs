@@ -7,8 +7,8 @@
 //! whatever the bytes (property-tested below).
 
 use rotorhive_msg::{
-    EPISODE_FIELDS, EpisodeHeader, PACKED_DEPTH, RoleKind, Shapes, Telemetry, TransitionHeader,
-    WeightsHeader, episode_corrupt,
+    EPISODE_FIELDS, EpisodeHeader, RoleKind, Shapes, Telemetry, TransitionHeader, WeightsHeader,
+    episode_corrupt,
 };
 
 use crate::delivery::LinkHeader;
@@ -82,7 +82,7 @@ pub fn transitions(
     let mut s = vec![0f32; shapes.packed_scalars()];
     let mut bad = 0;
     for i in 0..h.count as usize {
-        if !cur.read((i * packed + PACKED_DEPTH) * 2, &mut raw) {
+        if !cur.read((i * packed + shapes.packed_depth()) * 2, &mut raw) {
             return Err(Reject::Length { got, want });
         }
         for (v, b) in s.iter_mut().zip(raw.chunks_exact(4)) {
@@ -218,7 +218,7 @@ mod tests {
         let (h, p) = batch(2, &good);
         // Whole, and in fragments cut anywhere (also inside a scalar).
         assert!(transitions(&host(), Shapes::PAPER, Some(&h), &[&p]).is_ok());
-        for cut in [1, 7, PACKED_DEPTH * 2 + 3, p.len() - 1] {
+        for cut in [1, 7, Shapes::PAPER.packed_depth() * 2 + 3, p.len() - 1] {
             let (a, b) = p.split_at(cut);
             assert!(transitions(&host(), Shapes::PAPER, Some(&h), &[a, b]).is_ok(), "cut at {cut}");
         }
@@ -245,13 +245,13 @@ mod tests {
             );
         }
         let (h, p) = batch(1, &[(1.0, f32::NAN, 0.0), (2.0, 1.0, 0.0), (0.0, 1.0, 0.5)]);
-        let (a, b) = p.split_at(PACKED_DEPTH * 2 + 1);
+        let (a, b) = p.split_at(Shapes::PAPER.packed_depth() * 2 + 1);
         assert_eq!(
             transitions(&host(), Shapes::PAPER, Some(&h), &[a, b]).unwrap_err(),
             Reject::Values(3)
         );
         // With the hold action, action 2 is one of the run's.
-        let hold = Shapes::task(false, true);
+        let hold = Shapes::task(rotorhive_msg::FRAMES, false, true);
         assert_eq!(transitions(&host(), hold, Some(&h), &[a, b]).unwrap_err(), Reject::Values(2));
         let (h, _) = batch(1, &[]);
         assert_eq!(

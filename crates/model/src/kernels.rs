@@ -30,10 +30,12 @@
 use multiversion::multiversion;
 
 use crate::ops::{View, matmul};
-use crate::{C1, C2, FEAT, FRAMES, H1, H2, HID, HP, K1, K2, OBS_DEPTH, S1, SIDE, Shapes, VEL_H};
+use crate::{C1, C2, FEAT, H1, H2, HID, HP, K1, K2, S1, SIDE, Shapes, VEL_H};
 
 /// Columns of conv1's patch matrix: (frame, ky, kx).
-const P1: usize = FRAMES * K1 * K1;
+const fn p1(shapes: Shapes) -> usize {
+    shapes.frames * K1 * K1
+}
 /// Columns of conv2's patch matrix: (ky, kx, channel).
 const P2: usize = K2 * K2 * C1;
 /// Features entering fc1: the pooled map and the velocity branch.
@@ -45,9 +47,9 @@ pub(crate) struct Weights<'a>(pub(crate) [&'a [f32]; 10], pub(crate) Shapes);
 /// Offsets of each parameter in the flat gradient vector of a network for
 /// `shapes`.
 pub(crate) fn offsets(shapes: Shapes) -> [usize; 11] {
-    let (vel, actions) = (shapes.scalars, shapes.actions);
+    let (vel, actions, p1) = (shapes.scalars, shapes.actions, p1(shapes));
     let sizes =
-        [C1 * P1, C1, C2 * P2, C2, VEL_H * vel, VEL_H, HID * F, HID, actions * HID, actions];
+        [C1 * p1, C1, C2 * P2, C2, VEL_H * vel, VEL_H, HID * F, HID, actions * HID, actions];
     let mut off = [0; 11];
     for i in 0..10 {
         off[i + 1] = off[i] + sizes[i];
@@ -154,11 +156,11 @@ fn mask_and_sum<const C: usize>(g: &mut [f32], y: &[f32], db: &mut [f32]) {
 /// conv1's patch rows of one observation: for every output pixel (oy, ox),
 /// runs of K1 pixels per (frame, ky).
 #[multiversion(targets("x86_64+avx2+fma+avx"))]
-fn im2col1(obs: &[f32], out: &mut [f32]) {
+fn im2col1(obs: &[f32], frames: usize, out: &mut [f32]) {
     let mut o = 0;
     for oy in 0..H1 {
         for ox in 0..H1 {
-            for c in 0..FRAMES {
+            for c in 0..frames {
                 for ky in 0..K1 {
                     let s = c * SIDE * SIDE + (oy * S1 + ky) * SIDE + ox * S1;
                     out[o..o + K1].copy_from_slice(&obs[s..s + K1]);
@@ -285,7 +287,7 @@ impl Workspace {
         let hw1 = H1 * H1;
         let hw2 = H2 * H2;
         for (v, len) in [
-            (&mut self.cols1, rows * hw1 * P1),
+            (&mut self.cols1, rows * hw1 * p1(shapes)),
             (&mut self.a1, rows * hw1 * C1),
             (&mut self.cols2, rows * hw2 * P2),
             (&mut self.a2, rows * hw2 * C2),
@@ -313,16 +315,16 @@ impl Workspace {
         self.reserve(n, w.1);
         let [w1, b1, w2, b2, wv, bv, w3, b3, w4, b4] = w.0;
         let (vel, actions) = (w.1.scalars, w.1.actions);
-        let (hw1, hw2) = (H1 * H1, H2 * H2);
+        let (hw1, hw2, p1) = (H1 * H1, H2 * H2, p1(w.1));
         // conv1: patches straight from the observation rows, runs of K1 pixels.
         let mut i = 0;
         for p in parts {
             for r in 0..p.n {
                 let obs = p.row(r);
-                im2col1(obs, &mut self.cols1[i * hw1 * P1..(i + 1) * hw1 * P1]);
+                im2col1(obs, w.1.frames, &mut self.cols1[i * hw1 * p1..(i + 1) * hw1 * p1]);
                 // The velocity branch (and the goal's), 3 or 6 → 16, into
                 // the features' tail.
-                let v = &obs[OBS_DEPTH..];
+                let v = &obs[w.1.obs_depth()..];
                 self.vel[i * vel..(i + 1) * vel].copy_from_slice(v);
                 let tail = &mut self.feat[i * F + FEAT..(i + 1) * F];
                 for (j, t) in tail.iter_mut().enumerate() {
@@ -333,7 +335,7 @@ impl Workspace {
             }
         }
         let a1 = &mut self.a1[..n * hw1 * C1];
-        matmul(n * hw1, C1, P1, View::rows(&self.cols1, P1), View::transposed(w1, P1), a1, false)?;
+        matmul(n * hw1, C1, p1, View::rows(&self.cols1, p1), View::transposed(w1, p1), a1, false)?;
         bias_relu::<C1>(a1, b1);
         im2col2(&self.a1, &mut self.cols2, n);
         let a2 = &mut self.a2[..n * hw2 * C2];
@@ -375,7 +377,7 @@ impl Workspace {
     pub(crate) fn backward(&mut self, w: &Weights, n: usize) -> crate::Result<()> {
         let [_, _, w2, _, _, _, w3, _, w4, _] = w.0;
         let (vel, actions) = (w.1.scalars, w.1.actions);
-        let (hw1, hw2) = (H1 * H1, H2 * H2);
+        let (hw1, hw2, p1) = (H1 * H1, H2 * H2, p1(w.1));
         let off = offsets(w.1);
         let g = &mut self.grads[..off[10]];
         let (g1, rest) = g.split_at_mut(off[1]);
@@ -436,7 +438,7 @@ impl Workspace {
         col2im2(dcols2, da1, n);
         mask_and_sum::<C1>(da1, &self.a1[..n * hw1 * C1], gb1);
         // conv1: dW = da1ᵀ·patches (the image needs no gradient).
-        matmul(C1, P1, n * hw1, View::transposed(da1, C1), View::rows(&self.cols1, P1), g1, false)?;
+        matmul(C1, p1, n * hw1, View::transposed(da1, C1), View::rows(&self.cols1, p1), g1, false)?;
         Ok(())
     }
 }

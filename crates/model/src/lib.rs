@@ -59,7 +59,7 @@ pub fn device(kind: DeviceKind) -> Result<Device> {
 // The observation and transition layout, defined once in `rotorhive-msg`
 // (without its iceoryx2 feature): depth side, frames, velocity components,
 // floats per observation, actions, floats per transition.
-pub use rotorhive_msg::{DEPTH_SIDE as SIDE, FRAMES, OBS_DEPTH, Shapes};
+pub use rotorhive_msg::{DEPTH_SIDE as SIDE, FRAMES, Shapes};
 
 const C1: usize = 16; // conv1 channels
 const K1: usize = 6;
@@ -78,7 +78,7 @@ const HID: usize = 64;
 /// branch, the goal's floats after the velocity), the actions leave `fc2`.
 pub fn params(shapes: Shapes) -> [(&'static str, Vec<usize>); 10] {
     [
-        ("conv1.weight", vec![C1, FRAMES * K1 * K1]),
+        ("conv1.weight", vec![C1, shapes.frames * K1 * K1]),
         ("conv1.bias", vec![C1]),
         ("conv2.weight", vec![C2, K2 * K2 * C1]),
         ("conv2.bias", vec![C2]),
@@ -288,8 +288,9 @@ impl QNet {
     /// differentiable by candle's autograd.
     pub(crate) fn forward_generic(&self, obs: &Tensor) -> Result<Tensor> {
         let b = obs.dim(0)?;
-        let img = obs.narrow(1, 0, FRAMES * SIDE * SIDE)?.reshape((b, FRAMES, SIDE, SIDE))?;
-        let w1 = self.p(0).reshape((C1, FRAMES, K1, K1))?;
+        let frames = self.shapes.frames;
+        let img = obs.narrow(1, 0, frames * SIDE * SIDE)?.reshape((b, frames, SIDE, SIDE))?;
+        let w1 = self.p(0).reshape((C1, frames, K1, K1))?;
         let x = img
             .conv2d(&w1, 0, S1, 1, 1)?
             .broadcast_add(&self.p(1).reshape((1, C1, 1, 1))?)?
@@ -304,7 +305,7 @@ impl QNet {
             .max(3)?
             .permute((0, 2, 3, 1))?
             .reshape((b, FEAT))?;
-        let v = obs.narrow(1, OBS_DEPTH, self.shapes.scalars)?;
+        let v = obs.narrow(1, self.shapes.obs_depth(), self.shapes.scalars)?;
         let v = v.matmul(&self.p(4).t()?)?.broadcast_add(self.p(5))?.relu()?;
         let h = Tensor::cat(&[&x, &v], 1)?;
         let h = h.matmul(&self.p(6).t()?)?.broadcast_add(self.p(7))?.relu()?;
@@ -496,7 +497,7 @@ impl QNet {
     }
 
     /// Writes the network as an ONNX model (see `onnx.rs`): inputs `depth`
-    /// `(B, 2, 32, 32)` and `velocity` `(B, scalars)` (3, or 6 with a goal),
+    /// `(B, frames, 32, 32)` (2 in the paper's task) and `velocity` `(B, scalars)` (3, or 6 with a goal),
     /// output `q` `(B, actions)`; the checkpoint's header entries (and
     /// `extra`) as metadata properties.
     pub fn to_onnx(&self, path: &Path, extra: &[(&str, String)]) -> Result<()> {
@@ -536,8 +537,8 @@ impl QNet {
 pub const CHECKPOINT_LAYOUT: &str = "rotorhive-qnet/1";
 
 /// What a checkpoint's safetensors header says of a network for `shapes`:
-/// `layout` ([`CHECKPOINT_LAYOUT`]), `observation`, `obs_len`, `scalars`
-/// and `actions`.
+/// `layout` ([`CHECKPOINT_LAYOUT`]), `observation`, `frames`, `obs_len`,
+/// `scalars` and `actions`.
 pub fn checkpoint_metadata(shapes: Shapes) -> HashMap<String, String> {
     let goal = if shapes.scalars > rotorhive_msg::VEL_DIM {
         ", then the goal's bearing (rad), distance and lateral offset (10 m)"
@@ -549,18 +550,21 @@ pub fn checkpoint_metadata(shapes: Shapes) -> HashMap<String, String> {
         (
             "observation".to_string(),
             format!(
-                "depth {FRAMES}x{SIDE}x{SIDE} in [0, 1], then velocity 3 (m/s, body frame){goal}"
+                "depth {}x{SIDE}x{SIDE} in [0, 1] (oldest frame first), then velocity 3 (m/s, \
+                 body frame){goal}",
+                shapes.frames
             ),
         ),
+        ("frames".to_string(), shapes.frames.to_string()),
         ("obs_len".to_string(), shapes.obs_len().to_string()),
         ("scalars".to_string(), shapes.scalars.to_string()),
         ("actions".to_string(), shapes.actions.to_string()),
     ])
 }
 
-/// The shapes a checkpoint was written for, from its header (`scalars`
-/// and `actions`; a checkpoint of an earlier build, without them, is the
-/// paper's task), checked to be ones a task has.
+/// The shapes a checkpoint was written for, from its header (`frames`,
+/// `scalars` and `actions`; an entry missing in a checkpoint of an earlier
+/// build is the paper's), checked to be ones a task has.
 pub fn checkpoint_shapes(path: &Path) -> Result<Shapes> {
     let file = path.display().to_string();
     let bad = |message: String| ModelError::Checkpoint { file: file.clone(), message };
@@ -574,6 +578,7 @@ pub fn checkpoint_shapes(path: &Path) -> Result<Shapes> {
         })
     };
     let shapes = Shapes {
+        frames: field("frames", Shapes::PAPER.frames)?,
         scalars: field("scalars", Shapes::PAPER.scalars)?,
         actions: field("actions", Shapes::PAPER.actions)?,
     };
@@ -617,7 +622,7 @@ fn check_layout(bytes: &[u8], file: &str, shapes: Shapes) -> Result<()> {
         return Ok(());
     };
     let ours = checkpoint_metadata(shapes);
-    let diffs: Vec<String> = ["layout", "obs_len", "scalars", "actions"]
+    let diffs: Vec<String> = ["layout", "obs_len", "frames", "scalars", "actions"]
         .iter()
         .filter_map(|k| {
             theirs

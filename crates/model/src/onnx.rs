@@ -1,7 +1,7 @@
 //! The network as an ONNX model (`hive export`, `QNetwork.to_onnx`), for
 //! any runtime that reads ONNX (onnxruntime, TensorRT, OpenVINO, a browser).
 //!
-//! Inputs `depth` `(B, 2, 32, 32)` and `velocity` `(B, scalars)` (the
+//! Inputs `depth` `(B, frames, 32, 32)` and `velocity` `(B, scalars)` (the
 //! velocity, 3; with a goal, the velocity then the goal's 3), output `q`
 //! `(B, actions)`: conv 6×6/2 → ReLU → conv 3×3 → ReLU → max-pool 2 → flatten;
 //! velocity → Gemm → ReLU; concatenated → Gemm → ReLU → Gemm. The weights go
@@ -20,7 +20,7 @@ use std::collections::HashMap;
 use candle_core::Tensor;
 use rotorhive_msg::protobuf::{bytes, int};
 
-use crate::{C1, C2, FEAT, FRAMES, HP, K1, K2, Result, S1, SIDE, Shapes, params};
+use crate::{C1, C2, FEAT, HP, K1, K2, Result, S1, SIDE, Shapes, params};
 
 /// The IR version written (ONNX 1.14 and later read it).
 const IR_VERSION: u64 = 9;
@@ -48,7 +48,7 @@ pub(crate) fn model(
     }
     bytes(&mut graph, 2, b"rotorhive_qnet");
     for t in [
-        init("conv1.weight", &[C1, FRAMES, K1, K1], &weights["conv1.weight"]),
+        init("conv1.weight", &[C1, shapes.frames, K1, K1], &weights["conv1.weight"]),
         init("conv1.bias", &[C1], &weights["conv1.bias"]),
         init("conv2.weight", &[C2, C1, K2, K2], &conv2),
         init("conv2.bias", &[C2], &weights["conv2.bias"]),
@@ -61,7 +61,11 @@ pub(crate) fn model(
     ] {
         bytes(&mut graph, 5, &t);
     }
-    bytes(&mut graph, 11, &value_info("depth", &[None, Some(FRAMES), Some(SIDE), Some(SIDE)]));
+    bytes(
+        &mut graph,
+        11,
+        &value_info("depth", &[None, Some(shapes.frames), Some(SIDE), Some(SIDE)]),
+    );
     bytes(&mut graph, 11, &value_info("velocity", &[None, Some(vel)]));
     bytes(&mut graph, 12, &value_info("q", &[None, Some(actions)]));
 

@@ -92,16 +92,17 @@ fn forward_matches_stock_candle_convolutions() {
 /// Gradients of the whole loss on the fused path (hand-written backward:
 /// convolutions, pooling to its argmax, ReLU masks, the TD-Huber loss)
 /// against candle's autograd over stock ops, plain and double DQN, one shard
-/// and two, for the paper's shapes and a goal task's (six scalars, three
-/// actions).
+/// and two, for the paper's shapes, a goal task's (six scalars, three
+/// actions) and one of four depth frames.
 #[test]
 fn fused_gradients_match_stock_candle() {
-    let goal = Shapes::task(true, true);
+    let goal = Shapes::task(FRAMES, true, true);
     for (seed, double, threads, shapes) in [
         (1, false, 1, Shapes::PAPER),
         (2, true, 1, Shapes::PAPER),
         (3, true, 2, Shapes::PAPER),
         (4, true, 2, goal),
+        (5, true, 2, Shapes::task(4, false, false)),
     ] {
         let mut dqn = Dqn::with_shapes(cfg(double), shapes, seed, &Device::Cpu).unwrap();
         dqn.set_threads(threads);
@@ -320,15 +321,17 @@ fn flat_weights_and_checkpoints_round_trip() {
         e.contains("layout rotorhive-qnet/0") && e.contains("actions 3 (this network: 2)"),
         "{e}"
     );
-    // A goal task's network: its header says its shapes, a network of the
-    // paper's refuses it by name, and one of its shapes loads it.
-    let goal = Shapes::task(true, true);
+    // A goal task's network with four frames: its header says its shapes,
+    // a network of the paper's refuses it by name, and one of its shapes
+    // loads it.
+    let goal = Shapes::task(4, true, true);
     let g = QNet::with_shapes(goal, 9, &dev).unwrap();
     g.save(&path).unwrap();
     assert_eq!(checkpoint_shapes(&path).unwrap(), goal);
     let e = c.load(&path).unwrap_err().to_string();
     assert!(
-        e.contains("obs_len 2054 (this network: 2051)")
+        e.contains("obs_len 4102 (this network: 2051)")
+            && e.contains("frames 4 (this network: 2)")
             && e.contains("scalars 6 (this network: 3)")
             && e.contains("actions 3 (this network: 2)"),
         "{e}"
@@ -345,6 +348,12 @@ fn flat_weights_and_checkpoints_round_trip() {
     safetensors::serialize_to_file(tensors, Some(odd), &path).unwrap();
     let e = checkpoint_shapes(&path).unwrap_err().to_string();
     assert!(e.contains("header claims 7 observation scalars"), "{e}");
+    let mut many = checkpoint_metadata(goal);
+    many.insert("frames".into(), "9".into());
+    let tensors: Vec<(String, Tensor)> = g.named().into_iter().collect();
+    safetensors::serialize_to_file(tensors, Some(many), &path).unwrap();
+    let e = checkpoint_shapes(&path).unwrap_err().to_string();
+    assert!(e.contains("header claims 9 depth frames (1 to 8)"), "{e}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

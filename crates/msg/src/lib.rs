@@ -25,8 +25,11 @@ pub use counters::Counters;
 pub const DEPTH_SIDE: usize = 32;
 /// Pixels in one depth image.
 pub const DEPTH_PIXELS: usize = DEPTH_SIDE * DEPTH_SIDE;
-/// Depth frames stacked in one observation (previous and current).
+/// Depth frames stacked in one observation of the paper's task (previous
+/// and current); `sim.frames` sets another count ([`Shapes::frames`]).
 pub const FRAMES: usize = 2;
+/// The most depth frames an observation stacks (`sim.frames`).
+pub const MAX_FRAMES: usize = 8;
 /// Components of the body-frame linear velocity in an observation.
 pub const VEL_DIM: usize = 3;
 /// Floats of the goal in an observation of a task with a goal
@@ -36,8 +39,6 @@ pub const GOAL_DIM: usize = 3;
 /// Number of discrete actions of the paper's task (lateral velocity
 /// −0.25 m/s, +0.25 m/s); a task with the hold action has a third.
 pub const NUM_ACTIONS: usize = 2;
-/// Depth values in one observation: the stacked frames.
-pub const OBS_DEPTH: usize = FRAMES * DEPTH_PIXELS;
 
 /// The shapes of a run's observations and actions, taken from its config
 /// (`Config::shapes` in the roles): every layout that depends on them
@@ -46,6 +47,9 @@ pub const OBS_DEPTH: usize = FRAMES * DEPTH_PIXELS;
 /// so a sender and a receiver of one run never disagree.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct Shapes {
+    /// Depth frames stacked in one observation, oldest first (one action
+    /// period apart; the last is the current view).
+    pub frames: usize,
     /// Floats after the depth frames: the body-frame velocity, then (with a
     /// goal) the goal's [`GOAL_DIM`] floats.
     pub scalars: usize,
@@ -55,22 +59,34 @@ pub struct Shapes {
 
 impl Shapes {
     /// The paper's task: velocity only, two actions.
-    pub const PAPER: Shapes = Shapes { scalars: VEL_DIM, actions: NUM_ACTIONS };
+    pub const PAPER: Shapes = Shapes { frames: FRAMES, scalars: VEL_DIM, actions: NUM_ACTIONS };
     /// The most actions any task has.
     pub const MAX_ACTIONS: usize = NUM_ACTIONS + 1;
 
-    /// The shapes of a task: with or without a goal in the observation, with
-    /// or without the hold action.
-    pub const fn task(goal: bool, hold: bool) -> Self {
+    /// The shapes of a task: `frames` depth frames, with or without a goal
+    /// in the observation, with or without the hold action.
+    pub const fn task(frames: usize, goal: bool, hold: bool) -> Self {
         Self {
+            frames,
             scalars: VEL_DIM + if goal { GOAL_DIM } else { 0 },
             actions: NUM_ACTIONS + hold as usize,
         }
     }
 
+    /// Depth values in one observation: the stacked frames.
+    pub const fn obs_depth(self) -> usize {
+        self.frames * DEPTH_PIXELS
+    }
+
+    /// Depth values in one packed transition: the frames of `s`, then
+    /// those of `s'`.
+    pub const fn packed_depth(self) -> usize {
+        2 * self.obs_depth()
+    }
+
     /// Floats in one observation: the stacked depth frames, then the scalars.
     pub const fn obs_len(self) -> usize {
-        OBS_DEPTH + self.scalars
+        self.obs_depth() + self.scalars
     }
 
     /// Length of the `f32` payload of an observation batch of `agents`.
@@ -97,7 +113,16 @@ impl Shapes {
     /// `f32` bits as two words (low, high). Half the bytes of
     /// [`Shapes::transition_len`] floats.
     pub const fn packed_len(self) -> usize {
-        PACKED_DEPTH + 2 * self.packed_scalars()
+        self.packed_depth() + 2 * self.packed_scalars()
+    }
+
+    /// The `i`-th scalar of a packed transition (`0..scalars` `s`'s,
+    /// `scalars..2 × scalars` `s'`'s, then action, reward, done): two `u16`
+    /// words after the depth, low then high.
+    #[inline]
+    pub fn packed_scalar(self, p: &[u16], i: usize) -> f32 {
+        let at = self.packed_depth() + 2 * i;
+        f32::from_bits(p[at] as u32 | (p[at + 1] as u32) << 16)
     }
 
     /// Packs one transition given as its parts (`s` and `s'` of
@@ -109,8 +134,8 @@ impl Shapes {
             s.len() == n && next.len() == n && out.len() == self.packed_len(),
             "pack: wrong lengths"
         );
-        let fd = OBS_DEPTH;
-        let (depth, scalars) = out.split_at_mut(PACKED_DEPTH);
+        let fd = self.obs_depth();
+        let (depth, scalars) = out.split_at_mut(self.packed_depth());
         for (o, v) in depth[..fd].iter_mut().zip(&s[..fd]) {
             *o = quantize_depth(*v);
         }
@@ -132,26 +157,26 @@ impl Shapes {
             p.len() == self.packed_len() && out.len() == self.transition_len(),
             "unpack: wrong lengths"
         );
-        let (fd, k) = (OBS_DEPTH, self.scalars);
+        let (fd, k) = (self.obs_depth(), self.scalars);
         let (s, rest) = out.split_at_mut(self.obs_len());
         let (next, tail) = rest.split_at_mut(self.obs_len());
         for (o, q) in s[..fd].iter_mut().zip(&p[..fd]) {
             *o = dequantize_depth(*q);
         }
-        for (o, q) in next[..fd].iter_mut().zip(&p[fd..PACKED_DEPTH]) {
+        for (o, q) in next[..fd].iter_mut().zip(&p[fd..2 * fd]) {
             *o = dequantize_depth(*q);
         }
         for j in 0..k {
-            s[fd + j] = packed_scalar(p, j);
-            next[fd + j] = packed_scalar(p, k + j);
+            s[fd + j] = self.packed_scalar(p, j);
+            next[fd + j] = self.packed_scalar(p, k + j);
         }
         for (j, o) in tail.iter_mut().enumerate() {
-            *o = packed_scalar(p, 2 * k + j);
+            *o = self.packed_scalar(p, 2 * k + j);
         }
     }
 
     /// True when a packed transition's scalars ([`Shapes::packed_scalars`]
-    /// of them, see [`packed_scalar`]) are not what an actor writes: an
+    /// of them, see [`Shapes::packed_scalar`]) are not what an actor writes: an
     /// action that is not one of the run's, a done flag other than 0 or 1,
     /// or a scalar that is not finite. A torn or forged write shows here
     /// (16-bit depth has no invalid value to look for).
@@ -172,7 +197,7 @@ impl Shapes {
             .chunks_exact(self.packed_len())
             .filter(|t| {
                 for (k, v) in s.iter_mut().enumerate() {
-                    *v = packed_scalar(t, k);
+                    *v = self.packed_scalar(t, k);
                 }
                 self.scalars_corrupt(&s)
             })
@@ -180,9 +205,12 @@ impl Shapes {
     }
 
     /// Checks that the shapes are ones a task has (as a checkpoint's header
-    /// claims them): the velocity with or without the goal, two actions or
-    /// three.
+    /// claims them): 1 to [`MAX_FRAMES`] depth frames, the velocity with or
+    /// without the goal, two actions or three.
     pub fn check(self) -> Result<Self, String> {
+        if !(1..=MAX_FRAMES).contains(&self.frames) {
+            return Err(format!("{} depth frames (1 to {MAX_FRAMES})", self.frames));
+        }
         if self.scalars != VEL_DIM && self.scalars != VEL_DIM + GOAL_DIM {
             return Err(format!(
                 "{} observation scalars (a task has {VEL_DIM}, or {} with a goal)",
@@ -272,10 +300,6 @@ pub struct ActionHeader {
     pub step: u64,
 }
 
-/// Depth values in one packed transition: the two frames of `s`, then the
-/// two of `s'`.
-pub const PACKED_DEPTH: usize = 2 * OBS_DEPTH;
-
 /// A normalised depth in [0, 1] as 16-bit fixed point (clamped).
 #[inline]
 pub fn quantize_depth(d: f32) -> u16 {
@@ -286,14 +310,6 @@ pub fn quantize_depth(d: f32) -> u16 {
 #[inline]
 pub fn dequantize_depth(q: u16) -> f32 {
     q as f32 / 65535.0
-}
-
-/// The `i`-th scalar of a packed transition (with `k` scalars per
-/// observation: `0..k` `s`'s, `k..2k` `s'`'s, then action, reward, done).
-#[inline]
-pub fn packed_scalar(p: &[u16], i: usize) -> f32 {
-    let w = &p[PACKED_DEPTH + 2 * i..PACKED_DEPTH + 2 * i + 2];
-    f32::from_bits(w[0] as u32 | (w[1] as u32) << 16)
 }
 
 /// Header of a transition batch, actor → replay.
@@ -814,7 +830,7 @@ mod tests {
         assert_eq!(shapes.corrupt_transitions(&batch[..len]), 0);
         assert_eq!(shapes.corrupt_transitions(&batch), 4, "action 2 without hold");
         // With the hold action, action 2 is one of the task's.
-        let hold = Shapes::task(false, true);
+        let hold = Shapes::task(FRAMES, false, true);
         assert_eq!(hold.packed_len(), len);
         assert_eq!(hold.corrupt_transitions(&batch), 3);
         assert!(!episode_corrupt(&[-100.0, 12.0, 1.0, 0.4]));
@@ -834,23 +850,16 @@ mod tests {
 
     #[test]
     fn packed_transitions_round_trip_within_the_fixed_point_step() {
-        // A task with a goal: six scalars per observation.
-        let shapes = Shapes::task(true, true);
-        let (obs_len, fd) = (shapes.obs_len(), OBS_DEPTH);
-        assert_eq!(obs_len, 2 * 1024 + 6);
+        // A task with four frames and a goal: six scalars per observation.
+        let shapes = Shapes::task(4, true, true);
+        let (obs_len, fd) = (shapes.obs_len(), shapes.obs_depth());
+        assert_eq!(obs_len, 4 * 1024 + 6);
+        assert_eq!(shapes.packed_len(), 2 * 4 * 1024 + 2 * (2 * 6 + 3));
         let s: Vec<f32> = (0..obs_len)
-            .map(|i| {
-                if i < FRAMES * DEPTH_PIXELS { (i as f32 * 0.618).fract() } else { -1.5 + i as f32 }
-            })
+            .map(|i| if i < fd { (i as f32 * 0.618).fract() } else { -1.5 + i as f32 })
             .collect();
         let next: Vec<f32> = (0..obs_len)
-            .map(|i| {
-                if i < FRAMES * DEPTH_PIXELS {
-                    1.0 - (i as f32 * 0.377).fract()
-                } else {
-                    0.25 * i as f32
-                }
-            })
+            .map(|i| if i < fd { 1.0 - (i as f32 * 0.377).fract() } else { 0.25 * i as f32 })
             .collect();
         let mut p = vec![0u16; shapes.packed_len()];
         shapes.pack(&s, &next, [2.0, -100.0, 1.0], &mut p);

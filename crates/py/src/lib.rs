@@ -22,7 +22,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
-use rotorhive_model::{Device, QNet, Shapes, checkpoint_shapes, params};
+use rotorhive_model::{Device, FRAMES, QNet, Shapes, checkpoint_shapes, params};
 use rotorhive_roles::Config;
 use rotorhive_roles::config::SimSection;
 use rotorhive_sim::view::{self, Canvas, Focus, Tracks};
@@ -303,7 +303,7 @@ impl Sim {
     }
 
     /// A picture of the arena from above around drone `agent` with every
-    /// drone's path this episode, beside that drone's two depth frames and
+    /// drone's path this episode, beside that drone's last two depth frames and
     /// its last action: `(240, 640, 3)` `uint8` (Gymnasium's `rgb_array`).
     #[pyo3(signature = (agent=0))]
     fn render<'py>(&self, py: Python<'py>, agent: usize) -> PyResult<Bound<'py, PyArray3<u8>>> {
@@ -334,6 +334,13 @@ impl Sim {
     #[getter]
     fn num_actions(&self) -> usize {
         self.env.config().shapes().actions
+    }
+
+    /// Depth frames in one observation (`sim.frames`; 2, the paper's:
+    /// previous and current), oldest first.
+    #[getter]
+    fn frames(&self) -> usize {
+        self.env.config().frames
     }
 
     /// Whether episodes have a goal (`[sim.goal]`): observations then have
@@ -368,7 +375,7 @@ impl Sim {
 fn write_obs(env: &VecEnv, depth: &mut [f32], velocity: &mut [f32]) -> PyResult<()> {
     let n = env.agents();
     let px = env.config().camera.side.pow(2);
-    check_len("depth", depth.len(), n * 2 * px)?;
+    check_len("depth", depth.len(), n * env.config().frames * px)?;
     check_len("velocity", velocity.len(), n * 3)?;
     env.write_observations_split(depth, velocity);
     Ok(())
@@ -503,12 +510,12 @@ fn model_error(e: rotorhive_model::ModelError) -> PyErr {
 #[pymethods]
 impl QNetwork {
     /// A freshly initialised network, deterministic for a seed: for the
-    /// paper's task, or with the goal's floats in its observation (`goal`)
-    /// and the hold action (`hold`).
+    /// paper's task, or with the goal's floats in its observation (`goal`),
+    /// the hold action (`hold`) and another count of depth frames (`frames`).
     #[new]
-    #[pyo3(signature = (seed=0, goal=false, hold=false))]
-    fn new(seed: u64, goal: bool, hold: bool) -> PyResult<Self> {
-        let shapes = Shapes::task(goal, hold);
+    #[pyo3(signature = (seed=0, goal=false, hold=false, frames=FRAMES))]
+    fn new(seed: u64, goal: bool, hold: bool, frames: usize) -> PyResult<Self> {
+        let shapes = Shapes::task(frames, goal, hold).check().map_err(value_error)?;
         Ok(Self { net: QNet::with_shapes(shapes, seed, &Device::Cpu).map_err(model_error)? })
     }
 

@@ -79,25 +79,25 @@ def test_hive_export_writes_the_same_model(checkpoint, tmp_path):
 
 
 def test_a_goal_network_exports_its_own_shapes(tmp_path):
-    """A network of a goal task with the hold action: the checkpoint says
-    its shapes, loads as them, and onnxruntime takes six scalars and gives
-    three Q-values, the Rust ones."""
+    """A network of a goal task with the hold action and four depth frames:
+    the checkpoint says its shapes, loads as them, and onnxruntime takes
+    four frames and six scalars and gives three Q-values, the Rust ones."""
     import onnxruntime as ort
 
-    net = rotorhive.QNetwork(seed=3, goal=True, hold=True)
-    assert (net.obs_len, net.actions) == (2 * 32 * 32 + 6, 3)
+    net = rotorhive.QNetwork(seed=3, goal=True, hold=True, frames=4)
+    assert (net.obs_len, net.actions) == (4 * 32 * 32 + 6, 3)
     path = tmp_path / "goal.safetensors"
     net.save(str(path))
     loaded = rotorhive.QNetwork.load(str(path))
-    assert (loaded.obs_len, loaded.actions) == (2054, 3)
+    assert (loaded.obs_len, loaded.actions) == (4102, 3)
     out = export_onnx(path, tmp_path / "goal.onnx")
     rng = np.random.default_rng(1)
-    depth = rng.random((7, 2, 32, 32), dtype=np.float32)
+    depth = rng.random((7, 4, 32, 32), dtype=np.float32)
     scalars = rng.normal(size=(7, 6)).astype(np.float32)
     want = loaded.q_values(np.concatenate([depth.reshape(7, -1), scalars], axis=1))
     sess = ort.InferenceSession(out, providers=["CPUExecutionProvider"])
     got = sess.run(["q"], {"depth": depth, "velocity": scalars})[0]
     assert got.shape == (7, 3)
     assert np.abs(got - want).max() <= 1e-4
-    with pytest.raises(ValueError, match="shape \\(B, 2054\\)"):
+    with pytest.raises(ValueError, match="shape \\(B, 4102\\)"):
         loaded.q_values(np.zeros((1, 2051), np.float32))

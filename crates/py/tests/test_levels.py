@@ -71,3 +71,33 @@ def test_the_goal_level_observes_its_goal_holds_and_matches_the_rust_env_step_fo
 def test_a_level_that_does_not_exist_is_named():
     with pytest.raises(ValueError, match="lava"):
         gym.make_vec("rotorhive/Navigate-v0", num_envs=2, level="lava")
+
+
+def test_more_depth_frames_reach_the_spaces_the_rollout_and_the_network():
+    """`frames=4` (the key `sim.frames`): the depth part of the observation
+    holds the last four views oldest first, as the Rust `VecEnv` writes
+    them, and a network of four frames takes those observations."""
+    envs = gym.make_vec("rotorhive/Navigate-v0", num_envs=2, seed=3, frames=4, autoreset_mode="SameStep")
+    assert envs.single_observation_space["depth"].shape == (4, 32, 32)
+    obs, _ = envs.reset()
+    assert obs["depth"].shape == (2, 4, 32, 32)
+    # A new episode starts with every frame its first view.
+    np.testing.assert_array_equal(obs["depth"][:, 0], obs["depth"][:, 3])
+    actions = np.array([[0, 1], [1, 1], [0, 0]], np.uint8)
+    want_obs, _, _ = _rotorhive.reference_rollout(actions, 3, overrides=["sim.frames=4"])
+    assert want_obs.shape[2] == 4 * 32 * 32 + 3
+    views = []
+    for t, a in enumerate(actions):
+        flat = np.concatenate([obs["depth"].reshape(2, -1), obs["velocity"]], axis=1)
+        np.testing.assert_array_equal(flat, want_obs[t])
+        views.append(obs["depth"][:, 3].copy())
+        obs, *_ = envs.step(a)
+    # Each step moves the frames one older.
+    np.testing.assert_array_equal(obs["depth"][:, 2], views[-1])
+    np.testing.assert_array_equal(obs["depth"][:, 1], views[-2])
+    envs.close()
+    net = rotorhive.QNetwork(seed=1, frames=4)
+    assert net.obs_len == 4 * 32 * 32 + 3
+    assert net.q_values(want_obs[0]).shape == (2, 2)
+    with pytest.raises(ValueError, match="depth frames"):
+        rotorhive.QNetwork(frames=9)

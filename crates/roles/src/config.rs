@@ -231,6 +231,10 @@ pub struct SimSection {
     pub max_steps: u32,
     /// Depth clip range (m).
     pub depth_range: f32,
+    /// Depth frames stacked in one observation, one action period apart
+    /// (2: the paper's, previous and current); 1 to
+    /// [`rotorhive_msg::MAX_FRAMES`].
+    pub frames: usize,
     /// Threads for CPU rendering.
     pub render_threads: usize,
     /// The generator of the training lanes, the validation arenas and the
@@ -431,6 +435,7 @@ impl Default for SimSection {
             curriculum: None,
             goal: Goal::default(),
             hold_action: false,
+            frames: rotorhive_msg::FRAMES,
         }
     }
 }
@@ -625,6 +630,13 @@ impl Config {
                 "key `sim.physics_dt` ({}) must not exceed `sim.action_period` ({})",
                 s.physics_dt,
                 s.action_period
+            );
+        }
+        if !(1..=rotorhive_msg::MAX_FRAMES).contains(&s.frames) {
+            config_err!(
+                "key `sim.frames` must be 1 to {}, got {}",
+                rotorhive_msg::MAX_FRAMES,
+                s.frames
             );
         }
         if s.generated_lanes > 256 {
@@ -1007,14 +1019,16 @@ impl Config {
             randomize: s.randomize.clone(),
             goal: s.goal.clone(),
             hold_action: s.hold_action,
+            frames: s.frames,
             ..SimConfig::default()
         }
     }
 
-    /// The run's observation and action shapes (from `[sim.goal]` and
-    /// `sim.hold_action`): every role's layouts and the network follow them.
+    /// The run's observation and action shapes (from `sim.frames`,
+    /// `[sim.goal]` and `sim.hold_action`): every role's layouts and the
+    /// network follow them.
     pub fn shapes(&self) -> Shapes {
-        Shapes::task(self.sim.goal.enabled, self.sim.hold_action)
+        self.sim_config().shapes()
     }
 
     /// The resolved config as TOML.
@@ -1139,6 +1153,8 @@ mod tests {
             ("sim.noise.dropout=0.9", "sim.noise.dropout"),
             ("sim.randomize.mass=-1", "sim.randomize.mass"),
             ("sim.lateral_step=0", "sim.lateral_step"),
+            ("sim.frames=0", "sim.frames"),
+            ("sim.frames=9", "sim.frames"),
             ("sim.reward_collision=nan", "sim.reward_collision"),
         ] {
             let e = format!("{:#}", Config::load(None, &[set.into()]).unwrap_err());

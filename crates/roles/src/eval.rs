@@ -78,11 +78,14 @@ pub enum Pilot<'a> {
 
 impl Pilot<'_> {
     /// The actions of every agent for a batch of observations (rows of
-    /// `obs_len` floats: two depth frames of `side`² pixels, the velocity).
-    pub fn act(&self, obs: &[f32], obs_len: usize, side: usize) -> Result<Vec<u8>> {
+    /// `obs_len` floats: `frames` depth frames of `side`² pixels, the
+    /// velocity).
+    pub fn act(&self, obs: &[f32], obs_len: usize, side: usize, frames: usize) -> Result<Vec<u8>> {
         match self {
             Pilot::Net(net) => Ok(net.greedy(obs)?),
-            Pilot::Reactive => Ok(obs.chunks_exact(obs_len).map(|o| reactive(o, side)).collect()),
+            Pilot::Reactive => {
+                Ok(obs.chunks_exact(obs_len).map(|o| reactive(o, side, frames)).collect())
+            }
             Pilot::Planner(_) => Err(crate::error::RoleError::Config(
                 "the planner flies from the environment, not from observations".into(),
             )),
@@ -102,17 +105,18 @@ const REACTIVE_GAIN: f32 = 0.12;
 /// offset while the way ahead is clear (m/s per m, at most 1 m/s).
 const REACTIVE_GOAL_GAIN: f32 = 0.3;
 
-/// A scripted reactive policy on one observation (`side`² pixels of the
-/// previous and the current depth frame, then the body velocity): the
+/// A scripted reactive policy on one observation (`frames` depth frames
+/// of `side`² pixels, the current one last, then the body velocity): the
 /// nearest depth of each column over the middle rows, widened to the
 /// minimum over `REACTIVE_WINDOW` neighbours each side; when straight
 /// ahead is nearer than `REACTIVE_NEAR` of the range, the lateral velocity
 /// is pushed toward the clearest column, else toward zero (with a goal:
 /// toward the goal's side). Action 1 raises the lateral setpoint, 0 lowers
 /// it.
-pub fn reactive(obs: &[f32], side: usize) -> u8 {
+pub fn reactive(obs: &[f32], side: usize, frames: usize) -> u8 {
     let px = side * side;
-    let cur = &obs[px..2 * px];
+    let fd = frames * px;
+    let cur = &obs[fd - px..fd];
     let rows = (side * 10 / 32)..(side * 22 / 32).max(side * 10 / 32 + 1);
     let nearest: Vec<f32> = (0..side)
         .map(|c| rows.clone().map(|r| cur[r * side + c]).fold(f32::INFINITY, f32::min))
@@ -139,12 +143,12 @@ pub fn reactive(obs: &[f32], side: usize) -> u8 {
     let centre = clear[side / 2 - 1].min(clear[side / 2]);
     // With a goal (its floats after the velocity), a clear way ahead
     // steers toward the goal's lateral offset instead of straight on.
-    let cruise = match obs.get(2 * px + 5) {
+    let cruise = match obs.get(fd + 5) {
         Some(lat) => (REACTIVE_GOAL_GAIN * 10.0 * lat).clamp(-1.0, 1.0),
         None => 0.0,
     };
     let want = if centre > REACTIVE_NEAR { cruise } else { -REACTIVE_GAIN * (target as f32 - mid) };
-    let vy = obs[2 * px + 1];
+    let vy = obs[fd + 1];
     u8::from(want > vy)
 }
 
@@ -173,7 +177,7 @@ pub fn fly(
     let mut env = VecEnv::new_lanes(SimConfig { agents: n, ..sim }, arenas, seed)?;
     let mut result: Vec<Option<(f32, Done)>> = vec![None; n];
     let max_steps = env.config().max_steps;
-    let (obs_len, side) = (env.obs_len(), env.config().camera.side);
+    let (obs_len, side, frames) = (env.obs_len(), env.config().camera.side, env.config().frames);
     let mut planner = match pilot {
         Pilot::Planner(sight) => Some(Planner::new(&env, sight)),
         _ => None,
@@ -184,7 +188,7 @@ pub fn fly(
                 let active: Vec<bool> = result.iter().map(Option::is_none).collect();
                 p.actions(&env, &active)
             }
-            None => pilot.act(env.observations(), obs_len, side)?,
+            None => pilot.act(env.observations(), obs_len, side, frames)?,
         };
         env.step(&actions)?;
         for ep in env.finished() {
@@ -248,7 +252,7 @@ mod tests {
                 obs[px + r * side + c] = 0.2;
             }
         }
-        assert_eq!(reactive(&obs, side), 0);
+        assert_eq!(reactive(&obs, side, 2), 0);
         // Mirrored: steer the other way.
         let mut obs = vec![1.0; 2 * px + 3];
         for r in 0..side {
@@ -256,11 +260,11 @@ mod tests {
                 obs[px + r * side + c] = 0.2;
             }
         }
-        assert_eq!(reactive(&obs, side), 1);
+        assert_eq!(reactive(&obs, side, 2), 1);
         // All clear and flying sideways: back toward zero lateral speed.
         let mut obs = vec![1.0; 2 * px + 3];
         obs[2 * px + 1] = 0.5;
-        assert_eq!(reactive(&obs, side), 0);
+        assert_eq!(reactive(&obs, side, 2), 0);
     }
 
     #[test]

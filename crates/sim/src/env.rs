@@ -131,6 +131,9 @@ pub struct SimConfig {
     pub goal: Goal,
     /// A third action, 2, that holds the lateral setpoint.
     pub hold_action: bool,
+    /// Depth frames in one observation, one action period apart, oldest
+    /// first (2: the paper's, previous and current).
+    pub frames: usize,
 }
 
 impl SimConfig {
@@ -142,7 +145,7 @@ impl SimConfig {
     /// The observation and action shapes of this task: the goal's floats
     /// with a goal, the third action with hold.
     pub fn shapes(&self) -> Shapes {
-        Shapes::task(self.goal.enabled, self.hold_action)
+        Shapes::task(self.frames, self.goal.enabled, self.hold_action)
     }
 }
 
@@ -173,6 +176,7 @@ impl Default for SimConfig {
             gains: Gains::default(),
             goal: Goal::default(),
             hold_action: false,
+            frames: rotorhive_msg::FRAMES,
         }
     }
 }
@@ -288,8 +292,9 @@ pub struct VecEnv {
     returns: Vec<f32>,
     /// Current depth frame per agent, `N × side²`.
     cur: Vec<f32>,
-    /// Previous depth frame per agent.
-    prev: Vec<f32>,
+    /// The earlier depth frames per agent, `N × (frames − 1) × side²`,
+    /// oldest first (with two frames: the previous one).
+    past: Vec<f32>,
     /// Empty once dropped: the caller assembles observations itself.
     obs: Vec<f32>,
     rewards: Vec<f32>,
@@ -334,7 +339,8 @@ impl VecEnv {
         let World { flight, physics, scene, gpu } = World::new(&cfg, &arena, &lane_bounds, 0.0)?;
         let n = cfg.agents;
         let px = cfg.camera.side * cfg.camera.side;
-        let obs_len = 2 * px + cfg.shapes().scalars;
+        assert!(cfg.frames >= 1, "an observation holds at least one frame");
+        let obs_len = cfg.frames * px + cfg.shapes().scalars;
         let mut env = Self {
             renderer: DepthRenderer::new(cfg.camera, cfg.render_threads),
             gpu,
@@ -356,7 +362,7 @@ impl VecEnv {
             steps: vec![0; n],
             returns: vec![0.0; n],
             cur: vec![0.0; n * px],
-            prev: vec![0.0; n * px],
+            past: vec![0.0; n * (cfg.frames - 1) * px],
             obs: vec![0.0; n * obs_len],
             rewards: vec![0.0; n],
             dones: vec![Done::Running; n],
@@ -374,7 +380,9 @@ impl VecEnv {
             env.reset_agent(i);
         }
         env.render()?;
-        env.prev.copy_from_slice(&env.cur);
+        for i in 0..n {
+            env.fill_past(i);
+        }
         env.assemble_obs();
         Ok(env)
     }
@@ -389,10 +397,52 @@ impl VecEnv {
         self.cfg.agents
     }
 
-    /// Floats per observation: two depth frames, the body-frame velocity
-    /// and, with a goal, the goal's floats.
+    /// Floats per observation: `frames` depth frames, the body-frame
+    /// velocity and, with a goal, the goal's floats.
     pub fn obs_len(&self) -> usize {
-        2 * self.cfg.camera.side * self.cfg.camera.side + self.cfg.shapes().scalars
+        self.cfg.frames * self.px() + self.cfg.shapes().scalars
+    }
+
+    /// Pixels in one depth frame.
+    fn px(&self) -> usize {
+        self.cfg.camera.side * self.cfg.camera.side
+    }
+
+    /// Agent `i`'s earlier frames (`(frames − 1) × side²`, oldest first).
+    fn past_of(&self, i: usize) -> &[f32] {
+        let h = (self.cfg.frames - 1) * self.px();
+        &self.past[i * h..(i + 1) * h]
+    }
+
+    /// Agent `i`'s current frame.
+    fn cur_of(&self, i: usize) -> &[f32] {
+        let px = self.px();
+        &self.cur[i * px..(i + 1) * px]
+    }
+
+    /// Every earlier frame of agent `i` becomes its current one (a new
+    /// episode starts with all its frames its first view).
+    fn fill_past(&mut self, i: usize) {
+        let (px, h) = (self.px(), (self.cfg.frames - 1) * self.px());
+        let (cur, past) = (&self.cur[i * px..(i + 1) * px], &mut self.past[i * h..(i + 1) * h]);
+        past.chunks_exact_mut(px).for_each(|f| f.copy_from_slice(cur));
+    }
+
+    /// Before a new frame is drawn: every agent's frames move one older, the
+    /// current one joining the earlier ones (two frames: a swap, no copy).
+    fn age_frames(&mut self) {
+        match self.cfg.frames {
+            1 => {}
+            2 => std::mem::swap(&mut self.past, &mut self.cur),
+            f => {
+                let (px, h) = (self.px(), (f - 1) * self.px());
+                let chunks = self.past.chunks_exact_mut(h).zip(self.cur.chunks_exact(px));
+                for (past, cur) in chunks {
+                    past.copy_within(px.., 0);
+                    past[h - px..].copy_from_slice(cur);
+                }
+            }
+        }
     }
 
     /// Each agent's goal this episode (x, y; meaningful with a goal).
@@ -613,14 +663,13 @@ impl VecEnv {
             self.change_world(lanes)?;
         }
         let t2 = Instant::now();
-        std::mem::swap(&mut self.prev, &mut self.cur);
+        self.age_frames();
         self.render()?;
         let t3 = Instant::now();
-        // A reset agent starts with both frames equal to its first view.
-        let px = self.cfg.camera.side * self.cfg.camera.side;
+        // A reset agent starts with every frame equal to its first view.
         for i in 0..self.cfg.agents {
             if self.restarted[i] {
-                self.prev[i * px..(i + 1) * px].copy_from_slice(&self.cur[i * px..(i + 1) * px]);
+                self.fill_past(i);
             }
         }
         self.assemble_obs();
@@ -826,7 +875,7 @@ impl VecEnv {
     /// `out` holds, `obs_len` floats each) straight into `out`: the sim
     /// process assembles them in the loaned shared-memory sample this way.
     pub fn write_observations(&self, first: usize, out: &mut [f32]) {
-        let px = self.cfg.camera.side * self.cfg.camera.side;
+        let (h, fd) = ((self.cfg.frames - 1) * self.px(), self.cfg.frames * self.px());
         let len = self.obs_len();
         assert!(
             out.len().is_multiple_of(len) && first + out.len() / len <= self.cfg.agents,
@@ -834,11 +883,11 @@ impl VecEnv {
         );
         for (j, o) in out.chunks_exact_mut(len).enumerate() {
             let i = first + j;
-            o[..px].copy_from_slice(&self.prev[i * px..(i + 1) * px]);
-            o[px..2 * px].copy_from_slice(&self.cur[i * px..(i + 1) * px]);
-            o[2 * px..2 * px + 3].copy_from_slice(&self.body_velocity(i));
+            o[..h].copy_from_slice(self.past_of(i));
+            o[h..fd].copy_from_slice(self.cur_of(i));
+            o[fd..fd + 3].copy_from_slice(&self.body_velocity(i));
             if self.cfg.goal.enabled {
-                o[2 * px + 3..].copy_from_slice(&self.goal_observation(i));
+                o[fd + 3..].copy_from_slice(&self.goal_observation(i));
             }
         }
     }
@@ -896,27 +945,26 @@ impl VecEnv {
             }
         }
         for i in reset {
-            self.prev[i * px..(i + 1) * px].copy_from_slice(&self.cur[i * px..(i + 1) * px]);
+            self.fill_past(i);
         }
         self.assemble_obs();
         Ok(())
     }
 
     /// Writes every agent's observation split in two, as Gymnasium's `Dict`
-    /// observation holds it: `depth` (`agents × 2 × side²`, the previous
-    /// frame then the current one) and `velocity` (`agents × 3`, body frame).
+    /// observation holds it: `depth` (`agents × frames × side²`, oldest
+    /// first, the current one last) and `velocity` (`agents × 3`, body frame).
     pub fn write_observations_split(&self, depth: &mut [f32], velocity: &mut [f32]) {
-        let px = self.cfg.camera.side * self.cfg.camera.side;
+        let (h, fd) = ((self.cfg.frames - 1) * self.px(), self.cfg.frames * self.px());
         let n = self.cfg.agents;
         assert!(
-            depth.len() == n * 2 * px && velocity.len() == n * 3,
+            depth.len() == n * fd && velocity.len() == n * 3,
             "observation buffers of the wrong size"
         );
-        for (i, (d, v)) in
-            depth.chunks_exact_mut(2 * px).zip(velocity.chunks_exact_mut(3)).enumerate()
+        for (i, (d, v)) in depth.chunks_exact_mut(fd).zip(velocity.chunks_exact_mut(3)).enumerate()
         {
-            d[..px].copy_from_slice(&self.prev[i * px..(i + 1) * px]);
-            d[px..].copy_from_slice(&self.cur[i * px..(i + 1) * px]);
+            d[..h].copy_from_slice(self.past_of(i));
+            d[h..].copy_from_slice(self.cur_of(i));
             v.copy_from_slice(&self.body_velocity(i));
         }
     }

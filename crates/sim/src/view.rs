@@ -1,7 +1,7 @@
 //! Pictures of an environment as it flies, for `hive play` and Gymnasium's
 //! `render_mode="rgb_array"`: on the left the arena from above, following
 //! the drones, with each drone's path this episode; on the right one
-//! drone's two depth frames (previous, current) and, below them, its two
+//! drone's last two depth frames (previous, current) and, below them, its
 //! actions as bars (their Q-values when a policy gives them, the chosen
 //! one highlighted).
 //!
@@ -141,7 +141,8 @@ impl Tracks {
 pub struct Focus<'a> {
     /// The drone whose view is shown.
     pub agent: usize,
-    /// Its previous and current depth frames (`2 × side²`, in [0, 1]).
+    /// Its depth frames (`frames × side²`, in [0, 1], oldest first); the
+    /// last two are drawn.
     pub depth: &'a [f32],
     /// Q-values of its actions (two, or three with hold), when a policy
     /// is flying.
@@ -306,8 +307,9 @@ fn depth_panel(canvas: &mut Canvas, focus: Focus<'_>, side: usize) {
     canvas.rect(TOP as i32, 0, WIDTH as i32, HEIGHT as i32, PANEL, WIDTH);
     let px = side * side;
     let zoom = ((WIDTH - TOP - 24) / 2 / side.max(1)).max(1);
-    if focus.depth.len() == 2 * px {
-        for (k, frame) in focus.depth.chunks_exact(px).enumerate() {
+    if px > 0 && focus.depth.len().is_multiple_of(px) {
+        let last_two = focus.depth.len().saturating_sub(2 * px);
+        for (k, frame) in focus.depth[last_two..].chunks_exact(px).enumerate() {
             let ox = TOP + 8 + k * (side * zoom + 8);
             for (j, d) in frame.iter().enumerate() {
                 let g = GREY + (d.clamp(0.0, 1.0) * 63.0).round() as u8;

@@ -100,9 +100,10 @@ def _check_render_mode(render_mode: str | None) -> None:
         raise ValueError(f"render_mode {render_mode!r} is not supported: only 'rgb_array' (or None)")
 
 
-def _spaces(side: int, goal: bool) -> spaces.Dict:
+def _spaces(side: int, goal: bool, frames: int = 2) -> spaces.Dict:
     parts = {
-        "depth": spaces.Box(0.0, 1.0, (2, side, side), np.float32),
+        # The depth frames, oldest first (``sim.frames``; 2: previous, current).
+        "depth": spaces.Box(0.0, 1.0, (frames, side, side), np.float32),
         "velocity": spaces.Box(-np.inf, np.inf, (3,), np.float32),
     }
     if goal:
@@ -114,8 +115,8 @@ def _spaces(side: int, goal: bool) -> spaces.Dict:
 class _Buffers:
     """The arrays the simulator writes into, owned by the environment."""
 
-    def __init__(self, n: int, side: int, goal: bool = False) -> None:
-        self.depth = np.zeros((n, 2, side, side), np.float32)
+    def __init__(self, n: int, side: int, goal: bool = False, frames: int = 2) -> None:
+        self.depth = np.zeros((n, frames, side, side), np.float32)
         self.velocity = np.zeros((n, 3), np.float32)
         self.goal = np.zeros((n, 3), np.float32) if goal else None
         self.rewards = np.zeros(n, np.float32)
@@ -199,11 +200,11 @@ class NavigateVectorEnv(VectorEnv):
         self.num_envs = n
         self.copy = bool(copy)
         self.render_mode = render_mode
-        self.single_observation_space = _spaces(self._sim.side, self._sim.has_goal)
+        self.single_observation_space = _spaces(self._sim.side, self._sim.has_goal, self._sim.frames)
         self.single_action_space = spaces.Discrete(self._sim.num_actions)
         self.observation_space = batch_space(self.single_observation_space, n)
         self.action_space = batch_space(self.single_action_space, n)
-        self._b = _Buffers(n, self._sim.side, self._sim.has_goal)
+        self._b = _Buffers(n, self._sim.side, self._sim.has_goal, self._sim.frames)
         # Agents whose episode ended and that have not started the next one.
         self._ended = np.zeros(n, np.bool_)
         self._needs_reset = True
@@ -313,7 +314,7 @@ class NavigateVectorEnv(VectorEnv):
     def render(self) -> np.ndarray | None:
         """With ``render_mode="rgb_array"``: one picture of all the drones
         (the arena from above around agent 0, every drone's path this
-        episode) beside agent 0's two depth frames and its last action,
+        episode) beside agent 0's last two depth frames and its last action,
         ``(240, 640, 3)`` ``uint8``; otherwise None."""
         if self.render_mode != "rgb_array":
             return None
@@ -340,9 +341,9 @@ class NavigateEnv(gym.Env):
         _check_render_mode(render_mode)
         self._sim = _rotorhive.Sim(1, seed, _arena(arena), arena_seed, _overrides("rotorhive/NavigateSingle-v0", sim), _level(level))
         self.render_mode = render_mode
-        self.observation_space = _spaces(self._sim.side, self._sim.has_goal)
+        self.observation_space = _spaces(self._sim.side, self._sim.has_goal, self._sim.frames)
         self.action_space = spaces.Discrete(self._sim.num_actions)
-        self._b = _Buffers(1, self._sim.side, self._sim.has_goal)
+        self._b = _Buffers(1, self._sim.side, self._sim.has_goal, self._sim.frames)
         self._a = np.zeros(1, np.uint8)
         self._needs_reset = True
 
@@ -382,7 +383,7 @@ class NavigateEnv(gym.Env):
 
     def render(self) -> np.ndarray | None:
         """With ``render_mode="rgb_array"``: the arena from above around the
-        drone with its path this episode, beside its two depth frames and
+        drone with its path this episode, beside its last two depth frames and
         its last action, ``(240, 640, 3)`` ``uint8``; otherwise None."""
         if self.render_mode != "rgb_array":
             return None
