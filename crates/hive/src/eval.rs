@@ -39,6 +39,9 @@ pub enum SightArg {
     /// What the camera shows now, each moving one guessed to keep its
     /// present velocity for 3 s and turn back.
     ViewVelocity,
+    /// What the camera shows now, each moving one standing over its whole
+    /// track (where it goes, not when).
+    ViewTrack,
 }
 
 impl PolicyKind {
@@ -59,6 +62,7 @@ impl SightArg {
             SightArg::All => Sight::All,
             SightArg::View => Sight::View,
             SightArg::ViewVelocity => Sight::ViewVelocity,
+            SightArg::ViewTrack => Sight::ViewTrack,
         }
     }
 
@@ -69,6 +73,9 @@ impl SightArg {
             SightArg::View => ("view", "what the camera shows, with the movers' future"),
             SightArg::ViewVelocity => {
                 ("view-velocity", "what the camera shows, the movers' velocity kept 3 s")
+            }
+            SightArg::ViewTrack => {
+                ("view-track", "what the camera shows, each mover over its whole track")
             }
         }
     }

@@ -4,8 +4,8 @@
 //! policy a drone could have (it sees the future); `hive eval --policy
 //! planner` flies it to measure what a level's episodes allow: what it
 //! flies is a floor under the share of episodes that can be flown at all.
-//! Told only what the camera shows ([`Sight::View`], [`Sight::ViewVelocity`]),
-//! it measures what the observation leaves out.
+//! Told only what the camera shows ([`Sight::View`], [`Sight::ViewVelocity`],
+//! [`Sight::ViewTrack`]), it measures what the observation leaves out.
 //!
 //! The search runs in a kinematic model of the flight: forward at the
 //! drone's present forward speed, the lateral velocity approaching its setpoint
@@ -73,6 +73,11 @@ pub enum Sight {
     /// velocity (what two frames show): it is guessed to go on at that
     /// velocity for [`GUESS_S`] and come back, over and over.
     ViewVelocity,
+    /// As [`Sight::View`], but each moving obstacle stands still over its
+    /// whole track (the box of every place it goes): where it goes is
+    /// known, when it is where is not. A policy that watched a mover long
+    /// enough could know this much without knowing its phase.
+    ViewTrack,
 }
 
 /// Obstacles this close to a drone (m, from its surface) are known to a
@@ -148,8 +153,7 @@ impl Planner {
     /// A plan for agent `i` from its true state now: with the widest
     /// margin that finds a way through, else the longest way found.
     fn search(&mut self, env: &VecEnv, i: usize) -> Plan {
-        let seen = (self.sight != Sight::All)
-            .then(|| Geometry::new(&in_view(env, i, self.sight == Sight::ViewVelocity)));
+        let seen = (self.sight != Sight::All).then(|| Geometry::new(&in_view(env, i, self.sight)));
         let geometry = seen.as_ref().unwrap_or(&self.geometry);
         let mut longest = Plan::default();
         for margin in MARGINS {
@@ -241,9 +245,11 @@ fn search(geometry: &Geometry, env: &VecEnv, i: usize, margin: f32) -> Plan {
 }
 
 /// The world as agent `i`'s camera shows it now ([`Sight::View`]): the
-/// obstacles in view or nearby, moving as they do, or with `guess`, each
-/// moving one going on at its present velocity for [`GUESS_S`] and back.
-fn in_view(env: &VecEnv, i: usize, guess: bool) -> Arena {
+/// obstacles in view or nearby, moving as they do, or each moving one
+/// going on at its present velocity for [`GUESS_S`] and back
+/// ([`Sight::ViewVelocity`]), or standing over its track
+/// ([`Sight::ViewTrack`]).
+fn in_view(env: &VecEnv, i: usize, sight: Sight) -> Arena {
     let (cfg, d, t) = (env.config(), env.drone(i), env.time());
     let ahead = d.q * Vector::X;
     let half_fov = (cfg.camera.fov_deg / 2.0).to_radians();
@@ -264,7 +270,10 @@ fn in_view(env: &VecEnv, i: usize, guess: bool) -> Arena {
             seen || dist - reach <= NEARBY
         })
         .map(|o| {
-            let Some(m) = o.motion().filter(|_| guess) else { return o.clone() };
+            let Some(m) = o.motion().filter(|_| sight != Sight::View) else { return o.clone() };
+            if sight == Sight::ViewTrack {
+                return over_track(o);
+            }
             let now = o.at(t);
             let (a, b) = (m.offset(t), m.offset(t + 0.01));
             let v = [(b[0] - a[0]) / 0.01, (b[1] - a[1]) / 0.01];
@@ -281,6 +290,14 @@ fn in_view(env: &VecEnv, i: usize, guess: bool) -> Arena {
         })
         .collect();
     Arena { name: world.name.clone(), spawn: world.spawn.clone(), obstacles, ..*world }
+}
+
+/// A still box over every place an obstacle goes (its swept bounds).
+fn over_track(o: &crate::Obstacle) -> crate::Obstacle {
+    let (lo, hi) = o.swept_aabb();
+    let (c, h): (Vec<f32>, Vec<f32>) =
+        (0..3).map(|k| ((lo[k] + hi[k]) / 2.0, (hi[k] - lo[k]) / 2.0)).unzip();
+    crate::Obstacle::still_box([c[0], c[1], c[2]], [h[0], h[1], h[2]])
 }
 
 /// Whether a step's `path` passes within `r` of the goal `at` less the
@@ -396,6 +413,32 @@ mod tests {
         // their present velocity.
         assert!(view * 10 >= episodes * 6, "in view: {view} of {episodes}");
         assert!(velocity * 2 < all, "velocity only: {velocity}, all: {all}");
+    }
+
+    /// [`Sight::ViewTrack`]'s still box holds the mover wherever it is on
+    /// its cycle, and no more than its track needs.
+    #[test]
+    fn a_track_box_holds_the_mover_at_every_time() {
+        let segment = Motion::Segment { offset: [0.5, -3.0], speed: 0.4, phase: 0.3 };
+        let circle = Motion::Circle { radius: 1.5, speed: -0.6, phase: 0.0 };
+        let mut cyl = crate::Obstacle::still_cylinder([20.0, 1.0, 2.5], 0.5, 2.5);
+        cyl.set_motion(Some(circle));
+        let mut boxed = crate::Obstacle::still_box([30.0, 0.0, 2.5], [0.4, 0.8, 2.5]);
+        boxed.set_motion(Some(segment));
+        for (o, want) in [(&cyl, [4.0, 4.0]), (&boxed, [1.3, 4.6])] {
+            let track = over_track(o);
+            assert!(track.motion().is_none());
+            let (lo, hi) = track.aabb();
+            assert!(
+                (hi[0] - lo[0] - want[0]).abs() < 1e-4 && (hi[1] - lo[1] - want[1]).abs() < 1e-4
+            );
+            for k in 0..400 {
+                let (a, b) = o.at(k as f64 * 0.1).aabb();
+                for d in 0..3 {
+                    assert!(a[d] >= lo[d] - 1e-4 && b[d] <= hi[d] + 1e-4, "t {k}, axis {d}");
+                }
+            }
+        }
     }
 
     #[test]
