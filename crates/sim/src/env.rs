@@ -817,11 +817,23 @@ impl VecEnv {
     /// back along the last action's path where it has a latency.
     fn camera_at(&self, i: usize) -> CameraPose {
         let mut cam = self.camera(i);
-        let (lag, stride) = (self.lag[i], self.path_stride);
-        if lag > 0 && stride > 0 && !self.restarted[i] && self.path.len() >= (i + 1) * stride {
-            cam.position = self.path[i * stride + stride - 1 - lag.min(stride - 1)];
+        let lag = self.camera_lag(i);
+        if lag > 0 {
+            let stride = self.path_stride;
+            cam.position = self.path[i * stride + stride - 1 - lag];
         }
         cam
+    }
+
+    /// How many physics steps back agent `i`'s camera sees (its latency,
+    /// within the last action's path; 0 at the start of an episode).
+    fn camera_lag(&self, i: usize) -> usize {
+        let (lag, stride) = (self.lag[i], self.path_stride);
+        if lag > 0 && stride > 0 && !self.restarted[i] && self.path.len() >= (i + 1) * stride {
+            lag.min(stride - 1)
+        } else {
+            0
+        }
     }
 
     /// Puts the renderers' moving obstacles where they are now.
@@ -834,6 +846,13 @@ impl VecEnv {
     }
 
     fn render(&mut self) -> Result<(), GpuError> {
+        let n = self.cfg.agents;
+        if !self.cfg.interactive
+            && !self.scene.movers.is_empty()
+            && (0..n).any(|i| self.camera_lag(i) > 0)
+        {
+            return self.render_lagged();
+        }
         self.place_obstacles();
         let cams: Vec<CameraPose> = (0..self.cfg.agents).map(|i| self.camera_at(i)).collect();
         let positions: Vec<Vector> = cams.iter().map(|c| c.position).collect();
@@ -858,6 +877,42 @@ impl VecEnv {
                 }
             }
         }
+        self.pixel_noise.apply(&self.cfg.noise, self.cfg.camera.range, &mut self.cur);
+        Ok(())
+    }
+
+    /// With the camera's latency and moving obstacles: every agent sees
+    /// the movers where they were when its late frame was taken, one render
+    /// call per latency (the agents of one latency together).
+    fn render_lagged(&mut self) -> Result<(), GpuError> {
+        let (n, px) = (self.cfg.agents, self.px());
+        let (t, dt) = (self.time(), f64::from(self.cfg.physics_dt));
+        let lags: Vec<usize> = (0..n).map(|i| self.camera_lag(i)).collect();
+        let mut distinct = lags.clone();
+        distinct.sort_unstable();
+        distinct.dedup();
+        let mut img = Vec::new();
+        for lag in distinct {
+            let who: Vec<usize> = (0..n).filter(|&i| lags[i] == lag).collect();
+            let at = t - lag as f64 * dt;
+            self.scene.set_time(at);
+            if let Some(g) = &mut self.gpu {
+                g.set_time(at);
+            }
+            let cams: Vec<CameraPose> = who.iter().map(|&i| self.camera_at(i)).collect();
+            img.resize(who.len() * px, 0.0);
+            match &mut self.gpu {
+                Some(g) => {
+                    let ids: Vec<u32> = who.iter().map(|&i| i as u32).collect();
+                    g.render(&cams, &ids, None, &mut img)?;
+                }
+                None => self.renderer.render(&self.scene, &cams, 0, None, &mut img),
+            }
+            for (k, &i) in who.iter().enumerate() {
+                self.cur[i * px..(i + 1) * px].copy_from_slice(&img[k * px..(k + 1) * px]);
+            }
+        }
+        self.place_obstacles();
         self.pixel_noise.apply(&self.cfg.noise, self.cfg.camera.range, &mut self.cur);
         Ok(())
     }

@@ -4,7 +4,8 @@
 use std::path::PathBuf;
 
 use rotorhive_sim::{
-    Arena, Autoreset, Done, Goal, Obstacle, PhysicsKind, SimConfig, Spawn, VecEnv,
+    Arena, Autoreset, Done, Goal, Motion, Noise, Obstacle, PhysicsKind, RendererKind, SimConfig,
+    Spawn, VecEnv,
 };
 
 fn open_arena(length: f32, obstacles: Vec<Obstacle>) -> Arena {
@@ -483,6 +484,49 @@ fn an_observation_holds_the_last_frames_oldest_first() {
         for f in 0..frames - 1 {
             assert_eq!(row[f * px..(f + 1) * px], row[(frames - 1) * px..frames * px]);
         }
+    }
+}
+
+/// A camera with latency sees the moving obstacles where they were when
+/// its late frame was taken, not where they are: a hovering drone's frame
+/// with 0.2 s of latency at t = 1 s is the frame that a camera without
+/// latency takes at t = 0.8 s, and not the one at 1 s.
+#[test]
+fn a_late_camera_sees_the_movers_where_they_were() {
+    let mut mover = Obstacle::still_box([8.0, -3.0, 3.0], [0.3, 0.5, 3.0]);
+    mover.set_motion(Some(Motion::Segment { offset: [0.0, 6.0], speed: 5.0, phase: 0.0 }));
+    let arena = open_arena(30.0, vec![mover]);
+    for renderer in [RendererKind::Cpu, RendererKind::Wgpu] {
+        let hover = |period: f32, latency: f32| {
+            let noise = Noise { latency_s: [latency, latency], ..Noise::default() };
+            let sim = SimConfig {
+                forward_speed: 0.0,
+                action_period: period,
+                noise,
+                hold_action: true,
+                renderer,
+                ..cfg(1)
+            };
+            VecEnv::new(sim, arena.clone(), 4).unwrap()
+        };
+        let frame = |env: &VecEnv| env.observations()[1024..2048].to_vec();
+        let diff = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| (x - y).abs()).sum::<f32>();
+        // Action 2 holds the setpoint at 0: both drones hover where they
+        // spawned.
+        let mut late = hover(1.0, 0.2);
+        late.step(&[2]).unwrap();
+        let mut now = hover(0.2, 0.0);
+        let mut frames = Vec::new();
+        for _ in 0..5 {
+            now.step(&[2]).unwrap();
+            frames.push(frame(&now));
+        }
+        let (then, at_one) = (diff(&frame(&late), &frames[3]), diff(&frame(&late), &frames[4]));
+        assert!(diff(&frames[3], &frames[4]) > 5.0, "{renderer:?}: the mover moves in view");
+        assert!(
+            then * 5.0 < at_one,
+            "{renderer:?}: late frame against 0.8 s: {then}, against 1 s: {at_one}"
+        );
     }
 }
 
