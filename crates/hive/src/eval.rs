@@ -42,6 +42,9 @@ pub enum SightArg {
     /// What the camera shows now, each moving one standing over its whole
     /// track (where it goes, not when).
     ViewTrack,
+    /// What the camera shows now, each moving one known once it has been
+    /// in view for half its cycle, over its whole track until then.
+    ViewMemory,
 }
 
 impl PolicyKind {
@@ -63,6 +66,7 @@ impl SightArg {
             SightArg::View => Sight::View,
             SightArg::ViewVelocity => Sight::ViewVelocity,
             SightArg::ViewTrack => Sight::ViewTrack,
+            SightArg::ViewMemory => Sight::ViewMemory,
         }
     }
 
@@ -77,6 +81,10 @@ impl SightArg {
             SightArg::ViewTrack => {
                 ("view-track", "what the camera shows, each mover over its whole track")
             }
+            SightArg::ViewMemory => (
+                "view-memory",
+                "what the camera shows, each mover known once watched for half its cycle",
+            ),
         }
     }
 }

@@ -5,7 +5,8 @@
 //! planner` flies it to measure what a level's episodes allow: what it
 //! flies is a floor under the share of episodes that can be flown at all.
 //! Told only what the camera shows ([`Sight::View`], [`Sight::ViewVelocity`],
-//! [`Sight::ViewTrack`]), it measures what the observation leaves out.
+//! [`Sight::ViewTrack`], [`Sight::ViewMemory`]), it measures what the
+//! observation leaves out.
 //!
 //! The search runs in a kinematic model of the flight: forward at the
 //! drone's present forward speed, the lateral velocity approaching its setpoint
@@ -19,7 +20,7 @@
 //! planner follows its plan while the drone stays where the plan said, and
 //! plans again from the drone's true state when it strays.
 
-use std::collections::HashSet;
+use std::collections::{HashMap, HashSet};
 
 use rapier3d::math::Vector;
 
@@ -78,6 +79,11 @@ pub enum Sight {
     /// known, when it is where is not. A policy that watched a mover long
     /// enough could know this much without knowing its phase.
     ViewTrack,
+    /// As [`Sight::View`] for the moving obstacles it has watched (in view
+    /// this episode) for half their cycle, long enough to have seen one
+    /// turn; the others as in [`Sight::ViewTrack`]. What a pilot with
+    /// memory of what its camera showed could know.
+    ViewMemory,
 }
 
 /// Obstacles this close to a drone (m, from its surface) are known to a
@@ -95,6 +101,9 @@ pub struct Planner {
     plans: Vec<Option<Plan>>,
     /// Episodes whose first search, from the spawn, found no way through.
     hopeless: usize,
+    /// Per agent ([`Sight::ViewMemory`]): when each moving obstacle (its
+    /// index in the arena) was first in view this episode.
+    watched: Vec<HashMap<usize, f64>>,
 }
 
 impl Planner {
@@ -106,6 +115,7 @@ impl Planner {
             geometry: Geometry::new(env.arena()),
             plans: (0..env.agents()).map(|_| None).collect(),
             hopeless: 0,
+            watched: vec![HashMap::new(); env.agents()],
         }
     }
 
@@ -124,6 +134,9 @@ impl Planner {
                 if !active[i] {
                     self.plans[i] = None;
                     return 0;
+                }
+                if env.steps_of(i) == 0 {
+                    self.watched[i].clear();
                 }
                 let at = env.drone(i).p;
                 let keep = self.sight == Sight::All
@@ -153,7 +166,8 @@ impl Planner {
     /// A plan for agent `i` from its true state now: with the widest
     /// margin that finds a way through, else the longest way found.
     fn search(&mut self, env: &VecEnv, i: usize) -> Plan {
-        let seen = (self.sight != Sight::All).then(|| Geometry::new(&in_view(env, i, self.sight)));
+        let seen = (self.sight != Sight::All)
+            .then(|| Geometry::new(&in_view(env, i, self.sight, &mut self.watched[i])));
         let geometry = seen.as_ref().unwrap_or(&self.geometry);
         let mut longest = Plan::default();
         for margin in MARGINS {
@@ -248,48 +262,72 @@ fn search(geometry: &Geometry, env: &VecEnv, i: usize, margin: f32) -> Plan {
 /// obstacles in view or nearby, moving as they do, or each moving one
 /// going on at its present velocity for [`GUESS_S`] and back
 /// ([`Sight::ViewVelocity`]), or standing over its track
-/// ([`Sight::ViewTrack`]).
-fn in_view(env: &VecEnv, i: usize, sight: Sight) -> Arena {
-    let (cfg, d, t) = (env.config(), env.drone(i), env.time());
-    let ahead = d.q * Vector::X;
-    let half_fov = (cfg.camera.fov_deg / 2.0).to_radians();
+/// ([`Sight::ViewTrack`]), or as it moves once watched for half its cycle
+/// (`watched`: when each was first in view) and over its track until then
+/// ([`Sight::ViewMemory`]).
+fn in_view(env: &VecEnv, i: usize, sight: Sight, watched: &mut HashMap<usize, f64>) -> Arena {
+    let (d, t) = (env.drone(i), env.time());
     let world = env.arena();
     let obstacles = world
         .obstacles
         .iter()
-        .filter(|o| {
-            let now = o.at(t);
-            let (lo, hi) = now.aabb();
-            let reach = 0.5 * (hi[0] - lo[0]).hypot(hi[1] - lo[1]);
-            let c = now.center();
-            let to = Vector::new(c[0] - d.p.x, c[1] - d.p.y, 0.0);
-            let dist = to.length();
-            let bearing = (ahead.x * to.y - ahead.y * to.x).atan2(ahead.dot(to));
-            let seen =
-                dist - reach <= cfg.camera.range && bearing.abs() - reach.atan2(dist) <= half_fov;
-            seen || dist - reach <= NEARBY
-        })
-        .map(|o| {
+        .enumerate()
+        .filter(|(_, o)| in_sight(env, d.p, d.q * Vector::X, &o.at(t)))
+        .map(|(k, o)| {
             let Some(m) = o.motion().filter(|_| sight != Sight::View) else { return o.clone() };
-            if sight == Sight::ViewTrack {
-                return over_track(o);
+            match sight {
+                Sight::ViewTrack => over_track(o),
+                Sight::ViewMemory => {
+                    let since = *watched.entry(k).or_insert(t);
+                    if t - since >= half_cycle(m) { o.clone() } else { over_track(o) }
+                }
+                _ => velocity_guess(o, m, t),
             }
-            let now = o.at(t);
-            let (a, b) = (m.offset(t), m.offset(t + 0.01));
-            let v = [(b[0] - a[0]) / 0.01, (b[1] - a[1]) / 0.01];
-            let speed = v[0].hypot(v[1]);
-            let mut moving = now;
-            if speed > 1e-4 {
-                // Out along its velocity for GUESS_S from where it is now,
-                // and back: a segment whose start it is at now.
-                let phase = (-(t as f32) / (2.0 * GUESS_S)).rem_euclid(1.0);
-                let offset = [v[0] * GUESS_S, v[1] * GUESS_S];
-                moving.set_motion(Some(Motion::Segment { offset, speed, phase }));
-            }
-            moving
         })
         .collect();
     Arena { name: world.name.clone(), spawn: world.spawn.clone(), obstacles, ..*world }
+}
+
+/// Whether an obstacle (where it is now) is within the camera's depth
+/// range and field of view from `p` looking along `ahead`, or within
+/// [`NEARBY`].
+fn in_sight(env: &VecEnv, p: Vector, ahead: Vector, now: &crate::Obstacle) -> bool {
+    let cfg = env.config();
+    let half_fov = (cfg.camera.fov_deg / 2.0).to_radians();
+    let (lo, hi) = now.aabb();
+    let reach = 0.5 * (hi[0] - lo[0]).hypot(hi[1] - lo[1]);
+    let c = now.center();
+    let to = Vector::new(c[0] - p.x, c[1] - p.y, 0.0);
+    let dist = to.length();
+    let bearing = (ahead.x * to.y - ahead.y * to.x).atan2(ahead.dot(to));
+    let seen = dist - reach <= cfg.camera.range && bearing.abs() - reach.atan2(dist) <= half_fov;
+    seen || dist - reach <= NEARBY
+}
+
+/// How long a mover takes to cover half its cycle (s): one end of a
+/// segment to the other, half way round a circle.
+fn half_cycle(m: &Motion) -> f64 {
+    let len = match *m {
+        Motion::Segment { offset, .. } => offset[0].hypot(offset[1]),
+        Motion::Circle { radius, .. } => std::f32::consts::PI * radius,
+    };
+    f64::from(len / m.speed().max(1e-6))
+}
+
+/// A moving obstacle as [`Sight::ViewVelocity`] guesses it: on at its
+/// present velocity for [`GUESS_S`] from where it is now, and back.
+fn velocity_guess(o: &crate::Obstacle, m: &Motion, t: f64) -> crate::Obstacle {
+    let (a, b) = (m.offset(t), m.offset(t + 0.01));
+    let v = [(b[0] - a[0]) / 0.01, (b[1] - a[1]) / 0.01];
+    let speed = v[0].hypot(v[1]);
+    let mut moving = o.at(t);
+    if speed > 1e-4 {
+        // A segment whose start it is at now.
+        let phase = (-(t as f32) / (2.0 * GUESS_S)).rem_euclid(1.0);
+        let offset = [v[0] * GUESS_S, v[1] * GUESS_S];
+        moving.set_motion(Some(Motion::Segment { offset, speed, phase }));
+    }
+    moving
 }
 
 /// A still box over every place an obstacle goes (its swept bounds).
@@ -379,12 +417,12 @@ mod tests {
             moving_speed: [0.2, 0.6],
             ..GenParams::default()
         };
-        let (mut flown, mut blind, mut episodes, mut hopeless) = ([0; 3], 0, 0, 0);
+        let (mut flown, mut blind, mut episodes, mut hopeless) = ([0; 4], 0, 0, 0);
         for seed in 0..4 {
             let arena = Arena::generate("moving", seed, &params);
             assert!(arena.obstacles.iter().any(|o| o.motion().is_some()), "seed {seed}");
-            for (k, sight) in [Sight::All, Sight::View, Sight::ViewVelocity].into_iter().enumerate()
-            {
+            let sights = [Sight::All, Sight::View, Sight::ViewVelocity, Sight::ViewMemory];
+            for (k, sight) in sights.into_iter().enumerate() {
                 let mut planner = None;
                 let runs = first_episodes(&arena, seed, |env, active| {
                     planner.get_or_insert_with(|| Planner::new(env, sight)).actions(env, active)
@@ -403,7 +441,7 @@ mod tests {
             blind += runs.iter().filter(|d| **d == Done::Goal).count();
             episodes += runs.len();
         }
-        let [all, view, velocity] = flown;
+        let [all, view, velocity, memory] = flown;
         assert!(all * 10 >= episodes * 8, "planner: {all} of {episodes}");
         // What it does not fly is mostly what it found no way through.
         assert!(hopeless <= episodes - all, "{hopeless} hopeless, {all} flown");
@@ -413,6 +451,10 @@ mod tests {
         // their present velocity.
         assert!(view * 10 >= episodes * 6, "in view: {view} of {episodes}");
         assert!(velocity * 2 < all, "velocity only: {velocity}, all: {all}");
+        // Remembering what it has watched (each mover known after half its
+        // cycle in view) is worth most of knowing the future.
+        assert!(memory * 10 >= episodes * 6, "from memory: {memory} of {episodes}");
+        assert!(memory > velocity * 2, "from memory: {memory}, velocity only: {velocity}");
     }
 
     /// [`Sight::ViewTrack`]'s still box holds the mover wherever it is on
