@@ -342,18 +342,17 @@ fn flat_weights_and_checkpoints_round_trip() {
     assert_eq!(h.q_values(&obs).unwrap(), g.q_values(&obs).unwrap());
     assert_eq!(h.q_values(&obs).unwrap().len(), 2 * 3);
     // A header that claims shapes no task has is refused by name.
-    let mut odd = checkpoint_metadata(goal);
-    odd.insert("scalars".into(), "7".into());
-    let tensors: Vec<(String, Tensor)> = g.named().into_iter().collect();
-    safetensors::serialize_to_file(tensors, Some(odd), &path).unwrap();
-    let e = checkpoint_shapes(&path).unwrap_err().to_string();
-    assert!(e.contains("header claims 7 observation scalars"), "{e}");
-    let mut many = checkpoint_metadata(goal);
-    many.insert("frames".into(), "9".into());
-    let tensors: Vec<(String, Tensor)> = g.named().into_iter().collect();
-    safetensors::serialize_to_file(tensors, Some(many), &path).unwrap();
-    let e = checkpoint_shapes(&path).unwrap_err().to_string();
-    assert!(e.contains("header claims 9 depth frames (1 to 8)"), "{e}");
+    for (key, value, claim) in [
+        ("scalars", "7", "header claims 7 observation scalars"),
+        ("frames", "9", "header claims 9 depth frames (1 to 8)"),
+    ] {
+        let mut odd = checkpoint_metadata(goal);
+        odd.insert(key.into(), value.into());
+        let tensors: Vec<(String, Tensor)> = g.named().into_iter().collect();
+        safetensors::serialize_to_file(tensors, Some(odd), &path).unwrap();
+        let e = checkpoint_shapes(&path).unwrap_err().to_string();
+        assert!(e.contains(claim), "{e}");
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

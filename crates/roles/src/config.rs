@@ -1028,7 +1028,7 @@ impl Config {
     /// `[sim.goal]` and `sim.hold_action`): every role's layouts and the
     /// network follow them.
     pub fn shapes(&self) -> Shapes {
-        self.sim_config().shapes()
+        Shapes::task(self.sim.frames, self.sim.goal.enabled, self.sim.hold_action)
     }
 
     /// The resolved config as TOML.

@@ -901,20 +901,40 @@ impl VecEnv {
             }
             let cams: Vec<CameraPose> = who.iter().map(|&i| self.camera_at(i)).collect();
             img.resize(who.len() * px, 0.0);
-            match &mut self.gpu {
-                Some(g) => {
-                    let ids: Vec<u32> = who.iter().map(|&i| i as u32).collect();
-                    g.render(&cams, &ids, None, &mut img)?;
-                }
-                None => self.renderer.render(&self.scene, &cams, 0, None, &mut img),
-            }
-            for (k, &i) in who.iter().enumerate() {
-                self.cur[i * px..(i + 1) * px].copy_from_slice(&img[k * px..(k + 1) * px]);
-            }
+            self.render_some(&who, &cams, &mut img)?;
+            self.put_frames(&who, &img);
         }
         self.place_obstacles();
         self.pixel_noise.apply(&self.cfg.noise, self.cfg.camera.range, &mut self.cur);
         Ok(())
+    }
+
+    /// Draws the views of agents `who` from `cams` (one each) into `img`
+    /// (`who.len() × side²`), in one render call, without noise: the
+    /// obstacles where the scene has them now.
+    fn render_some(
+        &mut self,
+        who: &[usize],
+        cams: &[CameraPose],
+        img: &mut [f32],
+    ) -> Result<(), GpuError> {
+        match &mut self.gpu {
+            Some(g) => {
+                let ids: Vec<u32> = who.iter().map(|&i| i as u32).collect();
+                g.render(cams, &ids, None, img)?;
+            }
+            None => self.renderer.render(&self.scene, cams, 0, None, img),
+        }
+        Ok(())
+    }
+
+    /// Makes the frames in `img` (one per agent of `who`, in order) those
+    /// agents' current frames.
+    fn put_frames(&mut self, who: &[usize], img: &[f32]) {
+        let px = self.px();
+        for (k, &i) in who.iter().enumerate() {
+            self.cur[i * px..(i + 1) * px].copy_from_slice(&img[k * px..(k + 1) * px]);
+        }
     }
 
     fn assemble_obs(&mut self) {
@@ -978,26 +998,17 @@ impl VecEnv {
             self.rewards[i] = 0.0;
             self.dones[i] = Done::Running;
         }
-        let px = self.cfg.camera.side * self.cfg.camera.side;
         if self.cfg.interactive {
             // Interactive drones see each other: every image may change.
             self.render()?;
         } else {
             // Only the reset agents' views change: draw just those.
             self.place_obstacles();
-            let mut img = vec![0.0; reset.len() * px];
+            let mut img = vec![0.0; reset.len() * self.px()];
             let cams: Vec<CameraPose> = reset.iter().map(|i| self.camera(*i)).collect();
-            match &mut self.gpu {
-                Some(g) => {
-                    let ids: Vec<u32> = reset.iter().map(|i| *i as u32).collect();
-                    g.render(&cams, &ids, None, &mut img)?;
-                }
-                None => self.renderer.render(&self.scene, &cams, 0, None, &mut img),
-            }
+            self.render_some(&reset, &cams, &mut img)?;
             self.pixel_noise.apply(&self.cfg.noise, self.cfg.camera.range, &mut img);
-            for (k, i) in reset.iter().enumerate() {
-                self.cur[i * px..(i + 1) * px].copy_from_slice(&img[k * px..(k + 1) * px]);
-            }
+            self.put_frames(&reset, &img);
         }
         for i in reset {
             self.fill_past(i);
