@@ -26,8 +26,9 @@ pub fn run(a: ExportArgs) -> Result<()> {
     net.load(&a.checkpoint)?;
     net.to_onnx(&a.out, &[("source", a.checkpoint.display().to_string())])?;
     println!(
-        "{}: inputs depth (B, 2, 32, 32) and velocity (B, {}), output q (B, {})",
+        "{}: inputs depth (B, {}, 32, 32) and velocity (B, {}), output q (B, {})",
         a.out.display(),
+        shapes.frames,
         shapes.scalars,
         shapes.actions
     );

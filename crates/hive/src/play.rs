@@ -115,7 +115,12 @@ impl<W: std::io::Write> Recording<W> {
         // A checkpoint of a task with a goal, the hold action or another
         // count of frames flies with them (the goal's default settings).
         let shapes = net.shapes();
-        let mut cfg = SimConfig { agents: a.agents, frames: shapes.frames, ..SimConfig::default() };
+        let mut cfg = SimConfig {
+            agents: a.agents,
+            frames: shapes.frames,
+            frame_stride: shapes.stride,
+            ..SimConfig::default()
+        };
         cfg.goal.enabled = shapes.scalars > rotorhive_msg::VEL_DIM;
         cfg.hold_action = shapes.actions > rotorhive_msg::NUM_ACTIONS;
         let mut env = VecEnv::new(cfg, arena.clone(), a.seed + round as u64)?;

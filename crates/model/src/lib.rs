@@ -537,8 +537,8 @@ impl QNet {
 pub const CHECKPOINT_LAYOUT: &str = "rotorhive-qnet/1";
 
 /// What a checkpoint's safetensors header says of a network for `shapes`:
-/// `layout` ([`CHECKPOINT_LAYOUT`]), `observation`, `frames`, `obs_len`,
-/// `scalars` and `actions`.
+/// `layout` ([`CHECKPOINT_LAYOUT`]), `observation`, `frames`,
+/// `frame_stride`, `obs_len`, `scalars` and `actions`.
 pub fn checkpoint_metadata(shapes: Shapes) -> HashMap<String, String> {
     let goal = if shapes.scalars > rotorhive_msg::VEL_DIM {
         ", then the goal's bearing (rad), distance and lateral offset (10 m)"
@@ -550,12 +550,13 @@ pub fn checkpoint_metadata(shapes: Shapes) -> HashMap<String, String> {
         (
             "observation".to_string(),
             format!(
-                "depth {}x{SIDE}x{SIDE} in [0, 1] (oldest frame first), then velocity 3 (m/s, \
-                 body frame){goal}",
-                shapes.frames
+                "depth {}x{SIDE}x{SIDE} in [0, 1] (oldest frame first, {} action period(s) \
+                 apart), then velocity 3 (m/s, body frame){goal}",
+                shapes.frames, shapes.stride
             ),
         ),
         ("frames".to_string(), shapes.frames.to_string()),
+        ("frame_stride".to_string(), shapes.stride.to_string()),
         ("obs_len".to_string(), shapes.obs_len().to_string()),
         ("scalars".to_string(), shapes.scalars.to_string()),
         ("actions".to_string(), shapes.actions.to_string()),
@@ -563,7 +564,7 @@ pub fn checkpoint_metadata(shapes: Shapes) -> HashMap<String, String> {
 }
 
 /// The shapes a checkpoint was written for, from its header (`frames`,
-/// `scalars` and `actions`; an entry missing in a checkpoint of an earlier
+/// `frame_stride`, `scalars` and `actions`; an entry missing in a checkpoint of an earlier
 /// build is the paper's), checked to be ones a task has.
 pub fn checkpoint_shapes(path: &Path) -> Result<Shapes> {
     let file = path.display().to_string();
@@ -579,6 +580,7 @@ pub fn checkpoint_shapes(path: &Path) -> Result<Shapes> {
     };
     let shapes = Shapes {
         frames: field("frames", Shapes::PAPER.frames)?,
+        stride: field("frame_stride", Shapes::PAPER.stride)?,
         scalars: field("scalars", Shapes::PAPER.scalars)?,
         actions: field("actions", Shapes::PAPER.actions)?,
     };
@@ -622,7 +624,7 @@ fn check_layout(bytes: &[u8], file: &str, shapes: Shapes) -> Result<()> {
         return Ok(());
     };
     let ours = checkpoint_metadata(shapes);
-    let diffs: Vec<String> = ["layout", "obs_len", "frames", "scalars", "actions"]
+    let diffs: Vec<String> = ["layout", "obs_len", "frames", "frame_stride", "scalars", "actions"]
         .iter()
         .filter_map(|k| {
             theirs

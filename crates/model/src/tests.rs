@@ -321,10 +321,10 @@ fn flat_weights_and_checkpoints_round_trip() {
         e.contains("layout rotorhive-qnet/0") && e.contains("actions 3 (this network: 2)"),
         "{e}"
     );
-    // A goal task's network with four frames: its header says its shapes,
-    // a network of the paper's refuses it by name, and one of its shapes
-    // loads it.
-    let goal = Shapes::task(4, true, true);
+    // A goal task's network with four frames three actions apart: its
+    // header says its shapes, a network of the paper's refuses it by name,
+    // and one of its shapes loads it.
+    let goal = Shapes::task(4, true, true).with_stride(3);
     let g = QNet::with_shapes(goal, 9, &dev).unwrap();
     g.save(&path).unwrap();
     assert_eq!(checkpoint_shapes(&path).unwrap(), goal);
@@ -332,6 +332,7 @@ fn flat_weights_and_checkpoints_round_trip() {
     assert!(
         e.contains("obs_len 4102 (this network: 2051)")
             && e.contains("frames 4 (this network: 2)")
+            && e.contains("frame_stride 3 (this network: 1)")
             && e.contains("scalars 6 (this network: 3)")
             && e.contains("actions 3 (this network: 2)"),
         "{e}"
@@ -341,10 +342,18 @@ fn flat_weights_and_checkpoints_round_trip() {
     let obs = random(2 * goal.obs_len(), 5, 0.0, 1.0);
     assert_eq!(h.q_values(&obs).unwrap(), g.q_values(&obs).unwrap());
     assert_eq!(h.q_values(&obs).unwrap().len(), 2 * 3);
+    // The same network trained on consecutive frames reads them otherwise.
+    let e = QNet::with_shapes(Shapes::task(4, true, true), 0, &dev)
+        .unwrap()
+        .load(&path)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("frame_stride 3 (this network: 1)") && !e.contains("obs_len"), "{e}");
     // A header that claims shapes no task has is refused by name.
     for (key, value, claim) in [
         ("scalars", "7", "header claims 7 observation scalars"),
         ("frames", "9", "header claims 9 depth frames (1 to 8)"),
+        ("frame_stride", "0", "header claims a frame stride of 0 action periods (1 to 8)"),
     ] {
         let mut odd = checkpoint_metadata(goal);
         odd.insert(key.into(), value.into());

@@ -30,6 +30,8 @@ pub const DEPTH_PIXELS: usize = DEPTH_SIDE * DEPTH_SIDE;
 pub const FRAMES: usize = 2;
 /// The most depth frames an observation stacks (`sim.frames`).
 pub const MAX_FRAMES: usize = 8;
+/// The most action periods between two stacked frames (`sim.frame_stride`).
+pub const MAX_FRAME_STRIDE: usize = 8;
 /// Components of the body-frame linear velocity in an observation.
 pub const VEL_DIM: usize = 3;
 /// Floats of the goal in an observation of a task with a goal
@@ -47,9 +49,13 @@ pub const NUM_ACTIONS: usize = 2;
 /// so a sender and a receiver of one run never disagree.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct Shapes {
-    /// Depth frames stacked in one observation, oldest first (one action
-    /// period apart; the last is the current view).
+    /// Depth frames stacked in one observation, oldest first (`stride`
+    /// action periods apart; the last is the current view).
     pub frames: usize,
+    /// Action periods between two stacked frames (1: consecutive views).
+    /// No layout depends on it, but a network trained on one stride reads
+    /// another's observations wrongly, so checkpoints say it too.
+    pub stride: usize,
     /// Floats after the depth frames: the body-frame velocity, then (with a
     /// goal) the goal's [`GOAL_DIM`] floats.
     pub scalars: usize,
@@ -59,18 +65,25 @@ pub struct Shapes {
 
 impl Shapes {
     /// The paper's task: velocity only, two actions.
-    pub const PAPER: Shapes = Shapes { frames: FRAMES, scalars: VEL_DIM, actions: NUM_ACTIONS };
+    pub const PAPER: Shapes =
+        Shapes { frames: FRAMES, stride: 1, scalars: VEL_DIM, actions: NUM_ACTIONS };
     /// The most actions any task has.
     pub const MAX_ACTIONS: usize = NUM_ACTIONS + 1;
 
-    /// The shapes of a task: `frames` depth frames, with or without a goal
-    /// in the observation, with or without the hold action.
+    /// The shapes of a task: `frames` consecutive depth frames, with or
+    /// without a goal in the observation, with or without the hold action.
     pub const fn task(frames: usize, goal: bool, hold: bool) -> Self {
         Self {
             frames,
+            stride: 1,
             scalars: VEL_DIM + if goal { GOAL_DIM } else { 0 },
             actions: NUM_ACTIONS + hold as usize,
         }
+    }
+
+    /// The same shapes with the stacked frames `stride` action periods apart.
+    pub const fn with_stride(self, stride: usize) -> Self {
+        Self { stride, ..self }
     }
 
     /// Depth values in one observation: the stacked frames.
@@ -210,6 +223,12 @@ impl Shapes {
     pub fn check(self) -> Result<Self, String> {
         if !(1..=MAX_FRAMES).contains(&self.frames) {
             return Err(format!("{} depth frames (1 to {MAX_FRAMES})", self.frames));
+        }
+        if !(1..=MAX_FRAME_STRIDE).contains(&self.stride) {
+            return Err(format!(
+                "a frame stride of {} action periods (1 to {MAX_FRAME_STRIDE})",
+                self.stride
+            ));
         }
         if self.scalars != VEL_DIM && self.scalars != VEL_DIM + GOAL_DIM {
             return Err(format!(

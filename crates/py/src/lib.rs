@@ -343,6 +343,13 @@ impl Sim {
         self.env.config().frames
     }
 
+    /// Action periods between two of an observation's depth frames
+    /// (`sim.frame_stride`; 1: consecutive views).
+    #[getter]
+    fn frame_stride(&self) -> usize {
+        self.env.config().frame_stride
+    }
+
     /// Whether episodes have a goal (`[sim.goal]`): observations then have
     /// a `goal` part.
     #[getter]
@@ -511,11 +518,21 @@ fn model_error(e: rotorhive_model::ModelError) -> PyErr {
 impl QNetwork {
     /// A freshly initialised network, deterministic for a seed: for the
     /// paper's task, or with the goal's floats in its observation (`goal`),
-    /// the hold action (`hold`) and another count of depth frames (`frames`).
+    /// the hold action (`hold`), another count of depth frames (`frames`)
+    /// and frames further apart (`frame_stride` action periods).
     #[new]
-    #[pyo3(signature = (seed=0, goal=false, hold=false, frames=FRAMES))]
-    fn new(seed: u64, goal: bool, hold: bool, frames: usize) -> PyResult<Self> {
-        let shapes = Shapes::task(frames, goal, hold).check().map_err(value_error)?;
+    #[pyo3(signature = (seed=0, goal=false, hold=false, frames=FRAMES, frame_stride=1))]
+    fn new(
+        seed: u64,
+        goal: bool,
+        hold: bool,
+        frames: usize,
+        frame_stride: usize,
+    ) -> PyResult<Self> {
+        let shapes = Shapes::task(frames, goal, hold)
+            .with_stride(frame_stride)
+            .check()
+            .map_err(value_error)?;
         Ok(Self { net: QNet::with_shapes(shapes, seed, &Device::Cpu).map_err(model_error)? })
     }
 
@@ -539,6 +556,13 @@ impl QNetwork {
     #[getter]
     fn actions(&self) -> usize {
         self.net.shapes().actions
+    }
+
+    /// Action periods between the depth frames it was trained on (1:
+    /// consecutive views; the checkpoint's `frame_stride`).
+    #[getter]
+    fn frame_stride(&self) -> usize {
+        self.net.shapes().stride
     }
 
     /// Saves the weights as a rotorhive checkpoint.

@@ -101,3 +101,34 @@ def test_more_depth_frames_reach_the_spaces_the_rollout_and_the_network():
     assert net.q_values(want_obs[0]).shape == (2, 2)
     with pytest.raises(ValueError, match="depth frames"):
         rotorhive.QNetwork(frames=9)
+
+
+def test_frames_further_apart_reach_the_rollout_and_the_network():
+    """`frame_stride=3` (the key `sim.frame_stride`): two frames three
+    steps apart, as the Rust `VecEnv` writes them; the network says the
+    stride it was made for, and a checkpoint keeps it."""
+    envs = gym.make_vec("rotorhive/Navigate-v0", num_envs=2, seed=3, frame_stride=3, autoreset_mode="SameStep")
+    assert envs.single_observation_space["depth"].shape == (2, 32, 32)
+    obs, _ = envs.reset()
+    actions = np.array([[0, 1], [1, 1], [0, 0], [1, 0], [1, 1]], np.uint8)
+    want_obs, _, _ = _rotorhive.reference_rollout(actions, 3, overrides=["sim.frame_stride=3"])
+    views = []
+    for t, a in enumerate(actions):
+        flat = np.concatenate([obs["depth"].reshape(2, -1), obs["velocity"]], axis=1)
+        np.testing.assert_array_equal(flat, want_obs[t])
+        views.append(obs["depth"][:, 1].copy())
+        obs, *_ = envs.step(a)
+    # The earlier frame is the view of three steps ago, not the last one.
+    np.testing.assert_array_equal(obs["depth"][:, 0], views[-3])
+    assert not np.array_equal(obs["depth"][:, 0], views[-1])
+    envs.close()
+    net = rotorhive.QNetwork(seed=1, frame_stride=3)
+    assert net.frame_stride == 3
+    with pytest.raises(ValueError, match="frame stride"):
+        rotorhive.QNetwork(frame_stride=9)
+
+
+def test_a_checkpoint_keeps_its_frame_stride(tmp_path):
+    path = tmp_path / "s3.safetensors"
+    rotorhive.QNetwork(seed=2, frame_stride=3).save(path)
+    assert rotorhive.QNetwork.load(path).frame_stride == 3

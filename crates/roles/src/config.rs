@@ -235,6 +235,10 @@ pub struct SimSection {
     /// (2: the paper's, previous and current); 1 to
     /// [`rotorhive_msg::MAX_FRAMES`].
     pub frames: usize,
+    /// Action periods between two stacked frames (1: consecutive; 3 with
+    /// four frames: the views of 9, 6 and 3 periods ago and now); 1 to
+    /// [`rotorhive_msg::MAX_FRAME_STRIDE`].
+    pub frame_stride: usize,
     /// Threads for CPU rendering.
     pub render_threads: usize,
     /// The generator of the training lanes, the validation arenas and the
@@ -436,6 +440,7 @@ impl Default for SimSection {
             goal: Goal::default(),
             hold_action: false,
             frames: rotorhive_msg::FRAMES,
+            frame_stride: 1,
         }
     }
 }
@@ -637,6 +642,13 @@ impl Config {
                 "key `sim.frames` must be 1 to {}, got {}",
                 rotorhive_msg::MAX_FRAMES,
                 s.frames
+            );
+        }
+        if !(1..=rotorhive_msg::MAX_FRAME_STRIDE).contains(&s.frame_stride) {
+            config_err!(
+                "key `sim.frame_stride` must be 1 to {}, got {}",
+                rotorhive_msg::MAX_FRAME_STRIDE,
+                s.frame_stride
             );
         }
         if s.generated_lanes > 256 {
@@ -1020,15 +1032,17 @@ impl Config {
             goal: s.goal.clone(),
             hold_action: s.hold_action,
             frames: s.frames,
+            frame_stride: s.frame_stride,
             ..SimConfig::default()
         }
     }
 
     /// The run's observation and action shapes (from `sim.frames`,
-    /// `[sim.goal]` and `sim.hold_action`): every role's layouts and the
-    /// network follow them.
+    /// `sim.frame_stride`, `[sim.goal]` and `sim.hold_action`): every
+    /// role's layouts and the network follow them.
     pub fn shapes(&self) -> Shapes {
         Shapes::task(self.sim.frames, self.sim.goal.enabled, self.sim.hold_action)
+            .with_stride(self.sim.frame_stride)
     }
 
     /// The resolved config as TOML.
@@ -1155,6 +1169,8 @@ mod tests {
             ("sim.lateral_step=0", "sim.lateral_step"),
             ("sim.frames=0", "sim.frames"),
             ("sim.frames=9", "sim.frames"),
+            ("sim.frame_stride=0", "sim.frame_stride"),
+            ("sim.frame_stride=9", "sim.frame_stride"),
             ("sim.reward_collision=nan", "sim.reward_collision"),
         ] {
             let e = format!("{:#}", Config::load(None, &[set.into()]).unwrap_err());

@@ -131,9 +131,11 @@ pub struct SimConfig {
     pub goal: Goal,
     /// A third action, 2, that holds the lateral setpoint.
     pub hold_action: bool,
-    /// Depth frames in one observation, one action period apart, oldest
-    /// first (2: the paper's, previous and current).
+    /// Depth frames in one observation, `frame_stride` action periods
+    /// apart, oldest first (2: the paper's, previous and current).
     pub frames: usize,
+    /// Action periods between two stacked frames (1: consecutive views).
+    pub frame_stride: usize,
 }
 
 impl SimConfig {
@@ -146,6 +148,7 @@ impl SimConfig {
     /// with a goal, the third action with hold.
     pub fn shapes(&self) -> Shapes {
         Shapes::task(self.frames, self.goal.enabled, self.hold_action)
+            .with_stride(self.frame_stride)
     }
 }
 
@@ -177,6 +180,7 @@ impl Default for SimConfig {
             goal: Goal::default(),
             hold_action: false,
             frames: rotorhive_msg::FRAMES,
+            frame_stride: 1,
         }
     }
 }
@@ -339,7 +343,10 @@ impl VecEnv {
         let World { flight, physics, scene, gpu } = World::new(&cfg, &arena, &lane_bounds, 0.0)?;
         let n = cfg.agents;
         let px = cfg.camera.side * cfg.camera.side;
-        assert!(cfg.frames >= 1, "an observation holds at least one frame");
+        assert!(
+            cfg.frames >= 1 && cfg.frame_stride >= 1,
+            "an observation holds at least one frame"
+        );
         let obs_len = cfg.frames * px + cfg.shapes().scalars;
         let mut env = Self {
             renderer: DepthRenderer::new(cfg.camera, cfg.render_threads),
@@ -362,7 +369,7 @@ impl VecEnv {
             steps: vec![0; n],
             returns: vec![0.0; n],
             cur: vec![0.0; n * px],
-            past: vec![0.0; n * (cfg.frames - 1) * px],
+            past: vec![0.0; n * (cfg.frames - 1) * cfg.frame_stride * px],
             obs: vec![0.0; n * obs_len],
             rewards: vec![0.0; n],
             dones: vec![Done::Running; n],
@@ -408,9 +415,16 @@ impl VecEnv {
         self.cfg.camera.side * self.cfg.camera.side
     }
 
-    /// Agent `i`'s earlier frames (`(frames − 1) × side²`, oldest first).
+    /// Earlier frames kept per agent: `(frames − 1) × frame_stride`, the
+    /// views of that many action periods back (an observation takes every
+    /// `frame_stride`-th of them).
+    fn kept(&self) -> usize {
+        (self.cfg.frames - 1) * self.cfg.frame_stride
+    }
+
+    /// Agent `i`'s earlier frames (`kept() × side²`, oldest first).
     fn past_of(&self, i: usize) -> &[f32] {
-        let h = (self.cfg.frames - 1) * self.px();
+        let h = self.kept() * self.px();
         &self.past[i * h..(i + 1) * h]
     }
 
@@ -420,22 +434,36 @@ impl VecEnv {
         &self.cur[i * px..(i + 1) * px]
     }
 
+    /// Writes agent `i`'s stacked frames (`frames × side²`, oldest first,
+    /// `frame_stride` action periods apart, the current one last) to `out`.
+    fn write_depth(&self, i: usize, out: &mut [f32]) {
+        let (px, stride) = (self.px(), self.cfg.frame_stride);
+        let (earlier, now) = out.split_at_mut((self.cfg.frames - 1) * px);
+        if stride == 1 {
+            earlier.copy_from_slice(self.past_of(i));
+        } else {
+            let kept = self.past_of(i).chunks_exact(px).step_by(stride);
+            earlier.chunks_exact_mut(px).zip(kept).for_each(|(o, f)| o.copy_from_slice(f));
+        }
+        now.copy_from_slice(self.cur_of(i));
+    }
+
     /// Every earlier frame of agent `i` becomes its current one (a new
     /// episode starts with all its frames its first view).
     fn fill_past(&mut self, i: usize) {
-        let (px, h) = (self.px(), (self.cfg.frames - 1) * self.px());
+        let (px, h) = (self.px(), self.kept() * self.px());
         let (cur, past) = (&self.cur[i * px..(i + 1) * px], &mut self.past[i * h..(i + 1) * h]);
         past.chunks_exact_mut(px).for_each(|f| f.copy_from_slice(cur));
     }
 
     /// Before a new frame is drawn: every agent's frames move one older, the
-    /// current one joining the earlier ones (two frames: a swap, no copy).
+    /// current one joining the earlier ones (one kept: a swap, no copy).
     fn age_frames(&mut self) {
-        match self.cfg.frames {
-            1 => {}
-            2 => std::mem::swap(&mut self.past, &mut self.cur),
-            f => {
-                let (px, h) = (self.px(), (f - 1) * self.px());
+        match self.kept() {
+            0 => {}
+            1 => std::mem::swap(&mut self.past, &mut self.cur),
+            k => {
+                let (px, h) = (self.px(), k * self.px());
                 let chunks = self.past.chunks_exact_mut(h).zip(self.cur.chunks_exact(px));
                 for (past, cur) in chunks {
                     past.copy_within(px.., 0);
@@ -950,7 +978,7 @@ impl VecEnv {
     /// `out` holds, `obs_len` floats each) straight into `out`: the sim
     /// process assembles them in the loaned shared-memory sample this way.
     pub fn write_observations(&self, first: usize, out: &mut [f32]) {
-        let (h, fd) = ((self.cfg.frames - 1) * self.px(), self.cfg.frames * self.px());
+        let fd = self.cfg.frames * self.px();
         let len = self.obs_len();
         assert!(
             out.len().is_multiple_of(len) && first + out.len() / len <= self.cfg.agents,
@@ -958,8 +986,7 @@ impl VecEnv {
         );
         for (j, o) in out.chunks_exact_mut(len).enumerate() {
             let i = first + j;
-            o[..h].copy_from_slice(self.past_of(i));
-            o[h..fd].copy_from_slice(self.cur_of(i));
+            self.write_depth(i, &mut o[..fd]);
             o[fd..fd + 3].copy_from_slice(&self.body_velocity(i));
             if self.cfg.goal.enabled {
                 o[fd + 3..].copy_from_slice(&self.goal_observation(i));
@@ -1021,7 +1048,7 @@ impl VecEnv {
     /// observation holds it: `depth` (`agents × frames × side²`, oldest
     /// first, the current one last) and `velocity` (`agents × 3`, body frame).
     pub fn write_observations_split(&self, depth: &mut [f32], velocity: &mut [f32]) {
-        let (h, fd) = ((self.cfg.frames - 1) * self.px(), self.cfg.frames * self.px());
+        let fd = self.cfg.frames * self.px();
         let n = self.cfg.agents;
         assert!(
             depth.len() == n * fd && velocity.len() == n * 3,
@@ -1029,8 +1056,7 @@ impl VecEnv {
         );
         for (i, (d, v)) in depth.chunks_exact_mut(fd).zip(velocity.chunks_exact_mut(3)).enumerate()
         {
-            d[..h].copy_from_slice(self.past_of(i));
-            d[h..].copy_from_slice(self.cur_of(i));
+            self.write_depth(i, d);
             v.copy_from_slice(&self.body_velocity(i));
         }
     }

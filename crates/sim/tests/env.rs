@@ -444,16 +444,17 @@ fn split_observations_are_the_flat_rows_cut_in_two() {
     assert!(vel.iter().any(|v| *v != 0.0));
 }
 
-/// With `frames` depth frames each observation holds the last views one
-/// action apart, oldest first: every step shifts them by one, and a new
+/// With `frames` depth frames each observation holds the last views
+/// `frame_stride` actions apart, oldest first: every step shifts them by one
+/// action period, and a new
 /// episode starts with all of them its first view. The split observation
 /// and the shapes follow.
 #[test]
 fn an_observation_holds_the_last_frames_oldest_first() {
     let arena = Arena::load(&arena_file("train.toml")).unwrap();
     let px = 32 * 32;
-    for frames in [1, 2, 4] {
-        let sim = SimConfig { frames, max_steps: 6, ..cfg(2) };
+    for (frames, stride) in [(1, 1), (2, 1), (4, 1), (2, 3), (3, 2)] {
+        let sim = SimConfig { frames, frame_stride: stride, max_steps: 9, ..cfg(2) };
         assert_eq!(sim.shapes().obs_len(), frames * px + 3);
         let mut env = VecEnv::new(sim, arena.clone(), 3).unwrap();
         env.set_autoreset(Autoreset::Disabled);
@@ -464,17 +465,19 @@ fn an_observation_holds_the_last_frames_oldest_first() {
             assert_eq!(first[f * px..(f + 1) * px], first[..px], "frame {f} at the spawn");
         }
         let mut seen = vec![first[(frames - 1) * px..frames * px].to_vec()];
-        for t in 0..5 {
+        for t in 0..8 {
             env.step(&[(t % 2) as u8, 1]).unwrap();
             let row = &env.observations()[..n];
             seen.push(row[(frames - 1) * px..frames * px].to_vec());
             for f in 0..frames {
-                // Frame f is the view (frames − 1 − f) steps ago.
-                let back = (seen.len() - 1).saturating_sub(frames - 1 - f);
-                assert_eq!(&row[f * px..(f + 1) * px], &seen[back][..], "frames {frames}, t {t}");
+                // Frame f is the view (frames − 1 − f) × stride steps ago
+                // (the first view while the episode is younger).
+                let back = (seen.len() - 1).saturating_sub((frames - 1 - f) * stride);
+                let at = format!("frames {frames}, stride {stride}, t {t}, frame {f}");
+                assert_eq!(&row[f * px..(f + 1) * px], &seen[back][..], "{at}");
             }
         }
-        assert_ne!(seen[0], seen[5], "the view changes as the drone flies");
+        assert_ne!(seen[0], seen[8], "the view changes as the drone flies");
         let mut depth = vec![0.0; 2 * frames * px];
         let mut vel = vec![0.0; 2 * 3];
         env.write_observations_split(&mut depth, &mut vel);
