@@ -203,6 +203,33 @@ fn the_scripted_pilots_fly_a_levels_test_layouts() {
     assert!(reactive["hopeless"].is_null());
 }
 
+/// A checkpoint flown on a level sees as it was trained to: four frames
+/// three action periods apart come from its header, not the level's two
+/// consecutive ones; a `--set` that contradicts it is refused by name.
+#[test]
+fn a_checkpoint_flies_a_level_with_its_own_frames() {
+    use rotorhive_model::{Device, QNet, Shapes};
+    let dir = tmp("strided");
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("strided.safetensors");
+    let shapes = Shapes::task(4, false, false).with_stride(3);
+    QNet::with_shapes(shapes, 5, &Device::Cpu).unwrap().save(&path).unwrap();
+    let ckpt = path.to_str().unwrap();
+    let v = eval_json(&["--checkpoint", ckpt, "--level", "moving", "--episodes", "5"]);
+    assert_eq!((v["frames"].as_u64(), v["frame_stride"].as_u64()), (Some(4), Some(3)));
+    assert_eq!(v["episodes"].as_u64(), Some(5));
+    let reactive = eval_json(&["--policy", "reactive", "--level", "moving", "--episodes", "5"]);
+    assert_eq!(
+        (reactive["frames"].as_u64(), reactive["frame_stride"].as_u64()),
+        (Some(2), Some(1))
+    );
+    fails_with(
+        &["eval", "--checkpoint", ckpt, "--level", "moving", "--set", "sim.frame_stride=1"],
+        &["strided.safetensors", "frame_stride 3 (this network: 1)"],
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn bad_input_is_refused_clearly() {
     let dir = tmp("bad");

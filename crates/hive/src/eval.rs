@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Result, bail};
 use clap::{Args, ValueEnum};
-use rotorhive_model::{Device, QNet};
+use rotorhive_model::{Device, QNet, Shapes};
 use rotorhive_roles::Config;
 pub use rotorhive_roles::eval::fly_greedy;
 use rotorhive_roles::eval::{EvalStats, Pilot, fly_layouts};
@@ -101,8 +101,9 @@ pub struct EvalArgs {
     #[arg(long, value_enum, default_value_t = SightArg::All)]
     pub sight: SightArg,
     /// A level (`configs/levels/NAME.toml`): its sim settings and its
-    /// held-out test layouts. Without it: the settings of the run that
-    /// wrote the checkpoint (its `config.toml`), else the defaults.
+    /// held-out test layouts (a checkpoint's stacked frames and their
+    /// stride taken from its header). Without it: the settings of the run
+    /// that wrote the checkpoint (its `config.toml`), else the defaults.
     #[arg(long)]
     pub level: Option<String>,
     /// Arenas to fly in, instead of the test layouts (repeatable).
@@ -131,7 +132,16 @@ fn run_config(checkpoint: &Path) -> Option<PathBuf> {
 /// The config an evaluation flies with, and where it came from.
 fn config(a: &EvalArgs) -> Result<(Config, String)> {
     if let Some(level) = &a.level {
-        return Ok((Config::level(level, &a.set)?, format!("level {level}")));
+        // A checkpoint sees as it was trained to: its frames and their
+        // stride come from its header (a `--set` of them still wins).
+        let mut set = Vec::new();
+        if let Some(c) = &a.checkpoint {
+            let shapes = rotorhive_model::checkpoint_shapes(c)?;
+            set.push(format!("sim.frames={}", shapes.frames));
+            set.push(format!("sim.frame_stride={}", shapes.stride));
+        }
+        set.extend(a.set.iter().cloned());
+        return Ok((Config::level(level, &set)?, format!("level {level}")));
     }
     if let Some(path) = a.checkpoint.as_deref().and_then(run_config) {
         return Ok((Config::load(Some(&path), &a.set)?, path.display().to_string()));
@@ -167,13 +177,19 @@ pub fn run(a: EvalArgs) -> Result<()> {
         PolicyKind::Planner => Pilot::Planner(a.sight.sight()),
     };
     let stats = fly_layouts(pilot, &cfg.sim_config(), &layouts, per_layout, a.seed)?;
-    report(&a, policy, &source, &layouts, &stats);
+    report(&a, policy, (&source, cfg.shapes()), &layouts, &stats);
     Ok(())
 }
 
 /// Prints what an evaluation found: per layout and pooled, and with
 /// `--json` one object as the last line.
-fn report(a: &EvalArgs, policy: PolicyKind, source: &str, layouts: &[Arena], stats: &[EvalStats]) {
+fn report(
+    a: &EvalArgs,
+    policy: PolicyKind,
+    (source, shapes): (&str, Shapes),
+    layouts: &[Arena],
+    stats: &[EvalStats],
+) {
     let pooled = EvalStats::pooled(stats);
     let pct = |s: &EvalStats| {
         let [lo, hi] = s.wilson();
@@ -187,7 +203,10 @@ fn report(a: &EvalArgs, policy: PolicyKind, source: &str, layouts: &[Arena], sta
         PolicyKind::Reactive => "the reactive rule".into(),
         PolicyKind::Planner => format!("the planner (privileged), knowing {}", a.sight.name().1),
     };
-    println!("{who}, settings of {source}:");
+    println!(
+        "{who}, settings of {source} ({} depth frames, {} action period(s) apart):",
+        shapes.frames, shapes.stride
+    );
     for (l, s) in layouts.iter().zip(stats) {
         println!(
             "  {}: {} episodes, success {}, collisions {}, mean reward {:.1}",
@@ -232,6 +251,8 @@ fn report(a: &EvalArgs, policy: PolicyKind, source: &str, layouts: &[Arena], sta
                 "policy": policy.name(),
                 "level": a.level,
                 "settings": source,
+                "frames": shapes.frames,
+                "frame_stride": shapes.stride,
             })
         );
     }
