@@ -59,14 +59,15 @@ impl PolicyKind {
 }
 
 impl SightArg {
-    /// What the planner is told.
-    fn sight(self) -> Sight {
+    /// What the planner is told (`memory_s`: how long a
+    /// [`SightArg::ViewMemory`] planner remembers).
+    fn sight(self, memory_s: Option<u16>) -> Sight {
         match self {
             SightArg::All => Sight::All,
             SightArg::View => Sight::View,
             SightArg::ViewVelocity => Sight::ViewVelocity,
             SightArg::ViewTrack => Sight::ViewTrack,
-            SightArg::ViewMemory => Sight::ViewMemory,
+            SightArg::ViewMemory => Sight::ViewMemory(memory_s),
         }
     }
 
@@ -100,6 +101,10 @@ pub struct EvalArgs {
     /// What the planner knows (with `--policy planner`).
     #[arg(long, value_enum, default_value_t = SightArg::All)]
     pub sight: SightArg,
+    /// How long (s) a `--sight view-memory` planner remembers: a mover
+    /// whose half cycle is longer is never known (default: the episode).
+    #[arg(long, value_name = "S")]
+    pub memory_s: Option<u16>,
     /// A level (`configs/levels/NAME.toml`): its sim settings and its
     /// held-out test layouts (a checkpoint's stacked frames and their
     /// stride taken from its header). Without it: the settings of the run
@@ -154,6 +159,9 @@ pub fn run(a: EvalArgs) -> Result<()> {
         bail!("--episodes must be positive");
     }
     let policy = a.policy.unwrap_or(PolicyKind::Greedy);
+    if a.memory_s.is_some() && (policy != PolicyKind::Planner || a.sight != SightArg::ViewMemory) {
+        bail!("--memory-s is for --policy planner --sight view-memory");
+    }
     let (cfg, source) = config(&a)?;
     // The task's network: a checkpoint of other shapes is refused by name.
     let net = QNet::with_shapes(cfg.shapes(), 0, &Device::Cpu)?;
@@ -174,7 +182,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
     let pilot = match policy {
         PolicyKind::Greedy => Pilot::Net(&net),
         PolicyKind::Reactive => Pilot::Reactive,
-        PolicyKind::Planner => Pilot::Planner(a.sight.sight()),
+        PolicyKind::Planner => Pilot::Planner(a.sight.sight(a.memory_s)),
     };
     let stats = fly_layouts(pilot, &cfg.sim_config(), &layouts, per_layout, a.seed)?;
     report(&a, policy, (&source, cfg.shapes()), &layouts, &stats);
@@ -201,7 +209,10 @@ fn report(
             a.checkpoint.as_ref().map_or(String::new(), |c| c.display().to_string())
         }
         PolicyKind::Reactive => "the reactive rule".into(),
-        PolicyKind::Planner => format!("the planner (privileged), knowing {}", a.sight.name().1),
+        PolicyKind::Planner => {
+            let memory = a.memory_s.map_or(String::new(), |s| format!(", remembering {s} s"));
+            format!("the planner (privileged), knowing {}{memory}", a.sight.name().1)
+        }
     };
     println!(
         "{who}, settings of {source} ({} depth frames, {} action period(s) apart):",
@@ -247,6 +258,7 @@ fn report(
                 "collisions": pooled.collisions,
                 "hopeless": planner.then_some(pooled.hopeless),
                 "sight": planner.then(|| a.sight.name().0),
+                "memory_s": a.memory_s,
                 "layouts": layouts_json,
                 "policy": policy.name(),
                 "level": a.level,
