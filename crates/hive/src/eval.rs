@@ -185,7 +185,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
         PolicyKind::Planner => Pilot::Planner(a.sight.sight(a.memory_s)),
     };
     let stats = fly_layouts(pilot, &cfg.sim_config(), &layouts, per_layout, a.seed)?;
-    report(&a, policy, (&source, cfg.shapes()), &layouts, &stats);
+    report(&a, policy, &source, cfg.shapes(), &layouts, &stats);
     Ok(())
 }
 
@@ -194,7 +194,8 @@ pub fn run(a: EvalArgs) -> Result<()> {
 fn report(
     a: &EvalArgs,
     policy: PolicyKind,
-    (source, shapes): (&str, Shapes),
+    source: &str,
+    shapes: Shapes,
     layouts: &[Arena],
     stats: &[EvalStats],
 ) {
