@@ -73,6 +73,19 @@ def test_a_level_that_does_not_exist_is_named():
         gym.make_vec("rotorhive/Navigate-v0", num_envs=2, level="lava")
 
 
+def _step_against_rust(envs, obs, actions, want_obs):
+    """Steps `envs` through `actions`, checking each observation (flattened
+    as the Rust `VecEnv` writes it) against `want_obs`; returns the last
+    observation and each step's current view (the last depth frame)."""
+    views = []
+    for t, a in enumerate(actions):
+        flat = np.concatenate([obs["depth"].reshape(len(a), -1), obs["velocity"]], axis=1)
+        np.testing.assert_array_equal(flat, want_obs[t])
+        views.append(obs["depth"][:, -1].copy())
+        obs, *_ = envs.step(a)
+    return obs, views
+
+
 def test_more_depth_frames_reach_the_spaces_the_rollout_and_the_network():
     """`frames=4` (the key `sim.frames`): the depth part of the observation
     holds the last four views oldest first, as the Rust `VecEnv` writes
@@ -86,12 +99,7 @@ def test_more_depth_frames_reach_the_spaces_the_rollout_and_the_network():
     actions = np.array([[0, 1], [1, 1], [0, 0]], np.uint8)
     want_obs, _, _ = _rotorhive.reference_rollout(actions, 3, overrides=["sim.frames=4"])
     assert want_obs.shape[2] == 4 * 32 * 32 + 3
-    views = []
-    for t, a in enumerate(actions):
-        flat = np.concatenate([obs["depth"].reshape(2, -1), obs["velocity"]], axis=1)
-        np.testing.assert_array_equal(flat, want_obs[t])
-        views.append(obs["depth"][:, 3].copy())
-        obs, *_ = envs.step(a)
+    obs, views = _step_against_rust(envs, obs, actions, want_obs)
     # Each step moves the frames one older.
     np.testing.assert_array_equal(obs["depth"][:, 2], views[-1])
     np.testing.assert_array_equal(obs["depth"][:, 1], views[-2])
@@ -112,12 +120,7 @@ def test_frames_further_apart_reach_the_rollout_and_the_network():
     obs, _ = envs.reset()
     actions = np.array([[0, 1], [1, 1], [0, 0], [1, 0], [1, 1]], np.uint8)
     want_obs, _, _ = _rotorhive.reference_rollout(actions, 3, overrides=["sim.frame_stride=3"])
-    views = []
-    for t, a in enumerate(actions):
-        flat = np.concatenate([obs["depth"].reshape(2, -1), obs["velocity"]], axis=1)
-        np.testing.assert_array_equal(flat, want_obs[t])
-        views.append(obs["depth"][:, 1].copy())
-        obs, *_ = envs.step(a)
+    obs, views = _step_against_rust(envs, obs, actions, want_obs)
     # The earlier frame is the view of three steps ago, not the last one.
     np.testing.assert_array_equal(obs["depth"][:, 0], views[-3])
     assert not np.array_equal(obs["depth"][:, 0], views[-1])

@@ -439,12 +439,8 @@ impl VecEnv {
     fn write_depth(&self, i: usize, out: &mut [f32]) {
         let (px, stride) = (self.px(), self.cfg.frame_stride);
         let (earlier, now) = out.split_at_mut((self.cfg.frames - 1) * px);
-        if stride == 1 {
-            earlier.copy_from_slice(self.past_of(i));
-        } else {
-            let kept = self.past_of(i).chunks_exact(px).step_by(stride);
-            earlier.chunks_exact_mut(px).zip(kept).for_each(|(o, f)| o.copy_from_slice(f));
-        }
+        let kept = self.past_of(i).chunks_exact(px).step_by(stride);
+        earlier.chunks_exact_mut(px).zip(kept).for_each(|(o, f)| o.copy_from_slice(f));
         now.copy_from_slice(self.cur_of(i));
     }
 

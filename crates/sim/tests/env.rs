@@ -446,9 +446,8 @@ fn split_observations_are_the_flat_rows_cut_in_two() {
 
 /// With `frames` depth frames each observation holds the last views
 /// `frame_stride` actions apart, oldest first: every step shifts them by one
-/// action period, and a new
-/// episode starts with all of them its first view. The split observation
-/// and the shapes follow.
+/// action period, and a new episode starts with all of them its first view.
+/// The split observation and the shapes follow.
 #[test]
 fn an_observation_holds_the_last_frames_oldest_first() {
     let arena = Arena::load(&arena_file("train.toml")).unwrap();
