@@ -93,10 +93,10 @@ impl Input {
     /// the scalars) as the network reads them.
     fn reduce(&self, obs: &[f32], shapes: Shapes) -> anyhow::Result<Vec<f32>> {
         let (ol, frames) = (shapes.obs_len(), shapes.frames);
-        let mut out = Vec::with_capacity(obs.len() / ol * self.width(shapes));
         if let Input::Features(f) = self {
             return f.features(obs, ol);
         }
+        let mut out = Vec::with_capacity(obs.len() / ol * self.width(shapes));
         for o in obs.chunks_exact(ol) {
             for img in o.chunks_exact(SIDE * SIDE).take(frames) {
                 if matches!(self, Input::Scan) {
