@@ -287,6 +287,14 @@ impl QNet {
     /// The same network with stock candle ops (channels-first `conv2d`),
     /// differentiable by candle's autograd.
     pub(crate) fn forward_generic(&self, obs: &Tensor) -> Result<Tensor> {
+        let h = self.features(obs)?;
+        Ok(h.matmul(&self.p(8).t()?)?.broadcast_add(self.p(9))?)
+    }
+
+    /// The `fc1` activations `[B, 64]` of observations `[B, obs_len]`, on
+    /// stock candle ops (the generic path up to the last layer): what the
+    /// network has learned to see, for a probe that reuses it.
+    pub fn features(&self, obs: &Tensor) -> Result<Tensor> {
         let b = obs.dim(0)?;
         let frames = self.shapes.frames;
         let img = obs.narrow(1, 0, frames * SIDE * SIDE)?.reshape((b, frames, SIDE, SIDE))?;
@@ -308,8 +316,7 @@ impl QNet {
         let v = obs.narrow(1, self.shapes.obs_depth(), self.shapes.scalars)?;
         let v = v.matmul(&self.p(4).t()?)?.broadcast_add(self.p(5))?.relu()?;
         let h = Tensor::cat(&[&x, &v], 1)?;
-        let h = h.matmul(&self.p(6).t()?)?.broadcast_add(self.p(7))?.relu()?;
-        Ok(h.matmul(&self.p(8).t()?)?.broadcast_add(self.p(9))?)
+        Ok(h.matmul(&self.p(6).t()?)?.broadcast_add(self.p(7))?.relu()?)
     }
 
     /// Q-values of a flat batch of observations (`n × obs_len` floats); on

@@ -33,8 +33,9 @@ use candle_nn::rnn::{GRU, GRUConfig, GRUState, RNN};
 use candle_nn::{AdamW, Linear, Optimizer, VarBuilder, VarMap};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
-use rotorhive_model::{QNet, Shapes};
+use rotorhive_model::{QNet, Shapes, argmax};
 use rotorhive_roles::Config;
+use rotorhive_roles::eval::nearest_per_column;
 use rotorhive_sim::{Arena, Done, SimConfig, VecEnv};
 use std::collections::VecDeque;
 use std::time::Instant;
@@ -94,15 +95,13 @@ impl Input {
     fn reduce(&self, obs: &[f32], shapes: Shapes) -> anyhow::Result<Vec<f32>> {
         let (ol, frames) = (shapes.obs_len(), shapes.frames);
         if let Input::Features(f) = self {
-            return f.features(obs, ol);
+            return f.features(obs);
         }
         let mut out = Vec::with_capacity(obs.len() / ol * self.width(shapes));
         for o in obs.chunks_exact(ol) {
             for img in o.chunks_exact(SIDE * SIDE).take(frames) {
                 if matches!(self, Input::Scan) {
-                    out.extend((0..SIDE).map(|c| {
-                        (10..22).map(|r| img[r * SIDE + c]).fold(f32::INFINITY, f32::min)
-                    }));
+                    out.extend(nearest_per_column(img, SIDE));
                 } else {
                     out.extend((0..64).map(|b| {
                         let (by, bx) = (b / 8 * 4, b % 8 * 4);
@@ -118,36 +117,22 @@ impl Input {
     }
 }
 
-/// A trained network's layers up to `fc1`, on stock candle ops (as
-/// `QNet`'s generic path computes them).
+/// A trained network, frozen: its `fc1` activations ([`QNet::features`]).
 struct Frozen {
-    w: std::collections::HashMap<String, Tensor>,
-    shapes: Shapes,
+    net: QNet,
+    obs_len: usize,
 }
 
 impl Frozen {
     fn load(path: &str, shapes: Shapes) -> anyhow::Result<Self> {
         let net = QNet::with_shapes(shapes, 0, &Device::Cpu)?;
         net.load(std::path::Path::new(path)).with_context(|| format!("checkpoint {path}"))?;
-        Ok(Frozen { w: net.named(), shapes })
+        Ok(Frozen { net, obs_len: shapes.obs_len() })
     }
 
-    fn features(&self, obs: &[f32], ol: usize) -> anyhow::Result<Vec<f32>> {
-        let (n, f, w) = (obs.len() / ol, self.shapes.frames, &self.w);
-        let x = Tensor::from_slice(obs, (n, ol), &Device::Cpu)?;
-        let img = x.narrow(1, 0, f * SIDE * SIDE)?.reshape((n, f, SIDE, SIDE))?;
-        let w1 = w["conv1.weight"].reshape((16, f, 6, 6))?;
-        let a = img.conv2d(&w1, 0, 2, 1, 1)?;
-        let a = a.broadcast_add(&w["conv1.bias"].reshape((1, 16, 1, 1))?)?.relu()?;
-        let w2 = w["conv2.weight"].reshape((32, 3, 3, 16))?.permute((0, 3, 1, 2))?.contiguous()?;
-        let a = a.conv2d(&w2, 0, 1, 1, 1)?;
-        let a = a.broadcast_add(&w["conv2.bias"].reshape((1, 32, 1, 1))?)?.relu()?;
-        let a = a.reshape((n, 32, 6, 2, 6, 2))?.max(5)?.max(3)?.permute((0, 2, 3, 1))?;
-        let v = x.narrow(1, self.shapes.obs_depth(), self.shapes.scalars)?;
-        let v = v.matmul(&w["vel.weight"].t()?)?.broadcast_add(&w["vel.bias"])?.relu()?;
-        let h = Tensor::cat(&[&a.reshape((n, 1152))?, &v], 1)?;
-        let h = h.matmul(&w["fc1.weight"].t()?)?.broadcast_add(&w["fc1.bias"])?.relu()?;
-        Ok(h.flatten_all()?.to_vec1()?)
+    fn features(&self, obs: &[f32]) -> anyhow::Result<Vec<f32>> {
+        let x = Tensor::from_slice(obs, (obs.len() / self.obs_len, self.obs_len), &Device::Cpu)?;
+        Ok(self.net.features(&x)?.flatten_all()?.to_vec1()?)
     }
 }
 
@@ -502,10 +487,6 @@ fn unroll(net: &Net, batch: &[&Sequence], input: usize) -> candle_core::Result<V
         qs.push(q);
     }
     Ok(qs)
-}
-
-fn argmax(v: &[f32]) -> usize {
-    (0..v.len()).fold(0, |b, i| if v[i] > v[b] { i } else { b })
 }
 
 fn copy_weights(from: &VarMap, to: &VarMap) -> anyhow::Result<()> {

@@ -116,11 +116,7 @@ const REACTIVE_GOAL_GAIN: f32 = 0.3;
 pub fn reactive(obs: &[f32], side: usize, frames: usize) -> u8 {
     let px = side * side;
     let fd = frames * px;
-    let cur = &obs[fd - px..fd];
-    let rows = (side * 10 / 32)..(side * 22 / 32).max(side * 10 / 32 + 1);
-    let nearest: Vec<f32> = (0..side)
-        .map(|c| rows.clone().map(|r| cur[r * side + c]).fold(f32::INFINITY, f32::min))
-        .collect();
+    let nearest = nearest_per_column(&obs[fd - px..fd], side);
     let w = REACTIVE_WINDOW;
     // Beyond the image's edges reads as an obstacle at 0.
     let clear: Vec<f32> = (0..side)
@@ -150,6 +146,16 @@ pub fn reactive(obs: &[f32], side: usize, frames: usize) -> u8 {
     let want = if centre > REACTIVE_NEAR { cruise } else { -REACTIVE_GAIN * (target as f32 - mid) };
     let vy = obs[fd + 1];
     u8::from(want > vy)
+}
+
+/// The nearest depth of each column of one depth frame (`side`² pixels)
+/// over its middle rows (10 to 21 of 32): the clearance ahead per
+/// direction, as the reactive rule reads it.
+pub fn nearest_per_column(frame: &[f32], side: usize) -> Vec<f32> {
+    let rows = (side * 10 / 32)..(side * 22 / 32).max(side * 10 / 32 + 1);
+    (0..side)
+        .map(|c| rows.clone().map(|r| frame[r * side + c]).fold(f32::INFINITY, f32::min))
+        .collect()
 }
 
 /// Flies `episodes` greedy episodes at once, one per agent, each agent's
