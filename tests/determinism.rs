@@ -109,3 +109,63 @@ fn two_non_batched_environments_with_n_step_and_prioritized_replay_repeat_exactl
     ];
     assert_reproducible("det-two", &sets, 1 + (4800 - 320) / 32, false);
 }
+
+/// The teacher (`[teacher]`): `policy = "none"` with every other teacher
+/// key set trains exactly as a run without the section; the planner as
+/// teacher (one agent of four flown, half the others' steps labelled, the
+/// demonstrations in their reservoir, the large-margin loss on) repeats
+/// exactly too, and changes what is learned.
+#[test]
+#[ignore = "slow multi-process test: scripts/test runs it (--include-ignored)"]
+fn the_teacher_repeats_exactly_and_none_trains_as_without_it() {
+    let base = [
+        "max_env_steps=3000",
+        "sim.agents=4",
+        "replay.min_fill=200",
+        "replay.samples_per_insert=1.0",
+        "learner.n_step=3",
+    ];
+    let plain = run("det-teacher-plain", &base, false);
+    let none_keys = [
+        "teacher.policy=\"none\"",
+        "teacher.demo_agents=2",
+        "teacher.label_share=1.0",
+        "teacher.weight=5.0",
+        "teacher.demo_batch_share=0.5",
+    ];
+    let none = run("det-teacher-none", &[&base[..], &none_keys].concat(), false);
+    assert_eq!(plain.0, none.0, "policy none: the same episodes as without the section");
+    assert!(plain.1 == none.1, "policy none: the same final network as without the section");
+    assert!(none.2.teacher.is_none() && none.2.demo_transitions == 0, "{:?}", none.2);
+    let planner_keys = [
+        "teacher.policy=\"planner\"",
+        "teacher.demo_agents=1",
+        "teacher.label_share=0.5",
+        "teacher.demo_batch_share=0.25",
+        "teacher.demo_capacity=1000",
+    ];
+    let sets = [&base[..], &planner_keys].concat();
+    let (rows_a, weights_a, summary) = run("det-teacher-a", &sets, false);
+    let (rows_b, weights_b, _) = run("det-teacher-b", &sets, true);
+    assert_eq!(rows_a, rows_b, "the teacher's runs differ");
+    assert!(weights_a == weights_b, "the teacher's final networks differ");
+    assert!(weights_a != plain.1, "the teacher changed nothing");
+    // The student alone is saved: the same tensors and header as without a
+    // teacher (a different config's checksum aside), so `hive eval`, `hive
+    // play`, the ONNX export and Python fly it from its observation.
+    let names = |w: &[u8]| {
+        let (_, meta) = safetensors::SafeTensors::read_metadata(w).unwrap();
+        let mut t: Vec<(String, Vec<usize>)> =
+            meta.tensors().into_iter().map(|(k, v)| (k, v.shape.clone())).collect();
+        t.sort();
+        t
+    };
+    assert_eq!(names(&weights_a), names(&plain.1));
+    // One agent in four flown by the planner, about half of the other
+    // three's steps labelled; its episodes are not the student's.
+    let (demo, labelled) = (summary.demo_transitions, summary.labelled_transitions);
+    assert!((600..=800).contains(&demo), "{summary:?}");
+    assert!((900..=1350).contains(&labelled), "{summary:?}");
+    assert!(summary.teacher.is_some() && summary.teacher_ms_per_label.is_some(), "{summary:?}");
+    assert!(rows_a.len() > 10, "{} student episodes", rows_a.len());
+}

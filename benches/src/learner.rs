@@ -40,6 +40,7 @@ fn measure(fused: bool, threads: usize, batch: usize, updates: usize) -> Result<
     let mut data: Vec<f32> = (0..batch * TRANSITION_LEN).map(|_| rng.random::<f32>()).collect();
     for i in 0..batch {
         data[i * TRANSITION_LEN + 2 * OBS_LEN] = (i % 2) as f32;
+        data[i * TRANSITION_LEN + 2 * OBS_LEN + 3] = rotorhive_msg::NO_EXPERT;
     }
     // The update as the default config trains: with prioritized replay,
     // each row's loss weighted and its TD error kept for the feedback.

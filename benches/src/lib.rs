@@ -554,7 +554,7 @@ impl ObsHop {
     /// the nanoseconds this took.
     fn carry(&mut self, env: &VecEnv, step: u64, batched: bool) -> Result<u64> {
         let t = Instant::now();
-        rotorhive_roles::sim::send_obs(&mut self.tx, env, step, batched)?;
+        rotorhive_roles::sim::send_obs(&mut self.tx, env, step, batched, None)?;
         let got = self.gathered.recv_timeout(std::time::Duration::from_secs(10)).map_err(|_| {
             BenchError::Failed(format!("step {step}'s observations were not gathered within 10 s"))
         })?;

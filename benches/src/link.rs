@@ -45,7 +45,7 @@ fn sample_batch(batch: usize) -> Vec<u16> {
             s[FRAMES * DEPTH_PIXELS + v] = 0.5 + v as f32;
             next[FRAMES * DEPTH_PIXELS + v] = 0.6 + v as f32;
         }
-        Shapes::PAPER.pack(&s, &next, [(k % 2) as f32, 1.5, 0.0], o);
+        Shapes::PAPER.pack(&s, &next, [(k % 2) as f32, 1.5, 0.0, rotorhive_msg::NO_EXPERT, 0.0], o);
     }
     out
 }

@@ -205,11 +205,41 @@ mod tests {
         let obs = vec![0.5f32; Shapes::PAPER.obs_len()];
         let mut words = vec![0u16; rows.len() * PACKED_LEN];
         for (t, &(a, r, d)) in words.chunks_exact_mut(PACKED_LEN).zip(rows) {
-            Shapes::PAPER.pack(&obs, &obs, [a, r, d], t);
+            Shapes::PAPER.pack(&obs, &obs, [a, r, d, rotorhive_msg::NO_EXPERT, 0.0], t);
         }
         let h = TransitionHeader { actor, count: rows.len() as u32, seq: 0, weight_version: 0 };
         let link = LinkHeader { epoch: 0, seq: 0 };
         (wire::transition_attachment(&h, &link), wire::payload_bytes(&words).to_vec())
+    }
+
+    #[test]
+    fn a_transitions_expert_action_and_demonstration_flag_cross_intact() {
+        // A demonstration (the teacher flew it) and a labelled student step:
+        // the bytes the worker sends pass the head's checks and unpack to
+        // the same teacher fields; a forged flag is refused.
+        let shapes = Shapes::PAPER;
+        let obs = vec![0.25f32; shapes.obs_len()];
+        let mut words = vec![0u16; 3 * PACKED_LEN];
+        let tails = [[1.0, 3.0, 0.0, 1.0, 1.0], [0.0, 3.0, 0.0, 1.0, 0.0], [0.0, 3.0, 0.0, 0.0, 0.0]];
+        for (t, tail) in words.chunks_exact_mut(PACKED_LEN).zip(tails) {
+            shapes.pack(&obs, &obs, tail, t);
+        }
+        let h = TransitionHeader { actor: 1, count: 3, seq: 0, weight_version: 0 };
+        let link = LinkHeader { epoch: 0, seq: 0 };
+        let (att, bytes) = (wire::transition_attachment(&h, &link), wire::payload_bytes(&words));
+        assert!(transitions(&host(), shapes, Some(&att), &[bytes]).is_ok());
+        let mut t = vec![0f32; shapes.transition_len()];
+        for (p, tail) in bytes.chunks_exact(PACKED_LEN * 2).zip(tails) {
+            let w: Vec<u16> = p.chunks_exact(2).map(|b| u16::from_le_bytes([b[0], b[1]])).collect();
+            shapes.unpack(&w, &mut t);
+            assert_eq!(t[2 * shapes.obs_len()..], tail);
+        }
+        shapes.pack(&obs, &obs, [1.0, 3.0, 0.0, rotorhive_msg::NO_EXPERT, 1.0], &mut words[..PACKED_LEN]);
+        let bytes = wire::payload_bytes(&words);
+        assert_eq!(
+            transitions(&host(), shapes, Some(&att), &[bytes]).unwrap_err(),
+            Reject::Values(1)
+        );
     }
 
     #[test]

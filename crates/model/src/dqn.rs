@@ -12,6 +12,7 @@ use candle_core::{D, DType, Tensor};
 use crate::kernels::{Rows, Workspace, offsets, poisoned};
 use crate::ops::{AdamHyper, AdamStep, adam};
 use crate::{ModelError, QNet, Result, Shapes, argmax, params};
+use rotorhive_msg::NO_EXPERT;
 
 /// Hyper-parameters of the DQN update.
 #[derive(Debug, Clone, Copy)]
@@ -37,6 +38,10 @@ pub struct DqnConfig {
     pub reward_scale: f32,
     /// The gradient's global L2 norm is clipped to this; 0 = no clipping.
     pub max_grad_norm: f32,
+    /// DQfD's margin l(a_E, a) for every action but the expert's, in the
+    /// large-margin loss of rows with an expert action (see
+    /// [`Dqn::set_margin_weight`]).
+    pub margin: f32,
 }
 
 /// What the last update saw, for the learner's diagnostics: sums over the
@@ -49,6 +54,12 @@ pub struct UpdateStats {
     pub max_q_sum: f64,
     /// Sum over rows of |Q(s, a) − y|.
     pub abs_td_sum: f64,
+    /// Rows with an expert action (the large-margin loss's rows).
+    pub labelled: u32,
+    /// Of those, rows whose greedy action is the expert's.
+    pub agree: u32,
+    /// Sum over labelled rows of the large-margin loss (unweighted).
+    pub margin_sum: f64,
     /// Terminal transitions (done = 1).
     pub terminal: u32,
     /// The gradient's global L2 norm before clipping.
@@ -61,6 +72,9 @@ impl UpdateStats {
         self.max_q_sum += o.max_q_sum;
         self.abs_td_sum += o.abs_td_sum;
         self.terminal += o.terminal;
+        self.labelled += o.labelled;
+        self.agree += o.agree;
+        self.margin_sum += o.margin_sum;
     }
 }
 
@@ -162,6 +176,9 @@ pub struct Dqn {
     stats: UpdateStats,
     /// Per row of the last update: the absolute TD error.
     td: Vec<f32>,
+    /// Weight of the large-margin loss now (0: none; the learner sets it
+    /// from `teacher.weight` and the teacher's fade).
+    margin_weight: f32,
 }
 
 /// The gradients [`Dqn::compute_gradients`] left, flat in canonical order.
@@ -183,13 +200,21 @@ fn rows_of(batch: &[f32], shapes: Shapes) -> Result<usize> {
     if batch.is_empty() || !batch.len().is_multiple_of(len) {
         return Err(ModelError::Shape { what: "minibatch", expected: len, got: batch.len() });
     }
+    let one_of = |a: f32| a >= 0.0 && (a as usize) < shapes.actions && a.fract() == 0.0;
     for t in batch.chunks_exact(len) {
-        let a = t[2 * shapes.obs_len()];
-        if !(a >= 0.0 && (a as usize) < shapes.actions && a.fract() == 0.0) {
+        let (a, e) = (t[2 * shapes.obs_len()], t[2 * shapes.obs_len() + 3]);
+        if !one_of(a) {
             return Err(ModelError::Shape {
                 what: "minibatch action (one of the actions)",
                 expected: shapes.actions,
                 got: a as usize,
+            });
+        }
+        if !(e == NO_EXPERT || one_of(e)) {
+            return Err(ModelError::Shape {
+                what: "minibatch expert action (-1 or one of the actions)",
+                expected: shapes.actions,
+                got: e as usize,
             });
         }
     }
@@ -225,7 +250,27 @@ impl Dqn {
             skipped: 0,
             stats: UpdateStats::default(),
             td: Vec::new(),
+            margin_weight: 0.0,
         })
+    }
+
+    /// Weight of DQfD's large-margin loss `max_a [Q(s,a) + l(a_E,a)] −
+    /// Q(s,a_E)` (l = `margin` for every action but the expert's a_E),
+    /// added on every row with an expert action to the TD loss, both means
+    /// over the minibatch's rows. 0 (the default) turns it off: the update
+    /// is then exactly the plain one.
+    pub fn set_margin_weight(&mut self, weight: f32) {
+        self.margin_weight = weight;
+    }
+
+    /// The large-margin loss of one row's Q-values `q` with expert action
+    /// `expert`: its value and the action a* that maximises Q + l (the
+    /// loss's gradient is +1 on a*, −1 on a_E; none where a* = a_E).
+    fn margin_of(&self, q: &[f32], expert: usize) -> (f32, usize) {
+        let m = self.cfg.margin;
+        let l = |a: usize| if a == expert { 0.0 } else { m };
+        let best = (0..q.len()).fold(0, |b, a| if q[a] + l(a) > q[b] + l(b) { a } else { b });
+        (q[best] + l(best) - q[expert], best)
     }
 
     /// Uses the fused CPU path (default on the CPU) or the generic one.
@@ -340,7 +385,27 @@ impl Dqn {
         if let Some(w) = weights {
             loss = (loss * Tensor::from_slice(w, (n, 1), dev)?)?;
         }
-        Ok((loss.sum_all()?.affine(1.0 / n as f64, 0.0)?, td))
+        let mut loss = loss.sum_all()?;
+        let experts: Vec<f32> = batch.chunks_exact(tl).map(|t| t[2 * ol + 3]).collect();
+        if self.margin_weight > 0.0 && experts.iter().any(|e| *e != NO_EXPERT) {
+            // max_a [Q(s,a) + l(a_E,a)] − Q(s,a_E) on the labelled rows
+            // (the others masked out), in stock candle ops.
+            let m = self.cfg.margin;
+            let (mut l, mut mask, mut ae) = (vec![0f32; n * na], vec![0f32; n], vec![0u32; n]);
+            for (i, e) in experts.iter().enumerate().filter(|(_, e)| **e != NO_EXPERT) {
+                let e = *e as usize;
+                (mask[i], ae[i]) = (1.0, e as u32);
+                l[i * na..(i + 1) * na].iter_mut().enumerate().for_each(|(a, v)| {
+                    *v = if a == e { 0.0 } else { m };
+                });
+            }
+            let l = Tensor::from_vec(l, (n, na), dev)?;
+            let best = (&q + l)?.max_keepdim(D::Minus1)?;
+            let qe = q.gather(&Tensor::from_vec(ae, (n, 1), dev)?, D::Minus1)?;
+            let margin = ((best - qe)? * Tensor::from_vec(mask, (n, 1), dev)?)?;
+            loss = (loss + margin.sum_all()?.affine(self.margin_weight as f64, 0.0)?)?;
+        }
+        Ok((loss.affine(1.0 / n as f64, 0.0)?, td))
     }
 
     /// Loss and gradients (into `ws.grads`) of the rows of `part`, a shard
@@ -383,6 +448,18 @@ impl Dqn {
                 let w = weights.map_or(1.0, |w| w[i]);
                 loss += l * w;
                 dq[at] = g * w / denom as f32;
+                let expert = t[2 * ol + 3];
+                if self.margin_weight > 0.0 && expert != NO_EXPERT {
+                    let (row, e) = (&q[i * na..(i + 1) * na], expert as usize);
+                    let (m, best) = self.margin_of(row, e);
+                    let k = self.margin_weight;
+                    loss += k * m;
+                    dq[i * na + best] += k / denom as f32;
+                    dq[i * na + e] -= k / denom as f32;
+                    stats.labelled += 1;
+                    stats.agree += (argmax(row) == e) as u32;
+                    stats.margin_sum += m as f64;
+                }
                 stats.max_q_sum +=
                     q[i * na..(i + 1) * na].iter().fold(f32::NEG_INFINITY, |m, v| m.max(*v)) as f64;
                 stats.abs_td_sum += (q[at] - y).abs() as f64;
@@ -637,6 +714,7 @@ mod schedule_tests {
             double: true,
             reward_scale: 1.0,
             max_grad_norm: 0.0,
+            margin: 0.8,
         };
         let adam = Adam::new(&cfg, Shapes::PAPER);
         let close = |a: f32, b: f32| (a - b).abs() < 1e-9;

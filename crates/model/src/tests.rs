@@ -1,6 +1,7 @@
 //! Checks of the network against plain candle and against finite differences.
 
 use super::*;
+use rotorhive_msg::{DEPTH_PIXELS, NO_EXPERT};
 
 // The paper's task's shapes, as most checks here use them.
 const OBS_LEN: usize = Shapes::PAPER.obs_len();
@@ -30,6 +31,8 @@ fn transitions_of(shapes: Shapes, n: usize, seed: u64) -> Vec<f32> {
         data[i * tl + 2 * ol] = (i % shapes.actions) as f32;
         data[i * tl + 2 * ol + 1] = if i % 3 == 0 { -100.0 } else { 3.0 };
         data[i * tl + 2 * ol + 2] = if i % 3 == 0 { 1.0 } else { 0.0 };
+        data[i * tl + 2 * ol + 3] = NO_EXPERT;
+        data[i * tl + 2 * ol + 4] = 0.0;
     }
     data
 }
@@ -45,6 +48,7 @@ fn cfg(double: bool) -> DqnConfig {
         double,
         reward_scale: 1.0,
         max_grad_norm: 0.0,
+        margin: 0.8,
     }
 }
 
@@ -119,6 +123,98 @@ fn fused_gradients_match_stock_candle() {
         let (l3, generic) = dqn.gradients(&batch).unwrap();
         assert_eq!((l3, &generic), (l2, &plain), "the generic path's gradients are autograd's");
     }
+}
+
+/// [`transitions_of`] with every row labelled by an expert action (rows
+/// `i % 4 == 0` unlabelled), the large-margin loss on.
+fn labelled(shapes: Shapes, n: usize, seed: u64) -> Vec<f32> {
+    let (tl, ol) = (shapes.transition_len(), shapes.obs_len());
+    let mut data = transitions_of(shapes, n, seed);
+    for (i, t) in data.chunks_exact_mut(tl).enumerate() {
+        t[2 * ol + 3] = if i % 4 == 0 { NO_EXPERT } else { ((i / 2) % shapes.actions) as f32 };
+        t[2 * ol + 4] = (i % 3 == 1 && i % 4 != 0) as u8 as f32;
+    }
+    data
+}
+
+/// DQfD's large-margin loss: its gradients on the fused path (its +1/−1 on
+/// the Q-values of a* and a_E) against candle's autograd over stock ops
+/// (max, gather), with the TD loss, one shard and two, two and three
+/// actions; and without a weight the labels change nothing.
+#[test]
+fn the_margin_losss_gradients_match_stock_candle() {
+    let goal = Shapes::task(FRAMES, true, true);
+    for (seed, threads, shapes) in [(1, 1, Shapes::PAPER), (2, 2, Shapes::PAPER), (3, 2, goal)] {
+        let mut dqn = Dqn::with_shapes(cfg(true), shapes, seed, &Device::Cpu).unwrap();
+        dqn.set_threads(threads);
+        dqn.target.load_flat(&random(num_params(shapes), seed + 50, -0.1, 0.1)).unwrap();
+        let batch = labelled(shapes, 19, seed + 20);
+        let plain_batch = transitions_of(shapes, 19, seed + 20);
+        let (l0, g0) = dqn.gradients(&plain_batch).unwrap();
+        let (l_off, g_off) = dqn.gradients(&batch).unwrap();
+        assert_eq!((l0, &g0), (l_off, &g_off), "labels without a margin weight change nothing");
+        dqn.set_margin_weight(0.5);
+        let (l1, fused) = dqn.gradients(&batch).unwrap();
+        assert!(l1 > l0, "the margin adds to the loss: {l1} vs {l0}");
+        let st = dqn.stats();
+        assert_eq!(st.labelled, 14, "{st:?}");
+        assert!(st.margin_sum > 0.0, "{st:?}");
+        let plain = autograd(&dqn, &batch);
+        let l2 = dqn.loss(&batch).unwrap().to_scalar::<f32>().unwrap();
+        assert!((l1 - l2).abs() <= 1e-4 * l2.abs().max(1.0), "loss {l1} vs {l2}");
+        for (i, (name, _)) in params(shapes).iter().enumerate() {
+            close(part(&fused, shapes, i), part(&plain, shapes, i), 1e-3, name);
+        }
+        assert!(fused.iter().zip(&g0).any(|(a, b)| a != b), "the margin moves the gradient");
+    }
+}
+
+/// A learner fed only labelled transitions (no reward to tell the actions
+/// apart) makes its greedy action agree with the labels.
+#[test]
+fn a_learner_fed_only_labels_makes_its_argmax_agree_with_them() {
+    let shapes = Shapes::PAPER;
+    let (tl, ol) = (shapes.transition_len(), shapes.obs_len());
+    let mut dqn = Dqn::new(DqnConfig { lr: 3e-3, ..cfg(true) }, 7, &Device::Cpu).unwrap();
+    dqn.set_margin_weight(1.0);
+    // The label is a function of the observation: action 1 where the
+    // left half of the newest frame is nearer than the right.
+    let mut batch = random(64 * tl, 3, 0.0, 1.0);
+    let label = |t: &[f32]| {
+        let frame = &t[DEPTH_PIXELS..2 * DEPTH_PIXELS];
+        let half = |r: std::ops::Range<usize>| -> f32 {
+            (0..SIDE).flat_map(|y| r.clone().map(move |x| y * SIDE + x)).map(|i| frame[i]).sum()
+        };
+        (half(0..SIDE / 2) < half(SIDE / 2..SIDE)) as u8 as f32
+    };
+    for (i, t) in batch.chunks_exact_mut(tl).enumerate() {
+        // A bias that makes the halves differ clearly, either way.
+        let left = i % 2 == 0;
+        for y in 0..SIDE {
+            for x in 0..SIDE {
+                let v = &mut t[DEPTH_PIXELS + y * SIDE + x];
+                *v = if (x < SIDE / 2) == left { *v * 0.3 } else { 0.7 + *v * 0.3 };
+            }
+        }
+        let e = label(t);
+        t[2 * ol] = (i / 2 % 2) as f32;
+        t[2 * ol + 1] = 3.0;
+        t[2 * ol + 2] = 0.0;
+        t[2 * ol + 3] = e;
+        t[2 * ol + 4] = 1.0;
+    }
+    let agree = |dqn: &Dqn| {
+        let obs: Vec<f32> = batch.chunks_exact(tl).flat_map(|t| t[..ol].to_vec()).collect();
+        let g = dqn.online.greedy(&obs).unwrap();
+        g.iter().zip(batch.chunks_exact(tl)).filter(|(a, t)| **a as f32 == t[2 * ol + 3]).count()
+    };
+    let before = agree(&dqn);
+    for _ in 0..150 {
+        dqn.update(&batch).unwrap();
+    }
+    let after = agree(&dqn);
+    assert!(after >= 62, "greedy agrees with {after} of 64 labels (before: {before})");
+    assert!(dqn.stats().agree >= 62, "{:?}", dqn.stats());
 }
 
 /// The in-place Adam follows candle-nn's AdamW (weight decay 0) step for step.
@@ -209,6 +305,7 @@ fn gradients_match_finite_differences() {
         data[i * TRANSITION_LEN + 2 * OBS_LEN] = (i % 2) as f32;
         data[i * TRANSITION_LEN + 2 * OBS_LEN + 1] = 3.0;
         data[i * TRANSITION_LEN + 2 * OBS_LEN + 2] = if i == 3 { 1.0 } else { 0.0 };
+        data[i * TRANSITION_LEN + 2 * OBS_LEN + 3] = NO_EXPERT;
     }
     let batch = data;
     let (_, grads) = dqn.gradients(&batch).unwrap();
@@ -379,6 +476,7 @@ fn updates_reduce_the_loss_on_a_fixed_batch() {
             double: false,
             reward_scale: 1.0,
             max_grad_norm: 0.0,
+            margin: 0.8,
         },
         1,
         &dev,
@@ -389,6 +487,7 @@ fn updates_reduce_the_loss_on_a_fixed_batch() {
     for i in 0..n {
         data[i * TRANSITION_LEN + 2 * OBS_LEN] = (i % 2) as f32;
         data[i * TRANSITION_LEN + 2 * OBS_LEN + 1] = if i % 2 == 0 { 3.0 } else { -1.0 };
+        data[i * TRANSITION_LEN + 2 * OBS_LEN + 3] = NO_EXPERT;
     }
     let first = dqn.update(&data).unwrap();
     let mut last = first;

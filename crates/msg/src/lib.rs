@@ -38,6 +38,15 @@ pub const VEL_DIM: usize = 3;
 /// (`[sim.goal]`): its bearing (rad, body frame), its distance and its
 /// lateral offset (body frame), both in tens of metres.
 pub const GOAL_DIM: usize = 3;
+/// Floats after `s` and `s'` in a transition: the action taken, the
+/// (n-step) reward, done (0 or 1), the teacher's action at `s`
+/// ([`NO_EXPERT`] where it gave none) and whether the teacher flew it
+/// (1: a demonstration, 0: the student's step).
+pub const TAIL: usize = 5;
+/// The expert action of a transition or observation the teacher did not
+/// label.
+pub const NO_EXPERT: f32 = -1.0;
+
 /// Number of discrete actions of the paper's task (lateral velocity
 /// −0.25 m/s, +0.25 m/s); a task with the hold action has a third.
 pub const NUM_ACTIONS: usize = 2;
@@ -102,21 +111,22 @@ impl Shapes {
         self.obs_depth() + self.scalars
     }
 
-    /// Length of the `f32` payload of an observation batch of `agents`.
+    /// Length of the `f32` payload of an observation batch of `agents`:
+    /// their observations, rewards, done codes and expert actions.
     pub const fn obs_batch_len(self, agents: usize) -> usize {
-        agents * (self.obs_len() + 2)
+        agents * (self.obs_len() + 3)
     }
 
     /// Floats in one transition as the learner uses it: `s (obs_len) | s'
-    /// (obs_len) | action | reward | done (0 or 1)`.
+    /// (obs_len) |` the [`TAIL`] floats (action, reward, done, expert, demo).
     pub const fn transition_len(self) -> usize {
-        2 * self.obs_len() + 3
+        2 * self.obs_len() + TAIL
     }
 
-    /// `f32` scalars in one packed transition: `s`'s scalars, `s'`'s,
-    /// action, reward, done.
+    /// `f32` scalars in one packed transition: `s`'s scalars, `s'`'s, then
+    /// the [`TAIL`] floats.
     pub const fn packed_scalars(self) -> usize {
-        2 * self.scalars + 3
+        2 * self.scalars + TAIL
     }
 
     /// `u16` words in one packed transition, as transitions travel (actor →
@@ -130,7 +140,7 @@ impl Shapes {
     }
 
     /// The `i`-th scalar of a packed transition (`0..scalars` `s`'s,
-    /// `scalars..2 × scalars` `s'`'s, then action, reward, done): two `u16`
+    /// `scalars..2 × scalars` `s'`'s, then the [`TAIL`]): two `u16`
     /// words after the depth, low then high.
     #[inline]
     pub fn packed_scalar(self, p: &[u16], i: usize) -> f32 {
@@ -139,9 +149,10 @@ impl Shapes {
     }
 
     /// Packs one transition given as its parts (`s` and `s'` of
-    /// [`Shapes::obs_len`] floats each, then action, reward and done) into
-    /// `out` ([`Shapes::packed_len`] words).
-    pub fn pack(self, s: &[f32], next: &[f32], tail: [f32; 3], out: &mut [u16]) {
+    /// [`Shapes::obs_len`] floats each, then the [`TAIL`]: action, reward,
+    /// done, expert action, demonstration flag) into `out`
+    /// ([`Shapes::packed_len`] words).
+    pub fn pack(self, s: &[f32], next: &[f32], tail: [f32; TAIL], out: &mut [u16]) {
         let n = self.obs_len();
         assert!(
             s.len() == n && next.len() == n && out.len() == self.packed_len(),
@@ -191,15 +202,24 @@ impl Shapes {
     /// True when a packed transition's scalars ([`Shapes::packed_scalars`]
     /// of them, see [`Shapes::packed_scalar`]) are not what an actor writes: an
     /// action that is not one of the run's, a done flag other than 0 or 1,
-    /// or a scalar that is not finite. A torn or forged write shows here
-    /// (16-bit depth has no invalid value to look for).
+    /// an expert action that is neither [`NO_EXPERT`] nor one of the run's,
+    /// a demonstration flag other than 0 or 1 (or set without an expert
+    /// action), or a scalar that is not finite. A torn or forged write shows
+    /// here (16-bit depth has no invalid value to look for).
     pub fn scalars_corrupt(self, scalars: &[f32]) -> bool {
         if scalars.len() != self.packed_scalars() {
             return true;
         }
-        let (action, done) = (scalars[2 * self.scalars], scalars[2 * self.scalars + 2]);
-        let known = action >= 0.0 && action < self.actions as f32 && action.fract() == 0.0;
-        !known || !(done == 0.0 || done == 1.0) || scalars.iter().any(|v| !v.is_finite())
+        let tail = &scalars[2 * self.scalars..];
+        let (action, done, expert, demo) = (tail[0], tail[2], tail[3], tail[4]);
+        let one_of = |a: f32| a >= 0.0 && a < self.actions as f32 && a.fract() == 0.0;
+        let flag = |f: f32| f == 0.0 || f == 1.0;
+        !one_of(action)
+            || !flag(done)
+            || !(expert == NO_EXPERT || one_of(expert))
+            || !flag(demo)
+            || (demo == 1.0 && expert == NO_EXPERT)
+            || scalars.iter().any(|v| !v.is_finite())
     }
 
     /// Corrupt transitions (by [`Shapes::scalars_corrupt`]) in a batch of
@@ -290,7 +310,8 @@ pub const MAX_AGENTS_PER_ENV: usize = 4096;
 ///
 /// Payload: `[f32]` of length [`Shapes::obs_batch_len`]`(agents)`: `agents × obs_len`
 /// observations, then `agents` rewards, then `agents` done codes
-/// ([`DoneKind`] as `f32`). Rows of agents that were reset in this step hold the
+/// ([`DoneKind`] as `f32`), then `agents` expert actions (the teacher's
+/// action at this observation, [`NO_EXPERT`] where it gave none). Rows of agents that were reset in this step hold the
 /// first observation of their new episode.
 #[derive(Debug, Clone, Copy, Default)]
 #[cfg_attr(feature = "zero-copy", derive(ZeroCopySend), type_name("rotorhive::ObsHeader"))]
@@ -410,6 +431,13 @@ pub struct MinibatchHeader {
     /// Sum of the weight versions the `acted` transitions were acted with
     /// (the learner's policy lag is its version minus their mean).
     pub acted_version_sum: u64,
+    /// Rows drawn from the teacher's demonstrations (the first rows of the
+    /// minibatch; see `teacher.demo_batch_share`).
+    pub demo_rows: u32,
+    /// The teacher's weight now, from 1 down to 0 over
+    /// `teacher.fade_env_steps` of the replay's inserts (1 without a fade):
+    /// the learner multiplies its margin loss's weight by it.
+    pub teacher: f32,
 }
 
 /// Header of a priorities message, learner → replay (prioritized replay).
@@ -597,6 +625,30 @@ pub struct Telemetry {
     pub learning: Learning,
     /// Delivery between hosts (a worker's link).
     pub delivery: Delivery,
+    /// What the teacher did (sims and actors; zero without one).
+    pub teacher: TeacherCounts,
+}
+
+/// What a run's teacher did, cumulative since the role started: a sim
+/// fills what its planner computed and what it cost, an actor what it
+/// sent, the replay what it holds.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
+#[cfg_attr(feature = "zero-copy", derive(ZeroCopySend), type_name("rotorhive::TeacherCounts"))]
+#[repr(C)]
+pub struct TeacherCounts {
+    /// Sim: the planner's actions for the student's agents (labels).
+    pub labels: u64,
+    /// Sim: the planner's actions for the agents it flies (demonstrations).
+    pub demo_steps: u64,
+    /// Sim: nanoseconds the planner spent on labels.
+    pub label_ns: u64,
+    /// Sim: nanoseconds the planner spent on the agents it flies.
+    pub demo_ns: u64,
+    /// Actor: transitions sent flown by the teacher; replay: demonstrations
+    /// held in its reservoir.
+    pub demo_transitions: u64,
+    /// Actor: the student's transitions sent with the teacher's label.
+    pub labelled_transitions: u64,
 }
 
 /// What a worker's link says of its delivery to the head, in transitions,
@@ -822,9 +874,10 @@ mod tests {
         assert_eq!(std::mem::size_of::<ObsHeader>(), 24);
         assert_eq!(std::mem::size_of::<ActionHeader>(), 8);
         assert_eq!(std::mem::size_of::<TransitionHeader>(), 24);
-        assert_eq!(std::mem::size_of::<MinibatchHeader>(), 24);
+        assert_eq!(std::mem::size_of::<MinibatchHeader>(), 32);
         assert_eq!(std::mem::size_of::<WeightsHeader>(), 24);
-        assert_eq!(std::mem::size_of::<Telemetry>(), 160);
+        assert_eq!(std::mem::size_of::<Telemetry>(), 208);
+        assert_eq!(std::mem::size_of::<TeacherCounts>(), 48);
         assert_eq!(std::mem::size_of::<Delivery>(), 32);
         assert_eq!(std::mem::size_of::<Learning>(), 32);
         assert_eq!(std::mem::size_of::<PriorityHeader>(), 16);
@@ -835,23 +888,30 @@ mod tests {
         let shapes = Shapes::PAPER;
         let obs = vec![0.5f32; shapes.obs_len()];
         let len = shapes.packed_len();
-        let mut batch = vec![0u16; 6 * len];
-        for (t, (a, r, d)) in batch.chunks_exact_mut(len).zip([
-            (1.0, 3.0, 0.0),
-            (0.5, 3.0, 0.0),
-            (0.0, f32::NAN, 1.0),
-            (0.0, -100.0, 2.0),
-            (0.0, -100.0, 1.0),
-            (2.0, 3.0, 0.0),
+        let mut batch = vec![0u16; 11 * len];
+        for (t, (a, r, d, e, demo)) in batch.chunks_exact_mut(len).zip([
+            (1.0, 3.0, 0.0, NO_EXPERT, 0.0),
+            (1.0, 3.0, 0.0, 0.0, 1.0),
+            (0.0, 3.0, 1.0, 1.0, 0.0),
+            (0.5, 3.0, 0.0, NO_EXPERT, 0.0),
+            (0.0, f32::NAN, 1.0, NO_EXPERT, 0.0),
+            (0.0, -100.0, 2.0, NO_EXPERT, 0.0),
+            (0.0, -100.0, 1.0, NO_EXPERT, 0.0),
+            (2.0, 3.0, 0.0, NO_EXPERT, 0.0),
+            // A demonstration without the teacher's action, an expert
+            // action out of range, a flag neither 0 nor 1.
+            (0.0, 3.0, 0.0, NO_EXPERT, 1.0),
+            (0.0, 3.0, 0.0, 2.0, 0.0),
+            (0.0, 3.0, 0.0, 0.0, 0.5),
         ]) {
-            shapes.pack(&obs, &obs, [a, r, d], t);
+            shapes.pack(&obs, &obs, [a, r, d, e, demo], t);
         }
-        assert_eq!(shapes.corrupt_transitions(&batch[..len]), 0);
-        assert_eq!(shapes.corrupt_transitions(&batch), 4, "action 2 without hold");
+        assert_eq!(shapes.corrupt_transitions(&batch[..3 * len]), 0);
+        assert_eq!(shapes.corrupt_transitions(&batch), 7, "action 2 without hold");
         // With the hold action, action 2 is one of the task's.
         let hold = Shapes::task(FRAMES, false, true);
         assert_eq!(hold.packed_len(), len);
-        assert_eq!(hold.corrupt_transitions(&batch), 3);
+        assert_eq!(hold.corrupt_transitions(&batch), 5);
         assert!(!episode_corrupt(&[-100.0, 12.0, 1.0, 0.4]));
         assert!(!episode_corrupt(&[450.0, 150.0, 3.0, 0.0]));
         for bad in [
@@ -873,7 +933,7 @@ mod tests {
         let shapes = Shapes::task(4, true, true);
         let (obs_len, fd) = (shapes.obs_len(), shapes.obs_depth());
         assert_eq!(obs_len, 4 * 1024 + 6);
-        assert_eq!(shapes.packed_len(), 2 * 4 * 1024 + 2 * (2 * 6 + 3));
+        assert_eq!(shapes.packed_len(), 2 * 4 * 1024 + 2 * (2 * 6 + TAIL));
         let s: Vec<f32> = (0..obs_len)
             .map(|i| if i < fd { (i as f32 * 0.618).fract() } else { -1.5 + i as f32 })
             .collect();
@@ -881,7 +941,7 @@ mod tests {
             .map(|i| if i < fd { 1.0 - (i as f32 * 0.377).fract() } else { 0.25 * i as f32 })
             .collect();
         let mut p = vec![0u16; shapes.packed_len()];
-        shapes.pack(&s, &next, [2.0, -100.0, 1.0], &mut p);
+        shapes.pack(&s, &next, [2.0, -100.0, 1.0, 1.0, 1.0], &mut p);
         let mut t = vec![0f32; shapes.transition_len()];
         shapes.unpack(&p, &mut t);
         for (a, b) in
@@ -893,7 +953,7 @@ mod tests {
         // Scalars travel bit for bit.
         assert_eq!(&t[fd..obs_len], &s[fd..]);
         assert_eq!(&t[obs_len + fd..2 * obs_len], &next[fd..]);
-        assert_eq!(&t[2 * obs_len..], &[2.0, -100.0, 1.0]);
+        assert_eq!(&t[2 * obs_len..], &[2.0, -100.0, 1.0, 1.0, 1.0]);
         assert_eq!(
             (dequantize_depth(quantize_depth(0.0)), dequantize_depth(quantize_depth(1.0))),
             (0.0, 1.0)

@@ -234,6 +234,7 @@ fn markdown(p: &Profile, run_dir: &Path) -> Result<String> {
         )?;
     }
     learning_section(&mut out, p)?;
+    teacher_section(&mut out, run_dir)?;
     writeln!(
         out,
         "Machine CPU: {:.0} % on average over {} cores.",
@@ -281,6 +282,27 @@ fn learning_section(out: &mut String, p: &Profile) -> Result<()> {
         writeln!(
             out,
             "Exploration at the end: epsilon from {lo:.4} to {hi:.3} across the agents."
+        )?;
+    }
+    Ok(())
+}
+
+/// The teacher's cost, from the run's `summary.json` (a run still going,
+/// or one without a teacher, has none): the planner's time per action it
+/// gave, and what it gave.
+fn teacher_section(out: &mut String, run_dir: &Path) -> Result<()> {
+    let Ok(s) = crate::Summary::read(run_dir) else {
+        return Ok(());
+    };
+    if s.teacher.is_some() {
+        let ms = |v: Option<f64>| v.map_or("—".to_string(), |v| format!("{v:.3} ms"));
+        writeln!(
+            out,
+            "Teacher (the sims' planner, outside their stages): {} per label, {} per demonstrated step; {} demonstrations and {} labelled transitions sent.",
+            ms(s.teacher_ms_per_label),
+            ms(s.teacher_ms_per_demo_step),
+            s.demo_transitions,
+            s.labelled_transitions
         )?;
     }
     Ok(())

@@ -155,6 +155,23 @@ pub struct Summary {
     /// Updates skipped for a non-finite loss or gradient.
     #[serde(default)]
     pub skipped_updates: u64,
+    /// The run's `[teacher]` section as it ran (null without a teacher).
+    #[serde(default)]
+    pub teacher: Option<serde_json::Value>,
+    /// Transitions the teacher flew (demonstrations), as the actors sent them.
+    #[serde(default)]
+    pub demo_transitions: u64,
+    /// The student's transitions sent with the teacher's action.
+    #[serde(default)]
+    pub labelled_transitions: u64,
+    /// Milliseconds of the planner per label of a student's step (null
+    /// without labels).
+    #[serde(default)]
+    pub teacher_ms_per_label: Option<f64>,
+    /// Milliseconds of the planner per step of an agent it flies (null
+    /// without demonstrations).
+    #[serde(default)]
+    pub teacher_ms_per_demo_step: Option<f64>,
     /// Stopped by a signal.
     pub interrupted: bool,
     /// Continued from an earlier run (`--resume`).
@@ -246,6 +263,11 @@ mod tests {
             result_validation_episodes: Some(300),
             final_validation_success: Some(0.85),
             skipped_updates: 0,
+            teacher: None,
+            demo_transitions: 0,
+            labelled_transitions: 0,
+            teacher_ms_per_label: None,
+            teacher_ms_per_demo_step: None,
             interrupted: false,
             resumed: false,
             failure: None,
@@ -275,6 +297,9 @@ mod tests {
             "epsilon_at_threshold",
             "env_steps_to_target",
             "rejected_by_reason",
+            "teacher",
+            "demo_transitions",
+            "labelled_transitions",
         ] {
             assert!(v.get(key).is_some(), "no key {key}");
         }

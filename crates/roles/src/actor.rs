@@ -10,7 +10,7 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use rotorhive_model::QNet;
 use rotorhive_msg::{
-    ActionHeader, ActorStage, EPISODE_FIELDS, ObsHeader, RoleKind, Shapes, Telemetry,
+    ActionHeader, ActorStage, EPISODE_FIELDS, NO_EXPERT, ObsHeader, RoleKind, Shapes, Telemetry,
     TransitionHeader, WeightsHeader,
 };
 use rotorhive_transport::Channel;
@@ -162,6 +162,17 @@ struct Actor<'a, S: Service> {
     nstep: NStep,
     actions: Vec<u8>,
     prev_actions: Vec<u8>,
+    /// The teacher's action at each agent's last observation
+    /// ([`NO_EXPERT`] where none), and whether it flew the agent there.
+    prev_experts: Vec<f32>,
+    prev_flown: Vec<bool>,
+    /// Agents the teacher flies (the first ones; 0 without a teacher).
+    demo_agents: usize,
+    /// Whether the teacher flew any step of each agent's current episode,
+    /// and of the one it finished last: those are not the student's
+    /// episodes, and are not reported.
+    episode_flown: Vec<bool>,
+    ended_flown: Vec<bool>,
     have_prev: bool,
     expected_step: u64,
     returns: Vec<f32>,
@@ -210,6 +221,11 @@ impl<'a, S: Service> Actor<'a, S> {
             nstep: NStep::new(steps_n, cfg.learner.gamma as f32, n, shapes.obs_len()),
             actions: vec![0; n],
             prev_actions: vec![0; n],
+            prev_experts: vec![NO_EXPERT; n],
+            prev_flown: vec![false; n],
+            demo_agents: cfg.teacher.demo_agents(),
+            episode_flown: vec![false; n],
+            ended_flown: vec![false; n],
             returns: vec![0.0; n],
             lengths: vec![0; n],
             finished: Vec::with_capacity(EPISODE_FIELDS * n),
@@ -258,7 +274,8 @@ impl<'a, S: Service> Actor<'a, S> {
         }
         self.expected_step = h.step + 1;
         let (obs, rest) = p.split_at(n * self.shapes.obs_len());
-        let (rewards, dones) = rest.split_at(n);
+        let (rewards, rest) = rest.split_at(n);
+        let (dones, experts) = rest.split_at(n);
         if !self.wait_weights(h.step)? {
             return Ok(false);
         }
@@ -276,8 +293,18 @@ impl<'a, S: Service> Actor<'a, S> {
             if dones[i] != 0.0 {
                 self.ended_eps[i] = self.episode_eps[i];
                 self.episode_eps[i] = 0.0;
+                self.ended_flown[i] = self.episode_flown[i];
+                self.episode_flown[i] = false;
             }
             self.episode_eps[i] = self.episode_eps[i].max(eps);
+            // The teacher's agents fly its action (while it gives one).
+            let expert = experts[i];
+            let flown = i < self.demo_agents && expert != NO_EXPERT;
+            if flown {
+                self.actions[i] = expert as u8;
+                self.episode_flown[i] = true;
+            }
+            self.prev_flown[i] = flown;
         }
         self.tel.sample.time_stage(ActorStage::Inference, t);
         // The actions leave first; then this step's transitions (round
@@ -304,6 +331,7 @@ impl<'a, S: Service> Actor<'a, S> {
         self.tel.sample.time_stage(ActorStage::Assemble, t);
         self.nstep.store(obs);
         self.prev_actions.copy_from_slice(&self.actions);
+        self.prev_experts.copy_from_slice(experts);
         self.have_prev = true;
         self.tel.sample.work = self.transitions;
         self.tel.sample.work2 = self.episodes;
@@ -347,7 +375,11 @@ impl<'a, S: Service> Actor<'a, S> {
     /// deterministic run sends every round, empty or not: the replay
     /// inserts rounds whole.
     fn send_transitions(&mut self, obs: &[f32], rewards: &[f32], dones: &[f32]) -> Result<()> {
-        self.nstep.push(&self.prev_actions, rewards, dones);
+        self.nstep.push(
+            Taken { actions: &self.prev_actions, experts: &self.prev_experts, flown: &self.prev_flown },
+            rewards,
+            dones,
+        );
         let count = self.nstep.out.len();
         if count == 0 && self.schedule.is_none() {
             return Ok(());
@@ -370,7 +402,13 @@ impl<'a, S: Service> Actor<'a, S> {
             *th = header;
             for (o, t) in out.chunks_exact_mut(shapes.packed_len()).zip(&nstep.out) {
                 let next = &obs[t.agent * ol..(t.agent + 1) * ol];
-                let tail = [t.action as f32, t.ret, if t.done { 1.0 } else { 0.0 }];
+                let tail = [
+                    t.action as f32,
+                    t.ret,
+                    if t.done { 1.0 } else { 0.0 },
+                    t.expert,
+                    if t.demo { 1.0 } else { 0.0 },
+                ];
                 shapes.pack(nstep.obs(t.slot, t.agent), next, tail, o);
             }
         });
@@ -378,6 +416,11 @@ impl<'a, S: Service> Actor<'a, S> {
             Ok(true) => {
                 self.seq += 1;
                 self.transitions += count as u64;
+                let tc = &mut self.tel.sample.teacher;
+                for t in &self.nstep.out {
+                    tc.demo_transitions += t.demo as u64;
+                    tc.labelled_transitions += (!t.demo && t.expert != NO_EXPERT) as u64;
+                }
             }
             Ok(false) if self.schedule.is_some() => {
                 protocol_err!(
@@ -408,7 +451,11 @@ impl<'a, S: Service> Actor<'a, S> {
         for i in 0..self.n {
             self.returns[i] += rewards[i];
             self.lengths[i] += 1;
-            if dones[i] != 0.0 {
+            if dones[i] != 0.0 && self.ended_flown[i] {
+                // The teacher's episode, not the student's.
+                self.returns[i] = 0.0;
+                self.lengths[i] = 0;
+            } else if dones[i] != 0.0 {
                 self.finished.extend_from_slice(&[
                     self.returns[i],
                     self.lengths[i] as f32,
@@ -461,7 +508,8 @@ fn take_weights<S: Service>(
 
 /// One n-step transition ready to leave: the agent, the ring slot of its
 /// first observation, the action taken there, the discounted return of up
-/// to n rewards, and whether the episode ended within them.
+/// to n rewards, whether the episode ended within them, and the teacher's
+/// action there and whether it flew it.
 #[derive(Debug, Clone, Copy)]
 pub struct Ready {
     /// The agent.
@@ -474,6 +522,34 @@ pub struct Ready {
     pub ret: f32,
     /// Whether the episode ended within them.
     pub done: bool,
+    /// The teacher's action at the first observation ([`NO_EXPERT`]: none).
+    pub expert: f32,
+    /// Whether the teacher flew that step (a demonstration).
+    pub demo: bool,
+}
+
+/// What every agent did at its last observation: the action taken, the
+/// teacher's action there ([`NO_EXPERT`]: none) and whether the teacher
+/// flew it.
+#[derive(Debug, Clone, Copy)]
+pub struct Taken<'a> {
+    /// The actions taken.
+    pub actions: &'a [u8],
+    /// The teacher's actions.
+    pub experts: &'a [f32],
+    /// Whether the teacher flew each agent.
+    pub flown: &'a [bool],
+}
+
+/// A step waiting in [`NStep`]: its ring slot, action, reward, the
+/// teacher's action and whether the teacher flew it.
+#[derive(Debug, Clone, Copy)]
+struct Pending {
+    slot: usize,
+    action: u8,
+    reward: f32,
+    expert: f32,
+    demo: bool,
 }
 
 /// n-step returns (as in Ape-X): the last n observations of every agent in
@@ -489,7 +565,7 @@ pub struct NStep {
     ring: Vec<f32>,
     /// Slot of the newest stored observation batch.
     slot: usize,
-    queue: Vec<std::collections::VecDeque<(usize, u8, f32)>>,
+    queue: Vec<std::collections::VecDeque<Pending>>,
     /// The transitions the last [`NStep::push`] released.
     pub out: Vec<Ready>,
 }
@@ -531,33 +607,36 @@ impl NStep {
 
     /// Records the outcome of the last actions and fills `out` with the
     /// transitions that can leave now.
-    pub fn push(&mut self, actions: &[u8], rewards: &[f32], dones: &[f32]) {
+    pub fn push(&mut self, taken: Taken<'_>, rewards: &[f32], dones: &[f32]) {
         self.out.clear();
         for i in 0..self.agents {
             let q = &mut self.queue[i];
-            q.push_back((self.slot, actions[i], rewards[i]));
-            let ret = |q: &std::collections::VecDeque<(usize, u8, f32)>, from: usize| {
-                q.iter().skip(from).rev().fold(0.0f32, |acc, e| e.2 + self.gamma * acc)
+            q.push_back(Pending {
+                slot: self.slot,
+                action: taken.actions[i],
+                reward: rewards[i],
+                expert: taken.experts[i],
+                demo: taken.flown[i],
+            });
+            let ret = |q: &std::collections::VecDeque<Pending>, from: usize| {
+                q.iter().skip(from).rev().fold(0.0f32, |acc, e| e.reward + self.gamma * acc)
+            };
+            let ready = |k: usize, done: bool| Ready {
+                agent: i,
+                slot: q[k].slot,
+                action: q[k].action,
+                ret: ret(q, k),
+                done,
+                expert: q[k].expert,
+                demo: q[k].demo,
             };
             if dones[i] != 0.0 {
                 for k in 0..q.len() {
-                    self.out.push(Ready {
-                        agent: i,
-                        slot: q[k].0,
-                        action: q[k].1,
-                        ret: ret(q, k),
-                        done: true,
-                    });
+                    self.out.push(ready(k, true));
                 }
                 q.clear();
             } else if q.len() == self.n {
-                self.out.push(Ready {
-                    agent: i,
-                    slot: q[0].0,
-                    action: q[0].1,
-                    ret: ret(q, 0),
-                    done: false,
-                });
+                self.out.push(ready(0, false));
                 q.pop_front();
             }
         }
@@ -578,7 +657,7 @@ pub struct Gather {
 impl Gather {
     /// A gatherer of `n` agents' observations of `len` floats.
     pub fn new(n: usize, len: usize) -> Self {
-        Self { n, len, buf: vec![0.0; n * (len + 2)], step: u64::MAX, have: 0 }
+        Self { n, len, buf: vec![0.0; n * (len + 3)], step: u64::MAX, have: 0 }
     }
 
     /// Copies in the agents of one message; true once all agents of its
@@ -593,7 +672,8 @@ impl Gather {
         let (g, l) = (&mut self.buf, self.len);
         g[a * l..(a + k) * l].copy_from_slice(&src[..k * l]);
         g[n * l + a..n * l + a + k].copy_from_slice(&src[k * l..k * l + k]);
-        g[n * l + n + a..n * l + n + a + k].copy_from_slice(&src[k * l + k..]);
+        g[n * l + n + a..n * l + n + a + k].copy_from_slice(&src[k * l + k..k * l + 2 * k]);
+        g[n * l + 2 * n + a..n * l + 2 * n + a + k].copy_from_slice(&src[k * l + 2 * k..]);
         self.have += k;
         if self.have < n {
             return false;
@@ -602,7 +682,7 @@ impl Gather {
         true
     }
 
-    /// The gathered batch: observations, rewards, dones.
+    /// The gathered batch: observations, rewards, dones, expert actions.
     pub fn batch(&self) -> &[f32] {
         &self.buf
     }
@@ -661,6 +741,38 @@ mod tests {
         assert!(out.iter().all(|v| (*v - cfg.actor.eps_end).abs() < 1e-12), "{out:?}");
     }
 
+    /// The student's own steps, unlabelled.
+    fn student(actions: &[u8]) -> Taken<'_> {
+        const NONE: [f32; 2] = [NO_EXPERT; 2];
+        Taken { actions, experts: &NONE[..actions.len()], flown: &[false; 2][..actions.len()] }
+    }
+
+    #[test]
+    fn n_step_transitions_carry_the_teachers_action_of_their_first_step() {
+        let len = Shapes::PAPER.obs_len();
+        let mut s = NStep::new(2, 0.5, 2, len);
+        s.store(&vec![0.0; 2 * len]);
+        // Agent 0 is flown by the teacher (action 1, its own); agent 1 is
+        // the student's, labelled 0 where it took 1.
+        let step = |s: &mut NStep, e: [f32; 2], done: f32| {
+            s.push(
+                Taken { actions: &[1, 1], experts: &e, flown: &[true, false] },
+                &[3.0, 3.0],
+                &[done, done],
+            );
+            s.out.iter().map(|t| (t.agent, t.expert, t.demo)).collect::<Vec<_>>()
+        };
+        assert!(step(&mut s, [1.0, 0.0], 0.0).is_empty());
+        s.store(&vec![1.0; 2 * len]);
+        // The next step's labels do not leak into the first transition.
+        assert_eq!(step(&mut s, [0.0, NO_EXPERT], 0.0), vec![(0, 1.0, true), (1, 0.0, false)]);
+        s.store(&vec![2.0; 2 * len]);
+        assert_eq!(
+            step(&mut s, [1.0, 1.0], 1.0),
+            vec![(0, 0.0, true), (0, 1.0, true), (1, NO_EXPERT, false), (1, 1.0, false)]
+        );
+    }
+
     #[test]
     fn n_step_returns_and_episode_ends() {
         let len = Shapes::PAPER.obs_len();
@@ -671,20 +783,20 @@ mod tests {
         // 1 + 0.5·2 + 0.25·4 = 3, from observation 0, not done.
         let mut left = Vec::new();
         for (k, r) in [1.0, 2.0, 4.0].into_iter().enumerate() {
-            s.push(&[k as u8 % 2], &[r], &[0.0]);
+            s.push(student(&[k as u8 % 2]), &[r], &[0.0]);
             left.extend(s.out.iter().map(|t| (s.obs(t.slot, 0)[0], t.action, t.ret, t.done)));
             s.store(&obs(k as f32 + 1.0));
         }
         assert_eq!(left, vec![(0.0, 0, 3.0, false)]);
         // The episode ends with reward −8: the two pending steps and this
         // one leave as done: 2 + 0.5·4 + 0.25·(−8) = 2, 4 − 4 = 0, −8.
-        s.push(&[1], &[-8.0], &[1.0]);
+        s.push(student(&[1]), &[-8.0], &[1.0]);
         let got: Vec<_> = s.out.iter().map(|t| (s.obs(t.slot, 0)[0], t.ret, t.done)).collect();
         assert_eq!(got, vec![(1.0, 2.0, true), (2.0, 0.0, true), (3.0, -8.0, true)]);
         // One-step returns are the plain transitions.
         let mut one = NStep::new(1, 0.99, 2, len);
         one.store(&[obs(5.0), obs(6.0)].concat());
-        one.push(&[0, 1], &[3.0, -100.0], &[0.0, 1.0]);
+        one.push(student(&[0, 1]), &[3.0, -100.0], &[0.0, 1.0]);
         let got: Vec<_> =
             one.out.iter().map(|t| (t.agent, one.obs(t.slot, t.agent)[0], t.ret, t.done)).collect();
         assert_eq!(got, vec![(0, 5.0, 3.0, false), (1, 6.0, -100.0, true)]);

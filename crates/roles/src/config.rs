@@ -88,6 +88,8 @@ pub struct Config {
     pub eval: EvalSection,
     /// Hosts of the run (`hive train --listen`, `hive worker`).
     pub cluster: ClusterSection,
+    /// The privileged teacher (none by default).
+    pub teacher: crate::teacher::TeacherSection,
 }
 
 /// `[cluster]`: a run across hosts. The head (`hive train --listen`) waits
@@ -405,6 +407,7 @@ impl Default for Config {
             learner: LearnerSection::default(),
             eval: EvalSection::default(),
             cluster: ClusterSection::default(),
+            teacher: crate::teacher::TeacherSection::default(),
         }
     }
 }
@@ -752,6 +755,7 @@ impl Config {
     fn validate_learning(&self) -> Result<()> {
         self.validate_actor()?;
         self.validate_replay()?;
+        self.teacher.validate(self.sim.agents, self.replay.prioritized)?;
         self.validate_learner()
     }
 

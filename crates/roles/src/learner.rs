@@ -31,6 +31,7 @@ pub fn dqn_config(cfg: &Config) -> DqnConfig {
         double: l.double_dqn,
         reward_scale: l.reward_scale as f32,
         max_grad_norm: l.max_grad_norm as f32,
+        margin: cfg.teacher.margin as f32,
     }
 }
 
@@ -135,6 +136,12 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
         let (batch, picks) = (&mut mb_in.batch, &mut mb_in.picks);
         unpack_batch(cfg.shapes(), msg.payload(), mb.batch as usize, batch, picks)?;
         drop(msg);
+        // DQfD's large-margin loss, at the teacher's weight now (the
+        // replay's fade; 0 without a teacher: the plain update).
+        if cfg.teacher.on() {
+            let fade = if mb.teacher.is_finite() { mb.teacher.clamp(0.0, 1.0) } else { 0.0 };
+            dqn.set_margin_weight(cfg.teacher.weight as f32 * fade);
+        }
         let loss = mb_in.learn(&mut dqn, mb.seq, cfg.deterministic, &mut tel.sample.lost)?;
         let tm = dqn.timing();
         tel.sample.add_stage(LearnerStage::Forward, tm.forward_ns);

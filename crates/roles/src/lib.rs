@@ -17,6 +17,7 @@ pub mod replay;
 pub mod schedule;
 pub mod seeds;
 pub mod sim;
+pub mod teacher;
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;

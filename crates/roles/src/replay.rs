@@ -25,6 +25,8 @@ struct Memory<'a, S: Service> {
     hub: &'a rotorhive_transport::Hub<S>,
     mem: Replay,
     journal: Option<Journal>,
+    /// The teacher's demonstrations, kept apart (`teacher.demo_agents`).
+    demos: Option<Demos>,
     rx: rotorhive_transport::Receiver<S, u16, TransitionHeader>,
     tx: rotorhive_transport::Sender<S, u16, MinibatchHeader>,
     tel: Counters<S>,
@@ -40,6 +42,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     let (cfg, hub) = (cx.cfg, cx.hub);
     let r = &cfg.replay;
     let (mut mem, journal) = open_memory(cfg, cx.run_dir)?;
+    let demos = open_demos(cfg, cx.run_dir)?;
     if r.prioritized {
         mem.set_prioritized(r.priority_alpha, r.priority_eps);
     }
@@ -60,13 +63,30 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     let picks = vec![Pick::default(); r.batch];
     let last_sync = Instant::now();
     let mut m =
-        Memory { cfg, hub, mem, journal, rx, tx, tel, receipts, seq_log, prio, picks, last_sync };
+        Memory {
+            cfg,
+            hub,
+            mem,
+            journal,
+            demos,
+            rx,
+            tx,
+            tel,
+            receipts,
+            seq_log,
+            prio,
+            picks,
+            last_sync,
+        };
     if cfg.deterministic {
         m.run_scheduled()?
     } else {
         m.run_free()?
     }
     if let Some(j) = &m.journal {
+        j.sync()?;
+    }
+    if let Some(j) = m.demos.as_ref().and_then(|d| d.journal.as_ref()) {
         j.sync()?;
     }
     m.tel.tick(true, Telemetry::beat);
@@ -97,15 +117,15 @@ impl<S: Service> Memory<'_, S> {
                 };
                 let lost = &mut self.tel.sample.lost;
                 let seen = (&mut next_seq, lost);
-                ingest(&m, self.cfg.shapes(), &mut self.mem, self.journal.as_mut(), seen)?;
+                ingest(&m, self.cfg.shapes(), self.stores(), seen)?;
                 self.receipts.took(m.user_header());
                 self.seq_log.record(m.user_header());
                 got = true;
             }
             self.tel.sample.time_stage(ReplayStage::Insert, t);
-            let ready = self.mem.len() >= r.min_fill.max(r.batch);
+            let ready = self.ready();
             let mut sent = false;
-            if ready && limit.allows(mb_seq, self.mem.inserted()) && Instant::now() >= backoff_until
+            if ready && limit.allows(mb_seq, self.inserted()) && Instant::now() >= backoff_until
             {
                 match self.send_fresh(mb_seq)? {
                     true => {
@@ -123,7 +143,7 @@ impl<S: Service> Memory<'_, S> {
                 if let Some(m) = self.rx.recv_timeout(wait).doing("waiting for transitions")? {
                     let lost = &mut self.tel.sample.lost;
                     let seen = (&mut next_seq, lost);
-                    ingest(&m, self.cfg.shapes(), &mut self.mem, self.journal.as_mut(), seen)?;
+                    ingest(&m, self.cfg.shapes(), self.stores(), seen)?;
                     self.receipts.took(m.user_header());
                     self.seq_log.record(m.user_header());
                 }
@@ -133,15 +153,49 @@ impl<S: Service> Memory<'_, S> {
         Ok(())
     }
 
+    /// The memories as [`store`] fills them.
+    fn stores(&mut self) -> Stores<'_> {
+        Stores { mem: &mut self.mem, journal: self.journal.as_mut(), demos: self.demos.as_mut() }
+    }
+
+    /// Transitions inserted so far, demonstrations included.
+    fn inserted(&self) -> u64 {
+        self.mem.inserted() + self.demos.as_ref().map_or(0, |d| d.mem.inserted())
+    }
+
+    /// Whether the memory holds enough to sample: `min_fill` transitions
+    /// (demonstrations included) and a minibatch of the student's.
+    fn ready(&self) -> bool {
+        let r = &self.cfg.replay;
+        let demos = self.demos.as_ref().map_or(0, |d| d.mem.len());
+        self.mem.len() + demos >= r.min_fill.max(r.batch) && self.mem.len() >= r.batch
+    }
+
+    /// The minibatch's rows drawn from the demonstrations now (fading with
+    /// the run's inserts), and the teacher's weight.
+    fn demo_rows(&self) -> (usize, f32) {
+        let t = &self.cfg.teacher;
+        let fade = t.fade(self.inserted());
+        let rows = match &self.demos {
+            Some(d) if !d.mem.is_empty() => {
+                (t.demo_batch_share * fade * self.cfg.replay.batch as f64).round() as usize
+            }
+            _ => 0,
+        };
+        (rows.min(self.cfg.replay.batch), fade as f32)
+    }
+
     /// Samples minibatch `seq` straight into a loan and sends it; false when
     /// the learner's queue stayed full.
     fn send_fresh(&mut self, seq: u64) -> Result<bool> {
         let (batch, beta) = (self.cfg.replay.batch, self.cfg.replay.priority_beta);
         let t = Instant::now();
+        let (demo_rows, teacher) = self.demo_rows();
         let (mem, picks) = (&mut self.mem, &mut self.picks);
+        let demos = self.demos.as_mut().map(|d| &mut d.mem);
         let res = self.tx.send_with(minibatch_len(self.cfg.shapes(), batch), |h, out| {
-            let acted = sample(mem, out, picks, beta);
-            *h = minibatch_header(batch, seq, acted);
+            let acted = sample(mem, demos, demo_rows, out, picks, beta);
+            *h = minibatch_header(batch, seq, acted, (demo_rows, teacher));
         });
         self.tel.sample.time_stage(ReplayStage::Sample, t);
         sent_or_stalled(res)
@@ -154,6 +208,7 @@ impl<S: Service> Memory<'_, S> {
         self.tel.sample.work = self.mem.inserted();
         self.tel.sample.work2 = minibatches;
         self.tel.sample.value_milli = self.mem.len() as i64;
+        self.tel.sample.teacher.demo_transitions = self.demos.as_ref().map_or(0, |d| d.mem.len()) as u64;
         self.tel.tick(false, Telemetry::beat);
         Ok(())
     }
@@ -280,11 +335,27 @@ pub fn minibatch_len(shapes: Shapes, batch: usize) -> usize {
     batch * (shapes.packed_len() + PICK_WORDS)
 }
 
-/// Samples a minibatch into a message's payload: the rows, then each row's
-/// pick (its place and importance weight).
-fn sample(mem: &mut Replay, out: &mut [u16], picks: &mut [Pick], beta: f64) -> Acted {
-    let (rows, tail) = out.split_at_mut(picks.len() * mem.width());
-    let acted = mem.sample_into(rows, picks, beta);
+/// Samples a minibatch into a message's payload: the rows (the first
+/// `demo_rows` from the demonstrations, the rest from the student's
+/// memory), then each row's pick (its place and importance weight).
+fn sample(
+    mem: &mut Replay,
+    demos: Option<&mut Replay>,
+    demo_rows: usize,
+    out: &mut [u16],
+    picks: &mut [Pick],
+    beta: f64,
+) -> Acted {
+    let w = mem.width();
+    let (rows, tail) = out.split_at_mut(picks.len() * w);
+    let (demo_out, own) = rows.split_at_mut(demo_rows * w);
+    let (demo_picks, own_picks) = picks.split_at_mut(demo_rows);
+    let mut acted = mem.sample_into(own, own_picks, beta);
+    if let Some(d) = demos.filter(|_| demo_rows > 0) {
+        let a = d.sample_into(demo_out, demo_picks, beta);
+        acted.known += a.known;
+        acted.version_sum += a.version_sum;
+    }
     for (p, w) in picks.iter().zip(tail.chunks_exact_mut(PICK_WORDS)) {
         p.pack(w);
     }
@@ -363,6 +434,31 @@ fn apply(mem: &mut Replay, words: &[u16], counts: &mut rotorhive_msg::Learning) 
             counts.stale_priorities += 1;
         }
     }
+}
+
+/// The teacher's demonstrations, apart from the student's transitions (which
+/// never overwrite them), and their journal.
+struct Demos {
+    mem: Replay,
+    journal: Option<Journal>,
+}
+
+/// The demonstrations' reservoir of a run whose teacher flies agents,
+/// written through to RUN_DIR/replay-demo.bin as the memory is.
+fn open_demos(cfg: &crate::config::Config, run_dir: Option<&std::path::Path>) -> Result<Option<Demos>> {
+    let t = &cfg.teacher;
+    if !t.demos() {
+        return Ok(None);
+    }
+    let (width, seed) = (cfg.shapes().packed_len(), crate::seeds::demos(cfg.seed));
+    Ok(Some(match run_dir {
+        Some(d) if cfg.replay.snapshot_every_s > 0.0 => {
+            let (mem, j) = Journal::open(&d.join("replay-demo.bin"), t.demo_capacity, width, seed)
+                .doing("restoring the demonstrations")?;
+            Demos { mem, journal: Some(j) }
+        }
+        _ => Demos { mem: Replay::new(t.demo_capacity, width, seed), journal: None },
+    }))
 }
 
 /// The memory, written through to RUN_DIR/replay.bin as it changes: a
@@ -449,7 +545,7 @@ impl<S: Service> Memory<'_, S> {
         let (mut rounds, mut sent) = (0u64, 0u64);
         // The next minibatch, sampled once and offered until the learner takes it.
         let mut minibatch = vec![0u16; minibatch_len(cfg.shapes(), batch)];
-        let mut drawn: Option<Acted> = None;
+        let mut drawn: Option<(Acted, (usize, f32))> = None;
         // A minibatch sent before the learner subscribes would be lost.
         while self.tx.receivers() == 0 && !self.hub.shutdown_requested() {
             std::thread::sleep(Duration::from_millis(10));
@@ -471,16 +567,20 @@ impl<S: Service> Memory<'_, S> {
                 && self.prio.ready_for(sent, &mut self.mem, &mut self.tel.sample.learning)?
             {
                 let beta = cfg.replay.priority_beta;
-                drawn = Some(sample(&mut self.mem, &mut minibatch, &mut self.picks, beta));
+                let (rows, teacher) = self.demo_rows();
+                let demos = self.demos.as_mut().map(|d| &mut d.mem);
+                let acted = sample(&mut self.mem, demos, rows, &mut minibatch, &mut self.picks, beta);
+                drawn = Some((acted, (rows, teacher)));
             }
-            if let Some(acted) = drawn {
-                if self.send_copy(&minibatch, sent, acted)? {
+            if let Some((acted, demo)) = drawn {
+                if self.send_copy(&minibatch, sent, acted, demo)? {
                     sent += 1;
                     drawn = None;
                     busy = true;
                 }
             } else if !owed && rounds < schedule.rounds() && pending.iter().all(|q| !q.is_empty()) {
-                insert_round(&mut pending, &mut self.mem, self.journal.as_mut())?;
+                let shapes = cfg.shapes();
+                insert_round(&mut pending, shapes, self.stores())?;
                 rounds += 1;
                 busy = true;
             }
@@ -513,12 +613,18 @@ impl<S: Service> Memory<'_, S> {
 
     /// Offers a drawn minibatch (number `seq`); false when the learner's
     /// queue stayed full.
-    fn send_copy(&mut self, minibatch: &[u16], seq: u64, acted: Acted) -> Result<bool> {
+    fn send_copy(
+        &mut self,
+        minibatch: &[u16],
+        seq: u64,
+        acted: Acted,
+        demo: (usize, f32),
+    ) -> Result<bool> {
         let batch = self.cfg.replay.batch;
         let t = Instant::now();
         let res = self.tx.send_with(minibatch.len(), |h, o| {
             o.copy_from_slice(minibatch);
-            *h = minibatch_header(batch, seq, acted);
+            *h = minibatch_header(batch, seq, acted, demo);
         });
         self.tel.sample.time_stage(ReplayStage::Sample, t);
         sent_or_stalled(res)
@@ -529,12 +635,12 @@ impl<S: Service> Memory<'_, S> {
 /// pending batch, in environment order.
 fn insert_round(
     pending: &mut [VecDeque<(u64, Vec<u16>)>],
-    mem: &mut Replay,
-    mut journal: Option<&mut Journal>,
+    shapes: Shapes,
+    mut stores: Stores<'_>,
 ) -> Result<()> {
     for q in pending {
         let (version, batch) = q.pop_front().unwrap_or_default();
-        store(mem, journal.as_deref_mut(), &batch, version)?;
+        store(stores.reborrow(), shapes, &batch, version)?;
     }
     Ok(())
 }
@@ -591,14 +697,13 @@ const INGEST_PER_LOOP: usize = 4;
 fn ingest<S: Service>(
     m: &rotorhive_transport::Msg<S, u16, TransitionHeader>,
     shapes: Shapes,
-    mem: &mut Replay,
-    journal: Option<&mut Journal>,
+    stores: Stores<'_>,
     (next_seq, lost): (&mut SeqTracker, &mut u64),
 ) -> Result<()> {
     if !check(m, shapes, next_seq, lost) {
         return Ok(());
     }
-    store(mem, journal, m.payload(), m.user_header().weight_version)
+    store(stores, shapes, m.payload(), m.user_header().weight_version)
 }
 
 /// Syncs the journal to disk every `replay.snapshot_every_s`.
@@ -616,14 +721,54 @@ fn sync_due(
     Ok(())
 }
 
+/// Where [`store`] puts transitions: the memory and its journal, and the
+/// demonstrations' reservoir where the run has one.
+struct Stores<'a> {
+    mem: &'a mut Replay,
+    journal: Option<&'a mut Journal>,
+    demos: Option<&'a mut Demos>,
+}
+
+impl Stores<'_> {
+    fn reborrow(&mut self) -> Stores<'_> {
+        Stores {
+            mem: self.mem,
+            journal: self.journal.as_deref_mut(),
+            demos: self.demos.as_deref_mut(),
+        }
+    }
+}
+
 /// Inserts a transition batch acted with weight version `version` and
-/// records it in the journal.
-fn store(
-    mem: &mut Replay,
-    journal: Option<&mut Journal>,
-    batch: &[u16],
-    version: u64,
-) -> Result<()> {
+/// records it in the journal; with a reservoir, the demonstrations go
+/// there (each run of consecutive rows of one kind in one insert).
+fn store(stores: Stores<'_>, shapes: Shapes, batch: &[u16], version: u64) -> Result<()> {
+    let Stores { mem, mut journal, demos } = stores;
+    let w = mem.width();
+    let Some(demos) = demos else {
+        return insert(mem, journal, batch, version);
+    };
+    let flag = 2 * shapes.scalars + 4;
+    let is_demo = |r: &[u16]| shapes.packed_scalar(r, flag) == 1.0;
+    let mut rows = batch.chunks_exact(w).enumerate().peekable();
+    while let Some((start, first)) = rows.next() {
+        let demo = is_demo(first);
+        let mut end = start + 1;
+        while rows.next_if(|(_, r)| is_demo(r) == demo).is_some() {
+            end += 1;
+        }
+        let part = &batch[start * w..end * w];
+        if demo {
+            insert(&mut demos.mem, demos.journal.as_mut(), part, version)?;
+        } else {
+            insert(mem, journal.as_deref_mut(), part, version)?;
+        }
+    }
+    Ok(())
+}
+
+/// Inserts transitions into one memory and records them in its journal.
+fn insert(mem: &mut Replay, journal: Option<&mut Journal>, batch: &[u16], version: u64) -> Result<()> {
     if batch.is_empty() {
         return Ok(());
     }
@@ -634,20 +779,88 @@ fn store(
     Ok(())
 }
 
-/// The header of minibatch `seq` of `batch` transitions just sampled.
-fn minibatch_header(batch: usize, seq: u64, acted: Acted) -> MinibatchHeader {
+/// The header of minibatch `seq` of `batch` transitions just sampled, of
+/// which `demo.0` demonstrations, with the teacher's weight `demo.1`.
+fn minibatch_header(batch: usize, seq: u64, acted: Acted, demo: (usize, f32)) -> MinibatchHeader {
     MinibatchHeader {
         batch: batch as u32,
         acted: acted.known,
         seq,
         acted_version_sum: acted.version_sum,
+        demo_rows: demo.0 as u32,
+        teacher: demo.1,
     }
 }
 
 #[cfg(test)]
 mod tests {
-    use super::{SampleLimit, SeqLog};
-    use rotorhive_msg::TransitionHeader;
+    use super::{Demos, SampleLimit, SeqLog, Stores, sample, store};
+    use rotorhive_msg::{NO_EXPERT, PICK_WORDS, Shapes, TransitionHeader};
+    use rotorhive_replay::{Journal, Pick, Replay};
+
+    /// Packed transitions whose reward is their number, each a
+    /// demonstration (expert 1, flag 1) where `demo(i)`, else the student's.
+    fn rows(from: u32, n: u32, demo: impl Fn(u32) -> bool) -> Vec<u16> {
+        let shapes = Shapes::PAPER;
+        let obs = vec![0.5f32; shapes.obs_len()];
+        let mut out = vec![0u16; n as usize * shapes.packed_len()];
+        for (k, t) in out.chunks_exact_mut(shapes.packed_len()).enumerate() {
+            let i = from + k as u32;
+            let tail = if demo(i) {
+                [1.0, i as f32, 0.0, 1.0, 1.0]
+            } else {
+                [0.0, i as f32, 0.0, NO_EXPERT, 0.0]
+            };
+            shapes.pack(&obs, &obs, tail, t);
+        }
+        out
+    }
+
+    #[test]
+    fn demonstrations_survive_a_full_replay_and_fill_their_share_of_a_batch() {
+        let shapes = Shapes::PAPER;
+        let w = shapes.packed_len();
+        let dir = std::env::temp_dir().join(format!("rotorhive-demos-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let (mut mem, mut journal) = Journal::open(&dir.join("replay.bin"), 50, w, 1).unwrap();
+        let path = dir.join("replay-demo.bin");
+        let (dm, dj) = Journal::open(&path, 20, w, 2).unwrap();
+        let mut demos = Demos { mem: dm, journal: Some(dj) };
+        // Mixed batches: every fifth row a demonstration, 12 of them.
+        let mixed = rows(0, 60, |i| i % 5 == 0);
+        let stores = |mem: &'_ mut Replay, j: &'_ mut Journal, d: &'_ mut Demos| Stores {
+            mem,
+            journal: Some(j),
+            demos: Some(d),
+        };
+        store(stores(&mut mem, &mut journal, &mut demos), shapes, &mixed, 3).unwrap();
+        assert_eq!((mem.len(), demos.mem.len()), (48, 12));
+        // Then the student's rows alone, twenty times the memory's size.
+        for k in 0..20 {
+            let own = rows(1000 + 50 * k, 50, |_| false);
+            store(stores(&mut mem, &mut journal, &mut demos), shapes, &own, 4).unwrap();
+        }
+        assert_eq!((mem.len(), demos.mem.len()), (50, 12), "the demonstrations are all there");
+        // A minibatch of 8 with 3 demonstration rows: those first, drawn
+        // from the reservoir, the rest the student's.
+        let mut out = vec![0u16; 8 * (w + PICK_WORDS)];
+        let mut picks = vec![Pick::default(); 8];
+        sample(&mut mem, Some(&mut demos.mem), 3, &mut out, &mut picks, 0.4);
+        let flag = |r: &[u16]| shapes.packed_scalar(r, 2 * shapes.scalars + 4);
+        let reward = |r: &[u16]| shapes.packed_scalar(r, 2 * shapes.scalars + 1);
+        for (k, r) in out[..8 * w].chunks_exact(w).enumerate() {
+            if k < 3 {
+                assert!(flag(r) == 1.0 && reward(r) < 60.0 && reward(r) as u32 % 5 == 0);
+            } else {
+                assert!(flag(r) == 0.0 && reward(r) >= 1950.0, "row {k}: {}", reward(r));
+            }
+        }
+        // And a replay started again has them from their journal.
+        drop(demos);
+        let (again, _) = Journal::open(&path, 20, w, 2).unwrap();
+        assert_eq!(again.len(), 12);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 
     #[test]
     fn a_replay_started_again_in_its_run_takes_up_its_predecessors_sequence_numbers() {

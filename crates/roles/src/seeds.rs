@@ -26,6 +26,16 @@ pub fn replay(seed: u64) -> u64 {
     seed ^ REPLAY_SALT
 }
 
+/// The replay's sampling of the teacher's demonstrations.
+pub fn demos(seed: u64) -> u64 {
+    seed ^ DEMO_SALT
+}
+
+/// Simulator `env`'s teacher: which of the student's steps it labels.
+pub fn teacher(seed: u64, env: usize) -> u64 {
+    seed ^ TEACHER_SALT.wrapping_add(env as u64)
+}
+
 /// Generated training lane `lane` of environment `env`: seeds no shipped
 /// arena uses.
 pub fn lane(seed: u64, env: usize, lane: usize) -> u64 {
@@ -65,6 +75,10 @@ const SIM_STRIDE: u64 = 1000;
 const ACTOR_SALT: u64 = 0xac70;
 /// The replay's sampling stream (xor).
 const REPLAY_SALT: u64 = 0x5e1a;
+/// The demonstrations' sampling stream (xor; "demoresv").
+const DEMO_SALT: u64 = 0x6465_6d6f_7265_7376;
+/// The teachers' label draws start here (xor; "teacher1").
+const TEACHER_SALT: u64 = 0x7465_6163_6865_7231;
 /// Generated training lanes: above every shipped arena's seed.
 const LANE_BASE: u64 = 1_000_000;
 /// Lanes of two run seeds are this far apart.

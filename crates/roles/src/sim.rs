@@ -4,7 +4,9 @@
 use std::time::Instant;
 
 use crate::error::{Doing, Result, config_err};
-use rotorhive_msg::{ActionHeader, ObsHeader, RoleKind, SimStage, Telemetry, WeightsHeader};
+use rotorhive_msg::{
+    ActionHeader, NO_EXPERT, ObsHeader, RoleKind, SimStage, Telemetry, WeightsHeader,
+};
 use rotorhive_sim::VecEnv;
 use rotorhive_transport::Channel;
 
@@ -34,6 +36,11 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
     let mut act_rx = hub.receiver::<u8, ActionHeader>(&Channel::actions(env_index))?;
     let mut tel = crate::counters(hub, RoleKind::Sim, env_index, roles_of(cfg))?;
     let mut limiter = RateLimiter::new(hub, cfg)?;
+    let seed = crate::seeds::teacher(cfg.seed, cfg.cluster.env_offset + env_index);
+    let mut teacher = crate::teacher::Teacher::new(cfg, &env, seed);
+    if let Some(t) = &mut teacher {
+        t.label(&env, 0);
+    }
     let mut step = 0u64;
     let mut stage = 0u32;
     let mut need_send = true;
@@ -43,7 +50,8 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
             break;
         }
         if need_send {
-            match send_obs(&mut obs_tx, &env, step, batched) {
+            let experts = teacher.as_ref().map(|t| t.experts());
+            match send_obs(&mut obs_tx, &env, step, batched, experts) {
                 Ok(()) => {
                     need_send = false;
                     last_send = Instant::now();
@@ -86,7 +94,15 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
         step += 1;
         count_step(&mut tel.sample, &env, n);
         need_send = true;
+        let was = stage;
         follow_curriculum(cfg, &mut env, env_index, step, &mut stage)?;
+        if let Some(t) = &mut teacher {
+            if stage != was {
+                t.replace_world(&env);
+            }
+            t.label(&env, step);
+            tel.sample.teacher = t.counts;
+        }
         let t = Instant::now();
         limiter.wait(hub, step)?;
         // Waiting on the rate limit is waiting on another process.
@@ -252,12 +268,14 @@ impl<S: Service> RateLimiter<S> {
 }
 
 /// Publishes the observations of a step: one message for all agents
-/// (batched), or one message per agent (non-batched, the old path on purpose).
+/// (batched), or one message per agent (non-batched, the old path on
+/// purpose), with the teacher's `experts` (none: [`NO_EXPERT`] for all).
 pub fn send_obs<S: Service>(
     tx: &mut Sender<S, f32, ObsHeader>,
     env: &VecEnv,
     step: u64,
     batched: bool,
+    experts: Option<&[f32]>,
 ) -> rotorhive_transport::Result<()> {
     let total = env.agents();
     let shapes = env.config().shapes();
@@ -274,10 +292,15 @@ pub fn send_obs<S: Service>(
             };
             let (obs, rest) = p.split_at_mut(n * shapes.obs_len());
             env.write_observations(first, obs);
-            let (rew, done) = rest.split_at_mut(n);
+            let (rew, rest) = rest.split_at_mut(n);
+            let (done, expert) = rest.split_at_mut(n);
             rew.copy_from_slice(&env.rewards()[first..first + n]);
             for (d, k) in done.iter_mut().zip(&env.dones()[first..first + n]) {
                 *d = *k as u8 as f32;
+            }
+            match experts {
+                Some(e) => expert.copy_from_slice(&e[first..first + n]),
+                None => expert.fill(NO_EXPERT),
             }
         })?;
     }

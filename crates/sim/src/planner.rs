@@ -134,35 +134,47 @@ impl Planner {
         (0..env.agents())
             .map(|i| {
                 if !active[i] {
-                    self.plans[i] = None;
+                    self.forget(i);
                     return 0;
                 }
-                if env.steps_of(i) == 0 {
-                    self.watched[i].clear();
-                }
-                let at = env.drone(i).p;
-                let keep = self.sight == Sight::All
-                    && env.steps_of(i) > 0
-                    && self.plans[i].as_ref().is_some_and(|p| {
-                        p.next < p.steps.len()
-                            && (p.next == 0 || {
-                                let [x, y] = p.steps[p.next - 1].1;
-                                (x - at.x).abs().max((y - at.y).abs()) <= STRAY
-                            })
-                    });
-                if !keep {
-                    self.plans[i] = Some(self.search(env, i));
-                }
-                let plan = self.plans[i].as_mut().expect("planned above");
-                match plan.steps.get(plan.next) {
-                    Some(&(a, _)) => {
-                        plan.next += 1;
-                        a
-                    }
-                    None => 0,
-                }
+                self.act(env, i)
             })
             .collect()
+    }
+
+    /// Forgets agent `i`'s plan (it flies without the planner now).
+    pub fn forget(&mut self, i: usize) {
+        self.plans[i] = None;
+    }
+
+    /// The next action of agent `i`: its plan's next step while the drone
+    /// keeps to the plan (with [`Sight::All`]), else a new search from its
+    /// true state. An agent at the start of an episode plans anew.
+    pub fn act(&mut self, env: &VecEnv, i: usize) -> u8 {
+        if env.steps_of(i) == 0 {
+            self.watched[i].clear();
+        }
+        let at = env.drone(i).p;
+        let keep = self.sight == Sight::All
+            && env.steps_of(i) > 0
+            && self.plans[i].as_ref().is_some_and(|p| {
+                p.next < p.steps.len()
+                    && (p.next == 0 || {
+                        let [x, y] = p.steps[p.next - 1].1;
+                        (x - at.x).abs().max((y - at.y).abs()) <= STRAY
+                    })
+            });
+        if !keep {
+            self.plans[i] = Some(self.search(env, i));
+        }
+        let plan = self.plans[i].as_mut().expect("planned above");
+        match plan.steps.get(plan.next) {
+            Some(&(a, _)) => {
+                plan.next += 1;
+                a
+            }
+            None => 0,
+        }
     }
 
     /// A plan for agent `i` from its true state now: with the widest

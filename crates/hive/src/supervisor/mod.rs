@@ -612,6 +612,7 @@ impl Supervisor<'_> {
         let (m, best, cfg) = (&self.monitor, self.evaluator.best(), &self.cfg);
         let roll = self.progress.rolling();
         let at_target = self.evaluator.first_at(cfg.eval.target_success);
+        let tc = m.teacher();
         let mut rejected_by_reason = std::collections::BTreeMap::new();
         for (reason, n) in hosts.iter().flat_map(|h| &h.rejected_by_reason) {
             *rejected_by_reason.entry(reason.clone()).or_insert(0) += n;
@@ -671,6 +672,13 @@ impl Supervisor<'_> {
                 .latest
                 .get(&(RoleKind::Learner as u32, 0))
                 .map_or(0, |t| t.learning.skipped_updates as u64),
+            teacher: cfg.teacher.on().then(|| serde_json::json!(cfg.teacher)),
+            demo_transitions: tc.demo_transitions,
+            labelled_transitions: tc.labelled_transitions,
+            teacher_ms_per_label: (tc.labels > 0)
+                .then(|| tc.label_ns as f64 / 1e6 / tc.labels as f64),
+            teacher_ms_per_demo_step: (tc.demo_steps > 0)
+                .then(|| tc.demo_ns as f64 / 1e6 / tc.demo_steps as f64),
             interrupted: ending.interrupted,
             resumed: self.a.resume.is_some(),
             failure: ending.failure.clone(),

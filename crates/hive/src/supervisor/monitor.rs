@@ -113,6 +113,26 @@ impl Monitor {
         of.map(|t| self.total(t).work).sum()
     }
 
+    /// What the teachers did: the sims' labels, demonstrated steps and
+    /// planner time, the actors' demonstrations and labelled transitions
+    /// sent (their newest samples; a restarted role's count starts again).
+    pub(super) fn teacher(&self) -> rotorhive_msg::TeacherCounts {
+        let mut c = rotorhive_msg::TeacherCounts::default();
+        for t in self.latest.values() {
+            let x = &t.teacher;
+            if t.role == RoleKind::Sim as u32 {
+                c.labels += x.labels;
+                c.demo_steps += x.demo_steps;
+                c.label_ns += x.label_ns;
+                c.demo_ns += x.demo_ns;
+            } else if t.role == RoleKind::Actor as u32 {
+                c.demo_transitions += x.demo_transitions;
+                c.labelled_transitions += x.labelled_transitions;
+            }
+        }
+        c
+    }
+
     /// Messages lost (sequence gaps, batches given up), every role, across
     /// restarts.
     pub(super) fn lost(&self) -> u64 {

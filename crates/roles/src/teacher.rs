@@ -1,0 +1,239 @@
+//! The teacher (`[teacher]`): the simulator's privileged planner flying some
+//! agents (demonstrations) and labelling the student's steps with its own
+//! action (DAgger inside the replay), as in DQfD / Ape-X DQfD. The sims run
+//! it ([`Teacher`]); its actions travel with the observations, the actor
+//! puts them into the transitions, the replay keeps the demonstrations in a
+//! reservoir of their own and the learner adds DQfD's large-margin loss.
+//! The student never sees it: checkpoints, `hive eval`, `hive play`, ONNX
+//! and Python fly from the observation alone.
+
+use std::time::Instant;
+
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64Mcg;
+use rotorhive_msg::{NO_EXPERT, TeacherCounts};
+use rotorhive_sim::{Planner, Sight, VecEnv};
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Result, config_err};
+
+/// `teacher.policy`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum TeacherPolicy {
+    /// No teacher: training exactly as without the section.
+    None,
+    /// The simulator's privileged planner (`hive eval --policy planner`).
+    Planner,
+}
+
+/// `teacher.sight`: what the planner may know (as `hive eval --sight`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum TeacherSight {
+    /// Every obstacle, and where each moving one will be.
+    All,
+    /// What the camera shows now, with the movers' future.
+    View,
+    /// What the camera shows now, the movers' present velocity kept 3 s.
+    ViewVelocity,
+    /// What the camera shows now, each mover standing over its whole track.
+    ViewTrack,
+    /// What the camera showed over `memory_s` (a mover known once watched
+    /// for half its cycle).
+    ViewMemory,
+}
+
+/// `[teacher]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TeacherSection {
+    /// `none` (no teacher) or `planner`.
+    pub policy: TeacherPolicy,
+    /// What the planner knows.
+    pub sight: TeacherSight,
+    /// With `sight = "view-memory"`: seconds the planner remembers (0: the
+    /// whole episode).
+    pub memory_s: u16,
+    /// Agents of each simulator (its first ones) that the planner flies:
+    /// their transitions are demonstrations.
+    pub demo_agents: usize,
+    /// Share of the student's steps labelled with the planner's action at
+    /// the student's state.
+    pub label_share: f64,
+    /// DQfD's margin l(a_E, a) for every action other than the expert's
+    /// (in the network's units: scaled rewards).
+    pub margin: f64,
+    /// Weight of the large-margin loss against the TD loss (DQfD: 1).
+    pub weight: f64,
+    /// Agent-steps (every host's) over which the label share, the
+    /// demonstrations, their batch share and the loss weight fall linearly
+    /// to zero; 0 = never.
+    pub fade_env_steps: u64,
+    /// Demonstrations kept in the replay's reservoir (FIFO among
+    /// themselves; the student's transitions never overwrite them).
+    pub demo_capacity: usize,
+    /// Share of each minibatch drawn from the demonstrations (R2D3's rho).
+    pub demo_batch_share: f64,
+}
+
+impl Default for TeacherSection {
+    fn default() -> Self {
+        Self {
+            policy: TeacherPolicy::None,
+            sight: TeacherSight::All,
+            memory_s: 0,
+            demo_agents: 5,
+            label_share: 0.5,
+            margin: 0.8,
+            weight: 1.0,
+            fade_env_steps: 0,
+            demo_capacity: 50_000,
+            demo_batch_share: 0.25,
+        }
+    }
+}
+
+impl TeacherSection {
+    /// Whether the run has a teacher.
+    pub fn on(&self) -> bool {
+        self.policy != TeacherPolicy::None
+    }
+
+    /// What the planner is told.
+    pub fn planner_sight(&self) -> Sight {
+        match self.sight {
+            TeacherSight::All => Sight::All,
+            TeacherSight::View => Sight::View,
+            TeacherSight::ViewVelocity => Sight::ViewVelocity,
+            TeacherSight::ViewTrack => Sight::ViewTrack,
+            TeacherSight::ViewMemory => Sight::ViewMemory((self.memory_s > 0).then_some(self.memory_s)),
+        }
+    }
+
+    /// Agents of each simulator the planner flies (none without a teacher).
+    pub fn demo_agents(&self) -> usize {
+        if self.on() { self.demo_agents } else { 0 }
+    }
+
+    /// Whether the replay keeps a demonstration reservoir.
+    pub fn demos(&self) -> bool {
+        self.on() && self.demo_agents > 0
+    }
+
+    /// The teacher's strength after `env_steps` agent-steps: 1 without a
+    /// fade, else falling linearly to 0 over `fade_env_steps`; 0 without a
+    /// teacher.
+    pub fn fade(&self, env_steps: u64) -> f64 {
+        if !self.on() {
+            return 0.0;
+        }
+        if self.fade_env_steps == 0 {
+            return 1.0;
+        }
+        (1.0 - env_steps as f64 / self.fade_env_steps as f64).max(0.0)
+    }
+
+    /// Checks the section against the run's `agents` per simulator.
+    pub fn validate(&self, agents: usize, prioritized: bool) -> Result<()> {
+        if !self.on() {
+            return Ok(());
+        }
+        if self.demo_agents > agents {
+            config_err!(
+                "key `teacher.demo_agents` ({}) is more than the simulator's agents (`sim.agents` = {agents})",
+                self.demo_agents
+            );
+        }
+        for (k, v) in
+            [("teacher.label_share", self.label_share), ("teacher.demo_batch_share", self.demo_batch_share)]
+        {
+            if !(0.0..=1.0).contains(&v) {
+                config_err!("key `{k}` must lie in [0, 1], got {v}");
+            }
+        }
+        for (k, v) in [("teacher.margin", self.margin), ("teacher.weight", self.weight)] {
+            if !(v.is_finite() && v >= 0.0) {
+                config_err!("key `{k}` must be 0 or positive, got {v}");
+            }
+        }
+        if self.memory_s > 0 && self.sight != TeacherSight::ViewMemory {
+            config_err!("key `teacher.memory_s` needs `teacher.sight = \"view-memory\"`");
+        }
+        if self.demos() && self.demo_capacity == 0 {
+            config_err!("key `teacher.demo_capacity` must be positive with `teacher.demo_agents` above 0");
+        }
+        if self.demos() && prioritized {
+            config_err!(
+                "key `teacher.demo_agents` above 0 is not supported with `replay.prioritized` yet (the demonstrations' reservoir is sampled uniformly)"
+            );
+        }
+        Ok(())
+    }
+}
+
+/// A simulator's teacher: its planner, which agents it flies and which
+/// student steps it labels, and its counters.
+pub struct Teacher {
+    cfg: TeacherSection,
+    planner: Planner,
+    rng: Pcg64Mcg,
+    /// Agent-steps of the whole run per step of this simulator.
+    run_agents: u64,
+    /// This step's expert actions, per agent ([`NO_EXPERT`] where none).
+    experts: Vec<f32>,
+    /// What it did so far.
+    pub counts: TeacherCounts,
+}
+
+impl Teacher {
+    /// The teacher of a simulator of `env`, when the run has one.
+    pub fn new(cfg: &crate::Config, env: &VecEnv, seed: u64) -> Option<Self> {
+        let t = &cfg.teacher;
+        t.on().then(|| Self {
+            cfg: t.clone(),
+            planner: Planner::new(env, t.planner_sight()),
+            rng: Pcg64Mcg::seed_from_u64(seed),
+            run_agents: cfg.agents_total() as u64,
+            experts: vec![NO_EXPERT; env.agents()],
+            counts: TeacherCounts::default(),
+        })
+    }
+
+    /// The planner's actions at the observations of `env` after `step`
+    /// steps of this simulator: for the agents it flies, and for a share of
+    /// the others (both fading with the run's agent-steps).
+    pub fn label(&mut self, env: &VecEnv, step: u64) -> &[f32] {
+        let fade = self.cfg.fade(step.saturating_mul(self.run_agents));
+        let demo = if fade > 0.0 { self.cfg.demo_agents } else { 0 };
+        let share = self.cfg.label_share * fade;
+        for (i, e) in self.experts.iter_mut().enumerate() {
+            let flies = i < demo;
+            if !(flies || (share > 0.0 && self.rng.random::<f64>() < share)) {
+                self.planner.forget(i);
+                *e = NO_EXPERT;
+                continue;
+            }
+            let t = Instant::now();
+            *e = self.planner.act(env, i) as f32;
+            let ns = t.elapsed().as_nanos() as u64;
+            let c = &mut self.counts;
+            if flies {
+                (c.demo_steps, c.demo_ns) = (c.demo_steps + 1, c.demo_ns + ns);
+            } else {
+                (c.labels, c.label_ns) = (c.labels + 1, c.label_ns + ns);
+            }
+        }
+        &self.experts
+    }
+
+    /// This step's expert actions.
+    pub fn experts(&self) -> &[f32] {
+        &self.experts
+    }
+
+    /// A planner for the new world of `env` (its lanes replaced).
+    pub fn replace_world(&mut self, env: &VecEnv) {
+        self.planner = Planner::new(env, self.cfg.planner_sight());
+    }
+}
