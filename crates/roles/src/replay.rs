@@ -97,7 +97,6 @@ impl<S: Service> Memory<'_, S> {
     /// The free-running replay: inserts what comes, and samples while the
     /// learner takes minibatches and the sample limit allows.
     fn run_free(&mut self) -> Result<()> {
-        let r = &self.cfg.replay;
         // Actors of other hosts come through the link with indexes after ours.
         // This host's actors only: another host's gaps are its link's to
         // count (the head's link takes each host's batches in order).
@@ -117,7 +116,12 @@ impl<S: Service> Memory<'_, S> {
                 };
                 let lost = &mut self.tel.sample.lost;
                 let seen = (&mut next_seq, lost);
-                ingest(&m, self.cfg.shapes(), self.stores(), seen)?;
+                let stores = Stores {
+                    mem: &mut self.mem,
+                    journal: self.journal.as_mut(),
+                    demos: self.demos.as_mut(),
+                };
+                ingest(&m, self.cfg.shapes(), stores, seen)?;
                 self.receipts.took(m.user_header());
                 self.seq_log.record(m.user_header());
                 got = true;
@@ -143,7 +147,12 @@ impl<S: Service> Memory<'_, S> {
                 if let Some(m) = self.rx.recv_timeout(wait).doing("waiting for transitions")? {
                     let lost = &mut self.tel.sample.lost;
                     let seen = (&mut next_seq, lost);
-                    ingest(&m, self.cfg.shapes(), self.stores(), seen)?;
+                    let stores = Stores {
+                        mem: &mut self.mem,
+                        journal: self.journal.as_mut(),
+                        demos: self.demos.as_mut(),
+                    };
+                    ingest(&m, self.cfg.shapes(), stores, seen)?;
                     self.receipts.took(m.user_header());
                     self.seq_log.record(m.user_header());
                 }

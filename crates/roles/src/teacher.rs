@@ -61,6 +61,9 @@ pub struct TeacherSection {
     /// Share of the student's steps labelled with the planner's action at
     /// the student's state.
     pub label_share: f64,
+    /// Actions a label's search looks ahead (a way clear for this many;
+    /// 0: to the end, as the planner flies, at several times the cost).
+    pub label_horizon: usize,
     /// DQfD's margin l(a_E, a) for every action other than the expert's
     /// (in the network's units: scaled rewards).
     pub margin: f64,
@@ -85,6 +88,7 @@ impl Default for TeacherSection {
             memory_s: 0,
             demo_agents: 5,
             label_share: 0.5,
+            label_horizon: 10,
             margin: 0.8,
             weight: 1.0,
             fade_env_steps: 0,
@@ -215,7 +219,12 @@ impl Teacher {
                 continue;
             }
             let t = Instant::now();
-            *e = self.planner.act(env, i) as f32;
+            *e = if flies {
+                self.planner.act(env, i)
+            } else {
+                let h = if self.cfg.label_horizon == 0 { usize::MAX } else { self.cfg.label_horizon };
+                self.planner.label(env, i, h)
+            } as f32;
             let ns = t.elapsed().as_nanos() as u64;
             let c = &mut self.counts;
             if flies {

@@ -165,7 +165,7 @@ impl Planner {
                     })
             });
         if !keep {
-            self.plans[i] = Some(self.search(env, i));
+            self.plans[i] = Some(self.search(env, i, usize::MAX));
         }
         let plan = self.plans[i].as_mut().expect("planned above");
         match plan.steps.get(plan.next) {
@@ -177,15 +177,31 @@ impl Planner {
         }
     }
 
+    /// A teacher's label for agent `i`, flown by someone else: the first
+    /// action of a way from its true state now that stays clear for
+    /// `horizon` actions (or reaches the end sooner), with the widest margin
+    /// that has one, else of the longest way found. A search this short
+    /// costs a fraction of a whole one; the agent's plan is left alone.
+    pub fn label(&mut self, env: &VecEnv, i: usize, horizon: usize) -> u8 {
+        if env.steps_of(i) == 0 {
+            self.watched[i].clear();
+        }
+        let hopeless = self.hopeless;
+        let plan = self.search(env, i, horizon.max(1));
+        self.hopeless = hopeless;
+        plan.steps.first().map_or(0, |s| s.0)
+    }
+
     /// A plan for agent `i` from its true state now: with the widest
-    /// margin that finds a way through, else the longest way found.
-    fn search(&mut self, env: &VecEnv, i: usize) -> Plan {
+    /// margin that finds a way through (clear for `horizon` actions, or to
+    /// the end), else the longest way found.
+    fn search(&mut self, env: &VecEnv, i: usize, horizon: usize) -> Plan {
         let seen = (self.sight != Sight::All)
             .then(|| Geometry::new(&in_view(env, i, self.sight, &mut self.watched[i])));
         let geometry = seen.as_ref().unwrap_or(&self.geometry);
         let mut longest = Plan::default();
         for margin in MARGINS {
-            let plan = search(geometry, env, i, margin);
+            let plan = search(geometry, env, i, margin, horizon);
             if plan.through {
                 return plan;
             }
@@ -200,8 +216,9 @@ impl Planner {
     }
 }
 
-/// The breadth-first search of [`Planner`] for agent `i` of `env`.
-fn search(geometry: &Geometry, env: &VecEnv, i: usize, margin: f32) -> Plan {
+/// The breadth-first search of [`Planner`] for agent `i` of `env`: through
+/// to the end (or the goal), or clear for `horizon` actions.
+fn search(geometry: &Geometry, env: &VecEnv, i: usize, margin: f32, horizon: usize) -> Plan {
     let cfg = env.config();
     let d = env.drone(i);
     let period = cfg.substeps() as f64 * f64::from(cfg.physics_dt);
@@ -220,7 +237,8 @@ fn search(geometry: &Geometry, env: &VecEnv, i: usize, margin: f32) -> Plan {
     };
     let (x0, z, t0) = (d.p.x, d.p.z, env.time());
     let length = env.arena().length;
-    let limit = cfg.max_steps.saturating_sub(env.steps_of(i)) as usize;
+    let left = cfg.max_steps.saturating_sub(env.steps_of(i)) as usize;
+    let limit = left.min(horizon);
     let mut layers: Vec<Vec<Node>> =
         vec![vec![Node { x: d.p.x, y: d.p.y, vy: d.v.y, sp: d.lateral_sp, parent: 0, action: 0 }]];
     let mut path = [Vector::ZERO; POINTS + 1];
@@ -268,8 +286,10 @@ fn search(geometry: &Geometry, env: &VecEnv, i: usize, margin: f32) -> Plan {
         }
         layers.push(next);
     }
-    // No way through in the model: the longest way found.
-    unwind(&layers, 0, false)
+    // Clear for the whole horizon (shorter than the episode's rest), or no
+    // way through in the model: the longest way found.
+    let clear = limit < left && layers.len() == limit + 1;
+    unwind(&layers, 0, clear)
 }
 
 /// The world as agent `i`'s camera shows it now ([`Sight::View`]): the
