@@ -141,7 +141,7 @@ fn the_teacher_repeats_exactly_and_none_trains_as_without_it() {
         tensors(&plain.1) == tensors(&none.1),
         "policy none: the same final network as without the section"
     );
-    assert!(none.2.teacher.is_none() && none.2.demo_transitions == 0, "{:?}", none.2);
+    assert!(none.2.teaching.teacher.is_none() && none.2.teaching.demo_transitions == 0);
     let planner_keys = [
         "teacher.policy=\"planner\"",
         "teacher.demo_agents=1",
@@ -162,10 +162,11 @@ fn the_teacher_repeats_exactly_and_none_trains_as_without_it() {
     assert_eq!(names(&weights_a), names(&plain.1));
     // One agent in four flown by the planner, about half of the other
     // three's steps labelled; its episodes are not the student's.
-    let (demo, labelled) = (summary.demo_transitions, summary.labelled_transitions);
+    let t = &summary.teaching;
+    let (demo, labelled) = (t.demo_transitions, t.labelled_transitions);
     assert!((600..=800).contains(&demo), "{summary:?}");
     assert!((900..=1350).contains(&labelled), "{summary:?}");
-    assert!(summary.teacher.is_some() && summary.teacher_ms_per_label.is_some(), "{summary:?}");
+    assert!(t.teacher.is_some() && t.teacher_ms_per_label.is_some(), "{summary:?}");
     assert!(rows_a.len() > 10, "{} student episodes", rows_a.len());
 }
 

@@ -38,7 +38,12 @@ pub fn producer(prefix: &str, index: usize, producers: usize, batches: usize) ->
     let mut src = vec![0u16; PER_MSG * PACKED_LEN];
     let obs = vec![0.5f32; OBS_LEN];
     for (i, t) in src.chunks_exact_mut(PACKED_LEN).enumerate() {
-        Shapes::PAPER.pack(&obs, &obs, [(i % 2) as f32, 3.0, 0.0, rotorhive_msg::NO_EXPERT, 0.0], t);
+        Shapes::PAPER.pack(
+            &obs,
+            &obs,
+            [(i % 2) as f32, 3.0, 0.0, rotorhive_msg::NO_EXPERT, 0.0],
+            t,
+        );
     }
     // A burst sent right after a publisher's creation can lose messages to
     // the subscriber made before it (iceoryx2 0.10, seen in `bench link`

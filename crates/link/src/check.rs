@@ -220,7 +220,8 @@ mod tests {
         let shapes = Shapes::PAPER;
         let obs = vec![0.25f32; shapes.obs_len()];
         let mut words = vec![0u16; 3 * PACKED_LEN];
-        let tails = [[1.0, 3.0, 0.0, 1.0, 1.0], [0.0, 3.0, 0.0, 1.0, 0.0], [0.0, 3.0, 0.0, 0.0, 0.0]];
+        let tails =
+            [[1.0, 3.0, 0.0, 1.0, 1.0], [0.0, 3.0, 0.0, 1.0, 0.0], [0.0, 3.0, 0.0, 0.0, 0.0]];
         for (t, tail) in words.chunks_exact_mut(PACKED_LEN).zip(tails) {
             shapes.pack(&obs, &obs, tail, t);
         }
@@ -234,7 +235,12 @@ mod tests {
             shapes.unpack(&w, &mut t);
             assert_eq!(t[2 * shapes.obs_len()..], tail);
         }
-        shapes.pack(&obs, &obs, [1.0, 3.0, 0.0, rotorhive_msg::NO_EXPERT, 1.0], &mut words[..PACKED_LEN]);
+        shapes.pack(
+            &obs,
+            &obs,
+            [1.0, 3.0, 0.0, rotorhive_msg::NO_EXPERT, 1.0],
+            &mut words[..PACKED_LEN],
+        );
         let bytes = wire::payload_bytes(&words);
         assert_eq!(
             transitions(&host(), shapes, Some(&att), &[bytes]).unwrap_err(),

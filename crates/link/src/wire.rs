@@ -225,7 +225,7 @@ mod tests {
         assert_eq!(std::mem::size_of::<TransitionHeader>(), 4 + 4 + 8 + 8);
         assert_eq!(std::mem::size_of::<EpisodeHeader>(), 4 + 4 + 8 + 8);
         assert_eq!(std::mem::size_of::<WeightsHeader>(), 8 + 8 + 8);
-        assert_eq!(std::mem::size_of::<Telemetry>(), 4 * 4 + 6 * 8 + 4 * 8 + 8 * 4 + 4 * 8);
+        assert_eq!(std::mem::size_of::<Telemetry>(), 4 * 4 + 6 * 8 + 4 * 8 + 8 * 4 + 4 * 8 + 6 * 8);
     }
 
     #[test]

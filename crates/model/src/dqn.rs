@@ -481,7 +481,9 @@ impl Dqn {
     /// Loss and flat gradients of a whole minibatch (`n × transition_len`
     /// floats) on the path in use, without updating anything.
     pub fn gradients(&mut self, batch: &[f32]) -> Result<(f32, Vec<f32>)> {
-        let loss = self.compute_gradients(batch, None)?.loss;
+        let shard = self.compute_gradients(batch, None)?;
+        let loss = shard.loss;
+        self.stats = shard.stats;
         Ok((loss, gradients_in(&self.online, &mut self.grads, &mut self.work)?.to_vec()))
     }
 

@@ -79,5 +79,5 @@ impl RecordsError {
     }
 }
 pub use kinds::{HostRole, Member, ObservationMode, Renderer};
-pub use summary::{HostSummary, Summary};
+pub use summary::{HostSummary, Summary, Teaching};
 pub use telemetry::TelemetryRow;

@@ -294,6 +294,7 @@ fn teacher_section(out: &mut String, run_dir: &Path) -> Result<()> {
     let Ok(s) = crate::Summary::read(run_dir) else {
         return Ok(());
     };
+    let s = s.teaching;
     if s.teacher.is_some() {
         let ms = |v: Option<f64>| v.map_or("—".to_string(), |v| format!("{v:.3} ms"));
         writeln!(

@@ -155,23 +155,9 @@ pub struct Summary {
     /// Updates skipped for a non-finite loss or gradient.
     #[serde(default)]
     pub skipped_updates: u64,
-    /// The run's `[teacher]` section as it ran (null without a teacher).
-    #[serde(default)]
-    pub teacher: Option<serde_json::Value>,
-    /// Transitions the teacher flew (demonstrations), as the actors sent them.
-    #[serde(default)]
-    pub demo_transitions: u64,
-    /// The student's transitions sent with the teacher's action.
-    #[serde(default)]
-    pub labelled_transitions: u64,
-    /// Milliseconds of the planner per label of a student's step (null
-    /// without labels).
-    #[serde(default)]
-    pub teacher_ms_per_label: Option<f64>,
-    /// Milliseconds of the planner per step of an agent it flies (null
-    /// without demonstrations).
-    #[serde(default)]
-    pub teacher_ms_per_demo_step: Option<f64>,
+    /// What the teacher did (its keys at the top level of the JSON).
+    #[serde(flatten)]
+    pub teaching: Teaching,
     /// Stopped by a signal.
     pub interrupted: bool,
     /// Continued from an earlier run (`--resume`).
@@ -180,6 +166,24 @@ pub struct Summary {
     pub failure: Option<String>,
     /// iceoryx2 services of the run still there after it (should be none).
     pub leftover_services: Vec<String>,
+}
+
+/// What a run's teacher (`[teacher]`) did, in `summary.json`.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Teaching {
+    /// The run's `[teacher]` section as it ran (null without a teacher).
+    pub teacher: Option<serde_json::Value>,
+    /// Transitions the teacher flew (demonstrations), as the actors sent them.
+    pub demo_transitions: u64,
+    /// The student's transitions sent with the teacher's action.
+    pub labelled_transitions: u64,
+    /// Milliseconds of the planner per label of a student's step (null
+    /// without labels).
+    pub teacher_ms_per_label: Option<f64>,
+    /// Milliseconds of the planner per step of an agent it flies (null
+    /// without demonstrations).
+    pub teacher_ms_per_demo_step: Option<f64>,
 }
 
 impl Summary {
@@ -263,11 +267,7 @@ mod tests {
             result_validation_episodes: Some(300),
             final_validation_success: Some(0.85),
             skipped_updates: 0,
-            teacher: None,
-            demo_transitions: 0,
-            labelled_transitions: 0,
-            teacher_ms_per_label: None,
-            teacher_ms_per_demo_step: None,
+            teaching: Teaching::default(),
             interrupted: false,
             resumed: false,
             failure: None,

@@ -376,7 +376,11 @@ impl<'a, S: Service> Actor<'a, S> {
     /// inserts rounds whole.
     fn send_transitions(&mut self, obs: &[f32], rewards: &[f32], dones: &[f32]) -> Result<()> {
         self.nstep.push(
-            Taken { actions: &self.prev_actions, experts: &self.prev_experts, flown: &self.prev_flown },
+            Taken {
+                actions: &self.prev_actions,
+                experts: &self.prev_experts,
+                flown: &self.prev_flown,
+            },
             rewards,
             dones,
         );

@@ -69,6 +69,18 @@ fn restore(cfg: &crate::config::Config, state_path: &Path) -> Result<Dqn> {
     Ok(dqn)
 }
 
+/// Logs what a checkpoint cost the learner (it saves every
+/// `checkpoint_every_s`).
+fn log_saves(saves: (u32, Duration)) {
+    if saves.0 > 0 {
+        tracing::info!(
+            "learner: {} checkpoints, {:.2} ms each on average",
+            saves.0,
+            saves.1.as_secs_f64() * 1e3 / saves.0 as f64
+        );
+    }
+}
+
 /// Saves the newest weights and the whole learner state, counting the
 /// saves and their time in `saves`.
 fn checkpoint(
@@ -136,12 +148,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
         let (batch, picks) = (&mut mb_in.batch, &mut mb_in.picks);
         unpack_batch(cfg.shapes(), msg.payload(), mb.batch as usize, batch, picks)?;
         drop(msg);
-        // DQfD's large-margin loss, at the teacher's weight now (the
-        // replay's fade; 0 without a teacher: the plain update).
-        if cfg.teacher.on() {
-            let fade = if mb.teacher.is_finite() { mb.teacher.clamp(0.0, 1.0) } else { 0.0 };
-            dqn.set_margin_weight(cfg.teacher.weight as f32 * fade);
-        }
+        teach(cfg, &mut dqn, &mb);
         let loss = mb_in.learn(&mut dqn, mb.seq, cfg.deterministic, &mut tel.sample.lost)?;
         let tm = dqn.timing();
         tel.sample.add_stage(LearnerStage::Forward, tm.forward_ns);
@@ -160,18 +167,21 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
             last_ckpt = Instant::now();
         }
     }
-    if saves.0 > 0 {
-        // What a checkpoint costs the learner (it saves every `checkpoint_every_s`).
-        tracing::info!(
-            "learner: {} checkpoints, {:.2} ms each on average",
-            saves.0,
-            saves.1.as_secs_f64() * 1e3 / saves.0 as f64
-        );
-    }
+    log_saves(saves);
     save_atomic(&dqn.online, &run_dir.join("final.safetensors"), &cfg.checkpoint_tags())?;
     save_state_atomic(&dqn, &state_path)?;
     tel.tick(true, Telemetry::beat);
     Ok(())
+}
+
+/// Sets DQfD's large-margin loss to the teacher's weight now (the
+/// replay's fade, as minibatch `mb` says; without a teacher none: the plain
+/// update).
+fn teach(cfg: &Config, dqn: &mut Dqn, mb: &MinibatchHeader) {
+    if cfg.teacher.on() {
+        let fade = if mb.teacher.is_finite() { mb.teacher.clamp(0.0, 1.0) } else { 0.0 };
+        dqn.set_margin_weight(cfg.teacher.weight as f32 * fade);
+    }
 }
 
 /// Publishes the online network as the next weight version. A failed write

@@ -62,22 +62,21 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     let seq_log = SeqLog::open(cx.run_dir, hub.prefix(), cfg.sim.envs);
     let picks = vec![Pick::default(); r.batch];
     let last_sync = Instant::now();
-    let mut m =
-        Memory {
-            cfg,
-            hub,
-            mem,
-            journal,
-            demos,
-            rx,
-            tx,
-            tel,
-            receipts,
-            seq_log,
-            prio,
-            picks,
-            last_sync,
-        };
+    let mut m = Memory {
+        cfg,
+        hub,
+        mem,
+        journal,
+        demos,
+        rx,
+        tx,
+        tel,
+        receipts,
+        seq_log,
+        prio,
+        picks,
+        last_sync,
+    };
     if cfg.deterministic {
         m.run_scheduled()?
     } else {
@@ -129,8 +128,7 @@ impl<S: Service> Memory<'_, S> {
             self.tel.sample.time_stage(ReplayStage::Insert, t);
             let ready = self.ready();
             let mut sent = false;
-            if ready && limit.allows(mb_seq, self.inserted()) && Instant::now() >= backoff_until
-            {
+            if ready && limit.allows(mb_seq, self.inserted()) && Instant::now() >= backoff_until {
                 match self.send_fresh(mb_seq)? {
                     true => {
                         mb_seq += 1;
@@ -217,7 +215,8 @@ impl<S: Service> Memory<'_, S> {
         self.tel.sample.work = self.mem.inserted();
         self.tel.sample.work2 = minibatches;
         self.tel.sample.value_milli = self.mem.len() as i64;
-        self.tel.sample.teacher.demo_transitions = self.demos.as_ref().map_or(0, |d| d.mem.len()) as u64;
+        self.tel.sample.teacher.demo_transitions =
+            self.demos.as_ref().map_or(0, |d| d.mem.len()) as u64;
         self.tel.tick(false, Telemetry::beat);
         Ok(())
     }
@@ -454,7 +453,10 @@ struct Demos {
 
 /// The demonstrations' reservoir of a run whose teacher flies agents,
 /// written through to RUN_DIR/replay-demo.bin as the memory is.
-fn open_demos(cfg: &crate::config::Config, run_dir: Option<&std::path::Path>) -> Result<Option<Demos>> {
+fn open_demos(
+    cfg: &crate::config::Config,
+    run_dir: Option<&std::path::Path>,
+) -> Result<Option<Demos>> {
     let t = &cfg.teacher;
     if !t.demos() {
         return Ok(None);
@@ -578,7 +580,8 @@ impl<S: Service> Memory<'_, S> {
                 let beta = cfg.replay.priority_beta;
                 let (rows, teacher) = self.demo_rows();
                 let demos = self.demos.as_mut().map(|d| &mut d.mem);
-                let acted = sample(&mut self.mem, demos, rows, &mut minibatch, &mut self.picks, beta);
+                let acted =
+                    sample(&mut self.mem, demos, rows, &mut minibatch, &mut self.picks, beta);
                 drawn = Some((acted, (rows, teacher)));
             }
             if let Some((acted, demo)) = drawn {
@@ -777,7 +780,12 @@ fn store(stores: Stores<'_>, shapes: Shapes, batch: &[u16], version: u64) -> Res
 }
 
 /// Inserts transitions into one memory and records them in its journal.
-fn insert(mem: &mut Replay, journal: Option<&mut Journal>, batch: &[u16], version: u64) -> Result<()> {
+fn insert(
+    mem: &mut Replay,
+    journal: Option<&mut Journal>,
+    batch: &[u16],
+    version: u64,
+) -> Result<()> {
     if batch.is_empty() {
         return Ok(());
     }
@@ -837,11 +845,9 @@ mod tests {
         let mut demos = Demos { mem: dm, journal: Some(dj) };
         // Mixed batches: every fifth row a demonstration, 12 of them.
         let mixed = rows(0, 60, |i| i % 5 == 0);
-        let stores = |mem: &'_ mut Replay, j: &'_ mut Journal, d: &'_ mut Demos| Stores {
-            mem,
-            journal: Some(j),
-            demos: Some(d),
-        };
+        fn stores<'a>(mem: &'a mut Replay, j: &'a mut Journal, d: &'a mut Demos) -> Stores<'a> {
+            Stores { mem, journal: Some(j), demos: Some(d) }
+        }
         store(stores(&mut mem, &mut journal, &mut demos), shapes, &mixed, 3).unwrap();
         assert_eq!((mem.len(), demos.mem.len()), (48, 12));
         // Then the student's rows alone, twenty times the memory's size.

@@ -13,6 +13,7 @@ use rotorhive_transport::Channel;
 use rotorhive_transport::Service;
 use rotorhive_transport::{Hub, Receiver, Sender};
 
+use crate::teacher::Teacher;
 use crate::{Ctx, POLL, STALL_TIMEOUT, roles_of};
 
 /// How long a sim waits for actions before publishing the same step again.
@@ -36,19 +37,12 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
     let mut act_rx = hub.receiver::<u8, ActionHeader>(&Channel::actions(env_index))?;
     let mut tel = crate::counters(hub, RoleKind::Sim, env_index, roles_of(cfg))?;
     let mut limiter = RateLimiter::new(hub, cfg)?;
-    let seed = crate::seeds::teacher(cfg.seed, cfg.cluster.env_offset + env_index);
-    let mut teacher = crate::teacher::Teacher::new(cfg, &env, seed);
-    if let Some(t) = &mut teacher {
-        t.label(&env, 0);
-    }
+    let mut teacher = Teacher::start(cfg, &env, env_index);
     let mut step = 0u64;
     let mut stage = 0u32;
     let mut need_send = true;
     let mut last_send = Instant::now();
-    loop {
-        if hub.shutdown_requested() {
-            break;
-        }
+    while !hub.shutdown_requested() {
         if need_send {
             let experts = teacher.as_ref().map(|t| t.experts());
             match send_obs(&mut obs_tx, &env, step, batched, experts) {
@@ -94,15 +88,8 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
         step += 1;
         count_step(&mut tel.sample, &env, n);
         need_send = true;
-        let was = stage;
-        follow_curriculum(cfg, &mut env, env_index, step, &mut stage)?;
-        if let Some(t) = &mut teacher {
-            if stage != was {
-                t.replace_world(&env);
-            }
-            t.label(&env, step);
-            tel.sample.teacher = t.counts;
-        }
+        let new_world = follow_curriculum(cfg, &mut env, env_index, step, &mut stage)?;
+        Teacher::follow(teacher.as_mut(), &env, step, new_world, &mut tel.sample);
         let t = Instant::now();
         limiter.wait(hub, step)?;
         // Waiting on the rate limit is waiting on another process.
@@ -139,22 +126,23 @@ fn count_step(sample: &mut Telemetry, env: &VecEnv, n: usize) {
 
 /// A curriculum's next stage: new training lanes, once the run's
 /// agent-steps (as this sim sees them: its own steps times every host's
-/// agents) reach it.
+/// agents) reach it; true when it replaced them.
 fn follow_curriculum(
     cfg: &crate::Config,
     env: &mut VecEnv,
     env_index: usize,
     step: u64,
     stage: &mut u32,
-) -> Result<()> {
+) -> Result<bool> {
     let now = cfg.curriculum_stage(step.saturating_mul(cfg.agents_total() as u64));
-    if now != *stage {
-        *stage = now;
-        env.replace_arenas(&cfg.lane_arenas_at(env_index, now)?)
-            .doing("changing the training lanes")?;
-        tracing::info!("sim {env_index}: curriculum stage {now}");
+    if now == *stage {
+        return Ok(false);
     }
-    Ok(())
+    *stage = now;
+    env.replace_arenas(&cfg.lane_arenas_at(env_index, now)?)
+        .doing("changing the training lanes")?;
+    tracing::info!("sim {env_index}: curriculum stage {now}");
+    Ok(true)
 }
 
 /// Holds a sim back while the transitions inserted since learning began

@@ -11,7 +11,7 @@ use std::time::Instant;
 
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
-use rotorhive_msg::{NO_EXPERT, TeacherCounts};
+use rotorhive_msg::{NO_EXPERT, TeacherCounts, Telemetry};
 use rotorhive_sim::{Planner, Sight, VecEnv};
 use serde::{Deserialize, Serialize};
 
@@ -111,7 +111,9 @@ impl TeacherSection {
             TeacherSight::View => Sight::View,
             TeacherSight::ViewVelocity => Sight::ViewVelocity,
             TeacherSight::ViewTrack => Sight::ViewTrack,
-            TeacherSight::ViewMemory => Sight::ViewMemory((self.memory_s > 0).then_some(self.memory_s)),
+            TeacherSight::ViewMemory => {
+                Sight::ViewMemory((self.memory_s > 0).then_some(self.memory_s))
+            }
         }
     }
 
@@ -149,9 +151,10 @@ impl TeacherSection {
                 self.demo_agents
             );
         }
-        for (k, v) in
-            [("teacher.label_share", self.label_share), ("teacher.demo_batch_share", self.demo_batch_share)]
-        {
+        for (k, v) in [
+            ("teacher.label_share", self.label_share),
+            ("teacher.demo_batch_share", self.demo_batch_share),
+        ] {
             if !(0.0..=1.0).contains(&v) {
                 config_err!("key `{k}` must lie in [0, 1], got {v}");
             }
@@ -165,7 +168,9 @@ impl TeacherSection {
             config_err!("key `teacher.memory_s` needs `teacher.sight = \"view-memory\"`");
         }
         if self.demos() && self.demo_capacity == 0 {
-            config_err!("key `teacher.demo_capacity` must be positive with `teacher.demo_agents` above 0");
+            config_err!(
+                "key `teacher.demo_capacity` must be positive with `teacher.demo_agents` above 0"
+            );
         }
         if self.demos() && prioritized {
             config_err!(
@@ -204,6 +209,32 @@ impl Teacher {
         })
     }
 
+    /// The teacher of simulator `env_index` of the run `cfg` describes,
+    /// with its labels of `env`'s first observations, when it has one.
+    pub fn start(cfg: &crate::Config, env: &VecEnv, env_index: usize) -> Option<Self> {
+        let seed = crate::seeds::teacher(cfg.seed, cfg.cluster.env_offset + env_index);
+        let mut t = Self::new(cfg, env, seed)?;
+        t.label(env, 0);
+        Some(t)
+    }
+
+    /// A teacher's labels after step `step` of `env` (whose lanes were
+    /// replaced when `new_world`), and its counts into the sim's telemetry.
+    pub fn follow(
+        teacher: Option<&mut Self>,
+        env: &VecEnv,
+        step: u64,
+        new_world: bool,
+        tel: &mut Telemetry,
+    ) {
+        let Some(t) = teacher else { return };
+        if new_world {
+            t.replace_world(env);
+        }
+        t.label(env, step);
+        tel.teacher = t.counts;
+    }
+
     /// The planner's actions at the observations of `env` after `step`
     /// steps of this simulator: for the agents it flies, and for a share of
     /// the others (both fading with the run's agent-steps).
@@ -222,7 +253,8 @@ impl Teacher {
             *e = if flies {
                 self.planner.act(env, i)
             } else {
-                let h = if self.cfg.label_horizon == 0 { usize::MAX } else { self.cfg.label_horizon };
+                let h =
+                    if self.cfg.label_horizon == 0 { usize::MAX } else { self.cfg.label_horizon };
                 self.planner.label(env, i, h)
             } as f32;
             let ns = t.elapsed().as_nanos() as u64;

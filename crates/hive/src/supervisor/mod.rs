@@ -598,6 +598,19 @@ impl Supervisor<'_> {
         (checkpoint, last)
     }
 
+    /// What the run's teacher did, from the roles' telemetry.
+    fn teaching(&self) -> rotorhive_records::Teaching {
+        let (cfg, tc) = (&self.cfg, self.monitor.teacher());
+        let per = |ns: u64, n: u64| (n > 0).then(|| ns as f64 / 1e6 / n as f64);
+        rotorhive_records::Teaching {
+            teacher: cfg.teacher.on().then(|| serde_json::json!(cfg.teacher)),
+            demo_transitions: tc.demo_transitions,
+            labelled_transitions: tc.labelled_transitions,
+            teacher_ms_per_label: per(tc.label_ns, tc.labels),
+            teacher_ms_per_demo_step: per(tc.demo_ns, tc.demo_steps),
+        }
+    }
+
     /// `summary.json` of the run.
     fn summary(
         &self,
@@ -612,7 +625,6 @@ impl Supervisor<'_> {
         let (m, best, cfg) = (&self.monitor, self.evaluator.best(), &self.cfg);
         let roll = self.progress.rolling();
         let at_target = self.evaluator.first_at(cfg.eval.target_success);
-        let tc = m.teacher();
         let mut rejected_by_reason = std::collections::BTreeMap::new();
         for (reason, n) in hosts.iter().flat_map(|h| &h.rejected_by_reason) {
             *rejected_by_reason.entry(reason.clone()).or_insert(0) += n;
@@ -672,13 +684,7 @@ impl Supervisor<'_> {
                 .latest
                 .get(&(RoleKind::Learner as u32, 0))
                 .map_or(0, |t| t.learning.skipped_updates as u64),
-            teacher: cfg.teacher.on().then(|| serde_json::json!(cfg.teacher)),
-            demo_transitions: tc.demo_transitions,
-            labelled_transitions: tc.labelled_transitions,
-            teacher_ms_per_label: (tc.labels > 0)
-                .then(|| tc.label_ns as f64 / 1e6 / tc.labels as f64),
-            teacher_ms_per_demo_step: (tc.demo_steps > 0)
-                .then(|| tc.demo_ns as f64 / 1e6 / tc.demo_steps as f64),
+            teaching: self.teaching(),
             interrupted: ending.interrupted,
             resumed: self.a.resume.is_some(),
             failure: ending.failure.clone(),
