@@ -160,12 +160,14 @@ fn the_teacher_repeats_exactly_and_none_trains_as_without_it() {
     // play`, the ONNX export and Python fly it from its observation.
     let names = |w: &[u8]| tensors(w).into_iter().map(|(k, s, _)| (k, s)).collect::<Vec<_>>();
     assert_eq!(names(&weights_a), names(&plain.1));
-    // One agent in four flown by the planner, about half of the other
-    // three's steps labelled; its episodes are not the student's.
+    // One agent in four flown by the planner; its labels (half of the
+    // other three's steps and all of its own, asked) name an action only
+    // where one alone keeps a way clear; its episodes are not the
+    // student's.
     let t = &summary.teaching;
     let (demo, labelled) = (t.demo_transitions, t.labelled_transitions);
     assert!((600..=800).contains(&demo), "{summary:?}");
-    assert!((900..=1350).contains(&labelled), "{summary:?}");
+    assert!((1..=1125).contains(&labelled), "{summary:?}");
     assert!(t.teacher.is_some() && t.teacher_ms_per_label.is_some(), "{summary:?}");
     assert!(rows_a.len() > 10, "{} student episodes", rows_a.len());
 }

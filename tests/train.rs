@@ -289,6 +289,19 @@ fn bad_input_is_refused_clearly() {
     fails_with(&["bench", "seeds", "--arm", "a:nonsense"], &["key=value"]);
     fails_with(&["bench", "seeds", "--arm", "a:sim.agnets=3"], &["arm a", "agnets"]);
     fails_with(&["train", "--set", "sim.generated_lanes=-1"], &["generated_lanes"]);
+    let teacher = |k: &str| ["train", "--set", "teacher.policy=\"planner\"", "--set", k].map(String::from);
+    for (set, needle) in [
+        ("teacher.demo_agents=51", "teacher.demo_agents"),
+        ("teacher.label_share=1.5", "teacher.label_share"),
+        ("teacher.margin=-1", "teacher.margin"),
+        ("teacher.memory_s=9", "view-memory"),
+        ("replay.prioritized=true", "replay.prioritized"),
+        ("teacher.sight=\"psychic\"", "teacher.sight"),
+    ] {
+        let args = teacher(set);
+        fails_with(&args.each_ref().map(String::as_str), &[needle]);
+    }
+    fails_with(&["train", "--set", "teacher.policy=\"oracle\""], &["teacher.policy"]);
     fails_with(&["profile", dir.to_str().unwrap()], &["telemetry.csv"]);
     let out = hive().args(["fly-to-the-moon"]).output().unwrap();
     assert_eq!(out.status.code(), Some(2));

@@ -238,7 +238,7 @@ mod tests {
         shapes.pack(
             &obs,
             &obs,
-            [1.0, 3.0, 0.0, rotorhive_msg::NO_EXPERT, 1.0],
+            [1.0, 3.0, 0.0, 1.0, 0.5],
             &mut words[..PACKED_LEN],
         );
         let bytes = wire::payload_bytes(&words);

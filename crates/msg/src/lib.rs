@@ -39,9 +39,10 @@ pub const VEL_DIM: usize = 3;
 /// lateral offset (body frame), both in tens of metres.
 pub const GOAL_DIM: usize = 3;
 /// Floats after `s` and `s'` in a transition: the action taken, the
-/// (n-step) reward, done (0 or 1), the teacher's action at `s`
-/// ([`NO_EXPERT`] where it gave none) and whether the teacher flew it
-/// (1: a demonstration, 0: the student's step).
+/// (n-step) reward, done (0 or 1), the teacher's label at `s` (the action
+/// it holds the only right one there; [`NO_EXPERT`] where it gave none)
+/// and whether the teacher flew the step (1: a demonstration, 0: the
+/// student's).
 pub const TAIL: usize = 5;
 /// The expert action of a transition or observation the teacher did not
 /// label.
@@ -112,9 +113,10 @@ impl Shapes {
     }
 
     /// Length of the `f32` payload of an observation batch of `agents`:
-    /// their observations, rewards, done codes and expert actions.
+    /// their observations, rewards, done codes, the teacher's actions
+    /// (where it flies the agent) and its labels.
     pub const fn obs_batch_len(self, agents: usize) -> usize {
-        agents * (self.obs_len() + 3)
+        agents * (self.obs_len() + 4)
     }
 
     /// Floats in one transition as the learner uses it: `s (obs_len) | s'
@@ -203,8 +205,8 @@ impl Shapes {
     /// of them, see [`Shapes::packed_scalar`]) are not what an actor writes: an
     /// action that is not one of the run's, a done flag other than 0 or 1,
     /// an expert action that is neither [`NO_EXPERT`] nor one of the run's,
-    /// a demonstration flag other than 0 or 1 (or set without an expert
-    /// action), or a scalar that is not finite. A torn or forged write shows
+    /// a demonstration flag other than 0 or 1, or a scalar that is not
+    /// finite. A torn or forged write shows
     /// here (16-bit depth has no invalid value to look for).
     pub fn scalars_corrupt(self, scalars: &[f32]) -> bool {
         if scalars.len() != self.packed_scalars() {
@@ -218,7 +220,6 @@ impl Shapes {
             || !flag(done)
             || !(expert == NO_EXPERT || one_of(expert))
             || !flag(demo)
-            || (demo == 1.0 && expert == NO_EXPERT)
             || scalars.iter().any(|v| !v.is_finite())
     }
 
@@ -310,8 +311,11 @@ pub const MAX_AGENTS_PER_ENV: usize = 4096;
 ///
 /// Payload: `[f32]` of length [`Shapes::obs_batch_len`]`(agents)`: `agents × obs_len`
 /// observations, then `agents` rewards, then `agents` done codes
-/// ([`DoneKind`] as `f32`), then `agents` expert actions (the teacher's
-/// action at this observation, [`NO_EXPERT`] where it gave none). Rows of agents that were reset in this step hold the
+/// ([`DoneKind`] as `f32`), then `agents` teacher's actions (the action
+/// the teacher flies the agent with from this observation, [`NO_EXPERT`]
+/// where the student flies it), then `agents` labels (the teacher's
+/// action for the student at this observation, [`NO_EXPERT`] where it
+/// gives none). Rows of agents that were reset in this step hold the
 /// first observation of their new episode.
 #[derive(Debug, Clone, Copy, Default)]
 #[cfg_attr(feature = "zero-copy", derive(ZeroCopySend), type_name("rotorhive::ObsHeader"))]
@@ -898,8 +902,8 @@ mod tests {
             (0.0, -100.0, 2.0, NO_EXPERT, 0.0),
             (0.0, -100.0, 1.0, NO_EXPERT, 0.0),
             (2.0, 3.0, 0.0, NO_EXPERT, 0.0),
-            // A demonstration without the teacher's action, an expert
-            // action out of range, a flag neither 0 nor 1.
+            // A demonstration without a label (fine), an expert action
+            // out of range, a flag neither 0 nor 1.
             (0.0, 3.0, 0.0, NO_EXPERT, 1.0),
             (0.0, 3.0, 0.0, 2.0, 0.0),
             (0.0, 3.0, 0.0, 0.0, 0.5),
@@ -907,11 +911,11 @@ mod tests {
             shapes.pack(&obs, &obs, [a, r, d, e, demo], t);
         }
         assert_eq!(shapes.corrupt_transitions(&batch[..3 * len]), 0);
-        assert_eq!(shapes.corrupt_transitions(&batch), 7, "action 2 without hold");
+        assert_eq!(shapes.corrupt_transitions(&batch), 6, "action 2 without hold");
         // With the hold action, action 2 is one of the task's.
         let hold = Shapes::task(FRAMES, false, true);
         assert_eq!(hold.packed_len(), len);
-        assert_eq!(hold.corrupt_transitions(&batch), 5);
+        assert_eq!(hold.corrupt_transitions(&batch), 4);
         assert!(!episode_corrupt(&[-100.0, 12.0, 1.0, 0.4]));
         assert!(!episode_corrupt(&[450.0, 150.0, 3.0, 0.0]));
         for bad in [

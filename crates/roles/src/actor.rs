@@ -275,7 +275,8 @@ impl<'a, S: Service> Actor<'a, S> {
         self.expected_step = h.step + 1;
         let (obs, rest) = p.split_at(n * self.shapes.obs_len());
         let (rewards, rest) = rest.split_at(n);
-        let (dones, experts) = rest.split_at(n);
+        let (dones, rest) = rest.split_at(n);
+        let (flies, labels) = rest.split_at(n);
         if !self.wait_weights(h.step)? {
             return Ok(false);
         }
@@ -297,11 +298,10 @@ impl<'a, S: Service> Actor<'a, S> {
                 self.episode_flown[i] = false;
             }
             self.episode_eps[i] = self.episode_eps[i].max(eps);
-            // The teacher's agents fly its action (while it gives one).
-            let expert = experts[i];
-            let flown = i < self.demo_agents && expert != NO_EXPERT;
+            // The teacher's agents fly its action (while it flies them).
+            let flown = i < self.demo_agents && flies[i] != NO_EXPERT;
             if flown {
-                self.actions[i] = expert as u8;
+                self.actions[i] = flies[i] as u8;
                 self.episode_flown[i] = true;
             }
             self.prev_flown[i] = flown;
@@ -331,7 +331,7 @@ impl<'a, S: Service> Actor<'a, S> {
         self.tel.sample.time_stage(ActorStage::Assemble, t);
         self.nstep.store(obs);
         self.prev_actions.copy_from_slice(&self.actions);
-        self.prev_experts.copy_from_slice(experts);
+        self.prev_experts.copy_from_slice(labels);
         self.have_prev = true;
         self.tel.sample.work = self.transitions;
         self.tel.sample.work2 = self.episodes;
@@ -661,7 +661,7 @@ pub struct Gather {
 impl Gather {
     /// A gatherer of `n` agents' observations of `len` floats.
     pub fn new(n: usize, len: usize) -> Self {
-        Self { n, len, buf: vec![0.0; n * (len + 3)], step: u64::MAX, have: 0 }
+        Self { n, len, buf: vec![0.0; n * (len + 4)], step: u64::MAX, have: 0 }
     }
 
     /// Copies in the agents of one message; true once all agents of its
@@ -675,9 +675,11 @@ impl Gather {
         let (a, k) = (h.first as usize, h.agents as usize);
         let (g, l) = (&mut self.buf, self.len);
         g[a * l..(a + k) * l].copy_from_slice(&src[..k * l]);
-        g[n * l + a..n * l + a + k].copy_from_slice(&src[k * l..k * l + k]);
-        g[n * l + n + a..n * l + n + a + k].copy_from_slice(&src[k * l + k..k * l + 2 * k]);
-        g[n * l + 2 * n + a..n * l + 2 * n + a + k].copy_from_slice(&src[k * l + 2 * k..]);
+        // Then the rewards, the dones, the teacher's actions and its labels.
+        for c in 0..4 {
+            let (to, from) = (n * l + c * n + a, k * l + c * k);
+            g[to..to + k].copy_from_slice(&src[from..from + k]);
+        }
         self.have += k;
         if self.have < n {
             return false;
@@ -686,7 +688,8 @@ impl Gather {
         true
     }
 
-    /// The gathered batch: observations, rewards, dones, expert actions.
+    /// The gathered batch: observations, rewards, dones, the teacher's
+    /// actions and labels.
     pub fn batch(&self) -> &[f32] {
         &self.buf
     }

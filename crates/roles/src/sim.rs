@@ -44,8 +44,8 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
     let mut last_send = Instant::now();
     while !hub.shutdown_requested() {
         if need_send {
-            let experts = teacher.as_ref().map(|t| t.experts());
-            match send_obs(&mut obs_tx, &env, step, batched, experts) {
+            let taught = teacher.as_ref().map(Teacher::actions);
+            match send_obs(&mut obs_tx, &env, step, batched, taught) {
                 Ok(()) => {
                     need_send = false;
                     last_send = Instant::now();
@@ -257,13 +257,14 @@ impl<S: Service> RateLimiter<S> {
 
 /// Publishes the observations of a step: one message for all agents
 /// (batched), or one message per agent (non-batched, the old path on
-/// purpose), with the teacher's `experts` (none: [`NO_EXPERT`] for all).
+/// purpose), with the `teacher`'s actions of the agents it flies and its
+/// labels (none: [`NO_EXPERT`] for all).
 pub fn send_obs<S: Service>(
     tx: &mut Sender<S, f32, ObsHeader>,
     env: &VecEnv,
     step: u64,
     batched: bool,
-    experts: Option<&[f32]>,
+    teacher: Option<(&[f32], &[f32])>,
 ) -> rotorhive_transport::Result<()> {
     let total = env.agents();
     let shapes = env.config().shapes();
@@ -281,14 +282,21 @@ pub fn send_obs<S: Service>(
             let (obs, rest) = p.split_at_mut(n * shapes.obs_len());
             env.write_observations(first, obs);
             let (rew, rest) = rest.split_at_mut(n);
-            let (done, expert) = rest.split_at_mut(n);
+            let (done, rest) = rest.split_at_mut(n);
+            let (flies, labels) = rest.split_at_mut(n);
             rew.copy_from_slice(&env.rewards()[first..first + n]);
             for (d, k) in done.iter_mut().zip(&env.dones()[first..first + n]) {
                 *d = *k as u8 as f32;
             }
-            match experts {
-                Some(e) => expert.copy_from_slice(&e[first..first + n]),
-                None => expert.fill(NO_EXPERT),
+            match teacher {
+                Some((f, l)) => {
+                    flies.copy_from_slice(&f[first..first + n]);
+                    labels.copy_from_slice(&l[first..first + n]);
+                }
+                None => {
+                    flies.fill(NO_EXPERT);
+                    labels.fill(NO_EXPERT);
+                }
             }
         })?;
     }

@@ -181,6 +181,11 @@ impl TeacherSection {
     }
 }
 
+/// Nanoseconds since `t`.
+fn elapsed(t: Instant) -> u64 {
+    t.elapsed().as_nanos() as u64
+}
+
 /// A simulator's teacher: its planner, which agents it flies and which
 /// student steps it labels, and its counters.
 pub struct Teacher {
@@ -189,8 +194,10 @@ pub struct Teacher {
     rng: Pcg64Mcg,
     /// Agent-steps of the whole run per step of this simulator.
     run_agents: u64,
-    /// This step's expert actions, per agent ([`NO_EXPERT`] where none).
-    experts: Vec<f32>,
+    /// This step's action of each agent it flies ([`NO_EXPERT`]: the
+    /// student's) and its label of each agent ([`NO_EXPERT`]: none).
+    flies: Vec<f32>,
+    labels: Vec<f32>,
     /// What it did so far.
     pub counts: TeacherCounts,
 }
@@ -204,7 +211,8 @@ impl Teacher {
             planner: Planner::new(env, t.planner_sight()),
             rng: Pcg64Mcg::seed_from_u64(seed),
             run_agents: cfg.agents_total() as u64,
-            experts: vec![NO_EXPERT; env.agents()],
+            flies: vec![NO_EXPERT; env.agents()],
+            labels: vec![NO_EXPERT; env.agents()],
             counts: TeacherCounts::default(),
         })
     }
@@ -236,41 +244,42 @@ impl Teacher {
     }
 
     /// The planner's actions at the observations of `env` after `step`
-    /// steps of this simulator: for the agents it flies, and for a share of
-    /// the others (both fading with the run's agent-steps).
-    pub fn label(&mut self, env: &VecEnv, step: u64) -> &[f32] {
+    /// steps of this simulator: the agents it flies (their actions), and
+    /// its labels of those and of a share of the others (the one action
+    /// that keeps a way clear, where only one does), fading with the run's
+    /// agent-steps.
+    pub fn label(&mut self, env: &VecEnv, step: u64) {
         let fade = self.cfg.fade(step.saturating_mul(self.run_agents));
         let demo = if fade > 0.0 { self.cfg.demo_agents } else { 0 };
         let share = self.cfg.label_share * fade;
-        for (i, e) in self.experts.iter_mut().enumerate() {
+        let horizon = if self.cfg.label_horizon == 0 { usize::MAX } else { self.cfg.label_horizon };
+        for i in 0..self.flies.len() {
             let flies = i < demo;
-            if !(flies || (share > 0.0 && self.rng.random::<f64>() < share)) {
-                self.planner.forget(i);
-                *e = NO_EXPERT;
-                continue;
-            }
-            let t = Instant::now();
-            *e = if flies {
-                self.planner.act(env, i)
-            } else {
-                let h =
-                    if self.cfg.label_horizon == 0 { usize::MAX } else { self.cfg.label_horizon };
-                self.planner.label(env, i, h)
-            } as f32;
-            let ns = t.elapsed().as_nanos() as u64;
             let c = &mut self.counts;
-            if flies {
-                (c.demo_steps, c.demo_ns) = (c.demo_steps + 1, c.demo_ns + ns);
+            self.flies[i] = if flies {
+                let t = Instant::now();
+                let a = self.planner.act(env, i);
+                (c.demo_steps, c.demo_ns) = (c.demo_steps + 1, c.demo_ns + elapsed(t));
+                a as f32
             } else {
-                (c.labels, c.label_ns) = (c.labels + 1, c.label_ns + ns);
-            }
+                self.planner.forget(i);
+                NO_EXPERT
+            };
+            self.labels[i] = if flies || (share > 0.0 && self.rng.random::<f64>() < share) {
+                let t = Instant::now();
+                let a = self.planner.label(env, i, horizon);
+                (c.labels, c.label_ns) = (c.labels + 1, c.label_ns + elapsed(t));
+                a.map_or(NO_EXPERT, f32::from)
+            } else {
+                NO_EXPERT
+            };
         }
-        &self.experts
     }
 
-    /// This step's expert actions.
-    pub fn experts(&self) -> &[f32] {
-        &self.experts
+    /// This step's actions of the agents the teacher flies and its labels
+    /// ([`NO_EXPERT`] where none).
+    pub fn actions(&self) -> (&[f32], &[f32]) {
+        (&self.flies, &self.labels)
     }
 
     /// A planner for the new world of `env` (its lanes replaced).

@@ -36,6 +36,9 @@ const POINTS: usize = 10;
 /// Margins added to the drone's radius in the search (m), widest first:
 /// a way through with room for the model's error where there is one.
 const MARGINS: [f32; 3] = [0.15, 0.05, 0.0];
+/// The margin of a teacher's label's searches ([`Planner::label`]): an
+/// action counts as safe where a way starting with it keeps this much room.
+const LABEL_MARGIN: f32 = 0.05;
 /// How far the drone may stray from its plan before a new one (m).
 const STRAY: f32 = 0.05;
 
@@ -177,19 +180,31 @@ impl Planner {
         }
     }
 
-    /// A teacher's label for agent `i`, flown by someone else: the first
-    /// action of a way from its true state now that stays clear for
-    /// `horizon` actions (or reaches the end sooner), with the widest margin
-    /// that has one, else of the longest way found. A search this short
-    /// costs a fraction of a whole one; the agent's plan is left alone.
-    pub fn label(&mut self, env: &VecEnv, i: usize, horizon: usize) -> u8 {
+    /// A teacher's label of agent `i`'s state now: the one action that
+    /// starts a way clear for `horizon` actions (or through to the end
+    /// sooner), with a margin of [`LABEL_MARGIN`], where exactly one does;
+    /// `None` where every action does (the choice does not matter yet) or
+    /// none does. One short search per action, each stopping at its first
+    /// way through; the agent's plan is left alone.
+    pub fn label(&mut self, env: &VecEnv, i: usize, horizon: usize) -> Option<u8> {
         if env.steps_of(i) == 0 {
             self.watched[i].clear();
         }
-        let hopeless = self.hopeless;
-        let plan = self.search(env, i, horizon.max(1));
-        self.hopeless = hopeless;
-        plan.steps.first().map_or(0, |s| s.0)
+        let seen = (self.sight != Sight::All)
+            .then(|| Geometry::new(&in_view(env, i, self.sight, &mut self.watched[i])));
+        let geometry = seen.as_ref().unwrap_or(&self.geometry);
+        let actions = if env.config().hold_action { 3 } else { 2 };
+        let mut safe = None;
+        for a in 0..actions {
+            let first = Some(a as u8);
+            if search(geometry, env, i, LABEL_MARGIN, horizon.max(1), first).through {
+                if safe.is_some() {
+                    return None;
+                }
+                safe = Some(a as u8);
+            }
+        }
+        safe
     }
 
     /// A plan for agent `i` from its true state now: with the widest
@@ -201,7 +216,7 @@ impl Planner {
         let geometry = seen.as_ref().unwrap_or(&self.geometry);
         let mut longest = Plan::default();
         for margin in MARGINS {
-            let plan = search(geometry, env, i, margin, horizon);
+            let plan = search(geometry, env, i, margin, horizon, None);
             if plan.through {
                 return plan;
             }
@@ -217,8 +232,16 @@ impl Planner {
 }
 
 /// The breadth-first search of [`Planner`] for agent `i` of `env`: through
-/// to the end (or the goal), or clear for `horizon` actions.
-fn search(geometry: &Geometry, env: &VecEnv, i: usize, margin: f32, horizon: usize) -> Plan {
+/// to the end (or the goal), or clear for `horizon` actions; starting with
+/// action `first` where one is given.
+fn search(
+    geometry: &Geometry,
+    env: &VecEnv,
+    i: usize,
+    margin: f32,
+    horizon: usize,
+    first: Option<u8>,
+) -> Plan {
     let cfg = env.config();
     let d = env.drone(i);
     let period = cfg.substeps() as f64 * f64::from(cfg.physics_dt);
@@ -249,6 +272,9 @@ fn search(geometry: &Geometry, env: &VecEnv, i: usize, margin: f32, horizon: usi
         let mut seen: HashSet<(i32, i32)> = HashSet::new();
         for (n, node) in layers[k].iter().enumerate() {
             for (a, delta) in deltas.iter().enumerate() {
+                if k == 0 && first.is_some_and(|f| f as usize != a) {
+                    continue;
+                }
                 let sp = (node.sp + delta).clamp(-cfg.max_lateral_speed, cfg.max_lateral_speed);
                 let rest = sp + drift;
                 for (j, p) in path.iter_mut().enumerate() {
@@ -288,7 +314,7 @@ fn search(geometry: &Geometry, env: &VecEnv, i: usize, margin: f32, horizon: usi
     }
     // Clear for the whole horizon (shorter than the episode's rest), or no
     // way through in the model: the longest way found.
-    let clear = limit < left && layers.len() == limit + 1;
+    let clear = horizon != usize::MAX && layers.len() == limit + 1;
     unwind(&layers, 0, clear)
 }
 
