@@ -289,7 +289,8 @@ fn bad_input_is_refused_clearly() {
     fails_with(&["bench", "seeds", "--arm", "a:nonsense"], &["key=value"]);
     fails_with(&["bench", "seeds", "--arm", "a:sim.agnets=3"], &["arm a", "agnets"]);
     fails_with(&["train", "--set", "sim.generated_lanes=-1"], &["generated_lanes"]);
-    let teacher = |k: &str| ["train", "--set", "teacher.policy=\"planner\"", "--set", k].map(String::from);
+    let teacher =
+        |k: &str| ["train", "--set", "teacher.policy=\"planner\"", "--set", k].map(String::from);
     for (set, needle) in [
         ("teacher.demo_agents=51", "teacher.demo_agents"),
         ("teacher.label_share=1.5", "teacher.label_share"),

@@ -235,12 +235,7 @@ mod tests {
             shapes.unpack(&w, &mut t);
             assert_eq!(t[2 * shapes.obs_len()..], tail);
         }
-        shapes.pack(
-            &obs,
-            &obs,
-            [1.0, 3.0, 0.0, 1.0, 0.5],
-            &mut words[..PACKED_LEN],
-        );
+        shapes.pack(&obs, &obs, [1.0, 3.0, 0.0, 1.0, 0.5], &mut words[..PACKED_LEN]);
         let bytes = wire::payload_bytes(&words);
         assert_eq!(
             transitions(&host(), shapes, Some(&att), &[bytes]).unwrap_err(),

@@ -166,6 +166,8 @@ struct Actor<'a, S: Service> {
     /// ([`NO_EXPERT`] where none), and whether it flew the agent there.
     prev_experts: Vec<f32>,
     prev_flown: Vec<bool>,
+    /// Whether the teacher flies each agent at this step.
+    flown: Vec<bool>,
     /// Agents the teacher flies (the first ones; 0 without a teacher).
     demo_agents: usize,
     /// Whether the teacher flew any step of each agent's current episode,
@@ -223,6 +225,7 @@ impl<'a, S: Service> Actor<'a, S> {
             prev_actions: vec![0; n],
             prev_experts: vec![NO_EXPERT; n],
             prev_flown: vec![false; n],
+            flown: vec![false; n],
             demo_agents: cfg.teacher.demo_agents(),
             episode_flown: vec![false; n],
             ended_flown: vec![false; n],
@@ -304,7 +307,7 @@ impl<'a, S: Service> Actor<'a, S> {
                 self.actions[i] = flies[i] as u8;
                 self.episode_flown[i] = true;
             }
-            self.prev_flown[i] = flown;
+            self.flown[i] = flown;
         }
         self.tel.sample.time_stage(ActorStage::Inference, t);
         // The actions leave first; then this step's transitions (round
@@ -332,6 +335,7 @@ impl<'a, S: Service> Actor<'a, S> {
         self.nstep.store(obs);
         self.prev_actions.copy_from_slice(&self.actions);
         self.prev_experts.copy_from_slice(labels);
+        self.prev_flown.copy_from_slice(&self.flown);
         self.have_prev = true;
         self.tel.sample.work = self.transitions;
         self.tel.sample.work2 = self.episodes;
