@@ -292,7 +292,6 @@ fn bad_input_is_refused_clearly() {
     let teacher =
         |k: &str| ["train", "--set", "teacher.policy=\"planner\"", "--set", k].map(String::from);
     for (set, needle) in [
-        ("teacher.demo_agents=51", "teacher.demo_agents"),
         ("teacher.label_share=1.5", "teacher.label_share"),
         ("teacher.margin=-1", "teacher.margin"),
         ("teacher.memory_s=9", "view-memory"),

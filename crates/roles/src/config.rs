@@ -755,7 +755,7 @@ impl Config {
     fn validate_learning(&self) -> Result<()> {
         self.validate_actor()?;
         self.validate_replay()?;
-        self.teacher.validate(self.sim.agents, self.replay.prioritized)?;
+        self.teacher.validate(self.replay.prioritized)?;
         self.validate_learner()
     }
 

@@ -865,7 +865,7 @@ mod tests {
         let reward = |r: &[u16]| shapes.packed_scalar(r, 2 * shapes.scalars + 1);
         for (k, r) in out[..8 * w].chunks_exact(w).enumerate() {
             if k < 3 {
-                assert!(flag(r) == 1.0 && reward(r) < 60.0 && reward(r) as u32 % 5 == 0);
+                assert!(flag(r) == 1.0 && reward(r) < 60.0 && (reward(r) as u32).is_multiple_of(5));
             } else {
                 assert!(flag(r) == 0.0 && reward(r) >= 1950.0, "row {k}: {}", reward(r));
             }

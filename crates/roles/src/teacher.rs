@@ -55,8 +55,8 @@ pub struct TeacherSection {
     /// With `sight = "view-memory"`: seconds the planner remembers (0: the
     /// whole episode).
     pub memory_s: u16,
-    /// Agents of each simulator (its first ones) that the planner flies:
-    /// their transitions are demonstrations.
+    /// Agents of each simulator (its first ones; at most all) that the
+    /// planner flies: their transitions are demonstrations.
     pub demo_agents: usize,
     /// Share of the student's steps labelled with the planner's action at
     /// the student's state.
@@ -140,16 +140,12 @@ impl TeacherSection {
         (1.0 - env_steps as f64 / self.fade_env_steps as f64).max(0.0)
     }
 
-    /// Checks the section against the run's `agents` per simulator.
-    pub fn validate(&self, agents: usize, prioritized: bool) -> Result<()> {
+    /// Checks the section (with `replay.prioritized`). `demo_agents` above
+    /// a simulator's agents means all of them (a level's config flown by
+    /// fewer drones, as Gymnasium's, stays valid).
+    pub fn validate(&self, prioritized: bool) -> Result<()> {
         if !self.on() {
             return Ok(());
-        }
-        if self.demo_agents > agents {
-            config_err!(
-                "key `teacher.demo_agents` ({}) is more than the simulator's agents (`sim.agents` = {agents})",
-                self.demo_agents
-            );
         }
         for (k, v) in [
             ("teacher.label_share", self.label_share),
