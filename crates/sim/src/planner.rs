@@ -168,7 +168,7 @@ impl Planner {
                     })
             });
         if !keep {
-            self.plans[i] = Some(self.search(env, i, usize::MAX));
+            self.plans[i] = Some(self.search(env, i));
         }
         let plan = self.plans[i].as_mut().expect("planned above");
         match plan.steps.get(plan.next) {
@@ -208,15 +208,14 @@ impl Planner {
     }
 
     /// A plan for agent `i` from its true state now: with the widest
-    /// margin that finds a way through (clear for `horizon` actions, or to
-    /// the end), else the longest way found.
-    fn search(&mut self, env: &VecEnv, i: usize, horizon: usize) -> Plan {
+    /// margin that finds a way through, else the longest way found.
+    fn search(&mut self, env: &VecEnv, i: usize) -> Plan {
         let seen = (self.sight != Sight::All)
             .then(|| Geometry::new(&in_view(env, i, self.sight, &mut self.watched[i])));
         let geometry = seen.as_ref().unwrap_or(&self.geometry);
         let mut longest = Plan::default();
         for margin in MARGINS {
-            let plan = search(geometry, env, i, margin, horizon, None);
+            let plan = search(geometry, env, i, margin, usize::MAX, None);
             if plan.through {
                 return plan;
             }
