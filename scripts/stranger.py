@@ -27,13 +27,15 @@ import time
 import zenoh
 
 DEPTH_WORDS = 2 * 2 * 32 * 32  # two observations of two 32 × 32 frames, u16
-SCALARS = 9  # velocities of s and s', action, reward, done
+SCALARS = 11  # velocities of s and s', action, reward, done, expert label, demonstration flag
 TRANSITION_BYTES = 2 * DEPTH_WORDS + 4 * SCALARS
 
 
-def transition(action=1.0, reward=3.0, done=0.0):
+def transition(action=1.0, reward=3.0, done=0.0, expert=-1.0, demo=0.0):
+    # msg::TAIL: action, reward, done, the teacher's label (-1: none), the
+    # demonstration flag (0: the student flew it).
     depth = b"\x00\x80" * DEPTH_WORDS
-    return depth + struct.pack("<9f", 0.1, 0.2, 0.3, 0.1, 0.2, 0.3, action, reward, done)
+    return depth + struct.pack("<11f", 0.1, 0.2, 0.3, 0.1, 0.2, 0.3, action, reward, done, expert, demo)
 
 
 def trans_header(actor, count, seq=0, epoch=0):
@@ -54,7 +56,8 @@ def telemetry(role, index, work=0):
     stages = struct.pack("<4Q", 0, 0, 0, 0)
     learning = struct.pack("<fffIffII", 0, 0, 0, 0, 0, 0, 0, 0)
     delivery = struct.pack("<4Q", 0, 0, 0, 0)
-    return head + counters + stages + learning + delivery
+    teacher = struct.pack("<6Q", 0, 0, 0, 0, 0, 0)
+    return head + counters + stages + learning + delivery + teacher
 
 
 def forged(slot_env):
@@ -67,6 +70,8 @@ def forged(slot_env):
         ("host/1/transitions", transition(reward=math.nan), trans_header(a, 1), "values"),  # NaN reward
         ("host/1/transitions", transition(action=2.0), trans_header(a, 1), "values"),  # action out of range
         ("host/1/transitions", transition(done=0.5), trans_header(a, 1), "values"),  # done flag out of range
+        ("host/1/transitions", transition(expert=5.0), trans_header(a, 1), "values"),  # label out of range
+        ("host/1/transitions", transition(demo=0.5), trans_header(a, 1), "values"),  # demonstration flag out of range
         ("host/1/transitions", transition(), trans_header(0, 1), "environment"),  # the head's environment
         ("host/1/transitions", transition(), trans_header(a + 1000, 1), "environment"),  # nobody's environment
         ("host/1/transitions", transition() * 2, trans_header(a, 1), "length"),  # count says 1, payload holds 2
