@@ -12,7 +12,6 @@
 //! probability that a run of one beats a run of the other (rliable's
 //! probability of improvement) with its interval.
 
-use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -22,10 +21,12 @@ use rand_pcg::Pcg64Mcg;
 use serde::Deserialize;
 
 use rotorhive_records::rows::{EvalRow, MetricsKind, MetricsRow};
-use rotorhive_records::{Rolling, Summary, plot};
+use rotorhive_records::{Rolling, Summary};
 
 use crate::stats::{bootstrap, iqm, median, prob_lower, quantile};
 use rotorhive_roles::{Config, Exploration};
+
+mod files;
 
 /// The command line of `hive bench seeds`.
 #[derive(clap::Args, Debug)]
@@ -675,9 +676,9 @@ fn report(
             pairs.push(Pair::of(a, x, y, &mut rng));
         }
     }
-    write_csv(&a.out.join("seeds.csv"), results)?;
-    write_md(a, &stats, &pairs, results)?;
-    plot(a, arms, &by_arm, results);
+    files::write_csv(&a.out.join("seeds.csv"), results)?;
+    files::write_md(a, &stats, &pairs, results)?;
+    files::plot(a, arms, &by_arm, results);
     print!("{}", std::fs::read_to_string(a.out.join("seeds.md"))?);
     if a.json {
         let report = SeedsReport {
@@ -694,211 +695,5 @@ fn report(
     Ok(())
 }
 
-/// `seeds.png` (rolling reward) and `seeds-validation.png` (greedy
-/// validation success): IQM and quartile band of each arm over time. A plot
-/// that cannot be drawn is reported and skipped.
-fn plot(a: &SeedsArgs, arms: &[Arm], by_arm: &[Vec<&RunResult>], results: &[RunResult]) {
-    let end = if a.deterministic_steps > 0 {
-        results.iter().flat_map(|r| r.curve.last().map(|p| p.0)).fold(1.0, f64::max)
-    } else {
-        a.budget_s
-    };
-    let step = (end / 90.0).max(1.0);
-    let bands_of = |curve: &dyn Fn(&RunResult) -> Vec<(f64, f64)>| -> Vec<plot::Band> {
-        let named = arms.iter().zip(by_arm);
-        named
-            .map(|(arm, runs)| {
-                let curves: Vec<Vec<(f64, f64)>> = runs.iter().map(|r| curve(r)).collect();
-                (arm.name.clone(), band(&curves.iter().collect::<Vec<_>>(), step, end))
-            })
-            .collect()
-    };
-    let plots = [
-        (
-            "rolling episode reward: IQM over seeds, band 25-75 %",
-            "reward",
-            bands_of(&|r| r.curve.clone()),
-            (-110.0, 460.0),
-            "seeds.png",
-        ),
-        (
-            "greedy validation success (%): IQM over seeds, band 25-75 %",
-            "%",
-            bands_of(&|r| r.validation.iter().map(|p| (p.0, p.1 * 100.0)).collect()),
-            (0.0, 100.0),
-            "seeds-validation.png",
-        ),
-    ];
-    for (title, y, bands, range, file) in plots {
-        let path = a.out.join(file);
-        if let Err(e) = plot::band_plot(title, "wall time (s)", y, &bands, range, &path) {
-            eprintln!("{file} not written: {e:#}");
-        }
-    }
-}
-
-fn write_csv(path: &Path, results: &[RunResult]) -> Result<()> {
-    let mut csv = String::from(
-        "arm,seed,converged,time_to_threshold_s,time_censored_s,time_to_target_s,best_validation,final_validation,result_validation,test_success,env_steps_per_s,updates_per_s,skipped_updates,failure,run_dir\n",
-    );
-    let o = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:.4}"));
-    for r in results {
-        writeln!(
-            csv,
-            "{},{},{},{},{:.3},{},{},{},{},{},{:.1},{:.1},{},{},{}",
-            r.arm,
-            r.seed,
-            r.time_s.is_some(),
-            o(r.time_s),
-            r.time_censored_s,
-            o(r.time_to_target_s),
-            o(r.best_validation),
-            o(r.final_validation),
-            o(r.result_validation),
-            o(r.test_success),
-            r.env_steps_per_s,
-            r.updates_per_s,
-            r.skipped_updates,
-            r.failure.as_deref().unwrap_or("").replace(',', ";"),
-            r.dir.display()
-        )?;
-    }
-    std::fs::write(path, csv).doing_with(|| format!("cannot write {}", path.display()))
-}
-
-/// `seeds.md`: how the runs were made, each arm's statistics, the pairs'
-/// probabilities of improvement, and every run's scores.
-fn write_md(
-    a: &SeedsArgs,
-    stats: &[ArmStats],
-    pairs: &[Pair],
-    results: &[RunResult],
-) -> Result<()> {
-    let mut md = String::from("# Seeds\n\n");
-    let how = if a.deterministic_steps > 0 {
-        format!("deterministic, {} agent-steps", a.deterministic_steps)
-    } else {
-        format!("free-running, {:.0} s wall budget, no early stop", a.budget_s)
-    };
-    let test_set = a
-        .test_arena
-        .as_ref()
-        .map_or("the config's held-out test set".to_string(), |p| format!("`{}`", p.display()));
-    writeln!(
-        md,
-        "Runs: {how}; interleaved A B / B A by seed; unconverged runs count at the budget. \
-         Test success: the run's result on {test_set} over {} episodes, pooled; the reactive \
-         rule on the same. Learning: agent-steps (and seconds) until a greedy validation first \
-         reached the target. Intervals: 95 % percentile bootstrap ({} resamples).\n",
-        a.test_episodes, a.resamples
-    )?;
-    writeln!(
-        md,
-        "| arm | reached target | median agent-steps to target | median time to target (s) \
-         | test success min / median / IQM (%) | reactive rule (%) | converged \
-         | median time to threshold (s) | IQM (s) [95 % CI] | epsilon at threshold \
-         | max collapse (best − final validation, points) | agent-steps/s | updates/s |"
-    )?;
-    writeln!(md, "|---|---|---|---|---|---|---|---|---|---|---|---|---|")?;
-    for s in stats {
-        writeln!(md, "{}", s.md_row())?;
-    }
-    if !pairs.is_empty() {
-        writeln!(
-            md,
-            "\nProbability that a run of b reaches the threshold sooner than a run of a \
-             (rliable's probability of improvement; 0.5 = no difference):\n"
-        )?;
-        writeln!(
-            md,
-            "| a | b | P(b sooner to threshold) | 95 % CI | P(b sooner to validation target) \
-             | 95 % CI |"
-        )?;
-        writeln!(md, "|---|---|---|---|---|---|")?;
-        for q in pairs {
-            writeln!(
-                md,
-                "| {} | {} | {:.2} | [{:.2}, {:.2}] | {:.2} | [{:.2}, {:.2}] |",
-                q.a, q.b, q.p, q.ci[0], q.ci[1], q.p_target, q.ci_target[0], q.ci_target[1]
-            )?;
-        }
-    }
-    writeln!(
-        md,
-        "\n| arm | seed | time to threshold (s) | time to target (s) \
-         | validation best / final / result (%) | test (%) | agent-steps/s |"
-    )?;
-    writeln!(md, "|---|---|---|---|---|---|---|")?;
-    for r in results {
-        let [t, g, best, last, result, test] = r.cells();
-        writeln!(
-            md,
-            "| {} | {} | {t} | {g} | {best} / {last} / {result} | {test} | {:.0} |",
-            r.arm, r.seed, r.env_steps_per_s
-        )?;
-    }
-    let path = a.out.join("seeds.md");
-    std::fs::write(&path, md).doing_with(|| format!("cannot write {}", path.display()))
-}
-
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn seeds_and_arms_parse_and_bad_ones_are_named() {
-        assert_eq!(parse_seeds("1-4").unwrap(), vec![1, 2, 3, 4]);
-        assert_eq!(parse_seeds("3,1,9").unwrap(), vec![3, 1, 9]);
-        assert!(parse_seeds("4-1").is_err() && parse_seeds("x").is_err());
-        let arm = parse_arm("fast:learner.n_step=3, learner.gamma=0.95").unwrap();
-        assert_eq!(
-            (arm.name.as_str(), arm.set),
-            ("fast", vec!["learner.n_step=3".to_string(), "learner.gamma=0.95".to_string()])
-        );
-        assert!(parse_arm("old").unwrap().set.is_empty());
-        assert!(parse_arm(":a=1").unwrap_err().to_string().contains("name"));
-        assert!(parse_arm("x:nonsense").unwrap_err().to_string().contains("key=value"));
-    }
-
-    #[test]
-    fn iqm_median_and_the_probability_of_improvement() {
-        // scipy.stats.trim_mean([1..8], 0.25) = mean(3, 4, 5, 6) = 4.5.
-        assert_eq!(iqm(&[8.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0]), 4.5);
-        // Fewer than four values: nothing is cut.
-        assert_eq!(iqm(&[1.0, 2.0, 9.0]), 4.0);
-        assert_eq!(median(&[3.0, 1.0, 2.0, 10.0]), 2.5);
-        // b is faster in 3 of 4 pairs and ties in none.
-        assert_eq!(prob_lower(&[10.0, 20.0], &[5.0, 15.0]), 0.75);
-        assert_eq!(prob_lower(&[1.0], &[1.0]), 0.5);
-        let mut rng = Pcg64Mcg::seed_from_u64(1);
-        let a: Vec<f64> = (0..20).map(|i| 100.0 + i as f64).collect();
-        let b: Vec<f64> = (0..20).map(|i| 50.0 + i as f64).collect();
-        let [lo, hi] = bootstrap(&[&a, &b], 500, &mut rng, |d| prob_lower(&d[0], &d[1]));
-        assert!(lo > 0.9 && hi <= 1.0, "[{lo}, {hi}]");
-        let [lo, hi] = bootstrap(&[&a], 500, &mut rng, |d| iqm(&d[0]));
-        assert!(lo < iqm(&a) && iqm(&a) < hi, "[{lo}, {hi}]");
-    }
-
-    #[test]
-    fn the_threshold_time_is_recomputed_with_the_runs_own_clock() {
-        let dir = std::env::temp_dir().join(format!("rotorhive-seeds-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let mut cfg = Config { rolling_window: 2, ..Config::default() };
-        cfg.actor.exploration = Exploration::PerActor;
-        std::fs::write(dir.join("config.toml"), cfg.to_toml()).unwrap();
-        let rows = "kind,wall_s,env_steps,episodes,episode_reward,rolling_reward,epsilon,updates,replay_size\n\
-            episode,1.0,0,1,444,444,0.05,0,0\n\
-            tick,1.5,0,1,,444,0.05,0,0\n\
-            episode,2.0,0,2,-100,172,0.4,0,0\n\
-            episode,3.0,0,3,400,422,0.01,0,0\n";
-        std::fs::write(dir.join("metrics.csv"), rows).unwrap();
-        // The exploring agent's collision does not count: the window of the
-        // two greedy episodes is full at 3 s.
-        let (t, curve) = threshold_time(&dir).unwrap();
-        assert_eq!((t, curve), (Some(3.0), vec![(1.5, 444.0)]));
-        cfg.actor.exploration = Exploration::Decay;
-        std::fs::write(dir.join("config.toml"), cfg.to_toml()).unwrap();
-        assert_eq!(threshold_time(&dir).unwrap().0, None, "with one schedule every episode counts");
-        let _ = std::fs::remove_dir_all(&dir);
-    }
-}
+mod tests;

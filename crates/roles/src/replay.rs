@@ -2,10 +2,9 @@
 //! actors publish (checking each actor's sequence numbers for loss) and keeps
 //! the learner's minibatch queue full once the memory holds `min_fill`.
 
-use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
-use crate::error::{Doing, Result, protocol_err};
+use crate::error::{Doing, Result};
 use rotorhive_msg::{
     MinibatchHeader, PICK_WORDS, PriorityHeader, Receipt, ReplayStage, RoleKind, SeqTracker,
     Shapes, Telemetry, TransitionHeader,
@@ -15,8 +14,9 @@ use rotorhive_transport::{Channel, TransportError};
 
 use rotorhive_transport::Service;
 
-use crate::schedule::Schedule;
 use crate::{Counters, Ctx, roles_of};
+
+mod scheduled;
 
 /// The replay role's state: the memory and its journal, the channels in and
 /// out, its counters and the learner's priority feedback.
@@ -541,141 +541,6 @@ impl SampleLimit {
     }
 }
 
-impl<S: Service> Memory<'_, S> {
-    /// The replay of a deterministic run ([`Schedule`]): transition batches
-    /// wait per environment until every environment's batch of the next round
-    /// is in, then go in environment by environment; after round `k` exactly
-    /// `minibatches_after(k)` minibatches have gone out, each sampled (from
-    /// the seeded generator) before the next round goes in, and offered until
-    /// the learner takes it.
-    fn run_scheduled(&mut self) -> Result<()> {
-        let (cfg, batch) = (self.cfg, self.cfg.replay.batch);
-        let schedule = Schedule::new(cfg);
-        let mut pending: Vec<VecDeque<(u64, Vec<u16>)>> = vec![VecDeque::new(); cfg.sim.envs];
-        let mut next_seq = SeqTracker::new(cfg.sim.envs);
-        let (mut rounds, mut sent) = (0u64, 0u64);
-        // The next minibatch, sampled once and offered until the learner takes it.
-        let mut minibatch = vec![0u16; minibatch_len(cfg.shapes(), batch)];
-        let mut drawn: Option<(Acted, (usize, f32))> = None;
-        // A minibatch sent before the learner subscribes would be lost.
-        while self.tx.receivers() == 0 && !self.hub.shutdown_requested() {
-            std::thread::sleep(Duration::from_millis(10));
-        }
-        while !self.hub.shutdown_requested() {
-            let t = Instant::now();
-            let mut busy = false;
-            while let Some(m) = self.rx.try_recv().doing("receiving transitions")? {
-                self.queue(&m, &mut pending, &mut next_seq)?;
-                busy = true;
-            }
-            self.tel.sample.time_stage(ReplayStage::Insert, t);
-            // The minibatches owed after the rounds in, one at a time (each
-            // waiting for its priorities under prioritized replay), then the
-            // next round.
-            let owed = sent < schedule.minibatches_after(rounds);
-            if drawn.is_none()
-                && owed
-                && self.prio.ready_for(sent, &mut self.mem, &mut self.tel.sample.learning)?
-            {
-                let beta = cfg.replay.priority_beta;
-                let (rows, teacher) = self.demo_rows();
-                let demos = self.demos.as_mut().map(|d| &mut d.mem);
-                let acted =
-                    sample(&mut self.mem, demos, rows, &mut minibatch, &mut self.picks, beta);
-                drawn = Some((acted, (rows, teacher)));
-            }
-            if let Some((acted, demo)) = drawn {
-                if self.send_copy(&minibatch, sent, acted, demo)? {
-                    sent += 1;
-                    drawn = None;
-                    busy = true;
-                }
-            } else if !owed && rounds < schedule.rounds() && pending.iter().all(|q| !q.is_empty()) {
-                let shapes = cfg.shapes();
-                insert_round(&mut pending, shapes, self.stores())?;
-                rounds += 1;
-                busy = true;
-            }
-            self.housekeep(sent)?;
-            if !busy {
-                let t = Instant::now();
-                let wait = Duration::from_millis(1);
-                if let Some(m) = self.rx.recv_timeout(wait).doing("waiting for transitions")? {
-                    self.queue(&m, &mut pending, &mut next_seq)?;
-                }
-                self.tel.sample.time_stage(ReplayStage::Idle, t);
-            }
-        }
-        Ok(())
-    }
-
-    /// Queues a deterministic run's transition batch (see [`enqueue`])
-    /// and notes it in the receipts.
-    fn queue(
-        &mut self,
-        m: &rotorhive_transport::Msg<S, u16, TransitionHeader>,
-        pending: &mut [VecDeque<(u64, Vec<u16>)>],
-        next_seq: &mut SeqTracker,
-    ) -> Result<()> {
-        let lost = &mut self.tel.sample.lost;
-        enqueue(m, pending, self.cfg.shapes(), (next_seq, lost))?;
-        self.receipts.took(m.user_header());
-        Ok(())
-    }
-
-    /// Offers a drawn minibatch (number `seq`); false when the learner's
-    /// queue stayed full.
-    fn send_copy(
-        &mut self,
-        minibatch: &[u16],
-        seq: u64,
-        acted: Acted,
-        demo: (usize, f32),
-    ) -> Result<bool> {
-        let batch = self.cfg.replay.batch;
-        let t = Instant::now();
-        let res = self.tx.send_with(minibatch.len(), |h, o| {
-            o.copy_from_slice(minibatch);
-            *h = minibatch_header(batch, seq, acted, demo);
-        });
-        self.tel.sample.time_stage(ReplayStage::Sample, t);
-        sent_or_stalled(res)
-    }
-}
-
-/// Inserts a deterministic run's next round: each environment's oldest
-/// pending batch, in environment order.
-fn insert_round(
-    pending: &mut [VecDeque<(u64, Vec<u16>)>],
-    shapes: Shapes,
-    mut stores: Stores<'_>,
-) -> Result<()> {
-    for q in pending {
-        let (version, batch) = q.pop_front().unwrap_or_default();
-        store(stores.reborrow(), shapes, &batch, version)?;
-    }
-    Ok(())
-}
-
-/// Queues a deterministic run's transition batch behind its environment's
-/// earlier ones.
-fn enqueue<S: Service>(
-    m: &rotorhive_transport::Msg<S, u16, TransitionHeader>,
-    pending: &mut [VecDeque<(u64, Vec<u16>)>],
-    shapes: Shapes,
-    (next_seq, lost): (&mut SeqTracker, &mut u64),
-) -> Result<()> {
-    let h = *m.user_header();
-    let envs = pending.len();
-    let Some(q) = pending.get_mut(h.actor as usize) else {
-        protocol_err!("transitions from actor {} of a run with {envs} environments", h.actor);
-    };
-    // A corrupt batch is refused; the round stays whole without it.
-    let clean = check(m, shapes, next_seq, lost);
-    q.push_back((h.weight_version, if clean { m.payload().to_vec() } else { Vec::new() }));
-    Ok(())
-}
-
 /// Counts, in transitions, a gap in the batch's actor's sequence numbers
 /// (estimated at this batch's size; a restarted actor starts again at 0,
 /// which is not loss) and its corrupt transitions; true
@@ -810,112 +675,4 @@ fn minibatch_header(batch: usize, seq: u64, acted: Acted, demo: (usize, f32)) ->
 }
 
 #[cfg(test)]
-mod tests {
-    use super::{Demos, SampleLimit, SeqLog, Stores, sample, store};
-    use rotorhive_msg::{NO_EXPERT, PICK_WORDS, Shapes, TransitionHeader};
-    use rotorhive_replay::{Journal, Pick, Replay};
-
-    /// Packed transitions whose reward is their number, each a
-    /// demonstration (expert 1, flag 1) where `demo(i)`, else the student's.
-    fn rows(from: u32, n: u32, demo: impl Fn(u32) -> bool) -> Vec<u16> {
-        let shapes = Shapes::PAPER;
-        let obs = vec![0.5f32; shapes.obs_len()];
-        let mut out = vec![0u16; n as usize * shapes.packed_len()];
-        for (k, t) in out.chunks_exact_mut(shapes.packed_len()).enumerate() {
-            let i = from + k as u32;
-            let tail = if demo(i) {
-                [1.0, i as f32, 0.0, 1.0, 1.0]
-            } else {
-                [0.0, i as f32, 0.0, NO_EXPERT, 0.0]
-            };
-            shapes.pack(&obs, &obs, tail, t);
-        }
-        out
-    }
-
-    #[test]
-    fn demonstrations_survive_a_full_replay_and_fill_their_share_of_a_batch() {
-        let shapes = Shapes::PAPER;
-        let w = shapes.packed_len();
-        let dir = std::env::temp_dir().join(format!("rotorhive-demos-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let (mut mem, mut journal) = Journal::open(&dir.join("replay.bin"), 50, w, 1).unwrap();
-        let path = dir.join("replay-demo.bin");
-        let (dm, dj) = Journal::open(&path, 20, w, 2).unwrap();
-        let mut demos = Demos { mem: dm, journal: Some(dj) };
-        // Mixed batches: every fifth row a demonstration, 12 of them.
-        let mixed = rows(0, 60, |i| i % 5 == 0);
-        fn stores<'a>(mem: &'a mut Replay, j: &'a mut Journal, d: &'a mut Demos) -> Stores<'a> {
-            Stores { mem, journal: Some(j), demos: Some(d) }
-        }
-        store(stores(&mut mem, &mut journal, &mut demos), shapes, &mixed, 3).unwrap();
-        assert_eq!((mem.len(), demos.mem.len()), (48, 12));
-        // Then the student's rows alone, twenty times the memory's size.
-        for k in 0..20 {
-            let own = rows(1000 + 50 * k, 50, |_| false);
-            store(stores(&mut mem, &mut journal, &mut demos), shapes, &own, 4).unwrap();
-        }
-        assert_eq!((mem.len(), demos.mem.len()), (50, 12), "the demonstrations are all there");
-        // A minibatch of 8 with 3 demonstration rows: those first, drawn
-        // from the reservoir, the rest the student's.
-        let mut out = vec![0u16; 8 * (w + PICK_WORDS)];
-        let mut picks = vec![Pick::default(); 8];
-        sample(&mut mem, Some(&mut demos.mem), 3, &mut out, &mut picks, 0.4);
-        let flag = |r: &[u16]| shapes.packed_scalar(r, 2 * shapes.scalars + 4);
-        let reward = |r: &[u16]| shapes.packed_scalar(r, 2 * shapes.scalars + 1);
-        for (k, r) in out[..8 * w].chunks_exact(w).enumerate() {
-            if k < 3 {
-                assert!(flag(r) == 1.0 && reward(r) < 60.0 && (reward(r) as u32).is_multiple_of(5));
-            } else {
-                assert!(flag(r) == 0.0 && reward(r) >= 1950.0, "row {k}: {}", reward(r));
-            }
-        }
-        // And a replay started again has them from their journal.
-        drop(demos);
-        let (again, _) = Journal::open(&path, 20, w, 2).unwrap();
-        assert_eq!(again.len(), 12);
-        let _ = std::fs::remove_dir_all(&dir);
-    }
-
-    #[test]
-    fn a_replay_started_again_in_its_run_takes_up_its_predecessors_sequence_numbers() {
-        let dir = std::env::temp_dir().join(format!("rotorhive-seqlog-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let h = |actor, seq| TransitionHeader { actor, count: 4, seq, weight_version: 0 };
-        let log = SeqLog::open(Some(&dir), "run-a", 2);
-        let mut t = log.resume();
-        for seq in 0..5 {
-            assert_eq!(t.observe(0, seq), 0);
-            log.record(&h(0, seq));
-        }
-        // Killed with batches 5 and 6 in its queue; the next one takes up
-        // where its predecessor stood.
-        drop(log);
-        let log = SeqLog::open(Some(&dir), "run-a", 2);
-        let mut t = log.resume();
-        assert_eq!(t.observe(0, 7), 2, "batches 5 and 6 lost");
-        assert_eq!(t.observe(1, 3), 0, "an actor never seen before");
-        // Another run's replay in the same directory starts afresh.
-        let log = SeqLog::open(Some(&dir), "run-b", 2);
-        assert_eq!(log.resume().observe(0, 9), 0);
-        let _ = std::fs::remove_dir_all(&dir);
-    }
-
-    #[test]
-    fn sampling_waits_for_inserts_past_the_buffer() {
-        let mut cfg = crate::config::Config::default();
-        cfg.replay.samples_per_insert = 1.0;
-        let mut lim = SampleLimit::new(&cfg);
-        let buffer_batches = (lim.buffer / lim.batch) as u64;
-        // Counted from the first minibatch: 15,000 already inserted.
-        assert!(lim.allows(0, 15_000));
-        assert!(lim.allows(buffer_batches - 1, 15_000));
-        assert!(!lim.allows(buffer_batches, 15_000));
-        // 320 more transitions pay for 10 more minibatches of 32, not 11.
-        assert!(lim.allows(buffer_batches + 9, 15_320));
-        assert!(!lim.allows(buffer_batches + 10, 15_320));
-        cfg.replay.samples_per_insert = 0.0;
-        let mut off = SampleLimit::new(&cfg);
-        assert!(off.allows(1_000_000, 0));
-    }
-}
+mod tests;

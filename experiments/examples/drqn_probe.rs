@@ -19,7 +19,7 @@
 //! learns only the memory and the Q head on top.
 //!
 //! ```text
-//! cargo run --release -p rotorhive-roles --example drqn_probe -- \
+//! cargo run --release -p rotorhive-experiments --example drqn_probe -- \
 //!     LEVEL SECONDS SEED (gru|none) (scan|pool|features:CHECKPOINT) \
 //!     [SEQUENCES_PER_UPDATE]
 //! ```
@@ -284,34 +284,8 @@ fn train(
         let eps = (1.0 - (steps * agents as u64) as f64 / EPS_DECAY * 0.9).max(0.1);
         let (actions, mut next_h) = learner.act(&obs, &h, eps, &mut rng)?;
         for (i, s) in streams.iter_mut().enumerate() {
-            s.push_back(Step {
-                obs: obs[i * input..(i + 1) * input].to_vec(),
-                h: h[i * HID..(i + 1) * HID].to_vec(),
-                action: 0,
-                reward: 0.0,
-                done: false,
-            });
-            if s.len() > WIN {
-                s.pop_front();
-            }
-            // One sequence every TRAIN steps once WIN are there: trained
-            // steps never overlap.
-            if (steps as usize + 1).checked_sub(WIN).is_some_and(|d| d.is_multiple_of(TRAIN)) {
-                let seq = Sequence {
-                    obs: s.iter().flat_map(|e| e.obs.iter().copied()).collect(),
-                    actions: s.iter().map(|e| e.action as u32).collect(),
-                    rewards: s.iter().map(|e| e.reward).collect(),
-                    dones: s.iter().map(|e| e.done as u8 as f32).collect(),
-                    h0: s[0].h.clone(),
-                };
-                let slot = (inserted / TRAIN as u64) as usize % CAPACITY;
-                if replay.len() < CAPACITY {
-                    replay.push(seq)
-                } else {
-                    replay[slot] = seq
-                }
-                inserted += TRAIN as u64;
-            }
+            let step = (&obs[i * input..(i + 1) * input], &h[i * HID..(i + 1) * HID]);
+            push_step(s, step, steps, &mut replay, &mut inserted);
         }
         env.step(&actions)?;
         steps += 1;
@@ -351,6 +325,38 @@ fn train(
         }
     }
     Ok(())
+}
+
+/// Appends an agent's step (its observation and the state it acted from)
+/// to its stream, and stores the stream as a sequence every `TRAIN` steps
+/// once `WIN` are there: trained steps never overlap.
+fn push_step(
+    s: &mut VecDeque<Step>,
+    (obs, h): (&[f32], &[f32]),
+    steps: u64,
+    replay: &mut Vec<Sequence>,
+    inserted: &mut u64,
+) {
+    s.push_back(Step { obs: obs.to_vec(), h: h.to_vec(), action: 0, reward: 0.0, done: false });
+    if s.len() > WIN {
+        s.pop_front();
+    }
+    if (steps as usize + 1).checked_sub(WIN).is_some_and(|d| d.is_multiple_of(TRAIN)) {
+        let seq = Sequence {
+            obs: s.iter().flat_map(|e| e.obs.iter().copied()).collect(),
+            actions: s.iter().map(|e| e.action as u32).collect(),
+            rewards: s.iter().map(|e| e.reward).collect(),
+            dones: s.iter().map(|e| e.done as u8 as f32).collect(),
+            h0: s[0].h.clone(),
+        };
+        let slot = (*inserted / TRAIN as u64) as usize % CAPACITY;
+        if replay.len() < CAPACITY {
+            replay.push(seq)
+        } else {
+            replay[slot] = seq
+        }
+        *inserted += TRAIN as u64;
+    }
 }
 
 /// The online and target networks and the optimizer.

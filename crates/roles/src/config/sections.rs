@@ -1,0 +1,427 @@
+//! The sections of a run's config (`[sim]`, `[actor]`, `[replay]`,
+//! `[learner]`, `[eval]`, `[cluster]`) with their defaults; the keys, their
+//! defaults and units are listed in `docs/config.md`.
+
+use std::path::PathBuf;
+
+use rotorhive_records::ObservationMode;
+use rotorhive_sim::{GenParams, Goal, Noise, PhysicsKind, Randomize, RendererKind};
+use serde::{Deserialize, Serialize};
+
+/// `actor.device` and `learner.device`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum DeviceName {
+    /// The CPU.
+    Cpu,
+    /// GPU 0 through CUDA (a build with `--features cuda`).
+    Cuda,
+}
+
+impl DeviceName {
+    /// The model's device of this name.
+    pub fn kind(self) -> rotorhive_model::DeviceKind {
+        match self {
+            Self::Cpu => rotorhive_model::DeviceKind::Cpu,
+            Self::Cuda => rotorhive_model::DeviceKind::Cuda,
+        }
+    }
+}
+
+/// `actor.exploration`: how each agent's epsilon is chosen.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Exploration {
+    /// One epsilon for every agent: `eps_start` until the replay holds
+    /// `min_fill`, then linear to `eps_end` over `eps_decay` transitions.
+    Decay,
+    /// Ape-X: agent i of the run's N agents (every host's) explores with
+    /// epsilon_i = base^(1 + alpha·i/(N−1)) once the replay holds
+    /// `min_fill` (`eps_start` before), so some keep exploring and others
+    /// exploit. The rolling reward then counts the episodes of agents at or
+    /// below `eps_end` only, the old schedule's floor.
+    PerActor,
+}
+
+/// `[cluster]`: a run across hosts. The head (`hive train --listen`) waits
+/// for `workers` worker hosts (`hive worker --connect`) before its clock
+/// starts; the `*_elsewhere` keys are filled in by the head as workers join
+/// (they size the channels and the rate limit) and are left at 0 by hand.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ClusterSection {
+    /// Worker hosts the run waits for; 0 = none.
+    pub workers: usize,
+    /// How long the head waits for them (s).
+    pub join_timeout_s: f64,
+    /// How long a worker waits for a head whose session dropped to come
+    /// back (s), its unacknowledged batches kept and then sent again.
+    pub reconnect_s: f64,
+    /// Environments on other hosts (set by the head).
+    pub envs_elsewhere: usize,
+    /// Agents on other hosts (set by the head).
+    pub agents_elsewhere: usize,
+    /// Index in the run of this host's first environment (set by a worker
+    /// from the head's answer): its sims and actors seed themselves as
+    /// those environments of a one-host run would.
+    pub env_offset: usize,
+}
+
+impl Default for ClusterSection {
+    fn default() -> Self {
+        Self {
+            workers: 0,
+            join_timeout_s: 60.0,
+            reconnect_s: 60.0,
+            envs_elsewhere: 0,
+            agents_elsewhere: 0,
+            env_offset: 0,
+        }
+    }
+}
+
+/// `[eval]`: `hive train` flies the newest published weights greedily every
+/// `every_s` seconds (and at the threshold crossing) and keeps the best as
+/// `checkpoints/best.safetensors`, the run's result.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EvalSection {
+    /// Seconds between evaluations; 0 turns evaluation off.
+    pub every_s: f64,
+    /// Episodes per evaluation (flown at once, one per agent).
+    pub episodes: usize,
+    /// Arena of the evaluations; empty means `validation_arenas` generated
+    /// arenas, side by side.
+    pub arena: String,
+    /// Generated validation arenas (neither trained on nor the test arena).
+    pub validation_arenas: usize,
+    /// After the threshold, training goes on until an evaluation reaches
+    /// this success rate ...
+    pub target_success: f64,
+    /// ... or for at most this many seconds.
+    pub after_threshold_s: f64,
+    /// Episodes on fresh spawns that confirm a candidate for the run's
+    /// result: an evaluation that may beat the best so far is flown again
+    /// on new spawns, and only that independent score is compared, kept and
+    /// checked against `target_success` (no winner's curse from the maximum
+    /// of noisy scores). 0: the screening score decides.
+    pub confirm_episodes: usize,
+    /// Also an evaluation every this many agent-steps (every host's), on
+    /// the agent-step clock rather than the wall clock: the learning curve
+    /// in experience; 0: none.
+    pub every_env_steps: u64,
+    /// Held-out test arenas (files), never trained or validated on: what
+    /// `hive eval` without `--arena` and `hive bench seeds` score a result on.
+    pub test_arenas: Vec<PathBuf>,
+    /// Also this many held-out layouts drawn by the level's generator from
+    /// seeds no run trains or validates on (`seeds::test_layout`).
+    pub test_layouts: usize,
+}
+
+impl Default for EvalSection {
+    fn default() -> Self {
+        Self {
+            every_s: 15.0,
+            episodes: 100,
+            arena: String::new(),
+            validation_arenas: 10,
+            target_success: 0.9,
+            after_threshold_s: 240.0,
+            confirm_episodes: 300,
+            every_env_steps: 0,
+            test_arenas: vec![PathBuf::from("configs/arenas/test.toml")],
+            test_layouts: 4,
+        }
+    }
+}
+
+/// `[sim]`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SimSection {
+    /// Simulator processes.
+    pub envs: usize,
+    /// Agents per simulator.
+    pub agents: usize,
+    /// Arena file; empty: the `generated_lanes` alone (which `generator`
+    /// then needs).
+    pub arena: PathBuf,
+    /// Generated arenas flown beside `arena` (each a lane of its own, with
+    /// different seeds in every environment); agents start each episode in
+    /// a lane drawn at random. 0 trains on `arena` alone.
+    pub generated_lanes: usize,
+    /// Forward speed setpoint (m/s).
+    pub forward_speed: f32,
+    /// Lateral velocity change per action (m/s).
+    pub lateral_step: f32,
+    /// Largest lateral speed setpoint (m/s).
+    pub max_lateral_speed: f32,
+    /// Radius of the drone's collision sphere (m).
+    pub drone_radius: f32,
+    /// Reward of a step that ends in none of the ways below.
+    pub reward_step: f32,
+    /// Reward of the step that ends in a collision.
+    pub reward_collision: f32,
+    /// Reward of the step that times out.
+    pub reward_timeout: f32,
+    /// Reward of the step that reaches the end of the arena.
+    pub reward_goal: f32,
+    /// The renderer.
+    pub renderer: RendererKind,
+    /// One observation message per step or one per agent.
+    pub observation_mode: ObservationMode,
+    /// Drones collide with and see each other.
+    pub interactive: bool,
+    /// Physics step (s).
+    pub physics_dt: f32,
+    /// How flight is computed: `direct` (the equations of motion, collision
+    /// queries once per action) or `rapier` (a rigid-body pipeline, the
+    /// reference).
+    pub physics: PhysicsKind,
+    /// Simulated seconds per action.
+    pub action_period: f32,
+    /// Steps before a timeout.
+    pub max_steps: u32,
+    /// Depth clip range (m).
+    pub depth_range: f32,
+    /// Depth frames stacked in one observation, one action period apart
+    /// (2: the paper's, previous and current); 1 to
+    /// [`rotorhive_msg::MAX_FRAMES`].
+    pub frames: usize,
+    /// Action periods between two stacked frames (1: consecutive; 3 with
+    /// four frames: the views of 9, 6 and 3 periods ago and now); 1 to
+    /// [`rotorhive_msg::MAX_FRAME_STRIDE`].
+    pub frame_stride: usize,
+    /// Threads for CPU rendering.
+    pub render_threads: usize,
+    /// The generator of the training lanes, the validation arenas and the
+    /// generated test layouts; absent: the paper's generator at the size
+    /// of `arena`.
+    pub generator: Option<GenParams>,
+    /// The depth camera's noise, dropout and latency.
+    pub noise: Noise,
+    /// Per-episode randomisation of dynamics, camera and spawn.
+    pub randomize: Randomize,
+    /// A generator parameter ramped over the run (training lanes only).
+    pub curriculum: Option<Curriculum>,
+    /// A goal to reach (`[sim.goal]`; off: the paper's task). With it the
+    /// observation gains the goal's floats.
+    #[serde(skip_serializing_if = "Goal::is_off")]
+    pub goal: Goal,
+    /// A third action that holds the lateral setpoint.
+    pub hold_action: bool,
+}
+
+/// `[sim.curriculum]`: one key of `[sim.generator]` ramps linearly from
+/// `from` to the generator's own value over `over_env_steps` agent-steps,
+/// in `stages` steps; at each stage every simulator regenerates its
+/// training lanes (the agents then flying end their episodes as timeouts).
+/// Validation and test arenas are always the generator's own.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Curriculum {
+    /// The key under `[sim.generator]`, e.g. `spacing`.
+    pub key: String,
+    /// Its value at the start.
+    pub from: f64,
+    /// Agent-steps (every host's) until it reaches the generator's value.
+    pub over_env_steps: u64,
+    /// Changes along the way.
+    #[serde(default = "default_stages")]
+    pub stages: u32,
+}
+
+fn default_stages() -> u32 {
+    5
+}
+
+/// `[actor]`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ActorSection {
+    /// Initial exploration rate.
+    pub eps_start: f64,
+    /// Final exploration rate.
+    pub eps_end: f64,
+    /// Transitions (across all actors) over which epsilon decays linearly,
+    /// counted from the moment the replay memory is full.
+    pub eps_decay: u64,
+    /// One decaying epsilon, or Ape-X's fixed epsilon per agent.
+    pub exploration: Exploration,
+    /// Ape-X's base (0.4): the least greedy agent's epsilon.
+    pub per_actor_base: f64,
+    /// Ape-X's exponent spread (7): the greediest agent's epsilon is
+    /// base^(1 + alpha).
+    pub per_actor_alpha: f64,
+    /// Threads for inference.
+    pub threads: usize,
+    /// Device for inference: "cpu", or "cuda" in a build with `--features cuda`.
+    pub device: DeviceName,
+}
+
+/// `[replay]`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ReplaySection {
+    /// Capacity of the FIFO memory (transitions).
+    pub capacity: usize,
+    /// Transitions stored before training starts.
+    pub min_fill: usize,
+    /// Minibatch size.
+    pub batch: usize,
+    /// Minibatches queued ahead for the learner.
+    pub prefetch: usize,
+    /// Rate limit (as in Reverb): the sims pause while the transitions
+    /// produced past `min_fill` exceed the transitions the learner has
+    /// sampled divided by this ratio (sampled per inserted). 0 turns it off.
+    pub samples_per_insert: f64,
+    /// The memory is written through to `RUN_DIR/replay.bin` as it changes
+    /// (a restarted or resumed replay starts with every transition it had)
+    /// and the file is synced to disk every this many seconds. 0 turns the
+    /// file off.
+    pub snapshot_every_s: f64,
+    /// Prioritized replay (Ape-X): rows are drawn in proportion to
+    /// (|TD error| + `priority_eps`)^`priority_alpha`, the learner sends each
+    /// minibatch's TD errors back, and each row's loss is weighted by
+    /// (N·P)^−`priority_beta` over the batch's largest. False: uniform.
+    pub prioritized: bool,
+    /// Prioritization exponent (Ape-X: 0.6; 0 is uniform).
+    pub priority_alpha: f64,
+    /// Importance-sampling exponent (Ape-X: 0.4; 1 corrects fully).
+    pub priority_beta: f64,
+    /// Added to every |TD error| so that no row's priority is zero.
+    pub priority_eps: f64,
+}
+
+/// `[learner]`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LearnerSection {
+    /// Adam learning rate at the first update.
+    pub lr: f64,
+    /// Learning rate after `lr_decay_updates` updates (linear decay, then held).
+    pub lr_final: f64,
+    /// Updates over which the learning rate falls from `lr` to `lr_final`; 0
+    /// keeps `lr`.
+    pub lr_decay_updates: u64,
+    /// Discount.
+    pub gamma: f64,
+    /// Updates between target-network copies.
+    pub target_update: u64,
+    /// Largest update rate (Hz); 0 is unlimited.
+    pub max_rate_hz: f64,
+    /// Updates between weight publications.
+    pub publish_every: u64,
+    /// Seconds between checkpoints (`checkpoints/latest.safetensors` and the
+    /// learner's whole state): a learner killed at any moment restarts with
+    /// at most this much of its updates lost.
+    pub checkpoint_every_s: f64,
+    /// Threads for training.
+    pub threads: usize,
+    /// Huber loss threshold.
+    pub huber_delta: f64,
+    /// Rewards (n-step returns) are multiplied by this in the TD target, so
+    /// that Q-values and TD errors sit in the Huber loss's quadratic range;
+    /// episode returns, the threshold and every record stay unscaled.
+    pub reward_scale: f64,
+    /// The gradient's global L2 norm is clipped to this before Adam's step
+    /// (Ape-X: 40); 0 turns clipping off.
+    pub max_grad_norm: f64,
+    /// Double DQN targets (the online network picks the next action).
+    pub double_dqn: bool,
+    /// Steps per transition return (n-step, as in Ape-X): the actors sum n
+    /// discounted rewards and the learner bootstraps with gamma^n.
+    pub n_step: usize,
+    /// Device for training: "cpu", or "cuda" in a build with `--features cuda`.
+    pub device: DeviceName,
+}
+
+impl Default for SimSection {
+    fn default() -> Self {
+        Self {
+            envs: 1,
+            agents: 50,
+            arena: PathBuf::from("configs/arenas/train.toml"),
+            generated_lanes: 15,
+            renderer: RendererKind::Cpu,
+            observation_mode: ObservationMode::Batched,
+            interactive: false,
+            physics_dt: 0.02,
+            physics: PhysicsKind::Direct,
+            action_period: 1.0,
+            max_steps: 400,
+            depth_range: 20.0,
+            render_threads: 1,
+            forward_speed: 1.0,
+            lateral_step: 0.25,
+            max_lateral_speed: 3.0,
+            drone_radius: 0.3,
+            reward_step: 3.0,
+            reward_collision: -100.0,
+            reward_timeout: -10.0,
+            reward_goal: 3.0,
+            generator: None,
+            noise: Noise::default(),
+            randomize: Randomize::default(),
+            curriculum: None,
+            goal: Goal::default(),
+            hold_action: false,
+            frames: rotorhive_msg::FRAMES,
+            frame_stride: 1,
+        }
+    }
+}
+
+impl Default for ActorSection {
+    fn default() -> Self {
+        Self {
+            eps_start: 1.0,
+            eps_end: 0.1,
+            eps_decay: 150_000,
+            exploration: Exploration::Decay,
+            per_actor_base: 0.4,
+            per_actor_alpha: 7.0,
+            threads: 1,
+            device: DeviceName::Cpu,
+        }
+    }
+}
+
+impl Default for ReplaySection {
+    fn default() -> Self {
+        Self {
+            capacity: 200_000,
+            min_fill: 15_000,
+            batch: 32,
+            prefetch: 4,
+            samples_per_insert: 0.75,
+            snapshot_every_s: 60.0,
+            prioritized: false,
+            priority_alpha: 0.6,
+            priority_beta: 0.4,
+            priority_eps: 1e-3,
+        }
+    }
+}
+
+impl Default for LearnerSection {
+    fn default() -> Self {
+        Self {
+            lr: 5e-4,
+            lr_final: 5e-4,
+            lr_decay_updates: 0,
+            gamma: 0.99,
+            target_update: 150,
+            max_rate_hz: 0.0,
+            publish_every: 10,
+            checkpoint_every_s: 1.0,
+            threads: 1,
+            huber_delta: 1.0,
+            reward_scale: 0.01,
+            max_grad_norm: 10.0,
+            double_dqn: true,
+            n_step: 3,
+            device: DeviceName::Cpu,
+        }
+    }
+}

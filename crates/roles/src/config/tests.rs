@@ -1,0 +1,126 @@
+use super::*;
+
+#[test]
+fn the_defaults_are_configs_default_toml() {
+    // What `hive train` without a config resolves to, against the file
+    // the README trains with and against the built-in defaults.
+    let none = Config::load(None, &[]).unwrap().to_toml();
+    let file = Config::load(
+        Some(
+            &std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+                .join("../../configs/default.toml"),
+        ),
+        &[],
+    )
+    .unwrap()
+    .to_toml();
+    assert_eq!(none, file);
+    assert_eq!(
+        Config::default().to_toml(),
+        none,
+        "Config::default() and configs/default.toml disagree"
+    );
+}
+
+#[test]
+fn defaults_validate_and_round_trip() {
+    let c = Config::default();
+    c.validate().unwrap();
+    let back: Config = toml::from_str(&c.to_toml()).unwrap();
+    assert_eq!(back.to_toml(), c.to_toml());
+}
+
+#[test]
+fn overrides_apply_and_bad_values_are_named() {
+    let c = Config::load(
+        None,
+        &["sim.agents=7".into(), "learner.lr=0.01".into(), "sim.observation_mode=batched".into()],
+    )
+    .unwrap();
+    assert_eq!(c.sim.agents, 7);
+    assert_eq!(c.learner.lr, 0.01);
+    assert_eq!(c.sim.observation_mode, ObservationMode::Batched);
+    let e =
+        format!("{:#}", Config::load(None, &["sim.observation_mode=sideways".into()]).unwrap_err());
+    assert!(e.contains("sim.observation_mode"), "{e}");
+    let e = format!("{:#}", Config::load(None, &["sim.agents=0".into()]).unwrap_err());
+    assert!(e.contains("sim.agents"), "{e}");
+    let e = format!("{:#}", Config::load(None, &["sim.agnets=3".into()]).unwrap_err());
+    assert!(e.contains("agnets"), "{e}");
+    let e = format!("{:#}", Config::load(None, &["replay.batch=300000".into()]).unwrap_err());
+    assert!(e.contains("replay.batch"), "{e}");
+    // The task's keys and sections, named when wrong.
+    let c = Config::load(
+        None,
+        &[
+            "sim.forward_speed=2.0".into(),
+            "sim.generator.spacing=3.0".into(),
+            "sim.noise.dropout=0.02".into(),
+        ],
+    )
+    .unwrap();
+    assert_eq!(
+        (
+            c.sim_config().forward_speed,
+            c.gen_params().unwrap().spacing,
+            c.sim_config().noise.dropout
+        ),
+        (2.0, 3.0, 0.02)
+    );
+    for (set, key) in [
+        ("sim.generator.per_row=9", "sim.generator.per_row"),
+        ("sim.generator.spacnig=3", "spacnig"),
+        ("sim.noise.dropout=0.9", "sim.noise.dropout"),
+        ("sim.randomize.mass=-1", "sim.randomize.mass"),
+        ("sim.lateral_step=0", "sim.lateral_step"),
+        ("sim.frames=0", "sim.frames"),
+        ("sim.frames=9", "sim.frames"),
+        ("sim.frame_stride=0", "sim.frame_stride"),
+        ("sim.frame_stride=9", "sim.frame_stride"),
+        ("sim.reward_collision=nan", "sim.reward_collision"),
+    ] {
+        let e = format!("{:#}", Config::load(None, &[set.into()]).unwrap_err());
+        assert!(e.contains(key), "{set}: {e}");
+    }
+    // Randomised dynamics live on the direct path only.
+    let e = format!(
+        "{:#}",
+        Config::load(None, &["sim.physics=\"rapier\"".into(), "sim.randomize.wind=0.5".into()])
+            .unwrap_err()
+    );
+    assert!(e.contains("direct"), "{e}");
+    // A curriculum ramps a generator key between stages.
+    let c = Config::load(
+        None,
+        &[
+            "sim.generator.spacing=3.0".into(),
+            "sim.curriculum.key=\"spacing\"".into(),
+            "sim.curriculum.from=6.0".into(),
+            "sim.curriculum.over_env_steps=100000".into(),
+            "sim.curriculum.stages=3".into(),
+        ],
+    )
+    .unwrap();
+    let at = |s| c.generator_at_stage(s).unwrap().spacing;
+    assert_eq!((at(0), at(1), at(3)), (6.0, 5.0, 3.0));
+    assert_eq!(
+        (c.curriculum_stage(0), c.curriculum_stage(40_000), c.curriculum_stage(10_000_000)),
+        (0, 1, 3)
+    );
+    let e = format!(
+        "{:#}",
+        Config::load(
+            None,
+            &[
+                "sim.generator.spacing=3.0".into(),
+                "sim.curriculum.key=\"colour\"".into(),
+                "sim.curriculum.from=1".into(),
+                "sim.curriculum.over_env_steps=5".into()
+            ]
+        )
+        .unwrap_err()
+    );
+    assert!(e.contains("colour"), "{e}");
+    let e = format!("{:#}", Config::load(None, &["sim.agents=\"many\"".into()]).unwrap_err());
+    assert!(e.contains("agents") || e.contains("invalid type"), "{e}");
+}

@@ -1,0 +1,107 @@
+use super::{Demos, SampleLimit, SeqLog, Stores, sample, store};
+use rotorhive_msg::{NO_EXPERT, PICK_WORDS, Shapes, TransitionHeader};
+use rotorhive_replay::{Journal, Pick, Replay};
+
+/// Packed transitions whose reward is their number, each a
+/// demonstration (expert 1, flag 1) where `demo(i)`, else the student's.
+fn rows(from: u32, n: u32, demo: impl Fn(u32) -> bool) -> Vec<u16> {
+    let shapes = Shapes::PAPER;
+    let obs = vec![0.5f32; shapes.obs_len()];
+    let mut out = vec![0u16; n as usize * shapes.packed_len()];
+    for (k, t) in out.chunks_exact_mut(shapes.packed_len()).enumerate() {
+        let i = from + k as u32;
+        let tail = if demo(i) {
+            [1.0, i as f32, 0.0, 1.0, 1.0]
+        } else {
+            [0.0, i as f32, 0.0, NO_EXPERT, 0.0]
+        };
+        shapes.pack(&obs, &obs, tail, t);
+    }
+    out
+}
+
+#[test]
+fn demonstrations_survive_a_full_replay_and_fill_their_share_of_a_batch() {
+    let shapes = Shapes::PAPER;
+    let w = shapes.packed_len();
+    let dir = std::env::temp_dir().join(format!("rotorhive-demos-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let (mut mem, mut journal) = Journal::open(&dir.join("replay.bin"), 50, w, 1).unwrap();
+    let path = dir.join("replay-demo.bin");
+    let (dm, dj) = Journal::open(&path, 20, w, 2).unwrap();
+    let mut demos = Demos { mem: dm, journal: Some(dj) };
+    // Mixed batches: every fifth row a demonstration, 12 of them.
+    let mixed = rows(0, 60, |i| i % 5 == 0);
+    fn stores<'a>(mem: &'a mut Replay, j: &'a mut Journal, d: &'a mut Demos) -> Stores<'a> {
+        Stores { mem, journal: Some(j), demos: Some(d) }
+    }
+    store(stores(&mut mem, &mut journal, &mut demos), shapes, &mixed, 3).unwrap();
+    assert_eq!((mem.len(), demos.mem.len()), (48, 12));
+    // Then the student's rows alone, twenty times the memory's size.
+    for k in 0..20 {
+        let own = rows(1000 + 50 * k, 50, |_| false);
+        store(stores(&mut mem, &mut journal, &mut demos), shapes, &own, 4).unwrap();
+    }
+    assert_eq!((mem.len(), demos.mem.len()), (50, 12), "the demonstrations are all there");
+    // A minibatch of 8 with 3 demonstration rows: those first, drawn
+    // from the reservoir, the rest the student's.
+    let mut out = vec![0u16; 8 * (w + PICK_WORDS)];
+    let mut picks = vec![Pick::default(); 8];
+    sample(&mut mem, Some(&mut demos.mem), 3, &mut out, &mut picks, 0.4);
+    let flag = |r: &[u16]| shapes.packed_scalar(r, 2 * shapes.scalars + 4);
+    let reward = |r: &[u16]| shapes.packed_scalar(r, 2 * shapes.scalars + 1);
+    for (k, r) in out[..8 * w].chunks_exact(w).enumerate() {
+        if k < 3 {
+            assert!(flag(r) == 1.0 && reward(r) < 60.0 && (reward(r) as u32).is_multiple_of(5));
+        } else {
+            assert!(flag(r) == 0.0 && reward(r) >= 1950.0, "row {k}: {}", reward(r));
+        }
+    }
+    // And a replay started again has them from their journal.
+    drop(demos);
+    let (again, _) = Journal::open(&path, 20, w, 2).unwrap();
+    assert_eq!(again.len(), 12);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_replay_started_again_in_its_run_takes_up_its_predecessors_sequence_numbers() {
+    let dir = std::env::temp_dir().join(format!("rotorhive-seqlog-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let h = |actor, seq| TransitionHeader { actor, count: 4, seq, weight_version: 0 };
+    let log = SeqLog::open(Some(&dir), "run-a", 2);
+    let mut t = log.resume();
+    for seq in 0..5 {
+        assert_eq!(t.observe(0, seq), 0);
+        log.record(&h(0, seq));
+    }
+    // Killed with batches 5 and 6 in its queue; the next one takes up
+    // where its predecessor stood.
+    drop(log);
+    let log = SeqLog::open(Some(&dir), "run-a", 2);
+    let mut t = log.resume();
+    assert_eq!(t.observe(0, 7), 2, "batches 5 and 6 lost");
+    assert_eq!(t.observe(1, 3), 0, "an actor never seen before");
+    // Another run's replay in the same directory starts afresh.
+    let log = SeqLog::open(Some(&dir), "run-b", 2);
+    assert_eq!(log.resume().observe(0, 9), 0);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn sampling_waits_for_inserts_past_the_buffer() {
+    let mut cfg = crate::config::Config::default();
+    cfg.replay.samples_per_insert = 1.0;
+    let mut lim = SampleLimit::new(&cfg);
+    let buffer_batches = (lim.buffer / lim.batch) as u64;
+    // Counted from the first minibatch: 15,000 already inserted.
+    assert!(lim.allows(0, 15_000));
+    assert!(lim.allows(buffer_batches - 1, 15_000));
+    assert!(!lim.allows(buffer_batches, 15_000));
+    // 320 more transitions pay for 10 more minibatches of 32, not 11.
+    assert!(lim.allows(buffer_batches + 9, 15_320));
+    assert!(!lim.allows(buffer_batches + 10, 15_320));
+    cfg.replay.samples_per_insert = 0.0;
+    let mut off = SampleLimit::new(&cfg);
+    assert!(off.allows(1_000_000, 0));
+}
