@@ -10,9 +10,8 @@ use std::process::Command;
 use rotorhive_roles::config::{Config, Curriculum};
 use rotorhive_sim::{GenParams, Goal};
 
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
+mod common;
+use common::root;
 
 fn read(rel: &str) -> String {
     std::fs::read_to_string(root().join(rel)).unwrap_or_else(|e| panic!("{rel}: {e}"))
@@ -223,31 +222,20 @@ fn every_hive_command_of_the_readme_exists_with_its_options() {
         checked += 1;
     }
     assert!(checked >= 10, "only {checked} command lines found in README.md");
-    // The commands table's subcommands.
-    let top = help(&[]);
-    let bench = help(&["bench"]);
+    // The commands table: every command its first column names, the later
+    // names of a cell (`hive bench sim`, `render`, ...) under the first one's
+    // parent.
+    let (top, bench) = (help(&[]), help(&["bench"]));
+    let listed =
+        |help: &str, w: &str| help.lines().any(|l| l.trim_start().starts_with(&format!("{w} ")));
     for row in readme.lines().filter(|l| l.starts_with("| `hive ")) {
-        for cell in row.split('`').skip(1).step_by(2).filter(|c| c.starts_with("hive ")) {
-            let word = cell.split_whitespace().nth(1).unwrap();
-            let known = |help: &str, w: &str| {
-                help.lines().any(|l| l.trim_start().starts_with(&format!("{w} ")))
-            };
-            if word == "bench" {
-                let which = cell.split_whitespace().nth(2).unwrap();
-                if !known(&bench, which) {
-                    wrong.push(format!("no `hive bench {which}`"));
-                }
-            } else if !known(&top, word) {
-                wrong.push(format!("no `hive {word}`"));
-            }
-        }
-    }
-    // `hive bench sim`, `render`, ...: the benchmarks named in one cell.
-    for row in readme.lines().filter(|l| l.starts_with("| `hive bench sim`")) {
-        for word in row.split('|').nth(1).unwrap().split('`').skip(1).step_by(2) {
-            let word = word.trim_start_matches("hive bench ");
-            if !bench.lines().any(|l| l.trim_start().starts_with(&format!("{word} "))) {
-                wrong.push(format!("no `hive bench {word}`"));
+        let mut names = row.split('|').nth(1).unwrap().split('`').skip(1).step_by(2);
+        let first: Vec<&str> = names.next().unwrap().split_whitespace().collect();
+        let (parent, help, sub) =
+            if first[1] == "bench" { ("bench ", &bench, first[2]) } else { ("", &top, first[1]) };
+        for word in std::iter::once(sub).chain(names) {
+            if !listed(help, word) {
+                wrong.push(format!("no `hive {parent}{word}`"));
             }
         }
     }

@@ -16,7 +16,7 @@ use crate::render::Drones;
 impl VecEnv {
     /// Where agent `i`'s camera sees from: its pose, `lag` physics steps
     /// back along the last action's path where it has a latency.
-    pub(super) fn camera_at(&self, i: usize) -> CameraPose {
+    fn camera_at(&self, i: usize) -> CameraPose {
         let mut cam = self.camera(i);
         let lag = self.camera_lag(i);
         if lag > 0 {
@@ -28,7 +28,7 @@ impl VecEnv {
 
     /// How many physics steps back agent `i`'s camera sees (its latency,
     /// within the last action's path; 0 at the start of an episode).
-    pub(super) fn camera_lag(&self, i: usize) -> usize {
+    fn camera_lag(&self, i: usize) -> usize {
         let (lag, stride) = (self.lag[i], self.path_stride);
         if lag > 0 && stride > 0 && !self.restarted[i] && self.path.len() >= (i + 1) * stride {
             lag.min(stride - 1)
@@ -38,7 +38,7 @@ impl VecEnv {
     }
 
     /// Puts the renderers' moving obstacles where they are now.
-    pub(super) fn place_obstacles(&mut self) {
+    fn place_obstacles(&mut self) {
         let t = self.time();
         self.scene.set_time(t);
         if let Some(g) = &mut self.gpu {
@@ -85,7 +85,7 @@ impl VecEnv {
     /// With the camera's latency and moving obstacles: every agent sees
     /// the movers where they were when its late frame was taken, one render
     /// call per latency (the agents of one latency together).
-    pub(super) fn render_lagged(&mut self) -> Result<(), GpuError> {
+    fn render_lagged(&mut self) -> Result<(), GpuError> {
         let (n, px) = (self.cfg.agents, self.px());
         let (t, dt) = (self.time(), f64::from(self.cfg.physics_dt));
         let lags: Vec<usize> = (0..n).map(|i| self.camera_lag(i)).collect();
@@ -113,7 +113,7 @@ impl VecEnv {
     /// Draws the views of agents `who` from `cams` (one each) into `img`
     /// (`who.len() × side²`), in one render call, without noise: the
     /// obstacles where the scene has them now.
-    pub(super) fn render_some(
+    fn render_some(
         &mut self,
         who: &[usize],
         cams: &[CameraPose],
@@ -131,7 +131,7 @@ impl VecEnv {
 
     /// Makes the frames in `img` (one per agent of `who`, in order) those
     /// agents' current frames.
-    pub(super) fn put_frames(&mut self, who: &[usize], img: &[f32]) {
+    fn put_frames(&mut self, who: &[usize], img: &[f32]) {
         let px = self.px();
         for (k, &i) in who.iter().enumerate() {
             self.cur[i * px..(i + 1) * px].copy_from_slice(&img[k * px..(k + 1) * px]);
@@ -234,7 +234,7 @@ impl VecEnv {
         }
     }
 
-    pub(super) fn camera(&self, agent: usize) -> CameraPose {
+    fn camera(&self, agent: usize) -> CameraPose {
         let d = &self.drones[agent];
         let pitch = self.pitch[agent];
         let rotation =
@@ -242,7 +242,7 @@ impl VecEnv {
         CameraPose { position: d.p, rotation }
     }
 
-    pub(super) fn body_velocity(&self, agent: usize) -> [f32; 3] {
+    fn body_velocity(&self, agent: usize) -> [f32; 3] {
         let d = &self.drones[agent];
         (d.q.inverse() * d.v).to_array()
     }
