@@ -34,15 +34,28 @@ fn short_multi_process_training_run() {
         // (with the default target update it rises as the Q-values grow),
         // and a learning rate that shows the fall within the run.
         .args(["--set", "learner.target_update=1000000000", "--set", "learner.lr=0.002"])
+        // Sized for one core: one environment, one thread of each, as on two.
+        .args(["--cores", "1"])
         .output()
         .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(
-        out.status.success(),
-        "train failed: {stderr}\n{}",
-        String::from_utf8_lossy(&out.stdout)
-    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "train failed: {stderr}\n{stdout}");
     let summary = common::summary(&dir);
+    // The sizing printed at the start is the one given, and the summary's.
+    let cores = std::thread::available_parallelism().unwrap().get();
+    let line = format!(
+        "sizing: 1 cores (of {cores}): 1 environment(s) of 8 agents, 1 render thread(s) each, \
+         1 actor thread(s) each, 1 learner thread(s) (sized: sim.envs, sim.render_threads, \
+         actor.threads, learner.threads)"
+    );
+    assert!(stdout.lines().any(|l| l == line), "{line}\n{stdout}");
+    let sizing = summary.sizing.clone().unwrap();
+    assert_eq!(
+        (sizing["cores"].as_u64(), sizing["cores_available"].as_u64()),
+        (Some(1), Some(cores as u64))
+    );
+    assert_eq!(sizing["sized"].as_array().map(Vec::len), Some(4), "{sizing}");
     // Real work crossed the processes.
     assert!(summary.env_steps > 300, "{summary:?}");
     assert!(summary.episodes > 0, "{summary:?}");

@@ -30,10 +30,16 @@ impl PathFigures {
     }
 }
 
-/// Measures updates and inference on one path (fused or generic).
-fn measure(fused: bool, threads: usize, batch: usize, updates: usize) -> Result<PathFigures> {
+/// Measures updates and inference on one path (fused or generic) on
+/// `device` (the fused path: the CPU only).
+fn measure(
+    (fused, device): (bool, &Device),
+    threads: usize,
+    batch: usize,
+    updates: usize,
+) -> Result<PathFigures> {
     let cfg = Config::default();
-    let mut dqn = Dqn::new(DqnConfig { double: false, ..dqn_config(&cfg) }, 1, &Device::Cpu)?;
+    let mut dqn = Dqn::new(DqnConfig { double: false, ..dqn_config(&cfg) }, 1, device)?;
     dqn.set_fused(fused)?;
     dqn.set_threads(threads);
     let mut rng = Pcg64Mcg::seed_from_u64(3);
@@ -87,15 +93,19 @@ pub fn bench(
     threads: usize,
     batch: usize,
     updates: usize,
-    compare: bool,
+    (compare, cuda): (bool, bool),
     json: bool,
 ) -> Result<()> {
     if threads == 0 || batch == 0 || updates == 0 {
         usage!("--threads, --batch and --updates must be positive");
     }
+    if cuda {
+        return bench_cuda(batch, updates, json);
+    }
     // The pools' threads were set by `main` (`BenchCmd::thread_env`).
-    let fused = measure(true, threads, batch, updates)?;
-    let generic = if compare { Some(measure(false, threads, batch, updates)?) } else { None };
+    let fused = measure((true, &Device::Cpu), threads, batch, updates)?;
+    let generic =
+        if compare { Some(measure((false, &Device::Cpu), threads, batch, updates)?) } else { None };
     for (name, p) in
         std::iter::once(("fused", &fused)).chain(generic.as_ref().map(|g| ("generic", g)))
     {
@@ -124,6 +134,25 @@ pub fn bench(
             v["generic"] = g.json();
             v["speedup"] = (fused.updates_per_s / g.updates_per_s).into();
         }
+        println!("{v}");
+    }
+    Ok(())
+}
+
+/// `hive bench learner --device cuda`: the generic path (stock candle ops)
+/// on GPU 0, the minibatch copied there once per update as in a run.
+fn bench_cuda(batch: usize, updates: usize, json: bool) -> Result<()> {
+    let device = rotorhive_model::device(rotorhive_model::DeviceKind::Cuda)?;
+    let p = measure((false, &device), 1, batch, updates)?;
+    println!(
+        "    cuda: batch {batch}: {:.1} updates/s (forward {:.2} ms, backward {:.2} ms, optimiser {:.2} ms); inference batch 1: {:.3} ms, batch 50: {:.3} ms",
+        p.updates_per_s, p.forward_ms, p.backward_ms, p.optimiser_ms, p.infer_b1_ms, p.infer_b50_ms
+    );
+    if json {
+        let mut v = p.json();
+        v["device"] = "cuda".into();
+        v["batch"] = batch.into();
+        v["samples_per_s"] = (p.updates_per_s * batch as f64).into();
         println!("{v}");
     }
     Ok(())

@@ -200,6 +200,10 @@ pub enum BenchCmd {
         /// Also measure the generic path of stock candle ops, side by side.
         #[arg(long)]
         compare: bool,
+        /// Where the update runs: "cpu" (the fused path), or "cuda" (the
+        /// generic path on GPU 0, in a build with `--features cuda`).
+        #[arg(long, default_value = "cpu", value_parser = ["cpu", "cuda"])]
+        device: String,
         /// Print one JSON object as the last line.
         #[arg(long)]
         json: bool,
@@ -253,8 +257,8 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
             crate::table::run(&config, train_config.as_deref(), &out, json)
         }
         BenchCmd::Seeds(args) => crate::seeds::run(&args),
-        BenchCmd::Learner { threads, batch, updates, compare, json } => {
-            crate::learner::bench(threads, batch, updates, compare, json)
+        BenchCmd::Learner { threads, batch, updates, compare, device, json } => {
+            crate::learner::bench(threads, batch, updates, (compare, device == "cuda"), json)
         }
     }
 }

@@ -297,7 +297,10 @@ impl QNet {
     pub fn features(&self, obs: &Tensor) -> Result<Tensor> {
         let b = obs.dim(0)?;
         let frames = self.shapes.frames;
-        let img = obs.narrow(1, 0, frames * SIDE * SIDE)?.reshape((b, frames, SIDE, SIDE))?;
+        let img = obs
+            .narrow(1, 0, frames * SIDE * SIDE)?
+            .contiguous()?
+            .reshape((b, frames, SIDE, SIDE))?;
         let w1 = self.p(0).reshape((C1, frames, K1, K1))?;
         let x = img
             .conv2d(&w1, 0, S1, 1, 1)?
@@ -313,7 +316,10 @@ impl QNet {
             .max(3)?
             .permute((0, 2, 3, 1))?
             .reshape((b, FEAT))?;
-        let v = obs.narrow(1, self.shapes.obs_depth(), self.shapes.scalars)?;
+        // A column slice is a strided view: candle's CUDA matmul takes only
+        // contiguous operands (a GPU run died here at its first update,
+        // `../shared/research/scale.md`), so it is copied out first.
+        let v = obs.narrow(1, self.shapes.obs_depth(), self.shapes.scalars)?.contiguous()?;
         let v = v.matmul(&self.p(4).t()?)?.broadcast_add(self.p(5))?.relu()?;
         let h = Tensor::cat(&[&x, &v], 1)?;
         Ok(h.matmul(&self.p(6).t()?)?.broadcast_add(self.p(7))?.relu()?)

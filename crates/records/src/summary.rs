@@ -158,6 +158,11 @@ pub struct Summary {
     /// What the teacher did (its keys at the top level of the JSON).
     #[serde(flatten)]
     pub teaching: Teaching,
+    /// The cores the run was sized for and what it ran with: `cores`,
+    /// `cores_available`, `envs`, `render_threads`, `actor_threads`,
+    /// `learner_threads`, and `sized`, the keys the sizing filled.
+    #[serde(default)]
+    pub sizing: Option<serde_json::Value>,
     /// Stopped by a signal.
     pub interrupted: bool,
     /// Continued from an earlier run (`--resume`).
@@ -268,6 +273,7 @@ mod tests {
             final_validation_success: Some(0.85),
             skipped_updates: 0,
             teaching: Teaching::default(),
+            sizing: Some(serde_json::json!({ "cores": 2, "envs": 1 })),
             interrupted: false,
             resumed: false,
             failure: None,
@@ -300,6 +306,7 @@ mod tests {
             "teacher",
             "demo_transitions",
             "labelled_transitions",
+            "sizing",
         ] {
             assert!(v.get(key).is_some(), "no key {key}");
         }

@@ -5,6 +5,7 @@
 
 mod arenas;
 mod sections;
+mod sizing;
 mod validate;
 
 use std::path::Path;
@@ -13,6 +14,8 @@ use crate::error::{Doing, Result, RoleError, config_err};
 use serde::{Deserialize, Serialize};
 
 use rotorhive_msg::Shapes;
+
+pub use sizing::{SIZED_KEYS, Sizing};
 
 pub use sections::{
     ActorSection, ClusterSection, Curriculum, DeviceName, EvalSection, Exploration, LearnerSection,
@@ -47,6 +50,11 @@ pub struct Config {
     pub early_stop: bool,
     /// TensorBoard event files in `RUN_DIR/tb/` (scalars once a second).
     pub tensorboard: bool,
+    /// Cores the run is sized for (0 = all of this machine's; more than
+    /// it has are not used): `sim.envs`, `sim.render_threads`,
+    /// `actor.threads` and `learner.threads` left at 0 take values in
+    /// proportion (`summary.json`'s `sizing`).
+    pub cores: usize,
     /// Simulator settings.
     pub sim: SimSection,
     /// Actor settings.
@@ -61,6 +69,9 @@ pub struct Config {
     pub cluster: ClusterSection,
     /// The privileged teacher (none by default).
     pub teacher: crate::teacher::TeacherSection,
+    /// The keys this config left at 0 that sizing filled (not a key).
+    #[serde(skip)]
+    pub sized: Vec<&'static str>,
 }
 
 /// `configs/default.toml`, the one source of the defaults: `hive train`
@@ -79,6 +90,7 @@ impl Default for Config {
             max_env_steps: 0,
             early_stop: true,
             tensorboard: true,
+            cores: 0,
             sim: SimSection::default(),
             actor: ActorSection::default(),
             replay: ReplaySection::default(),
@@ -86,6 +98,7 @@ impl Default for Config {
             eval: EvalSection::default(),
             cluster: ClusterSection::default(),
             teacher: crate::teacher::TeacherSection::default(),
+            sized: Vec::new(),
         }
     }
 }
@@ -142,9 +155,10 @@ impl Config {
         for o in overrides {
             apply_override(&mut table, o)?;
         }
-        let cfg: Config = Config::deserialize(toml::Value::Table(table)).map_err(|e| {
+        let mut cfg: Config = Config::deserialize(toml::Value::Table(table)).map_err(|e| {
             RoleError::Config(format!("config {source}: {}", e.to_string().trim_end()))
         })?;
+        cfg.sized = cfg.size(Sizing::machine_cores());
         cfg.validate().doing_with(|| format!("config {source}"))?;
         Ok(cfg)
     }

@@ -43,7 +43,13 @@ mod tests {
                 "level {name} has at least 5 test layouts"
             );
         }
-        assert_eq!(Config::level("paper", &[]).unwrap().to_toml(), Config::default().to_toml());
+        // The paper's level is the defaults with one environment and one
+        // thread of each, on any machine.
+        let ones = crate::config::SIZED_KEYS.map(|k| format!("{k}=1"));
+        assert_eq!(
+            Config::level("paper", &[]).unwrap().to_toml(),
+            Config::load(None, &ones).unwrap().to_toml()
+        );
         let e = Config::level("lava", &[]).unwrap_err().to_string();
         assert!(e.contains("lava") && e.contains("dense"), "{e}");
     }

@@ -284,11 +284,31 @@ impl VecEnv {
             1 => std::mem::swap(&mut self.past, &mut self.cur),
             k => {
                 let (px, h) = (self.px(), k * self.px());
-                let chunks = self.past.chunks_exact_mut(h).zip(self.cur.chunks_exact(px));
-                for (past, cur) in chunks {
-                    past.copy_within(px.., 0);
-                    past[h - px..].copy_from_slice(cur);
+                let age = |past: &mut [f32], cur: &[f32]| {
+                    for (past, cur) in past.chunks_exact_mut(h).zip(cur.chunks_exact(px)) {
+                        past.copy_within(px.., 0);
+                        past[h - px..].copy_from_slice(cur);
+                    }
+                };
+                // Several earlier frames kept: copies on the render threads
+                // too, pieces of PHYSICS_CHUNK agents.
+                let pool = self.renderer.pool();
+                if pool.threads() == 1 || self.cfg.agents <= PHYSICS_CHUNK {
+                    age(&mut self.past, &self.cur);
+                    return;
                 }
+                let queue = Mutex::new(
+                    self.past
+                        .chunks_mut(PHYSICS_CHUNK * h)
+                        .zip(self.cur.chunks(PHYSICS_CHUNK * px)),
+                );
+                pool.run(&|_| {
+                    loop {
+                        let next = queue.lock().unwrap_or_else(PoisonError::into_inner).next();
+                        let Some((past, cur)) = next else { break };
+                        age(past, cur);
+                    }
+                });
             }
         }
     }

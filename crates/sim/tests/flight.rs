@@ -130,6 +130,11 @@ fn nothing_tunnels_through_the_thinnest_wall_at_the_highest_speed() {
     }
 }
 
+/// The physics, the frames' ageing and the observations' copies (the
+/// step's reset stage) share the render threads: the same flights and the
+/// same observation bytes on one thread as on three, with two frames and
+/// with four of stride two (several earlier frames kept), in the env's
+/// buffer and written out as the sim process writes them.
 #[test]
 fn physics_on_the_shared_render_threads_flies_exactly_as_on_one() {
     let arena = Arena::load(std::path::Path::new(concat!(
@@ -137,22 +142,29 @@ fn physics_on_the_shared_render_threads_flies_exactly_as_on_one() {
         "/../../configs/arenas/train.toml"
     )))
     .unwrap();
-    let run = |threads| {
-        let mut env = VecEnv::new(
-            SimConfig { agents: 150, render_threads: threads, ..SimConfig::default() },
-            arena.clone(),
-            4,
-        )
-        .unwrap();
+    let run = |threads, (frames, frame_stride)| {
+        let cfg = SimConfig {
+            agents: 150,
+            render_threads: threads,
+            frames,
+            frame_stride,
+            ..SimConfig::default()
+        };
+        let mut env = VecEnv::new(cfg, arena.clone(), 4).unwrap();
         let mut ends = 0;
         for t in 0..30 {
             let actions: Vec<u8> = (0..150).map(|i| action(i, t)).collect();
             env.step(&actions).unwrap();
             ends += env.finished().len();
         }
-        (env.positions(), env.observations().to_vec(), ends)
+        let mut out = vec![f32::NAN; 100 * env.obs_len()];
+        env.write_observations(37, &mut out);
+        (env.positions(), env.observations().to_vec(), out, ends)
     };
-    let (one, three) = (run(1), run(3));
-    assert!(one.2 > 0, "some episodes end, so resets are covered");
-    assert_eq!(one, three);
+    for stack in [(2, 1), (4, 2)] {
+        let (one, three) = (run(1, stack), run(3, stack));
+        assert!(one.3 > 0, "some episodes end, so resets are covered");
+        assert!(one.2.iter().all(|x| x.is_finite()), "every row written");
+        assert!(one == three, "{stack:?}: one thread and three differ");
+    }
 }

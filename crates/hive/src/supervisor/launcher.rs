@@ -32,6 +32,9 @@ pub(crate) struct Launcher {
     prefix: String,
     run_dir: PathBuf,
     logs: PathBuf,
+    /// Rayon threads of the learner and of each actor (their
+    /// `threads`); every other role's are 1.
+    rayon: (usize, usize),
 }
 
 impl Launcher {
@@ -62,17 +65,35 @@ impl Launcher {
             .arg(&self.cfg_path)
             .args(["--prefix", &self.prefix, "--run-dir"])
             .arg(&self.run_dir)
-            // Roles size their own parallelism from the config (learner and
-            // actor threads, render threads); candle's pools stay
-            // single-threaded (idle spinning workers would steal the cores
-            // the other roles need).
-            .env("RAYON_NUM_THREADS", "1")
+            // Roles size their own parallelism from the config: the
+            // learner's and actors' data-parallel shards run on rayon's
+            // global pool, which RAYON_NUM_THREADS sizes, so theirs is their
+            // `threads` (at 1 for every role, a learner of 8 threads ran its
+            // shards one after another: 107 updates/s in a run on 16 cores
+            // against 473 alone, `../shared/research/scale.md`); the sims'
+            // render threads are a pool of their own. Candle's elementwise
+            // pool stays single-threaded (it serialises concurrent callers).
+            .env("RAYON_NUM_THREADS", self.rayon_threads(args).to_string())
             .env("CANDLE_NUM_THREADS", "1")
             .stdin(Stdio::null())
             .stdout(log.try_clone()?)
             .stderr(log)
             .spawn()
             .with_context(|| format!("cannot start role {name}"))
+    }
+}
+
+impl Launcher {
+    /// The rayon threads of the role that `args` start.
+    fn rayon_threads(&self, args: &[String]) -> usize {
+        let role = args.first().map(String::as_str);
+        if role == Some(RoleKind::Learner.name()) {
+            self.rayon.0.max(1)
+        } else if role == Some(RoleKind::Actor.name()) {
+            self.rayon.1.max(1)
+        } else {
+            1
+        }
     }
 }
 
@@ -229,6 +250,7 @@ impl Members {
             prefix: prefix.to_string(),
             run_dir: run_dir.to_path_buf(),
             logs,
+            rayon: (cfg.learner.threads, cfg.actor.threads),
         };
         let mut children = Children { roles: Vec::new() };
         for (name, role, index) in roles {

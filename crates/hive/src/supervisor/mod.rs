@@ -56,6 +56,10 @@ pub struct TrainArgs {
     /// over iceoryx2's `local` service (no restarts), same run directory.
     #[arg(long)]
     pub serial: bool,
+    /// Size the run for N cores (sets `cores`; 0 = all of the machine's):
+    /// environments and threads left at 0 in the config follow.
+    #[arg(long, value_name = "N")]
+    pub cores: Option<usize>,
     /// Continue a stopped run in RUN_DIR: its config (plus any --set), the
     /// learner's saved state and the replay memory's snapshot.
     #[arg(long, value_name = "RUN_DIR", conflicts_with = "run_dir")]
@@ -88,6 +92,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
     // Nothing of the run directory is written before its lock is held.
     let _lock = lock_run_dir(&run_dir)?;
     resolve_paths(&mut cfg)?;
+    say(&sizing_line(&cfg));
     let prefix = rotorhive_transport::unique_prefix("run");
     rotorhive_transport::handle_hangup();
     // The head's environments come first in the run.
@@ -157,6 +162,8 @@ impl TrainArgs {
 /// The run's config: the given file (or, with `--resume`, the run's own)
 /// plus `--set` and `--max-seconds`, with its arena checked.
 fn resolve_config(a: &TrainArgs) -> Result<Config> {
+    let mut sets = a.cfg.set.clone();
+    sets.extend(a.cores.map(|n| format!("cores={n}")));
     let mut cfg = match &a.resume {
         Some(dir) => {
             if a.cfg.config.is_some() {
@@ -172,10 +179,10 @@ fn resolve_config(a: &TrainArgs) -> Result<Config> {
                     state.display()
                 );
             }
-            Config::load(Some(&dir.join("config.toml")), &a.cfg.set)
+            Config::load(Some(&dir.join("config.toml")), &sets)
                 .with_context(|| format!("--resume {}", dir.display()))?
         }
-        None => Config::load(a.cfg.config.as_deref(), &a.cfg.set)?,
+        None => Config::load(a.cfg.config.as_deref(), &sets)?,
     };
     if let Some(s) = a.max_seconds {
         if !(s.is_finite() && s > 0.0) {
@@ -256,6 +263,33 @@ fn gather_workers(
         ));
     }
     Ok(head)
+}
+
+/// The run's sizing as `hive train` prints it at the start.
+fn sizing_line(cfg: &Config) -> String {
+    let s = cfg.sizing();
+    let sized = if cfg.sized.is_empty() {
+        "all set by the config".to_string()
+    } else {
+        format!("sized: {}", cfg.sized.join(", "))
+    };
+    format!(
+        "sizing: {} cores (of {}): {} environment(s) of {} agents, {} render thread(s) each, {} actor thread(s) each, {} learner thread(s) ({sized})",
+        s.cores,
+        s.cores_available,
+        s.envs,
+        cfg.sim.agents,
+        s.render_threads,
+        s.actor_threads,
+        s.learner_threads,
+    )
+}
+
+/// The run's sizing as `summary.json` holds it, with the keys it filled.
+fn sizing_json(cfg: &Config) -> Option<serde_json::Value> {
+    let mut v = serde_json::to_value(cfg.sizing()).ok()?;
+    v["sized"] = serde_json::json!(cfg.sized);
+    Some(v)
 }
 
 /// Prints a line to stdout; a closed terminal (SIGHUP) makes this fail, which
@@ -545,6 +579,11 @@ impl Supervisor<'_> {
                 None => e,
             });
         }
+        // And the roles' last word: each sends its counters as it ends
+        // (iceoryx2 keeps a gone publisher's samples for the subscriber), so
+        // the summary counts what they did to the end, not to their last
+        // periodic sample (on a slow machine a second or more before).
+        self.monitor.receive(&mut p.telemetry_rx)?;
         Ok(self.monitor.hosts(&self.cfg, link_stats.as_ref()))
     }
 
@@ -685,6 +724,7 @@ impl Supervisor<'_> {
                 .get(&(RoleKind::Learner as u32, 0))
                 .map_or(0, |t| t.learning.skipped_updates as u64),
             teaching: self.teaching(),
+            sizing: sizing_json(cfg),
             interrupted: ending.interrupted,
             resumed: self.a.resume.is_some(),
             failure: ending.failure.clone(),

@@ -139,7 +139,7 @@ impl Default for EvalSection {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SimSection {
-    /// Simulator processes.
+    /// Simulator processes, one actor each (0 = sized to the cores).
     pub envs: usize,
     /// Agents per simulator.
     pub agents: usize,
@@ -192,7 +192,7 @@ pub struct SimSection {
     /// four frames: the views of 9, 6 and 3 periods ago and now); 1 to
     /// [`rotorhive_msg::MAX_FRAME_STRIDE`].
     pub frame_stride: usize,
-    /// Threads for CPU rendering.
+    /// Threads for CPU rendering and physics (0 = sized to the cores).
     pub render_threads: usize,
     /// The generator of the training lanes, the validation arenas and the
     /// generated test layouts; absent: the paper's generator at the size
@@ -253,7 +253,7 @@ pub struct ActorSection {
     /// Ape-X's exponent spread (7): the greediest agent's epsilon is
     /// base^(1 + alpha).
     pub per_actor_alpha: f64,
-    /// Threads for inference.
+    /// Threads for inference (0 = sized to the cores).
     pub threads: usize,
     /// Device for inference: "cpu", or "cuda" in a build with `--features cuda`.
     pub device: DeviceName,
@@ -316,7 +316,7 @@ pub struct LearnerSection {
     /// learner's whole state): a learner killed at any moment restarts with
     /// at most this much of its updates lost.
     pub checkpoint_every_s: f64,
-    /// Threads for training.
+    /// Threads for training (0 = sized to the cores).
     pub threads: usize,
     /// Huber loss threshold.
     pub huber_delta: f64,
@@ -339,7 +339,7 @@ pub struct LearnerSection {
 impl Default for SimSection {
     fn default() -> Self {
         Self {
-            envs: 1,
+            envs: 0,
             agents: 50,
             arena: PathBuf::from("configs/arenas/train.toml"),
             generated_lanes: 15,
@@ -351,7 +351,7 @@ impl Default for SimSection {
             action_period: 1.0,
             max_steps: 400,
             depth_range: 20.0,
-            render_threads: 1,
+            render_threads: 0,
             forward_speed: 1.0,
             lateral_step: 0.25,
             max_lateral_speed: 3.0,
@@ -381,7 +381,7 @@ impl Default for ActorSection {
             exploration: Exploration::Decay,
             per_actor_base: 0.4,
             per_actor_alpha: 7.0,
-            threads: 1,
+            threads: 0,
             device: DeviceName::Cpu,
         }
     }
@@ -415,7 +415,7 @@ impl Default for LearnerSection {
             max_rate_hz: 0.0,
             publish_every: 10,
             checkpoint_every_s: 1.0,
-            threads: 1,
+            threads: 0,
             huber_delta: 1.0,
             reward_scale: 0.01,
             max_grad_norm: 10.0,

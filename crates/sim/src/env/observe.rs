@@ -2,6 +2,8 @@
 //! rendered for all agents in one call (CPU or wgpu), the stacked frames
 //! and the observations written out.
 
+use std::sync::{Mutex, PoisonError};
+
 use rapier3d::math::Vector;
 
 use rand::SeedableRng;
@@ -12,6 +14,9 @@ use crate::goal::Goal;
 use crate::gpu::GpuError;
 use crate::render::CameraPose;
 use crate::render::Drones;
+
+/// Agents per piece of observation writing handed to a pool thread.
+const OBS_CHUNK: usize = 16;
 
 impl VecEnv {
     /// Where agent `i`'s camera sees from: its pose, `lag` physics steps
@@ -157,14 +162,34 @@ impl VecEnv {
             out.len().is_multiple_of(len) && first + out.len() / len <= self.cfg.agents,
             "observation rows out of range"
         );
-        for (j, o) in out.chunks_exact_mut(len).enumerate() {
-            let i = first + j;
-            self.write_depth(i, &mut o[..fd]);
-            o[fd..fd + 3].copy_from_slice(&self.body_velocity(i));
-            if self.cfg.goal.enabled {
-                o[fd + 3..].copy_from_slice(&self.goal_observation(i));
+        let write = |first: usize, rows: &mut [f32]| {
+            for (j, o) in rows.chunks_exact_mut(len).enumerate() {
+                let i = first + j;
+                self.write_depth(i, &mut o[..fd]);
+                o[fd..fd + 3].copy_from_slice(&self.body_velocity(i));
+                if self.cfg.goal.enabled {
+                    o[fd + 3..].copy_from_slice(&self.goal_observation(i));
+                }
             }
+        };
+        // Copies of the frames, the step's largest serial work after
+        // physics and rendering (800 agents at 16 threads: 42 % of a step
+        // before it shared the render threads, `../shared/research/scale.md`):
+        // pieces of OBS_CHUNK agents handed out as threads come free, the
+        // same bytes whatever the threads.
+        let pool = self.renderer.pool();
+        if pool.threads() == 1 || out.len() <= OBS_CHUNK * len {
+            write(first, out);
+            return;
         }
+        let queue = Mutex::new(out.chunks_mut(OBS_CHUNK * len).enumerate());
+        pool.run(&|_| {
+            loop {
+                let next = queue.lock().unwrap_or_else(PoisonError::into_inner).next();
+                let Some((k, rows)) = next else { break };
+                write(first + k * OBS_CHUNK, rows);
+            }
+        });
     }
 
     /// Agent `i`'s goal floats (see [`crate::goal`]); zeros without a goal.
