@@ -66,6 +66,9 @@ impl Sizing {
     }
 }
 
+/// The most cores a config may name (`cores`).
+pub(super) const MAX_CORES: usize = 1024;
+
 /// The keys that sizing fills where a config leaves them at 0.
 pub const SIZED_KEYS: [&str; 4] =
     ["sim.envs", "sim.render_threads", "actor.threads", "learner.threads"];
@@ -156,5 +159,8 @@ mod tests {
         assert_eq!(cfg.sizing_for(12).cores, 2);
         cfg.cores = 16;
         assert_eq!(cfg.sizing_for(12).cores, 16);
+        // Refused by its name, before the keys it sized are checked.
+        let e = Config::load(None, &["cores=100000".into(), "deterministic=true".into()]);
+        assert!(e.unwrap_err().to_string().contains("key `cores` must be at most 1024"));
     }
 }

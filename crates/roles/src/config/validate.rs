@@ -24,6 +24,13 @@ impl Config {
     /// The run's own keys: budget, determinism, cluster, evaluation.
     fn validate_run(&self) -> Result<()> {
         positive("max_seconds", self.max_seconds)?;
+        if self.cores > super::sizing::MAX_CORES {
+            config_err!(
+                "key `cores` must be at most {} (0 = all of this machine's), got {}",
+                super::sizing::MAX_CORES,
+                self.cores
+            );
+        }
         if self.deterministic {
             if self.max_env_steps == 0 {
                 config_err!(
