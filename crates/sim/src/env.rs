@@ -6,7 +6,6 @@
 //! the step, resets finished agents on their own and renders all agents'
 //! depth images in one batched call.
 
-use std::sync::{Mutex, PoisonError};
 use std::time::Instant;
 
 use rand::{Rng, SeedableRng};
@@ -297,18 +296,11 @@ impl VecEnv {
                     age(&mut self.past, &self.cur);
                     return;
                 }
-                let queue = Mutex::new(
-                    self.past
-                        .chunks_mut(PHYSICS_CHUNK * h)
-                        .zip(self.cur.chunks(PHYSICS_CHUNK * px)),
-                );
-                pool.run(&|_| {
-                    loop {
-                        let next = queue.lock().unwrap_or_else(PoisonError::into_inner).next();
-                        let Some((past, cur)) = next else { break };
-                        age(past, cur);
-                    }
-                });
+                let pieces = self
+                    .past
+                    .chunks_mut(PHYSICS_CHUNK * h)
+                    .zip(self.cur.chunks(PHYSICS_CHUNK * px));
+                pool.share(pieces, |(past, cur)| age(past, cur));
             }
         }
     }
@@ -446,18 +438,11 @@ impl VecEnv {
                 if pool.threads() == 1 || self.drones.len() <= PHYSICS_CHUNK {
                     work(&mut self.drones, &mut self.path);
                 } else {
-                    let queue = Mutex::new(
-                        self.drones
-                            .chunks_mut(PHYSICS_CHUNK)
-                            .zip(self.path.chunks_mut(PHYSICS_CHUNK * stride)),
-                    );
-                    pool.run(&|_| {
-                        loop {
-                            let next = queue.lock().unwrap_or_else(PoisonError::into_inner).next();
-                            let Some((drones, path)) = next else { break };
-                            work(drones, path);
-                        }
-                    });
+                    let pieces = self
+                        .drones
+                        .chunks_mut(PHYSICS_CHUNK)
+                        .zip(self.path.chunks_mut(PHYSICS_CHUNK * stride));
+                    pool.share(pieces, |(drones, path)| work(drones, path));
                 }
                 if detect && self.cfg.interactive {
                     let n = self.drones.len();

@@ -3,6 +3,8 @@
 //! thread working too. The threads are a rayon pool of `threads - 1`,
 //! started once, not per call.
 
+use std::sync::{Mutex, PoisonError};
+
 use rayon::ThreadPool;
 
 /// `threads - 1` rayon workers plus the calling thread.
@@ -52,6 +54,22 @@ impl Pool {
                 s.spawn(move |_| job(i));
             }
             job(0);
+        });
+    }
+
+    /// Runs `work` on every item of `pieces`, handed out to the threads as
+    /// they come free (one lock per piece), and returns when all are done.
+    pub(crate) fn share<I>(&self, pieces: I, work: impl Fn(I::Item) + Sync)
+    where
+        I: Iterator + Send,
+    {
+        let queue = Mutex::new(pieces);
+        self.run(&|_| {
+            loop {
+                let next = queue.lock().unwrap_or_else(PoisonError::into_inner).next();
+                let Some(piece) = next else { break };
+                work(piece);
+            }
         });
     }
 }

@@ -20,6 +20,9 @@ use sysinfo::Pid;
 pub(crate) struct Role {
     name: String,
     args: Vec<String>,
+    /// Its `RAYON_NUM_THREADS`: the learner's and each actor's `threads`,
+    /// 1 for the rest.
+    rayon: usize,
     child: Child,
     /// When this role was restarted, for the give-up rule.
     restarts: VecDeque<Instant>,
@@ -32,13 +35,10 @@ pub(crate) struct Launcher {
     prefix: String,
     run_dir: PathBuf,
     logs: PathBuf,
-    /// Rayon threads of the learner and of each actor (their
-    /// `threads`); every other role's are 1.
-    rayon: (usize, usize),
 }
 
 impl Launcher {
-    fn spawn(&self, name: &str, args: &[String], append: bool) -> Result<Child> {
+    fn spawn(&self, name: &str, args: &[String], rayon: usize, append: bool) -> Result<Child> {
         use std::os::unix::process::CommandExt;
         let path = self.logs.join(format!("{name}.log"));
         // A role that keeps restarting keeps its log bounded: past
@@ -73,27 +73,13 @@ impl Launcher {
             // against 473 alone, `../shared/research/scale.md`); the sims'
             // render threads are a pool of their own. Candle's elementwise
             // pool stays single-threaded (it serialises concurrent callers).
-            .env("RAYON_NUM_THREADS", self.rayon_threads(args).to_string())
+            .env("RAYON_NUM_THREADS", rayon.to_string())
             .env("CANDLE_NUM_THREADS", "1")
             .stdin(Stdio::null())
             .stdout(log.try_clone()?)
             .stderr(log)
             .spawn()
             .with_context(|| format!("cannot start role {name}"))
-    }
-}
-
-impl Launcher {
-    /// The rayon threads of the role that `args` start.
-    fn rayon_threads(&self, args: &[String]) -> usize {
-        let role = args.first().map(String::as_str);
-        if role == Some(RoleKind::Learner.name()) {
-            self.rayon.0.max(1)
-        } else if role == Some(RoleKind::Actor.name()) {
-            self.rayon.1.max(1)
-        } else {
-            1
-        }
     }
 }
 
@@ -250,7 +236,6 @@ impl Members {
             prefix: prefix.to_string(),
             run_dir: run_dir.to_path_buf(),
             logs,
-            rayon: (cfg.learner.threads, cfg.actor.threads),
         };
         let mut children = Children { roles: Vec::new() };
         for (name, role, index) in roles {
@@ -258,8 +243,14 @@ impl Members {
             if matches!(role, RoleKind::Sim | RoleKind::Actor) {
                 args.extend(["--env".to_string(), index.to_string()]);
             }
-            let child = launcher.spawn(&name, &args, false)?;
-            children.roles.push(Role { name, args, child, restarts: VecDeque::new() });
+            let rayon = match role {
+                RoleKind::Learner => cfg.learner.threads,
+                RoleKind::Actor => cfg.actor.threads,
+                _ => 1,
+            }
+            .max(1);
+            let child = launcher.spawn(&name, &args, rayon, false)?;
+            children.roles.push(Role { name, args, rayon, child, restarts: VecDeque::new() });
         }
         Ok(Members::Processes { launcher, children })
     }
@@ -322,7 +313,7 @@ impl Members {
             }
             let cleaned = cleanup_dead_nodes();
             tracing::warn!("role {} exited ({status}); restarting", r.name);
-            r.child = launcher.spawn(&r.name, &r.args, true)?;
+            r.child = launcher.spawn(&r.name, &r.args, r.rayon, true)?;
             r.restarts.push_back(now);
             restarted(format!(
                 "role {} exited ({status}); cleaned {cleaned} dead node(s), restarting",

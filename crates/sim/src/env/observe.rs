@@ -2,8 +2,6 @@
 //! rendered for all agents in one call (CPU or wgpu), the stacked frames
 //! and the observations written out.
 
-use std::sync::{Mutex, PoisonError};
-
 use rapier3d::math::Vector;
 
 use rand::SeedableRng;
@@ -182,14 +180,8 @@ impl VecEnv {
             write(first, out);
             return;
         }
-        let queue = Mutex::new(out.chunks_mut(OBS_CHUNK * len).enumerate());
-        pool.run(&|_| {
-            loop {
-                let next = queue.lock().unwrap_or_else(PoisonError::into_inner).next();
-                let Some((k, rows)) = next else { break };
-                write(first + k * OBS_CHUNK, rows);
-            }
-        });
+        let pieces = out.chunks_mut(OBS_CHUNK * len).enumerate();
+        pool.share(pieces, |(k, rows)| write(first + k * OBS_CHUNK, rows));
     }
 
     /// Agent `i`'s goal floats (see [`crate::goal`]); zeros without a goal.
