@@ -438,6 +438,12 @@ impl<'a, S: Service> Actor<'a, S> {
             Err(err) if self.schedule.is_some() => {
                 protocol_err!("actor {e}: a deterministic run cannot lose transitions: {err}")
             }
+            // A run that stops ends its replay first: the batches sent
+            // after it are the run's tail, not loss (the final telemetry
+            // counts to the very end).
+            Ok(false) | Err(_) if self.hub.shutdown_requested() => {
+                tracing::debug!("actor {e}: a batch sent as the run stopped reached no replay");
+            }
             Ok(false) => {
                 tracing::warn!("actor {e}: no replay took a batch within the stall timeout");
                 self.tel.sample.lost += 1;
