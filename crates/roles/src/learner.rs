@@ -368,6 +368,11 @@ fn send_priorities<S: Service>(
     match sent {
         Ok(()) => Ok(()),
         Err(e) if deterministic => Err(e).doing("a deterministic run cannot lose priorities"),
+        // A run that stops lets its replay go first: not a loss.
+        Err(e) if rotorhive_transport::stop_requested() => {
+            tracing::debug!("learner: priorities of minibatch {seq} sent as the run stopped: {e}");
+            Ok(())
+        }
         Err(e) => {
             tracing::warn!("learner: priorities of minibatch {seq} not sent: {e}");
             *lost += 1;
