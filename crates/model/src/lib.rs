@@ -24,6 +24,7 @@ mod dqn;
 mod kernels;
 mod onnx;
 mod ops;
+mod recurrent;
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -35,6 +36,7 @@ pub use dqn::{Dqn, DqnConfig, UpdateStats, UpdateTiming};
 use kernels::{Rows, Weights, Workspace};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
+pub use recurrent::{MAX_WIDTH, RecurrentQNet, SeqBatch, SeqConfig, SeqDqn, recurrent_params};
 
 /// Where a network runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -72,6 +74,36 @@ const HP: usize = H2 / 2; // 6
 const FEAT: usize = HP * HP * C2; // 1152
 const VEL_H: usize = 16;
 const HID: usize = 64;
+
+/// The layers up to `fc1` (the first eight of `p`, in canonical order) on
+/// stock candle ops: the `fc1` activations `[B, 64]` of observations
+/// `[B, obs_len]`. The feedforward network puts its Q head on top, the
+/// recurrent one its GRU.
+pub(crate) fn trunk(p: &[Var], shapes: Shapes, obs: &Tensor) -> Result<Tensor> {
+    let p = |i: usize| p[i].as_tensor();
+    let b = obs.dim(0)?;
+    let frames = shapes.frames;
+    let img =
+        obs.narrow(1, 0, frames * SIDE * SIDE)?.contiguous()?.reshape((b, frames, SIDE, SIDE))?;
+    let w1 = p(0).reshape((C1, frames, K1, K1))?;
+    let x = img.conv2d(&w1, 0, S1, 1, 1)?.broadcast_add(&p(1).reshape((1, C1, 1, 1))?)?.relu()?;
+    let w2 = p(2).reshape((C2, K2, K2, C1))?.permute((0, 3, 1, 2))?.contiguous()?;
+    let x = x.conv2d(&w2, 0, 1, 1, 1)?.broadcast_add(&p(3).reshape((1, C2, 1, 1))?)?.relu()?;
+    // 2×2 max-pool as two reductions over a split view, then channels-last.
+    let x = x
+        .reshape((b, C2, HP, 2, HP, 2))?
+        .max(5)?
+        .max(3)?
+        .permute((0, 2, 3, 1))?
+        .reshape((b, FEAT))?;
+    // A column slice is a strided view: candle's CUDA matmul takes only
+    // contiguous operands (a GPU run died here at its first update,
+    // `../shared/research/scale.md`), so it is copied out first.
+    let v = obs.narrow(1, shapes.obs_depth(), shapes.scalars)?.contiguous()?;
+    let v = v.matmul(&p(4).t()?)?.broadcast_add(p(5))?.relu()?;
+    let h = Tensor::cat(&[&x, &v], 1)?;
+    Ok(h.matmul(&p(6).t()?)?.broadcast_add(p(7))?.relu()?)
+}
 
 /// Parameter names and shapes of a network for `shapes`, in the canonical
 /// (flat) order: the observation's scalars enter `vel.weight` (the velocity
@@ -295,34 +327,7 @@ impl QNet {
     /// stock candle ops (the generic path up to the last layer): what the
     /// network has learned to see, for a probe that reuses it.
     pub fn features(&self, obs: &Tensor) -> Result<Tensor> {
-        let b = obs.dim(0)?;
-        let frames = self.shapes.frames;
-        let img = obs
-            .narrow(1, 0, frames * SIDE * SIDE)?
-            .contiguous()?
-            .reshape((b, frames, SIDE, SIDE))?;
-        let w1 = self.p(0).reshape((C1, frames, K1, K1))?;
-        let x = img
-            .conv2d(&w1, 0, S1, 1, 1)?
-            .broadcast_add(&self.p(1).reshape((1, C1, 1, 1))?)?
-            .relu()?;
-        let w2 = self.p(2).reshape((C2, K2, K2, C1))?.permute((0, 3, 1, 2))?.contiguous()?;
-        let x =
-            x.conv2d(&w2, 0, 1, 1, 1)?.broadcast_add(&self.p(3).reshape((1, C2, 1, 1))?)?.relu()?;
-        // 2×2 max-pool as two reductions over a split view, then channels-last.
-        let x = x
-            .reshape((b, C2, HP, 2, HP, 2))?
-            .max(5)?
-            .max(3)?
-            .permute((0, 2, 3, 1))?
-            .reshape((b, FEAT))?;
-        // A column slice is a strided view: candle's CUDA matmul takes only
-        // contiguous operands (a GPU run died here at its first update,
-        // `../shared/research/scale.md`), so it is copied out first.
-        let v = obs.narrow(1, self.shapes.obs_depth(), self.shapes.scalars)?.contiguous()?;
-        let v = v.matmul(&self.p(4).t()?)?.broadcast_add(self.p(5))?.relu()?;
-        let h = Tensor::cat(&[&x, &v], 1)?;
-        Ok(h.matmul(&self.p(6).t()?)?.broadcast_add(self.p(7))?.relu()?)
+        trunk(&self.params, self.shapes, obs)
     }
 
     /// Q-values of a flat batch of observations (`n × obs_len` floats); on

@@ -1,0 +1,436 @@
+//! The recurrent Q-network and its sequence update: the feedforward
+//! network's trunk (convolutions, velocity branch, `fc1`), a GRU of `width`
+//! units, then the Q head on the GRU's state. It is trained on stored
+//! sequences as R2D2 trains (Kapturowski et al. 2019): each sequence starts
+//! from the state its actor had there (the stored state), its first
+//! `burn_in` steps only warm that state up, and its other steps get n-step
+//! double-DQN targets from inside the sequence.
+//!
+//! This is the first part of memory in the trainer (issue 55), on the
+//! generic path only (stock candle ops and candle's autograd, any device);
+//! the fused CPU path, the actor's state and the replay's sequences come
+//! next.
+
+use candle_core::{D, DType, Device, Tensor, Var};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64Mcg;
+
+use crate::ops::{AdamHyper, adam};
+use crate::{HID, ModelError, Result, Shapes, argmax, params, trunk};
+
+/// The widest GRU a network may have.
+pub const MAX_WIDTH: usize = 1024;
+
+/// Parameter names and shapes of a recurrent network for `shapes` with a
+/// GRU of `width` units, in canonical (flat) order: the feedforward
+/// network's first eight (up to `fc1`), the GRU's in PyTorch's layout (gates
+/// r, z, n stacked), then the Q head on the GRU's state.
+pub fn recurrent_params(shapes: Shapes, width: usize) -> Vec<(&'static str, Vec<usize>)> {
+    let mut p: Vec<_> = params(shapes).into_iter().take(8).collect();
+    p.extend([
+        ("gru.weight_ih", vec![3 * width, HID]),
+        ("gru.weight_hh", vec![3 * width, width]),
+        ("gru.bias_ih", vec![3 * width]),
+        ("gru.bias_hh", vec![3 * width]),
+        ("fc2.weight", vec![shapes.actions, width]),
+        ("fc2.bias", vec![shapes.actions]),
+    ]);
+    p
+}
+
+/// The recurrent Q-network's parameters, as trainable variables.
+#[derive(Debug, Clone)]
+pub struct RecurrentQNet {
+    params: Vec<Var>,
+    shapes: Shapes,
+    width: usize,
+    device: Device,
+}
+
+impl RecurrentQNet {
+    /// A freshly initialised network (PyTorch's defaults: uniform
+    /// ±1/√fan_in, the GRU's and the head's ±1/√width), deterministic for a
+    /// seed. A width of 0 or above [`MAX_WIDTH`] is refused.
+    pub fn new(shapes: Shapes, width: usize, seed: u64, device: &Device) -> Result<Self> {
+        if width == 0 || width > MAX_WIDTH {
+            return Err(ModelError::Shape { what: "GRU width", expected: MAX_WIDTH, got: width });
+        }
+        let mut rng = Pcg64Mcg::seed_from_u64(seed);
+        let specs = recurrent_params(shapes, width);
+        let mut vars = Vec::with_capacity(specs.len());
+        for (i, (_, shape)) in specs.iter().enumerate() {
+            let fan_in = match i {
+                0..8 if i % 2 == 0 => shape[1],
+                0..8 => specs[i - 1].1[1],
+                _ => width,
+            };
+            let bound = 1.0 / (fan_in as f32).sqrt();
+            let n: usize = shape.iter().product();
+            let data: Vec<f32> = (0..n).map(|_| rng.random_range(-bound..bound)).collect();
+            vars.push(Var::from_tensor(&Tensor::from_vec(data, shape.as_slice(), device)?)?);
+        }
+        Ok(Self { params: vars, shapes, width, device: device.clone() })
+    }
+
+    /// The observation and action shapes the network takes and gives.
+    pub fn shapes(&self) -> Shapes {
+        self.shapes
+    }
+
+    /// Units of the GRU: floats of one agent's state.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    /// Trainable variables, in canonical order.
+    pub fn vars(&self) -> &[Var] {
+        &self.params
+    }
+
+    /// Floats in its flat weight vector.
+    pub fn num_params(&self) -> usize {
+        recurrent_params(self.shapes, self.width)
+            .iter()
+            .map(|(_, s)| s.iter().product::<usize>())
+            .sum()
+    }
+
+    fn p(&self, i: usize) -> &Tensor {
+        self.params[i].as_tensor()
+    }
+
+    /// One GRU step from the input's projection `xp` (`W_ih x + b_ih`,
+    /// `[B, 3W]`) and the state `h` (`[B, W]`): the new state.
+    fn cell(&self, xp: &Tensor, h: &Tensor) -> Result<Tensor> {
+        let w = self.width;
+        let hp = h.matmul(&self.p(9).t()?)?.broadcast_add(self.p(11))?;
+        // σ(x) = 1 / (1 + e^−x): candle-core has no sigmoid of its own.
+        let sigmoid =
+            |x: Tensor| -> Result<Tensor> { Ok(x.neg()?.exp()?.affine(1.0, 1.0)?.recip()?) };
+        let r = sigmoid((xp.narrow(1, 0, w)? + hp.narrow(1, 0, w)?)?)?;
+        let z = sigmoid((xp.narrow(1, w, w)? + hp.narrow(1, w, w)?)?)?;
+        let n = (xp.narrow(1, 2 * w, w)? + (r * hp.narrow(1, 2 * w, w)?)?)?.tanh()?;
+        // (1 − z) n + z h
+        Ok((&n + (z * (h - &n)?)?)?)
+    }
+
+    /// Q-values `[T, B, actions]` and the last state `[B, W]` of `B`
+    /// sequences of `T` steps: observations `obs` `[T, B, obs_len]` (step
+    /// major), the state `h0` `[B, W]` before the first step, and `keep`
+    /// `[T, B]`: 1 where an agent's state carries into the step, 0 where it
+    /// is zeroed first (an episode starts there).
+    pub fn unroll(&self, obs: &Tensor, h0: &Tensor, keep: &Tensor) -> Result<(Tensor, Tensor)> {
+        let (t, b, len) = obs.dims3()?;
+        let w = self.width;
+        let feat = trunk(&self.params, self.shapes, &obs.reshape((t * b, len))?)?;
+        let xp = feat.matmul(&self.p(8).t()?)?.broadcast_add(self.p(10))?.reshape((t, b, 3 * w))?;
+        let mut h = h0.clone();
+        let mut states = Vec::with_capacity(t);
+        for s in 0..t {
+            h = h.broadcast_mul(&keep.get(s)?.unsqueeze(1)?)?;
+            h = self.cell(&xp.get(s)?, &h)?;
+            states.push(h.clone());
+        }
+        let hs = Tensor::stack(&states, 0)?.reshape((t * b, w))?;
+        let q = hs.matmul(&self.p(12).t()?)?.broadcast_add(self.p(13))?;
+        Ok((q.reshape((t, b, self.shapes.actions))?, h))
+    }
+
+    /// Q-values (`B × actions` floats) of one step's observations (`B ×
+    /// obs_len`), each agent's state (`B × width`) carried to the next step
+    /// in place. The caller zeroes an agent's state where its episode
+    /// starts.
+    pub fn step(&self, obs: &[f32], state: &mut [f32]) -> Result<Vec<f32>> {
+        let (len, w) = (self.shapes.obs_len(), self.width);
+        let b = obs.len() / len;
+        if obs.is_empty() || b * len != obs.len() {
+            return Err(ModelError::Shape {
+                what: "observation batch",
+                expected: len,
+                got: obs.len(),
+            });
+        }
+        if state.len() != b * w {
+            return Err(ModelError::Shape {
+                what: "state batch",
+                expected: b * w,
+                got: state.len(),
+            });
+        }
+        let o = Tensor::from_slice(obs, (1, b, len), &self.device)?;
+        let h = Tensor::from_slice(state, (b, w), &self.device)?;
+        let keep = Tensor::ones((1, b), DType::F32, &self.device)?;
+        let (q, h) = self.unroll(&o, &h, &keep)?;
+        state.copy_from_slice(&h.flatten_all()?.to_vec1::<f32>()?);
+        Ok(q.flatten_all()?.to_vec1::<f32>()?)
+    }
+
+    /// Greedy actions of one step (see [`RecurrentQNet::step`]).
+    pub fn greedy(&self, obs: &[f32], state: &mut [f32]) -> Result<Vec<u8>> {
+        let q = self.step(obs, state)?;
+        Ok(q.chunks(self.shapes.actions).map(|c| argmax(c) as u8).collect())
+    }
+
+    /// Copies another network's weights into this one (of the same shapes
+    /// and width).
+    pub fn copy_from(&self, other: &RecurrentQNet) -> Result<()> {
+        if other.shapes != self.shapes || other.width != self.width {
+            return Err(ModelError::Shape {
+                what: "recurrent network to copy",
+                expected: self.num_params(),
+                got: other.num_params(),
+            });
+        }
+        for (a, b) in self.params.iter().zip(&other.params) {
+            a.set(&b.as_tensor().copy()?)?;
+        }
+        Ok(())
+    }
+}
+
+/// A minibatch of stored sequences, each its own contiguous block (as a
+/// replay keeps them). A sequence of `steps` transitions has `steps + 1`
+/// observations: the last is the bootstrap's.
+#[derive(Debug, Clone, Copy)]
+pub struct SeqBatch<'a> {
+    /// Sequences in the batch.
+    pub sequences: usize,
+    /// Transitions per sequence.
+    pub steps: usize,
+    /// Observations, `[sequences][steps + 1][obs_len]`.
+    pub obs: &'a [f32],
+    /// Actions taken, `[sequences][steps]`.
+    pub actions: &'a [u8],
+    /// Rewards, `[sequences][steps]`.
+    pub rewards: &'a [f32],
+    /// Whether the episode ended at a step, `[sequences][steps]`: the next
+    /// observation starts a new episode, from a zeroed state.
+    pub dones: &'a [bool],
+    /// The state each sequence started from (its actor's there),
+    /// `[sequences][width]`.
+    pub states: &'a [f32],
+}
+
+impl SeqBatch<'_> {
+    /// Checks every length, action and value against a network of `shapes`
+    /// and `width`, and that `burn_in` leaves a step to train.
+    fn check(&self, shapes: Shapes, width: usize, burn_in: usize) -> Result<()> {
+        let (n, t) = (self.sequences, self.steps);
+        let lens = [
+            ("sequence observations", n * (t + 1) * shapes.obs_len(), self.obs.len()),
+            ("sequence actions", n * t, self.actions.len()),
+            ("sequence rewards", n * t, self.rewards.len()),
+            ("sequence dones", n * t, self.dones.len()),
+            ("sequence states", n * width, self.states.len()),
+        ];
+        for (what, expected, got) in lens {
+            if expected != got {
+                return Err(ModelError::Shape { what, expected, got });
+            }
+        }
+        if burn_in >= t {
+            return Err(ModelError::Shape {
+                what: "sequence steps (more than the burn-in)",
+                expected: burn_in + 1,
+                got: t,
+            });
+        }
+        if n == 0 {
+            return Err(ModelError::Shape { what: "sequences", expected: 1, got: 0 });
+        }
+        if let Some(&a) = self.actions.iter().find(|&&a| a as usize >= shapes.actions) {
+            return Err(ModelError::Shape {
+                what: "sequence action (one of the actions)",
+                expected: shapes.actions,
+                got: a as usize,
+            });
+        }
+        let finite = |v: &[f32]| v.iter().all(|x| x.is_finite());
+        if !(finite(self.obs) && finite(self.rewards) && finite(self.states)) {
+            return Err(ModelError::Shape {
+                what: "sequence values (finite)",
+                expected: 0,
+                got: 1,
+            });
+        }
+        Ok(())
+    }
+}
+
+/// Hyper-parameters of the sequence update.
+#[derive(Debug, Clone, Copy)]
+pub struct SeqConfig {
+    /// Adam's learning rate.
+    pub lr: f32,
+    /// Discount.
+    pub gamma: f32,
+    /// Steps of return before bootstrapping (cut at an episode's end and at
+    /// the sequence's).
+    pub n_step: usize,
+    /// Steps at a sequence's start that only warm its state up.
+    pub burn_in: usize,
+    /// Updates between target-network copies.
+    pub target_update: u64,
+    /// Huber loss threshold.
+    pub huber_delta: f32,
+    /// Rewards are multiplied by this in the target.
+    pub reward_scale: f32,
+}
+
+/// A recurrent DQN learner: online and target networks and Adam, updated on
+/// stored sequences (double DQN, n-step, Huber loss).
+pub struct SeqDqn {
+    /// The online network.
+    pub online: RecurrentQNet,
+    target: RecurrentQNet,
+    cfg: SeqConfig,
+    /// Adam's first and second moments, per parameter.
+    moments: Vec<(Vec<f32>, Vec<f32>)>,
+    updates: u64,
+}
+
+impl SeqDqn {
+    /// A learner with freshly initialised networks (the target a copy of
+    /// the online one).
+    pub fn new(
+        cfg: SeqConfig,
+        shapes: Shapes,
+        width: usize,
+        seed: u64,
+        device: &Device,
+    ) -> Result<Self> {
+        let online = RecurrentQNet::new(shapes, width, seed, device)?;
+        let target = RecurrentQNet::new(shapes, width, seed, device)?;
+        let moments = recurrent_params(shapes, width)
+            .iter()
+            .map(|(_, s)| {
+                let n = s.iter().product();
+                (vec![0.0; n], vec![0.0; n])
+            })
+            .collect();
+        Ok(Self { online, target, cfg, moments, updates: 0 })
+    }
+
+    /// Updates made.
+    pub fn updates(&self) -> u64 {
+        self.updates
+    }
+
+    /// One update on `batch`; the loss. The target network is copied from
+    /// the online one every `target_update` updates.
+    pub fn update(&mut self, batch: &SeqBatch) -> Result<f32> {
+        let (shapes, width) = (self.online.shapes, self.online.width);
+        batch.check(shapes, width, self.cfg.burn_in)?;
+        let dev = self.online.device.clone();
+        let (n, t, burn) = (batch.sequences, batch.steps, self.cfg.burn_in);
+        // Step-major observations and keep-masks (0 after an episode's end).
+        let obs = Tensor::from_slice(batch.obs, (n, t + 1, shapes.obs_len()), &dev)?
+            .transpose(0, 1)?
+            .contiguous()?;
+        let mut keep = vec![1.0f32; (t + 1) * n];
+        for (i, d) in batch.dones.chunks_exact(t).enumerate() {
+            for (s, &done) in d.iter().enumerate() {
+                keep[(s + 1) * n + i] = if done { 0.0 } else { 1.0 };
+            }
+        }
+        let keep = Tensor::from_vec(keep, (t + 1, n), &dev)?;
+        let h0 = Tensor::from_slice(batch.states, (n, width), &dev)?;
+        // The burn-in only warms the state: no gradient flows into it.
+        let h = if burn > 0 {
+            let (_, h) =
+                self.online.unroll(&obs.narrow(0, 0, burn)?, &h0, &keep.narrow(0, 0, burn)?)?;
+            h.detach()
+        } else {
+            h0.clone()
+        };
+        let rest = t + 1 - burn;
+        let (q, _) =
+            self.online.unroll(&obs.narrow(0, burn, rest)?, &h, &keep.narrow(0, burn, rest)?)?;
+        let (qt, _) = self.target.unroll(&obs, &h0, &keep)?;
+        let y = self.targets(batch, &q.detach().to_vec3::<f32>()?, &qt.to_vec3::<f32>()?);
+        let trained = t - burn;
+        let mut onehot = vec![0.0f32; trained * n * shapes.actions];
+        for (i, a) in batch.actions.chunks_exact(t).enumerate() {
+            for s in 0..trained {
+                onehot[(s * n + i) * shapes.actions + a[burn + s] as usize] = 1.0;
+            }
+        }
+        let onehot = Tensor::from_vec(onehot, (trained, n, shapes.actions), &dev)?;
+        let taken = (q.narrow(0, 0, trained)? * onehot)?.sum(D::Minus1)?;
+        let y = Tensor::from_vec(y, (trained, n), &dev)?;
+        let loss = huber(&(taken - y)?, self.cfg.huber_delta)?;
+        let value = loss.to_scalar::<f32>()?;
+        if !value.is_finite() {
+            return Err(ModelError::NoGradient("the sequence loss is not finite"));
+        }
+        self.step(&loss)?;
+        Ok(value)
+    }
+
+    /// The n-step double-DQN targets `[trained][sequences]` of the trained
+    /// steps, from the online network's Q-values `q` (from the burn-in's end)
+    /// and the target network's `qt` (from the sequence's start).
+    fn targets(&self, b: &SeqBatch, q: &[Vec<Vec<f32>>], qt: &[Vec<Vec<f32>>]) -> Vec<f32> {
+        let (n, t, burn) = (b.sequences, b.steps, self.cfg.burn_in);
+        let c = self.cfg;
+        let mut y = vec![0.0; (t - burn) * n];
+        for i in 0..n {
+            let (r, d) = (&b.rewards[i * t..(i + 1) * t], &b.dones[i * t..(i + 1) * t]);
+            for u in burn..t {
+                let (mut g, mut disc, mut k) = (0.0f32, 1.0f32, 0);
+                let mut boot = true;
+                while k < c.n_step.max(1) && u + k < t {
+                    g += disc * r[u + k] * c.reward_scale;
+                    disc *= c.gamma;
+                    k += 1;
+                    if d[u + k - 1] {
+                        boot = false;
+                        break;
+                    }
+                }
+                if boot {
+                    let s = u + k;
+                    let best = argmax(&q[s - burn][i]);
+                    g += disc * qt[s][i][best];
+                }
+                y[(u - burn) * n + i] = g;
+            }
+        }
+        y
+    }
+
+    /// Backward through `loss`, then one Adam step on every parameter; the
+    /// target copied when due.
+    fn step(&mut self, loss: &Tensor) -> Result<()> {
+        let grads = loss.backward()?;
+        self.updates += 1;
+        let hyper =
+            AdamHyper { lr: self.cfg.lr, beta1: 0.9, beta2: 0.999, eps: 1e-8, t: self.updates };
+        for (var, (m, v)) in self.online.params.iter().zip(&mut self.moments) {
+            let g = grads
+                .get(var.as_tensor())
+                .ok_or(ModelError::NoGradient("a recurrent parameter got none"))?
+                .flatten_all()?
+                .to_vec1::<f32>()?;
+            let mut p = var.as_tensor().flatten_all()?.to_vec1::<f32>()?;
+            adam(&mut p, &g, m, v, hyper);
+            var.set(&Tensor::from_vec(p, var.shape(), var.device())?)?;
+        }
+        if self.updates.is_multiple_of(self.cfg.target_update.max(1)) {
+            self.target.copy_from(&self.online)?;
+        }
+        Ok(())
+    }
+}
+
+/// The mean Huber loss of the errors `d` with threshold `delta`.
+fn huber(d: &Tensor, delta: f32) -> Result<Tensor> {
+    let a = d.abs()?;
+    let quad = a.minimum(delta)?;
+    let lin = (a - &quad)?;
+    let per = ((quad.sqr()? * 0.5)? + (lin * delta as f64)?)?;
+    Ok(per.mean_all()?)
+}
+
+#[cfg(test)]
+mod tests;

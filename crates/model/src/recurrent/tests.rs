@@ -1,0 +1,293 @@
+use super::*;
+use crate::{Dqn, DqnConfig, QNet};
+use rotorhive_msg::NO_EXPERT;
+
+const SHAPES: Shapes = Shapes::PAPER;
+
+fn random_obs(rng: &mut Pcg64Mcg, n: usize) -> Vec<f32> {
+    (0..n * SHAPES.obs_len()).map(|_| rng.random_range(0.0..1.0)).collect()
+}
+
+#[test]
+fn stepping_equals_unrolling_and_a_state_carries_exactly() {
+    let dev = Device::Cpu;
+    let net = RecurrentQNet::new(SHAPES, 8, 3, &dev).unwrap();
+    let (t, b, len) = (6, 3, SHAPES.obs_len());
+    let mut rng = Pcg64Mcg::seed_from_u64(9);
+    let obs = random_obs(&mut rng, t * b);
+    let h0: Vec<f32> = (0..b * 8).map(|_| rng.random_range(-1.0..1.0)).collect();
+    let all = Tensor::from_slice(&obs, (t, b, len), &dev).unwrap();
+    let ones = Tensor::ones((t, b), DType::F32, &dev).unwrap();
+    let h0t = Tensor::from_slice(&h0, (b, 8), &dev).unwrap();
+    let (q, h_end) = net.unroll(&all, &h0t, &ones).unwrap();
+    let q = q.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+    // One step at a time, the state carried by the caller.
+    let mut state = h0.clone();
+    let mut stepped = Vec::new();
+    for s in 0..t {
+        stepped.extend(net.step(&obs[s * b * len..(s + 1) * b * len], &mut state).unwrap());
+    }
+    let close = |a: &[f32], b: &[f32]| a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-5);
+    assert!(close(&q, &stepped), "{q:?}\n{stepped:?}");
+    assert!(close(&state, &h_end.flatten_all().unwrap().to_vec1::<f32>().unwrap()));
+    // Three steps, then three more from the state reached: the same.
+    let (_, h3) =
+        net.unroll(&all.narrow(0, 0, 3).unwrap(), &h0t, &ones.narrow(0, 0, 3).unwrap()).unwrap();
+    let (q_rest, _) =
+        net.unroll(&all.narrow(0, 3, 3).unwrap(), &h3, &ones.narrow(0, 3, 3).unwrap()).unwrap();
+    assert!(close(&q[3 * b * 2..], &q_rest.flatten_all().unwrap().to_vec1::<f32>().unwrap()));
+    // The state matters: another start state gives other Q-values.
+    let mut zero = vec![0.0; b * 8];
+    assert!(!close(&net.step(&obs[..b * len], &mut zero).unwrap(), &q[..b * 2]));
+}
+
+#[test]
+fn a_zeroed_state_starts_afresh() {
+    let dev = Device::Cpu;
+    let net = RecurrentQNet::new(SHAPES, 4, 5, &dev).unwrap();
+    let mut rng = Pcg64Mcg::seed_from_u64(2);
+    let obs = random_obs(&mut rng, 3);
+    let all = Tensor::from_slice(&obs, (3, 1, SHAPES.obs_len()), &dev).unwrap();
+    let keep = Tensor::from_slice(&[1.0f32, 1.0, 0.0], (3, 1), &dev).unwrap();
+    let h0 = Tensor::ones((1, 4), DType::F32, &dev).unwrap();
+    let (q, _) = net.unroll(&all, &h0, &keep).unwrap();
+    let q = q.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+    let mut zero = vec![0.0; 4];
+    let fresh = net.step(&obs[2 * SHAPES.obs_len()..], &mut zero).unwrap();
+    assert!((q[4] - fresh[0]).abs() < 1e-6 && (q[5] - fresh[1]).abs() < 1e-6);
+}
+
+/// The cue task: an episode of four observations on a blank (noisy) depth
+/// image; the first shows a cue (+1 or −1 in the first scalar), the last
+/// says "decide" (the second scalar); the action there earns +1 if it
+/// matches the cue (action 0 for +1), −1 if not; nothing else pays. At the
+/// decision, the observation is the same for both cues: only memory can
+/// tell them apart.
+struct Cue {
+    rng: Pcg64Mcg,
+}
+
+const EPISODE: usize = 4;
+const UPDATES: u64 = 150;
+
+impl Cue {
+    /// One episode's observations (and a fifth, the next episode's start,
+    /// for the bootstrap of the last transition) for `cue`.
+    fn observations(&mut self, cue: f32) -> Vec<f32> {
+        let (len, depth) = (SHAPES.obs_len(), SHAPES.obs_depth());
+        let mut out = vec![0.0; (EPISODE + 1) * len];
+        for (s, o) in out.chunks_exact_mut(len).enumerate() {
+            for d in &mut o[..depth] {
+                *d = self.rng.random_range(0.4..0.6);
+            }
+            o[depth] = if s == 0 || s == EPISODE { cue } else { 0.0 };
+            o[depth + 1] = if s == EPISODE - 1 { 1.0 } else { 0.0 };
+        }
+        out
+    }
+
+    fn reward(cue: f32, step: usize, action: u8) -> f32 {
+        match step {
+            s if s < EPISODE - 1 => 0.0,
+            _ if (action == 0) == (cue > 0.0) => 1.0,
+            _ => -1.0,
+        }
+    }
+
+    /// `n` episodes with uniformly random actions: cues, observations,
+    /// actions, rewards.
+    fn episodes(&mut self, n: usize) -> (Vec<f32>, Vec<f32>, Vec<u8>, Vec<f32>) {
+        let (mut cues, mut obs, mut acts, mut rews) = (vec![], vec![], vec![], vec![]);
+        for _ in 0..n {
+            let cue = if self.rng.random::<bool>() { 1.0 } else { -1.0 };
+            cues.push(cue);
+            obs.extend(self.observations(cue));
+            for s in 0..EPISODE {
+                let a = self.rng.random_range(0..2u8);
+                acts.push(a);
+                rews.push(Self::reward(cue, s, a));
+            }
+        }
+        (cues, obs, acts, rews)
+    }
+}
+
+/// Of `n` episodes per cue, the share whose decision matched the cue.
+fn success(mut decide: impl FnMut(&[f32]) -> u8, cue_task: &mut Cue, n: usize) -> f64 {
+    let mut right = 0;
+    for i in 0..2 * n {
+        let cue = if i % 2 == 0 { 1.0 } else { -1.0 };
+        let obs = cue_task.observations(cue);
+        let a = decide(&obs);
+        right += (Cue::reward(cue, EPISODE - 1, a) > 0.0) as usize;
+    }
+    right as f64 / (2 * n) as f64
+}
+
+#[test]
+fn a_cue_needed_later_is_learned_with_memory_and_not_without() {
+    let dev = Device::Cpu;
+    let len = SHAPES.obs_len();
+    let cfg = SeqConfig {
+        lr: 3e-3,
+        gamma: 0.9,
+        n_step: 1,
+        burn_in: 0,
+        target_update: 25,
+        huber_delta: 1.0,
+        reward_scale: 1.0,
+    };
+    let mut seq = SeqDqn::new(cfg, SHAPES, 16, 1, &dev).unwrap();
+    let dqn_cfg = DqnConfig {
+        lr: 1e-3,
+        lr_final: 1e-3,
+        lr_decay_updates: 0,
+        gamma: 0.9,
+        target_update: 25,
+        huber_delta: 1.0,
+        double: true,
+        reward_scale: 1.0,
+        max_grad_norm: 0.0,
+        margin: 0.8,
+    };
+    let mut ff = Dqn::with_shapes(dqn_cfg, SHAPES, 1, &dev).unwrap();
+    let mut task = Cue { rng: Pcg64Mcg::seed_from_u64(7) };
+    let sequences = 8;
+    let dones: Vec<bool> = (0..sequences * EPISODE).map(|i| i % EPISODE == EPISODE - 1).collect();
+    let states = vec![0.0; sequences * 16];
+    for _ in 0..UPDATES {
+        let (_, obs, actions, rewards) = task.episodes(sequences);
+        let batch = SeqBatch {
+            sequences,
+            steps: EPISODE,
+            obs: &obs,
+            actions: &actions,
+            rewards: &rewards,
+            dones: &dones,
+            states: &states,
+        };
+        let loss = seq.update(&batch).unwrap();
+        assert!(loss.is_finite());
+        // The same transitions for the feedforward network.
+        let mut rows = Vec::with_capacity(sequences * EPISODE * SHAPES.transition_len());
+        for i in 0..sequences {
+            let o = &obs[i * (EPISODE + 1) * len..(i + 1) * (EPISODE + 1) * len];
+            for s in 0..EPISODE {
+                let k = i * EPISODE + s;
+                rows.extend_from_slice(&o[s * len..(s + 1) * len]);
+                rows.extend_from_slice(&o[(s + 1) * len..(s + 2) * len]);
+                let done = if dones[k] { 1.0 } else { 0.0 };
+                rows.extend([actions[k] as f32, rewards[k], done, NO_EXPERT, 0.0]);
+            }
+        }
+        ff.update(&rows).unwrap();
+    }
+    assert_eq!(seq.updates(), UPDATES);
+    let net = &seq.online;
+    let with_memory = success(
+        |obs| {
+            let mut h = vec![0.0; 16];
+            let mut a = 0;
+            for s in 0..EPISODE {
+                a = net.greedy(&obs[s * len..(s + 1) * len], &mut h).unwrap()[0];
+            }
+            a
+        },
+        &mut task,
+        50,
+    );
+    // The same network with its state zeroed at every step: no memory.
+    let zeroed = success(
+        |obs| {
+            let at = (EPISODE - 1) * len;
+            net.greedy(&obs[at..at + len], &mut [0.0; 16]).unwrap()[0]
+        },
+        &mut task,
+        50,
+    );
+    let online: &QNet = &ff.online;
+    let feedforward = success(
+        |obs| online.greedy(&obs[(EPISODE - 1) * len..EPISODE * len]).unwrap()[0],
+        &mut task,
+        50,
+    );
+    assert!(with_memory >= 0.95, "with memory: {with_memory}");
+    assert!(zeroed <= 0.6 && feedforward <= 0.6, "zeroed: {zeroed}, feedforward: {feedforward}");
+}
+
+#[test]
+fn a_bad_sequence_batch_is_refused_by_name() {
+    let dev = Device::Cpu;
+    let cfg = SeqConfig {
+        lr: 1e-3,
+        gamma: 0.9,
+        n_step: 3,
+        burn_in: 2,
+        target_update: 10,
+        huber_delta: 1.0,
+        reward_scale: 1.0,
+    };
+    let mut seq = SeqDqn::new(cfg, SHAPES, 4, 1, &dev).unwrap();
+    let mut rng = Pcg64Mcg::seed_from_u64(1);
+    let obs = random_obs(&mut rng, 6);
+    let (acts, rews, dones, states) = (vec![0u8; 5], vec![0.5; 5], vec![false; 5], vec![0.0; 4]);
+    let good = SeqBatch {
+        sequences: 1,
+        steps: 5,
+        obs: &obs,
+        actions: &acts,
+        rewards: &rews,
+        dones: &dones,
+        states: &states,
+    };
+    assert!(seq.update(&good).unwrap().is_finite());
+    let bad_action = [0u8, 0, 7, 0, 0];
+    let e = seq.update(&SeqBatch { actions: &bad_action, ..good }).unwrap_err().to_string();
+    assert!(e.contains("sequence action"), "{e}");
+    let e = seq.update(&SeqBatch { states: &states[..3], ..good }).unwrap_err().to_string();
+    assert!(e.contains("sequence states"), "{e}");
+    let short = SeqBatch { steps: 2, obs: &obs[..3 * SHAPES.obs_len()], ..good };
+    let e = seq
+        .update(&SeqBatch { actions: &acts[..2], rewards: &rews[..2], dones: &dones[..2], ..short })
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("burn-in"), "{e}");
+    let nan = [0.5, f32::NAN, 0.5, 0.5, 0.5];
+    let e = seq.update(&SeqBatch { rewards: &nan, ..good }).unwrap_err().to_string();
+    assert!(e.contains("finite"), "{e}");
+    assert!(RecurrentQNet::new(SHAPES, 0, 1, &dev).is_err());
+}
+
+#[test]
+fn n_step_targets_stop_at_an_episode_end_and_at_the_sequence_end() {
+    let cfg = SeqConfig {
+        lr: 1e-3,
+        gamma: 0.5,
+        n_step: 2,
+        burn_in: 1,
+        target_update: 10,
+        huber_delta: 1.0,
+        reward_scale: 1.0,
+    };
+    let seq = SeqDqn::new(cfg, SHAPES, 4, 1, &Device::Cpu).unwrap();
+    let (rewards, dones) = ([1.0, 2.0, 3.0, 4.0], [false, false, true, false]);
+    let b = SeqBatch {
+        sequences: 1,
+        steps: 4,
+        obs: &[],
+        actions: &[0; 4],
+        rewards: &rewards,
+        dones: &dones,
+        states: &[],
+    };
+    // Online Q-values from the burn-in's end (observations 1..=4), target
+    // ones from the start (0..=4); the online network picks action 1 at
+    // observation 4, the target values it at 10.
+    let q: Vec<Vec<Vec<f32>>> = (1..=4).map(|s| vec![vec![0.0, s as f32]]).collect();
+    let qt: Vec<Vec<Vec<f32>>> =
+        (0..=4).map(|s| vec![vec![100.0, 10.0 * s as f32 / 4.0]]).collect();
+    let y = seq.targets(&b, &q, &qt);
+    // Step 1: 2 + 0.5·3, and the episode ends at step 2: no bootstrap.
+    // Step 2: 3, the end. Step 3: 4, then the sequence ends: 0.5·Q'(s4, 1).
+    assert_eq!(y, vec![3.5, 3.0, 4.0 + 0.5 * 10.0]);
+}
