@@ -375,24 +375,12 @@ impl Workspace {
     /// pass into `self.grads`, from the `dq` written through
     /// [`Workspace::loss_view`].
     pub(crate) fn backward(&mut self, w: &Weights, n: usize) -> crate::Result<()> {
-        let [_, _, w2, _, _, _, w3, _, w4, _] = w.0;
-        let (vel, actions) = (w.1.scalars, w.1.actions);
-        let (hw1, hw2, p1) = (H1 * H1, H2 * H2, p1(w.1));
+        let w4 = w.0[8];
+        let actions = w.1.actions;
         let off = offsets(w.1);
-        let g = &mut self.grads[..off[10]];
-        let (g1, rest) = g.split_at_mut(off[1]);
-        let (gb1, rest) = rest.split_at_mut(C1);
-        let (g2, rest) = rest.split_at_mut(C2 * P2);
-        let (gb2, rest) = rest.split_at_mut(C2);
-        let (gv, rest) = rest.split_at_mut(VEL_H * vel);
-        let (gbv, rest) = rest.split_at_mut(VEL_H);
-        let (g3, rest) = rest.split_at_mut(HID * F);
-        let (gb3, rest) = rest.split_at_mut(HID);
-        let (g4, gb4) = rest.split_at_mut(actions * HID);
-        // The products overwrite g1, g2 and g3; the rest accumulates.
-        for acc in [&mut *gb1, gb2, gv, gbv, gb3, g4, gb4] {
-            acc.fill(0.0);
-        }
+        let (g4, gb4) = self.grads[off[8]..off[10]].split_at_mut(actions * HID);
+        g4.fill(0.0);
+        gb4.fill(0.0);
         // fc2 (2 outputs): by hand.
         let (dq, h, dh) = (&self.dq[..n * actions], &self.h[..n * HID], &mut self.dh[..n * HID]);
         for ((dq, h), dh) in
@@ -409,6 +397,43 @@ impl Workspace {
                 }
             }
         }
+        self.backward_trunk(w, n)
+    }
+
+    /// The `fc1` activations `[n, 64]` of the last forward pass: what the
+    /// recurrent network's GRU reads.
+    pub(crate) fn trunk_out(&self, n: usize) -> &[f32] {
+        &self.h[..n * HID]
+    }
+
+    /// The gradient with respect to the `fc1` activations of the first `n`
+    /// rows, for the caller to write before [`Workspace::backward_trunk`].
+    pub(crate) fn trunk_grad(&mut self, n: usize) -> &mut [f32] {
+        &mut self.dh[..n * HID]
+    }
+
+    /// Gradients of the layers up to `fc1` (the first eight parameters, at
+    /// their offsets in `self.grads`) from the gradient with respect to the
+    /// `fc1` activations written through [`Workspace::trunk_grad`] (or by
+    /// [`Workspace::backward`]'s head).
+    pub(crate) fn backward_trunk(&mut self, w: &Weights, n: usize) -> crate::Result<()> {
+        let [_, _, w2, _, _, _, w3, _, _, _] = w.0;
+        let vel = w.1.scalars;
+        let (hw1, hw2, p1) = (H1 * H1, H2 * H2, p1(w.1));
+        let off = offsets(w.1);
+        let g = &mut self.grads[..off[8]];
+        let (g1, rest) = g.split_at_mut(off[1]);
+        let (gb1, rest) = rest.split_at_mut(C1);
+        let (g2, rest) = rest.split_at_mut(C2 * P2);
+        let (gb2, rest) = rest.split_at_mut(C2);
+        let (gv, rest) = rest.split_at_mut(VEL_H * vel);
+        let (gbv, rest) = rest.split_at_mut(VEL_H);
+        let (g3, gb3) = rest.split_at_mut(HID * F);
+        // The products overwrite g1, g2 and g3; the rest accumulates.
+        for acc in [&mut *gb1, gb2, gv, gbv, gb3] {
+            acc.fill(0.0);
+        }
+        let (h, dh) = (&self.h[..n * HID], &mut self.dh[..n * HID]);
         mask_and_sum::<HID>(dh, h, gb3);
         // fc1: dW = dhᵀ·features, dfeatures = dh·W.
         let feat = &self.feat[..n * F];

@@ -6,17 +6,24 @@
 //! `burn_in` steps only warm that state up, and its other steps get n-step
 //! double-DQN targets from inside the sequence.
 //!
-//! This is the first part of memory in the trainer (issue 55), on the
-//! generic path only (stock candle ops and candle's autograd, any device);
-//! the fused CPU path, the actor's state and the replay's sequences come
-//! next.
+//! Two paths, as for the feedforward network: on the CPU the trunk runs on
+//! the fused kernels (forward, and backward from the gradient that candle's
+//! autograd gives its activations), the GRU and the head on stock candle
+//! ops; the generic path runs all of it on stock ops (any device), and the
+//! two give the same gradients (tested).
+//!
+//! This is the first part of memory in the trainer (issue 55); the actor's
+//! state and the replay's sequences come next.
+
+use std::sync::Arc;
 
 use candle_core::{D, DType, Device, Tensor, Var};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
+use crate::kernels::{Rows, Weights, Workspace, offsets};
 use crate::ops::{AdamHyper, adam};
-use crate::{HID, ModelError, Result, Shapes, argmax, params, trunk};
+use crate::{HID, ModelError, Result, Scratch, Shapes, argmax, params, trunk};
 
 /// The widest GRU a network may have.
 pub const MAX_WIDTH: usize = 1024;
@@ -45,6 +52,8 @@ pub struct RecurrentQNet {
     shapes: Shapes,
     width: usize,
     device: Device,
+    fused: bool,
+    scratch: Arc<Scratch>,
 }
 
 impl RecurrentQNet {
@@ -69,7 +78,72 @@ impl RecurrentQNet {
             let data: Vec<f32> = (0..n).map(|_| rng.random_range(-bound..bound)).collect();
             vars.push(Var::from_tensor(&Tensor::from_vec(data, shape.as_slice(), device)?)?);
         }
-        Ok(Self { params: vars, shapes, width, device: device.clone() })
+        Ok(Self {
+            params: vars,
+            shapes,
+            width,
+            device: device.clone(),
+            fused: device.is_cpu(),
+            scratch: Arc::default(),
+        })
+    }
+
+    /// Whether the trunk runs on the fused CPU path (the default on the
+    /// CPU).
+    pub fn fused(&self) -> bool {
+        self.fused
+    }
+
+    /// Chooses the fused CPU path for the trunk or the generic one.
+    pub fn set_fused(&mut self, fused: bool) -> Result<()> {
+        if fused && !self.device.is_cpu() {
+            return Err(ModelError::Fused("it runs on the CPU only"));
+        }
+        self.fused = fused;
+        Ok(())
+    }
+
+    /// Runs `f` on the trunk's CPU slices (read-locked for its duration),
+    /// with a zero feedforward head in the two slots the kernels expect
+    /// (its Q-values are computed and never read).
+    fn with_trunk<R>(&self, f: impl FnOnce(&Weights) -> Result<R>) -> Result<R> {
+        let guards: Vec<_> =
+            self.params[..8].iter().map(|v| v.as_tensor().storage_and_layout()).collect();
+        let head = vec![0.0f32; self.shapes.actions * (HID + 1)];
+        let mut w: [&[f32]; 10] = [&[]; 10];
+        for (slot, (storage, layout)) in w.iter_mut().zip(&guards) {
+            let candle_core::Storage::Cpu(cpu) = &**storage else {
+                return Err(ModelError::Fused("it runs on the CPU only"));
+            };
+            let Some((start, end)) = layout.contiguous_offsets() else {
+                return Err(ModelError::Fused("a parameter is not contiguous"));
+            };
+            *slot = &cpu.as_slice::<f32>()?[start..end];
+        }
+        (w[8], w[9]) = head.split_at(self.shapes.actions * HID);
+        f(&Weights(w, self.shapes))
+    }
+
+    /// The trunk's activations `[rows, 64]` of flat observations on the
+    /// fused path, in `ws` (kept there for [`Workspace::backward_trunk`]).
+    fn trunk_fused(&self, ws: &mut Workspace, obs: &[f32]) -> Result<Tensor> {
+        let len = self.shapes.obs_len();
+        let n = self.with_trunk(|w| ws.forward(w, &[Rows::packed(obs, len)]))?;
+        Ok(Tensor::from_slice(ws.trunk_out(n), (n, HID), &self.device)?)
+    }
+
+    /// The trunk's activations `[rows, 64]` of flat observations, on either
+    /// path (differentiable on the generic one).
+    fn features(&self, obs: &[f32]) -> Result<Tensor> {
+        let len = self.shapes.obs_len();
+        if !self.fused {
+            let o = Tensor::from_slice(obs, (obs.len() / len, len), &self.device)?;
+            return trunk(&self.params, self.shapes, &o);
+        }
+        let mut ws = self.scratch.take();
+        let feat = self.trunk_fused(&mut ws, obs);
+        self.scratch.put(ws);
+        feat
     }
 
     /// The observation and action shapes the network takes and gives.
@@ -121,8 +195,25 @@ impl RecurrentQNet {
     /// is zeroed first (an episode starts there).
     pub fn unroll(&self, obs: &Tensor, h0: &Tensor, keep: &Tensor) -> Result<(Tensor, Tensor)> {
         let (t, b, len) = obs.dims3()?;
+        let feat = if self.fused {
+            self.features(&obs.flatten_all()?.to_vec1::<f32>()?)?
+        } else {
+            trunk(&self.params, self.shapes, &obs.reshape((t * b, len))?)?
+        };
+        self.unroll_features(&feat, t, b, h0, keep)
+    }
+
+    /// [`RecurrentQNet::unroll`] from the trunk's activations `feat`
+    /// `[T × B, 64]` (step major).
+    fn unroll_features(
+        &self,
+        feat: &Tensor,
+        t: usize,
+        b: usize,
+        h0: &Tensor,
+        keep: &Tensor,
+    ) -> Result<(Tensor, Tensor)> {
         let w = self.width;
-        let feat = trunk(&self.params, self.shapes, &obs.reshape((t * b, len))?)?;
         let xp = feat.matmul(&self.p(8).t()?)?.broadcast_add(self.p(10))?.reshape((t, b, 3 * w))?;
         let mut h = h0.clone();
         let mut states = Vec::with_capacity(t);
@@ -287,6 +378,9 @@ pub struct SeqDqn {
     /// Adam's first and second moments, per parameter.
     moments: Vec<(Vec<f32>, Vec<f32>)>,
     updates: u64,
+    /// The online trunk's fused pass, kept from its forward for its
+    /// backward.
+    work: Workspace,
 }
 
 impl SeqDqn {
@@ -308,7 +402,14 @@ impl SeqDqn {
                 (vec![0.0; n], vec![0.0; n])
             })
             .collect();
-        Ok(Self { online, target, cfg, moments, updates: 0 })
+        Ok(Self { online, target, cfg, moments, updates: 0, work: Workspace::default() })
+    }
+
+    /// Chooses the fused CPU path for both networks' trunks, or the generic
+    /// one.
+    pub fn set_fused(&mut self, fused: bool) -> Result<()> {
+        self.online.set_fused(fused)?;
+        self.target.set_fused(fused)
     }
 
     /// Updates made.
@@ -319,34 +420,51 @@ impl SeqDqn {
     /// One update on `batch`; the loss. The target network is copied from
     /// the online one every `target_update` updates.
     pub fn update(&mut self, batch: &SeqBatch) -> Result<f32> {
+        let (loss, grads) = self.gradients(batch)?;
+        self.apply(&grads)?;
+        Ok(loss)
+    }
+
+    /// The loss on `batch` and its gradient, flat in canonical order
+    /// (nothing is updated).
+    pub fn gradients(&mut self, batch: &SeqBatch) -> Result<(f32, Vec<f32>)> {
         let (shapes, width) = (self.online.shapes, self.online.width);
         batch.check(shapes, width, self.cfg.burn_in)?;
         let dev = self.online.device.clone();
         let (n, t, burn) = (batch.sequences, batch.steps, self.cfg.burn_in);
-        // Step-major observations and keep-masks (0 after an episode's end).
-        let obs = Tensor::from_slice(batch.obs, (n, t + 1, shapes.obs_len()), &dev)?
-            .transpose(0, 1)?
-            .contiguous()?;
-        let mut keep = vec![1.0f32; (t + 1) * n];
-        for (i, d) in batch.dones.chunks_exact(t).enumerate() {
-            for (s, &done) in d.iter().enumerate() {
-                keep[(s + 1) * n + i] = if done { 0.0 } else { 1.0 };
-            }
-        }
+        let (obs, keep) = step_major(batch, shapes.obs_len());
         let keep = Tensor::from_vec(keep, (t + 1, n), &dev)?;
         let h0 = Tensor::from_slice(batch.states, (n, width), &dev)?;
+        // The fused trunk's activations enter autograd as a variable, whose
+        // gradient the fused backward takes up.
+        let (feat, leaf) = if self.online.fused {
+            let v = Var::from_tensor(&self.online.trunk_fused(&mut self.work, &obs)?)?;
+            (v.as_tensor().clone(), Some(v))
+        } else {
+            (self.online.features(&obs)?, None)
+        };
         // The burn-in only warms the state: no gradient flows into it.
         let h = if burn > 0 {
-            let (_, h) =
-                self.online.unroll(&obs.narrow(0, 0, burn)?, &h0, &keep.narrow(0, 0, burn)?)?;
+            let (_, h) = self.online.unroll_features(
+                &feat.narrow(0, 0, burn * n)?,
+                burn,
+                n,
+                &h0,
+                &keep.narrow(0, 0, burn)?,
+            )?;
             h.detach()
         } else {
             h0.clone()
         };
         let rest = t + 1 - burn;
-        let (q, _) =
-            self.online.unroll(&obs.narrow(0, burn, rest)?, &h, &keep.narrow(0, burn, rest)?)?;
-        let (qt, _) = self.target.unroll(&obs, &h0, &keep)?;
+        let (q, _) = self.online.unroll_features(
+            &feat.narrow(0, burn * n, rest * n)?,
+            rest,
+            n,
+            &h,
+            &keep.narrow(0, burn, rest)?,
+        )?;
+        let qt = self.target.unroll_features(&self.target.features(&obs)?, t + 1, n, &h0, &keep)?.0;
         let y = self.targets(batch, &q.detach().to_vec3::<f32>()?, &qt.to_vec3::<f32>()?);
         let trained = t - burn;
         let mut onehot = vec![0.0f32; trained * n * shapes.actions];
@@ -363,8 +481,53 @@ impl SeqDqn {
         if !value.is_finite() {
             return Err(ModelError::NoGradient("the sequence loss is not finite"));
         }
-        self.step(&loss)?;
-        Ok(value)
+        Ok((value, self.backward(&loss, leaf.as_ref(), (t + 1) * n)?))
+    }
+
+    /// The gradient of `loss`, flat in canonical order: the GRU's and the
+    /// head's from candle's autograd; the trunk's from it too on the generic
+    /// path, or from the fused backward of the `rows` activations `leaf`.
+    fn backward(&mut self, loss: &Tensor, leaf: Option<&Var>, rows: usize) -> Result<Vec<f32>> {
+        let grads = loss.backward()?;
+        let grad_of = |t: &Tensor| -> Result<Vec<f32>> {
+            let g = grads.get(t).ok_or(ModelError::NoGradient("a recurrent parameter got none"))?;
+            Ok(g.flatten_all()?.to_vec1::<f32>()?)
+        };
+        let mut flat = Vec::with_capacity(self.online.num_params());
+        let first = match leaf {
+            Some(leaf) => {
+                self.work.trunk_grad(rows).copy_from_slice(&grad_of(leaf.as_tensor())?);
+                let (online, work) = (&self.online, &mut self.work);
+                online.with_trunk(|w| work.backward_trunk(w, rows))?;
+                flat.extend_from_slice(&self.work.grads[..offsets(self.online.shapes)[8]]);
+                8
+            }
+            None => 0,
+        };
+        for var in &self.online.params[first..] {
+            flat.extend(grad_of(var.as_tensor())?);
+        }
+        Ok(flat)
+    }
+
+    /// One Adam step with `grads` (flat in canonical order); the target
+    /// copied when due.
+    fn apply(&mut self, grads: &[f32]) -> Result<()> {
+        self.updates += 1;
+        let hyper =
+            AdamHyper { lr: self.cfg.lr, beta1: 0.9, beta2: 0.999, eps: 1e-8, t: self.updates };
+        let mut off = 0;
+        for (var, (m, v)) in self.online.params.iter().zip(&mut self.moments) {
+            let g = &grads[off..off + m.len()];
+            off += m.len();
+            let mut p = var.as_tensor().flatten_all()?.to_vec1::<f32>()?;
+            adam(&mut p, g, m, v, hyper);
+            var.set(&Tensor::from_vec(p, var.shape(), var.device())?)?;
+        }
+        if self.updates.is_multiple_of(self.cfg.target_update.max(1)) {
+            self.target.copy_from(&self.online)?;
+        }
+        Ok(())
     }
 
     /// The n-step double-DQN targets `[trained][sequences]` of the trained
@@ -398,29 +561,25 @@ impl SeqDqn {
         }
         y
     }
+}
 
-    /// Backward through `loss`, then one Adam step on every parameter; the
-    /// target copied when due.
-    fn step(&mut self, loss: &Tensor) -> Result<()> {
-        let grads = loss.backward()?;
-        self.updates += 1;
-        let hyper =
-            AdamHyper { lr: self.cfg.lr, beta1: 0.9, beta2: 0.999, eps: 1e-8, t: self.updates };
-        for (var, (m, v)) in self.online.params.iter().zip(&mut self.moments) {
-            let g = grads
-                .get(var.as_tensor())
-                .ok_or(ModelError::NoGradient("a recurrent parameter got none"))?
-                .flatten_all()?
-                .to_vec1::<f32>()?;
-            let mut p = var.as_tensor().flatten_all()?.to_vec1::<f32>()?;
-            adam(&mut p, &g, m, v, hyper);
-            var.set(&Tensor::from_vec(p, var.shape(), var.device())?)?;
+/// A batch's observations step major (`[steps + 1][sequences][obs_len]`)
+/// and its keep-mask `[steps + 1][sequences]` (0 after an episode's end).
+fn step_major(b: &SeqBatch, len: usize) -> (Vec<f32>, Vec<f32>) {
+    let (n, t) = (b.sequences, b.steps);
+    let mut obs = vec![0.0; (t + 1) * n * len];
+    for (i, seq) in b.obs.chunks_exact((t + 1) * len).enumerate() {
+        for (s, o) in seq.chunks_exact(len).enumerate() {
+            obs[(s * n + i) * len..][..len].copy_from_slice(o);
         }
-        if self.updates.is_multiple_of(self.cfg.target_update.max(1)) {
-            self.target.copy_from(&self.online)?;
-        }
-        Ok(())
     }
+    let mut keep = vec![1.0f32; (t + 1) * n];
+    for (i, d) in b.dones.chunks_exact(t).enumerate() {
+        for (s, &done) in d.iter().enumerate() {
+            keep[(s + 1) * n + i] = if done { 0.0 } else { 1.0 };
+        }
+    }
+    (obs, keep)
 }
 
 /// The mean Huber loss of the errors `d` with threshold `delta`.

@@ -291,3 +291,60 @@ fn n_step_targets_stop_at_an_episode_end_and_at_the_sequence_end() {
     // Step 2: 3, the end. Step 3: 4, then the sequence ends: 0.5·Q'(s4, 1).
     assert_eq!(y, vec![3.5, 3.0, 4.0 + 0.5 * 10.0]);
 }
+
+#[test]
+fn the_fused_trunk_gives_the_generic_gradients() {
+    let dev = Device::Cpu;
+    let cfg = SeqConfig {
+        lr: 1e-3,
+        gamma: 0.9,
+        n_step: 3,
+        burn_in: 2,
+        target_update: 10,
+        huber_delta: 1.0,
+        reward_scale: 0.5,
+    };
+    let (n, t, width) = (3, 7, 8);
+    let mut rng = Pcg64Mcg::seed_from_u64(4);
+    let obs = random_obs(&mut rng, n * (t + 1));
+    let actions: Vec<u8> = (0..n * t).map(|_| rng.random_range(0..2)).collect();
+    let rewards: Vec<f32> = (0..n * t).map(|_| rng.random_range(-1.0..1.0)).collect();
+    let dones: Vec<bool> = (0..n * t).map(|i| i % 5 == 3).collect();
+    let states: Vec<f32> = (0..n * width).map(|_| rng.random_range(-1.0..1.0)).collect();
+    let batch = SeqBatch {
+        sequences: n,
+        steps: t,
+        obs: &obs,
+        actions: &actions,
+        rewards: &rewards,
+        dones: &dones,
+        states: &states,
+    };
+    let mut fused = SeqDqn::new(cfg, SHAPES, width, 6, &dev).unwrap();
+    let mut generic = SeqDqn::new(cfg, SHAPES, width, 6, &dev).unwrap();
+    generic.set_fused(false).unwrap();
+    assert!(fused.online.fused() && !generic.online.fused());
+    let (lf, gf) = fused.gradients(&batch).unwrap();
+    let (lg, gg) = generic.gradients(&batch).unwrap();
+    assert!((lf - lg).abs() < 1e-5 * lg.abs().max(1.0), "loss {lf} against {lg}");
+    assert_eq!(gf.len(), fused.online.num_params());
+    // Per parameter: the difference's norm against the gradient's.
+    let mut off = 0;
+    for (name, shape) in recurrent_params(SHAPES, width) {
+        let k: usize = shape.iter().product();
+        let (a, b) = (&gf[off..off + k], &gg[off..off + k]);
+        let diff = a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<f32>().sqrt();
+        let norm = b.iter().map(|y| y * y).sum::<f32>().sqrt();
+        assert!(norm > 0.0, "{name}: no gradient");
+        assert!(diff <= 1e-3 * norm, "{name}: |fused - generic| {diff} against |generic| {norm}");
+        off += k;
+    }
+    // And a step of each keeps them together.
+    fused.update(&batch).unwrap();
+    generic.update(&batch).unwrap();
+    let mut state = (vec![0.0; width], vec![0.0; width]);
+    let len = SHAPES.obs_len();
+    let qf = fused.online.step(&obs[..len], &mut state.0).unwrap();
+    let qg = generic.online.step(&obs[..len], &mut state.1).unwrap();
+    assert!(qf.iter().zip(&qg).all(|(a, b)| (a - b).abs() < 1e-4), "{qf:?} {qg:?}");
+}
