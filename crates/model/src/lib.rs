@@ -20,6 +20,7 @@
 //! Weights travel as one flat `f32` vector in a canonical order ([`params`]) and
 //! are saved as safetensors.
 
+mod checkpoint;
 mod dqn;
 mod kernels;
 mod onnx;
@@ -31,7 +32,10 @@ use std::path::Path;
 use std::sync::{Arc, Mutex};
 
 pub use candle_core::Device;
-use candle_core::{DType, Tensor, Var};
+use candle_core::{Tensor, Var};
+pub use checkpoint::{
+    CHECKPOINT_LAYOUT, checkpoint_memory, checkpoint_metadata, checkpoint_shapes, memory_name,
+};
 pub use dqn::{Dqn, DqnConfig, UpdateStats, UpdateTiming};
 use kernels::{Rows, Weights, Workspace};
 use rand::{Rng, SeedableRng};
@@ -466,24 +470,7 @@ impl QNet {
 
     /// Loads weights by name, checking every name and shape.
     pub fn load_named(&self, tensors: &HashMap<String, Tensor>, file: &str) -> Result<()> {
-        for ((name, shape), v) in params(self.shapes).iter().zip(&self.params) {
-            let t = tensors.get(*name).ok_or_else(|| ModelError::Checkpoint {
-                file: file.into(),
-                message: format!("tensor `{name}` is missing"),
-            })?;
-            if t.dims() != *shape {
-                return Err(ModelError::Checkpoint {
-                    file: file.into(),
-                    message: format!(
-                        "tensor `{name}` has shape {:?}, the network needs {:?}",
-                        t.dims(),
-                        shape
-                    ),
-                });
-            }
-            v.set(&t.to_dtype(DType::F32)?.to_device(&self.device)?)?;
-        }
-        Ok(())
+        checkpoint::load_vars(&params(self.shapes), &self.params, tensors, file, &self.device)
     }
 
     /// Saves the weights as safetensors, with the layout's description in
@@ -497,21 +484,7 @@ impl QNet {
     pub fn save_with(&self, path: &Path, extra: &[(&str, String)]) -> Result<()> {
         let mut meta = checkpoint_metadata(self.shapes);
         meta.extend(extra.iter().map(|(k, v)| (k.to_string(), v.clone())));
-        let named = self.named();
-        let cpu: Vec<(String, Tensor)> = named
-            .into_iter()
-            .map(|(k, t)| Ok((k, t.to_device(&Device::Cpu)?.contiguous()?)))
-            .collect::<Result<_>>()?;
-        let bad =
-            |message: String| ModelError::Checkpoint { file: path.display().to_string(), message };
-        let mut bytes = safetensors::serialize(cpu, Some(meta))
-            .map_err(|e| bad(format!("cannot write: {e}")))?;
-        sort_header(&mut bytes);
-        rotorhive_msg::durable::atomic_write(
-            path,
-            |tmp| std::fs::write(tmp, &bytes).map_err(|e| bad(format!("cannot write: {e}"))),
-            |e| bad(format!("cannot write: {e}")),
-        )
+        checkpoint::write(path, self.named(), meta)
     }
 
     /// Writes the network as an ONNX model (see `onnx.rs`): inputs `depth`
@@ -534,130 +507,8 @@ impl QNet {
     /// truncated or mismatched file, or one written in another layout.
     pub fn load(&self, path: &Path) -> Result<()> {
         let file = path.display().to_string();
-        let bytes = std::fs::read(path).map_err(|e| ModelError::Checkpoint {
-            file: file.clone(),
-            message: format!("cannot read: {e}"),
-        })?;
-        check_layout(&bytes, &file, self.shapes)?;
-        let tensors = candle_core::safetensors::load_buffer(&bytes, &self.device).map_err(|e| {
-            ModelError::Checkpoint {
-                file: file.clone(),
-                message: format!("not a valid safetensors file: {e}"),
-            }
-        })?;
+        let tensors = checkpoint::read(path, &self.device, &checkpoint_metadata(self.shapes))?;
         self.load_named(&tensors, &file)
-    }
-}
-
-/// The checkpoint layout this build writes and reads: the tensors' names
-/// and shapes, conv2's weights as (out, kh, kw, in) and fc1's pooled
-/// features channels-last. A change of any of them changes it.
-pub const CHECKPOINT_LAYOUT: &str = "rotorhive-qnet/1";
-
-/// What a checkpoint's safetensors header says of a network for `shapes`:
-/// `layout` ([`CHECKPOINT_LAYOUT`]), `observation`, `frames`,
-/// `frame_stride`, `obs_len`, `scalars` and `actions`.
-pub fn checkpoint_metadata(shapes: Shapes) -> HashMap<String, String> {
-    let goal = if shapes.scalars > rotorhive_msg::VEL_DIM {
-        ", then the goal's bearing (rad), distance and lateral offset (10 m)"
-    } else {
-        ""
-    };
-    HashMap::from([
-        ("layout".to_string(), CHECKPOINT_LAYOUT.to_string()),
-        (
-            "observation".to_string(),
-            format!(
-                "depth {}x{SIDE}x{SIDE} in [0, 1] (oldest frame first, {} action period(s) \
-                 apart), then velocity 3 (m/s, body frame){goal}",
-                shapes.frames, shapes.stride
-            ),
-        ),
-        ("frames".to_string(), shapes.frames.to_string()),
-        ("frame_stride".to_string(), shapes.stride.to_string()),
-        ("obs_len".to_string(), shapes.obs_len().to_string()),
-        ("scalars".to_string(), shapes.scalars.to_string()),
-        ("actions".to_string(), shapes.actions.to_string()),
-    ])
-}
-
-/// The shapes a checkpoint was written for, from its header (`frames`,
-/// `frame_stride`, `scalars` and `actions`; an entry missing in a checkpoint of an earlier
-/// build is the paper's), checked to be ones a task has.
-pub fn checkpoint_shapes(path: &Path) -> Result<Shapes> {
-    let file = path.display().to_string();
-    let bad = |message: String| ModelError::Checkpoint { file: file.clone(), message };
-    let bytes = std::fs::read(path).map_err(|e| bad(format!("cannot read: {e}")))?;
-    let (_, header) = safetensors::SafeTensors::read_metadata(&bytes)
-        .map_err(|e| bad(format!("not a valid safetensors file: {e}")))?;
-    let meta = header.metadata().clone().unwrap_or_default();
-    let field = |k: &str, default: usize| -> Result<usize> {
-        meta.get(k).map_or(Ok(default), |v| {
-            v.parse().map_err(|_| bad(format!("header entry `{k}` is {v:?}, not a count")))
-        })
-    };
-    let shapes = Shapes {
-        frames: field("frames", Shapes::PAPER.frames)?,
-        stride: field("frame_stride", Shapes::PAPER.stride)?,
-        scalars: field("scalars", Shapes::PAPER.scalars)?,
-        actions: field("actions", Shapes::PAPER.actions)?,
-    };
-    shapes.check().map_err(|m| bad(format!("header claims {m}")))
-}
-
-/// Rewrites a safetensors file's JSON header with its keys sorted, so that
-/// the same weights give the same bytes (the crate writes the metadata map
-/// in `HashMap` order, which differs from process to process; deterministic
-/// runs are compared byte for byte). The header keeps its length: the same
-/// entries, written compactly by the same serializer.
-fn sort_header(bytes: &mut [u8]) {
-    let Some(len) =
-        bytes.get(..8).map(|b| u64::from_le_bytes(b.try_into().expect("eight bytes")) as usize)
-    else {
-        return;
-    };
-    let Some(header) = bytes.get(8..8 + len) else {
-        return;
-    };
-    let Ok(value) = serde_json::from_slice::<serde_json::Value>(header) else {
-        return;
-    };
-    let Ok(sorted) = serde_json::to_vec(&value) else {
-        return;
-    };
-    let text = String::from_utf8_lossy(header);
-    if sorted.len() == text.trim_end().len() {
-        bytes[8..8 + sorted.len()].copy_from_slice(&sorted);
-    }
-}
-
-/// Refuses a checkpoint whose header describes another network, naming
-/// each difference; a header without these entries (a checkpoint of an
-/// earlier build) is left to the name and shape checks.
-fn check_layout(bytes: &[u8], file: &str, shapes: Shapes) -> Result<()> {
-    let Ok((_, header)) = safetensors::SafeTensors::read_metadata(bytes) else {
-        return Ok(());
-    };
-    let Some(theirs) = header.metadata() else {
-        return Ok(());
-    };
-    let ours = checkpoint_metadata(shapes);
-    let diffs: Vec<String> = ["layout", "obs_len", "frames", "frame_stride", "scalars", "actions"]
-        .iter()
-        .filter_map(|k| {
-            theirs
-                .get(*k)
-                .filter(|v| Some(*v) != ours.get(*k))
-                .map(|v| format!("{k} {v} (this network: {})", ours[*k]))
-        })
-        .collect();
-    if diffs.is_empty() {
-        Ok(())
-    } else {
-        Err(ModelError::Checkpoint {
-            file: file.into(),
-            message: format!("written for another network: {}", diffs.join(", ")),
-        })
     }
 }
 

@@ -15,12 +15,15 @@
 //! This is the first part of memory in the trainer (issue 55); the actor's
 //! state and the replay's sequences come next.
 
+use std::collections::HashMap;
+use std::path::Path;
 use std::sync::Arc;
 
 use candle_core::{D, DType, Device, Tensor, Var};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
+use crate::checkpoint::{self, recurrent_metadata};
 use crate::kernels::{Rows, Weights, Workspace, offsets};
 use crate::ops::{AdamHyper, adam};
 use crate::{HID, ModelError, Result, Scratch, Shapes, argmax, params, trunk};
@@ -260,6 +263,34 @@ impl RecurrentQNet {
     pub fn greedy(&self, obs: &[f32], state: &mut [f32]) -> Result<Vec<u8>> {
         let q = self.step(obs, state)?;
         Ok(q.chunks(self.shapes.actions).map(|c| argmax(c) as u8).collect())
+    }
+
+    /// The weights by name.
+    pub fn named(&self) -> HashMap<String, Tensor> {
+        recurrent_params(self.shapes, self.width)
+            .iter()
+            .zip(&self.params)
+            .map(|((n, _), v)| (n.to_string(), v.as_tensor().clone()))
+            .collect()
+    }
+
+    /// Saves the weights as safetensors, the header naming the memory
+    /// (`memory = "gru:WIDTH"`) with the shapes, and `extra` entries.
+    pub fn save(&self, path: &Path, extra: &[(&str, String)]) -> Result<()> {
+        let mut meta = recurrent_metadata(self.shapes, Some(self.width));
+        meta.extend(extra.iter().map(|(k, v)| (k.to_string(), v.clone())));
+        checkpoint::write(path, self.named(), meta)
+    }
+
+    /// Loads weights saved by [`RecurrentQNet::save`]; a checkpoint of
+    /// another memory (a feedforward network's, another width) or other
+    /// shapes is refused by name.
+    pub fn load(&self, path: &Path) -> Result<()> {
+        let ours = recurrent_metadata(self.shapes, Some(self.width));
+        let tensors = checkpoint::read(path, &self.device, &ours)?;
+        let specs = recurrent_params(self.shapes, self.width);
+        let file = path.display().to_string();
+        checkpoint::load_vars(&specs, &self.params, &tensors, &file, &self.device)
     }
 
     /// Copies another network's weights into this one (of the same shapes

@@ -1,6 +1,7 @@
 //! Checks of the network against plain candle and against finite differences.
 
 use super::*;
+use candle_core::DType;
 use rotorhive_msg::{DEPTH_PIXELS, NO_EXPERT};
 
 // The paper's task's shapes, as most checks here use them.

@@ -348,3 +348,31 @@ fn the_fused_trunk_gives_the_generic_gradients() {
     let qg = generic.online.step(&obs[..len], &mut state.1).unwrap();
     assert!(qf.iter().zip(&qg).all(|(a, b)| (a - b).abs() < 1e-4), "{qf:?} {qg:?}");
 }
+
+#[test]
+fn a_checkpoint_names_its_memory_and_a_network_of_another_is_refused() {
+    let dev = Device::Cpu;
+    let dir = std::env::temp_dir().join(format!("rotorhive-recurrent-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let (gru, plain) = (dir.join("gru.safetensors"), dir.join("plain.safetensors"));
+    let net = RecurrentQNet::new(SHAPES, 8, 3, &dev).unwrap();
+    net.save(&gru, &[("config_crc32c", "1234".into())]).unwrap();
+    assert_eq!(crate::checkpoint_memory(&gru).unwrap(), Some(8));
+    // Loaded back: the same function.
+    let back = RecurrentQNet::new(SHAPES, 8, 99, &dev).unwrap();
+    back.load(&gru).unwrap();
+    let obs = random_obs(&mut Pcg64Mcg::seed_from_u64(1), 2);
+    let (mut h1, mut h2) = (vec![0.5; 16], vec![0.5; 16]);
+    assert_eq!(net.step(&obs, &mut h1).unwrap(), back.step(&obs, &mut h2).unwrap());
+    // A memoryless network refuses it by name, and the other way round.
+    let e = QNet::with_shapes(SHAPES, 0, &dev).unwrap().load(&gru).unwrap_err().to_string();
+    assert!(e.contains("memory gru:8 (this network: none)"), "{e}");
+    QNet::with_shapes(SHAPES, 0, &dev).unwrap().save(&plain).unwrap();
+    assert_eq!(crate::checkpoint_memory(&plain).unwrap(), None);
+    let e = back.load(&plain).unwrap_err().to_string();
+    assert!(e.contains("memory none (this network: gru:8)"), "{e}");
+    // Another width too.
+    let e = RecurrentQNet::new(SHAPES, 16, 0, &dev).unwrap().load(&gru).unwrap_err().to_string();
+    assert!(e.contains("memory gru:8 (this network: gru:16)"), "{e}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -1,0 +1,227 @@
+//! Checkpoints: safetensors files whose header describes the network
+//! (layout, observation, shapes, memory), written with sorted keys and read
+//! with every difference named.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use candle_core::{DType, Device, Tensor, Var};
+
+use crate::{ModelError, Result, SIDE, Shapes};
+
+/// The checkpoint layout this build writes and reads: the tensors' names
+/// and shapes, conv2's weights as (out, kh, kw, in) and fc1's pooled
+/// features channels-last. A change of any of them changes it.
+pub const CHECKPOINT_LAYOUT: &str = "rotorhive-qnet/1";
+
+/// What a checkpoint's safetensors header says of a feedforward network
+/// for `shapes`: `layout` ([`CHECKPOINT_LAYOUT`]), `observation`, `frames`,
+/// `frame_stride`, `obs_len`, `scalars`, `actions` and `memory` (`none`).
+pub fn checkpoint_metadata(shapes: Shapes) -> HashMap<String, String> {
+    recurrent_metadata(shapes, None)
+}
+
+/// The name of a network's memory in a checkpoint's header: `none`, or
+/// `gru:WIDTH`.
+pub fn memory_name(width: Option<usize>) -> String {
+    width.map_or_else(|| "none".to_string(), |w| format!("gru:{w}"))
+}
+
+/// [`checkpoint_metadata`] of a network with a GRU of `width` units (none:
+/// the feedforward one).
+pub(crate) fn recurrent_metadata(shapes: Shapes, width: Option<usize>) -> HashMap<String, String> {
+    let goal = if shapes.scalars > rotorhive_msg::VEL_DIM {
+        ", then the goal's bearing (rad), distance and lateral offset (10 m)"
+    } else {
+        ""
+    };
+    HashMap::from([
+        ("layout".to_string(), CHECKPOINT_LAYOUT.to_string()),
+        (
+            "observation".to_string(),
+            format!(
+                "depth {}x{SIDE}x{SIDE} in [0, 1] (oldest frame first, {} action period(s) \
+                 apart), then velocity 3 (m/s, body frame){goal}",
+                shapes.frames, shapes.stride
+            ),
+        ),
+        ("frames".to_string(), shapes.frames.to_string()),
+        ("frame_stride".to_string(), shapes.stride.to_string()),
+        ("obs_len".to_string(), shapes.obs_len().to_string()),
+        ("scalars".to_string(), shapes.scalars.to_string()),
+        ("actions".to_string(), shapes.actions.to_string()),
+        ("memory".to_string(), memory_name(width)),
+    ])
+}
+
+/// The shapes a checkpoint was written for, from its header (`frames`,
+/// `frame_stride`, `scalars` and `actions`; an entry missing in a checkpoint of an earlier
+/// build is the paper's), checked to be ones a task has.
+pub fn checkpoint_shapes(path: &Path) -> Result<Shapes> {
+    let file = path.display().to_string();
+    let bad = |message: String| ModelError::Checkpoint { file: file.clone(), message };
+    let bytes = std::fs::read(path).map_err(|e| bad(format!("cannot read: {e}")))?;
+    let (_, header) = safetensors::SafeTensors::read_metadata(&bytes)
+        .map_err(|e| bad(format!("not a valid safetensors file: {e}")))?;
+    let meta = header.metadata().clone().unwrap_or_default();
+    let field = |k: &str, default: usize| -> Result<usize> {
+        meta.get(k).map_or(Ok(default), |v| {
+            v.parse().map_err(|_| bad(format!("header entry `{k}` is {v:?}, not a count")))
+        })
+    };
+    let shapes = Shapes {
+        frames: field("frames", Shapes::PAPER.frames)?,
+        stride: field("frame_stride", Shapes::PAPER.stride)?,
+        scalars: field("scalars", Shapes::PAPER.scalars)?,
+        actions: field("actions", Shapes::PAPER.actions)?,
+    };
+    shapes.check().map_err(|m| bad(format!("header claims {m}")))
+}
+
+/// Rewrites a safetensors file's JSON header with its keys sorted, so that
+/// the same weights give the same bytes (the crate writes the metadata map
+/// in `HashMap` order, which differs from process to process; deterministic
+/// runs are compared byte for byte). The header keeps its length: the same
+/// entries, written compactly by the same serializer.
+fn sort_header(bytes: &mut [u8]) {
+    let Some(len) =
+        bytes.get(..8).map(|b| u64::from_le_bytes(b.try_into().expect("eight bytes")) as usize)
+    else {
+        return;
+    };
+    let Some(header) = bytes.get(8..8 + len) else {
+        return;
+    };
+    let Ok(value) = serde_json::from_slice::<serde_json::Value>(header) else {
+        return;
+    };
+    let Ok(sorted) = serde_json::to_vec(&value) else {
+        return;
+    };
+    let text = String::from_utf8_lossy(header);
+    if sorted.len() == text.trim_end().len() {
+        bytes[8..8 + sorted.len()].copy_from_slice(&sorted);
+    }
+}
+
+/// Refuses a checkpoint whose header describes another network, naming
+/// each difference; a header without these entries (a checkpoint of an
+/// earlier build) is left to the name and shape checks.
+fn check_layout(bytes: &[u8], file: &str, ours: &HashMap<String, String>) -> Result<()> {
+    let Ok((_, header)) = safetensors::SafeTensors::read_metadata(bytes) else {
+        return Ok(());
+    };
+    let Some(theirs) = header.metadata() else {
+        return Ok(());
+    };
+    // A checkpoint of a build before memory is a feedforward network's.
+    let none = memory_name(None);
+    let keys = ["layout", "obs_len", "frames", "frame_stride", "scalars", "actions", "memory"];
+    let diffs: Vec<String> = keys
+        .iter()
+        .filter_map(|k| {
+            let v = theirs.get(*k).or(if *k == "memory" { Some(&none) } else { None });
+            v.filter(|v| Some(*v) != ours.get(*k))
+                .map(|v| format!("{k} {v} (this network: {})", ours[*k]))
+        })
+        .collect();
+    if diffs.is_empty() {
+        Ok(())
+    } else {
+        Err(ModelError::Checkpoint {
+            file: file.into(),
+            message: format!("written for another network: {}", diffs.join(", ")),
+        })
+    }
+}
+
+/// The memory a checkpoint's network has, from its header: `None` for a
+/// feedforward one (or a checkpoint of a build before memory), `Some(width)`
+/// for a GRU's.
+pub fn checkpoint_memory(path: &Path) -> Result<Option<usize>> {
+    let file = path.display().to_string();
+    let bad = |message: String| ModelError::Checkpoint { file: file.clone(), message };
+    let bytes = std::fs::read(path).map_err(|e| bad(format!("cannot read: {e}")))?;
+    let (_, header) = safetensors::SafeTensors::read_metadata(&bytes)
+        .map_err(|e| bad(format!("not a valid safetensors file: {e}")))?;
+    match header.metadata().as_ref().and_then(|m| m.get("memory")).map(String::as_str) {
+        None | Some("none") => Ok(None),
+        Some(m) => m
+            .strip_prefix("gru:")
+            .and_then(|w| w.parse().ok())
+            .filter(|w| (1..=crate::MAX_WIDTH).contains(w))
+            .map(Some)
+            .ok_or_else(|| bad(format!("header entry `memory` is {m:?}, not none or gru:WIDTH"))),
+    }
+}
+
+/// Writes `named` tensors (moved to the CPU) with `meta` in the header,
+/// keys sorted, atomically.
+pub(crate) fn write(
+    path: &Path,
+    named: HashMap<String, Tensor>,
+    meta: HashMap<String, String>,
+) -> Result<()> {
+    let cpu: Vec<(String, Tensor)> = named
+        .into_iter()
+        .map(|(k, t)| Ok((k, t.to_device(&Device::Cpu)?.contiguous()?)))
+        .collect::<Result<_>>()?;
+    let bad =
+        |message: String| ModelError::Checkpoint { file: path.display().to_string(), message };
+    let mut bytes =
+        safetensors::serialize(cpu, Some(meta)).map_err(|e| bad(format!("cannot write: {e}")))?;
+    sort_header(&mut bytes);
+    rotorhive_msg::durable::atomic_write(
+        path,
+        |tmp| std::fs::write(tmp, &bytes).map_err(|e| bad(format!("cannot write: {e}"))),
+        |e| bad(format!("cannot write: {e}")),
+    )
+}
+
+/// The tensors of a checkpoint on `device`, refused when its header
+/// describes another network than `ours` says.
+pub(crate) fn read(
+    path: &Path,
+    device: &Device,
+    ours: &HashMap<String, String>,
+) -> Result<HashMap<String, Tensor>> {
+    let file = path.display().to_string();
+    let bytes = std::fs::read(path).map_err(|e| ModelError::Checkpoint {
+        file: file.clone(),
+        message: format!("cannot read: {e}"),
+    })?;
+    check_layout(&bytes, &file, ours)?;
+    candle_core::safetensors::load_buffer(&bytes, device).map_err(|e| ModelError::Checkpoint {
+        file,
+        message: format!("not a valid safetensors file: {e}"),
+    })
+}
+
+/// Sets `vars` (of `specs`' names and shapes, in order) from `tensors`,
+/// checking every name and shape.
+pub(crate) fn load_vars(
+    specs: &[(&'static str, Vec<usize>)],
+    vars: &[Var],
+    tensors: &HashMap<String, Tensor>,
+    file: &str,
+    device: &Device,
+) -> Result<()> {
+    for ((name, shape), v) in specs.iter().zip(vars) {
+        let t = tensors.get(*name).ok_or_else(|| ModelError::Checkpoint {
+            file: file.into(),
+            message: format!("tensor `{name}` is missing"),
+        })?;
+        if t.dims() != *shape {
+            return Err(ModelError::Checkpoint {
+                file: file.into(),
+                message: format!(
+                    "tensor `{name}` has shape {:?}, the network needs {:?}",
+                    t.dims(),
+                    shape
+                ),
+            });
+        }
+        v.set(&t.to_dtype(DType::F32)?.to_device(device)?)?;
+    }
+    Ok(())
+}
