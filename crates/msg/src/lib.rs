@@ -18,9 +18,11 @@ use iceoryx2::prelude::ZeroCopySend;
 mod counters;
 pub mod durable;
 pub mod protobuf;
+mod sequence;
 mod telemetry;
 
 pub use counters::Counters;
+pub use sequence::{SeqLayout, Unpacked};
 pub use telemetry::{
     ActorStage, Delivery, LearnerStage, Learning, LinkStage, ReplayStage, RoleKind, STAGES,
     SimStage, Stage, TeacherCounts, Telemetry, stage_names,

@@ -724,5 +724,7 @@ fn send_actions<S: Service>(
     }
 }
 
+pub mod sequences;
+
 #[cfg(test)]
 mod tests;
