@@ -231,6 +231,14 @@ fn a_checkpoint_flies_a_level_with_its_own_frames() {
     let v = eval_json(&["--checkpoint", ckpt, "--level", "moving", "--episodes", "5"]);
     assert_eq!((v["frames"].as_u64(), v["frame_stride"].as_u64()), (Some(4), Some(3)));
     assert_eq!(v["episodes"].as_u64(), Some(5));
+    assert_eq!(v["memory"], "none");
+    // A recurrent checkpoint flies as one, its header naming its memory.
+    let gru = dir.join("gru.safetensors");
+    let net = rotorhive_model::RecurrentQNet::new(shapes, 8, 5, &Device::Cpu).unwrap();
+    net.save(&gru, &[]).unwrap();
+    let v =
+        eval_json(&["--checkpoint", gru.to_str().unwrap(), "--level", "moving", "--episodes", "5"]);
+    assert_eq!((v["memory"].as_str(), v["episodes"].as_u64()), (Some("gru:8"), Some(5)));
     let reactive = eval_json(&["--policy", "reactive", "--level", "moving", "--episodes", "5"]);
     assert_eq!(
         (reactive["frames"].as_u64(), reactive["frame_stride"].as_u64()),

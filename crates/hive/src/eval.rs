@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Result, bail};
 use clap::{Args, ValueEnum};
-use rotorhive_model::{Device, QNet, Shapes};
+use rotorhive_model::{Device, QNet, RecurrentQNet, Shapes};
 use rotorhive_roles::Config;
 pub use rotorhive_roles::eval::fly_greedy;
 use rotorhive_roles::eval::{EvalStats, Pilot, fly_layouts};
@@ -163,10 +163,22 @@ pub fn run(a: EvalArgs) -> Result<()> {
         bail!("--memory-s is for --policy planner --sight view-memory");
     }
     let (cfg, source) = config(&a)?;
-    // The task's network: a checkpoint of other shapes is refused by name.
+    // The task's network: a checkpoint of other shapes is refused by name;
+    // one whose header names a memory flies as a recurrent network.
     let net = QNet::with_shapes(cfg.shapes(), 0, &Device::Cpu)?;
+    let memory = match (policy, &a.checkpoint) {
+        (PolicyKind::Greedy, Some(c)) => rotorhive_model::checkpoint_memory(c)?,
+        _ => None,
+    };
+    let recurrent = match memory {
+        Some(width) => Some(RecurrentQNet::new(cfg.shapes(), width, 0, &Device::Cpu)?),
+        None => None,
+    };
     match (policy, &a.checkpoint) {
-        (PolicyKind::Greedy, Some(c)) => net.load(c)?,
+        (PolicyKind::Greedy, Some(c)) => match &recurrent {
+            Some(r) => r.load(c)?,
+            None => net.load(c)?,
+        },
         (PolicyKind::Greedy, None) => bail!("--policy greedy needs --checkpoint"),
         (_, Some(_)) => {
             bail!("--policy {} flies no checkpoint: leave out --checkpoint", policy.name())
@@ -180,7 +192,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
     };
     let per_layout = a.episodes.div_ceil(layouts.len());
     let pilot = match policy {
-        PolicyKind::Greedy => Pilot::Net(&net),
+        PolicyKind::Greedy => recurrent.as_ref().map_or(Pilot::Net(&net), Pilot::Recurrent),
         PolicyKind::Reactive => Pilot::Reactive,
         PolicyKind::Planner => Pilot::Planner(a.sight.sight(a.memory_s)),
     };
@@ -205,10 +217,15 @@ fn report(
         format!("{:.1} % [{:.1}, {:.1}]", s.success_rate() * 100.0, lo * 100.0, hi * 100.0)
     };
     let planner = policy == PolicyKind::Planner;
+    let memory = match (policy, &a.checkpoint) {
+        (PolicyKind::Greedy, Some(c)) => rotorhive_model::checkpoint_memory(c).ok().flatten(),
+        _ => None,
+    };
     let who = match policy {
-        PolicyKind::Greedy => {
-            a.checkpoint.as_ref().map_or(String::new(), |c| c.display().to_string())
-        }
+        PolicyKind::Greedy => a.checkpoint.as_ref().map_or(String::new(), |c| match memory {
+            Some(w) => format!("{} (memory: a GRU of {w})", c.display()),
+            None => c.display().to_string(),
+        }),
         PolicyKind::Reactive => "the reactive rule".into(),
         PolicyKind::Planner => {
             let memory = a.memory_s.map_or(String::new(), |s| format!(", remembering {s} s"));
@@ -260,6 +277,7 @@ fn report(
                 "hopeless": planner.then_some(pooled.hopeless),
                 "sight": planner.then(|| a.sight.name().0),
                 "memory_s": a.memory_s,
+                "memory": (policy == PolicyKind::Greedy).then(|| rotorhive_model::memory_name(memory)),
                 "layouts": layouts_json,
                 "policy": policy.name(),
                 "level": a.level,

@@ -6,7 +6,7 @@
 //! bench seeds`.
 
 use crate::error::Result;
-use rotorhive_model::QNet;
+use rotorhive_model::{QNet, RecurrentQNet};
 use rotorhive_sim::{Arena, Done, Planner, Sight, SimConfig, VecEnv};
 
 /// What a greedy evaluation found.
@@ -67,6 +67,9 @@ pub fn wilson(k: usize, n: usize) -> [f64; 2] {
 pub enum Pilot<'a> {
     /// The greedy action of a Q-network.
     Net(&'a QNet),
+    /// The greedy action of a recurrent Q-network, each agent's state
+    /// carried from step to step and zeroed where its episode starts.
+    Recurrent(&'a RecurrentQNet),
     /// [`reactive`]: steer toward the clearest columns of the depth image.
     Reactive,
     /// [`Planner`]: a search that knows every obstacle's motion
@@ -88,6 +91,9 @@ impl Pilot<'_> {
             }
             Pilot::Planner(_) => Err(crate::error::RoleError::Config(
                 "the planner flies from the environment, not from observations".into(),
+            )),
+            Pilot::Recurrent(_) => Err(crate::error::RoleError::Config(
+                "a recurrent network flies with its state: see `fly`".into(),
             )),
         }
     }
@@ -188,17 +194,25 @@ pub fn fly(
         Pilot::Planner(sight) => Some(Planner::new(&env, sight)),
         _ => None,
     };
+    // A recurrent pilot's state per agent, zeroed where an episode starts.
+    let width = match pilot {
+        Pilot::Recurrent(net) => net.width(),
+        _ => 0,
+    };
+    let mut state = vec![0.0f32; n * width];
     for _ in 0..max_steps + 1 {
-        let actions = match planner.as_mut() {
-            Some(p) => {
+        let actions = match (planner.as_mut(), pilot) {
+            (Some(p), _) => {
                 let active: Vec<bool> = result.iter().map(Option::is_none).collect();
                 p.actions(&env, &active)
             }
-            None => pilot.act(env.observations(), obs_len, side, frames)?,
+            (None, Pilot::Recurrent(net)) => net.greedy(env.observations(), &mut state)?,
+            (None, _) => pilot.act(env.observations(), obs_len, side, frames)?,
         };
         env.step(&actions)?;
         for ep in env.finished() {
             result[ep.agent].get_or_insert((ep.reward, ep.done));
+            state[ep.agent * width..(ep.agent + 1) * width].fill(0.0);
         }
         if result.iter().all(Option::is_some) {
             break;
@@ -271,6 +285,25 @@ mod tests {
         let mut obs = vec![1.0; 2 * px + 3];
         obs[2 * px + 1] = 0.5;
         assert_eq!(reactive(&obs, side, 2), 0);
+    }
+
+    #[test]
+    fn a_recurrent_network_flies_repeatably_and_only_with_its_state() {
+        let root =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/arenas/test.toml");
+        let arena = Arena::load(&root).unwrap();
+        let sim = SimConfig::default();
+        let shapes = rotorhive_model::Shapes::PAPER;
+        let net = RecurrentQNet::new(shapes, 8, 1, &rotorhive_model::Device::Cpu).unwrap();
+        let one =
+            |seed| fly(Pilot::Recurrent(&net), sim.clone(), std::slice::from_ref(&arena), 8, seed);
+        let (a, b) = (one(3).unwrap(), one(3).unwrap());
+        assert_eq!(a.episodes, 8);
+        assert_eq!((a.successes, a.collisions), (b.successes, b.collisions));
+        assert_eq!(a.mean_reward, b.mean_reward);
+        assert!(a.mean_reward.is_finite());
+        let e = Pilot::Recurrent(&net).act(&[0.0; 2051], 2051, 32, 2).unwrap_err().to_string();
+        assert!(e.contains("state"), "{e}");
     }
 
     #[test]
