@@ -496,7 +496,7 @@ impl QNet {
             checkpoint_metadata(self.shapes).into_iter().collect();
         meta.extend(extra.iter().map(|(k, v)| (k.to_string(), v.clone())));
         meta.sort();
-        let bytes = onnx::model(&self.named(), self.shapes, &meta)?;
+        let bytes = onnx::model(&self.named(), self.shapes, None, &meta)?;
         std::fs::write(path, bytes).map_err(|e| ModelError::Checkpoint {
             file: path.display().to_string(),
             message: format!("cannot write: {e}"),

@@ -27,26 +27,37 @@ const IR_VERSION: u64 = 9;
 /// The operator set (every operator used exists since 13).
 const OPSET: u64 = 17;
 
-/// The ONNX model of weights given by name (as [`crate::QNet::named`]),
-/// with `metadata` as its metadata properties.
+/// The ONNX model of weights given by name (as [`crate::QNet::named`], or
+/// [`crate::RecurrentQNet::named`] with its GRU's `width`), with `metadata`
+/// as its metadata properties. A recurrent model also takes `state` `(B,
+/// width)` and gives `next_state` (ONNX names a value once, so the state
+/// out cannot be called `state` too): the trunk's `fc1` activations go
+/// through ONNX's `GRU` (gates reordered to its z, r, h; PyTorch's
+/// `linear_before_reset`), the Q head reads the new state.
 pub(crate) fn model(
     named: &HashMap<String, Tensor>,
     shapes: Shapes,
+    width: Option<usize>,
     metadata: &[(String, String)],
 ) -> Result<Vec<u8>> {
     let (vel, actions) = (shapes.scalars, shapes.actions);
     let mut weights: HashMap<&str, Vec<f32>> = HashMap::new();
-    for (name, _) in params(shapes) {
+    let names = match width {
+        Some(w) => crate::recurrent_params(shapes, w),
+        None => params(shapes).to_vec(),
+    };
+    for (name, _) in names {
         weights.insert(name, named[name].flatten_all()?.to_vec1::<f32>()?);
     }
     let (conv2, fc1) = torch_layout(&weights["conv2.weight"], &weights["fc1.weight"]);
     let cols = FEAT + crate::VEL_H;
     let init = |name: &str, dims: &[usize], data: &[f32]| tensor(name, dims, data);
     let mut graph = Vec::new();
-    for n in nodes() {
+    for n in nodes(width) {
         bytes(&mut graph, 1, &n);
     }
     bytes(&mut graph, 2, b"rotorhive_qnet");
+    let head = width.unwrap_or(crate::HID);
     for t in [
         init("conv1.weight", &[C1, shapes.frames, K1, K1], &weights["conv1.weight"]),
         init("conv1.bias", &[C1], &weights["conv1.bias"]),
@@ -56,10 +67,26 @@ pub(crate) fn model(
         init("vel.bias", &[crate::VEL_H], &weights["vel.bias"]),
         init("fc1.weight", &[crate::HID, cols], &fc1),
         init("fc1.bias", &[crate::HID], &weights["fc1.bias"]),
-        init("fc2.weight", &[actions, crate::HID], &weights["fc2.weight"]),
+        init("fc2.weight", &[actions, head], &weights["fc2.weight"]),
         init("fc2.bias", &[actions], &weights["fc2.bias"]),
     ] {
         bytes(&mut graph, 5, &t);
+    }
+    if let Some(w) = width {
+        // PyTorch's gate blocks r, z, n become ONNX's z, r, h.
+        let zrh = |v: &[f32]| -> Vec<f32> {
+            let k = v.len() / 3;
+            [&v[k..2 * k], &v[..k], &v[2 * k..]].concat()
+        };
+        let b = [zrh(&weights["gru.bias_ih"]), zrh(&weights["gru.bias_hh"])].concat();
+        for t in [
+            init("gru.W", &[1, 3 * w, crate::HID], &zrh(&weights["gru.weight_ih"])),
+            init("gru.R", &[1, 3 * w, w], &zrh(&weights["gru.weight_hh"])),
+            init("gru.B", &[1, 6 * w], &b),
+            int64s("axis0", &[0]),
+        ] {
+            bytes(&mut graph, 5, &t);
+        }
     }
     bytes(
         &mut graph,
@@ -67,7 +94,13 @@ pub(crate) fn model(
         &value_info("depth", &[None, Some(shapes.frames), Some(SIDE), Some(SIDE)]),
     );
     bytes(&mut graph, 11, &value_info("velocity", &[None, Some(vel)]));
+    if let Some(w) = width {
+        bytes(&mut graph, 11, &value_info("state", &[None, Some(w)]));
+    }
     bytes(&mut graph, 12, &value_info("q", &[None, Some(actions)]));
+    if let Some(w) = width {
+        bytes(&mut graph, 12, &value_info("next_state", &[None, Some(w)]));
+    }
 
     let mut m = Vec::new();
     int(&mut m, 1, IR_VERSION);
@@ -110,8 +143,41 @@ fn torch_layout(conv2: &[f32], fc1: &[f32]) -> (Vec<f32>, Vec<f32>) {
     (conv2, fc1)
 }
 
-/// The graph's nodes, in order.
-fn nodes() -> [Vec<u8>; 12] {
+/// The graph's nodes, in order: the Q head on `fc1`'s activations, or
+/// (with a GRU of `width`) on the GRU's new state.
+fn nodes(width: Option<usize>) -> Vec<Vec<u8>> {
+    let mut all = trunk_nodes().to_vec();
+    let Some(width) = width else {
+        all.push(node("Gemm", &["h", "fc2.weight", "fc2.bias"], "q", &[], Some(("transB", 1))));
+        return all;
+    };
+    all.extend([
+        node("Unsqueeze", &["h", "axis0"], "x", &[], None),
+        node("Unsqueeze", &["state", "axis0"], "h0", &[], None),
+        gru(width),
+        // Y (1, 1, B, W) → (B, W).
+        node("Flatten", &["y"], "next_state", &[], Some(("axis", 3))),
+        node("Gemm", &["next_state", "fc2.weight", "fc2.bias"], "q", &[], Some(("transB", 1))),
+    ]);
+    all
+}
+
+/// The `GRU` node: one step of `x` from `h0` with PyTorch's gate
+/// arithmetic (`linear_before_reset`), output `y`.
+fn gru(width: usize) -> Vec<u8> {
+    let mut n = node(
+        "GRU",
+        &["x", "gru.W", "gru.R", "gru.B", "", "h0"],
+        "y",
+        &[],
+        Some(("linear_before_reset", 1)),
+    );
+    bytes(&mut n, 5, &int_attr("hidden_size", width as i64));
+    n
+}
+
+/// The trunk's nodes, up to `fc1`'s activations `h`.
+fn trunk_nodes() -> [Vec<u8>; 11] {
     [
         node(
             "Conv",
@@ -136,7 +202,6 @@ fn nodes() -> [Vec<u8>; 12] {
         node("Concat", &["features", "v"], "joined", &[], Some(("axis", 1))),
         node("Gemm", &["joined", "fc1.weight", "fc1.bias"], "h1", &[], Some(("transB", 1))),
         node("Relu", &["h1"], "h", &[], None),
-        node("Gemm", &["h", "fc2.weight", "fc2.bias"], "q", &[], Some(("transB", 1))),
     ]
 }
 
@@ -166,13 +231,29 @@ fn node(
         bytes(&mut n, 5, &a);
     }
     if let Some((name, v)) = one {
-        let mut a = Vec::new();
-        bytes(&mut a, 1, name.as_bytes());
-        int(&mut a, 3, v as u64);
-        int(&mut a, 20, 2); // AttributeType INT
-        bytes(&mut n, 5, &a);
+        bytes(&mut n, 5, &int_attr(name, v));
     }
     n
+}
+
+/// An `AttributeProto` of one `int`.
+fn int_attr(name: &str, v: i64) -> Vec<u8> {
+    let mut a = Vec::new();
+    bytes(&mut a, 1, name.as_bytes());
+    int(&mut a, 3, v as u64);
+    int(&mut a, 20, 2); // AttributeType INT
+    a
+}
+
+/// An `int64` `TensorProto` (an operator's axes), its data raw.
+fn int64s(name: &str, data: &[i64]) -> Vec<u8> {
+    let mut t = Vec::new();
+    int(&mut t, 1, data.len() as u64);
+    int(&mut t, 2, 7); // INT64
+    bytes(&mut t, 8, name.as_bytes());
+    let raw: Vec<u8> = data.iter().flat_map(|x| x.to_le_bytes()).collect();
+    bytes(&mut t, 9, &raw);
+    t
 }
 
 /// A float `TensorProto` with its data as raw little-endian bytes.

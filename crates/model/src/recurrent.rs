@@ -293,6 +293,22 @@ impl RecurrentQNet {
         checkpoint::load_vars(&specs, &self.params, &tensors, &file, &self.device)
     }
 
+    /// Writes the network as an ONNX model: inputs `depth` `(B, frames, 32,
+    /// 32)`, `velocity` `(B, scalars)` and `state` `(B, width)`, outputs `q`
+    /// `(B, actions)` and `next_state` `(B, width)`, one step; the
+    /// checkpoint's header entries (and `extra`) as metadata properties.
+    pub fn to_onnx(&self, path: &Path, extra: &[(&str, String)]) -> Result<()> {
+        let mut meta: Vec<(String, String)> =
+            recurrent_metadata(self.shapes, Some(self.width)).into_iter().collect();
+        meta.extend(extra.iter().map(|(k, v)| (k.to_string(), v.clone())));
+        meta.sort();
+        let bytes = crate::onnx::model(&self.named(), self.shapes, Some(self.width), &meta)?;
+        std::fs::write(path, bytes).map_err(|e| ModelError::Checkpoint {
+            file: path.display().to_string(),
+            message: format!("cannot write: {e}"),
+        })
+    }
+
     /// Copies another network's weights into this one (of the same shapes
     /// and width).
     pub fn copy_from(&self, other: &RecurrentQNet) -> Result<()> {

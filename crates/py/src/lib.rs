@@ -22,7 +22,9 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
-use rotorhive_model::{Device, FRAMES, QNet, Shapes, checkpoint_shapes, params};
+use rotorhive_model::{
+    Device, FRAMES, QNet, RecurrentQNet, Shapes, checkpoint_memory, checkpoint_shapes, params,
+};
 use rotorhive_roles::Config;
 use rotorhive_roles::config::SimSection;
 use rotorhive_sim::view::{self, Canvas, Focus, Tracks};
@@ -618,13 +620,131 @@ impl QNetwork {
     }
 }
 
+/// A recurrent Q-network (the trunk, a GRU of `width` units, the Q head on
+/// its state), on the CPU: stepped with each agent's state, which the
+/// caller carries and zeroes where an episode starts.
+#[pyclass(module = "rotorhive._rotorhive", name = "RecurrentQNetwork", unsendable)]
+struct RecurrentQNetwork {
+    net: RecurrentQNet,
+}
+
+#[pymethods]
+impl RecurrentQNetwork {
+    /// A freshly initialised network, deterministic for a seed, with a GRU
+    /// of `width` units (the other arguments as `QNetwork`'s).
+    #[new]
+    #[pyo3(signature = (width=64, seed=0, goal=false, hold=false, frames=FRAMES, frame_stride=1))]
+    fn new(
+        width: usize,
+        seed: u64,
+        goal: bool,
+        hold: bool,
+        frames: usize,
+        frame_stride: usize,
+    ) -> PyResult<Self> {
+        let shapes = Shapes::task(frames, goal, hold)
+            .with_stride(frame_stride)
+            .check()
+            .map_err(value_error)?;
+        Ok(Self {
+            net: RecurrentQNet::new(shapes, width, seed, &Device::Cpu).map_err(model_error)?,
+        })
+    }
+
+    /// Loads a checkpoint whose header names a memory (`gru:WIDTH`), of the
+    /// shapes and width it gives; a feedforward checkpoint is refused.
+    #[staticmethod]
+    fn load(path: PathBuf) -> PyResult<Self> {
+        let shapes = checkpoint_shapes(&path).map_err(model_error)?;
+        let Some(width) = checkpoint_memory(&path).map_err(model_error)? else {
+            return Err(value_error(format!(
+                "checkpoint {}: a feedforward network's (memory none): load it with QNetwork.load",
+                path.display()
+            )));
+        };
+        let net = RecurrentQNet::new(shapes, width, 0, &Device::Cpu).map_err(model_error)?;
+        net.load(&path).map_err(model_error)?;
+        Ok(Self { net })
+    }
+
+    /// Floats of one agent's state: the GRU's units.
+    #[getter]
+    fn width(&self) -> usize {
+        self.net.width()
+    }
+
+    /// Floats of one flat observation.
+    #[getter]
+    fn obs_len(&self) -> usize {
+        self.net.shapes().obs_len()
+    }
+
+    /// Number of actions.
+    #[getter]
+    fn actions(&self) -> usize {
+        self.net.shapes().actions
+    }
+
+    /// Zero states `(batch, width)`: every agent at an episode's start.
+    fn initial_state<'py>(&self, py: Python<'py>, batch: usize) -> Bound<'py, PyArray2<f32>> {
+        Array2::<f32>::zeros((batch, self.net.width())).into_pyarray(py)
+    }
+
+    /// Saves the weights as a rotorhive checkpoint (its header names the
+    /// memory).
+    fn save(&self, path: PathBuf) -> PyResult<()> {
+        self.net.save(&path, &[]).map_err(model_error)
+    }
+
+    /// Writes the network as an ONNX model of one step: inputs `depth`,
+    /// `velocity` and `state` `(B, width)`, outputs `q` and `next_state`.
+    fn to_onnx(&self, path: PathBuf) -> PyResult<()> {
+        self.net.to_onnx(&path, &[]).map_err(model_error)
+    }
+
+    /// One step: Q-values `(B, actions)` of flat observations `(B,
+    /// obs_len)` from states `(B, width)`, and the next states.
+    #[allow(clippy::type_complexity)]
+    fn step<'py>(
+        &self,
+        py: Python<'py>,
+        obs: PyReadonlyArray2<'py, f32>,
+        state: PyReadonlyArray2<'py, f32>,
+    ) -> PyResult<(Bound<'py, PyArray2<f32>>, Bound<'py, PyArray2<f32>>)> {
+        let (b, w) = (obs.shape()[0], self.net.width());
+        let (len, actions) = (self.net.shapes().obs_len(), self.net.shapes().actions);
+        if obs.shape()[1] != len || b == 0 || state.shape() != [b, w] {
+            return Err(value_error(format!(
+                "observations must have shape (B, {len}) with B >= 1 and states (B, {w}), got {:?} and {:?}",
+                obs.shape(),
+                state.shape()
+            )));
+        }
+        let flat: Vec<f32> = obs.as_array().iter().copied().collect();
+        let mut h: Vec<f32> = state.as_array().iter().copied().collect();
+        let q = self.net.step(&flat, &mut h).map_err(model_error)?;
+        let q = Array2::from_shape_vec((b, actions), q).expect("one Q-value per action and row");
+        let h = Array2::from_shape_vec((b, w), h).expect("one state per row");
+        Ok((q.into_pyarray(py), h.into_pyarray(py)))
+    }
+}
+
+/// The GRU width a checkpoint's header names (`memory = "gru:WIDTH"`), or
+/// None for a feedforward network's.
+#[pyfunction]
+fn checkpoint_width(path: PathBuf) -> PyResult<Option<usize>> {
+    checkpoint_memory(&path).map_err(model_error)
+}
+
 #[pymodule]
 fn _rotorhive(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Sim>()?;
     m.add_class::<QNetwork>()?;
+    m.add_class::<RecurrentQNetwork>()?;
     m.add_function(wrap_pyfunction!(rust_agent_steps_per_second, m)?)?;
     m.add_function(wrap_pyfunction!(reference_rollout, m)?)?;
     m.add_function(wrap_pyfunction!(sim_keys, m)?)?;
+    m.add_function(wrap_pyfunction!(checkpoint_width, m)?)?;
     m.add_function(wrap_pyfunction!(levels, m)?)?;
     // The paper's task's observation length (a goal task's is longer).
     m.add("OBS_LEN", Shapes::PAPER.obs_len())?;

@@ -101,3 +101,51 @@ def test_a_goal_network_exports_its_own_shapes(tmp_path):
     assert np.abs(got - want).max() <= 1e-4
     with pytest.raises(ValueError, match="shape \\(B, 4102\\)"):
         loaded.q_values(np.zeros((1, 2051), np.float32))
+
+
+def test_a_recurrent_network_exports_its_state_and_matches_over_a_sequence(tmp_path):
+    import onnx
+    import onnxruntime as ort
+
+    net = rotorhive.RecurrentQNetwork(width=8, seed=3)
+    path = tmp_path / "gru.safetensors"
+    net.save(str(path))
+    back = rotorhive.RecurrentQNetwork.load(str(path))
+    assert back.width == 8
+    with pytest.raises(ValueError, match="memory gru:8"):
+        rotorhive.QNetwork.load(str(path))
+    out = tmp_path / "gru.onnx"
+    back.to_onnx(str(out))
+    model = onnx.load(str(out))
+    onnx.checker.check_model(model, full_check=True)
+    assert {p.key: p.value for p in model.metadata_props}["memory"] == "gru:8"
+    sess = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"])
+    depth, vel = observations(25)
+    # Four steps of 25 agents, the state carried by each side.
+    h_rust, h_onnx = net.initial_state(25), np.zeros((25, 8), np.float32)
+    for t in range(4):
+        d, v = depth[25 * t : 25 * (t + 1)], vel[25 * t : 25 * (t + 1)]
+        q_rust, h_rust = back.step(flat_observations(d, v), h_rust)
+        q_onnx, h_onnx = sess.run(["q", "next_state"], {"depth": d, "velocity": v, "state": h_onnx})
+        assert np.abs(q_onnx - q_rust).max() <= 1e-4, (t, np.abs(q_onnx - q_rust).max())
+        assert np.abs(h_onnx - h_rust).max() <= 1e-4
+    # The state matters: from zeros again, the last step's Q-values differ.
+    q_fresh, _ = back.step(flat_observations(d, v), net.initial_state(25))
+    assert np.abs(q_fresh - q_rust).max() > 1e-4
+
+
+@pytest.mark.skipif(not HIVE.exists(), reason="needs target/release/hive (scripts/test builds it)")
+def test_both_exports_of_a_recurrent_checkpoint_take_the_state(tmp_path):
+    import onnxruntime as ort
+
+    path = tmp_path / "gru.safetensors"
+    rotorhive.RecurrentQNetwork(width=4, seed=2).save(str(path))
+    assert rotorhive._rotorhive.checkpoint_width(str(path)) == 4
+    for out in [tmp_path / "cli.onnx", tmp_path / "py.onnx"]:
+        if out.name == "cli.onnx":
+            p = subprocess.run([str(HIVE), "export", "--checkpoint", str(path), "--out", str(out)], capture_output=True, text=True)
+            assert p.returncode == 0 and "next_state (B, 4)" in p.stdout, p.stderr
+        else:
+            export_onnx(path, out)
+        names = [i.name for i in ort.InferenceSession(str(out), providers=["CPUExecutionProvider"]).get_inputs()]
+        assert names == ["depth", "velocity", "state"]

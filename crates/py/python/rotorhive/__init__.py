@@ -20,7 +20,7 @@ environments take ``render_mode="rgb_array"`` (Gymnasium's ``RecordVideo``).
 import gymnasium as _gym
 
 from . import _rotorhive
-from ._rotorhive import OBS_LEN, QNetwork
+from ._rotorhive import OBS_LEN, QNetwork, RecurrentQNetwork
 from .envs import COLLISION, DONE_NAMES, GOAL, LEVELS, RUNNING, TIMEOUT, NavigateEnv, NavigateVectorEnv, sim_keys
 
 __version__ = _rotorhive.__version__
@@ -36,6 +36,7 @@ __all__ = [
     "NavigateVectorEnv",
     "LEVELS",
     "QNetwork",
+    "RecurrentQNetwork",
     "sim_keys",
 ]
 

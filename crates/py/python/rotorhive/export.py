@@ -10,8 +10,10 @@ frame, m/s), and one output, ``q`` ``(B, 2)``: the Q-values of "left" and
 "right"; the greedy action is their argmax. A checkpoint of a task with a
 goal takes ``velocity`` ``(B, 6)`` (the velocity, then the goal's bearing,
 distance and lateral offset) and, with the hold action, gives ``q``
-``(B, 3)``. Its metadata properties give the checkpoint layout, the
-observation and the action count.
+``(B, 3)``. A recurrent network's (its checkpoint's header names a memory,
+``gru:WIDTH``) is one step: it also takes ``state`` ``(B, WIDTH)`` and gives
+``next_state``, zeros at an episode's start. Its metadata properties give
+the checkpoint layout, the observation, the action count and the memory.
 """
 
 from __future__ import annotations
@@ -19,13 +21,16 @@ from __future__ import annotations
 import argparse
 import os
 
-from ._rotorhive import QNetwork
+from ._rotorhive import QNetwork, RecurrentQNetwork, checkpoint_width
 
 
 def export_onnx(checkpoint: str | os.PathLike, out: str | os.PathLike) -> str:
     """Writes the checkpoint's network to ``out`` as ONNX; returns the path.
     A missing, truncated or mismatched checkpoint raises ValueError naming it."""
-    QNetwork.load(os.fspath(checkpoint)).to_onnx(os.fspath(out))
+    path = os.fspath(checkpoint)
+    # A checkpoint whose header names a memory holds a recurrent network.
+    net = RecurrentQNetwork.load(path) if checkpoint_width(path) else QNetwork.load(path)
+    net.to_onnx(os.fspath(out))
     return os.fspath(out)
 
 
