@@ -315,7 +315,7 @@ fn sample_for(
     let mut n = 0u64;
     while t.elapsed().as_secs_f64() < secs {
         if let Some(m) = rx.recv_timeout(Duration::from_millis(500))? {
-            if m.payload().len() != minibatch_len(Shapes::PAPER, 32) {
+            if m.payload().len() != minibatch_len(Shapes::PAPER.packed_len(), 32) {
                 failed!("minibatch of the wrong size");
             }
             feed_back(&m)?;

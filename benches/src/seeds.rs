@@ -280,9 +280,9 @@ fn test_success(
     episodes: usize,
 ) -> Result<f64> {
     let cfg = Config::load(Some(&run_dir.join("config.toml")), &[])?;
-    let net = rotorhive_model::QNet::with_shapes(cfg.shapes(), 0, &rotorhive_model::Device::Cpu)?;
-    net.load(checkpoint)?;
-    pooled_success(&cfg, rotorhive_roles::eval::Pilot::Net(&net), arena, episodes)
+    let net = rotorhive_roles::eval::Network::for_config(&cfg)?;
+    net.load_checkpoint(checkpoint)?;
+    pooled_success(&cfg, net.pilot(), arena, episodes)
 }
 
 /// Runs one seed of one arm and scores it.

@@ -10,7 +10,6 @@ use anyhow::{Result, bail};
 use clap::{Args, ValueEnum};
 use rotorhive_model::{Device, QNet, RecurrentQNet, Shapes};
 use rotorhive_roles::Config;
-pub use rotorhive_roles::eval::fly_greedy;
 use rotorhive_roles::eval::{EvalStats, Pilot, fly_layouts};
 use rotorhive_sim::{Arena, Sight};
 
@@ -261,30 +260,44 @@ fn report(
         );
     }
     if a.json {
-        let layouts_json: Vec<serde_json::Value> = layouts
-            .iter()
-            .zip(stats)
-            .map(|(l, s)| serde_json::json!({ "name": l.name, "success_rate": s.success_rate(), "ci": s.wilson(), "episodes": s.episodes, "mean_reward": s.mean_reward }))
-            .collect();
-        println!(
-            "{}",
-            serde_json::json!({
-                "success_rate": pooled.success_rate(),
-                "ci": pooled.wilson(),
-                "mean_reward": pooled.mean_reward,
-                "episodes": pooled.episodes,
-                "collisions": pooled.collisions,
-                "hopeless": planner.then_some(pooled.hopeless),
-                "sight": planner.then(|| a.sight.name().0),
-                "memory_s": a.memory_s,
-                "memory": (policy == PolicyKind::Greedy).then(|| rotorhive_model::memory_name(memory)),
-                "layouts": layouts_json,
-                "policy": policy.name(),
-                "level": a.level,
-                "settings": source,
-                "frames": shapes.frames,
-                "frame_stride": shapes.stride,
-            })
-        );
+        print_json(a, policy, source, shapes, (layouts, stats), (&pooled, memory));
     }
+}
+
+/// `hive eval --json`'s last line: the pooled result, per layout, and what
+/// flew.
+fn print_json(
+    a: &EvalArgs,
+    policy: PolicyKind,
+    source: &str,
+    shapes: Shapes,
+    (layouts, stats): (&[Arena], &[EvalStats]),
+    (pooled, memory): (&EvalStats, Option<usize>),
+) {
+    let planner = policy == PolicyKind::Planner;
+    let layouts_json: Vec<serde_json::Value> = layouts
+        .iter()
+        .zip(stats)
+        .map(|(l, s)| serde_json::json!({ "name": l.name, "success_rate": s.success_rate(), "ci": s.wilson(), "episodes": s.episodes, "mean_reward": s.mean_reward }))
+        .collect();
+    println!(
+        "{}",
+        serde_json::json!({
+            "success_rate": pooled.success_rate(),
+            "ci": pooled.wilson(),
+            "mean_reward": pooled.mean_reward,
+            "episodes": pooled.episodes,
+            "collisions": pooled.collisions,
+            "hopeless": planner.then_some(pooled.hopeless),
+            "sight": planner.then(|| a.sight.name().0),
+            "memory_s": a.memory_s,
+            "memory": (policy == PolicyKind::Greedy).then(|| rotorhive_model::memory_name(memory)),
+            "layouts": layouts_json,
+            "policy": policy.name(),
+            "level": a.level,
+            "settings": source,
+            "frames": shapes.frames,
+            "frame_stride": shapes.stride,
+        })
+    );
 }

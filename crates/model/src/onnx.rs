@@ -73,18 +73,7 @@ pub(crate) fn model(
         bytes(&mut graph, 5, &t);
     }
     if let Some(w) = width {
-        // PyTorch's gate blocks r, z, n become ONNX's z, r, h.
-        let zrh = |v: &[f32]| -> Vec<f32> {
-            let k = v.len() / 3;
-            [&v[k..2 * k], &v[..k], &v[2 * k..]].concat()
-        };
-        let b = [zrh(&weights["gru.bias_ih"]), zrh(&weights["gru.bias_hh"])].concat();
-        for t in [
-            init("gru.W", &[1, 3 * w, crate::HID], &zrh(&weights["gru.weight_ih"])),
-            init("gru.R", &[1, 3 * w, w], &zrh(&weights["gru.weight_hh"])),
-            init("gru.B", &[1, 6 * w], &b),
-            int64s("axis0", &[0]),
-        ] {
+        for t in gru_initializers(&weights, w) {
             bytes(&mut graph, 5, &t);
         }
     }
@@ -117,6 +106,23 @@ pub(crate) fn model(
         bytes(&mut m, 14, &entry);
     }
     Ok(m)
+}
+
+/// The GRU's initializers in ONNX's layout (PyTorch's gate blocks r, z, n
+/// become ONNX's z, r, h; both biases in one `B`), and the axis the
+/// `Unsqueeze` nodes take.
+fn gru_initializers(weights: &HashMap<&str, Vec<f32>>, w: usize) -> [Vec<u8>; 4] {
+    let zrh = |v: &[f32]| -> Vec<f32> {
+        let k = v.len() / 3;
+        [&v[k..2 * k], &v[..k], &v[2 * k..]].concat()
+    };
+    let b = [zrh(&weights["gru.bias_ih"]), zrh(&weights["gru.bias_hh"])].concat();
+    [
+        tensor("gru.W", &[1, 3 * w, crate::HID], &zrh(&weights["gru.weight_ih"])),
+        tensor("gru.R", &[1, 3 * w, w], &zrh(&weights["gru.weight_hh"])),
+        tensor("gru.B", &[1, 6 * w], &b),
+        int64s("axis0", &[0]),
+    ]
 }
 
 /// conv2's `(out, kh, kw, in)` as `(out, in, kh, kw)`, and fc1's pooled

@@ -309,6 +309,43 @@ impl RecurrentQNet {
         })
     }
 
+    /// Replaces the weights with a flat vector in canonical order (as the
+    /// weights channel carries them).
+    pub fn load_flat(&self, flat: &[f32]) -> Result<()> {
+        if flat.len() != self.num_params() {
+            return Err(ModelError::Shape {
+                what: "recurrent weights",
+                expected: self.num_params(),
+                got: flat.len(),
+            });
+        }
+        let mut off = 0;
+        for (v, (_, shape)) in self.params.iter().zip(recurrent_params(self.shapes, self.width)) {
+            let n: usize = shape.iter().product();
+            v.set(&Tensor::from_slice(&flat[off..off + n], shape.as_slice(), &self.device)?)?;
+            off += n;
+        }
+        Ok(())
+    }
+
+    /// Writes the weights, flat in canonical order, into `into`.
+    pub fn write_flat(&self, into: &mut [f32]) -> Result<()> {
+        if into.len() != self.num_params() {
+            return Err(ModelError::Shape {
+                what: "recurrent weights buffer",
+                expected: self.num_params(),
+                got: into.len(),
+            });
+        }
+        let mut off = 0;
+        for v in &self.params {
+            let p = v.as_tensor().flatten_all()?.to_vec1::<f32>()?;
+            into[off..off + p.len()].copy_from_slice(&p);
+            off += p.len();
+        }
+        Ok(())
+    }
+
     /// Copies another network's weights into this one (of the same shapes
     /// and width).
     pub fn copy_from(&self, other: &RecurrentQNet) -> Result<()> {
@@ -462,6 +499,13 @@ impl SeqDqn {
     /// Updates made.
     pub fn updates(&self) -> u64 {
         self.updates
+    }
+
+    /// Loads both networks' weights from a checkpoint (a restarted learner's
+    /// latest); the optimiser starts afresh.
+    pub fn restore(&mut self, path: &Path) -> Result<()> {
+        self.online.load(path)?;
+        self.target.copy_from(&self.online)
     }
 
     /// One update on `batch`; the loss. The target network is copied from

@@ -22,7 +22,7 @@ mod sequence;
 mod telemetry;
 
 pub use counters::Counters;
-pub use sequence::{SeqLayout, Unpacked};
+pub use sequence::{RowLayout, SeqLayout, Unpacked};
 pub use telemetry::{
     ActorStage, Delivery, LearnerStage, Learning, LinkStage, ReplayStage, RoleKind, STAGES,
     SimStage, Stage, TeacherCounts, Telemetry, stage_names,

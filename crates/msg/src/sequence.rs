@@ -117,6 +117,44 @@ impl SeqLayout {
     }
 }
 
+/// What one replay row holds: a packed transition, or (with memory) a
+/// packed sequence.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RowLayout {
+    /// A transition of [`Shapes::packed_len`] words.
+    Transition(Shapes),
+    /// A sequence of [`SeqLayout::packed_len`] words.
+    Sequence(SeqLayout),
+}
+
+impl RowLayout {
+    /// `u16` words of one row.
+    pub const fn packed_len(self) -> usize {
+        match self {
+            RowLayout::Transition(s) => s.packed_len(),
+            RowLayout::Sequence(l) => l.packed_len(),
+        }
+    }
+
+    /// Rows of `batch` (whole rows of this layout) whose values are not
+    /// what an actor writes.
+    pub fn corrupt_rows(self, batch: &[u16]) -> u64 {
+        match self {
+            RowLayout::Transition(s) => s.corrupt_transitions(batch),
+            RowLayout::Sequence(l) => {
+                let mut values = Vec::with_capacity(l.packed_values());
+                batch
+                    .chunks_exact(l.packed_len())
+                    .filter(|row| {
+                        l.values(row, &mut values);
+                        l.values_corrupt(&values)
+                    })
+                    .count() as u64
+            }
+        }
+    }
+}
+
 /// Sequences unpacked for the learner (appended to by
 /// [`SeqLayout::unpack_into`]; [`Unpacked::clear`] between minibatches).
 #[derive(Debug, Default, Clone)]

@@ -6,9 +6,9 @@
 use std::time::Instant;
 
 use crate::error::{Doing, Result, config_err, protocol_err};
+use policy::Policy;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
-use rotorhive_model::QNet;
 use rotorhive_msg::{
     ActionHeader, ActorStage, EPISODE_FIELDS, NO_EXPERT, ObsHeader, RoleKind, Shapes, Telemetry,
     TransitionHeader, WeightsHeader,
@@ -84,7 +84,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, e: usize) -> Result<()> {
     }
     while !hub.shutdown_requested() {
         let t = Instant::now();
-        take_weights(&mut a.w_rx, &a.net, &mut a.version, &mut a.weights_updates)?;
+        take_weights(&mut a.w_rx, &a.policy, &mut a.version, &mut a.weights_updates)?;
         a.tel.sample.weight_version = a.version;
         a.tel.sample.time_stage(ActorStage::Weights, t);
         let t = Instant::now();
@@ -145,7 +145,7 @@ struct Actor<'a, S: Service> {
     hub: &'a rotorhive_transport::Hub<S>,
     e: usize,
     n: usize,
-    net: QNet,
+    policy: Policy,
     /// The run's observation and action shapes.
     shapes: Shapes,
     act_tx: Sender<S, u8, ActionHeader>,
@@ -196,19 +196,19 @@ impl<'a, S: Service> Actor<'a, S> {
     fn new(cfg: &'a Config, hub: &'a rotorhive_transport::Hub<S>, e: usize) -> Result<Self> {
         let (n, envs) = (cfg.sim.agents, cfg.sim.envs);
         let shapes = cfg.shapes();
-        let mut net = QNet::with_shapes(
-            shapes,
-            crate::seeds::network(cfg.seed),
-            &rotorhive_model::device(cfg.actor.device.kind())?,
-        )?;
-        net.set_threads(cfg.actor.threads);
+        let policy = Policy::new(cfg, &rotorhive_model::device(cfg.actor.device.kind())?, n)?;
         let steps_n = cfg.learner.n_step;
+        // An episode's end can release up to n transitions of one agent; a
+        // step at most one sequence of each.
+        let most = match cfg.memory() {
+            Some(_) => n * cfg.row_len(),
+            None => steps_n * n * shapes.packed_len(),
+        };
         Ok(Self {
             act_tx: hub.sender::<u8, ActionHeader>(&Channel::actions(e), n, STALL_TIMEOUT)?,
-            // An episode's end can release up to n transitions of one agent.
             trans_tx: hub.sender::<u16, TransitionHeader>(
                 &Channel::transitions(envs),
-                steps_n * n * shapes.packed_len(),
+                most,
                 STALL_TIMEOUT,
             )?,
             w_rx: hub.receiver::<f32, WeightsHeader>(&Channel::weights(envs))?,
@@ -246,7 +246,7 @@ impl<'a, S: Service> Actor<'a, S> {
             hub,
             e,
             n,
-            net,
+            policy,
             shapes,
         })
     }
@@ -274,6 +274,7 @@ impl<'a, S: Service> Actor<'a, S> {
             self.tel.sample.lost += 1;
             self.have_prev = false;
             self.nstep.clear();
+            self.policy.restart();
         }
         self.expected_step = h.step + 1;
         let (obs, rest) = p.split_at(n * self.shapes.obs_len());
@@ -286,7 +287,7 @@ impl<'a, S: Service> Actor<'a, S> {
         let t = Instant::now();
         // The episodes that end at this step were acted with the rates of
         // the steps before it: the rates are set after they are reported.
-        let greedy = self.net.greedy(obs)?;
+        let greedy = self.policy.greedy(obs, dones)?;
         let actions = self.shapes.actions as u8;
         for (i, g) in greedy.into_iter().enumerate() {
             let eps = self.eps[i];
@@ -314,8 +315,12 @@ impl<'a, S: Service> Actor<'a, S> {
         // `h.step` of a deterministic run, which must follow the acting).
         send_actions(&mut self.act_tx, self.e, h.step, &self.actions, &mut self.tel.sample.lost);
         let t = Instant::now();
-        if self.have_prev {
+        if matches!(self.policy, Policy::Recurrent(_)) {
+            self.send_sequences(obs, rewards, dones)?;
+        } else if self.have_prev {
             self.send_transitions(obs, rewards, dones)?;
+        }
+        if self.have_prev {
             self.report_episodes(h.step, rewards, dones)?;
         }
         // Every environment of the run, on every host, acts at about this
@@ -363,7 +368,7 @@ impl<'a, S: Service> Actor<'a, S> {
             }
             if !take_weights(
                 &mut self.w_rx,
-                &self.net,
+                &self.policy,
                 &mut self.version,
                 &mut self.weights_updates,
             )? {
@@ -420,15 +425,25 @@ impl<'a, S: Service> Actor<'a, S> {
                 shapes.pack(nstep.obs(t.slot, t.agent), next, tail, o);
             }
         });
+        if self.sent(sent, count as u64)? {
+            let tc = &mut self.tel.sample.teacher;
+            for t in &self.nstep.out {
+                tc.demo_transitions += t.demo as u64;
+                tc.labelled_transitions += (!t.demo && t.expert != NO_EXPERT) as u64;
+            }
+        }
+        Ok(())
+    }
+
+    /// Counts what a send of `count` transitions came to; true when sent.
+    /// A deterministic run cannot lose any; one that stops loses none.
+    fn sent(&mut self, sent: rotorhive_transport::Result<bool>, count: u64) -> Result<bool> {
+        let e = self.e;
         match sent {
             Ok(true) => {
                 self.seq += 1;
-                self.transitions += count as u64;
-                let tc = &mut self.tel.sample.teacher;
-                for t in &self.nstep.out {
-                    tc.demo_transitions += t.demo as u64;
-                    tc.labelled_transitions += (!t.demo && t.expert != NO_EXPERT) as u64;
-                }
+                self.transitions += count;
+                return Ok(true);
             }
             Ok(false) if self.schedule.is_some() => {
                 protocol_err!(
@@ -453,6 +468,42 @@ impl<'a, S: Service> Actor<'a, S> {
                 self.tel.sample.lost += 1;
             }
         }
+        Ok(false)
+    }
+
+    /// With memory: records this step in the agents' sequence windows
+    /// (the last actions' outcome, the observations and the states acted
+    /// from) and sends the sequences complete now, each counting its
+    /// trained steps as transitions.
+    fn send_sequences(&mut self, obs: &[f32], rewards: &[f32], dones: &[f32]) -> Result<()> {
+        let Policy::Recurrent(m) = &mut self.policy else {
+            return Ok(());
+        };
+        let taken = Taken {
+            actions: &self.prev_actions,
+            experts: &self.prev_experts,
+            flown: &self.prev_flown,
+        };
+        let m = &mut **m;
+        m.seqs.push(self.have_prev.then_some((taken, rewards, dones)), obs, &m.before);
+        let count = m.seqs.agents.len();
+        if count == 0 {
+            return Ok(());
+        }
+        let header = TransitionHeader {
+            actor: self.e as u32,
+            count: count as u32,
+            seq: self.seq,
+            weight_version: self.version,
+        };
+        let hub = self.hub;
+        let give_up = |receivers| receivers == 0 || hub.shutdown_requested();
+        let packed = &m.seqs.out;
+        let sent = self.trans_tx.send_retrying(packed.len(), give_up, |th, out| {
+            *th = header;
+            out.copy_from_slice(packed);
+        });
+        self.sent(sent, (count * self.cfg.steps_per_row()) as u64)?;
         Ok(())
     }
 
@@ -504,7 +555,7 @@ impl<'a, S: Service> Actor<'a, S> {
 /// version and update count; true when it did.
 fn take_weights<S: Service>(
     rx: &mut Receiver<S, f32, WeightsHeader>,
-    net: &QNet,
+    net: &Policy,
     version: &mut u64,
     updates: &mut u64,
 ) -> Result<bool> {
@@ -724,6 +775,7 @@ fn send_actions<S: Service>(
     }
 }
 
+pub mod policy;
 pub mod sequences;
 
 #[cfg(test)]

@@ -171,6 +171,65 @@ impl Config {
             .with_stride(self.sim.frame_stride)
     }
 
+    /// The GRU width of `learner.memory` (validated): `None` for the
+    /// feedforward network.
+    pub fn memory(&self) -> Option<usize> {
+        self.learner.memory.strip_prefix("gru:").and_then(|w| w.parse().ok())
+    }
+
+    /// The stored sequences' layout of a run with memory.
+    pub fn seq_layout(&self) -> Option<rotorhive_msg::SeqLayout> {
+        let width = self.memory()?;
+        Some(rotorhive_msg::SeqLayout {
+            shapes: self.shapes(),
+            steps: self.learner.sequence_steps,
+            width,
+        })
+    }
+
+    /// What one replay row holds: a packed transition, or with memory a
+    /// packed sequence.
+    pub fn rows(&self) -> rotorhive_msg::RowLayout {
+        match self.seq_layout() {
+            Some(l) => rotorhive_msg::RowLayout::Sequence(l),
+            None => rotorhive_msg::RowLayout::Transition(self.shapes()),
+        }
+    }
+
+    /// `u16` words of one replay row.
+    pub fn row_len(&self) -> usize {
+        self.rows().packed_len()
+    }
+
+    /// `replay.capacity` and `replay.min_fill` (transitions) in rows: with
+    /// memory, sequences of [`Config::steps_per_row`] trained steps.
+    pub fn replay_rows(&self) -> (usize, usize) {
+        let k = self.steps_per_row();
+        let r = &self.replay;
+        ((r.capacity / k).max(r.batch), r.min_fill / k)
+    }
+
+    /// Trained steps one replay row holds: 1, or with memory a sequence's
+    /// steps after its burn-in (the rate limit counts steps).
+    pub fn steps_per_row(&self) -> usize {
+        match self.memory() {
+            Some(_) => self.learner.sequence_steps - self.learner.burn_in,
+            None => 1,
+        }
+    }
+
+    /// Floats of the network's flat weights (as the weights channel carries
+    /// them).
+    pub fn num_params(&self) -> usize {
+        match self.memory() {
+            Some(w) => rotorhive_model::recurrent_params(self.shapes(), w)
+                .iter()
+                .map(|(_, s)| s.iter().product::<usize>())
+                .sum(),
+            None => rotorhive_model::num_params(self.shapes()),
+        }
+    }
+
     /// The resolved config as TOML.
     pub fn to_toml(&self) -> String {
         toml::to_string(self).expect("a config always serialises")

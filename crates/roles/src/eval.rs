@@ -62,6 +62,79 @@ pub fn wilson(k: usize, n: usize) -> [f64; 2] {
     [(centre - half).max(0.0), (centre + half).min(1.0)]
 }
 
+/// A run's network for evaluation: the feedforward one, or (with
+/// `learner.memory`) the recurrent one.
+pub enum Network {
+    /// The feedforward Q-network.
+    Feedforward(QNet),
+    /// The recurrent Q-network.
+    Recurrent(RecurrentQNet),
+}
+
+impl Network {
+    /// A network of `cfg`'s shapes and memory, on the CPU.
+    pub fn for_config(cfg: &crate::Config) -> Result<Self> {
+        let (shapes, cpu) = (cfg.shapes(), rotorhive_model::Device::Cpu);
+        Ok(match cfg.memory() {
+            Some(w) => Network::Recurrent(RecurrentQNet::new(shapes, w, 0, &cpu)?),
+            None => {
+                let mut net = QNet::with_shapes(shapes, 0, &cpu)?;
+                net.set_threads(1);
+                Network::Feedforward(net)
+            }
+        })
+    }
+
+    /// The network a checkpoint holds (its header's shapes and memory).
+    pub fn load(path: &std::path::Path) -> Result<Self> {
+        let (shapes, cpu) =
+            (rotorhive_model::checkpoint_shapes(path)?, rotorhive_model::Device::Cpu);
+        let net = match rotorhive_model::checkpoint_memory(path)? {
+            Some(w) => Network::Recurrent(RecurrentQNet::new(shapes, w, 0, &cpu)?),
+            None => Network::Feedforward(QNet::with_shapes(shapes, 0, &cpu)?),
+        };
+        net.load_checkpoint(path)?;
+        Ok(net)
+    }
+
+    /// Loads a checkpoint into this network (of other shapes or another
+    /// memory: refused by name).
+    pub fn load_checkpoint(&self, path: &std::path::Path) -> Result<()> {
+        match self {
+            Network::Feedforward(n) => n.load(path)?,
+            Network::Recurrent(n) => n.load(path)?,
+        }
+        Ok(())
+    }
+
+    /// Replaces the weights with a flat vector (as the weights channel
+    /// carries them).
+    pub fn load_flat(&self, flat: &[f32]) -> Result<()> {
+        match self {
+            Network::Feedforward(n) => n.load_flat(flat)?,
+            Network::Recurrent(n) => n.load_flat(flat)?,
+        }
+        Ok(())
+    }
+
+    /// Saves the weights as a checkpoint with `tags` in its header.
+    pub fn save(&self, path: &std::path::Path, tags: &[(&str, String)]) -> Result<()> {
+        match self {
+            Network::Feedforward(n) => n.save_with(path, tags)?,
+            Network::Recurrent(n) => n.save(path, tags)?,
+        }
+        Ok(())
+    }
+
+    /// The pilot flying it greedily.
+    pub fn pilot(&self) -> Pilot<'_> {
+        match self {
+            Network::Feedforward(n) => Pilot::Net(n),
+            Network::Recurrent(n) => Pilot::Recurrent(n),
+        }
+    }
+}
+
 /// Who flies: a network's greedy action, or the scripted reactive rule.
 #[derive(Clone, Copy)]
 pub enum Pilot<'a> {

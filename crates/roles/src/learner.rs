@@ -18,6 +18,8 @@ use rotorhive_transport::Service;
 use crate::config::Config;
 use crate::{Ctx, POLL, STALL_TIMEOUT, roles_of};
 
+pub mod recurrent;
+
 /// The DQN settings of a config's `[learner]`.
 pub fn dqn_config(cfg: &Config) -> DqnConfig {
     let l = &cfg.learner;
@@ -100,6 +102,9 @@ fn checkpoint(
 
 /// Runs the learner until the run stops.
 pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
+    if let (Some(width), Some(layout)) = (cx.cfg.memory(), cx.cfg.seq_layout()) {
+        return recurrent::run(cx, width, layout);
+    }
     let (cfg, hub) = (cx.cfg, cx.hub);
     let run_dir = cx.run_dir.map_or_else(|| PathBuf::from("."), Path::to_path_buf);
     let ckpt_dir = run_dir.join("checkpoints");

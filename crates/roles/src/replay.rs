@@ -6,8 +6,8 @@ use std::time::{Duration, Instant};
 
 use crate::error::{Doing, Result};
 use rotorhive_msg::{
-    MinibatchHeader, PICK_WORDS, PriorityHeader, Receipt, ReplayStage, RoleKind, SeqTracker,
-    Shapes, Telemetry, TransitionHeader,
+    MinibatchHeader, PICK_WORDS, PriorityHeader, Receipt, ReplayStage, RoleKind, RowLayout,
+    SeqTracker, Shapes, Telemetry, TransitionHeader,
 };
 use rotorhive_replay::{Acted, Journal, Pick, Replay};
 use rotorhive_transport::{Channel, TransportError};
@@ -54,7 +54,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     // after a millisecond and the replay goes back to inserting.
     let tx = hub.sender::<u16, MinibatchHeader>(
         &Channel::minibatches(r.prefetch),
-        minibatch_len(cfg.shapes(), r.batch),
+        minibatch_len(cfg.row_len(), r.batch),
         Duration::from_millis(1),
     )?;
     let tel = crate::counters(hub, RoleKind::Replay, 0, roles_of(cfg))?;
@@ -120,7 +120,7 @@ impl<S: Service> Memory<'_, S> {
                     journal: self.journal.as_mut(),
                     demos: self.demos.as_mut(),
                 };
-                ingest(&m, self.cfg.shapes(), stores, seen)?;
+                ingest(&m, self.cfg, stores, seen)?;
                 self.receipts.took(m.user_header());
                 self.seq_log.record(m.user_header());
                 got = true;
@@ -150,7 +150,7 @@ impl<S: Service> Memory<'_, S> {
                         journal: self.journal.as_mut(),
                         demos: self.demos.as_mut(),
                     };
-                    ingest(&m, self.cfg.shapes(), stores, seen)?;
+                    ingest(&m, self.cfg, stores, seen)?;
                     self.receipts.took(m.user_header());
                     self.seq_log.record(m.user_header());
                 }
@@ -175,7 +175,8 @@ impl<S: Service> Memory<'_, S> {
     fn ready(&self) -> bool {
         let r = &self.cfg.replay;
         let demos = self.demos.as_ref().map_or(0, |d| d.mem.len());
-        self.mem.len() + demos >= r.min_fill.max(r.batch) && self.mem.len() >= r.batch
+        let min_fill = self.cfg.replay_rows().1;
+        self.mem.len() + demos >= min_fill.max(r.batch) && self.mem.len() >= r.batch
     }
 
     /// The minibatch's rows drawn from the demonstrations now (fading with
@@ -200,7 +201,7 @@ impl<S: Service> Memory<'_, S> {
         let (demo_rows, teacher) = self.demo_rows();
         let (mem, picks) = (&mut self.mem, &mut self.picks);
         let demos = self.demos.as_mut().map(|d| &mut d.mem);
-        let res = self.tx.send_with(minibatch_len(self.cfg.shapes(), batch), |h, out| {
+        let res = self.tx.send_with(minibatch_len(self.cfg.row_len(), batch), |h, out| {
             let acted = sample(mem, demos, demo_rows, out, picks, beta);
             *h = minibatch_header(batch, seq, acted, (demo_rows, teacher));
         });
@@ -339,8 +340,8 @@ fn sent_or_stalled(res: std::result::Result<(), TransportError>) -> Result<bool>
 
 /// Words of a minibatch message of `batch` rows: the packed rows, then a
 /// [`Pick`] per row.
-pub fn minibatch_len(shapes: Shapes, batch: usize) -> usize {
-    batch * (shapes.packed_len() + PICK_WORDS)
+pub fn minibatch_len(row_len: usize, batch: usize) -> usize {
+    batch * (row_len + PICK_WORDS)
 }
 
 /// Samples a minibatch into a message's payload: the rows (the first
@@ -483,8 +484,8 @@ fn open_memory(
         Some(d) if r.snapshot_every_s > 0.0 => {
             let (m, j) = Journal::open(
                 &d.join("replay.bin"),
-                r.capacity,
-                cfg.shapes().packed_len(),
+                cfg.replay_rows().0,
+                cfg.row_len(),
                 crate::seeds::replay(cfg.seed),
             )
             .doing("restoring the replay memory")?;
@@ -497,10 +498,9 @@ fn open_memory(
             }
             (m, Some(j))
         }
-        _ => (
-            Replay::new(r.capacity, cfg.shapes().packed_len(), crate::seeds::replay(cfg.seed)),
-            None,
-        ),
+        _ => {
+            (Replay::new(cfg.replay_rows().0, cfg.row_len(), crate::seeds::replay(cfg.seed)), None)
+        }
     })
 }
 
@@ -549,15 +549,15 @@ impl SampleLimit {
 /// learner).
 fn check<S: Service>(
     m: &rotorhive_transport::Msg<S, u16, TransitionHeader>,
-    shapes: Shapes,
+    rows: RowLayout,
     next_seq: &mut SeqTracker,
     lost: &mut u64,
 ) -> bool {
     let h = m.user_header();
     *lost += next_seq.observe(h.actor as usize, h.seq).saturating_mul(h.count as u64);
-    let bad = shapes.corrupt_transitions(m.payload());
+    let bad = rows.corrupt_rows(m.payload());
     *lost += bad;
-    let whole = m.payload().len().is_multiple_of(shapes.packed_len());
+    let whole = m.payload().len().is_multiple_of(rows.packed_len());
     if !whole {
         *lost += (h.count as u64).max(1);
     }
@@ -573,14 +573,14 @@ const INGEST_PER_LOOP: usize = 4;
 /// dropped.
 fn ingest<S: Service>(
     m: &rotorhive_transport::Msg<S, u16, TransitionHeader>,
-    shapes: Shapes,
+    cfg: &crate::config::Config,
     stores: Stores<'_>,
     (next_seq, lost): (&mut SeqTracker, &mut u64),
 ) -> Result<()> {
-    if !check(m, shapes, next_seq, lost) {
+    if !check(m, cfg.rows(), next_seq, lost) {
         return Ok(());
     }
-    store(stores, shapes, m.payload(), m.user_header().weight_version)
+    store(stores, cfg.shapes(), m.payload(), m.user_header().weight_version)
 }
 
 /// Syncs the journal to disk every `replay.snapshot_every_s`.

@@ -181,7 +181,10 @@ impl<S: Service> RateLimiter<S> {
         } else {
             None
         };
-        let per_update = r.batch as f64 / r.samples_per_insert.max(f64::MIN_POSITIVE);
+        // Agent-steps one update trains on: a minibatch of transitions, or
+        // of sequences of several trained steps each.
+        let trained = (r.batch * cfg.steps_per_row()) as f64;
+        let per_update = trained / r.samples_per_insert.max(f64::MIN_POSITIVE);
         // Every host's sims feed the one replay memory.
         let agents = cfg.agents_total() as f64;
         Ok(Self {
@@ -189,9 +192,12 @@ impl<S: Service> RateLimiter<S> {
             // Transitions per step across all sims (they run at the same pace).
             per_step: agents,
             per_update,
-            // n-step transitions leave up to n steps after their step, and
-            // updates are published every `publish_every`.
-            slack: (cfg.learner.n_step + 1) as f64 * agents
+            // n-step transitions (sequences) leave up to n (a sequence's
+            // steps) after their step, and updates are published every
+            // `publish_every`.
+            slack: (cfg.learner.n_step.max(cfg.memory().map_or(0, |_| cfg.learner.sequence_steps))
+                + 1) as f64
+                * agents
                 + cfg.learner.publish_every as f64 * per_update,
             updates: 0,
             base: None,

@@ -200,3 +200,30 @@ fn one_environment_batched_without_the_rate_limit_with_ape_x_exploration() {
     assert!(d.mean_abs_td > 0.0 && d.mean_abs_td.is_finite() && d.mean_max_q.is_finite(), "{d:?}");
     assert!((0.0..=1.0).contains(&d.terminal_share) && d.skipped_updates == 0, "{d:?}");
 }
+
+#[test]
+fn memory_sends_sequences_and_the_learner_unrolls_them() {
+    // A GRU of 16: sequences of 6 steps (2 of burn-in) from one actor's 4
+    // agents reach the replay whole, and the learner trains on them.
+    let cfg = config(&[
+        "learner.memory=\"gru:16\"",
+        "learner.sequence_steps=6",
+        "learner.burn_in=2",
+        "replay.batch=4",
+    ]);
+    let r = run_serial("memory", &cfg, 30, 60);
+    let (actor, replay) = (r.get(RoleKind::Actor, 0), r.get(RoleKind::Replay, 0));
+    assert_eq!(actor.lost + replay.lost, 0, "lost or corrupt sequences");
+    // Each sequence counts its 4 trained steps as the actor's transitions;
+    // all but the tail sent as the run stopped reached the replay.
+    assert!(replay.work > 0, "no sequence reached the replay");
+    assert!(
+        replay.work * 4 <= actor.work && replay.work * 4 * 10 >= actor.work * 9,
+        "replay inserted {} sequences, the actor sent {} trained steps",
+        replay.work,
+        actor.work
+    );
+    assert!(r.work(RoleKind::Learner) >= 30 && replay.work2 >= 30);
+    assert!(actor.weight_version > 1, "the actor never took newer weights");
+    assert!(r.episodes > 0);
+}

@@ -18,10 +18,10 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use rotorhive_model::{Device, QNet};
 use rotorhive_msg::WeightsHeader;
 use rotorhive_records::rows::{self, EvalRow};
 use rotorhive_roles::Config;
+use rotorhive_roles::eval::Network;
 use rotorhive_transport::Service;
 use rotorhive_transport::{Channel, Hub};
 
@@ -176,8 +176,7 @@ fn fly<S: Service>(job: Job) -> Result<()> {
     let cfg = &job.cfg;
     let hub = Hub::<S>::new(&job.prefix, "eval")?;
     let mut rx = hub.receiver::<f32, WeightsHeader>(&Channel::weights(cfg.sim.envs))?;
-    let mut net = QNet::with_shapes(cfg.shapes(), 0, &Device::Cpu)?;
-    net.set_threads(1);
+    let net = Network::for_config(cfg)?;
     let mut judge = Judge { arenas: cfg.eval_arenas()?, confirmations: 0 };
     let mut cadence = Cadence::new(cfg);
     // A resumed run goes on from its best score (so `best.safetensors` only
@@ -210,7 +209,7 @@ fn fly<S: Service>(job: Job) -> Result<()> {
         if better {
             best = score;
             // Atomically: `QNet::save_with` goes through `rotorhive_msg::durable`.
-            net.save_with(&ckpt_dir.join("best.safetensors"), &cfg.checkpoint_tags())?;
+            net.save(&ckpt_dir.join("best.safetensors"), &cfg.checkpoint_tags())?;
         }
         let wall = job.clocks.start.elapsed().as_secs_f64();
         let env_steps = Some(steps);
@@ -252,13 +251,14 @@ impl Judge {
     /// confirmation's (success, mean reward).
     fn fly(
         &mut self,
-        net: &QNet,
+        net: &Network,
         cfg: &Config,
         best: Option<(f64, f64)>,
     ) -> Result<(rotorhive_roles::eval::EvalStats, Option<(f64, f64)>)> {
         let seed = rotorhive_roles::seeds::validation(cfg.seed);
+        let (pilot, sim) = (net.pilot(), cfg.sim_config());
         let st =
-            crate::eval::fly_greedy(net, cfg.sim_config(), &self.arenas, cfg.eval.episodes, seed)?;
+            rotorhive_roles::eval::fly(pilot, sim.clone(), &self.arenas, cfg.eval.episodes, seed)?;
         let k = cfg.eval.confirm_episodes;
         if k == 0 || best.is_some_and(|b| st.success_rate() + CANDIDATE_SLACK < b.0) {
             return Ok((st, None));
@@ -266,7 +266,7 @@ impl Judge {
         // Fresh spawns for every confirmation.
         self.confirmations += 1;
         let seed = rotorhive_roles::seeds::confirmation(cfg.seed, self.confirmations);
-        let c = crate::eval::fly_greedy(net, cfg.sim_config(), &self.arenas, k, seed)?;
+        let c = rotorhive_roles::eval::fly(pilot, sim, &self.arenas, k, seed)?;
         Ok((st, Some((c.success_rate(), c.mean_reward))))
     }
 }

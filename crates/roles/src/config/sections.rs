@@ -334,6 +334,15 @@ pub struct LearnerSection {
     pub n_step: usize,
     /// Device for training: "cpu", or "cuda" in a build with `--features cuda`.
     pub device: DeviceName,
+    /// The network's memory: "none" (the feedforward network), or
+    /// "gru:WIDTH", a GRU of WIDTH units after `fc1`, trained on stored
+    /// sequences (R2D2).
+    pub memory: String,
+    /// With memory: transitions per stored sequence, burn-in included.
+    pub sequence_steps: usize,
+    /// With memory: steps at a sequence's start that only warm its stored
+    /// state up (no loss); sequences overlap by this many steps.
+    pub burn_in: usize,
 }
 
 impl Default for SimSection {
@@ -422,6 +431,9 @@ impl Default for LearnerSection {
             double_dqn: true,
             n_step: 3,
             device: DeviceName::Cpu,
+            memory: "none".into(),
+            sequence_steps: 22,
+            burn_in: 8,
         }
     }
 }

@@ -127,3 +127,36 @@ fn overrides_apply_and_bad_values_are_named() {
     let e = format!("{:#}", Config::load(None, &["sim.agents=\"many\"".into()]).unwrap_err());
     assert!(e.contains("agents") || e.contains("invalid type"), "{e}");
 }
+
+#[test]
+fn memory_is_named_and_sized_and_refused_where_it_does_not_work_yet() {
+    let load =
+        |sets: &[&str]| Config::load(None, &sets.iter().map(|s| s.to_string()).collect::<Vec<_>>());
+    let plain = load(&[]).unwrap();
+    assert_eq!((plain.memory(), plain.steps_per_row()), (None, 1));
+    assert_eq!(plain.row_len(), plain.shapes().packed_len());
+    assert_eq!(plain.replay_rows(), (plain.replay.capacity, plain.replay.min_fill));
+    let gru = load(&["learner.memory=\"gru:64\""]).unwrap();
+    assert_eq!((gru.memory(), gru.steps_per_row()), (Some(64), 14));
+    let layout = gru.seq_layout().unwrap();
+    assert_eq!((layout.steps, layout.width), (22, 64));
+    assert_eq!(gru.row_len(), layout.packed_len());
+    assert_eq!(gru.replay_rows(), (200_000 / 14, 15_000 / 14));
+    assert_eq!(
+        gru.num_params(),
+        rotorhive_model::RecurrentQNet::new(gru.shapes(), 64, 0, &rotorhive_model::Device::Cpu)
+            .unwrap()
+            .num_params()
+    );
+    for (sets, needle) in [
+        (&["learner.memory=\"lstm:64\""][..], "learner.memory"),
+        (&["learner.memory=\"gru:0\""], "learner.memory"),
+        (&["learner.memory=\"gru:64\"", "learner.burn_in=22"], "learner.burn_in"),
+        (&["learner.memory=\"gru:64\"", "learner.sequence_steps=1"], "learner.sequence_steps"),
+        (&["learner.memory=\"gru:64\"", "replay.prioritized=true"], "replay.prioritized"),
+        (&["learner.memory=\"gru:64\"", "teacher.policy=\"planner\""], "[teacher]"),
+    ] {
+        let e = format!("{:#}", load(sets).unwrap_err());
+        assert!(e.contains(needle), "{sets:?}: {e}");
+    }
+}

@@ -310,6 +310,53 @@ impl Config {
                 l.max_rate_hz
             );
         }
+        self.validate_memory()
+    }
+
+    /// `learner.memory` and its sequences, and what memory does not work
+    /// with yet.
+    fn validate_memory(&self) -> Result<()> {
+        let l = &self.learner;
+        if l.memory == "none" {
+            return Ok(());
+        }
+        let width = self.memory().filter(|w| (1..=rotorhive_model::MAX_WIDTH).contains(w));
+        if width.is_none() {
+            config_err!(
+                "key `learner.memory` must be \"none\" or \"gru:WIDTH\" (WIDTH 1 to {}), got {:?}",
+                rotorhive_model::MAX_WIDTH,
+                l.memory
+            );
+        }
+        if !(2..=200).contains(&l.sequence_steps) {
+            config_err!(
+                "key `learner.sequence_steps` must lie in 2..=200, got {}",
+                l.sequence_steps
+            );
+        }
+        if l.burn_in >= l.sequence_steps {
+            config_err!(
+                "key `learner.burn_in` ({}) must be below `learner.sequence_steps` ({})",
+                l.burn_in,
+                l.sequence_steps
+            );
+        }
+        let unsupported = [
+            (self.deterministic, "`deterministic`"),
+            (self.replay.prioritized, "`replay.prioritized`"),
+            (self.teacher.on(), "a `[teacher]`"),
+            (
+                self.cluster.workers > 0 || self.cluster.envs_elsewhere > 0,
+                "worker hosts (`[cluster]`)",
+            ),
+            (
+                self.sim.observation_mode != super::ObservationMode::Batched,
+                "`sim.observation_mode = \"non-batched\"`",
+            ),
+        ];
+        if let Some((_, what)) = unsupported.iter().find(|(on, _)| *on) {
+            config_err!("key `learner.memory` ({}) does not work with {what} yet", l.memory);
+        }
         Ok(())
     }
 }

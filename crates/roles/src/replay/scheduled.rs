@@ -29,7 +29,7 @@ impl<S: Service> Memory<'_, S> {
         let mut next_seq = SeqTracker::new(cfg.sim.envs);
         let (mut rounds, mut sent) = (0u64, 0u64);
         // The next minibatch, sampled once and offered until the learner takes it.
-        let mut minibatch = vec![0u16; minibatch_len(cfg.shapes(), batch)];
+        let mut minibatch = vec![0u16; minibatch_len(cfg.row_len(), batch)];
         let mut drawn: Option<(Acted, (usize, f32))> = None;
         // A minibatch sent before the learner subscribes would be lost.
         while self.tx.receivers() == 0 && !self.hub.shutdown_requested() {
@@ -145,7 +145,7 @@ fn enqueue<S: Service>(
         protocol_err!("transitions from actor {} of a run with {envs} environments", h.actor);
     };
     // A corrupt batch is refused; the round stays whole without it.
-    let clean = check(m, shapes, next_seq, lost);
+    let clean = check(m, rotorhive_msg::RowLayout::Transition(shapes), next_seq, lost);
     q.push_back((h.weight_version, if clean { m.payload().to_vec() } else { Vec::new() }));
     Ok(())
 }

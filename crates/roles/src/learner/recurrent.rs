@@ -1,0 +1,155 @@
+//! The learner of a run with memory (`learner.memory = "gru:WIDTH"`): R2D2's
+//! update ([`SeqDqn`]) on minibatches of stored sequences, weights published
+//! by version and checkpoints as the feedforward learner's. What it does not
+//! do yet: keep its optimiser's state across a restart (a restarted one goes
+//! on from `checkpoints/latest.safetensors` with fresh Adam moments),
+//! priorities and the teacher's loss (the config refuses both with memory).
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use rotorhive_model::{RecurrentQNet, SeqBatch, SeqConfig, SeqDqn};
+use rotorhive_msg::{
+    LearnerStage, MinibatchHeader, PICK_WORDS, RoleKind, SeqLayout, Telemetry, Unpacked,
+    WeightsHeader,
+};
+use rotorhive_transport::{Channel, Service};
+
+use super::Gauges;
+use crate::config::Config;
+use crate::error::{Doing, Result, RoleError, protocol_err};
+use crate::{Ctx, POLL, STALL_TIMEOUT, roles_of};
+
+/// The sequence update's settings of a config's `[learner]`.
+pub fn seq_config(cfg: &Config) -> SeqConfig {
+    let l = &cfg.learner;
+    SeqConfig {
+        lr: l.lr as f32,
+        gamma: l.gamma as f32,
+        n_step: l.n_step,
+        burn_in: l.burn_in,
+        target_update: l.target_update,
+        huber_delta: l.huber_delta as f32,
+        reward_scale: l.reward_scale as f32,
+    }
+}
+
+/// Runs the recurrent learner until the run stops.
+pub fn run<S: Service>(cx: Ctx<'_, S>, width: usize, layout: SeqLayout) -> Result<()> {
+    let (cfg, hub) = (cx.cfg, cx.hub);
+    let run_dir = cx.run_dir.map_or_else(|| PathBuf::from("."), Path::to_path_buf);
+    let ckpt_dir = run_dir.join("checkpoints");
+    std::fs::create_dir_all(&ckpt_dir)
+        .doing_with(|| format!("cannot create {}", ckpt_dir.display()))?;
+    let device = rotorhive_model::device(cfg.learner.device.kind())?;
+    let seed = crate::seeds::network(cfg.seed);
+    let mut dqn = SeqDqn::new(seq_config(cfg), cfg.shapes(), width, seed, &device)?;
+    let latest = ckpt_dir.join("latest.safetensors");
+    if latest.exists() {
+        dqn.restore(&latest)
+            .doing_with(|| format!("restoring the learner from {}", latest.display()))?;
+        tracing::info!("learner restored its weights from {}", latest.display());
+    }
+    let mut rx =
+        hub.receiver::<u16, MinibatchHeader>(&Channel::minibatches(cfg.replay.prefetch))?;
+    let mut w_tx = hub.sender::<f32, WeightsHeader>(
+        &Channel::weights(cfg.sim.envs),
+        cfg.num_params(),
+        STALL_TIMEOUT,
+    )?;
+    let mut tel = crate::counters(hub, RoleKind::Learner, 0, roles_of(cfg))?;
+    let mut version = 0;
+    publish(&mut w_tx, &dqn, &mut version)?;
+    let mut last_ckpt = Instant::now();
+    let mut gauges = Gauges::default();
+    let mut batch = Unpacked::default();
+    let tags = cfg.checkpoint_tags();
+    while !hub.shutdown_requested() {
+        let t = Instant::now();
+        let msg = rx.recv_timeout(POLL).doing("waiting for minibatches")?;
+        tel.sample.time_stage(LearnerStage::TransportWait, t);
+        if tel.tick(false, Telemetry::beat) {
+            gauges = Gauges::default();
+        }
+        let Some(msg) = msg else { continue };
+        let mb = *msg.user_header();
+        unpack(layout, msg.payload(), mb.batch as usize, &mut batch)?;
+        drop(msg);
+        let t = Instant::now();
+        let loss = dqn.update(&SeqBatch {
+            sequences: mb.batch as usize,
+            steps: layout.steps,
+            obs: &batch.obs,
+            actions: &batch.actions,
+            rewards: &batch.rewards,
+            dones: &batch.dones,
+            states: &batch.states,
+        })?;
+        tel.sample.add_stage(LearnerStage::Forward, t.elapsed().as_nanos() as u64);
+        tel.sample.work = dqn.updates();
+        gauges.add(loss, &mb, version, &mut tel.sample);
+        if dqn.updates() % cfg.learner.publish_every == 0 {
+            publish(&mut w_tx, &dqn, &mut version)?;
+            tel.sample.weight_version = version;
+            tel.sample.work2 = version;
+        }
+        if last_ckpt.elapsed() >= Duration::from_secs_f64(cfg.learner.checkpoint_every_s) {
+            save(&dqn.online, &latest, &tags)?;
+            last_ckpt = Instant::now();
+        }
+    }
+    save(&dqn.online, &latest, &tags)?;
+    save(&dqn.online, &run_dir.join("final.safetensors"), &tags)?;
+    tel.tick(true, Telemetry::beat);
+    Ok(())
+}
+
+/// A minibatch of `rows` packed sequences (and their picks, unused here)
+/// into `out`; a message of another size is refused.
+fn unpack(layout: SeqLayout, packed: &[u16], rows: usize, out: &mut Unpacked) -> Result<()> {
+    let pl = layout.packed_len();
+    if rows == 0 || packed.len() != rows * (pl + PICK_WORDS) {
+        protocol_err!(
+            "a minibatch of {} words is not {rows} packed sequences and their picks ({} words each)",
+            packed.len(),
+            pl + PICK_WORDS
+        );
+    }
+    out.clear();
+    for row in packed[..rows * pl].chunks_exact(pl) {
+        layout.unpack_into(row, out);
+    }
+    Ok(())
+}
+
+/// Writes a checkpoint (atomically), its header naming the memory.
+fn save(net: &RecurrentQNet, path: &Path, tags: &[(&str, String)]) -> Result<()> {
+    net.save(path, tags).doing_with(|| format!("cannot write checkpoint {}", path.display()))
+}
+
+/// Publishes the online network as the next weight version; weights that
+/// are not all finite are not published (the actors keep the last good
+/// ones).
+fn publish<S: Service>(
+    w_tx: &mut rotorhive_transport::Sender<S, f32, WeightsHeader>,
+    dqn: &SeqDqn,
+    version: &mut u64,
+) -> Result<()> {
+    let v = *version + 1;
+    let updates = dqn.updates();
+    let net = &dqn.online;
+    let len = net.num_params();
+    let sent = w_tx.try_send_with(len, |h, p| {
+        *h = WeightsHeader { version: v, updates, len: len as u64 };
+        net.write_flat(p)?;
+        match p.iter().position(|x| !x.is_finite()) {
+            Some(i) => Err(RoleError::Protocol(format!("parameter {i} is {}", p[i]))),
+            None => Ok(()),
+        }
+    })?;
+    match sent {
+        Ok(()) => *version = v,
+        Err(e) => tracing::warn!("learner: weights of update {updates} not published: {e:#}"),
+    }
+    Ok(())
+}
