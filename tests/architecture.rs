@@ -17,10 +17,6 @@ fn every_crate_is_in_the_code_map() {
     }
     assert!(n >= 8);
     assert!(doc.contains("### `benches`"), "benches is missing from ARCHITECTURE.md's code map");
-    assert!(
-        doc.contains("### `experiments`"),
-        "experiments is missing from ARCHITECTURE.md's code map"
-    );
     // And every module of every crate (`sumtree.rs` or `sumtree`), so that
     // a new file cannot hide from the map.
     let mut missing = Vec::new();
@@ -52,8 +48,8 @@ fn sources(dir: &Path) -> Vec<PathBuf> {
     out
 }
 
-/// The source folders of the workspace: every crate's `src`, the benches'
-/// and the experiments'.
+/// The source folders of the workspace: every crate's `src` and the
+/// benches'.
 fn source_dirs() -> Vec<PathBuf> {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
     let mut dirs: Vec<PathBuf> = std::fs::read_dir(root.join("crates"))
@@ -61,12 +57,11 @@ fn source_dirs() -> Vec<PathBuf> {
         .map(|e| e.unwrap().path().join("src"))
         .collect();
     dirs.push(root.join("benches/src"));
-    dirs.push(root.join("experiments/src"));
     dirs
 }
 
 /// The folders of examples and tests: every crate's `examples` and `tests`,
-/// the experiments' examples and the end-to-end `tests/`.
+/// the benches' examples and the end-to-end `tests/`.
 fn example_and_test_dirs() -> Vec<PathBuf> {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
     let mut dirs = Vec::new();
@@ -74,7 +69,7 @@ fn example_and_test_dirs() -> Vec<PathBuf> {
         let krate = entry.unwrap().path();
         dirs.extend([krate.join("examples"), krate.join("tests")]);
     }
-    dirs.extend(["benches/examples", "experiments/examples", "tests"].map(|d| root.join(d)));
+    dirs.extend(["benches/examples", "tests"].map(|d| root.join(d)));
     dirs.retain(|d| d.exists());
     dirs
 }
