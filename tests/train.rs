@@ -239,6 +239,15 @@ fn a_checkpoint_flies_a_level_with_its_own_frames() {
     let v =
         eval_json(&["--checkpoint", gru.to_str().unwrap(), "--level", "moving", "--episodes", "5"]);
     assert_eq!((v["memory"].as_str(), v["episodes"].as_u64()), (Some("gru:8"), Some(5)));
+    // And plays, its state carried per drone.
+    let gif = dir.join("gru.gif");
+    let args = ["--agents", "2", "--out", gif.to_str().unwrap(), "--json"];
+    let out = hive().args(["play", "--checkpoint", gru.to_str().unwrap()]).args(args).output();
+    let out = out.unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let last = String::from_utf8_lossy(&out.stdout).lines().last().unwrap().to_string();
+    let v: serde_json::Value = serde_json::from_str(&last).unwrap();
+    assert_eq!(v["episodes"].as_u64(), Some(2));
     let reactive = eval_json(&["--policy", "reactive", "--level", "moving", "--episodes", "5"]);
     assert_eq!(
         (reactive["frames"].as_u64(), reactive["frame_stride"].as_u64()),

@@ -9,7 +9,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
-use rotorhive_model::{Device, QNet};
+use rotorhive_roles::eval::Network;
 use rotorhive_sim::view::{self, Canvas, Focus, Tracks};
 use rotorhive_sim::{Arena, Autoreset, SimConfig, VecEnv};
 
@@ -58,9 +58,8 @@ pub fn run(a: PlayArgs) -> Result<()> {
     if a.out.extension().and_then(|e| e.to_str()) != Some("gif") {
         bail!("--out {}: only .gif videos are written", a.out.display());
     }
-    let shapes = rotorhive_model::checkpoint_shapes(&a.checkpoint)?;
-    let net = QNet::with_shapes(shapes, 0, &Device::Cpu)?;
-    net.load(&a.checkpoint)?;
+    // Either network, as the checkpoint's header says (shapes, memory).
+    let net = Network::load(&a.checkpoint)?;
     let arena = Arena::load(&a.arena)?;
     let start = Instant::now();
     let file = std::fs::File::create(&a.out)
@@ -111,7 +110,7 @@ impl<W: std::io::Write> Recording<W> {
     /// Flies round `round` (`--agents` drones, one episode each, seeded
     /// `seed + round`) to its end, a frame per action step, following the
     /// focused drone and then the next one still flying.
-    fn round(&mut self, a: &PlayArgs, net: &QNet, arena: &Arena, round: usize) -> Result<()> {
+    fn round(&mut self, a: &PlayArgs, net: &Network, arena: &Arena, round: usize) -> Result<()> {
         // A checkpoint of a task with a goal, the hold action or another
         // count of frames flies with them (the goal's default settings).
         let shapes = net.shapes();
@@ -129,8 +128,11 @@ impl<W: std::io::Write> Recording<W> {
         let obs_len = env.obs_len();
         let mut canvas = Canvas::default();
         let mut focus = a.focus;
+        // A recurrent network's states: zeros at the round's start (one
+        // episode per drone, no resets within it).
+        let mut state = Vec::new();
         for _ in 0..=env.config().max_steps {
-            let q = net.q_values(env.observations())?;
+            let q = net.q_values(env.observations(), &mut state)?;
             let na = shapes.actions;
             let actions: Vec<u8> =
                 q.chunks_exact(na).map(|c| rotorhive_model::argmax(c) as u8).collect();

@@ -126,6 +126,29 @@ impl Network {
         Ok(())
     }
 
+    /// The observation and action shapes it takes and gives.
+    pub fn shapes(&self) -> rotorhive_model::Shapes {
+        match self {
+            Network::Feedforward(n) => n.shapes(),
+            Network::Recurrent(n) => n.shapes(),
+        }
+    }
+
+    /// Q-values of one step's observations; a recurrent network steps
+    /// `state`, its agents' states (zeros to start: sized so when empty;
+    /// the caller zeroes an agent's where its episode starts).
+    pub fn q_values(&self, obs: &[f32], state: &mut Vec<f32>) -> Result<Vec<f32>> {
+        match self {
+            Network::Feedforward(n) => Ok(n.q_values(obs)?),
+            Network::Recurrent(n) => {
+                if state.is_empty() {
+                    state.resize(obs.len() / n.shapes().obs_len() * n.width(), 0.0);
+                }
+                Ok(n.step(obs, state)?)
+            }
+        }
+    }
+
     /// The pilot flying it greedily.
     pub fn pilot(&self) -> Pilot<'_> {
         match self {
