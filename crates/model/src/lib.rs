@@ -109,6 +109,26 @@ pub(crate) fn trunk(p: &[Var], shapes: Shapes, obs: &Tensor) -> Result<Tensor> {
     Ok(h.matmul(&p(6).t()?)?.broadcast_add(p(7))?.relu()?)
 }
 
+/// Runs `f` on the CPU slices of `vars` (each read-locked for its
+/// duration): the fused path's view of a network's parameters.
+pub(crate) fn with_cpu_slices<R>(
+    vars: &[Var],
+    f: impl FnOnce(&[&[f32]]) -> Result<R>,
+) -> Result<R> {
+    let guards: Vec<_> = vars.iter().map(|v| v.as_tensor().storage_and_layout()).collect();
+    let mut slices = Vec::with_capacity(guards.len());
+    for (storage, layout) in &guards {
+        let candle_core::Storage::Cpu(cpu) = &**storage else {
+            return Err(ModelError::Fused("it runs on the CPU only"));
+        };
+        let Some((start, end)) = layout.contiguous_offsets() else {
+            return Err(ModelError::Fused("a parameter is not contiguous"));
+        };
+        slices.push(&cpu.as_slice::<f32>()?[start..end]);
+    }
+    f(&slices)
+}
+
 /// Parameter names and shapes of a network for `shapes`, in the canonical
 /// (flat) order: the observation's scalars enter `vel.weight` (the velocity
 /// branch, the goal's floats after the velocity), the actions leave `fc2`.
@@ -305,19 +325,11 @@ impl QNet {
 
     /// Runs `f` on the parameters' CPU slices (read-locked for its duration).
     pub(crate) fn with_weights<R>(&self, f: impl FnOnce(&Weights) -> Result<R>) -> Result<R> {
-        let guards: Vec<_> =
-            self.params.iter().map(|v| v.as_tensor().storage_and_layout()).collect();
-        let mut w: [&[f32]; 10] = [&[]; 10];
-        for (slot, (storage, layout)) in w.iter_mut().zip(&guards) {
-            let candle_core::Storage::Cpu(cpu) = &**storage else {
-                return Err(ModelError::Fused("it runs on the CPU only"));
-            };
-            let Some((start, end)) = layout.contiguous_offsets() else {
-                return Err(ModelError::Fused("a parameter is not contiguous"));
-            };
-            *slot = &cpu.as_slice::<f32>()?[start..end];
-        }
-        f(&Weights(w, self.shapes))
+        with_cpu_slices(&self.params, |s| {
+            let mut w: [&[f32]; 10] = [&[]; 10];
+            w.copy_from_slice(s);
+            f(&Weights(w, self.shapes))
+        })
     }
 
     /// The same network with stock candle ops (channels-first `conv2d`),

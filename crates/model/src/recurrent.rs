@@ -110,21 +110,13 @@ impl RecurrentQNet {
     /// with a zero feedforward head in the two slots the kernels expect
     /// (its Q-values are computed and never read).
     fn with_trunk<R>(&self, f: impl FnOnce(&Weights) -> Result<R>) -> Result<R> {
-        let guards: Vec<_> =
-            self.params[..8].iter().map(|v| v.as_tensor().storage_and_layout()).collect();
         let head = vec![0.0f32; self.shapes.actions * (HID + 1)];
-        let mut w: [&[f32]; 10] = [&[]; 10];
-        for (slot, (storage, layout)) in w.iter_mut().zip(&guards) {
-            let candle_core::Storage::Cpu(cpu) = &**storage else {
-                return Err(ModelError::Fused("it runs on the CPU only"));
-            };
-            let Some((start, end)) = layout.contiguous_offsets() else {
-                return Err(ModelError::Fused("a parameter is not contiguous"));
-            };
-            *slot = &cpu.as_slice::<f32>()?[start..end];
-        }
-        (w[8], w[9]) = head.split_at(self.shapes.actions * HID);
-        f(&Weights(w, self.shapes))
+        crate::with_cpu_slices(&self.params[..8], |s| {
+            let mut w: [&[f32]; 10] = [&[]; 10];
+            w[..8].copy_from_slice(s);
+            (w[8], w[9]) = head.split_at(self.shapes.actions * HID);
+            f(&Weights(w, self.shapes))
+        })
     }
 
     /// The trunk's activations `[rows, 64]` of flat observations on the

@@ -506,6 +506,12 @@ fn sim_keys() -> Vec<String> {
     }
 }
 
+/// The shapes of a task with or without a goal and the hold action, of
+/// `frames` depth frames `frame_stride` action periods apart (checked).
+fn task_shapes(goal: bool, hold: bool, frames: usize, frame_stride: usize) -> PyResult<Shapes> {
+    Shapes::task(frames, goal, hold).with_stride(frame_stride).check().map_err(value_error)
+}
+
 /// The learner's Q-network (`hive eval`'s network), on the CPU.
 #[pyclass(module = "rotorhive._rotorhive", name = "QNetwork", unsendable)]
 struct QNetwork {
@@ -531,10 +537,7 @@ impl QNetwork {
         frames: usize,
         frame_stride: usize,
     ) -> PyResult<Self> {
-        let shapes = Shapes::task(frames, goal, hold)
-            .with_stride(frame_stride)
-            .check()
-            .map_err(value_error)?;
+        let shapes = task_shapes(goal, hold, frames, frame_stride)?;
         Ok(Self { net: QNet::with_shapes(shapes, seed, &Device::Cpu).map_err(model_error)? })
     }
 
@@ -642,10 +645,7 @@ impl RecurrentQNetwork {
         frames: usize,
         frame_stride: usize,
     ) -> PyResult<Self> {
-        let shapes = Shapes::task(frames, goal, hold)
-            .with_stride(frame_stride)
-            .check()
-            .map_err(value_error)?;
+        let shapes = task_shapes(goal, hold, frames, frame_stride)?;
         Ok(Self {
             net: RecurrentQNet::new(shapes, width, seed, &Device::Cpu).map_err(model_error)?,
         })

@@ -198,13 +198,23 @@ fn publish<S: Service>(
     dqn: &Dqn,
     version: &mut u64,
 ) -> Result<()> {
-    let v = *version + 1;
-    let updates = dqn.updates();
     let net = &dqn.online;
-    let len = net.num_params();
+    publish_flat(w_tx, (net.num_params(), dqn.updates()), |p| Ok(net.write_flat(p)?), version)
+}
+
+/// Publishes `len` weights that `write` puts in place, made after `updates`
+/// updates, as the next version (see [`publish`]; the recurrent learner's
+/// too).
+pub(crate) fn publish_flat<S: Service>(
+    w_tx: &mut rotorhive_transport::Sender<S, f32, WeightsHeader>,
+    (len, updates): (usize, u64),
+    write: impl FnOnce(&mut [f32]) -> Result<()>,
+    version: &mut u64,
+) -> Result<()> {
+    let v = *version + 1;
     let sent = w_tx.try_send_with(len, |h, p| {
         *h = WeightsHeader { version: v, updates, len: len as u64 };
-        net.write_flat(p)?;
+        write(p)?;
         match p.iter().position(|x| !x.is_finite()) {
             Some(i) => Err(RoleError::Protocol(format!("parameter {i} is {}", p[i]))),
             None => Ok(()),

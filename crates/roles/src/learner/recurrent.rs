@@ -17,7 +17,7 @@ use rotorhive_transport::{Channel, Service};
 
 use super::Gauges;
 use crate::config::Config;
-use crate::error::{Doing, Result, RoleError, protocol_err};
+use crate::error::{Doing, Result, protocol_err};
 use crate::{Ctx, POLL, STALL_TIMEOUT, roles_of};
 
 /// The sequence update's settings of a config's `[learner]`.
@@ -127,29 +127,14 @@ fn save(net: &RecurrentQNet, path: &Path, tags: &[(&str, String)]) -> Result<()>
     net.save(path, tags).doing_with(|| format!("cannot write checkpoint {}", path.display()))
 }
 
-/// Publishes the online network as the next weight version; weights that
-/// are not all finite are not published (the actors keep the last good
-/// ones).
+/// Publishes the online network as the next weight version (as the
+/// feedforward learner does).
 fn publish<S: Service>(
     w_tx: &mut rotorhive_transport::Sender<S, f32, WeightsHeader>,
     dqn: &SeqDqn,
     version: &mut u64,
 ) -> Result<()> {
-    let v = *version + 1;
-    let updates = dqn.updates();
     let net = &dqn.online;
-    let len = net.num_params();
-    let sent = w_tx.try_send_with(len, |h, p| {
-        *h = WeightsHeader { version: v, updates, len: len as u64 };
-        net.write_flat(p)?;
-        match p.iter().position(|x| !x.is_finite()) {
-            Some(i) => Err(RoleError::Protocol(format!("parameter {i} is {}", p[i]))),
-            None => Ok(()),
-        }
-    })?;
-    match sent {
-        Ok(()) => *version = v,
-        Err(e) => tracing::warn!("learner: weights of update {updates} not published: {e:#}"),
-    }
-    Ok(())
+    let write = |p: &mut [f32]| Ok(net.write_flat(p)?);
+    super::publish_flat(w_tx, (net.num_params(), dqn.updates()), write, version)
 }
