@@ -8,9 +8,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Result, bail};
 use clap::{Args, ValueEnum};
-use rotorhive_model::{Device, QNet, RecurrentQNet, Shapes};
+use rotorhive_model::Shapes;
 use rotorhive_roles::Config;
-use rotorhive_roles::eval::{EvalStats, Pilot, fly_layouts};
+use rotorhive_roles::eval::{EvalStats, Network, Pilot, fly_layouts};
 use rotorhive_sim::{Arena, Sight};
 
 /// Who flies in `hive eval`.
@@ -164,39 +164,32 @@ pub fn run(a: EvalArgs) -> Result<()> {
     let (cfg, source) = config(&a)?;
     // The task's network: a checkpoint of other shapes is refused by name;
     // one whose header names a memory flies as a recurrent network.
-    let net = QNet::with_shapes(cfg.shapes(), 0, &Device::Cpu)?;
-    let memory = match (policy, &a.checkpoint) {
-        (PolicyKind::Greedy, Some(c)) => rotorhive_model::checkpoint_memory(c)?,
-        _ => None,
-    };
-    let recurrent = match memory {
-        Some(width) => Some(RecurrentQNet::new(cfg.shapes(), width, 0, &Device::Cpu)?),
-        None => None,
-    };
-    match (policy, &a.checkpoint) {
-        (PolicyKind::Greedy, Some(c)) => match &recurrent {
-            Some(r) => r.load(c)?,
-            None => net.load(c)?,
-        },
+    let net = match (policy, &a.checkpoint) {
+        (PolicyKind::Greedy, Some(c)) => {
+            let net = Network::new(cfg.shapes(), rotorhive_model::checkpoint_memory(c)?)?;
+            net.load_checkpoint(c)?;
+            Some(net)
+        }
         (PolicyKind::Greedy, None) => bail!("--policy greedy needs --checkpoint"),
         (_, Some(_)) => {
             bail!("--policy {} flies no checkpoint: leave out --checkpoint", policy.name())
         }
-        (PolicyKind::Reactive | PolicyKind::Planner, None) => {}
-    }
+        (PolicyKind::Reactive | PolicyKind::Planner, None) => None,
+    };
     let layouts: Vec<Arena> = if a.arena.is_empty() {
         cfg.test_arenas()?
     } else {
         a.arena.iter().map(|p| Arena::load(p)).collect::<Result<_, _>>()?
     };
     let per_layout = a.episodes.div_ceil(layouts.len());
-    let pilot = match policy {
-        PolicyKind::Greedy => recurrent.as_ref().map_or(Pilot::Net(&net), Pilot::Recurrent),
-        PolicyKind::Reactive => Pilot::Reactive,
-        PolicyKind::Planner => Pilot::Planner(a.sight.sight(a.memory_s)),
+    let pilot = match (&net, policy) {
+        (Some(net), _) => net.pilot(),
+        (None, PolicyKind::Planner) => Pilot::Planner(a.sight.sight(a.memory_s)),
+        (None, _) => Pilot::Reactive,
     };
     let stats = fly_layouts(pilot, &cfg.sim_config(), &layouts, per_layout, a.seed)?;
-    report(&a, policy, &source, cfg.shapes(), &layouts, &stats);
+    let memory = net.as_ref().and_then(Network::memory);
+    report(&a, (policy, memory), &source, cfg.shapes(), &layouts, &stats);
     Ok(())
 }
 
@@ -204,7 +197,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
 /// `--json` one object as the last line.
 fn report(
     a: &EvalArgs,
-    policy: PolicyKind,
+    (policy, memory): (PolicyKind, Option<usize>),
     source: &str,
     shapes: Shapes,
     layouts: &[Arena],
@@ -216,10 +209,6 @@ fn report(
         format!("{:.1} % [{:.1}, {:.1}]", s.success_rate() * 100.0, lo * 100.0, hi * 100.0)
     };
     let planner = policy == PolicyKind::Planner;
-    let memory = match (policy, &a.checkpoint) {
-        (PolicyKind::Greedy, Some(c)) => rotorhive_model::checkpoint_memory(c).ok().flatten(),
-        _ => None,
-    };
     let who = match policy {
         PolicyKind::Greedy => a.checkpoint.as_ref().map_or(String::new(), |c| match memory {
             Some(w) => format!("{} (memory: a GRU of {w})", c.display()),

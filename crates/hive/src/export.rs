@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::{Result, bail};
 use clap::Args;
-use rotorhive_model::{Device, QNet, RecurrentQNet};
+use rotorhive_roles::eval::Network;
 
 #[derive(Args, Debug)]
 pub struct ExportArgs {
@@ -21,25 +21,18 @@ pub fn run(a: ExportArgs) -> Result<()> {
     if a.out.extension().and_then(|e| e.to_str()) != Some("onnx") {
         bail!("--out {}: the file must end in .onnx", a.out.display());
     }
-    let shapes = rotorhive_model::checkpoint_shapes(&a.checkpoint)?;
-    let source = [("source", a.checkpoint.display().to_string())];
+    // Either network, as the checkpoint's header says (shapes, memory): a
+    // recurrent one exports its one step, the state in and out.
+    let net = Network::load(&a.checkpoint)?;
+    net.to_onnx(&a.out, &[("source", a.checkpoint.display().to_string())])?;
+    let shapes = net.shapes();
     let ins = format!("depth (B, {}, 32, 32) and velocity (B, {})", shapes.frames, shapes.scalars);
-    // A checkpoint whose header names a memory exports its one step, the
-    // state in and out.
-    if let Some(width) = rotorhive_model::checkpoint_memory(&a.checkpoint)? {
-        let net = RecurrentQNet::new(shapes, width, 0, &Device::Cpu)?;
-        net.load(&a.checkpoint)?;
-        net.to_onnx(&a.out, &source)?;
-        println!(
-            "{}: inputs {ins} and state (B, {width}), outputs q (B, {}) and next_state (B, {width})",
-            a.out.display(),
-            shapes.actions
-        );
-        return Ok(());
+    let (out, actions) = (a.out.display(), shapes.actions);
+    match net.memory() {
+        Some(w) => println!(
+            "{out}: inputs {ins} and state (B, {w}), outputs q (B, {actions}) and next_state (B, {w})"
+        ),
+        None => println!("{out}: inputs {ins}, output q (B, {actions})"),
     }
-    let net = QNet::with_shapes(shapes, 0, &Device::Cpu)?;
-    net.load(&a.checkpoint)?;
-    net.to_onnx(&a.out, &source)?;
-    println!("{}: inputs {ins}, output q (B, {})", a.out.display(), shapes.actions);
     Ok(())
 }

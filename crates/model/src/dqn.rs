@@ -9,7 +9,7 @@ use std::time::Instant;
 
 use candle_core::{D, DType, Tensor};
 
-use crate::kernels::{Rows, Workspace, offsets, poisoned};
+use crate::kernels::{Rows, Workspace, poisoned};
 use crate::ops::{AdamHyper, AdamStep, adam};
 use crate::{ModelError, QNet, Result, Shapes, argmax, params};
 use rotorhive_msg::NO_EXPERT;
@@ -90,12 +90,13 @@ pub struct UpdateTiming {
 }
 
 /// Adam without weight decay; the moments are plain vectors so the fused
-/// path updates every parameter in place in one pass.
-struct Adam {
+/// path updates every parameter in place in one pass. Both learners use it
+/// (the recurrent one through [`Adam::with_sizes`] and [`Adam::step_vars`]).
+pub(crate) struct Adam {
     lr: f32,
     lr_final: f32,
     decay: u64,
-    t: u64,
+    pub(crate) t: u64,
     m: Vec<Vec<f32>>,
     v: Vec<Vec<f32>>,
 }
@@ -104,10 +105,19 @@ impl Adam {
     fn new(cfg: &DqnConfig, shapes: Shapes) -> Self {
         let specs = params(shapes);
         let sizes = specs.iter().map(|(_, s)| s.iter().product::<usize>());
+        Self::with_sizes((cfg.lr as f32, cfg.lr_final as f32, cfg.lr_decay_updates), sizes)
+    }
+
+    /// Adam at learning rate `lr` falling to `lr_final` over `decay` steps,
+    /// for parameters of `sizes` floats each (in canonical order).
+    pub(crate) fn with_sizes(
+        (lr, lr_final, decay): (f32, f32, u64),
+        sizes: impl Iterator<Item = usize> + Clone,
+    ) -> Self {
         Self {
-            lr: cfg.lr as f32,
-            lr_final: cfg.lr_final as f32,
-            decay: cfg.lr_decay_updates,
+            lr,
+            lr_final,
+            decay,
             t: 0,
             m: sizes.clone().map(|n| vec![0.0; n]).collect(),
             v: sizes.map(|n| vec![0.0; n]).collect(),
@@ -126,12 +136,19 @@ impl Adam {
 
     /// One step with the gradients of every parameter, flat in canonical order.
     fn step(&mut self, net: &QNet, grads: &[f32]) -> Result<()> {
+        self.step_vars(net.vars(), grads)
+    }
+
+    /// One step of `vars` (in canonical order) with their gradients, flat in
+    /// the same order: in place on the CPU.
+    pub(crate) fn step_vars(&mut self, vars: &[candle_core::Var], grads: &[f32]) -> Result<()> {
         self.t += 1;
-        let off = offsets(net.shapes());
         let hyper =
             AdamHyper { lr: self.lr_at(self.t), beta1: 0.9, beta2: 0.999, eps: 1e-8, t: self.t };
-        for (i, ((var, m), v)) in net.vars().iter().zip(&mut self.m).zip(&mut self.v).enumerate() {
-            let g = &grads[off[i]..off[i + 1]];
+        let mut off = 0;
+        for ((var, m), v) in vars.iter().zip(&mut self.m).zip(&mut self.v) {
+            let g = &grads[off..off + m.len()];
+            off += m.len();
             if var.device().is_cpu() {
                 var.as_tensor().inplace_op1(&AdamStep {
                     grad: g,

@@ -24,8 +24,8 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
 use crate::checkpoint::{self, recurrent_metadata};
+use crate::dqn::Adam;
 use crate::kernels::{Rows, Weights, Workspace, offsets};
-use crate::ops::{AdamHyper, adam};
 use crate::{HID, ModelError, Result, Scratch, Shapes, argmax, params, trunk};
 
 /// The widest GRU a network may have.
@@ -451,9 +451,8 @@ pub struct SeqDqn {
     pub online: RecurrentQNet,
     target: RecurrentQNet,
     cfg: SeqConfig,
-    /// Adam's first and second moments, per parameter.
-    moments: Vec<(Vec<f32>, Vec<f32>)>,
-    updates: u64,
+    /// The project's Adam (its step count is the update count).
+    opt: Adam,
     /// The online trunk's fused pass, kept from its forward for its
     /// backward.
     work: Workspace,
@@ -471,14 +470,10 @@ impl SeqDqn {
     ) -> Result<Self> {
         let online = RecurrentQNet::new(shapes, width, seed, device)?;
         let target = RecurrentQNet::new(shapes, width, seed, device)?;
-        let moments = recurrent_params(shapes, width)
-            .iter()
-            .map(|(_, s)| {
-                let n = s.iter().product();
-                (vec![0.0; n], vec![0.0; n])
-            })
-            .collect();
-        Ok(Self { online, target, cfg, moments, updates: 0, work: Workspace::default() })
+        let sizes = recurrent_params(shapes, width);
+        let sizes = sizes.iter().map(|(_, s)| s.iter().product::<usize>());
+        let opt = Adam::with_sizes((cfg.lr, cfg.lr, 0), sizes);
+        Ok(Self { online, target, cfg, opt, work: Workspace::default() })
     }
 
     /// Chooses the fused CPU path for both networks' trunks, or the generic
@@ -490,7 +485,7 @@ impl SeqDqn {
 
     /// Updates made.
     pub fn updates(&self) -> u64 {
-        self.updates
+        self.opt.t
     }
 
     /// Loads both networks' weights from a checkpoint (a restarted learner's
@@ -596,18 +591,8 @@ impl SeqDqn {
     /// One Adam step with `grads` (flat in canonical order); the target
     /// copied when due.
     fn apply(&mut self, grads: &[f32]) -> Result<()> {
-        self.updates += 1;
-        let hyper =
-            AdamHyper { lr: self.cfg.lr, beta1: 0.9, beta2: 0.999, eps: 1e-8, t: self.updates };
-        let mut off = 0;
-        for (var, (m, v)) in self.online.params.iter().zip(&mut self.moments) {
-            let g = &grads[off..off + m.len()];
-            off += m.len();
-            let mut p = var.as_tensor().flatten_all()?.to_vec1::<f32>()?;
-            adam(&mut p, g, m, v, hyper);
-            var.set(&Tensor::from_vec(p, var.shape(), var.device())?)?;
-        }
-        if self.updates.is_multiple_of(self.cfg.target_update.max(1)) {
+        self.opt.step_vars(&self.online.params, grads)?;
+        if self.opt.t.is_multiple_of(self.cfg.target_update.max(1)) {
             self.target.copy_from(&self.online)?;
         }
         Ok(())

@@ -136,6 +136,14 @@ impl RowLayout {
         }
     }
 
+    /// The observation and action shapes of its steps.
+    pub const fn shapes(self) -> Shapes {
+        match self {
+            RowLayout::Transition(s) => s,
+            RowLayout::Sequence(l) => l.shapes,
+        }
+    }
+
     /// Rows of `batch` (whole rows of this layout) whose values are not
     /// what an actor writes.
     pub fn corrupt_rows(self, batch: &[u16]) -> u64 {

@@ -503,7 +503,8 @@ impl<'a, S: Service> Actor<'a, S> {
             *th = header;
             out.copy_from_slice(packed);
         });
-        self.sent(sent, (count * self.cfg.steps_per_row()) as u64)?;
+        let trained = (count * m.seqs.period()) as u64;
+        self.sent(sent, trained)?;
         Ok(())
     }
 

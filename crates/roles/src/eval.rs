@@ -72,29 +72,46 @@ pub enum Network {
 }
 
 impl Network {
+    /// A freshly initialised network of `shapes`, recurrent with a GRU of
+    /// `memory` units where it is given, on the CPU.
+    pub fn new(shapes: rotorhive_model::Shapes, memory: Option<usize>) -> Result<Self> {
+        let cpu = rotorhive_model::Device::Cpu;
+        Ok(match memory {
+            Some(w) => Network::Recurrent(RecurrentQNet::new(shapes, w, 0, &cpu)?),
+            None => Network::Feedforward(QNet::with_shapes(shapes, 0, &cpu)?),
+        })
+    }
+
     /// A network of `cfg`'s shapes and memory, on the CPU.
     pub fn for_config(cfg: &crate::Config) -> Result<Self> {
-        let (shapes, cpu) = (cfg.shapes(), rotorhive_model::Device::Cpu);
-        Ok(match cfg.memory() {
-            Some(w) => Network::Recurrent(RecurrentQNet::new(shapes, w, 0, &cpu)?),
-            None => {
-                let mut net = QNet::with_shapes(shapes, 0, &cpu)?;
-                net.set_threads(1);
-                Network::Feedforward(net)
-            }
-        })
+        Self::new(cfg.shapes(), cfg.memory())
     }
 
     /// The network a checkpoint holds (its header's shapes and memory).
     pub fn load(path: &std::path::Path) -> Result<Self> {
-        let (shapes, cpu) =
-            (rotorhive_model::checkpoint_shapes(path)?, rotorhive_model::Device::Cpu);
-        let net = match rotorhive_model::checkpoint_memory(path)? {
-            Some(w) => Network::Recurrent(RecurrentQNet::new(shapes, w, 0, &cpu)?),
-            None => Network::Feedforward(QNet::with_shapes(shapes, 0, &cpu)?),
-        };
+        let shapes = rotorhive_model::checkpoint_shapes(path)?;
+        let net = Self::new(shapes, rotorhive_model::checkpoint_memory(path)?)?;
         net.load_checkpoint(path)?;
         Ok(net)
+    }
+
+    /// The GRU's width of a recurrent network; `None` for the feedforward
+    /// one.
+    pub fn memory(&self) -> Option<usize> {
+        match self {
+            Network::Feedforward(_) => None,
+            Network::Recurrent(n) => Some(n.width()),
+        }
+    }
+
+    /// Writes the network as an ONNX model (a recurrent one's single step
+    /// takes and gives the state), `extra` in its metadata.
+    pub fn to_onnx(&self, path: &std::path::Path, extra: &[(&str, String)]) -> Result<()> {
+        match self {
+            Network::Feedforward(n) => n.to_onnx(path, extra)?,
+            Network::Recurrent(n) => n.to_onnx(path, extra)?,
+        }
+        Ok(())
     }
 
     /// Loads a checkpoint into this network (of other shapes or another

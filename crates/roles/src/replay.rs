@@ -35,6 +35,10 @@ struct Memory<'a, S: Service> {
     prio: Feedback<S>,
     picks: Vec<Pick>,
     last_sync: Instant,
+    /// What a row holds (transitions, or sequences), and `min_fill` in
+    /// rows: both from the config, once.
+    rows: RowLayout,
+    min_fill: usize,
 }
 
 /// Runs the replay memory until the run stops.
@@ -76,6 +80,8 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
         prio,
         picks,
         last_sync,
+        rows: cfg.rows(),
+        min_fill: cfg.replay_rows().1,
     };
     if cfg.deterministic {
         m.run_scheduled()?
@@ -120,7 +126,7 @@ impl<S: Service> Memory<'_, S> {
                     journal: self.journal.as_mut(),
                     demos: self.demos.as_mut(),
                 };
-                ingest(&m, self.cfg, stores, seen)?;
+                ingest(&m, self.rows, stores, seen)?;
                 self.receipts.took(m.user_header());
                 self.seq_log.record(m.user_header());
                 got = true;
@@ -150,7 +156,7 @@ impl<S: Service> Memory<'_, S> {
                         journal: self.journal.as_mut(),
                         demos: self.demos.as_mut(),
                     };
-                    ingest(&m, self.cfg, stores, seen)?;
+                    ingest(&m, self.rows, stores, seen)?;
                     self.receipts.took(m.user_header());
                     self.seq_log.record(m.user_header());
                 }
@@ -175,8 +181,7 @@ impl<S: Service> Memory<'_, S> {
     fn ready(&self) -> bool {
         let r = &self.cfg.replay;
         let demos = self.demos.as_ref().map_or(0, |d| d.mem.len());
-        let min_fill = self.cfg.replay_rows().1;
-        self.mem.len() + demos >= min_fill.max(r.batch) && self.mem.len() >= r.batch
+        self.mem.len() + demos >= self.min_fill.max(r.batch) && self.mem.len() >= r.batch
     }
 
     /// The minibatch's rows drawn from the demonstrations now (fading with
@@ -201,7 +206,7 @@ impl<S: Service> Memory<'_, S> {
         let (demo_rows, teacher) = self.demo_rows();
         let (mem, picks) = (&mut self.mem, &mut self.picks);
         let demos = self.demos.as_mut().map(|d| &mut d.mem);
-        let res = self.tx.send_with(minibatch_len(self.cfg.row_len(), batch), |h, out| {
+        let res = self.tx.send_with(minibatch_len(self.rows.packed_len(), batch), |h, out| {
             let acted = sample(mem, demos, demo_rows, out, picks, beta);
             *h = minibatch_header(batch, seq, acted, (demo_rows, teacher));
         });
@@ -573,14 +578,14 @@ const INGEST_PER_LOOP: usize = 4;
 /// dropped.
 fn ingest<S: Service>(
     m: &rotorhive_transport::Msg<S, u16, TransitionHeader>,
-    cfg: &crate::config::Config,
+    rows: RowLayout,
     stores: Stores<'_>,
     (next_seq, lost): (&mut SeqTracker, &mut u64),
 ) -> Result<()> {
-    if !check(m, cfg.rows(), next_seq, lost) {
+    if !check(m, rows, next_seq, lost) {
         return Ok(());
     }
-    store(stores, cfg.shapes(), m.payload(), m.user_header().weight_version)
+    store(stores, rows.shapes(), m.payload(), m.user_header().weight_version)
 }
 
 /// Syncs the journal to disk every `replay.snapshot_every_s`.

@@ -49,6 +49,11 @@ impl Sequences {
         }
     }
 
+    /// Trained steps per sequence: the steps a window slides by.
+    pub fn period(&self) -> usize {
+        self.period
+    }
+
     /// Forgets every open window (the sim restarted).
     pub fn clear(&mut self) {
         for w in &mut self.windows {

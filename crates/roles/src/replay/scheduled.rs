@@ -5,7 +5,7 @@
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
-use rotorhive_msg::{ReplayStage, SeqTracker, Shapes, TransitionHeader};
+use rotorhive_msg::{ReplayStage, RowLayout, SeqTracker, Shapes, TransitionHeader};
 use rotorhive_replay::Acted;
 use rotorhive_transport::Service;
 
@@ -29,7 +29,7 @@ impl<S: Service> Memory<'_, S> {
         let mut next_seq = SeqTracker::new(cfg.sim.envs);
         let (mut rounds, mut sent) = (0u64, 0u64);
         // The next minibatch, sampled once and offered until the learner takes it.
-        let mut minibatch = vec![0u16; minibatch_len(cfg.row_len(), batch)];
+        let mut minibatch = vec![0u16; minibatch_len(self.rows.packed_len(), batch)];
         let mut drawn: Option<(Acted, (usize, f32))> = None;
         // A minibatch sent before the learner subscribes would be lost.
         while self.tx.receivers() == 0 && !self.hub.shutdown_requested() {
@@ -92,7 +92,7 @@ impl<S: Service> Memory<'_, S> {
         next_seq: &mut SeqTracker,
     ) -> Result<()> {
         let lost = &mut self.tel.sample.lost;
-        enqueue(m, pending, self.cfg.shapes(), (next_seq, lost))?;
+        enqueue(m, pending, self.rows, (next_seq, lost))?;
         self.receipts.took(m.user_header());
         Ok(())
     }
@@ -136,7 +136,7 @@ fn insert_round(
 fn enqueue<S: Service>(
     m: &rotorhive_transport::Msg<S, u16, TransitionHeader>,
     pending: &mut [VecDeque<(u64, Vec<u16>)>],
-    shapes: Shapes,
+    rows: RowLayout,
     (next_seq, lost): (&mut SeqTracker, &mut u64),
 ) -> Result<()> {
     let h = *m.user_header();
@@ -145,7 +145,7 @@ fn enqueue<S: Service>(
         protocol_err!("transitions from actor {} of a run with {envs} environments", h.actor);
     };
     // A corrupt batch is refused; the round stays whole without it.
-    let clean = check(m, rotorhive_msg::RowLayout::Transition(shapes), next_seq, lost);
+    let clean = check(m, rows, next_seq, lost);
     q.push_back((h.weight_version, if clean { m.payload().to_vec() } else { Vec::new() }));
     Ok(())
 }
