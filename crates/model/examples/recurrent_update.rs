@@ -18,6 +18,7 @@ fn main() {
         target_update: 100,
         huber_delta: 1.0,
         reward_scale: 0.01,
+        margin: 0.8,
     };
     let (n, t, w) = (16usize, 22usize, 64usize);
     let obs: Vec<f32> =
@@ -34,6 +35,7 @@ fn main() {
         rewards: &rewards,
         dones: &dones,
         states: &states,
+        experts: &[],
     };
     for fused in [true, false] {
         let mut d = SeqDqn::new(cfg, s, w, 1, &Device::Cpu).unwrap();

@@ -12,8 +12,9 @@
 //! ops; the generic path runs all of it on stock ops (any device), and the
 //! two give the same gradients (tested).
 //!
-//! This is the first part of memory in the trainer (issue 55); the actor's
-//! state and the replay's sequences come next.
+//! With a teacher, DQfD's large-margin loss joins the TD loss on the
+//! trained steps the teacher labelled (its action there), as the
+//! feedforward learner's does.
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -27,6 +28,7 @@ use crate::checkpoint::{self, recurrent_metadata};
 use crate::dqn::Adam;
 use crate::kernels::{Rows, Weights, Workspace, offsets};
 use crate::{HID, ModelError, Result, Scratch, Shapes, argmax, params, trunk};
+use rotorhive_msg::NO_EXPERT;
 
 /// The widest GRU a network may have.
 pub const MAX_WIDTH: usize = 1024;
@@ -376,6 +378,9 @@ pub struct SeqBatch<'a> {
     /// The state each sequence started from (its actor's there),
     /// `[sequences][width]`.
     pub states: &'a [f32],
+    /// The teacher's action at each step ([`NO_EXPERT`]: none),
+    /// `[sequences][steps]`; empty: no step labelled.
+    pub experts: &'a [f32],
 }
 
 impl SeqBatch<'_> {
@@ -412,6 +417,21 @@ impl SeqBatch<'_> {
                 got: a as usize,
             });
         }
+        if !self.experts.is_empty() && self.experts.len() != n * t {
+            return Err(ModelError::Shape {
+                what: "sequence expert actions",
+                expected: n * t,
+                got: self.experts.len(),
+            });
+        }
+        let one_of = |e: f32| e >= 0.0 && e < shapes.actions as f32 && e.fract() == 0.0;
+        if let Some(&e) = self.experts.iter().find(|&&e| !(e == NO_EXPERT || one_of(e))) {
+            return Err(ModelError::Shape {
+                what: "sequence expert action (none or one of the actions)",
+                expected: shapes.actions,
+                got: e as usize,
+            });
+        }
         let finite = |v: &[f32]| v.iter().all(|x| x.is_finite());
         if !(finite(self.obs) && finite(self.rewards) && finite(self.states)) {
             return Err(ModelError::Shape {
@@ -442,6 +462,9 @@ pub struct SeqConfig {
     pub huber_delta: f32,
     /// Rewards are multiplied by this in the target.
     pub reward_scale: f32,
+    /// DQfD's margin l(a_E, a) for every action but the expert's (see
+    /// [`SeqDqn::set_margin_weight`]).
+    pub margin: f32,
 }
 
 /// A recurrent DQN learner: online and target networks and Adam, updated on
@@ -456,6 +479,8 @@ pub struct SeqDqn {
     /// The online trunk's fused pass, kept from its forward for its
     /// backward.
     work: Workspace,
+    /// Weight of the large-margin loss now (0: none).
+    margin_weight: f32,
 }
 
 impl SeqDqn {
@@ -473,7 +498,14 @@ impl SeqDqn {
         let sizes = recurrent_params(shapes, width);
         let sizes = sizes.iter().map(|(_, s)| s.iter().product::<usize>());
         let opt = Adam::with_sizes((cfg.lr, cfg.lr, 0), sizes);
-        Ok(Self { online, target, cfg, opt, work: Workspace::default() })
+        Ok(Self { online, target, cfg, opt, work: Workspace::default(), margin_weight: 0.0 })
+    }
+
+    /// Weight of DQfD's large-margin loss `max_a [Q(s,a) + l(a_E,a)] −
+    /// Q(s,a_E)` on the trained steps with an expert action, against the
+    /// mean TD loss (both divided by the trained steps); 0 turns it off.
+    pub fn set_margin_weight(&mut self, weight: f32) {
+        self.margin_weight = weight;
     }
 
     /// Chooses the fused CPU path for both networks' trunks, or the generic
@@ -554,12 +586,49 @@ impl SeqDqn {
         let onehot = Tensor::from_vec(onehot, (trained, n, shapes.actions), &dev)?;
         let taken = (q.narrow(0, 0, trained)? * onehot)?.sum(D::Minus1)?;
         let y = Tensor::from_vec(y, (trained, n), &dev)?;
-        let loss = huber(&(taken - y)?, self.cfg.huber_delta)?;
+        let mut loss = huber(&(taken - y)?, self.cfg.huber_delta)?;
+        if let Some(margin) = self.margin_loss(batch, &q.narrow(0, 0, trained)?)? {
+            loss = (loss + margin)?;
+        }
         let value = loss.to_scalar::<f32>()?;
         if !value.is_finite() {
             return Err(ModelError::NoGradient("the sequence loss is not finite"));
         }
         Ok((value, self.backward(&loss, leaf.as_ref(), (t + 1) * n)?))
+    }
+
+    /// DQfD's large-margin loss of the trained steps' Q-values `q`
+    /// (`[trained][sequences][actions]`) on the steps with an expert action,
+    /// weighted and divided by the trained steps; none without a weight or a
+    /// label.
+    fn margin_loss(&self, b: &SeqBatch, q: &Tensor) -> Result<Option<Tensor>> {
+        let (n, t, burn) = (b.sequences, b.steps, self.cfg.burn_in);
+        let (trained, na) = (t - burn, self.online.shapes.actions);
+        let label = |s: usize, i: usize| b.experts[i * t + burn + s];
+        let labelled = |s, i| !b.experts.is_empty() && label(s, i) != NO_EXPERT;
+        if self.margin_weight <= 0.0 || !(0..trained).any(|s| (0..n).any(|i| labelled(s, i))) {
+            return Ok(None);
+        }
+        // l(a_E, a) and a_E's one-hot on labelled steps; zero elsewhere (an
+        // unlabelled step's max of its zero-margin Q minus nothing is
+        // masked out).
+        let (mut l, mut onehot) = (vec![0f32; trained * n * na], vec![0f32; trained * n * na]);
+        let mut mask = vec![0f32; trained * n];
+        for s in 0..trained {
+            for i in (0..n).filter(|&i| labelled(s, i)) {
+                let (row, e) = ((s * n + i) * na, label(s, i) as usize);
+                l[row..row + na].fill(self.cfg.margin);
+                (l[row + e], onehot[row + e], mask[s * n + i]) = (0.0, 1.0, 1.0);
+            }
+        }
+        let dev = q.device();
+        let l = Tensor::from_vec(l, (trained, n, na), dev)?;
+        let onehot = Tensor::from_vec(onehot, (trained, n, na), dev)?;
+        let best = (q + l)?.max(D::Minus1)?;
+        let qe = (q * onehot)?.sum(D::Minus1)?;
+        let per = ((best - qe)? * Tensor::from_vec(mask, (trained, n), dev)?)?;
+        let scale = self.margin_weight as f64 / (trained * n) as f64;
+        Ok(Some(per.sum_all()?.affine(scale, 0.0)?))
     }
 
     /// The gradient of `loss`, flat in canonical order: the GRU's and the

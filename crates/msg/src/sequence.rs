@@ -80,8 +80,8 @@ impl SeqLayout {
     }
 
     /// Unpacks one sequence into the learner's parts: `obs` (`steps + 1`
-    /// observations), `actions`, `rewards`, `dones` and `state`, each
-    /// appended to.
+    /// observations), `actions`, `rewards`, `dones`, `experts` and `state`,
+    /// each appended to.
     pub fn unpack_into(self, p: &[u16], out: &mut Unpacked) {
         assert!(p.len() == self.packed_len(), "unpack: wrong length");
         let (fd, k) = (self.shapes.obs_depth(), self.shapes.scalars);
@@ -96,6 +96,7 @@ impl SeqLayout {
             out.actions.push(t[0] as u8);
             out.rewards.push(t[1]);
             out.dones.push(t[2] != 0.0);
+            out.experts.push(t[3]);
         }
         out.states.extend_from_slice(&v[v.len() - self.width..]);
     }
@@ -144,6 +145,21 @@ impl RowLayout {
         }
     }
 
+    /// Whether a packed row is the teacher's demonstration: a transition
+    /// flagged so, or a sequence whose last step is (the teacher flies an
+    /// agent from an episode's start, so a sequence it flew to the end is
+    /// its own from the episode's first step on).
+    pub fn is_demo(self, row: &[u16]) -> bool {
+        match self {
+            RowLayout::Transition(s) => s.packed_scalar(row, 2 * s.scalars + 4) == 1.0,
+            RowLayout::Sequence(l) => {
+                let at = l.depth_words()
+                    + 2 * (l.observations() * l.shapes.scalars + l.steps * TAIL - 1);
+                f32::from_bits(row[at] as u32 | (row[at + 1] as u32) << 16) == 1.0
+            }
+        }
+    }
+
     /// Rows of `batch` (whole rows of this layout) whose values are not
     /// what an actor writes.
     pub fn corrupt_rows(self, batch: &[u16]) -> u64 {
@@ -175,6 +191,9 @@ pub struct Unpacked {
     pub rewards: Vec<f32>,
     /// Episode ends, `[sequences][steps]`.
     pub dones: Vec<bool>,
+    /// The teacher's action at each step ([`NO_EXPERT`]: none),
+    /// `[sequences][steps]`.
+    pub experts: Vec<f32>,
     /// Start states, `[sequences][width]`.
     pub states: Vec<f32>,
     scratch: Vec<f32>,
@@ -187,6 +206,7 @@ impl Unpacked {
         self.actions.clear();
         self.rewards.clear();
         self.dones.clear();
+        self.experts.clear();
         self.states.clear();
     }
 }
@@ -216,10 +236,19 @@ mod tests {
         let mut u = Unpacked::default();
         LAYOUT.unpack_into(&packed, &mut u);
         LAYOUT.unpack_into(&packed, &mut u);
-        assert_eq!(u.states, [state.clone(), state].concat());
+        assert_eq!(u.states, [state.clone(), state.clone()].concat());
         assert_eq!(u.actions, [1, 0, 1, 1, 0, 1]);
         assert_eq!(u.rewards[..3], [0.5, -2.0, 0.0]);
         assert_eq!(u.dones[..3], [false, true, false]);
+        assert_eq!(u.experts[..3], [NO_EXPERT, 1.0, 0.0]);
+        assert_eq!(u.experts.len(), 6);
+        // The last step is the student's: not a demonstration; flagged, it is.
+        let rows = RowLayout::Sequence(LAYOUT);
+        assert!(!rows.is_demo(&packed));
+        let mut demo = tails.clone();
+        demo[2][4] = 1.0;
+        LAYOUT.pack(&obs, &demo, &state, &mut packed);
+        assert!(rows.is_demo(&packed));
         let len = Shapes::PAPER.obs_len();
         assert_eq!(u.obs.len(), 2 * 4 * len);
         for (a, b) in u.obs.iter().zip(&obs) {

@@ -503,8 +503,12 @@ impl<'a, S: Service> Actor<'a, S> {
             *th = header;
             out.copy_from_slice(packed);
         });
-        let trained = (count * m.seqs.period()) as u64;
-        self.sent(sent, trained)?;
+        let (trained, taught) = ((count * m.seqs.period()) as u64, m.seqs.taught);
+        if self.sent(sent, trained)? {
+            let tc = &mut self.tel.sample.teacher;
+            tc.demo_transitions += taught.0;
+            tc.labelled_transitions += taught.1;
+        }
         Ok(())
     }
 

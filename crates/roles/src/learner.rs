@@ -183,10 +183,19 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
 /// replay's fade, as minibatch `mb` says; without a teacher none: the plain
 /// update).
 fn teach(cfg: &Config, dqn: &mut Dqn, mb: &MinibatchHeader) {
-    if cfg.teacher.on() {
-        let fade = if mb.teacher.is_finite() { mb.teacher.clamp(0.0, 1.0) } else { 0.0 };
-        dqn.set_margin_weight(cfg.teacher.weight as f32 * fade);
+    if let Some(w) = margin_weight(cfg, mb) {
+        dqn.set_margin_weight(w);
     }
+}
+
+/// The large-margin loss's weight for minibatch `mb`: the teacher's weight
+/// times the replay's fade (a fade that is not finite counts as 0); none
+/// without a teacher.
+fn margin_weight(cfg: &Config, mb: &MinibatchHeader) -> Option<f32> {
+    cfg.teacher.on().then(|| {
+        let fade = if mb.teacher.is_finite() { mb.teacher.clamp(0.0, 1.0) } else { 0.0 };
+        cfg.teacher.weight as f32 * fade
+    })
 }
 
 /// Publishes the online network as the next weight version. A failed write

@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 use crate::error::{Doing, Result};
 use rotorhive_msg::{
     MinibatchHeader, PICK_WORDS, PriorityHeader, Receipt, ReplayStage, RoleKind, RowLayout,
-    SeqTracker, Shapes, Telemetry, TransitionHeader,
+    SeqTracker, Telemetry, TransitionHeader,
 };
 use rotorhive_replay::{Acted, Journal, Pick, Replay};
 use rotorhive_transport::{Channel, TransportError};
@@ -221,8 +221,10 @@ impl<S: Service> Memory<'_, S> {
         self.tel.sample.work = self.mem.inserted();
         self.tel.sample.work2 = minibatches;
         self.tel.sample.value_milli = self.mem.len() as i64;
+        // In transitions: with memory a row is a sequence of trained steps.
+        let per_row = self.cfg.steps_per_row() as u64;
         self.tel.sample.teacher.demo_transitions =
-            self.demos.as_ref().map_or(0, |d| d.mem.len()) as u64;
+            self.demos.as_ref().map_or(0, |d| d.mem.len()) as u64 * per_row;
         self.tel.tick(false, Telemetry::beat);
         Ok(())
     }
@@ -467,14 +469,17 @@ fn open_demos(
     if !t.demos() {
         return Ok(None);
     }
-    let (width, seed) = (cfg.shapes().packed_len(), crate::seeds::demos(cfg.seed));
+    // With memory a row is a sequence: the capacity counts its trained
+    // steps, as the memory's does.
+    let (width, seed) = (cfg.row_len(), crate::seeds::demos(cfg.seed));
+    let rows = (t.demo_capacity / cfg.steps_per_row()).max(1);
     Ok(Some(match run_dir {
         Some(d) if cfg.replay.snapshot_every_s > 0.0 => {
-            let (mem, j) = Journal::open(&d.join("replay-demo.bin"), t.demo_capacity, width, seed)
+            let (mem, j) = Journal::open(&d.join("replay-demo.bin"), rows, width, seed)
                 .doing("restoring the demonstrations")?;
             Demos { mem, journal: Some(j) }
         }
-        _ => Demos { mem: Replay::new(t.demo_capacity, width, seed), journal: None },
+        _ => Demos { mem: Replay::new(rows, width, seed), journal: None },
     }))
 }
 
@@ -585,7 +590,7 @@ fn ingest<S: Service>(
     if !check(m, rows, next_seq, lost) {
         return Ok(());
     }
-    store(stores, rows.shapes(), m.payload(), m.user_header().weight_version)
+    store(stores, rows, m.payload(), m.user_header().weight_version)
 }
 
 /// Syncs the journal to disk every `replay.snapshot_every_s`.
@@ -621,22 +626,21 @@ impl Stores<'_> {
     }
 }
 
-/// Inserts a transition batch acted with weight version `version` and
-/// records it in the journal; with a reservoir, the demonstrations go
-/// there (each run of consecutive rows of one kind in one insert).
-fn store(stores: Stores<'_>, shapes: Shapes, batch: &[u16], version: u64) -> Result<()> {
+/// Inserts a batch of rows (transitions or sequences, as `rows` says)
+/// acted with weight version `version` and records it in the journal; with
+/// a reservoir, the demonstrations go there (each run of consecutive rows
+/// of one kind in one insert).
+fn store(stores: Stores<'_>, rows: RowLayout, batch: &[u16], version: u64) -> Result<()> {
     let Stores { mem, mut journal, demos } = stores;
     let w = mem.width();
     let Some(demos) = demos else {
         return insert(mem, journal, batch, version);
     };
-    let flag = 2 * shapes.scalars + 4;
-    let is_demo = |r: &[u16]| shapes.packed_scalar(r, flag) == 1.0;
-    let mut rows = batch.chunks_exact(w).enumerate().peekable();
-    while let Some((start, first)) = rows.next() {
-        let demo = is_demo(first);
+    let mut it = batch.chunks_exact(w).enumerate().peekable();
+    while let Some((start, first)) = it.next() {
+        let demo = rows.is_demo(first);
         let mut end = start + 1;
-        while rows.next_if(|(_, r)| is_demo(r) == demo).is_some() {
+        while it.next_if(|(_, r)| rows.is_demo(r) == demo).is_some() {
             end += 1;
         }
         let part = &batch[start * w..end * w];

@@ -227,3 +227,36 @@ fn memory_sends_sequences_and_the_learner_unrolls_them() {
     assert!(actor.weight_version > 1, "the actor never took newer weights");
     assert!(r.episodes > 0);
 }
+
+#[test]
+fn memory_with_a_teacher_keeps_its_demonstration_sequences_and_labels() {
+    // The planner flies the first of the 4 agents and labels half of the
+    // others' steps: the sequences carry both, the flown agent's go to the
+    // demonstrations' reservoir, and the learner trains with the margin.
+    let cfg = config(&[
+        "learner.memory=\"gru:16\"",
+        "learner.sequence_steps=6",
+        "learner.burn_in=2",
+        "replay.batch=4",
+        "teacher.policy=\"planner\"",
+        "teacher.demo_agents=1",
+        "teacher.label_share=0.5",
+        "teacher.demo_batch_share=0.5",
+    ]);
+    let r = run_serial("memory-teacher", &cfg, 30, 60);
+    let (actor, replay) = (r.get(RoleKind::Actor, 0), r.get(RoleKind::Replay, 0));
+    assert_eq!(actor.lost + replay.lost, 0, "lost or corrupt sequences");
+    let (sent, t) = (actor.work, actor.teacher);
+    // A quarter of the trained steps flown (the flown agent's sequences
+    // are whole demonstrations), some of the rest labelled.
+    assert!(
+        t.demo_transitions * 5 >= sent && t.demo_transitions * 3 <= sent,
+        "{} demonstrated of {sent} trained steps",
+        t.demo_transitions
+    );
+    assert!(t.labelled_transitions > 0, "no step labelled: {t:?}");
+    let held = replay.teacher.demo_transitions;
+    assert!(held > 0 && held % 4 == 0, "the reservoir holds {held} steps (whole sequences)");
+    assert!(held <= t.demo_transitions, "{held} held of {} sent", t.demo_transitions);
+    assert!(r.work(RoleKind::Learner) >= 30);
+}

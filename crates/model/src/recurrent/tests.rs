@@ -136,6 +136,7 @@ fn a_cue_needed_later_is_learned_with_memory_and_not_without() {
         target_update: 25,
         huber_delta: 1.0,
         reward_scale: 1.0,
+        margin: 0.8,
     };
     let mut seq = SeqDqn::new(cfg, SHAPES, 16, 1, &dev).unwrap();
     let dqn_cfg = DqnConfig {
@@ -165,6 +166,7 @@ fn a_cue_needed_later_is_learned_with_memory_and_not_without() {
             rewards: &rewards,
             dones: &dones,
             states: &states,
+            experts: &[],
         };
         let loss = seq.update(&batch).unwrap();
         assert!(loss.is_finite());
@@ -226,6 +228,7 @@ fn a_bad_sequence_batch_is_refused_by_name() {
         target_update: 10,
         huber_delta: 1.0,
         reward_scale: 1.0,
+        margin: 0.8,
     };
     let mut seq = SeqDqn::new(cfg, SHAPES, 4, 1, &dev).unwrap();
     let mut rng = Pcg64Mcg::seed_from_u64(1);
@@ -239,6 +242,7 @@ fn a_bad_sequence_batch_is_refused_by_name() {
         rewards: &rews,
         dones: &dones,
         states: &states,
+        experts: &[],
     };
     assert!(seq.update(&good).unwrap().is_finite());
     let bad_action = [0u8, 0, 7, 0, 0];
@@ -268,6 +272,7 @@ fn n_step_targets_stop_at_an_episode_end_and_at_the_sequence_end() {
         target_update: 10,
         huber_delta: 1.0,
         reward_scale: 1.0,
+        margin: 0.8,
     };
     let seq = SeqDqn::new(cfg, SHAPES, 4, 1, &Device::Cpu).unwrap();
     let (rewards, dones) = ([1.0, 2.0, 3.0, 4.0], [false, false, true, false]);
@@ -279,6 +284,7 @@ fn n_step_targets_stop_at_an_episode_end_and_at_the_sequence_end() {
         rewards: &rewards,
         dones: &dones,
         states: &[],
+        experts: &[],
     };
     // Online Q-values from the burn-in's end (observations 1..=4), target
     // ones from the start (0..=4); the online network picks action 1 at
@@ -303,6 +309,7 @@ fn the_fused_trunk_gives_the_generic_gradients() {
         target_update: 10,
         huber_delta: 1.0,
         reward_scale: 0.5,
+        margin: 0.8,
     };
     let (n, t, width) = (3, 7, 8);
     let mut rng = Pcg64Mcg::seed_from_u64(4);
@@ -319,6 +326,7 @@ fn the_fused_trunk_gives_the_generic_gradients() {
         rewards: &rewards,
         dones: &dones,
         states: &states,
+        experts: &[],
     };
     let mut fused = SeqDqn::new(cfg, SHAPES, width, 6, &dev).unwrap();
     let mut generic = SeqDqn::new(cfg, SHAPES, width, 6, &dev).unwrap();
@@ -328,7 +336,42 @@ fn the_fused_trunk_gives_the_generic_gradients() {
     let (lg, gg) = generic.gradients(&batch).unwrap();
     assert!((lf - lg).abs() < 1e-5 * lg.abs().max(1.0), "loss {lf} against {lg}");
     assert_eq!(gf.len(), fused.online.num_params());
-    // Per parameter: the difference's norm against the gradient's.
+    same_gradients(&gf, &gg, width);
+    // DQfD's margin on the steps the teacher labelled (two in three, the
+    // burn-in's too, which must not count): the same on both paths, and it
+    // moves the loss and the gradient.
+    let experts: Vec<f32> =
+        (0..n * t).map(|i| if i % 3 == 2 { NO_EXPERT } else { (i % 2) as f32 }).collect();
+    let labelled = SeqBatch { experts: &experts, ..batch };
+    let (l0, g0) = fused.gradients(&labelled).unwrap();
+    assert_eq!((l0, &g0), (lf, &gf), "labels without a margin weight change nothing");
+    fused.set_margin_weight(0.5);
+    generic.set_margin_weight(0.5);
+    let burn_only: Vec<f32> =
+        (0..n * t).map(|i| if i % t < cfg.burn_in { 1.0 } else { NO_EXPERT }).collect();
+    let burn_labelled = SeqBatch { experts: &burn_only, ..batch };
+    assert_eq!(fused.gradients(&burn_labelled).unwrap().0, lf, "the burn-in is not trained");
+    let (lm, gm) = fused.gradients(&labelled).unwrap();
+    let (lmg, gmg) = generic.gradients(&labelled).unwrap();
+    assert!(lm > lf, "the margin adds to the loss: {lm} against {lf}");
+    assert!((lm - lmg).abs() < 1e-5 * lmg.abs().max(1.0), "loss {lm} against {lmg}");
+    same_gradients(&gm, &gmg, width);
+    assert!(gm.iter().zip(&gf).any(|(a, b)| a != b), "the margin moves the gradient");
+    assert_eq!(fused.gradients(&batch).unwrap().0, lf, "no label, no margin");
+    // And a step of each keeps them together.
+    fused.update(&batch).unwrap();
+    generic.update(&batch).unwrap();
+    let mut state = (vec![0.0; width], vec![0.0; width]);
+    let len = SHAPES.obs_len();
+    let qf = fused.online.step(&obs[..len], &mut state.0).unwrap();
+    let qg = generic.online.step(&obs[..len], &mut state.1).unwrap();
+    assert!(qf.iter().zip(&qg).all(|(a, b)| (a - b).abs() < 1e-4), "{qf:?} {qg:?}");
+}
+
+/// Per parameter of a network of `width`: the fused gradient `gf` within
+/// 1e-3 of the generic one `gg` (the difference's norm against the
+/// gradient's).
+fn same_gradients(gf: &[f32], gg: &[f32], width: usize) {
     let mut off = 0;
     for (name, shape) in recurrent_params(SHAPES, width) {
         let k: usize = shape.iter().product();
@@ -339,14 +382,100 @@ fn the_fused_trunk_gives_the_generic_gradients() {
         assert!(diff <= 1e-3 * norm, "{name}: |fused - generic| {diff} against |generic| {norm}");
         off += k;
     }
-    // And a step of each keeps them together.
-    fused.update(&batch).unwrap();
-    generic.update(&batch).unwrap();
-    let mut state = (vec![0.0; width], vec![0.0; width]);
-    let len = SHAPES.obs_len();
-    let qf = fused.online.step(&obs[..len], &mut state.0).unwrap();
-    let qg = generic.online.step(&obs[..len], &mut state.1).unwrap();
-    assert!(qf.iter().zip(&qg).all(|(a, b)| (a - b).abs() < 1e-4), "{qf:?} {qg:?}");
+}
+
+#[test]
+fn a_learner_fed_only_labelled_sequences_follows_the_labels() {
+    // No reward anywhere: only the margin loss can order the actions. The
+    // label depends on what the observation shows (its first velocity
+    // input's sign), so the network must read it to agree.
+    let dev = Device::Cpu;
+    let cfg = SeqConfig {
+        lr: 3e-3,
+        gamma: 0.9,
+        n_step: 3,
+        burn_in: 2,
+        target_update: 20,
+        huber_delta: 1.0,
+        reward_scale: 1.0,
+        margin: 0.8,
+    };
+    let (n, t, width, len) = (8, 8, 8, SHAPES.obs_len());
+    let vel = SHAPES.obs_depth();
+    let mut seq = SeqDqn::new(cfg, SHAPES, width, 2, &dev).unwrap();
+    seq.set_margin_weight(1.0);
+    let mut rng = Pcg64Mcg::seed_from_u64(5);
+    let label_of = |o: &[f32]| if o[vel] > 0.0 { 1.0 } else { 0.0 };
+    let draw = |rng: &mut Pcg64Mcg| {
+        let mut obs = random_obs(rng, n * (t + 1));
+        for o in obs.chunks_exact_mut(len) {
+            o[vel] = rng.random_range(-1.0..1.0);
+        }
+        let experts: Vec<f32> = (0..n * t)
+            .map(|k| label_of(&obs[((k / t) * (t + 1) + k % t) * len..][..len]))
+            .collect();
+        (obs, experts)
+    };
+    let actions: Vec<u8> = (0..n * t).map(|_| rng.random_range(0..2)).collect();
+    let (rewards, dones, states) = (vec![0.0; n * t], vec![false; n * t], vec![0.0; n * width]);
+    for _ in 0..150 {
+        let (obs, experts) = draw(&mut rng);
+        let b = SeqBatch {
+            sequences: n,
+            steps: t,
+            obs: &obs,
+            actions: &actions,
+            rewards: &rewards,
+            dones: &dones,
+            states: &states,
+            experts: &experts,
+        };
+        assert!(seq.update(&b).unwrap().is_finite());
+    }
+    // Fresh sequences, flown step by step from a zeroed state.
+    let (obs, _) = draw(&mut rng);
+    let (mut agree, mut total) = (0, 0);
+    for s in obs.chunks_exact((t + 1) * len) {
+        let mut h = vec![0.0; width];
+        for o in s.chunks_exact(len) {
+            let a = seq.online.greedy(o, &mut h).unwrap()[0];
+            agree += (a as f32 == label_of(o)) as usize;
+            total += 1;
+        }
+    }
+    let share = agree as f64 / total as f64;
+    assert!(share >= 0.9, "the greedy action agrees with the label on {share} of the steps");
+}
+
+#[test]
+fn a_bad_label_is_refused_by_name() {
+    let cfg = SeqConfig {
+        lr: 1e-3,
+        gamma: 0.9,
+        n_step: 1,
+        burn_in: 0,
+        target_update: 10,
+        huber_delta: 1.0,
+        reward_scale: 1.0,
+        margin: 0.8,
+    };
+    let mut seq = SeqDqn::new(cfg, SHAPES, 4, 1, &Device::Cpu).unwrap();
+    let obs = random_obs(&mut Pcg64Mcg::seed_from_u64(1), 3);
+    let b = SeqBatch {
+        sequences: 1,
+        steps: 2,
+        obs: &obs,
+        actions: &[0, 1],
+        rewards: &[0.0, 1.0],
+        dones: &[false, true],
+        states: &[0.0; 4],
+        experts: &[NO_EXPERT, 1.0],
+    };
+    assert!(seq.update(&b).unwrap().is_finite());
+    let e = seq.update(&SeqBatch { experts: &[0.5, 1.0], ..b }).unwrap_err().to_string();
+    assert!(e.contains("sequence expert action"), "{e}");
+    let e = seq.update(&SeqBatch { experts: &[1.0], ..b }).unwrap_err().to_string();
+    assert!(e.contains("sequence expert actions"), "{e}");
 }
 
 #[test]

@@ -7,7 +7,7 @@
 //! trained steps tile the agent's stream. Sequences cross episode ends
 //! (the done flag tells the learner to zero the state there).
 
-use rotorhive_msg::{SeqLayout, TAIL};
+use rotorhive_msg::{NO_EXPERT, SeqLayout, TAIL};
 
 use super::Taken;
 
@@ -33,6 +33,9 @@ pub struct Sequences {
     pub out: Vec<u16>,
     /// Their agents, in order.
     pub agents: Vec<usize>,
+    /// Their trained steps (the last [`Sequences::period`] of each: they
+    /// tile the stream) flown by the teacher, and the student's labelled.
+    pub taught: (u64, u64),
 }
 
 impl Sequences {
@@ -46,6 +49,7 @@ impl Sequences {
             windows: vec![Window::default(); agents],
             out: Vec::new(),
             agents: Vec::new(),
+            taught: (0, 0),
         }
     }
 
@@ -71,6 +75,7 @@ impl Sequences {
     pub fn push(&mut self, last: Option<(Taken<'_>, &[f32], &[f32])>, obs: &[f32], states: &[f32]) {
         self.out.clear();
         self.agents.clear();
+        self.taught = (0, 0);
         let (len, width) = (self.layout.shapes.obs_len(), self.layout.width);
         let (steps, period) = (self.layout.steps, self.period);
         for (i, w) in self.windows.iter_mut().enumerate() {
@@ -88,6 +93,11 @@ impl Sequences {
             self.out.resize(at + self.layout.packed_len(), 0);
             self.layout.pack(&w.obs, &w.tails, &w.states[..width], &mut self.out[at..]);
             self.agents.push(i);
+            for t in &w.tails[steps - period..] {
+                let demo = t[4] == 1.0;
+                self.taught.0 += demo as u64;
+                self.taught.1 += (!demo && t[3] != NO_EXPERT) as u64;
+            }
             w.obs.drain(..period * len);
             w.states.drain(..period * width);
             w.tails.drain(..period);
@@ -98,7 +108,7 @@ impl Sequences {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use rotorhive_msg::{NO_EXPERT, Shapes, Unpacked};
+    use rotorhive_msg::{Shapes, Unpacked};
 
     #[test]
     fn sequences_carry_their_start_state_and_their_trained_steps_tile() {

@@ -154,9 +154,12 @@ fn memory_is_named_and_sized_and_refused_where_it_does_not_work_yet() {
         (&["learner.memory=\"gru:64\"", "learner.burn_in=22"], "learner.burn_in"),
         (&["learner.memory=\"gru:64\"", "learner.sequence_steps=1"], "learner.sequence_steps"),
         (&["learner.memory=\"gru:64\"", "replay.prioritized=true"], "replay.prioritized"),
-        (&["learner.memory=\"gru:64\"", "teacher.policy=\"planner\""], "[teacher]"),
     ] {
         let e = format!("{:#}", load(sets).unwrap_err());
         assert!(e.contains(needle), "{sets:?}: {e}");
     }
+    // The teacher with memory: its demonstrations' reservoir counts
+    // sequences as the memory does.
+    let taught = load(&["learner.memory=\"gru:64\"", "teacher.policy=\"planner\""]).unwrap();
+    assert!(taught.teacher.demos() && taught.memory() == Some(64));
 }

@@ -344,7 +344,6 @@ impl Config {
         let unsupported = [
             (self.deterministic, "`deterministic`"),
             (self.replay.prioritized, "`replay.prioritized`"),
-            (self.teacher.on(), "a `[teacher]`"),
             (
                 self.cluster.workers > 0 || self.cluster.envs_elsewhere > 0,
                 "worker hosts (`[cluster]`)",

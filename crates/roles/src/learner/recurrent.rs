@@ -2,8 +2,10 @@
 //! update ([`SeqDqn`]) on minibatches of stored sequences, weights published
 //! by version and checkpoints as the feedforward learner's. What it does not
 //! do yet: keep its optimiser's state across a restart (a restarted one goes
-//! on from `checkpoints/latest.safetensors` with fresh Adam moments),
-//! priorities and the teacher's loss (the config refuses both with memory).
+//! on from `checkpoints/latest.safetensors` with fresh Adam moments) and
+//! priorities (the config refuses them with memory). With a teacher, DQfD's
+//! margin loss on the labelled steps, weighted and faded as the
+//! feedforward learner's.
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -31,6 +33,7 @@ pub fn seq_config(cfg: &Config) -> SeqConfig {
         target_update: l.target_update,
         huber_delta: l.huber_delta as f32,
         reward_scale: l.reward_scale as f32,
+        margin: cfg.teacher.margin as f32,
     }
 }
 
@@ -75,6 +78,9 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, width: usize, layout: SeqLayout) -> Resul
         let mb = *msg.user_header();
         unpack(layout, msg.payload(), mb.batch as usize, &mut batch)?;
         drop(msg);
+        if let Some(w) = super::margin_weight(cfg, &mb) {
+            dqn.set_margin_weight(w);
+        }
         let t = Instant::now();
         let loss = dqn.update(&SeqBatch {
             sequences: mb.batch as usize,
@@ -84,6 +90,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, width: usize, layout: SeqLayout) -> Resul
             rewards: &batch.rewards,
             dones: &batch.dones,
             states: &batch.states,
+            experts: &batch.experts,
         })?;
         tel.sample.add_stage(LearnerStage::Forward, t.elapsed().as_nanos() as u64);
         tel.sample.work = dqn.updates();

@@ -5,7 +5,7 @@
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
-use rotorhive_msg::{ReplayStage, RowLayout, SeqTracker, Shapes, TransitionHeader};
+use rotorhive_msg::{ReplayStage, RowLayout, SeqTracker, TransitionHeader};
 use rotorhive_replay::Acted;
 use rotorhive_transport::Service;
 
@@ -65,8 +65,7 @@ impl<S: Service> Memory<'_, S> {
                     busy = true;
                 }
             } else if !owed && rounds < schedule.rounds() && pending.iter().all(|q| !q.is_empty()) {
-                let shapes = cfg.shapes();
-                insert_round(&mut pending, shapes, self.stores())?;
+                insert_round(&mut pending, cfg.rows(), self.stores())?;
                 rounds += 1;
                 busy = true;
             }
@@ -121,12 +120,12 @@ impl<S: Service> Memory<'_, S> {
 /// pending batch, in environment order.
 fn insert_round(
     pending: &mut [VecDeque<(u64, Vec<u16>)>],
-    shapes: Shapes,
+    rows: RowLayout,
     mut stores: Stores<'_>,
 ) -> Result<()> {
     for q in pending {
         let (version, batch) = q.pop_front().unwrap_or_default();
-        store(stores.reborrow(), shapes, &batch, version)?;
+        store(stores.reborrow(), rows, &batch, version)?;
     }
     Ok(())
 }

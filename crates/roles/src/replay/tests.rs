@@ -1,46 +1,74 @@
 use super::{Demos, SampleLimit, SeqLog, Stores, sample, store};
-use rotorhive_msg::{NO_EXPERT, PICK_WORDS, Shapes, TransitionHeader};
+use rotorhive_msg::{NO_EXPERT, PICK_WORDS, RowLayout, SeqLayout, Shapes, TAIL, TransitionHeader};
 use rotorhive_replay::{Journal, Pick, Replay};
 
-/// Packed transitions whose reward is their number, each a
-/// demonstration (expert 1, flag 1) where `demo(i)`, else the student's.
-fn rows(from: u32, n: u32, demo: impl Fn(u32) -> bool) -> Vec<u16> {
-    let shapes = Shapes::PAPER;
+/// Packed rows of `layout` whose (last step's) reward is their number, each
+/// a demonstration (expert 1, flag 1 at every step) where `demo(i)`, else
+/// the student's.
+fn rows(layout: RowLayout, from: u32, n: u32, demo: impl Fn(u32) -> bool) -> Vec<u16> {
+    let shapes = layout.shapes();
     let obs = vec![0.5f32; shapes.obs_len()];
-    let mut out = vec![0u16; n as usize * shapes.packed_len()];
-    for (k, t) in out.chunks_exact_mut(shapes.packed_len()).enumerate() {
+    let mut out = vec![0u16; n as usize * layout.packed_len()];
+    for (k, r) in out.chunks_exact_mut(layout.packed_len()).enumerate() {
         let i = from + k as u32;
         let tail = if demo(i) {
             [1.0, i as f32, 0.0, 1.0, 1.0]
         } else {
             [0.0, i as f32, 0.0, NO_EXPERT, 0.0]
         };
-        shapes.pack(&obs, &obs, tail, t);
+        match layout {
+            RowLayout::Transition(_) => shapes.pack(&obs, &obs, tail, r),
+            RowLayout::Sequence(l) => {
+                let all = obs.repeat(l.observations());
+                l.pack(&all, &vec![tail; l.steps], &vec![0.25; l.width], r)
+            }
+        }
     }
     out
 }
 
+/// A row's (last step's) reward.
+fn reward(layout: RowLayout, r: &[u16]) -> f32 {
+    match layout {
+        RowLayout::Transition(s) => s.packed_scalar(r, 2 * s.scalars + 1),
+        RowLayout::Sequence(l) => {
+            let mut v = Vec::new();
+            l.values(r, &mut v);
+            v[l.observations() * l.shapes.scalars + (l.steps - 1) * TAIL + 1]
+        }
+    }
+}
+
 #[test]
 fn demonstrations_survive_a_full_replay_and_fill_their_share_of_a_batch() {
-    let shapes = Shapes::PAPER;
-    let w = shapes.packed_len();
-    let dir = std::env::temp_dir().join(format!("rotorhive-demos-{}", std::process::id()));
+    let seq = SeqLayout { shapes: Shapes::PAPER, steps: 4, width: 3 };
+    for layout in [RowLayout::Transition(Shapes::PAPER), RowLayout::Sequence(seq)] {
+        demonstrations_survive(layout);
+    }
+}
+
+/// Transitions or sequences (`layout`): the demonstrations in their
+/// reservoir outlive twenty fills of the memory, fill their rows of a
+/// minibatch, and come back from their journal.
+fn demonstrations_survive(layout: RowLayout) {
+    let w = layout.packed_len();
+    let dir = std::env::temp_dir().join(format!("rotorhive-demos-{}-{w}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let (mut mem, mut journal) = Journal::open(&dir.join("replay.bin"), 50, w, 1).unwrap();
     let path = dir.join("replay-demo.bin");
     let (dm, dj) = Journal::open(&path, 20, w, 2).unwrap();
     let mut demos = Demos { mem: dm, journal: Some(dj) };
     // Mixed batches: every fifth row a demonstration, 12 of them.
-    let mixed = rows(0, 60, |i| i % 5 == 0);
+    let mixed = rows(layout, 0, 60, |i| i % 5 == 0);
     fn stores<'a>(mem: &'a mut Replay, j: &'a mut Journal, d: &'a mut Demos) -> Stores<'a> {
         Stores { mem, journal: Some(j), demos: Some(d) }
     }
-    store(stores(&mut mem, &mut journal, &mut demos), shapes, &mixed, 3).unwrap();
+    store(stores(&mut mem, &mut journal, &mut demos), layout, &mixed, 3).unwrap();
     assert_eq!((mem.len(), demos.mem.len()), (48, 12));
     // Then the student's rows alone, twenty times the memory's size.
     for k in 0..20 {
-        let own = rows(1000 + 50 * k, 50, |_| false);
-        store(stores(&mut mem, &mut journal, &mut demos), shapes, &own, 4).unwrap();
+        let own = rows(layout, 1000 + 50 * k, 50, |_| false);
+        store(stores(&mut mem, &mut journal, &mut demos), layout, &own, 4).unwrap();
     }
     assert_eq!((mem.len(), demos.mem.len()), (50, 12), "the demonstrations are all there");
     // A minibatch of 8 with 3 demonstration rows: those first, drawn
@@ -48,13 +76,12 @@ fn demonstrations_survive_a_full_replay_and_fill_their_share_of_a_batch() {
     let mut out = vec![0u16; 8 * (w + PICK_WORDS)];
     let mut picks = vec![Pick::default(); 8];
     sample(&mut mem, Some(&mut demos.mem), 3, &mut out, &mut picks, 0.4);
-    let flag = |r: &[u16]| shapes.packed_scalar(r, 2 * shapes.scalars + 4);
-    let reward = |r: &[u16]| shapes.packed_scalar(r, 2 * shapes.scalars + 1);
     for (k, r) in out[..8 * w].chunks_exact(w).enumerate() {
+        let (demo, reward) = (layout.is_demo(r), reward(layout, r));
         if k < 3 {
-            assert!(flag(r) == 1.0 && reward(r) < 60.0 && (reward(r) as u32).is_multiple_of(5));
+            assert!(demo && reward < 60.0 && (reward as u32).is_multiple_of(5), "row {k}");
         } else {
-            assert!(flag(r) == 0.0 && reward(r) >= 1950.0, "row {k}: {}", reward(r));
+            assert!(!demo && reward >= 1950.0, "row {k}: {reward}");
         }
     }
     // And a replay started again has them from their journal.
