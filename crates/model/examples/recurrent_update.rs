@@ -36,6 +36,7 @@ fn main() {
         dones: &dones,
         states: &states,
         experts: &[],
+        weights: &[],
     };
     for fused in [true, false] {
         let mut d = SeqDqn::new(cfg, s, w, 1, &Device::Cpu).unwrap();

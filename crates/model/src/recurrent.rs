@@ -381,6 +381,9 @@ pub struct SeqBatch<'a> {
     /// The teacher's action at each step ([`NO_EXPERT`]: none),
     /// `[sequences][steps]`; empty: no step labelled.
     pub experts: &'a [f32],
+    /// Each sequence's importance weight (prioritized replay),
+    /// `[sequences]`; empty: all 1.
+    pub weights: &'a [f32],
 }
 
 impl SeqBatch<'_> {
@@ -424,6 +427,13 @@ impl SeqBatch<'_> {
                 got: self.experts.len(),
             });
         }
+        if !self.weights.is_empty() && self.weights.len() != n {
+            return Err(ModelError::Shape {
+                what: "sequence importance weights",
+                expected: n,
+                got: self.weights.len(),
+            });
+        }
         let one_of = |e: f32| e >= 0.0 && e < shapes.actions as f32 && e.fract() == 0.0;
         if let Some(&e) = self.experts.iter().find(|&&e| !(e == NO_EXPERT || one_of(e))) {
             return Err(ModelError::Shape {
@@ -433,7 +443,8 @@ impl SeqBatch<'_> {
             });
         }
         let finite = |v: &[f32]| v.iter().all(|x| x.is_finite());
-        if !(finite(self.obs) && finite(self.rewards) && finite(self.states)) {
+        let weights_ok = finite(self.weights) && self.weights.iter().all(|w| *w >= 0.0);
+        if !(finite(self.obs) && finite(self.rewards) && finite(self.states) && weights_ok) {
             return Err(ModelError::Shape {
                 what: "sequence values (finite)",
                 expected: 0,
@@ -481,6 +492,9 @@ pub struct SeqDqn {
     work: Workspace,
     /// Weight of the large-margin loss now (0: none).
     margin_weight: f32,
+    /// The last update's priority of each sequence (R2D2's mix of its
+    /// trained steps' largest and mean |TD error|).
+    priorities: Vec<f32>,
 }
 
 impl SeqDqn {
@@ -498,7 +512,8 @@ impl SeqDqn {
         let sizes = recurrent_params(shapes, width);
         let sizes = sizes.iter().map(|(_, s)| s.iter().product::<usize>());
         let opt = Adam::with_sizes((cfg.lr, cfg.lr, 0), sizes);
-        Ok(Self { online, target, cfg, opt, work: Workspace::default(), margin_weight: 0.0 })
+        let work = Workspace::default();
+        Ok(Self { online, target, cfg, opt, work, margin_weight: 0.0, priorities: Vec::new() })
     }
 
     /// Weight of DQfD's large-margin loss `max_a [Q(s,a) + l(a_E,a)] −
@@ -518,6 +533,13 @@ impl SeqDqn {
     /// Updates made.
     pub fn updates(&self) -> u64 {
         self.opt.t
+    }
+
+    /// The last update's priority of each of its sequences: `ETA` times
+    /// the largest |TD error| of its trained steps plus `1 − ETA` times
+    /// their mean (R2D2, η = 0.9).
+    pub fn priorities(&self) -> &[f32] {
+        &self.priorities
     }
 
     /// Loads both networks' weights from a checkpoint (a restarted learner's
@@ -586,7 +608,14 @@ impl SeqDqn {
         let onehot = Tensor::from_vec(onehot, (trained, n, shapes.actions), &dev)?;
         let taken = (q.narrow(0, 0, trained)? * onehot)?.sum(D::Minus1)?;
         let y = Tensor::from_vec(y, (trained, n), &dev)?;
-        let mut loss = huber(&(taken - y)?, self.cfg.huber_delta)?;
+        let err = (taken - y)?;
+        self.priorities = sequence_priorities(&err.abs()?.to_vec2::<f32>()?, n);
+        let mut loss = if batch.weights.is_empty() {
+            huber(&err, self.cfg.huber_delta)?
+        } else {
+            let w = Tensor::from_slice(batch.weights, (1, n), &dev)?;
+            huber_weighted(&err, &w, self.cfg.huber_delta)?
+        };
         if let Some(margin) = self.margin_loss(batch, &q.narrow(0, 0, trained)?)? {
             loss = (loss + margin)?;
         }
@@ -719,13 +748,37 @@ fn step_major(b: &SeqBatch, len: usize) -> (Vec<f32>, Vec<f32>) {
     (obs, keep)
 }
 
-/// The mean Huber loss of the errors `d` with threshold `delta`.
-fn huber(d: &Tensor, delta: f32) -> Result<Tensor> {
+/// R2D2's mix of a sequence's largest and mean |TD error|.
+pub const ETA: f32 = 0.9;
+
+/// Each of `n` sequences' priority from its trained steps' |TD errors|
+/// `abs` (`[trained][sequences]`).
+fn sequence_priorities(abs: &[Vec<f32>], n: usize) -> Vec<f32> {
+    (0..n)
+        .map(|i| {
+            let (max, sum) = abs.iter().fold((0.0f32, 0.0f32), |(m, s), r| (m.max(r[i]), s + r[i]));
+            ETA * max + (1.0 - ETA) * sum / abs.len().max(1) as f32
+        })
+        .collect()
+}
+
+/// Each Huber loss of the errors `d` with threshold `delta`.
+fn huber_each(d: &Tensor, delta: f32) -> Result<Tensor> {
     let a = d.abs()?;
     let quad = a.minimum(delta)?;
     let lin = (a - &quad)?;
-    let per = ((quad.sqr()? * 0.5)? + (lin * delta as f64)?)?;
-    Ok(per.mean_all()?)
+    Ok(((quad.sqr()? * 0.5)? + (lin * delta as f64)?)?)
+}
+
+/// The mean Huber loss of the errors `d` with threshold `delta`.
+fn huber(d: &Tensor, delta: f32) -> Result<Tensor> {
+    Ok(huber_each(d, delta)?.mean_all()?)
+}
+
+/// The mean Huber loss of the errors `d` (`[trained][sequences]`), each
+/// sequence's weighted by `w` (`[1][sequences]`).
+fn huber_weighted(d: &Tensor, w: &Tensor, delta: f32) -> Result<Tensor> {
+    Ok(huber_each(d, delta)?.broadcast_mul(w)?.mean_all()?)
 }
 
 #[cfg(test)]

@@ -167,6 +167,7 @@ fn a_cue_needed_later_is_learned_with_memory_and_not_without() {
             dones: &dones,
             states: &states,
             experts: &[],
+            weights: &[],
         };
         let loss = seq.update(&batch).unwrap();
         assert!(loss.is_finite());
@@ -243,6 +244,7 @@ fn a_bad_sequence_batch_is_refused_by_name() {
         dones: &dones,
         states: &states,
         experts: &[],
+        weights: &[],
     };
     assert!(seq.update(&good).unwrap().is_finite());
     let bad_action = [0u8, 0, 7, 0, 0];
@@ -285,6 +287,7 @@ fn n_step_targets_stop_at_an_episode_end_and_at_the_sequence_end() {
         dones: &dones,
         states: &[],
         experts: &[],
+        weights: &[],
     };
     // Online Q-values from the burn-in's end (observations 1..=4), target
     // ones from the start (0..=4); the online network picks action 1 at
@@ -327,6 +330,7 @@ fn the_fused_trunk_gives_the_generic_gradients() {
         dones: &dones,
         states: &states,
         experts: &[],
+        weights: &[],
     };
     let mut fused = SeqDqn::new(cfg, SHAPES, width, 6, &dev).unwrap();
     let mut generic = SeqDqn::new(cfg, SHAPES, width, 6, &dev).unwrap();
@@ -358,6 +362,30 @@ fn the_fused_trunk_gives_the_generic_gradients() {
     same_gradients(&gm, &gmg, width);
     assert!(gm.iter().zip(&gf).any(|(a, b)| a != b), "the margin moves the gradient");
     assert_eq!(fused.gradients(&batch).unwrap().0, lf, "no label, no margin");
+    // Prioritized replay's importance weights: ones change nothing, a
+    // scale scales the TD loss, and both paths agree on uneven ones.
+    fused.set_margin_weight(0.0);
+    generic.set_margin_weight(0.0);
+    let ones = SeqBatch { weights: &[1.0; 3], ..batch };
+    assert!((fused.gradients(&ones).unwrap().0 - lf).abs() <= 1e-6 * lf.abs().max(1.0));
+    let twice = SeqBatch { weights: &[2.0; 3], ..batch };
+    let l2 = fused.gradients(&twice).unwrap().0;
+    assert!((l2 - 2.0 * lf).abs() <= 1e-5 * lf.abs().max(1.0), "{l2} against 2 x {lf}");
+    let uneven = SeqBatch { weights: &[0.5, 1.5, 0.0], ..batch };
+    let (lw, gw) = fused.gradients(&uneven).unwrap();
+    let (lwg, gwg) = generic.gradients(&uneven).unwrap();
+    assert!((lw - lwg).abs() < 1e-5 * lwg.abs().max(1.0), "loss {lw} against {lwg}");
+    same_gradients(&gw, &gwg, width);
+    // Each sequence's priority: R2D2's mix of its largest and mean |TD|.
+    let p = fused.priorities().to_vec();
+    assert_eq!(p.len(), n);
+    assert!(p.iter().all(|x| x.is_finite() && *x > 0.0), "{p:?}");
+    let close = p.iter().zip(generic.priorities()).all(|(a, b)| (a - b).abs() < 1e-4);
+    assert!(close, "{p:?} against {:?}", generic.priorities());
+    let bad = SeqBatch { weights: &[1.0, f32::NAN, 1.0], ..batch };
+    assert!(fused.gradients(&bad).unwrap_err().to_string().contains("finite"));
+    let short = SeqBatch { weights: &[1.0], ..batch };
+    assert!(fused.gradients(&short).unwrap_err().to_string().contains("importance weights"));
     // And a step of each keeps them together.
     fused.update(&batch).unwrap();
     generic.update(&batch).unwrap();
@@ -382,6 +410,15 @@ fn same_gradients(gf: &[f32], gg: &[f32], width: usize) {
         assert!(diff <= 1e-3 * norm, "{name}: |fused - generic| {diff} against |generic| {norm}");
         off += k;
     }
+}
+
+#[test]
+fn a_sequences_priority_mixes_its_largest_and_mean_td_error() {
+    // Two sequences of three trained steps, step major.
+    let abs = vec![vec![1.0, 0.0], vec![4.0, 0.0], vec![1.0, 2.0]];
+    let p = sequence_priorities(&abs, 2);
+    assert!((p[0] - (0.9 * 4.0 + 0.1 * 2.0)).abs() < 1e-6, "{p:?}");
+    assert!((p[1] - (0.9 * 2.0 + 0.1 * 2.0 / 3.0)).abs() < 1e-6, "{p:?}");
 }
 
 #[test]
@@ -429,6 +466,7 @@ fn a_learner_fed_only_labelled_sequences_follows_the_labels() {
             dones: &dones,
             states: &states,
             experts: &experts,
+            weights: &[],
         };
         assert!(seq.update(&b).unwrap().is_finite());
     }
@@ -470,6 +508,7 @@ fn a_bad_label_is_refused_by_name() {
         dones: &[false, true],
         states: &[0.0; 4],
         experts: &[NO_EXPERT, 1.0],
+        weights: &[],
     };
     assert!(seq.update(&b).unwrap().is_finite());
     let e = seq.update(&SeqBatch { experts: &[0.5, 1.0], ..b }).unwrap_err().to_string();

@@ -153,7 +153,6 @@ fn memory_is_named_and_sized_and_refused_where_it_does_not_work_yet() {
         (&["learner.memory=\"gru:0\""], "learner.memory"),
         (&["learner.memory=\"gru:64\"", "learner.burn_in=22"], "learner.burn_in"),
         (&["learner.memory=\"gru:64\"", "learner.sequence_steps=1"], "learner.sequence_steps"),
-        (&["learner.memory=\"gru:64\"", "replay.prioritized=true"], "replay.prioritized"),
     ] {
         let e = format!("{:#}", load(sets).unwrap_err());
         assert!(e.contains(needle), "{sets:?}: {e}");

@@ -343,7 +343,6 @@ impl Config {
         }
         let unsupported = [
             (self.deterministic, "`deterministic`"),
-            (self.replay.prioritized, "`replay.prioritized`"),
             (
                 self.cluster.workers > 0 || self.cluster.envs_elsewhere > 0,
                 "worker hosts (`[cluster]`)",

@@ -2,8 +2,10 @@
 //! update ([`SeqDqn`]) on minibatches of stored sequences, weights published
 //! by version and checkpoints as the feedforward learner's. What it does not
 //! do yet: keep its optimiser's state across a restart (a restarted one goes
-//! on from `checkpoints/latest.safetensors` with fresh Adam moments) and
-//! priorities (the config refuses them with memory). With a teacher, DQfD's
+//! on from `checkpoints/latest.safetensors` with fresh Adam moments). Under
+//! prioritized replay each sequence's priority goes back as R2D2's (η = 0.9
+//! of its largest |TD error| and the rest of their mean), its importance
+//! weight scaling its loss. With a teacher, DQfD's
 //! margin loss on the labelled steps, weighted and faded as the
 //! feedforward learner's.
 
@@ -12,7 +14,7 @@ use std::time::{Duration, Instant};
 
 use rotorhive_model::{RecurrentQNet, SeqBatch, SeqConfig, SeqDqn};
 use rotorhive_msg::{
-    LearnerStage, MinibatchHeader, PICK_WORDS, RoleKind, SeqLayout, Telemetry, Unpacked,
+    LearnerStage, MinibatchHeader, PICK_WORDS, Pick, RoleKind, SeqLayout, Telemetry, Unpacked,
     WeightsHeader,
 };
 use rotorhive_transport::{Channel, Service};
@@ -66,6 +68,9 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, width: usize, layout: SeqLayout) -> Resul
     let mut last_ckpt = Instant::now();
     let mut gauges = Gauges::default();
     let mut batch = Unpacked::default();
+    // Its picks and, under prioritized replay, the priorities' channel
+    // (its float batch stays empty: the sequences unpack into `batch`).
+    let mut prio = super::Minibatch::new(hub, cfg)?;
     let tags = cfg.checkpoint_tags();
     while !hub.shutdown_requested() {
         let t = Instant::now();
@@ -76,8 +81,12 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, width: usize, layout: SeqLayout) -> Resul
         }
         let Some(msg) = msg else { continue };
         let mb = *msg.user_header();
-        unpack(layout, msg.payload(), mb.batch as usize, &mut batch)?;
+        unpack(layout, msg.payload(), mb.batch as usize, &mut batch, &mut prio.picks)?;
         drop(msg);
+        prio.weights.clear();
+        if prio.prio_tx.is_some() {
+            prio.weights.extend(prio.picks.iter().map(|p| p.value));
+        }
         if let Some(w) = super::margin_weight(cfg, &mb) {
             dqn.set_margin_weight(w);
         }
@@ -91,7 +100,12 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, width: usize, layout: SeqLayout) -> Resul
             dones: &batch.dones,
             states: &batch.states,
             experts: &batch.experts,
+            weights: &prio.weights,
         })?;
+        if let Some(tx) = &mut prio.prio_tx {
+            let lost = &mut tel.sample.lost;
+            super::send_priorities(tx, &mut prio.picks, dqn.priorities(), mb.seq, false, lost)?;
+        }
         tel.sample.add_stage(LearnerStage::Forward, t.elapsed().as_nanos() as u64);
         tel.sample.work = dqn.updates();
         gauges.add(loss, &mb, version, &mut tel.sample);
@@ -111,9 +125,15 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, width: usize, layout: SeqLayout) -> Resul
     Ok(())
 }
 
-/// A minibatch of `rows` packed sequences (and their picks, unused here)
-/// into `out`; a message of another size is refused.
-fn unpack(layout: SeqLayout, packed: &[u16], rows: usize, out: &mut Unpacked) -> Result<()> {
+/// A minibatch of `rows` packed sequences into `out` and their picks into
+/// `picks`; a message of another size is refused.
+fn unpack(
+    layout: SeqLayout,
+    packed: &[u16],
+    rows: usize,
+    out: &mut Unpacked,
+    picks: &mut Vec<Pick>,
+) -> Result<()> {
     let pl = layout.packed_len();
     if rows == 0 || packed.len() != rows * (pl + PICK_WORDS) {
         protocol_err!(
@@ -123,9 +143,12 @@ fn unpack(layout: SeqLayout, packed: &[u16], rows: usize, out: &mut Unpacked) ->
         );
     }
     out.clear();
-    for row in packed[..rows * pl].chunks_exact(pl) {
+    let (data, tail) = packed.split_at(rows * pl);
+    for row in data.chunks_exact(pl) {
         layout.unpack_into(row, out);
     }
+    picks.clear();
+    picks.extend(tail.chunks_exact(PICK_WORDS).map(Pick::unpack));
     Ok(())
 }
 
