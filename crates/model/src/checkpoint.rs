@@ -7,6 +7,7 @@ use std::path::Path;
 
 use candle_core::{DType, Device, Tensor, Var};
 
+use crate::dqn::Adam;
 use crate::{ModelError, Result, SIDE, Shapes};
 
 /// The checkpoint layout this build writes and reads: the tensors' names
@@ -224,4 +225,99 @@ pub(crate) fn load_vars(
         v.set(&t.to_dtype(DType::F32)?.to_device(device)?)?;
     }
     Ok(())
+}
+
+/// A learner's whole state as read back by [`read_state`]: both networks'
+/// tensors by name, Adam's moments (one vector per parameter, in order) and
+/// step, and the learner's update count.
+pub(crate) struct LearnerState {
+    pub online: HashMap<String, Tensor>,
+    pub target: HashMap<String, Tensor>,
+    pub m: Vec<Vec<f32>>,
+    pub v: Vec<Vec<f32>>,
+    pub t: u64,
+    pub updates: u64,
+}
+
+/// Saves a learner's whole state (the networks `online` and `target` of
+/// `specs`' names and shapes, Adam's moments and step, the update count)
+/// as one safetensors file, atomically.
+pub(crate) fn save_state(
+    path: &Path,
+    specs: &[(&'static str, Vec<usize>)],
+    (online, target): (&[Var], &[Var]),
+    opt: &Adam,
+    updates: u64,
+) -> Result<()> {
+    let dev = Device::Cpu;
+    let mut map: HashMap<String, Tensor> = HashMap::new();
+    let moments = opt.m.iter().zip(&opt.v);
+    for ((name, shape), ((o, t), (m, v))) in
+        specs.iter().zip(online.iter().zip(target).zip(moments))
+    {
+        map.insert(format!("online.{name}"), o.as_tensor().to_device(&dev)?);
+        map.insert(format!("target.{name}"), t.as_tensor().to_device(&dev)?);
+        map.insert(format!("adam_m.{name}"), Tensor::from_slice(m, shape.as_slice(), &dev)?);
+        map.insert(format!("adam_v.{name}"), Tensor::from_slice(v, shape.as_slice(), &dev)?);
+    }
+    map.insert("adam_t".into(), Tensor::new(&[opt.t as i64], &dev)?);
+    map.insert("updates".into(), Tensor::new(&[updates as i64], &dev)?);
+    let bad = |e: std::io::Error| ModelError::Checkpoint {
+        file: path.display().to_string(),
+        message: format!("cannot write: {e}"),
+    };
+    rotorhive_msg::durable::atomic_write(
+        path,
+        |tmp| Ok(candle_core::safetensors::save(&map, tmp)?),
+        bad,
+    )
+}
+
+/// Reads a state written by [`save_state`] for a network of `specs`,
+/// checking the counters and every moment's name and shape (the networks'
+/// tensors are checked as they are loaded).
+pub(crate) fn read_state(
+    path: &Path,
+    specs: &[(&'static str, Vec<usize>)],
+) -> Result<LearnerState> {
+    let file = path.display().to_string();
+    let bad = |message: String| ModelError::Checkpoint { file: file.clone(), message };
+    let bytes = std::fs::read(path).map_err(|e| bad(format!("cannot read: {e}")))?;
+    let map = candle_core::safetensors::load_buffer(&bytes, &Device::Cpu)
+        .map_err(|e| bad(format!("not a valid safetensors file: {e}")))?;
+    let sub = |prefix: &str| -> HashMap<String, Tensor> {
+        map.iter()
+            .filter_map(|(k, v)| k.strip_prefix(prefix).map(|n| (n.to_string(), v.clone())))
+            .collect()
+    };
+    let counter = |name: &str| -> Result<u64> {
+        let t = map.get(name).ok_or_else(|| bad(format!("tensor `{name}` is missing")))?;
+        let v = t.to_dtype(DType::I64)?.flatten_all()?.to_vec1::<i64>()?;
+        match v.as_slice() {
+            [x] if *x >= 0 => Ok(*x as u64),
+            _ => Err(bad(format!("tensor `{name}` is not one non-negative count"))),
+        }
+    };
+    let (t, updates) = (counter("adam_t")?, counter("updates")?);
+    let mut moments = Vec::new();
+    for prefix in ["adam_m.", "adam_v."] {
+        let part = sub(prefix);
+        let mut vecs = Vec::new();
+        for (name, shape) in specs {
+            let x = part
+                .get(*name)
+                .ok_or_else(|| bad(format!("tensor `{prefix}{name}` is missing")))?;
+            if x.dims() != shape.as_slice() {
+                return Err(bad(format!(
+                    "tensor `{prefix}{name}` has shape {:?}, the network needs {shape:?}",
+                    x.dims()
+                )));
+            }
+            vecs.push(x.to_dtype(DType::F32)?.flatten_all()?.to_vec1::<f32>()?);
+        }
+        moments.push(vecs);
+    }
+    let v = moments.pop().unwrap_or_default();
+    let m = moments.pop().unwrap_or_default();
+    Ok(LearnerState { online: sub("online."), target: sub("target."), m, v, t, updates })
 }

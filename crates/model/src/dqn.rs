@@ -2,13 +2,13 @@
 //! with the whole learner state (weights, optimiser moments, counters)
 //! saved and restored as one safetensors file.
 
-use std::collections::HashMap;
 use std::path::Path;
 use std::sync::Mutex;
 use std::time::Instant;
 
-use candle_core::{D, DType, Tensor};
+use candle_core::{D, Tensor};
 
+use crate::checkpoint;
 use crate::kernels::{Rows, Workspace, poisoned};
 use crate::ops::{AdamHyper, AdamStep, adam};
 use crate::{ModelError, QNet, Result, Shapes, argmax, params};
@@ -97,8 +97,8 @@ pub(crate) struct Adam {
     lr_final: f32,
     decay: u64,
     pub(crate) t: u64,
-    m: Vec<Vec<f32>>,
-    v: Vec<Vec<f32>>,
+    pub(crate) m: Vec<Vec<f32>>,
+    pub(crate) v: Vec<Vec<f32>>,
 }
 
 impl Adam {
@@ -628,78 +628,18 @@ impl Dqn {
     /// Saves the whole learner state (both networks, Adam's moments and step,
     /// the update count) as one safetensors file, atomically.
     pub fn save_state(&self, path: &Path) -> Result<()> {
-        let dev = candle_core::Device::Cpu;
-        let mut map: HashMap<String, Tensor> = HashMap::new();
-        for ((name, shape), ((o, t), (m, v))) in params(self.online.shapes()).iter().zip(
-            self.online
-                .vars()
-                .iter()
-                .zip(self.target.vars())
-                .zip(self.opt.m.iter().zip(&self.opt.v)),
-        ) {
-            map.insert(format!("online.{name}"), o.as_tensor().to_device(&dev)?);
-            map.insert(format!("target.{name}"), t.as_tensor().to_device(&dev)?);
-            map.insert(format!("adam_m.{name}"), Tensor::from_slice(m, shape.as_slice(), &dev)?);
-            map.insert(format!("adam_v.{name}"), Tensor::from_slice(v, shape.as_slice(), &dev)?);
-        }
-        map.insert("adam_t".into(), Tensor::new(&[self.opt.t as i64], &dev)?);
-        map.insert("updates".into(), Tensor::new(&[self.updates as i64], &dev)?);
-        let bad = |e: std::io::Error| ModelError::Checkpoint {
-            file: path.display().to_string(),
-            message: format!("cannot write: {e}"),
-        };
-        rotorhive_msg::durable::atomic_write(
-            path,
-            |tmp| Ok(candle_core::safetensors::save(&map, tmp)?),
-            bad,
-        )
+        let nets = (self.online.vars(), self.target.vars());
+        checkpoint::save_state(path, &params(self.online.shapes()), nets, &self.opt, self.updates)
     }
 
     /// Restores a state written by [`Dqn::save_state`], checking every tensor.
     pub fn load_state(&mut self, path: &Path) -> Result<()> {
+        let st = checkpoint::read_state(path, &params(self.online.shapes()))?;
         let file = path.display().to_string();
-        let bad = |message: String| ModelError::Checkpoint { file: file.clone(), message };
-        let bytes = std::fs::read(path).map_err(|e| bad(format!("cannot read: {e}")))?;
-        let map = candle_core::safetensors::load_buffer(&bytes, &candle_core::Device::Cpu)
-            .map_err(|e| bad(format!("not a valid safetensors file: {e}")))?;
-        let sub = |prefix: &str| -> HashMap<String, Tensor> {
-            map.iter()
-                .filter_map(|(k, v)| k.strip_prefix(prefix).map(|n| (n.to_string(), v.clone())))
-                .collect()
-        };
-        let counter = |name: &str| -> Result<u64> {
-            let t = map.get(name).ok_or_else(|| bad(format!("tensor `{name}` is missing")))?;
-            let v = t.to_dtype(DType::I64)?.flatten_all()?.to_vec1::<i64>()?;
-            match v.as_slice() {
-                [x] if *x >= 0 => Ok(*x as u64),
-                _ => Err(bad(format!("tensor `{name}` is not one non-negative count"))),
-            }
-        };
-        let (t, updates) = (counter("adam_t")?, counter("updates")?);
-        let mut moments = Vec::new();
-        for prefix in ["adam_m.", "adam_v."] {
-            let part = sub(prefix);
-            let mut vecs = Vec::new();
-            for (name, shape) in params(self.online.shapes()) {
-                let x = part
-                    .get(name)
-                    .ok_or_else(|| bad(format!("tensor `{prefix}{name}` is missing")))?;
-                if x.dims() != shape {
-                    return Err(bad(format!(
-                        "tensor `{prefix}{name}` has shape {:?}, the network needs {shape:?}",
-                        x.dims()
-                    )));
-                }
-                vecs.push(x.to_dtype(DType::F32)?.flatten_all()?.to_vec1::<f32>()?);
-            }
-            moments.push(vecs);
-        }
-        self.online.load_named(&sub("online."), &file)?;
-        self.target.load_named(&sub("target."), &file)?;
-        self.opt.v = moments.pop().unwrap_or_default();
-        self.opt.m = moments.pop().unwrap_or_default();
-        self.opt.t = t;
-        self.updates = updates;
+        self.online.load_named(&st.online, &file)?;
+        self.target.load_named(&st.target, &file)?;
+        (self.opt.m, self.opt.v, self.opt.t) = (st.m, st.v, st.t);
+        self.updates = st.updates;
         Ok(())
     }
 }

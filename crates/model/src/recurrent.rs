@@ -543,10 +543,31 @@ impl SeqDqn {
     }
 
     /// Loads both networks' weights from a checkpoint (a restarted learner's
-    /// latest); the optimiser starts afresh.
+    /// latest, where no state was saved); the optimiser starts afresh.
     pub fn restore(&mut self, path: &Path) -> Result<()> {
         self.online.load(path)?;
         self.target.copy_from(&self.online)
+    }
+
+    /// Saves the whole learner state (both networks, Adam's moments and
+    /// step) as one safetensors file, atomically: a restarted learner goes
+    /// on as if it had not stopped ([`SeqDqn::load_state`]).
+    pub fn save_state(&self, path: &Path) -> Result<()> {
+        let specs = recurrent_params(self.online.shapes, self.online.width);
+        let nets = (&self.online.params[..], &self.target.params[..]);
+        checkpoint::save_state(path, &specs, nets, &self.opt, self.opt.t)
+    }
+
+    /// Restores a state written by [`SeqDqn::save_state`], checking every
+    /// tensor (one of another memory or width is refused by name).
+    pub fn load_state(&mut self, path: &Path) -> Result<()> {
+        let specs = recurrent_params(self.online.shapes, self.online.width);
+        let st = checkpoint::read_state(path, &specs)?;
+        let (file, dev) = (path.display().to_string(), self.online.device.clone());
+        checkpoint::load_vars(&specs, &self.online.params, &st.online, &file, &dev)?;
+        checkpoint::load_vars(&specs, &self.target.params, &st.target, &file, &dev)?;
+        (self.opt.m, self.opt.v, self.opt.t) = (st.m, st.v, st.t);
+        Ok(())
     }
 
     /// One update on `batch`; the loss. The target network is copied from

@@ -518,6 +518,63 @@ fn a_bad_label_is_refused_by_name() {
 }
 
 #[test]
+fn a_learner_restarted_from_its_state_goes_on_as_if_it_had_not_stopped() {
+    let dev = Device::Cpu;
+    let cfg = SeqConfig {
+        lr: 1e-3,
+        gamma: 0.9,
+        n_step: 2,
+        burn_in: 1,
+        target_update: 2,
+        huber_delta: 1.0,
+        reward_scale: 1.0,
+        margin: 0.8,
+    };
+    let (n, t, width) = (2, 4, 8);
+    let mut rng = Pcg64Mcg::seed_from_u64(3);
+    let obs = random_obs(&mut rng, n * (t + 1));
+    let actions: Vec<u8> = (0..n * t).map(|_| rng.random_range(0..2)).collect();
+    let rewards: Vec<f32> = (0..n * t).map(|_| rng.random_range(-1.0..1.0)).collect();
+    let (dones, states) = (vec![false; n * t], vec![0.1; n * width]);
+    let b = SeqBatch {
+        sequences: n,
+        steps: t,
+        obs: &obs,
+        actions: &actions,
+        rewards: &rewards,
+        dones: &dones,
+        states: &states,
+        experts: &[],
+        weights: &[],
+    };
+    let dir = std::env::temp_dir().join(format!("rotorhive-seqstate-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("learner-state.safetensors");
+    let mut a = SeqDqn::new(cfg, SHAPES, width, 1, &dev).unwrap();
+    for _ in 0..3 {
+        a.update(&b).unwrap();
+    }
+    a.save_state(&path).unwrap();
+    // Another seed: everything it has comes from the file.
+    let mut back = SeqDqn::new(cfg, SHAPES, width, 9, &dev).unwrap();
+    back.load_state(&path).unwrap();
+    assert_eq!(back.updates(), 3);
+    // The next update (the target copied at 4) gives the same weights, bit
+    // for bit: Adam's moments and step came back too.
+    assert_eq!(a.update(&b).unwrap(), back.update(&b).unwrap());
+    let flat = |d: &SeqDqn| {
+        let mut w = vec![0.0; d.online.num_params()];
+        d.online.write_flat(&mut w).unwrap();
+        w
+    };
+    assert!(flat(&a) == flat(&back), "the restarted learner went another way");
+    // Another width's state is refused, naming the tensor.
+    let e = SeqDqn::new(cfg, SHAPES, 4, 1, &dev).unwrap().load_state(&path).unwrap_err();
+    assert!(e.to_string().contains("gru.weight_ih"), "{e}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
 fn a_checkpoint_names_its_memory_and_a_network_of_another_is_refused() {
     let dev = Device::Cpu;
     let dir = std::env::temp_dir().join(format!("rotorhive-recurrent-{}", std::process::id()));

@@ -1,8 +1,10 @@
 //! The learner of a run with memory (`learner.memory = "gru:WIDTH"`): R2D2's
 //! update ([`SeqDqn`]) on minibatches of stored sequences, weights published
 //! by version and checkpoints as the feedforward learner's. What it does not
-//! do yet: keep its optimiser's state across a restart (a restarted one goes
-//! on from `checkpoints/latest.safetensors` with fresh Adam moments). Under
+//! do yet: nothing the feedforward learner does is missing but its
+//! update-stage timings (the whole update counts as `forward`). A restarted
+//! one goes on from `checkpoints/learner-state.safetensors` (both networks,
+//! Adam's moments and step), as the feedforward learner does. Under
 //! prioritized replay each sequence's priority goes back as R2D2's (η = 0.9
 //! of its largest |TD error| and the rest of their mean), its importance
 //! weight scaling its loss. With a teacher, DQfD's
@@ -12,7 +14,7 @@
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use rotorhive_model::{RecurrentQNet, SeqBatch, SeqConfig, SeqDqn};
+use rotorhive_model::{SeqBatch, SeqConfig, SeqDqn};
 use rotorhive_msg::{
     LearnerStage, MinibatchHeader, PICK_WORDS, Pick, RoleKind, SeqLayout, Telemetry, Unpacked,
     WeightsHeader,
@@ -46,15 +48,9 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, width: usize, layout: SeqLayout) -> Resul
     let ckpt_dir = run_dir.join("checkpoints");
     std::fs::create_dir_all(&ckpt_dir)
         .doing_with(|| format!("cannot create {}", ckpt_dir.display()))?;
-    let device = rotorhive_model::device(cfg.learner.device.kind())?;
-    let seed = crate::seeds::network(cfg.seed);
-    let mut dqn = SeqDqn::new(seq_config(cfg), cfg.shapes(), width, seed, &device)?;
     let latest = ckpt_dir.join("latest.safetensors");
-    if latest.exists() {
-        dqn.restore(&latest)
-            .doing_with(|| format!("restoring the learner from {}", latest.display()))?;
-        tracing::info!("learner restored its weights from {}", latest.display());
-    }
+    let state = ckpt_dir.join("learner-state.safetensors");
+    let mut dqn = start(cfg, width, &latest, &state)?;
     let mut rx =
         hub.receiver::<u16, MinibatchHeader>(&Channel::minibatches(cfg.replay.prefetch))?;
     let mut w_tx = hub.sender::<f32, WeightsHeader>(
@@ -83,29 +79,8 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, width: usize, layout: SeqLayout) -> Resul
         let mb = *msg.user_header();
         unpack(layout, msg.payload(), mb.batch as usize, &mut batch, &mut prio.picks)?;
         drop(msg);
-        prio.weights.clear();
-        if prio.prio_tx.is_some() {
-            prio.weights.extend(prio.picks.iter().map(|p| p.value));
-        }
-        if let Some(w) = super::margin_weight(cfg, &mb) {
-            dqn.set_margin_weight(w);
-        }
         let t = Instant::now();
-        let loss = dqn.update(&SeqBatch {
-            sequences: mb.batch as usize,
-            steps: layout.steps,
-            obs: &batch.obs,
-            actions: &batch.actions,
-            rewards: &batch.rewards,
-            dones: &batch.dones,
-            states: &batch.states,
-            experts: &batch.experts,
-            weights: &prio.weights,
-        })?;
-        if let Some(tx) = &mut prio.prio_tx {
-            let lost = &mut tel.sample.lost;
-            super::send_priorities(tx, &mut prio.picks, dqn.priorities(), mb.seq, false, lost)?;
-        }
+        let loss = learn(cfg, &mut dqn, (layout, &mb), &batch, &mut prio, &mut tel.sample.lost)?;
         tel.sample.add_stage(LearnerStage::Forward, t.elapsed().as_nanos() as u64);
         tel.sample.work = dqn.updates();
         gauges.add(loss, &mb, version, &mut tel.sample);
@@ -115,14 +90,75 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, width: usize, layout: SeqLayout) -> Resul
             tel.sample.work2 = version;
         }
         if last_ckpt.elapsed() >= Duration::from_secs_f64(cfg.learner.checkpoint_every_s) {
-            save(&dqn.online, &latest, &tags)?;
+            save(&dqn, (&latest, &state), &tags)?;
             last_ckpt = Instant::now();
         }
     }
-    save(&dqn.online, &latest, &tags)?;
-    save(&dqn.online, &run_dir.join("final.safetensors"), &tags)?;
+    save(&dqn, (&latest, &state), &tags)?;
+    let fin = run_dir.join("final.safetensors");
+    dqn.online
+        .save(&fin, &tags)
+        .doing_with(|| format!("cannot write checkpoint {}", fin.display()))?;
     tel.tick(true, Telemetry::beat);
     Ok(())
+}
+
+/// A new learner of `width`, or one restarted from its state (`state`: both
+/// networks and Adam) or, failing that, from its latest weights.
+fn start(cfg: &Config, width: usize, latest: &Path, state: &Path) -> Result<SeqDqn> {
+    let device = rotorhive_model::device(cfg.learner.device.kind())?;
+    let seed = crate::seeds::network(cfg.seed);
+    let mut dqn = SeqDqn::new(seq_config(cfg), cfg.shapes(), width, seed, &device)?;
+    if state.exists() {
+        dqn.load_state(state)
+            .doing_with(|| format!("restoring the learner from {}", state.display()))?;
+        tracing::info!(
+            "learner restored its state from {} ({} updates)",
+            state.display(),
+            dqn.updates()
+        );
+    } else if latest.exists() {
+        dqn.restore(latest)
+            .doing_with(|| format!("restoring the learner from {}", latest.display()))?;
+        tracing::info!("learner restored its weights from {}", latest.display());
+    }
+    Ok(dqn)
+}
+
+/// One update on the sequences unpacked into `batch` (minibatch `mb` of
+/// `layout`): the teacher's margin weight as the replay's fade says, each
+/// sequence's importance weight and, under prioritized replay, its new
+/// priority sent back (a send that fails counts in `lost`); the loss.
+fn learn<S: Service>(
+    cfg: &Config,
+    dqn: &mut SeqDqn,
+    (layout, mb): (SeqLayout, &MinibatchHeader),
+    batch: &Unpacked,
+    prio: &mut super::Minibatch<S>,
+    lost: &mut u64,
+) -> Result<f32> {
+    prio.weights.clear();
+    if prio.prio_tx.is_some() {
+        prio.weights.extend(prio.picks.iter().map(|p| p.value));
+    }
+    if let Some(w) = super::margin_weight(cfg, mb) {
+        dqn.set_margin_weight(w);
+    }
+    let loss = dqn.update(&SeqBatch {
+        sequences: mb.batch as usize,
+        steps: layout.steps,
+        obs: &batch.obs,
+        actions: &batch.actions,
+        rewards: &batch.rewards,
+        dones: &batch.dones,
+        states: &batch.states,
+        experts: &batch.experts,
+        weights: &prio.weights,
+    })?;
+    if let Some(tx) = &mut prio.prio_tx {
+        super::send_priorities(tx, &mut prio.picks, dqn.priorities(), mb.seq, false, lost)?;
+    }
+    Ok(loss)
 }
 
 /// A minibatch of `rows` packed sequences into `out` and their picks into
@@ -152,9 +188,14 @@ fn unpack(
     Ok(())
 }
 
-/// Writes a checkpoint (atomically), its header naming the memory.
-fn save(net: &RecurrentQNet, path: &Path, tags: &[(&str, String)]) -> Result<()> {
-    net.save(path, tags).doing_with(|| format!("cannot write checkpoint {}", path.display()))
+/// Writes the latest checkpoint (its header naming the memory) and the
+/// learner's whole state (networks, Adam's moments and step), each
+/// atomically.
+fn save(dqn: &SeqDqn, (latest, state): (&Path, &Path), tags: &[(&str, String)]) -> Result<()> {
+    dqn.online
+        .save(latest, tags)
+        .doing_with(|| format!("cannot write checkpoint {}", latest.display()))?;
+    dqn.save_state(state).doing_with(|| format!("cannot write learner state {}", state.display()))
 }
 
 /// Publishes the online network as the next weight version (as the
