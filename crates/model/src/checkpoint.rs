@@ -7,7 +7,6 @@ use std::path::Path;
 
 use candle_core::{DType, Device, Tensor, Var};
 
-use crate::dqn::Adam;
 use crate::{ModelError, Result, SIDE, Shapes};
 
 /// The checkpoint layout this build writes and reads: the tensors' names
@@ -240,18 +239,18 @@ pub(crate) struct LearnerState {
 }
 
 /// Saves a learner's whole state (the networks `online` and `target` of
-/// `specs`' names and shapes, Adam's moments and step, the update count)
-/// as one safetensors file, atomically.
+/// `specs`' names and shapes, Adam's first and second moments `m`, `v` and
+/// step `t`, the update count) as one safetensors file, atomically.
 pub(crate) fn save_state(
     path: &Path,
     specs: &[(&'static str, Vec<usize>)],
     (online, target): (&[Var], &[Var]),
-    opt: &Adam,
+    (m, v, t): (&[Vec<f32>], &[Vec<f32>], u64),
     updates: u64,
 ) -> Result<()> {
     let dev = Device::Cpu;
     let mut map: HashMap<String, Tensor> = HashMap::new();
-    let moments = opt.m.iter().zip(&opt.v);
+    let moments = m.iter().zip(v);
     for ((name, shape), ((o, t), (m, v))) in
         specs.iter().zip(online.iter().zip(target).zip(moments))
     {
@@ -260,7 +259,7 @@ pub(crate) fn save_state(
         map.insert(format!("adam_m.{name}"), Tensor::from_slice(m, shape.as_slice(), &dev)?);
         map.insert(format!("adam_v.{name}"), Tensor::from_slice(v, shape.as_slice(), &dev)?);
     }
-    map.insert("adam_t".into(), Tensor::new(&[opt.t as i64], &dev)?);
+    map.insert("adam_t".into(), Tensor::new(&[t as i64], &dev)?);
     map.insert("updates".into(), Tensor::new(&[updates as i64], &dev)?);
     let bad = |e: std::io::Error| ModelError::Checkpoint {
         file: path.display().to_string(),

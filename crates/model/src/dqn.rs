@@ -629,7 +629,9 @@ impl Dqn {
     /// the update count) as one safetensors file, atomically.
     pub fn save_state(&self, path: &Path) -> Result<()> {
         let nets = (self.online.vars(), self.target.vars());
-        checkpoint::save_state(path, &params(self.online.shapes()), nets, &self.opt, self.updates)
+        let o = &self.opt;
+        let specs = params(self.online.shapes());
+        checkpoint::save_state(path, &specs, nets, (&o.m, &o.v, o.t), self.updates)
     }
 
     /// Restores a state written by [`Dqn::save_state`], checking every tensor.
