@@ -156,7 +156,7 @@ fn serve(
                 &hub,
                 cfg.sim.envs,
                 roles_of(cfg),
-                rotorhive_model::num_params(cfg.shapes()),
+                cfg.num_params(),
                 stats,
                 move || {
                     let _ = ready_tx.send(());

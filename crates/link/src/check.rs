@@ -7,7 +7,7 @@
 //! whatever the bytes (property-tested below).
 
 use rotorhive_msg::{
-    EPISODE_FIELDS, EpisodeHeader, RoleKind, Shapes, Telemetry, TransitionHeader, WeightsHeader,
+    EPISODE_FIELDS, EpisodeHeader, RoleKind, RowLayout, Telemetry, TransitionHeader, WeightsHeader,
     episode_corrupt,
 };
 
@@ -56,20 +56,26 @@ impl<'a> Fragments<'a> {
 
 /// Checks a transition batch from `host`: headers (the batch's, then its
 /// place in the link's stream), exact length, the sender's environment, and
-/// every transition's scalars for the run's `shapes` (the depth words have
-/// no invalid value). The payload stays in its fragments.
+/// every row's values for the run's `rows` (transitions, or with memory
+/// sequences; the depth words have no invalid value). The payload stays in
+/// its fragments.
 pub fn transitions(
     host: &Host,
-    shapes: Shapes,
+    rows: RowLayout,
     attachment: Option<&[u8]>,
     frags: &[&[u8]],
 ) -> Result<(TransitionHeader, LinkHeader), Reject> {
     let (h, link) = attachment.and_then(wire::transition_headers).ok_or(Reject::Header)?;
-    if h.count == 0 || h.count as usize > MAX_BATCH {
+    // With memory an actor sends at most one sequence of each agent a step.
+    let most = match rows {
+        RowLayout::Transition(_) => MAX_BATCH,
+        RowLayout::Sequence(_) => (host.agents as usize).min(MAX_BATCH),
+    };
+    if h.count == 0 || h.count as usize > most {
         return Err(Reject::Count(h.count));
     }
     let got: usize = frags.iter().map(|f| f.len()).sum();
-    let packed = shapes.packed_len();
+    let packed = rows.packed_len();
     let want = h.count as usize * packed * 2;
     if got != want {
         return Err(Reject::Length { got, want });
@@ -78,17 +84,18 @@ pub fn transitions(
         return Err(Reject::Actor(h.actor));
     }
     let mut cur = Fragments::new(frags);
-    let mut raw = vec![0u8; shapes.packed_scalars() * 4];
-    let mut s = vec![0f32; shapes.packed_scalars()];
+    let (depth, values) = rows.value_span();
+    let mut raw = vec![0u8; values * 4];
+    let mut s = vec![0f32; values];
     let mut bad = 0;
     for i in 0..h.count as usize {
-        if !cur.read((i * packed + shapes.packed_depth()) * 2, &mut raw) {
+        if !cur.read((i * packed + depth) * 2, &mut raw) {
             return Err(Reject::Length { got, want });
         }
         for (v, b) in s.iter_mut().zip(raw.chunks_exact(4)) {
             *v = f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
         }
-        bad += shapes.scalars_corrupt(&s) as u64;
+        bad += rows.values_corrupt(&s) as u64;
     }
     if bad > 0 {
         return Err(Reject::Values(bad));
@@ -187,7 +194,9 @@ pub fn weights(
 mod tests {
     use super::*;
     use proptest::prelude::*;
+    use rotorhive_msg::Shapes;
     const PACKED_LEN: usize = Shapes::PAPER.packed_len();
+    const PAPER_ROWS: RowLayout = RowLayout::Transition(Shapes::PAPER);
 
     fn host() -> Host {
         Host {
@@ -228,7 +237,7 @@ mod tests {
         let h = TransitionHeader { actor: 1, count: 3, seq: 0, weight_version: 0 };
         let link = LinkHeader { epoch: 0, seq: 0 };
         let (att, bytes) = (wire::transition_attachment(&h, &link), wire::payload_bytes(&words));
-        assert!(transitions(&host(), shapes, Some(&att), &[bytes]).is_ok());
+        assert!(transitions(&host(), RowLayout::Transition(shapes), Some(&att), &[bytes]).is_ok());
         let mut t = vec![0f32; shapes.transition_len()];
         for (p, tail) in bytes.chunks_exact(PACKED_LEN * 2).zip(tails) {
             let w: Vec<u16> = p.chunks_exact(2).map(|b| u16::from_le_bytes([b[0], b[1]])).collect();
@@ -238,9 +247,59 @@ mod tests {
         shapes.pack(&obs, &obs, [1.0, 3.0, 0.0, 1.0, 0.5], &mut words[..PACKED_LEN]);
         let bytes = wire::payload_bytes(&words);
         assert_eq!(
-            transitions(&host(), shapes, Some(&att), &[bytes]).unwrap_err(),
+            transitions(&host(), RowLayout::Transition(shapes), Some(&att), &[bytes]).unwrap_err(),
             Reject::Values(1)
         );
+    }
+
+    #[test]
+    fn a_sequence_crosses_with_its_state_and_teacher_fields_exact() {
+        // With memory a row is a sequence (R2D2's stored state at its end):
+        // the worker's bytes pass the head's checks and unpack to the same
+        // state, labels and flags; a state that is not finite is refused,
+        // and so are more sequences than the worker has agents.
+        let layout = rotorhive_msg::SeqLayout { shapes: Shapes::PAPER, steps: 4, width: 3 };
+        let rows = RowLayout::Sequence(layout);
+        let obs: Vec<f32> =
+            (0..5 * Shapes::PAPER.obs_len()).map(|i| (i % 7) as f32 / 7.0).collect();
+        let tails = [
+            [1.0, 0.5, 0.0, 1.0, 1.0],
+            [0.0, -1.0, 1.0, rotorhive_msg::NO_EXPERT, 0.0],
+            [1.0, 0.0, 0.0, 0.0, 0.0],
+            [0.0, 2.0, 0.0, 1.0, 0.0],
+        ];
+        let state = [0.125, -0.75, 1.5e-3];
+        let mut words = vec![0u16; 2 * layout.packed_len()];
+        for w in words.chunks_exact_mut(layout.packed_len()) {
+            layout.pack(&obs, &tails, &state, w);
+        }
+        let h = TransitionHeader { actor: 1, count: 2, seq: 0, weight_version: 0 };
+        let link = LinkHeader { epoch: 0, seq: 0 };
+        let (att, bytes) = (wire::transition_attachment(&h, &link), wire::payload_bytes(&words));
+        assert!(transitions(&host(), rows, Some(&att), &[bytes]).is_ok());
+        let (a, b) = bytes.split_at(bytes.len() / 2 + 5);
+        assert!(transitions(&host(), rows, Some(&att), &[a, b]).is_ok());
+        let back: Vec<u16> =
+            bytes.chunks_exact(2).map(|b| u16::from_le_bytes([b[0], b[1]])).collect();
+        let mut u = rotorhive_msg::Unpacked::default();
+        for w in back.chunks_exact(layout.packed_len()) {
+            layout.unpack_into(w, &mut u);
+        }
+        assert_eq!(u.states, [state, state].concat());
+        assert_eq!(u.experts[..4], tails.map(|t| t[3]));
+        assert_eq!(u.actions[..4], [1, 0, 1, 0]);
+        assert!(rows.is_demo(&back[..layout.packed_len()]) == (tails[3][4] == 1.0));
+        // A transition-sized reading of the same bytes does not pass.
+        assert!(transitions(&host(), PAPER_ROWS, Some(&att), &[bytes]).is_err());
+        layout.pack(&obs, &tails, &[0.0, f32::NAN, 0.0], &mut words[..layout.packed_len()]);
+        let bytes = wire::payload_bytes(&words);
+        assert_eq!(
+            transitions(&host(), rows, Some(&att), &[bytes]).unwrap_err(),
+            Reject::Values(1)
+        );
+        let many = TransitionHeader { count: 4, ..h };
+        let att = wire::transition_attachment(&many, &link);
+        assert_eq!(transitions(&host(), rows, Some(&att), &[bytes]).unwrap_err(), Reject::Count(4));
     }
 
     #[test]
@@ -248,47 +307,47 @@ mod tests {
         let good = [(1.0, 3.0, 0.0), (0.0, -100.0, 1.0)];
         let (h, p) = batch(2, &good);
         // Whole, and in fragments cut anywhere (also inside a scalar).
-        assert!(transitions(&host(), Shapes::PAPER, Some(&h), &[&p]).is_ok());
+        assert!(transitions(&host(), PAPER_ROWS, Some(&h), &[&p]).is_ok());
         for cut in [1, 7, Shapes::PAPER.packed_depth() * 2 + 3, p.len() - 1] {
             let (a, b) = p.split_at(cut);
-            assert!(transitions(&host(), Shapes::PAPER, Some(&h), &[a, b]).is_ok(), "cut at {cut}");
+            assert!(transitions(&host(), PAPER_ROWS, Some(&h), &[a, b]).is_ok(), "cut at {cut}");
         }
         assert_eq!(
-            transitions(&host(), Shapes::PAPER, Some(&h), &[&p[1..]]).unwrap_err(),
+            transitions(&host(), PAPER_ROWS, Some(&h), &[&p[1..]]).unwrap_err(),
             Reject::Length { got: p.len() - 1, want: p.len() }
         );
         let odd = [&p[..], &[0u8][..]].concat();
         assert!(matches!(
-            transitions(&host(), Shapes::PAPER, Some(&h), &[&odd]),
+            transitions(&host(), PAPER_ROWS, Some(&h), &[&odd]),
             Err(Reject::Length { .. })
         ));
         assert_eq!(
-            transitions(&host(), Shapes::PAPER, Some(&h[1..]), &[&p]).unwrap_err(),
+            transitions(&host(), PAPER_ROWS, Some(&h[1..]), &[&p]).unwrap_err(),
             Reject::Header
         );
-        assert_eq!(transitions(&host(), Shapes::PAPER, None, &[&p]).unwrap_err(), Reject::Header);
+        assert_eq!(transitions(&host(), PAPER_ROWS, None, &[&p]).unwrap_err(), Reject::Header);
         // Environment 0 is the head's and 3 is past this host's two.
         for actor in [0, 3, u32::MAX] {
             let (h, p) = batch(actor, &good);
             assert_eq!(
-                transitions(&host(), Shapes::PAPER, Some(&h), &[&p]).unwrap_err(),
+                transitions(&host(), PAPER_ROWS, Some(&h), &[&p]).unwrap_err(),
                 Reject::Actor(actor)
             );
         }
         let (h, p) = batch(1, &[(1.0, f32::NAN, 0.0), (2.0, 1.0, 0.0), (0.0, 1.0, 0.5)]);
         let (a, b) = p.split_at(Shapes::PAPER.packed_depth() * 2 + 1);
         assert_eq!(
-            transitions(&host(), Shapes::PAPER, Some(&h), &[a, b]).unwrap_err(),
+            transitions(&host(), PAPER_ROWS, Some(&h), &[a, b]).unwrap_err(),
             Reject::Values(3)
         );
         // With the hold action, action 2 is one of the run's.
         let hold = Shapes::task(rotorhive_msg::FRAMES, false, true);
-        assert_eq!(transitions(&host(), hold, Some(&h), &[a, b]).unwrap_err(), Reject::Values(2));
-        let (h, _) = batch(1, &[]);
         assert_eq!(
-            transitions(&host(), Shapes::PAPER, Some(&h), &[]).unwrap_err(),
-            Reject::Count(0)
+            transitions(&host(), RowLayout::Transition(hold), Some(&h), &[a, b]).unwrap_err(),
+            Reject::Values(2)
         );
+        let (h, _) = batch(1, &[]);
+        assert_eq!(transitions(&host(), PAPER_ROWS, Some(&h), &[]).unwrap_err(), Reject::Count(0));
     }
 
     #[test]
@@ -368,7 +427,7 @@ mod tests {
         fn arbitrary_bytes_are_refused_or_read_never_a_panic(att in proptest::collection::vec(any::<u8>(), 0..200), p in proptest::collection::vec(any::<u8>(), 0..20_000), cut in 0usize..20_000) {
             let cut = cut.min(p.len());
             let (a, b) = p.split_at(cut);
-            let _ = transitions(&host(), Shapes::PAPER, Some(&att), &[a, b]);
+            let _ = transitions(&host(), PAPER_ROWS, Some(&att), &[a, b]);
             let _ = episodes(&host(), Some(&att), &p);
             let _ = telemetry(&host(), Some(&att), p.len());
             let _ = weights(3, Some(&att), &p);
@@ -382,7 +441,7 @@ mod tests {
         fn arbitrary_headers_with_arbitrary_payloads(actor in any::<u32>(), count in any::<u32>(), p in proptest::collection::vec(any::<u8>(), 0..40_000)) {
             let h = TransitionHeader { actor, count, seq: 0, weight_version: 0 };
             let att = wire::transition_attachment(&h, &LinkHeader::default());
-            let r = transitions(&host(), Shapes::PAPER, Some(&att), &[&p]);
+            let r = transitions(&host(), PAPER_ROWS, Some(&att), &[&p]);
             prop_assert!(r.is_err() || p.len() == count as usize * PACKED_LEN * 2);
             let e = EpisodeHeader { actor, count, epsilon_micro: 0, step: 0 };
             let r = episodes(&host(), Some(wire::header_bytes(&e)), &p);

@@ -15,7 +15,7 @@ use crate::reject::Reason;
 use crate::shared::{Fifo, JOIN, key};
 use crate::wire::{Hello, Welcome};
 use crate::{check, wire};
-use rotorhive_msg::Shapes;
+use rotorhive_msg::{RowLayout, Shapes};
 
 /// Counters of the head's link, shared with the supervisor.
 #[derive(Debug, Default)]
@@ -117,9 +117,9 @@ pub struct Head {
     /// Joins refused while gathering (counted into the link's stats).
     pub(crate) refused_joins: u64,
     pub(crate) subs: HeadSubscribers,
-    /// The run's observation and action shapes (a worker's transitions
+    /// The run's replay rows, transitions or sequences (a worker's batches
     /// are checked against them).
-    pub(crate) shapes: Shapes,
+    pub(crate) rows: RowLayout,
 }
 
 /// A join waiting for its answer: the request, what it says, and the
@@ -183,14 +183,14 @@ impl Head {
             wanted: 0,
             limits: JoinLimits { default_agents: 1, n_step: 1 },
             refused_joins: 0,
-            shapes: Shapes::PAPER,
+            rows: RowLayout::Transition(Shapes::PAPER),
         })
     }
 
-    /// Sets the run's observation and action shapes (the paper's until
-    /// then): workers' transitions are checked against them.
-    pub fn with_shapes(mut self, shapes: Shapes) -> Self {
-        self.shapes = shapes;
+    /// Sets the run's replay rows (the paper's transitions until then;
+    /// with memory sequences): workers' batches are checked against them.
+    pub fn with_rows(mut self, rows: RowLayout) -> Self {
+        self.rows = rows;
         self
     }
 

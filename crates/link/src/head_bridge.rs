@@ -8,7 +8,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use rotorhive_msg::{
-    EPISODE_FIELDS, EpisodeHeader, LinkStage, Receipt, RoleKind, SeqTracker, Telemetry,
+    EPISODE_FIELDS, EpisodeHeader, LinkStage, Receipt, RoleKind, RowLayout, SeqTracker, Telemetry,
     TransitionHeader, WeightsHeader,
 };
 use rotorhive_transport::Service;
@@ -106,7 +106,13 @@ pub(crate) fn head_loop<S: Service>(
     };
     let end_pub = publisher("end", CongestionControl::Block)?;
     let total_envs = envs + head.hosts.iter().map(|h| h.envs as usize).sum::<usize>();
-    let max_batch = head.shapes.packed_len() * check::MAX_BATCH;
+    // A batch holds at most MAX_BATCH transitions, or a sequence of each of
+    // a worker's agents (the check refuses more).
+    let most_rows = match head.rows {
+        RowLayout::Transition(_) => check::MAX_BATCH,
+        RowLayout::Sequence(_) => head.hosts.iter().map(|h| h.agents as usize).max().unwrap_or(1),
+    };
+    let max_batch = head.rows.packed_len() * most_rows.clamp(1, check::MAX_BATCH);
     if let Ok(mut l) = stats.lost_by_env.lock() {
         *l = vec![0; total_envs];
     }
@@ -233,12 +239,12 @@ impl<S: Service> HeadBridge<'_, S> {
     /// send retried while the replay is full or restarting).
     fn transitions_in(&mut self, smp: &zenoh::sample::Sample) -> Result<()> {
         let (stats, hosts, run) = (self.stats, &self.head.hosts, &self.head.run);
-        let shapes = self.head.shapes;
+        let rows = self.head.rows;
         let t = Instant::now();
         let payload = smp.payload();
         let frags: Vec<&[u8]> = payload.slices().collect();
         let Some((slot, h, link)) = accept(stats, hosts, smp, run, "transitions", |host, att| {
-            check::transitions(host, shapes, att, &frags).map(|(h, l)| (host.slot, h, l))
+            check::transitions(host, rows, att, &frags).map(|(h, l)| (host.slot, h, l))
         }) else {
             return Ok(());
         };

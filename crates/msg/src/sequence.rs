@@ -145,6 +145,24 @@ impl RowLayout {
         }
     }
 
+    /// Where a packed row's `f32` values start (its depth words before
+    /// them) and how many there are: the part a row's check reads.
+    pub const fn value_span(self) -> (usize, usize) {
+        match self {
+            RowLayout::Transition(s) => (s.packed_depth(), s.packed_scalars()),
+            RowLayout::Sequence(l) => (l.depth_words(), l.packed_values()),
+        }
+    }
+
+    /// True when a row's values ([`RowLayout::value_span`]) are not what an
+    /// actor writes ([`Shapes::scalars_corrupt`], [`SeqLayout::values_corrupt`]).
+    pub fn values_corrupt(self, values: &[f32]) -> bool {
+        match self {
+            RowLayout::Transition(s) => s.scalars_corrupt(values),
+            RowLayout::Sequence(l) => l.values_corrupt(values),
+        }
+    }
+
     /// Whether a packed row is the teacher's demonstration: a transition
     /// flagged so, or a sequence whose last step is (the teacher flies an
     /// agent from an episode's start, so a sequence it flew to the end is

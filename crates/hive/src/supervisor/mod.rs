@@ -358,7 +358,7 @@ fn supervise<S: Service>(
         rotorhive_roles::role_names(&cfg),
     )?;
     let link = match link {
-        Some((head, text)) => Some(head.with_shapes(cfg.shapes()).bridge::<S>(
+        Some((head, text)) => Some(head.with_rows(cfg.rows()).bridge::<S>(
             prefix.clone(),
             cfg.sim.envs,
             roles_of(&cfg),

@@ -344,10 +344,6 @@ impl Config {
         let unsupported = [
             (self.deterministic, "`deterministic`"),
             (
-                self.cluster.workers > 0 || self.cluster.envs_elsewhere > 0,
-                "worker hosts (`[cluster]`)",
-            ),
-            (
                 self.sim.observation_mode != super::ObservationMode::Batched,
                 "`sim.observation_mode = \"non-batched\"`",
             ),
