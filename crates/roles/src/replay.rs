@@ -500,11 +500,8 @@ fn open_memory(
             )
             .doing("restoring the replay memory")?;
             if !m.is_empty() {
-                tracing::info!(
-                    "replay restored {} transitions from {}",
-                    m.len(),
-                    j.path().display()
-                );
+                let what = if cfg.memory().is_some() { "sequences" } else { "transitions" };
+                tracing::info!("replay restored {} {what} from {}", m.len(), j.path().display());
             }
             (m, Some(j))
         }
