@@ -19,13 +19,14 @@
 use std::collections::HashMap;
 use std::path::Path;
 use std::sync::Arc;
+use std::time::Instant;
 
 use candle_core::{D, DType, Device, Tensor, Var};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
 use crate::checkpoint::{self, recurrent_metadata};
-use crate::dqn::Adam;
+use crate::dqn::{Adam, UpdateTiming};
 use crate::kernels::{Rows, Weights, Workspace, offsets};
 use crate::{HID, ModelError, Result, Scratch, Shapes, argmax, params, trunk};
 use rotorhive_msg::NO_EXPERT;
@@ -397,6 +398,8 @@ pub struct SeqDqn {
     /// The last update's priority of each sequence (R2D2's mix of its
     /// trained steps' largest and mean |TD error|).
     priorities: Vec<f32>,
+    /// Where the last update's time went.
+    timing: UpdateTiming,
 }
 
 impl SeqDqn {
@@ -415,7 +418,16 @@ impl SeqDqn {
         let sizes = sizes.iter().map(|(_, s)| s.iter().product::<usize>());
         let opt = Adam::with_sizes((cfg.lr, cfg.lr, 0), sizes);
         let work = Workspace::default();
-        Ok(Self { online, target, cfg, opt, work, margin_weight: 0.0, priorities: Vec::new() })
+        Ok(Self {
+            online,
+            target,
+            cfg,
+            opt,
+            work,
+            margin_weight: 0.0,
+            priorities: Vec::new(),
+            timing: UpdateTiming::default(),
+        })
     }
 
     /// Weight of DQfD's large-margin loss `max_a [Q(s,a) + l(a_E,a)] −
@@ -477,13 +489,23 @@ impl SeqDqn {
     /// the online one every `target_update` updates.
     pub fn update(&mut self, batch: &SeqBatch) -> Result<f32> {
         let (loss, grads) = self.gradients(batch)?;
+        let t = Instant::now();
         self.apply(&grads)?;
+        self.timing.optimiser_ns = t.elapsed().as_nanos() as u64;
         Ok(loss)
+    }
+
+    /// Where the last update's time went: the forward passes and the loss
+    /// (burn-in, unrolls, targets), the backward pass (candle's autograd
+    /// and the fused trunk's), Adam's step.
+    pub fn timing(&self) -> UpdateTiming {
+        self.timing
     }
 
     /// The loss on `batch` and its gradient, flat in canonical order
     /// (nothing is updated).
     pub fn gradients(&mut self, batch: &SeqBatch) -> Result<(f32, Vec<f32>)> {
+        let start = Instant::now();
         let (shapes, width) = (self.online.shapes, self.online.width);
         batch.check(shapes, width, self.cfg.burn_in)?;
         let dev = self.online.device.clone();
@@ -547,7 +569,11 @@ impl SeqDqn {
         if !value.is_finite() {
             return Err(ModelError::NoGradient("the sequence loss is not finite"));
         }
-        Ok((value, self.backward(&loss, leaf.as_ref(), (t + 1) * n)?))
+        self.timing.forward_ns = start.elapsed().as_nanos() as u64;
+        let back = Instant::now();
+        let grads = self.backward(&loss, leaf.as_ref(), (t + 1) * n)?;
+        self.timing.backward_ns = back.elapsed().as_nanos() as u64;
+        Ok((value, grads))
     }
 
     /// DQfD's large-margin loss of the trained steps' Q-values `q`

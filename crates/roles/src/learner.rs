@@ -155,10 +155,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
         drop(msg);
         teach(cfg, &mut dqn, &mb);
         let loss = mb_in.learn(&mut dqn, mb.seq, cfg.deterministic, &mut tel.sample.lost)?;
-        let tm = dqn.timing();
-        tel.sample.add_stage(LearnerStage::Forward, tm.forward_ns);
-        tel.sample.add_stage(LearnerStage::Backward, tm.backward_ns);
-        tel.sample.add_stage(LearnerStage::Optimiser, tm.optimiser_ns);
+        add_timing(&mut tel.sample, dqn.timing());
         tel.sample.work = dqn.updates();
         gauges.add(loss, &mb, version, &mut tel.sample);
         gauges.learn(&dqn, cfg.learner.reward_scale, &mut tel.sample);
@@ -177,6 +174,13 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     save_state_atomic(&dqn, &state_path)?;
     tel.tick(true, Telemetry::beat);
     Ok(())
+}
+
+/// An update's stages into the learner's telemetry sample.
+fn add_timing(sample: &mut Telemetry, tm: rotorhive_model::UpdateTiming) {
+    sample.add_stage(LearnerStage::Forward, tm.forward_ns);
+    sample.add_stage(LearnerStage::Backward, tm.backward_ns);
+    sample.add_stage(LearnerStage::Optimiser, tm.optimiser_ns);
 }
 
 /// Sets DQfD's large-margin loss to the teacher's weight now (the

@@ -1,8 +1,9 @@
 //! The learner of a run with memory (`learner.memory = "gru:WIDTH"`): R2D2's
 //! update ([`SeqDqn`]) on minibatches of stored sequences, weights published
 //! by version and checkpoints as the feedforward learner's. What it does not
-//! do yet: nothing the feedforward learner does is missing but its
-//! update-stage timings (the whole update counts as `forward`). A restarted
+//! do yet: deterministic runs (the config refuses them with memory). Its
+//! update's stages (forward, backward, optimiser) reach telemetry and `hive
+//! profile` as the feedforward learner's. A restarted
 //! one goes on from `checkpoints/learner-state.safetensors` (both networks,
 //! Adam's moments and step), as the feedforward learner does. Under
 //! prioritized replay each sequence's priority goes back as R2D2's (η = 0.9
@@ -79,9 +80,8 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, width: usize, layout: SeqLayout) -> Resul
         let mb = *msg.user_header();
         unpack(layout, msg.payload(), mb.batch as usize, &mut batch, &mut prio.picks)?;
         drop(msg);
-        let t = Instant::now();
         let loss = learn(cfg, &mut dqn, (layout, &mb), &batch, &mut prio, &mut tel.sample.lost)?;
-        tel.sample.add_stage(LearnerStage::Forward, t.elapsed().as_nanos() as u64);
+        super::add_timing(&mut tel.sample, dqn.timing());
         tel.sample.work = dqn.updates();
         gauges.add(loss, &mb, version, &mut tel.sample);
         if dqn.updates() % cfg.learner.publish_every == 0 {
