@@ -64,6 +64,14 @@ fn small_head(domain: &str, ep: &str, secs: &str, dir: &std::path::Path, extra: 
     hive(&args).spawn().unwrap()
 }
 
+/// A worker of 8 agents in domain `cluster-worker`, joining the head at
+/// `ep`, its records in `dir`.
+fn small_worker(ep: &str, dir: &std::path::Path) -> Child {
+    let dir = dir.display().to_string();
+    let args = ["--domain", "cluster-worker", "worker", "--connect", ep, "--agents", "8"];
+    hive(&args).args(["--run-dir", &dir]).spawn().unwrap()
+}
+
 /// A run's CA and certificates for the head and `workers` workers in `dir`.
 fn make_certs(dir: &std::path::Path, workers: &str) {
     let d = dir.display().to_string();
@@ -515,20 +523,7 @@ fn a_head_held_busy_slows_the_worker_without_loss() {
     // stalled replay is felt at once.
     let head =
         small_head("cluster-head", &ep, "40", &dir, &["--set", "replay.samples_per_insert=0"]);
-    let wdir = tmp("busy-head-worker").display().to_string();
-    let mut worker = hive(&[
-        "--domain",
-        "cluster-worker",
-        "worker",
-        "--connect",
-        &ep,
-        "--agents",
-        "8",
-        "--run-dir",
-        &wdir,
-    ])
-    .spawn()
-    .unwrap();
+    let mut worker = small_worker(&ep, &tmp("busy-head-worker"));
     let lines = lines_of(&mut worker);
     assert!(wait_line(&lines, "joined the run", Duration::from_secs(30)).is_some());
     let pid = replay_once_the_worker_is_at_work(&dir);

@@ -1,7 +1,7 @@
 //! A worker with memory: its actors' sequences over the link.
 
 use crate::common::{self, tmp};
-use crate::{TURN, assert_delivered, free_port, hive, small_head, text};
+use crate::{TURN, assert_delivered, free_port, small_head, small_worker, text};
 use rotorhive_records::Member;
 
 /// With memory a worker's actors send sequences (each with its stored
@@ -24,20 +24,7 @@ fn a_worker_with_memory_sends_its_sequences_to_the_head_without_loss() {
         "replay.batch=4",
     ];
     let head = small_head("cluster-head", &ep, "20", &dir, &memory);
-    let wdir = tmp("memory-worker").display().to_string();
-    let worker = hive(&[
-        "--domain",
-        "cluster-worker",
-        "worker",
-        "--connect",
-        &ep,
-        "--agents",
-        "8",
-        "--run-dir",
-        &wdir,
-    ])
-    .spawn()
-    .unwrap();
+    let worker = small_worker(&ep, &tmp("memory-worker"));
     let h = head.wait_with_output().unwrap();
     let w = worker.wait_with_output().unwrap();
     assert!(h.status.success(), "head: {}", text(&h));

@@ -4,6 +4,20 @@ use rotorhive_msg::NO_EXPERT;
 
 const SHAPES: Shapes = Shapes::PAPER;
 
+/// The sequence update's settings the tests start from.
+fn base_config() -> SeqConfig {
+    SeqConfig {
+        lr: 1e-3,
+        gamma: 0.9,
+        n_step: 3,
+        burn_in: 2,
+        target_update: 10,
+        huber_delta: 1.0,
+        reward_scale: 1.0,
+        margin: 0.8,
+    }
+}
+
 fn random_obs(rng: &mut Pcg64Mcg, n: usize) -> Vec<f32> {
     (0..n * SHAPES.obs_len()).map(|_| rng.random_range(0.0..1.0)).collect()
 }
@@ -128,16 +142,7 @@ fn success(mut decide: impl FnMut(&[f32]) -> u8, cue_task: &mut Cue, n: usize) -
 fn a_cue_needed_later_is_learned_with_memory_and_not_without() {
     let dev = Device::Cpu;
     let len = SHAPES.obs_len();
-    let cfg = SeqConfig {
-        lr: 3e-3,
-        gamma: 0.9,
-        n_step: 1,
-        burn_in: 0,
-        target_update: 25,
-        huber_delta: 1.0,
-        reward_scale: 1.0,
-        margin: 0.8,
-    };
+    let cfg = SeqConfig { lr: 3e-3, n_step: 1, burn_in: 0, target_update: 25, ..base_config() };
     let mut seq = SeqDqn::new(cfg, SHAPES, 16, 1, &dev).unwrap();
     let dqn_cfg = DqnConfig {
         lr: 1e-3,
@@ -221,16 +226,7 @@ fn a_cue_needed_later_is_learned_with_memory_and_not_without() {
 #[test]
 fn a_bad_sequence_batch_is_refused_by_name() {
     let dev = Device::Cpu;
-    let cfg = SeqConfig {
-        lr: 1e-3,
-        gamma: 0.9,
-        n_step: 3,
-        burn_in: 2,
-        target_update: 10,
-        huber_delta: 1.0,
-        reward_scale: 1.0,
-        margin: 0.8,
-    };
+    let cfg = base_config();
     let mut seq = SeqDqn::new(cfg, SHAPES, 4, 1, &dev).unwrap();
     let mut rng = Pcg64Mcg::seed_from_u64(1);
     let obs = random_obs(&mut rng, 6);
@@ -266,16 +262,7 @@ fn a_bad_sequence_batch_is_refused_by_name() {
 
 #[test]
 fn n_step_targets_stop_at_an_episode_end_and_at_the_sequence_end() {
-    let cfg = SeqConfig {
-        lr: 1e-3,
-        gamma: 0.5,
-        n_step: 2,
-        burn_in: 1,
-        target_update: 10,
-        huber_delta: 1.0,
-        reward_scale: 1.0,
-        margin: 0.8,
-    };
+    let cfg = SeqConfig { gamma: 0.5, n_step: 2, burn_in: 1, ..base_config() };
     let seq = SeqDqn::new(cfg, SHAPES, 4, 1, &Device::Cpu).unwrap();
     let (rewards, dones) = ([1.0, 2.0, 3.0, 4.0], [false, false, true, false]);
     let b = SeqBatch {
@@ -304,16 +291,7 @@ fn n_step_targets_stop_at_an_episode_end_and_at_the_sequence_end() {
 #[test]
 fn the_fused_trunk_gives_the_generic_gradients() {
     let dev = Device::Cpu;
-    let cfg = SeqConfig {
-        lr: 1e-3,
-        gamma: 0.9,
-        n_step: 3,
-        burn_in: 2,
-        target_update: 10,
-        huber_delta: 1.0,
-        reward_scale: 0.5,
-        margin: 0.8,
-    };
+    let cfg = SeqConfig { reward_scale: 0.5, ..base_config() };
     let (n, t, width) = (3, 7, 8);
     let mut rng = Pcg64Mcg::seed_from_u64(4);
     let obs = random_obs(&mut rng, n * (t + 1));
@@ -427,16 +405,7 @@ fn a_learner_fed_only_labelled_sequences_follows_the_labels() {
     // label depends on what the observation shows (its first velocity
     // input's sign), so the network must read it to agree.
     let dev = Device::Cpu;
-    let cfg = SeqConfig {
-        lr: 3e-3,
-        gamma: 0.9,
-        n_step: 3,
-        burn_in: 2,
-        target_update: 20,
-        huber_delta: 1.0,
-        reward_scale: 1.0,
-        margin: 0.8,
-    };
+    let cfg = SeqConfig { lr: 3e-3, target_update: 20, ..base_config() };
     let (n, t, width, len) = (8, 8, 8, SHAPES.obs_len());
     let vel = SHAPES.obs_depth();
     let mut seq = SeqDqn::new(cfg, SHAPES, width, 2, &dev).unwrap();
@@ -487,16 +456,7 @@ fn a_learner_fed_only_labelled_sequences_follows_the_labels() {
 
 #[test]
 fn a_bad_label_is_refused_by_name() {
-    let cfg = SeqConfig {
-        lr: 1e-3,
-        gamma: 0.9,
-        n_step: 1,
-        burn_in: 0,
-        target_update: 10,
-        huber_delta: 1.0,
-        reward_scale: 1.0,
-        margin: 0.8,
-    };
+    let cfg = SeqConfig { n_step: 1, burn_in: 0, ..base_config() };
     let mut seq = SeqDqn::new(cfg, SHAPES, 4, 1, &Device::Cpu).unwrap();
     let obs = random_obs(&mut Pcg64Mcg::seed_from_u64(1), 3);
     let b = SeqBatch {
@@ -520,16 +480,7 @@ fn a_bad_label_is_refused_by_name() {
 #[test]
 fn a_learner_restarted_from_its_state_goes_on_as_if_it_had_not_stopped() {
     let dev = Device::Cpu;
-    let cfg = SeqConfig {
-        lr: 1e-3,
-        gamma: 0.9,
-        n_step: 2,
-        burn_in: 1,
-        target_update: 2,
-        huber_delta: 1.0,
-        reward_scale: 1.0,
-        margin: 0.8,
-    };
+    let cfg = SeqConfig { n_step: 2, burn_in: 1, target_update: 2, ..base_config() };
     let (n, t, width) = (2, 4, 8);
     let mut rng = Pcg64Mcg::seed_from_u64(3);
     let obs = random_obs(&mut rng, n * (t + 1));
