@@ -404,23 +404,10 @@ impl Dqn {
         }
         let mut loss = loss.sum_all()?;
         let experts: Vec<f32> = batch.chunks_exact(tl).map(|t| t[2 * ol + 3]).collect();
-        if self.margin_weight > 0.0 && experts.iter().any(|e| *e != NO_EXPERT) {
-            // max_a [Q(s,a) + l(a_E,a)] − Q(s,a_E) on the labelled rows
-            // (the others masked out), in stock candle ops.
-            let m = self.cfg.margin;
-            let (mut l, mut mask, mut ae) = (vec![0f32; n * na], vec![0f32; n], vec![0u32; n]);
-            for (i, e) in experts.iter().enumerate().filter(|(_, e)| **e != NO_EXPERT) {
-                let e = *e as usize;
-                (mask[i], ae[i]) = (1.0, e as u32);
-                l[i * na..(i + 1) * na].iter_mut().enumerate().for_each(|(a, v)| {
-                    *v = if a == e { 0.0 } else { m };
-                });
-            }
-            let l = Tensor::from_vec(l, (n, na), dev)?;
-            let best = (&q + l)?.max_keepdim(D::Minus1)?;
-            let qe = q.gather(&Tensor::from_vec(ae, (n, 1), dev)?, D::Minus1)?;
-            let margin = ((best - qe)? * Tensor::from_vec(mask, (n, 1), dev)?)?;
-            loss = (loss + margin.sum_all()?.affine(self.margin_weight as f64, 0.0)?)?;
+        if self.margin_weight > 0.0
+            && let Some(margin) = margin_sum(&q, &experts, self.cfg.margin)?
+        {
+            loss = (loss + margin.affine(self.margin_weight as f64, 0.0)?)?;
         }
         Ok((loss.affine(1.0 / n as f64, 0.0)?, td))
     }
@@ -644,6 +631,29 @@ impl Dqn {
         self.updates = st.updates;
         Ok(())
     }
+}
+
+/// DQfD's large-margin loss `max_a [Q(s,a) + l(a_E,a)] − Q(s,a_E)` summed
+/// over the rows of `q` (`[rows][actions]`) whose expert action `experts[i]`
+/// is not [`NO_EXPERT`] (the others masked out), in stock candle ops (the
+/// generic path of both learners); none where no row is labelled.
+pub(crate) fn margin_sum(q: &Tensor, experts: &[f32], margin: f32) -> Result<Option<Tensor>> {
+    if experts.iter().all(|e| *e == NO_EXPERT) {
+        return Ok(None);
+    }
+    let (n, na, dev) = (experts.len(), q.dim(D::Minus1)?, q.device());
+    let (mut l, mut mask, mut ae) = (vec![0f32; n * na], vec![0f32; n], vec![0u32; n]);
+    for (i, e) in experts.iter().enumerate().filter(|(_, e)| **e != NO_EXPERT) {
+        let e = *e as usize;
+        (mask[i], ae[i]) = (1.0, e as u32);
+        l[i * na..(i + 1) * na].iter_mut().enumerate().for_each(|(a, v)| {
+            *v = if a == e { 0.0 } else { margin };
+        });
+    }
+    let l = Tensor::from_vec(l, (n, na), dev)?;
+    let best = (q + l)?.max_keepdim(D::Minus1)?;
+    let qe = q.gather(&Tensor::from_vec(ae, (n, 1), dev)?, D::Minus1)?;
+    Ok(Some(((best - qe)? * Tensor::from_vec(mask, (n, 1), dev)?)?.sum_all()?))
 }
 
 #[cfg(test)]

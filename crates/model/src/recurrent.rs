@@ -29,7 +29,6 @@ use crate::checkpoint::{self, recurrent_metadata};
 use crate::dqn::{Adam, UpdateTiming};
 use crate::kernels::{Rows, Weights, Workspace, offsets};
 use crate::{HID, ModelError, Result, Scratch, Shapes, argmax, params, trunk};
-use rotorhive_msg::NO_EXPERT;
 
 /// The widest GRU a network may have.
 pub const MAX_WIDTH: usize = 1024;
@@ -583,31 +582,18 @@ impl SeqDqn {
     fn margin_loss(&self, b: &SeqBatch, q: &Tensor) -> Result<Option<Tensor>> {
         let (n, t, burn) = (b.sequences, b.steps, self.cfg.burn_in);
         let (trained, na) = (t - burn, self.online.shapes.actions);
-        let label = |s: usize, i: usize| b.experts[i * t + burn + s];
-        let labelled = |s, i| !b.experts.is_empty() && label(s, i) != NO_EXPERT;
-        if self.margin_weight <= 0.0 || !(0..trained).any(|s| (0..n).any(|i| labelled(s, i))) {
+        if self.margin_weight <= 0.0 || b.experts.is_empty() {
             return Ok(None);
         }
-        // l(a_E, a) and a_E's one-hot on labelled steps; zero elsewhere (an
-        // unlabelled step's max of its zero-margin Q minus nothing is
-        // masked out).
-        let (mut l, mut onehot) = (vec![0f32; trained * n * na], vec![0f32; trained * n * na]);
-        let mut mask = vec![0f32; trained * n];
-        for s in 0..trained {
-            for i in (0..n).filter(|&i| labelled(s, i)) {
-                let (row, e) = ((s * n + i) * na, label(s, i) as usize);
-                l[row..row + na].fill(self.cfg.margin);
-                (l[row + e], onehot[row + e], mask[s * n + i]) = (0.0, 1.0, 1.0);
-            }
-        }
-        let dev = q.device();
-        let l = Tensor::from_vec(l, (trained, n, na), dev)?;
-        let onehot = Tensor::from_vec(onehot, (trained, n, na), dev)?;
-        let best = (q + l)?.max(D::Minus1)?;
-        let qe = (q * onehot)?.sum(D::Minus1)?;
-        let per = ((best - qe)? * Tensor::from_vec(mask, (trained, n), dev)?)?;
+        // The trained steps' labels in `q`'s (step-major) order.
+        let experts: Vec<f32> =
+            (0..trained).flat_map(|s| (0..n).map(move |i| b.experts[i * t + burn + s])).collect();
+        let rows = q.reshape((trained * n, na))?;
+        let Some(sum) = crate::dqn::margin_sum(&rows, &experts, self.cfg.margin)? else {
+            return Ok(None);
+        };
         let scale = self.margin_weight as f64 / (trained * n) as f64;
-        Ok(Some(per.sum_all()?.affine(scale, 0.0)?))
+        Ok(Some(sum.affine(scale, 0.0)?))
     }
 
     /// The gradient of `loss`, flat in canonical order: the GRU's and the

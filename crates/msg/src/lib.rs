@@ -153,8 +153,7 @@ impl Shapes {
     /// words after the depth, low then high.
     #[inline]
     pub fn packed_scalar(self, p: &[u16], i: usize) -> f32 {
-        let at = self.packed_depth() + 2 * i;
-        f32::from_bits(p[at] as u32 | (p[at + 1] as u32) << 16)
+        word_f32(&p[self.packed_depth() + 2 * i..])
     }
 
     /// Packs one transition given as its parts (`s` and `s'` of
@@ -177,9 +176,7 @@ impl Shapes {
         }
         let values = s[fd..].iter().chain(&next[fd..]).copied().chain(tail);
         for (o, v) in scalars.chunks_exact_mut(2).zip(values) {
-            let b = v.to_bits();
-            o[0] = b as u16;
-            o[1] = (b >> 16) as u16;
+            f32_words(v, o);
         }
     }
 
@@ -349,6 +346,22 @@ pub struct ObsHeader {
 pub struct ActionHeader {
     /// The observation step these actions answer.
     pub step: u64,
+}
+
+/// An `f32` as a packed row keeps it: its bits in two `u16` words, low
+/// then high, written into `out[..2]`.
+#[inline]
+pub(crate) fn f32_words(v: f32, out: &mut [u16]) {
+    let b = v.to_bits();
+    out[0] = b as u16;
+    out[1] = (b >> 16) as u16;
+}
+
+/// The `f32` whose bits are `w[0]` (low) and `w[1]` (high): what
+/// [`f32_words`] wrote.
+#[inline]
+pub(crate) fn word_f32(w: &[u16]) -> f32 {
+    f32::from_bits(w[0] as u32 | (w[1] as u32) << 16)
 }
 
 /// A normalised depth in [0, 1] as 16-bit fixed point (clamped).

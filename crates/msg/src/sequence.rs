@@ -5,7 +5,7 @@
 //! transition is ([`Shapes::packed_len`]): depth as 16-bit fixed point, every
 //! other value's `f32` bits as two words (low, high).
 
-use crate::{NO_EXPERT, Shapes, TAIL, dequantize_depth, quantize_depth};
+use crate::{NO_EXPERT, Shapes, TAIL, dequantize_depth, f32_words, quantize_depth, word_f32};
 
 /// The layout of one packed sequence.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -63,9 +63,7 @@ impl SeqLayout {
         let scalars = obs.chunks_exact(len).flat_map(|o| &o[fd..]).copied();
         let all = scalars.chain(tails.iter().flatten().copied()).chain(state.iter().copied());
         for (w, v) in values.chunks_exact_mut(2).zip(all) {
-            let b = v.to_bits();
-            w[0] = b as u16;
-            w[1] = (b >> 16) as u16;
+            f32_words(v, w);
         }
     }
 
@@ -74,9 +72,7 @@ impl SeqLayout {
     pub fn values(self, p: &[u16], out: &mut Vec<f32>) {
         out.clear();
         let words = &p[self.depth_words()..self.packed_len()];
-        out.extend(
-            words.chunks_exact(2).map(|w| f32::from_bits(w[0] as u32 | (w[1] as u32) << 16)),
-        );
+        out.extend(words.chunks_exact(2).map(word_f32));
     }
 
     /// Unpacks one sequence into the learner's parts: `obs` (`steps + 1`
@@ -173,7 +169,7 @@ impl RowLayout {
             RowLayout::Sequence(l) => {
                 let at = l.depth_words()
                     + 2 * (l.observations() * l.shapes.scalars + l.steps * TAIL - 1);
-                f32::from_bits(row[at] as u32 | (row[at + 1] as u32) << 16) == 1.0
+                word_f32(&row[at..]) == 1.0
             }
         }
     }

@@ -265,6 +265,15 @@ impl<S: Service> Minibatch<S> {
         Ok(Self { batch: Vec::new(), picks: Vec::new(), weights: Vec::new(), prio_tx })
     }
 
+    /// Each row's importance weight from its pick under prioritized replay
+    /// (none otherwise: every row weighs 1).
+    fn load_weights(&mut self) {
+        self.weights.clear();
+        if self.prio_tx.is_some() {
+            self.weights.extend(self.picks.iter().map(|p| p.value));
+        }
+    }
+
     /// One update on the minibatch in hand (importance-weighted, with its
     /// TD errors sent back as priorities, under prioritized replay); the loss.
     fn learn(
@@ -274,11 +283,10 @@ impl<S: Service> Minibatch<S> {
         deterministic: bool,
         lost: &mut u64,
     ) -> Result<f32> {
+        self.load_weights();
         let Some(tx) = &mut self.prio_tx else {
             return dqn.update(&self.batch).doing("learner update");
         };
-        self.weights.clear();
-        self.weights.extend(self.picks.iter().map(|p| p.value));
         let loss = dqn.update_weighted(&self.batch, Some(&self.weights)).doing("learner update")?;
         send_priorities(tx, &mut self.picks, dqn.td_abs(), seq, deterministic, lost)?;
         Ok(loss)

@@ -137,10 +137,7 @@ fn learn<S: Service>(
     prio: &mut super::Minibatch<S>,
     lost: &mut u64,
 ) -> Result<f32> {
-    prio.weights.clear();
-    if prio.prio_tx.is_some() {
-        prio.weights.extend(prio.picks.iter().map(|p| p.value));
-    }
+    prio.load_weights();
     if let Some(w) = super::margin_weight(cfg, mb) {
         dqn.set_margin_weight(w);
     }
