@@ -123,8 +123,9 @@ fn two_non_batched_environments_with_n_step_and_prioritized_replay_repeat_exactl
 /// The teacher (`[teacher]`): `policy = "none"` with every other teacher
 /// key set trains exactly as a run without the section; the planner as
 /// teacher (one agent of four flown, half the others' steps labelled, the
-/// demonstrations in their reservoir, the large-margin loss on) repeats
-/// exactly too, and changes what is learned.
+/// demonstrations in their reservoir, the large-margin loss on, 20
+/// updates of pre-training on demonstrations alone) repeats exactly too,
+/// and changes what is learned.
 #[test]
 #[ignore = "slow multi-process test: scripts/test runs it (--include-ignored)"]
 fn the_teacher_repeats_exactly_and_none_trains_as_without_it() {
@@ -158,9 +159,12 @@ fn the_teacher_repeats_exactly_and_none_trains_as_without_it() {
         "teacher.label_share=0.5",
         "teacher.demo_batch_share=0.25",
         "teacher.demo_capacity=1000",
+        "teacher.pretrain_updates=20",
     ];
     let sets = [&base[..], &planner_keys].concat();
     let (rows_a, weights_a, summary) = run("det-teacher-a", &sets, false);
+    // The schedule's 88 updates, and 20 on demonstrations alone first.
+    assert_eq!(summary.learner_updates, 88 + 20, "{summary:?}");
     let (rows_b, weights_b, _) = run("det-teacher-b", &sets, true);
     assert_eq!(rows_a, rows_b, "the teacher's runs differ");
     assert!(weights_a == weights_b, "the teacher's final networks differ");

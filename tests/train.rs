@@ -332,6 +332,10 @@ fn bad_input_is_refused_clearly() {
         fails_with(&args.each_ref().map(String::as_str), &[needle]);
     }
     fails_with(&["train", "--set", "teacher.policy=\"oracle\""], &["teacher.policy"]);
+    let pretrain =
+        ["teacher.policy=\"planner\"", "teacher.demo_agents=0", "teacher.pretrain_updates=9"];
+    let args: Vec<&str> = pretrain.iter().flat_map(|k| ["--set", k]).collect();
+    fails_with(&[&["train"][..], &args].concat(), &["teacher.pretrain_updates", "demo_agents"]);
     fails_with(&["profile", dir.to_str().unwrap()], &["telemetry.csv"]);
     let out = hive().args(["fly-to-the-moon"]).output().unwrap();
     assert_eq!(out.status.code(), Some(2));

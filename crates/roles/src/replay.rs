@@ -39,6 +39,9 @@ struct Memory<'a, S: Service> {
     /// rows: both from the config, once.
     rows: RowLayout,
     min_fill: usize,
+    /// Minibatches of demonstrations alone first (`teacher.pretrain_updates`;
+    /// none where the memory was restored: the run goes on).
+    pretrain: u64,
 }
 
 /// Runs the replay memory until the run stops.
@@ -66,6 +69,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     let seq_log = SeqLog::open(cx.run_dir, hub.prefix(), cfg.sim.envs);
     let picks = vec![Pick::default(); r.batch];
     let last_sync = Instant::now();
+    let pretrain = if mem.is_empty() { cfg.teacher.pretrain_updates() } else { 0 };
     let mut m = Memory {
         cfg,
         hub,
@@ -82,6 +86,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
         last_sync,
         rows: cfg.rows(),
         min_fill: cfg.replay_rows().1,
+        pretrain,
     };
     if cfg.deterministic {
         m.run_scheduled()?
@@ -132,9 +137,13 @@ impl<S: Service> Memory<'_, S> {
                 got = true;
             }
             self.tel.sample.time_stage(ReplayStage::Insert, t);
-            let ready = self.ready();
+            // Pre-training waits for a demonstration to draw.
+            let ready = self.ready() && (mb_seq >= self.pretrain || self.holds_demos());
             let mut sent = false;
-            if ready && limit.allows(mb_seq, self.inserted()) && Instant::now() >= backoff_until {
+            // Pre-training minibatches are not held to the ratio.
+            let allowed =
+                mb_seq < self.pretrain || limit.allows(mb_seq - self.pretrain, self.inserted());
+            if ready && allowed && Instant::now() >= backoff_until {
                 match self.send_fresh(mb_seq)? {
                     true => {
                         mb_seq += 1;
@@ -184,18 +193,17 @@ impl<S: Service> Memory<'_, S> {
         self.mem.len() + demos >= self.min_fill.max(r.batch) && self.mem.len() >= r.batch
     }
 
-    /// The minibatch's rows drawn from the demonstrations now (fading with
-    /// the run's inserts), and the teacher's weight.
-    fn demo_rows(&self) -> (usize, f32) {
-        let t = &self.cfg.teacher;
-        let fade = t.fade(self.inserted());
-        let rows = match &self.demos {
-            Some(d) if !d.mem.is_empty() => {
-                (t.demo_batch_share * fade * self.cfg.replay.batch as f64).round() as usize
-            }
-            _ => 0,
-        };
-        (rows.min(self.cfg.replay.batch), fade as f32)
+    /// Whether the demonstrations' reservoir holds any.
+    fn holds_demos(&self) -> bool {
+        self.demos.as_ref().is_some_and(|d| !d.mem.is_empty())
+    }
+
+    /// Minibatch `seq`'s rows drawn from the demonstrations, and the
+    /// teacher's weight ([`demo_rows`]).
+    fn demo_rows(&self, seq: u64) -> (usize, f32) {
+        let held = self.holds_demos();
+        let plan = DemoPlan { pretrain: self.pretrain, batch: self.cfg.replay.batch };
+        demo_rows(&self.cfg.teacher, plan, seq, (held, self.inserted()))
     }
 
     /// Samples minibatch `seq` straight into a loan and sends it; false when
@@ -203,7 +211,7 @@ impl<S: Service> Memory<'_, S> {
     fn send_fresh(&mut self, seq: u64) -> Result<bool> {
         let (batch, beta) = (self.cfg.replay.batch, self.cfg.replay.priority_beta);
         let t = Instant::now();
-        let (demo_rows, teacher) = self.demo_rows();
+        let (demo_rows, teacher) = self.demo_rows(seq);
         let (mem, picks) = (&mut self.mem, &mut self.picks);
         let demos = self.demos.as_mut().map(|d| &mut d.mem);
         let res = self.tx.send_with(minibatch_len(self.rows.packed_len(), batch), |h, out| {
@@ -669,6 +677,33 @@ fn insert(
 
 /// The header of minibatch `seq` of `batch` transitions just sampled, of
 /// which `demo.0` demonstrations, with the teacher's weight `demo.1`.
+/// What decides a minibatch's demonstration rows besides the teacher's
+/// section: the run's pre-training minibatches and its batch.
+#[derive(Debug, Clone, Copy)]
+struct DemoPlan {
+    pretrain: u64,
+    batch: usize,
+}
+
+/// Minibatch `seq`'s rows drawn from the demonstrations (none while the
+/// reservoir is empty: `held`): all of them for the first `plan.pretrain`
+/// (DQfD's pre-training), then `demo_batch_share` fading with the run's
+/// `inserted` transitions; and the teacher's weight, the fade.
+fn demo_rows(
+    t: &crate::teacher::TeacherSection,
+    plan: DemoPlan,
+    seq: u64,
+    (held, inserted): (bool, u64),
+) -> (usize, f32) {
+    let fade = t.fade(inserted);
+    let rows = match () {
+        _ if !held => 0,
+        _ if seq < plan.pretrain => plan.batch,
+        _ => (t.demo_batch_share * fade * plan.batch as f64).round() as usize,
+    };
+    (rows.min(plan.batch), fade as f32)
+}
+
 fn minibatch_header(batch: usize, seq: u64, acted: Acted, demo: (usize, f32)) -> MinibatchHeader {
     MinibatchHeader {
         batch: batch as u32,

@@ -24,6 +24,9 @@ pub struct Schedule {
     per_insert: f64,
     publish_every: u64,
     rounds: u64,
+    /// Minibatches of demonstrations alone sent at `min_fill`
+    /// (`teacher.pretrain_updates`).
+    pretrain: u64,
 }
 
 impl Schedule {
@@ -38,6 +41,7 @@ impl Schedule {
             per_insert: cfg.replay.samples_per_insert,
             publish_every: cfg.learner.publish_every,
             rounds: cfg.max_env_steps.div_ceil(agents.max(1)),
+            pretrain: cfg.teacher.pretrain_updates(),
         }
     }
 
@@ -47,14 +51,16 @@ impl Schedule {
     }
 
     /// Minibatches sent (and updates made) in all once rounds `1..=k` are
-    /// inserted: none before `min_fill` agent-steps, then
-    /// `samples_per_insert` samples per agent-step.
+    /// inserted: none before `min_fill` agent-steps, then the pre-training
+    /// ones at once and `samples_per_insert` samples per agent-step.
     pub fn minibatches_after(&self, k: u64) -> u64 {
         let steps = k * self.agents;
         if steps < self.min_fill {
             return 0;
         }
-        1 + (self.per_insert * (steps - self.min_fill) as f64 / self.batch as f64).floor() as u64
+        self.pretrain
+            + 1
+            + (self.per_insert * (steps - self.min_fill) as f64 / self.batch as f64).floor() as u64
     }
 
     /// The learner's update count whose published weights act on
@@ -101,5 +107,15 @@ mod tests {
         assert_eq!(s.updates_for_step(h), 10);
         assert_eq!(s.updates_for_step(h - 1), 0);
         assert!((1..250).all(|h| s.updates_for_step(h) >= s.updates_for_step(h - 1)));
+        // Pre-training on demonstrations: its minibatches all at min_fill,
+        // then the same pace; none without a reservoir to draw them from.
+        cfg.teacher.pretrain_updates = 40;
+        assert_eq!(Schedule::new(&cfg).minibatches_after(25), 1, "no teacher, no pre-training");
+        cfg.teacher.policy = crate::teacher::TeacherPolicy::Planner;
+        let p = Schedule::new(&cfg);
+        assert_eq!((p.minibatches_after(24), p.minibatches_after(25)), (0, 41));
+        assert_eq!(p.minibatches_after(29), 42);
+        assert_eq!(p.total_updates(), s.total_updates() + 40);
+        assert_eq!(p.updates_for_step(26), 40, "the actors fly the pre-trained weights");
     }
 }

@@ -78,6 +78,11 @@ pub struct TeacherSection {
     pub demo_capacity: usize,
     /// Share of each minibatch drawn from the demonstrations (R2D3's rho).
     pub demo_batch_share: f64,
+    /// The learner's first updates drawn from the demonstrations alone
+    /// (DQfD's pre-training), once the replay holds `replay.min_fill`;
+    /// not counted against `replay.samples_per_insert`. A replay that
+    /// starts with a restored memory (a resumed run) does not pre-train.
+    pub pretrain_updates: u64,
 }
 
 impl Default for TeacherSection {
@@ -94,6 +99,7 @@ impl Default for TeacherSection {
             fade_env_steps: 0,
             demo_capacity: 50_000,
             demo_batch_share: 0.25,
+            pretrain_updates: 0,
         }
     }
 }
@@ -125,6 +131,12 @@ impl TeacherSection {
     /// Whether the replay keeps a demonstration reservoir.
     pub fn demos(&self) -> bool {
         self.on() && self.demo_agents > 0
+    }
+
+    /// Minibatches of demonstrations alone before the rest (0 without a
+    /// reservoir).
+    pub fn pretrain_updates(&self) -> u64 {
+        if self.demos() { self.pretrain_updates } else { 0 }
     }
 
     /// The teacher's strength after `env_steps` agent-steps: 1 without a
@@ -166,6 +178,11 @@ impl TeacherSection {
         if self.demos() && self.demo_capacity == 0 {
             config_err!(
                 "key `teacher.demo_capacity` must be positive with `teacher.demo_agents` above 0"
+            );
+        }
+        if self.pretrain_updates > 0 && !self.demos() {
+            config_err!(
+                "key `teacher.pretrain_updates` needs demonstrations (`teacher.demo_agents` above 0)"
             );
         }
         if self.demos() && prioritized {

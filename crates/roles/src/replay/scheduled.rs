@@ -52,7 +52,7 @@ impl<S: Service> Memory<'_, S> {
                 && self.prio.ready_for(sent, &mut self.mem, &mut self.tel.sample.learning)?
             {
                 let beta = cfg.replay.priority_beta;
-                let (rows, teacher) = self.demo_rows();
+                let (rows, teacher) = self.demo_rows(sent);
                 let demos = self.demos.as_mut().map(|d| &mut d.mem);
                 let acted =
                     sample(&mut self.mem, demos, rows, &mut minibatch, &mut self.picks, beta);

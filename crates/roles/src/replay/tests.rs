@@ -1,4 +1,4 @@
-use super::{Demos, SampleLimit, SeqLog, Stores, sample, store};
+use super::{DemoPlan, Demos, SampleLimit, SeqLog, Stores, demo_rows, sample, store};
 use rotorhive_msg::{NO_EXPERT, PICK_WORDS, RowLayout, SeqLayout, Shapes, TAIL, TransitionHeader};
 use rotorhive_replay::{Journal, Pick, Replay};
 
@@ -131,4 +131,25 @@ fn sampling_waits_for_inserts_past_the_buffer() {
     cfg.replay.samples_per_insert = 0.0;
     let mut off = SampleLimit::new(&cfg);
     assert!(off.allows(1_000_000, 0));
+}
+
+#[test]
+fn pre_training_draws_whole_minibatches_of_demonstrations_then_their_share() {
+    let mut t = crate::teacher::TeacherSection {
+        policy: crate::teacher::TeacherPolicy::Planner,
+        ..Default::default()
+    };
+    let plan = DemoPlan { pretrain: 3, batch: 32 };
+    let rows = |t: &crate::teacher::TeacherSection, seq, held, inserted| {
+        demo_rows(t, plan, seq, (held, inserted)).0
+    };
+    // The first three minibatches all demonstrations, then a quarter.
+    assert_eq!((0..5).map(|s| rows(&t, s, true, 0)).collect::<Vec<_>>(), [32, 32, 32, 8, 8]);
+    // None while the reservoir is empty, pre-training or not.
+    assert_eq!((rows(&t, 0, false, 0), rows(&t, 4, false, 0)), (0, 0));
+    // Half faded: the share halves, pre-training minibatches stay whole,
+    // and the weight says how far the fade went.
+    t.fade_env_steps = 1_000;
+    assert_eq!((rows(&t, 0, true, 500), rows(&t, 3, true, 500)), (32, 4));
+    assert_eq!(demo_rows(&t, plan, 3, (true, 500)).1, 0.5);
 }
