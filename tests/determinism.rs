@@ -120,6 +120,32 @@ fn two_non_batched_environments_with_n_step_and_prioritized_replay_repeat_exactl
     assert_eq!((summary.envs, summary.agents_total), (2, 8));
 }
 
+/// With memory (`learner.memory`), two environments of non-batched
+/// observations: the actors send every round (sequences leave only every
+/// few steps), the schedule counts a sequence's trained steps (4 here:
+/// 1 + (3,000 - 200) / (4 × 4) = 176 updates), and the recurrent learner's
+/// updates, its states and the sequences' stored states repeat exactly, in
+/// processes and in serial mode; prioritized, so that its priorities come
+/// back in order.
+#[test]
+#[ignore = "slow multi-process test: scripts/test runs it (--include-ignored)"]
+fn memory_repeats_exactly_in_processes_and_in_serial_mode() {
+    let sets = [
+        "max_env_steps=3000",
+        "sim.envs=2",
+        "sim.agents=4",
+        "sim.observation_mode=\"non-batched\"",
+        "replay.min_fill=200",
+        "replay.samples_per_insert=1.0",
+        "replay.batch=4",
+        "replay.prioritized=true",
+        "learner.memory=\"gru:8\"",
+        "learner.sequence_steps=6",
+        "learner.burn_in=2",
+    ];
+    let _ = assert_reproducible("det-memory", &sets, 1 + (3000 - 200) / 16, true);
+}
+
 /// The teacher (`[teacher]`): `policy = "none"` with every other teacher
 /// key set trains exactly as a run without the section; the planner as
 /// teacher (one agent of four flown, half the others' steps labelled, the

@@ -474,7 +474,8 @@ impl<'a, S: Service> Actor<'a, S> {
     /// With memory: records this step in the agents' sequence windows
     /// (the last actions' outcome, the observations and the states acted
     /// from) and sends the sequences complete now, each counting its
-    /// trained steps as transitions.
+    /// trained steps as transitions (a deterministic run sends every round,
+    /// as [`Actor::send_transitions`]).
     fn send_sequences(&mut self, obs: &[f32], rewards: &[f32], dones: &[f32]) -> Result<()> {
         let Policy::Recurrent(m) = &mut self.policy else {
             return Ok(());
@@ -487,7 +488,8 @@ impl<'a, S: Service> Actor<'a, S> {
         let m = &mut **m;
         m.seqs.push(self.have_prev.then_some((taken, rewards, dones)), obs, &m.before);
         let count = m.seqs.agents.len();
-        if count == 0 {
+        // A deterministic run sends every round, empty or not.
+        if count == 0 && self.schedule.is_none() {
             return Ok(());
         }
         let header = TransitionHeader {

@@ -20,6 +20,8 @@ use crate::config::Config;
 pub struct Schedule {
     agents: u64,
     min_fill: u64,
+    /// Agent-steps one minibatch trains on: `replay.batch` transitions, or
+    /// with memory sequences of several trained steps each.
     batch: u64,
     per_insert: f64,
     publish_every: u64,
@@ -34,10 +36,14 @@ impl Schedule {
     /// `samples_per_insert` and `max_env_steps`).
     pub fn new(cfg: &Config) -> Self {
         let agents = cfg.agents_total() as u64;
+        let batch = (cfg.replay.batch * cfg.steps_per_row()) as u64;
+        // With memory an agent's first sequence leaves after its
+        // `sequence_steps`: the memory holds one of each by then.
+        let first = cfg.memory().map_or(0, |_| cfg.learner.sequence_steps as u64 * agents);
         Self {
             agents,
-            min_fill: cfg.replay.min_fill.max(cfg.replay.batch) as u64,
-            batch: cfg.replay.batch as u64,
+            min_fill: (cfg.replay.min_fill as u64).max(batch).max(first),
+            batch,
             per_insert: cfg.replay.samples_per_insert,
             publish_every: cfg.learner.publish_every,
             rounds: cfg.max_env_steps.div_ceil(agents.max(1)),
@@ -117,5 +123,14 @@ mod tests {
         assert_eq!(p.minibatches_after(29), 42);
         assert_eq!(p.total_updates(), s.total_updates() + 40);
         assert_eq!(p.updates_for_step(26), 40, "the actors fly the pre-trained weights");
+        // With memory a minibatch of 32 sequences trains on 32 × 4 steps,
+        // and the first is owed once every agent's first sequence is in.
+        cfg.teacher.policy = crate::teacher::TeacherPolicy::None;
+        cfg.learner.memory = "gru:8".into();
+        (cfg.learner.sequence_steps, cfg.learner.burn_in) = (30, 26);
+        let m = Schedule::new(&cfg);
+        assert_eq!((m.minibatches_after(29), m.minibatches_after(30)), (0, 1));
+        assert_eq!(m.minibatches_after(30 + 16), 2, "128 agent-steps a minibatch");
+        assert_eq!(m.total_updates(), 1 + (2_000 - 240) / 128);
     }
 }

@@ -313,8 +313,7 @@ impl Config {
         self.validate_memory()
     }
 
-    /// `learner.memory` and its sequences, and what memory does not work
-    /// with yet.
+    /// `learner.memory` and its sequences.
     fn validate_memory(&self) -> Result<()> {
         let l = &self.learner;
         if l.memory == "none" {
@@ -340,16 +339,6 @@ impl Config {
                 l.burn_in,
                 l.sequence_steps
             );
-        }
-        let unsupported = [
-            (self.deterministic, "`deterministic`"),
-            (
-                self.sim.observation_mode != super::ObservationMode::Batched,
-                "`sim.observation_mode = \"non-batched\"`",
-            ),
-        ];
-        if let Some((_, what)) = unsupported.iter().find(|(on, _)| *on) {
-            config_err!("key `learner.memory` ({}) does not work with {what} yet", l.memory);
         }
         Ok(())
     }

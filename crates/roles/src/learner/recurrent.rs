@@ -1,7 +1,7 @@
 //! The learner of a run with memory (`learner.memory = "gru:WIDTH"`): R2D2's
 //! update ([`SeqDqn`]) on minibatches of stored sequences, weights published
-//! by version and checkpoints as the feedforward learner's. What it does not
-//! do yet: deterministic runs (the config refuses them with memory). Its
+//! by version and checkpoints as the feedforward learner's, in deterministic
+//! runs too (the replay's schedule counts a sequence's trained steps). Its
 //! update's stages (forward, backward, optimiser) reach telemetry and `hive
 //! profile` as the feedforward learner's. A restarted
 //! one goes on from `checkpoints/learner-state.safetensors` (both networks,
@@ -153,7 +153,8 @@ fn learn<S: Service>(
         weights: &prio.weights,
     })?;
     if let Some(tx) = &mut prio.prio_tx {
-        super::send_priorities(tx, &mut prio.picks, dqn.priorities(), mb.seq, false, lost)?;
+        let (picks, det) = (&mut prio.picks, cfg.deterministic);
+        super::send_priorities(tx, picks, dqn.priorities(), mb.seq, det, lost)?;
     }
     Ok(loss)
 }

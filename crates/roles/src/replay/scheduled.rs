@@ -51,6 +51,11 @@ impl<S: Service> Memory<'_, S> {
                 && owed
                 && self.prio.ready_for(sent, &mut self.mem, &mut self.tel.sample.learning)?
             {
+                if self.mem.is_empty() {
+                    // The schedule waits for every agent's first row: a
+                    // memory still empty is a bug, not a run to go on with.
+                    protocol_err!("minibatch {sent} is owed and the replay memory holds nothing");
+                }
                 let beta = cfg.replay.priority_beta;
                 let (rows, teacher) = self.demo_rows(sent);
                 let demos = self.demos.as_mut().map(|d| &mut d.mem);
