@@ -488,8 +488,9 @@ impl<'a, S: Service> Actor<'a, S> {
         let m = &mut **m;
         m.seqs.push(self.have_prev.then_some((taken, rewards, dones)), obs, &m.before);
         let count = m.seqs.agents.len();
-        // A deterministic run sends every round, empty or not.
-        if count == 0 && self.schedule.is_none() {
+        // A deterministic run sends every round, empty or not: round `h`
+        // holds the outcome of step `h`, so none at a stream's first step.
+        if count == 0 && (self.schedule.is_none() || !self.have_prev) {
             return Ok(());
         }
         let header = TransitionHeader {
