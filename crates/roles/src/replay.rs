@@ -675,8 +675,6 @@ fn insert(
     Ok(())
 }
 
-/// The header of minibatch `seq` of `batch` transitions just sampled, of
-/// which `demo.0` demonstrations, with the teacher's weight `demo.1`.
 /// What decides a minibatch's demonstration rows besides the teacher's
 /// section: the run's pre-training minibatches and its batch.
 #[derive(Debug, Clone, Copy)]
@@ -704,6 +702,8 @@ fn demo_rows(
     (rows.min(plan.batch), fade as f32)
 }
 
+/// The header of minibatch `seq` of `batch` transitions just sampled, of
+/// which `demo.0` demonstrations, with the teacher's weight `demo.1`.
 fn minibatch_header(batch: usize, seq: u64, acted: Acted, demo: (usize, f32)) -> MinibatchHeader {
     MinibatchHeader {
         batch: batch as u32,
