@@ -212,7 +212,33 @@ fn the_teacher_repeats_exactly_and_none_trains_as_without_it() {
     assert!((700..=750).contains(&demo), "{summary:?}");
     assert!((1..=1125).contains(&labelled), "{summary:?}");
     assert!(t.teacher.is_some() && t.teacher_ms_per_label.is_some(), "{summary:?}");
+    assert!(t.teacher_s > 0.0, "the planner's time, counted: {summary:?}");
     assert!(rows_a.len() > 10, "{} student episodes", rows_a.len());
+}
+
+/// Polyak averaging (`learner.average_updates`): the actors fly, and
+/// `final.safetensors` keeps, a running average of the online weights, so
+/// the episodes and the final network are not those of the plain run;
+/// the run repeats exactly, in processes and in serial mode, with the same
+/// updates.
+#[test]
+#[ignore = "slow multi-process test: scripts/test runs it (--include-ignored)"]
+fn weight_averaging_repeats_exactly_and_changes_what_the_actors_fly() {
+    let base = [
+        "max_env_steps=3000",
+        "sim.agents=4",
+        "replay.min_fill=200",
+        "replay.samples_per_insert=1.0",
+    ];
+    let plain = run("det-avg-plain", &base, false);
+    let sets = [&base[..], &["learner.average_updates=30"]].concat();
+    let (rows_a, weights_a, summary) = run("det-avg-a", &sets, false);
+    let (rows_b, weights_b, _) = run("det-avg-b", &sets, true);
+    assert_eq!(rows_a, rows_b, "the averaged runs differ");
+    assert!(weights_a == weights_b, "the averaged runs' final networks differ");
+    assert_eq!((summary.learner_updates, plain.2.learner_updates), (88, 88), "the schedule's");
+    assert!(rows_a != plain.0, "the actors flew the online weights");
+    assert!(tensors(&weights_a) != tensors(&plain.1), "final.safetensors is not the average");
 }
 
 /// A safetensors file's tensors: name, shape and bytes, in name order.

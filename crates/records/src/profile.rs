@@ -18,6 +18,8 @@ use crate::telemetry::TelemetryRow;
 pub struct RoleProfile {
     /// `learner-0`, `sim-1`, …
     pub name: String,
+    /// Its kind.
+    pub kind: RoleKind,
     /// Mean CPU % of the process (100 = one core).
     pub cpu: f64,
     /// Stage names and the share of the role's wall time in each.
@@ -73,6 +75,9 @@ pub struct Profile {
     pub skipped_updates: u32,
     /// The smallest and largest epsilon of every actor at the end.
     pub epsilon_spread: Option<(f64, f64)>,
+    /// The teacher's planner's share of each sim's wall time (outside the
+    /// sims' stages), from `summary.json`; none without a teacher.
+    pub teacher_share: Option<f64>,
 }
 
 impl Profile {
@@ -129,14 +134,8 @@ pub fn analyse(run_dir: &Path) -> Result<Profile> {
             roles.push(p);
         }
     }
-    let bottleneck = roles.iter().min_by(|a, b| a.wait.total_cmp(&b.wait)).map(|r| {
-        let (stage, busy) = r
-            .stages
-            .iter()
-            .filter(|(n, _)| *n != "transport_wait" && *n != "idle")
-            .fold(("", -1.0), |a, b| if b.1 > a.1 { *b } else { a });
-        Bottleneck { role: r.name.clone(), stage, busy, wait: r.wait }
-    });
+    let teacher_share = teacher_share(run_dir, &roles);
+    let bottleneck = bottleneck(&roles, teacher_share);
     Ok(Profile {
         roles,
         machine_cpu: mean(machine.into_iter()),
@@ -146,7 +145,36 @@ pub fn analyse(run_dir: &Path) -> Result<Profile> {
         learning,
         skipped_updates,
         epsilon_spread,
+        teacher_share,
     })
+}
+
+/// The role that waits least on the others, at its busiest stage; a sim's
+/// teacher (its planner, timed outside the sims' stages) counts as a stage
+/// of its own, `teacher`.
+fn bottleneck(roles: &[RoleProfile], teacher_share: Option<f64>) -> Option<Bottleneck> {
+    roles.iter().min_by(|a, b| a.wait.total_cmp(&b.wait)).map(|r| {
+        let (stage, busy) = r
+            .stages
+            .iter()
+            .filter(|(n, _)| *n != "transport_wait" && *n != "idle")
+            .fold(("", -1.0), |a, b| if b.1 > a.1 { *b } else { a });
+        let (stage, busy) = match teacher_share {
+            Some(t) if r.kind == RoleKind::Sim && t > busy => ("teacher", t),
+            _ => (stage, busy),
+        };
+        Bottleneck { role: r.name.clone(), stage, busy, wait: r.wait }
+    })
+}
+
+/// The planner's share of each sim's wall time: the seconds of the run's
+/// teacher (`summary.json`'s `teacher_s`, every sim's together) over the
+/// sims' wall time; none without a teacher, a summary or a sim.
+fn teacher_share(run_dir: &Path, roles: &[RoleProfile]) -> Option<f64> {
+    let s = crate::Summary::read(run_dir).ok()?;
+    let sims = roles.iter().filter(|r| r.kind == RoleKind::Sim).count();
+    (s.teaching.teacher_s > 0.0 && sims > 0 && s.wall_s > 0.0)
+        .then(|| s.teaching.teacher_s / (sims as f64 * s.wall_s))
 }
 
 /// A role's share of its wall time in each stage (cumulative timings: the
@@ -170,6 +198,7 @@ fn role_profile(role: Member, index: u32, r: &[TelemetryRow]) -> Option<RoleProf
     };
     Some(RoleProfile {
         name: format!("{role}-{index}"),
+        kind,
         cpu: mean(r.iter().map(|x| x.cpu_pct)),
         stages: std::array::from_fn(|k| (names[k], share[k])),
         wait,
@@ -234,7 +263,7 @@ fn markdown(p: &Profile, run_dir: &Path) -> Result<String> {
         )?;
     }
     learning_section(&mut out, p)?;
-    teacher_section(&mut out, run_dir)?;
+    teacher_section(&mut out, p, run_dir)?;
     writeln!(
         out,
         "Machine CPU: {:.0} % on average over {} cores.",
@@ -290,18 +319,19 @@ fn learning_section(out: &mut String, p: &Profile) -> Result<()> {
 /// The teacher's cost, from the run's `summary.json` (a run still going,
 /// or one without a teacher, has none): the planner's time per action it
 /// gave, and what it gave.
-fn teacher_section(out: &mut String, run_dir: &Path) -> Result<()> {
+fn teacher_section(out: &mut String, p: &Profile, run_dir: &Path) -> Result<()> {
     let Ok(s) = crate::Summary::read(run_dir) else {
         return Ok(());
     };
-    let s = s.teaching;
+    let (s, share) = (s.teaching, p.teacher_share.unwrap_or(0.0));
     if s.teacher.is_some() {
         let ms = |v: Option<f64>| v.map_or("—".to_string(), |v| format!("{v:.3} ms"));
         writeln!(
             out,
-            "Teacher (the sims' planner, outside their stages): {} per label, {} per demonstrated step; {} demonstrations and {} labelled transitions sent.",
+            "Teacher (the sims' planner, outside their stages): {} per label, {} per demonstrated step ({:.0} % of each sim's wall time); {} demonstrations and {} labelled transitions sent.",
             ms(s.teacher_ms_per_label),
             ms(s.teacher_ms_per_demo_step),
+            share * 100.0,
             s.demo_transitions,
             s.labelled_transitions
         )?;
@@ -321,4 +351,43 @@ pub fn run(run_dir: &Path) -> Result<()> {
     let path = run_dir.join("profile.md");
     std::fs::write(&path, &r).map_err(RecordsError::io("write", &path))?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn role(kind: RoleKind, busy: [f64; 3], wait: f64) -> RoleProfile {
+        let names = stage_names(kind);
+        RoleProfile {
+            name: format!("{}-0", Member::from(kind)),
+            kind,
+            cpu: 50.0,
+            stages: std::array::from_fn(|k| (names[k], if k < 3 { busy[k] } else { wait })),
+            wait,
+        }
+    }
+
+    #[test]
+    fn a_sims_teacher_is_its_busiest_stage_where_it_takes_the_most_time() {
+        // A run with a teacher, as measured on L1 (labels on every step):
+        // the sim waits least, its stages fill a fifth of its time.
+        let roles = [
+            role(RoleKind::Sim, [0.01, 0.09, 0.0], 0.12),
+            role(RoleKind::Learner, [0.42, 0.28, 0.04], 0.25),
+        ];
+        let b = bottleneck(&roles, Some(0.56)).expect("roles");
+        assert_eq!((b.role.as_str(), b.stage), ("sim-0", "teacher"));
+        assert!((b.busy - 0.56).abs() < 1e-12);
+        // Without a teacher (or with a cheap one) the sim's busiest stage.
+        assert_eq!(bottleneck(&roles, None).expect("roles").stage, "render");
+        assert_eq!(bottleneck(&roles, Some(0.05)).expect("roles").stage, "render");
+        // The teacher is a sim's: another role's bottleneck keeps its stage.
+        let learner_bound = [
+            role(RoleKind::Sim, [0.01, 0.09, 0.0], 0.40),
+            role(RoleKind::Learner, [0.42, 0.28, 0.04], 0.10),
+        ];
+        let b = bottleneck(&learner_bound, Some(0.56)).expect("roles");
+        assert_eq!((b.role.as_str(), b.stage), ("learner-0", "forward"));
+    }
 }

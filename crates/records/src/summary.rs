@@ -189,6 +189,9 @@ pub struct Teaching {
     /// Milliseconds of the planner per step of an agent it flies (null
     /// without demonstrations).
     pub teacher_ms_per_demo_step: Option<f64>,
+    /// Seconds of the planner in all the sims together (its labels and the
+    /// steps it flew), outside the sims' stages.
+    pub teacher_s: f64,
 }
 
 impl Summary {

@@ -647,6 +647,7 @@ impl Supervisor<'_> {
             labelled_transitions: tc.labelled_transitions,
             teacher_ms_per_label: per(tc.label_ns, tc.labels),
             teacher_ms_per_demo_step: per(tc.demo_ns, tc.demo_steps),
+            teacher_s: (tc.label_ns + tc.demo_ns) as f64 / 1e9,
         }
     }
 

@@ -312,6 +312,11 @@ pub struct LearnerSection {
     pub max_rate_hz: f64,
     /// Updates between weight publications.
     pub publish_every: u64,
+    /// Polyak averaging of what the learner publishes (0 = off): the actors,
+    /// the evaluations and `final.safetensors` get an exponential moving
+    /// average of the online network's weights over about this many
+    /// updates, folded in at every publication; training is unchanged.
+    pub average_updates: f64,
     /// Seconds between checkpoints (`checkpoints/latest.safetensors` and the
     /// learner's whole state): a learner killed at any moment restarts with
     /// at most this much of its updates lost.
@@ -423,6 +428,7 @@ impl Default for LearnerSection {
             target_update: 150,
             max_rate_hz: 0.0,
             publish_every: 10,
+            average_updates: 0.0,
             checkpoint_every_s: 1.0,
             threads: 0,
             huber_delta: 1.0,

@@ -304,6 +304,12 @@ impl Config {
                 l.max_grad_norm
             );
         }
+        if !(l.average_updates.is_finite() && l.average_updates >= 0.0) {
+            config_err!(
+                "key `learner.average_updates` must be 0 (off) or positive, got {}",
+                l.average_updates
+            );
+        }
         if !(l.max_rate_hz.is_finite() && l.max_rate_hz >= 0.0) {
             config_err!(
                 "key `learner.max_rate_hz` must be 0 (unlimited) or positive, got {}",

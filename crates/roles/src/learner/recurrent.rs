@@ -61,7 +61,8 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, width: usize, layout: SeqLayout) -> Resul
     )?;
     let mut tel = crate::counters(hub, RoleKind::Learner, 0, roles_of(cfg))?;
     let mut version = 0;
-    publish(&mut w_tx, &dqn, &mut version)?;
+    let mut average = super::Average::new(cfg);
+    publish(&mut w_tx, &dqn, average.as_mut(), &mut version)?;
     let mut last_ckpt = Instant::now();
     let mut gauges = Gauges::default();
     let mut batch = Unpacked::default();
@@ -85,7 +86,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, width: usize, layout: SeqLayout) -> Resul
         tel.sample.work = dqn.updates();
         gauges.add(loss, &mb, version, &mut tel.sample);
         if dqn.updates() % cfg.learner.publish_every == 0 {
-            publish(&mut w_tx, &dqn, &mut version)?;
+            publish(&mut w_tx, &dqn, average.as_mut(), &mut version)?;
             tel.sample.weight_version = version;
             tel.sample.work2 = version;
         }
@@ -95,6 +96,10 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, width: usize, layout: SeqLayout) -> Resul
         }
     }
     save(&dqn, (&latest, &state), &tags)?;
+    if let Some(avg) = &average {
+        // Training is over: the online network becomes the run's average.
+        dqn.online.load_flat(avg.weights())?;
+    }
     let fin = run_dir.join("final.safetensors");
     dqn.online
         .save(&fin, &tags)
@@ -196,14 +201,15 @@ fn save(dqn: &SeqDqn, (latest, state): (&Path, &Path), tags: &[(&str, String)]) 
     dqn.save_state(state).doing_with(|| format!("cannot write learner state {}", state.display()))
 }
 
-/// Publishes the online network as the next weight version (as the
-/// feedforward learner does).
+/// Publishes the online network (or its average) as the next weight
+/// version, as the feedforward learner does.
 fn publish<S: Service>(
     w_tx: &mut rotorhive_transport::Sender<S, f32, WeightsHeader>,
     dqn: &SeqDqn,
+    average: Option<&mut super::Average>,
     version: &mut u64,
 ) -> Result<()> {
     let net = &dqn.online;
     let write = |p: &mut [f32]| Ok(net.write_flat(p)?);
-    super::publish_flat(w_tx, (net.num_params(), dqn.updates()), write, version)
+    super::publish_flat(w_tx, (net.num_params(), dqn.updates()), write, average, version)
 }
