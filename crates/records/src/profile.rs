@@ -78,6 +78,9 @@ pub struct Profile {
     /// The teacher's planner's share of each sim's wall time (outside the
     /// sims' stages), from `summary.json`; none without a teacher.
     pub teacher_share: Option<f64>,
+    /// What the teacher gave and what it cost, from `summary.json` (a run
+    /// still going, or one without a teacher, has none).
+    pub teaching: Option<crate::Teaching>,
 }
 
 impl Profile {
@@ -134,7 +137,8 @@ pub fn analyse(run_dir: &Path) -> Result<Profile> {
             roles.push(p);
         }
     }
-    let teacher_share = teacher_share(run_dir, &roles);
+    let summary = crate::Summary::read(run_dir).ok();
+    let teacher_share = summary.as_ref().and_then(|s| teacher_share(s, &roles));
     let bottleneck = bottleneck(&roles, teacher_share);
     Ok(Profile {
         roles,
@@ -146,6 +150,7 @@ pub fn analyse(run_dir: &Path) -> Result<Profile> {
         skipped_updates,
         epsilon_spread,
         teacher_share,
+        teaching: summary.map(|s| s.teaching).filter(|t| t.teacher.is_some()),
     })
 }
 
@@ -169,9 +174,8 @@ fn bottleneck(roles: &[RoleProfile], teacher_share: Option<f64>) -> Option<Bottl
 
 /// The planner's share of each sim's wall time: the seconds of the run's
 /// teacher (`summary.json`'s `teacher_s`, every sim's together) over the
-/// sims' wall time; none without a teacher, a summary or a sim.
-fn teacher_share(run_dir: &Path, roles: &[RoleProfile]) -> Option<f64> {
-    let s = crate::Summary::read(run_dir).ok()?;
+/// sims' wall time; none without a teacher or a sim.
+fn teacher_share(s: &crate::Summary, roles: &[RoleProfile]) -> Option<f64> {
     let sims = roles.iter().filter(|r| r.kind == RoleKind::Sim).count();
     (s.teaching.teacher_s > 0.0 && sims > 0 && s.wall_s > 0.0)
         .then(|| s.teaching.teacher_s / (sims as f64 * s.wall_s))
@@ -263,7 +267,7 @@ fn markdown(p: &Profile, run_dir: &Path) -> Result<String> {
         )?;
     }
     learning_section(&mut out, p)?;
-    teacher_section(&mut out, p, run_dir)?;
+    teacher_section(&mut out, p)?;
     writeln!(
         out,
         "Machine CPU: {:.0} % on average over {} cores.",
@@ -316,15 +320,11 @@ fn learning_section(out: &mut String, p: &Profile) -> Result<()> {
     Ok(())
 }
 
-/// The teacher's cost, from the run's `summary.json` (a run still going,
-/// or one without a teacher, has none): the planner's time per action it
-/// gave, and what it gave.
-fn teacher_section(out: &mut String, p: &Profile, run_dir: &Path) -> Result<()> {
-    let Ok(s) = crate::Summary::read(run_dir) else {
-        return Ok(());
-    };
-    let (s, share) = (s.teaching, p.teacher_share.unwrap_or(0.0));
-    if s.teacher.is_some() {
+/// The teacher's cost: the planner's time per action it gave, and what it
+/// gave.
+fn teacher_section(out: &mut String, p: &Profile) -> Result<()> {
+    let share = p.teacher_share.unwrap_or(0.0);
+    if let Some(s) = &p.teaching {
         let ms = |v: Option<f64>| v.map_or("—".to_string(), |v| format!("{v:.3} ms"));
         writeln!(
             out,
