@@ -390,4 +390,37 @@ mod tests {
         let b = bottleneck(&learner_bound, Some(0.56)).expect("roles");
         assert_eq!((b.role.as_str(), b.stage), ("learner-0", "forward"));
     }
+
+    #[test]
+    fn the_teachers_line_gives_its_costs_and_is_absent_without_one() {
+        let mut p = Profile {
+            roles: vec![role(RoleKind::Sim, [0.01, 0.09, 0.0], 0.12)],
+            machine_cpu: 90.0,
+            bottleneck: None,
+            supervisor_cpu: None,
+            policy_lag: None,
+            learning: Vec::new(),
+            skipped_updates: 0,
+            epsilon_spread: None,
+            teacher_share: Some(0.49),
+            teaching: None,
+        };
+        let mut out = String::new();
+        teacher_section(&mut out, &p).expect("write");
+        assert_eq!(out, "");
+        // L2's camera planner, as `runs/l2-ten` measured it: labels only.
+        p.teaching = Some(crate::Teaching {
+            teacher: Some(serde_json::json!({"policy": "planner", "sight": "view"})),
+            demo_transitions: 0,
+            labelled_transitions: 94_384,
+            teacher_ms_per_label: Some(0.313),
+            teacher_ms_per_demo_step: None,
+            teacher_s: 147.0,
+        });
+        teacher_section(&mut out, &p).expect("write");
+        for part in ["0.313 ms per label", "— per demonstrated step", "(49 % of", "94384 labelled"]
+        {
+            assert!(out.contains(part), "{part:?} missing from {out:?}");
+        }
+    }
 }
