@@ -140,10 +140,13 @@ impl<S: Service> Memory<'_, S> {
             // Pre-training waits for a demonstration to draw.
             let ready = self.ready() && (mb_seq >= self.pretrain || self.holds_demos());
             let mut sent = false;
-            // Pre-training minibatches are not held to the ratio.
-            let allowed =
-                mb_seq < self.pretrain || limit.allows(mb_seq - self.pretrain, self.inserted());
-            if ready && allowed && Instant::now() >= backoff_until {
+            // Pre-training minibatches are not held to the ratio. The limit
+            // is asked only once the memory is ready: its first question
+            // fixes where sampling began.
+            let allowed = ready
+                && (mb_seq < self.pretrain
+                    || limit.allows(mb_seq - self.pretrain, self.inserted()));
+            if allowed && Instant::now() >= backoff_until {
                 match self.send_fresh(mb_seq)? {
                     true => {
                         mb_seq += 1;
@@ -547,7 +550,8 @@ impl SampleLimit {
         }
     }
 
-    /// Whether minibatch number `sent` (from 0) may go out.
+    /// Whether minibatch number `sent` (from 0) may go out; the first call
+    /// fixes where sampling began, so ask once the memory is ready.
     fn allows(&mut self, sent: u64, inserted: u64) -> bool {
         let base = *self.base.get_or_insert(inserted);
         self.per_insert <= 0.0
