@@ -140,12 +140,7 @@ impl<S: Service> Memory<'_, S> {
             // Pre-training waits for a demonstration to draw.
             let ready = self.ready() && (mb_seq >= self.pretrain || self.holds_demos());
             let mut sent = false;
-            // Pre-training minibatches are not held to the ratio. The limit
-            // is asked only once the memory is ready: its first question
-            // fixes where sampling began.
-            let allowed = ready
-                && (mb_seq < self.pretrain
-                    || limit.allows(mb_seq - self.pretrain, self.inserted()));
+            let allowed = limit.may_send(ready, mb_seq, self.pretrain, self.inserted());
             if allowed && Instant::now() >= backoff_until {
                 match self.send_fresh(mb_seq)? {
                     true => {
@@ -550,8 +545,17 @@ impl SampleLimit {
         }
     }
 
+    /// Whether minibatch `seq` (from 0, the first `pretrain` of them
+    /// pre-training ones, which are not held to the ratio) may go out with
+    /// `inserted` transitions in: never before the memory is `ready`, and
+    /// the limit is asked only then (its first question fixes where
+    /// sampling began).
+    fn may_send(&mut self, ready: bool, seq: u64, pretrain: u64, inserted: u64) -> bool {
+        ready && (seq < pretrain || self.allows(seq - pretrain, inserted))
+    }
+
     /// Whether minibatch number `sent` (from 0) may go out; the first call
-    /// fixes where sampling began, so ask once the memory is ready.
+    /// fixes where sampling began.
     fn allows(&mut self, sent: u64, inserted: u64) -> bool {
         let base = *self.base.get_or_insert(inserted);
         self.per_insert <= 0.0

@@ -134,6 +134,28 @@ fn sampling_waits_for_inserts_past_the_buffer() {
 }
 
 #[test]
+fn the_limit_counts_from_where_the_memory_was_ready() {
+    // The replay asks on every loop; questions before min_fill must not fix
+    // the start (CI once saw 85 minibatches of 32 out of 1,763 inserted).
+    let mut cfg = crate::config::Config::default();
+    cfg.replay.samples_per_insert = 1.0;
+    let mut lim = SampleLimit::new(&cfg);
+    let buffer_batches = (lim.buffer / lim.batch) as u64;
+    for inserted in [0, 500, 14_999] {
+        assert!(!lim.may_send(false, 0, 0, inserted), "sent before the memory was ready");
+    }
+    assert!(lim.may_send(true, 0, 0, 15_000));
+    assert!(lim.may_send(true, buffer_batches - 1, 0, 15_000));
+    assert!(!lim.may_send(true, buffer_batches, 0, 15_000), "counted from before min_fill");
+    // Pre-training minibatches go out past the ratio, once ready.
+    let mut pre = SampleLimit::new(&cfg);
+    assert!(!pre.may_send(false, 0, 1_000, 15_000));
+    assert!(pre.may_send(true, 999, 1_000, 15_000));
+    assert!(pre.may_send(true, 1_000, 1_000, 15_000), "the first student minibatch");
+    assert!(!pre.may_send(true, 1_000 + buffer_batches, 1_000, 15_000));
+}
+
+#[test]
 fn pre_training_draws_whole_minibatches_of_demonstrations_then_their_share() {
     let mut t = crate::teacher::TeacherSection {
         policy: crate::teacher::TeacherPolicy::Planner,
