@@ -173,7 +173,64 @@ fn short_multi_process_training_run() {
     assert_eq!(decoded, frames);
     assert!(changed, "the frames show the flight going on");
     assert!(std::fs::read(&still).unwrap().starts_with(b"\x89PNG"));
+    // `hive profile` reads the finished run: each role's share and the
+    // bottleneck.
+    let out = hive().args(["profile", dir.to_str().unwrap()]).output().unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(text.contains("# Profile of") && text.contains("learner"), "{text}");
+    the_checkpoint_is_diagnosed_on_its_training_layouts(&dir, &ckpt);
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `hive eval --training-layouts --failures --agree` on a short run's
+/// checkpoint: the layouts it trained on, the failure map and the audit.
+fn the_checkpoint_is_diagnosed_on_its_training_layouts(dir: &std::path::Path, ckpt: &str) {
+    let map = dir.join("failures");
+    let run = dir.to_str().unwrap();
+    let v = eval_json(&[
+        "--checkpoint",
+        ckpt,
+        "--training-layouts",
+        run,
+        "--episodes",
+        "24",
+        "--failures",
+        map.to_str().unwrap(),
+        "--agree",
+        "view",
+    ]);
+    assert_eq!(v["episodes"].as_u64(), Some(24), "{v}");
+    let layouts = v["layouts"].as_array().unwrap();
+    assert!(layouts.len() > 1, "{v}");
+    assert!(layouts.iter().all(|l| l["name"].as_str().unwrap().starts_with("env-0-")), "{v}");
+    let q = v["layout_quartiles"].as_array().unwrap();
+    assert_eq!(q.len(), 3);
+    assert!(q[0].as_f64() <= q[1].as_f64() && q[1].as_f64() <= q[2].as_f64(), "{v}");
+    assert!(v["layouts_under_half"].as_u64().is_some(), "{v}");
+    // Every failed episode is a row of the map; the pictures and the last
+    // observations are there.
+    let failures = v["failures"].as_u64().unwrap();
+    let flown = (v["success_rate"].as_f64().unwrap() * 24.0).round() as u64;
+    assert_eq!(failures, 24 - flown, "{v}");
+    let csv = std::fs::read_to_string(map.join("failures.csv")).unwrap();
+    assert_eq!(csv.lines().count() as u64, failures + 1, "{csv}");
+    let npy = std::fs::read(map.join("last-observations.npy")).unwrap();
+    assert!(npy.starts_with(b"\x93NUMPY"));
+    let pictures = std::fs::read_dir(&map)
+        .unwrap()
+        .filter(|e| e.as_ref().unwrap().path().extension().is_some_and(|x| x == "png"))
+        .count();
+    assert!(failures == 0 || pictures > 0, "{failures} failures, {pictures} pictures");
+    let share = v["trap_share"].as_f64().unwrap();
+    assert!((0.0..=1.0).contains(&share) && v["traps"].as_u64().is_some(), "{v}");
+    // The audit judged the steps flown.
+    let g = &v["agreement"];
+    assert_eq!(g["sight"], "view");
+    assert!(g["all_steps"].as_u64().unwrap() > 24, "{g}");
+    for k in ["all", "decisive", "before_crash"] {
+        assert!(g[k].is_null() || (0.0..=1.0).contains(&g[k].as_f64().unwrap()), "{g}");
+    }
 }
 
 fn fails_with(args: &[&str], needles: &[&str]) {
@@ -205,7 +262,7 @@ fn the_scripted_pilots_fly_a_levels_test_layouts() {
     assert_eq!(planner["policy"], "planner");
     assert_eq!(planner["sight"], "all");
     assert_eq!(planner["episodes"].as_u64(), Some(100));
-    assert_eq!(planner["layouts"].as_array().map(Vec::len), Some(5));
+    assert_eq!(planner["layouts"].as_array().map(Vec::len), Some(50));
     let (p, r) =
         (planner["success_rate"].as_f64().unwrap(), reactive["success_rate"].as_f64().unwrap());
     assert!(p >= 0.7 && p > r + 0.5, "planner {p}, reactive rule {r}");
@@ -214,6 +271,20 @@ fn the_scripted_pilots_fly_a_levels_test_layouts() {
     let hopeless = planner["hopeless"].as_f64().unwrap();
     assert!(hopeless <= 100.0 * (1.0 - p) + 1e-9, "{hopeless} hopeless at {p}");
     assert!(reactive["hopeless"].is_null());
+    // Told only what the pixels show, the planner still flies L1's
+    // still layouts; the quartiles of its layouts are in order.
+    let args = ["--level", "dense", "--episodes", "20", "--policy", "planner"];
+    let pixels = eval_json(&[&args[..], &["--sight", "pixels"]].concat());
+    assert_eq!(pixels["sight"], "pixels");
+    let p = pixels["success_rate"].as_f64().unwrap();
+    assert!(p >= 0.6, "the planner of the pixels flew {p} of L1");
+    let q: Vec<f64> = pixels["layout_quartiles"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect();
+    assert!(q[0] <= q[1] && q[1] <= q[2], "{q:?}");
 }
 
 /// A checkpoint flown on a level sees as it was trained to: four frames

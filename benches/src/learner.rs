@@ -128,6 +128,7 @@ pub fn bench(
     }
     if json {
         let mut v = fused.json();
+        v["device"] = "cpu".into();
         v["threads"] = threads.into();
         v["batch"] = batch.into();
         if let Some(g) = &generic {

@@ -537,8 +537,12 @@ impl ObsHop {
                 let h = *m.user_header();
                 // A whole batch is used in place (the actor's network reads it
                 // from shared memory); per-agent messages are copied together.
+                // Completion is the header's (all agents of the step), never a
+                // payload value: the payload's tail holds the teacher's labels,
+                // `NO_EXPERT = -1.0` where there is none.
                 let complete = if h.agents == h.total {
-                    std::hint::black_box(m.payload()[m.payload().len() - 1]) >= 0.0
+                    std::hint::black_box(m.payload()[m.payload().len() - 1]);
+                    h.first == 0 && h.total as usize == n
                 } else {
                     gather.add(&h, m.payload())
                 };

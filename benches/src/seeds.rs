@@ -172,6 +172,8 @@ pub struct RunResult {
     final_validation: Option<f64>,
     result_validation: Option<f64>,
     test_success: Option<f64>,
+    /// The test set's per-layout quartiles and layouts under 50 %.
+    test_spread: Option<([f64; 3], usize)>,
     env_steps_per_s: f64,
     updates_per_s: f64,
     skipped_updates: u64,
@@ -257,18 +259,26 @@ fn pooled_success(
     pilot: rotorhive_roles::eval::Pilot<'_>,
     arena: Option<&Path>,
     episodes: usize,
-) -> Result<f64> {
+) -> Result<TestScore> {
     let layouts = test_set(cfg, arena)?;
     let sim =
         rotorhive_sim::SimConfig { renderer: rotorhive_sim::RendererKind::Cpu, ..cfg.sim_config() };
-    let stats = rotorhive_roles::eval::fly_layouts(
-        pilot,
-        &sim,
-        &layouts,
-        episodes.div_ceil(layouts.len()),
-        12345,
-    )?;
-    Ok(rotorhive_roles::eval::EvalStats::pooled(&stats).success_rate())
+    let stats = rotorhive_roles::eval::fly_layouts(pilot, &sim, &layouts, episodes, 12345)?;
+    let (quartiles, under_half) = rotorhive_roles::eval::layout_spread(&stats);
+    Ok(TestScore {
+        success: rotorhive_roles::eval::EvalStats::pooled(&stats).success_rate(),
+        quartiles,
+        under_half,
+    })
+}
+
+/// A policy on the held-out test set: pooled success, and its spread over
+/// the layouts (quartiles of per-layout success, layouts under 50 %).
+#[derive(Debug, Clone, Copy)]
+struct TestScore {
+    success: f64,
+    quartiles: [f64; 3],
+    under_half: usize,
 }
 
 /// The success rate of a run's result on the held-out test set, flown
@@ -278,7 +288,7 @@ fn test_success(
     checkpoint: &Path,
     arena: Option<&Path>,
     episodes: usize,
-) -> Result<f64> {
+) -> Result<TestScore> {
     let cfg = Config::load(Some(&run_dir.join("config.toml")), &[])?;
     let net = rotorhive_roles::eval::Network::for_config(&cfg)?;
     net.load_checkpoint(checkpoint)?;
@@ -349,7 +359,8 @@ fn run_one(a: &SeedsArgs, exe: &Path, arm: &Arm, seed: u64, dir: &Path) -> Resul
         best_validation: validation.iter().map(|p| p.1).reduce(f64::max),
         final_validation: summary.final_validation_success,
         result_validation: summary.result_validation_success,
-        test_success: test,
+        test_success: test.map(|t| t.success),
+        test_spread: test.map(|t| (t.quartiles, t.under_half)),
         env_steps_per_s: summary.env_steps_per_s,
         updates_per_s: summary.updates_per_s,
         skipped_updates: summary.skipped_updates,
@@ -444,6 +455,10 @@ pub struct ArmStats {
     reactive_test_success: Option<f64>,
     times_to_target_s: Vec<Option<f64>>,
     test_success: Vec<Option<f64>>,
+    /// Per run: the quartiles of its per-layout test success.
+    test_layout_quartiles: Vec<Option<[f64; 3]>>,
+    /// Per run: the test layouts it flies under 50 %.
+    test_layouts_under_half: Vec<Option<usize>>,
     test_success_min: Option<f64>,
     test_success_iqm: f64,
     result_validation: Vec<Option<f64>>,
@@ -497,6 +512,8 @@ impl ArmStats {
             reactive_test_success: reactive,
             times_to_target_s: each(&|r| r.time_to_target_s),
             test_success: each(&|r| r.test_success),
+            test_layout_quartiles: runs.iter().map(|r| r.test_spread.map(|t| t.0)).collect(),
+            test_layouts_under_half: runs.iter().map(|r| r.test_spread.map(|t| t.1)).collect(),
             test_success_min: tests.iter().copied().reduce(f64::min),
             test_success_iqm: iqm(&tests),
             result_validation: each(&|r| r.result_validation),
@@ -617,6 +634,7 @@ pub fn run(a: &SeedsArgs) -> Result<()> {
             (a.test_episodes > 0)
                 .then(|| pooled_success(cfg, pilot, a.test_arena.as_deref(), a.test_episodes))
                 .transpose()
+                .map(|t| t.map(|t| t.success))
         })
         .collect::<Result<_>>()?;
     std::fs::create_dir_all(&a.out).doing_with(|| format!("cannot create {}", a.out.display()))?;

@@ -55,13 +55,13 @@ pub(super) fn plot(a: &SeedsArgs, arms: &[Arm], by_arm: &[Vec<&RunResult>], resu
 
 pub(super) fn write_csv(path: &Path, results: &[RunResult]) -> Result<()> {
     let mut csv = String::from(
-        "arm,seed,converged,time_to_threshold_s,time_censored_s,time_to_target_s,best_validation,final_validation,result_validation,test_success,env_steps_per_s,updates_per_s,skipped_updates,failure,run_dir\n",
+        "arm,seed,converged,time_to_threshold_s,time_censored_s,time_to_target_s,best_validation,final_validation,result_validation,test_success,test_layout_median,test_layouts_under_half,env_steps_per_s,updates_per_s,skipped_updates,failure,run_dir\n",
     );
     let o = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:.4}"));
     for r in results {
         writeln!(
             csv,
-            "{},{},{},{},{:.3},{},{},{},{},{},{:.1},{:.1},{},{},{}",
+            "{},{},{},{},{:.3},{},{},{},{},{},{},{},{:.1},{:.1},{},{},{}",
             r.arm,
             r.seed,
             r.time_s.is_some(),
@@ -72,6 +72,8 @@ pub(super) fn write_csv(path: &Path, results: &[RunResult]) -> Result<()> {
             o(r.final_validation),
             o(r.result_validation),
             o(r.test_success),
+            o(r.test_spread.map(|t| t.0[1])),
+            r.test_spread.map_or(String::new(), |t| t.1.to_string()),
             r.env_steps_per_s,
             r.updates_per_s,
             r.skipped_updates,

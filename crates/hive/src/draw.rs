@@ -148,12 +148,26 @@ pub fn render_arena(a: RenderArenaArgs) -> Result<()> {
         }
         paths = cur;
     }
-    draw_arena(&arena, &paths, &a.out)?;
+    draw_arena(&arena, &Overlay { paths, ..Overlay::default() }, &a.out)?;
     println!("wrote {}", a.out.display());
     Ok(())
 }
 
-fn draw_arena(arena: &Arena, paths: &[Vec<(f32, f32)>], out: &Path) -> Result<()> {
+/// What is drawn over an arena from above.
+#[derive(Debug, Clone, Default)]
+pub struct Overlay {
+    /// Paths (x, y), each in a colour of its own.
+    pub paths: Vec<Vec<(f32, f32)>>,
+    /// Paths drawn thin and green under them (the planner's).
+    pub guides: Vec<Vec<(f32, f32)>>,
+    /// Where episodes crashed or stopped: red crosses.
+    pub crashes: Vec<(f32, f32)>,
+    /// Traps: red rings of a metre.
+    pub traps: Vec<(f32, f32)>,
+}
+
+/// Draws `arena` from above with `overlay` into the PNG `out`.
+pub fn draw_arena(arena: &Arena, overlay: &Overlay, out: &Path) -> Result<()> {
     font();
     let hw = arena.width / 2.0;
     let scale = 8.0;
@@ -219,12 +233,38 @@ fn draw_arena(arena: &Arena, paths: &[Vec<(f32, f32)>], out: &Path) -> Result<()
                 .map_err(plot_err)?;
         }
     }
-    for (i, p) in paths.iter().enumerate() {
+    draw_overlay(&mut chart, overlay)?;
+    root.present().map_err(plot_err)?;
+    Ok(())
+}
+
+/// The paths, crash points and traps of `overlay` on an arena's chart.
+fn draw_overlay<DB: DrawingBackend>(
+    chart: &mut ChartContext<
+        '_,
+        DB,
+        Cartesian2d<plotters::coord::types::RangedCoordf32, plotters::coord::types::RangedCoordf32>,
+    >,
+    overlay: &Overlay,
+) -> Result<()> {
+    for p in &overlay.guides {
+        chart
+            .draw_series(LineSeries::new(p.iter().copied(), GREEN.mix(0.8).stroke_width(1)))
+            .map_err(plot_err)?;
+    }
+    for (i, p) in overlay.paths.iter().enumerate() {
         chart
             .draw_series(LineSeries::new(p.iter().copied(), Palette99::pick(i).stroke_width(2)))
             .map_err(plot_err)?;
     }
-    root.present().map_err(plot_err)?;
+    chart
+        .draw_series(overlay.crashes.iter().map(|&p| Cross::new(p, 4, RED.stroke_width(2))))
+        .map_err(plot_err)?;
+    for &(x, y) in &overlay.traps {
+        let ring = circle([x, y], 1.0, 32);
+        let closed: Vec<(f32, f32)> = ring.iter().chain(ring.first()).copied().collect();
+        chart.draw_series(LineSeries::new(closed, RED.stroke_width(2))).map_err(plot_err)?;
+    }
     Ok(())
 }
 

@@ -10,7 +10,10 @@ use anyhow::{Result, bail};
 use clap::{Args, ValueEnum};
 use rotorhive_model::Shapes;
 use rotorhive_roles::Config;
-use rotorhive_roles::eval::{EvalStats, Network, Pilot, fly_layouts};
+use rotorhive_roles::eval::{
+    Agreement, EpisodeLog, EvalStats, LogSpec, Network, Pilot, agreement, fly_layouts_logged,
+    layout_spread,
+};
 use rotorhive_sim::{Arena, Sight};
 
 /// Who flies in `hive eval`.
@@ -44,6 +47,13 @@ pub enum SightArg {
     /// What the camera shows now, each moving one known once it has been
     /// in view for half its cycle, over its whole track until then.
     ViewMemory,
+    /// What the pixels show now: the obstacles that at least one of the
+    /// camera's rays meets first (occluded ones not), and what is beside
+    /// the drone; the moving ones' present velocity kept 3 s.
+    Pixels,
+    /// Every obstacle a ray met this episode (within `--memory-s`), each
+    /// moving one as `view-memory` knows it.
+    PixelsMemory,
 }
 
 impl PolicyKind {
@@ -67,6 +77,8 @@ impl SightArg {
             SightArg::ViewVelocity => Sight::ViewVelocity,
             SightArg::ViewTrack => Sight::ViewTrack,
             SightArg::ViewMemory => Sight::ViewMemory(memory_s),
+            SightArg::Pixels => Sight::Pixels,
+            SightArg::PixelsMemory => Sight::PixelsMemory(memory_s),
         }
     }
 
@@ -85,6 +97,8 @@ impl SightArg {
                 "view-memory",
                 "what the camera shows, each mover known once watched for half its cycle",
             ),
+            SightArg::Pixels => ("pixels", "what the pixels show now"),
+            SightArg::PixelsMemory => ("pixels-memory", "what the pixels showed this episode"),
         }
     }
 }
@@ -113,6 +127,25 @@ pub struct EvalArgs {
     /// Arenas to fly in, instead of the test layouts (repeatable).
     #[arg(long)]
     pub arena: Vec<PathBuf>,
+    /// Fly the layouts this run trained on (`RUN_DIR/config.toml`'s lanes
+    /// of every environment) instead of the test layouts, with the run's
+    /// settings (unless `--level` is given): the generalisation gap beside
+    /// the held-out result.
+    #[arg(long, value_name = "RUN_DIR", conflicts_with = "arena")]
+    pub training_layouts: Option<PathBuf>,
+    /// Write the failure map into DIR: every episode that did not reach
+    /// its end (`failures.csv`: layout, end point, last actions, trap; its
+    /// last observations in `last-observations.npy`), one picture per
+    /// layout from above (the paths and crash points, and the planner's
+    /// paths from the same spawns), and count the traps.
+    #[arg(long, value_name = "DIR")]
+    pub failures: Option<PathBuf>,
+    /// The agreement audit: a planner of this sight judges every action
+    /// the policy takes (the actions that keep a way clear, ties kept);
+    /// reports how often the policy's is one of them, over all steps, the
+    /// decisive ones and the last five before each crash.
+    #[arg(long, value_enum, value_name = "SIGHT")]
+    pub agree: Option<SightArg>,
     /// Episodes in all, shared evenly among the layouts.
     #[arg(long, default_value_t = 500)]
     pub episodes: usize,
@@ -135,6 +168,16 @@ fn run_config(checkpoint: &Path) -> Option<PathBuf> {
 
 /// The config an evaluation flies with, and where it came from.
 fn config(a: &EvalArgs) -> Result<(Config, String)> {
+    if let (Some(run), None) = (&a.training_layouts, &a.level) {
+        let path = run.join("config.toml");
+        if !path.is_file() {
+            bail!(
+                "--training-layouts {}: no config.toml there (a run directory of `hive train`)",
+                run.display()
+            );
+        }
+        return Ok((Config::load(Some(&path), &a.set)?, path.display().to_string()));
+    }
     if let Some(level) = &a.level {
         // A checkpoint sees as it was trained to: its frames and their
         // stride come from its header (a `--set` of them still wins).
@@ -158,8 +201,9 @@ pub fn run(a: EvalArgs) -> Result<()> {
         bail!("--episodes must be positive");
     }
     let policy = a.policy.unwrap_or(PolicyKind::Greedy);
-    if a.memory_s.is_some() && (policy != PolicyKind::Planner || a.sight != SightArg::ViewMemory) {
-        bail!("--memory-s is for --policy planner --sight view-memory");
+    let remembers = matches!(a.sight, SightArg::ViewMemory | SightArg::PixelsMemory);
+    if a.memory_s.is_some() && (policy != PolicyKind::Planner || !remembers) {
+        bail!("--memory-s is for --policy planner --sight view-memory or pixels-memory");
     }
     let (cfg, source) = config(&a)?;
     // The task's network: a checkpoint of other shapes is refused by name;
@@ -176,21 +220,58 @@ pub fn run(a: EvalArgs) -> Result<()> {
         }
         (PolicyKind::Reactive | PolicyKind::Planner, None) => None,
     };
-    let layouts: Vec<Arena> = if a.arena.is_empty() {
-        cfg.test_arenas()?
-    } else {
-        a.arena.iter().map(|p| Arena::load(p)).collect::<Result<_, _>>()?
+    let layouts: Vec<Arena> = match (&a.training_layouts, a.arena.is_empty()) {
+        (Some(run), _) => training_layouts(run, &cfg)?,
+        (None, true) => cfg.test_arenas()?,
+        (None, false) => a.arena.iter().map(|p| Arena::load(p)).collect::<Result<_, _>>()?,
     };
-    let per_layout = a.episodes.div_ceil(layouts.len());
     let pilot = match (&net, policy) {
         (Some(net), _) => net.pilot(),
         (None, PolicyKind::Planner) => Pilot::Planner(a.sight.sight(a.memory_s)),
         (None, _) => Pilot::Reactive,
     };
-    let stats = fly_layouts(pilot, &cfg.sim_config(), &layouts, per_layout, a.seed)?;
+    let spec = (a.failures.is_some() || a.agree.is_some())
+        .then(|| LogSpec { audit: a.agree.map(|s| s.sight(None)), horizon: AUDIT_HORIZON });
+    let flown = fly_layouts_logged(pilot, &cfg.sim_config(), &layouts, a.episodes, a.seed, spec)?;
+    let (stats, logs): (Vec<EvalStats>, Vec<Vec<EpisodeLog>>) = flown.into_iter().unzip();
+    let found = Found {
+        failures: match &a.failures {
+            Some(dir) => {
+                Some(crate::failures::write(dir, &cfg, (&layouts, &stats, &logs), a.seed)?)
+            }
+            None => None,
+        },
+        agreement: a.agree.map(|_| agreement(&logs.concat())),
+    };
     let memory = net.as_ref().and_then(Network::memory);
-    report(&a, (policy, memory), &source, cfg.shapes(), &layouts, &stats);
+    report(&a, (policy, memory), &source, cfg.shapes(), (&layouts, &stats), &found);
     Ok(())
+}
+
+/// Actions the agreement audit's searches look ahead (the teacher's
+/// `label_horizon` default).
+const AUDIT_HORIZON: usize = 10;
+
+/// What `--failures` and `--agree` found, for the report.
+struct Found {
+    failures: Option<crate::failures::Traps>,
+    agreement: Option<Agreement>,
+}
+
+/// The layouts the run in `run` trained on: every environment's lanes, as
+/// its config builds them (at the curriculum stage it ended at).
+fn training_layouts(run: &Path, cfg: &Config) -> Result<Vec<Arena>> {
+    let summary = rotorhive_records::Summary::read(run).ok();
+    let envs = summary.as_ref().map_or(cfg.sim.envs, |s| s.envs).max(1);
+    let stage = cfg.curriculum_stage(summary.as_ref().map_or(0, |s| s.env_steps));
+    let mut all = Vec::new();
+    for env in 0..envs {
+        for mut lane in cfg.lane_arenas_at(env, stage)? {
+            lane.name = format!("env-{env}-{}", lane.name);
+            all.push(lane);
+        }
+    }
+    Ok(all)
 }
 
 /// Prints what an evaluation found: per layout and pooled, and with
@@ -200,8 +281,8 @@ fn report(
     (policy, memory): (PolicyKind, Option<usize>),
     source: &str,
     shapes: Shapes,
-    layouts: &[Arena],
-    stats: &[EvalStats],
+    (layouts, stats): (&[Arena], &[EvalStats]),
+    found: &Found,
 ) {
     let pooled = EvalStats::pooled(stats);
     let pct = |s: &EvalStats| {
@@ -248,9 +329,62 @@ fn report(
             pooled.hopeless, pooled.episodes
         );
     }
+    report_found(a, (layouts, stats), found);
     if a.json {
-        print_json(a, policy, source, shapes, (layouts, stats), (&pooled, memory));
+        print_json(a, policy, source, shapes, (layouts, stats), (&pooled, memory), found);
     }
+}
+
+/// Prints the spread over layouts, the failure map's traps and the
+/// agreement audit.
+fn report_found(a: &EvalArgs, (layouts, stats): (&[Arena], &[EvalStats]), found: &Found) {
+    let ([q1, q2, q3], under) = layout_spread(stats);
+    println!(
+        "  per layout: quartiles {:.1} / {:.1} / {:.1} %, {under} of {} layouts under 50 %",
+        q1 * 100.0,
+        q2 * 100.0,
+        q3 * 100.0,
+        layouts.len()
+    );
+    if let Some(t) = &found.failures {
+        println!(
+            "  failures: {} episodes, {} traps holding {:.1} % of them (map in {})",
+            t.failures,
+            t.traps,
+            t.share() * 100.0,
+            t.dir.display()
+        );
+    }
+    if let (Some(g), Some(s)) = (&found.agreement, a.agree) {
+        let pct = |p| Agreement::share(p).map_or("-".into(), |x| format!("{:.1} %", x * 100.0));
+        println!(
+            "  agreement with the planner ({}): all steps {} of {}, decisive {} of {}, last {} before a crash {} of {}; no way at {} steps",
+            s.name().0,
+            pct(g.all),
+            g.all.1,
+            pct(g.decisive),
+            g.decisive.1,
+            rotorhive_roles::eval::LAST_STEPS,
+            pct(g.before_crash),
+            g.before_crash.1,
+            g.no_way
+        );
+    }
+}
+
+/// The agreement as JSON: each share and its step count.
+fn agreement_json(g: &Agreement, sight: SightArg) -> serde_json::Value {
+    let pair = |p: (usize, usize)| (Agreement::share(p), p.1);
+    let ((all, n_all), (dec, n_dec), (crash, n_crash)) =
+        (pair(g.all), pair(g.decisive), pair(g.before_crash));
+    serde_json::json!({
+        "sight": sight.name().0,
+        "all": all, "all_steps": n_all,
+        "decisive": dec, "decisive_steps": n_dec,
+        "before_crash": crash, "before_crash_steps": n_crash,
+        "no_way_steps": g.no_way,
+        "horizon": AUDIT_HORIZON,
+    })
 }
 
 /// `hive eval --json`'s last line: the pooled result, per layout, and what
@@ -262,7 +396,9 @@ fn print_json(
     shapes: Shapes,
     (layouts, stats): (&[Arena], &[EvalStats]),
     (pooled, memory): (&EvalStats, Option<usize>),
+    found: &Found,
 ) {
+    let (quartiles, under) = layout_spread(stats);
     let planner = policy == PolicyKind::Planner;
     let layouts_json: Vec<serde_json::Value> = layouts
         .iter()
@@ -287,6 +423,13 @@ fn print_json(
             "settings": source,
             "frames": shapes.frames,
             "frame_stride": shapes.stride,
+            "layout_quartiles": quartiles,
+            "layouts_under_half": under,
+            "traps": found.failures.as_ref().map(|t| t.traps),
+            "trap_share": found.failures.as_ref().map(crate::failures::Traps::share),
+            "failures": found.failures.as_ref().map(|t| t.failures),
+            "agreement": found.agreement.as_ref().zip(a.agree).map(|(g, s)| agreement_json(g, s)),
+            "training_layouts": a.training_layouts.as_ref().map(|p| p.display().to_string()),
         })
     );
 }

@@ -6,6 +6,7 @@ mod certs;
 mod draw;
 mod eval;
 mod export;
+mod failures;
 mod gpu_monitor;
 mod link_args;
 mod play;

@@ -6,6 +6,10 @@
 //! bench seeds`.
 
 use crate::error::Result;
+
+mod record;
+use record::Recorder;
+pub use record::{Agreement, EpisodeLog, LAST_STEPS, LogSpec, Trap, agreement, traps};
 use rotorhive_model::{QNet, RecurrentQNet};
 use rotorhive_sim::{Arena, Done, Planner, Sight, SimConfig, VecEnv};
 
@@ -48,6 +52,26 @@ impl EvalStats {
             hopeless: all.iter().map(|s| s.hopeless).sum(),
         }
     }
+}
+
+/// The spread of a policy over layouts: the quartiles `[q1, median, q3]`
+/// of per-layout success (linear between order statistics, as numpy's
+/// default) and how many layouts it flies under 50 %; layouts without
+/// episodes left out.
+pub fn layout_spread(stats: &[EvalStats]) -> ([f64; 3], usize) {
+    let mut v: Vec<f64> =
+        stats.iter().filter(|s| s.episodes > 0).map(EvalStats::success_rate).collect();
+    v.sort_by(f64::total_cmp);
+    let under = v.iter().filter(|x| **x < 0.5).count();
+    let q = |p: f64| {
+        if v.is_empty() {
+            return f64::NAN;
+        }
+        let h = p * (v.len() - 1) as f64;
+        let (lo, hi) = (h.floor() as usize, h.ceil() as usize);
+        v[lo] + (v[hi] - v[lo]) * (h - lo as f64)
+    };
+    ([q(0.25), q(0.5), q(0.75)], under)
 }
 
 /// The 95 % Wilson score interval of `k` successes in `n` trials.
@@ -298,8 +322,27 @@ pub fn fly(
     episodes: usize,
     seed: u64,
 ) -> Result<EvalStats> {
+    Ok(fly_logged(pilot, sim, arenas, episodes, seed, None)?.0)
+}
+
+/// [`fly`], keeping each episode's [`EpisodeLog`] where `log` asks for it
+/// (paths and last steps, and with an auditor the planner's judgement of
+/// every action). A logged flight flies the same first episodes as an
+/// unlogged one: only a finished agent's restart waits a step, so that
+/// where it ended can be read.
+pub fn fly_logged(
+    pilot: Pilot<'_>,
+    sim: SimConfig,
+    arenas: &[Arena],
+    episodes: usize,
+    seed: u64,
+    log: Option<LogSpec>,
+) -> Result<(EvalStats, Vec<EpisodeLog>)> {
     let n = episodes;
     let mut env = VecEnv::new_lanes(SimConfig { agents: n, ..sim }, arenas, seed)?;
+    if log.is_some() {
+        env.set_autoreset(rotorhive_sim::Autoreset::NextStep);
+    }
     let mut result: Vec<Option<(f32, Done)>> = vec![None; n];
     let max_steps = env.config().max_steps;
     let (obs_len, side, frames) = (env.obs_len(), env.config().camera.side, env.config().frames);
@@ -307,6 +350,7 @@ pub fn fly(
         Pilot::Planner(sight) => Some(Planner::new(&env, sight)),
         _ => None,
     };
+    let mut recorder = log.map(|spec| Recorder::new(&env, spec));
     // A recurrent pilot's state per agent, zeroed where an episode starts.
     let width = match pilot {
         Pilot::Recurrent(net) => net.width(),
@@ -314,35 +358,48 @@ pub fn fly(
     };
     let mut state = vec![0.0f32; n * width];
     for _ in 0..max_steps + 1 {
+        let active: Vec<bool> = result.iter().map(Option::is_none).collect();
         let actions = match (planner.as_mut(), pilot) {
-            (Some(p), _) => {
-                let active: Vec<bool> = result.iter().map(Option::is_none).collect();
-                p.actions(&env, &active)
-            }
+            (Some(p), _) => p.actions(&env, &active),
             (None, Pilot::Recurrent(net)) => net.greedy(env.observations(), &mut state)?,
             (None, _) => pilot.act(env.observations(), obs_len, side, frames)?,
         };
+        if let Some(r) = recorder.as_mut() {
+            r.before(&env, &active, &actions);
+        }
         env.step(&actions)?;
         for ep in env.finished() {
             result[ep.agent].get_or_insert((ep.reward, ep.done));
             state[ep.agent * width..(ep.agent + 1) * width].fill(0.0);
+        }
+        if let Some(r) = recorder.as_mut() {
+            r.after(&env, &active);
         }
         if result.iter().all(Option::is_some) {
             break;
         }
     }
     let done: Vec<(f32, Done)> = result.into_iter().flatten().collect();
-    Ok(EvalStats {
+    let stats = EvalStats {
         episodes: n,
         successes: done.iter().filter(|(_, d)| *d == Done::Goal).count(),
         collisions: done.iter().filter(|(_, d)| *d == Done::Collision).count(),
         mean_reward: done.iter().map(|(r, _)| *r as f64).sum::<f64>() / done.len().max(1) as f64,
         hopeless: planner.map_or(0, |p| p.hopeless_starts()),
-    })
+    };
+    Ok((stats, recorder.map_or_else(Vec::new, Recorder::finish)))
 }
 
-/// Flies `episodes` episodes in every layout on its own (the held-out test
-/// set): one result per layout, in order.
+/// `total` episodes spread over `layouts` layouts as evenly as they go:
+/// every layout `total / layouts`, the first `total % layouts` one more.
+pub fn spread(total: usize, layouts: usize) -> Vec<usize> {
+    let (each, more) = (total / layouts.max(1), total % layouts.max(1));
+    (0..layouts).map(|k| each + usize::from(k < more)).collect()
+}
+
+/// Flies `episodes` episodes in all, spread evenly over the layouts
+/// ([`spread`]), every layout on its own (the held-out test set): one
+/// result per layout, in order; a layout given no episode is not flown.
 pub fn fly_layouts(
     pilot: Pilot<'_>,
     sim: &SimConfig,
@@ -350,11 +407,31 @@ pub fn fly_layouts(
     episodes: usize,
     seed: u64,
 ) -> Result<Vec<EvalStats>> {
+    Ok(fly_layouts_logged(pilot, sim, layouts, episodes, seed, None)?
+        .into_iter()
+        .map(|(s, _)| s)
+        .collect())
+}
+
+/// [`fly_layouts`] with each layout's [`EpisodeLog`]s where `log` asks.
+pub fn fly_layouts_logged(
+    pilot: Pilot<'_>,
+    sim: &SimConfig,
+    layouts: &[Arena],
+    episodes: usize,
+    seed: u64,
+    log: Option<LogSpec>,
+) -> Result<Vec<(EvalStats, Vec<EpisodeLog>)>> {
     layouts
         .iter()
+        .zip(spread(episodes, layouts.len()))
         .enumerate()
-        .map(|(k, a)| {
-            fly(pilot, sim.clone(), std::slice::from_ref(a), episodes, seed.wrapping_add(k as u64))
+        .map(|(k, (a, e))| {
+            if e == 0 {
+                return Ok((EvalStats::pooled(&[]), Vec::new()));
+            }
+            let seed = seed.wrapping_add(k as u64);
+            fly_logged(pilot, sim.clone(), std::slice::from_ref(a), e, seed, log)
         })
         .collect()
 }
@@ -370,6 +447,35 @@ mod tests {
         assert!((lo - 0.8256).abs() < 1e-3 && (hi - 0.9448).abs() < 1e-3, "{lo} {hi}");
         let [lo, hi] = wilson(0, 10);
         assert!(lo == 0.0 && (hi - 0.2775).abs() < 1e-3, "{hi}");
+    }
+
+    #[test]
+    fn episodes_spread_over_layouts_exactly() {
+        assert_eq!(spread(500, 50), vec![10; 50]);
+        let s = spread(500, 64);
+        assert_eq!(s.iter().sum::<usize>(), 500);
+        assert_eq!((s[0], s[51], s[52], s[63]), (8, 8, 7, 7));
+        assert_eq!(spread(3, 5), vec![1, 1, 1, 0, 0]);
+        assert_eq!(spread(0, 2), vec![0, 0]);
+    }
+
+    #[test]
+    fn the_spread_over_layouts_gives_quartiles_and_layouts_under_half() {
+        let st = |k: usize| EvalStats {
+            episodes: 10,
+            successes: k,
+            collisions: 10 - k,
+            mean_reward: 0.0,
+            hopeless: 0,
+        };
+        let empty = EvalStats::pooled(&[]);
+        let (q, under) = layout_spread(&[st(9), st(2), st(5), st(4), st(10), empty]);
+        // Sorted 0.2 0.4 0.5 0.9 1.0: q1 at 1, median at 2, q3 at 3.
+        assert_eq!(under, 2);
+        let want = [0.4, 0.5, 0.9];
+        assert!(q.iter().zip(want).all(|(a, b)| (a - b).abs() < 1e-12), "{q:?}");
+        let (q, _) = layout_spread(&[st(0), st(10)]);
+        assert!((q[0] - 0.25).abs() < 1e-12 && (q[2] - 0.75).abs() < 1e-12, "{q:?}");
     }
 
     #[test]

@@ -107,7 +107,7 @@ mod tests {
             let mut spawns = vec![validation(seed)];
             spawns.extend((1..5).map(|n| confirmation(seed, n)));
             let mut arenas: Vec<u64> =
-                (0..16).map(validation_arena).chain((0..64).map(test_layout)).collect();
+                (0..32).map(validation_arena).chain((0..64).map(test_layout)).collect();
             let mut sampling = vec![replay(seed)];
             for e in 0..64 {
                 spawns.push(sim(seed, e));

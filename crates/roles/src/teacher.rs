@@ -42,6 +42,12 @@ pub enum TeacherSight {
     /// What the camera showed over `memory_s` (a mover known once watched
     /// for half its cycle).
     ViewMemory,
+    /// What the pixels show now: the obstacles a ray meets first, the
+    /// movers' present velocity kept 3 s.
+    Pixels,
+    /// What the pixels showed over `memory_s` (a mover known once watched
+    /// for half its cycle).
+    PixelsMemory,
 }
 
 /// `[teacher]`.
@@ -120,6 +126,10 @@ impl TeacherSection {
             TeacherSight::ViewMemory => {
                 Sight::ViewMemory((self.memory_s > 0).then_some(self.memory_s))
             }
+            TeacherSight::Pixels => Sight::Pixels,
+            TeacherSight::PixelsMemory => {
+                Sight::PixelsMemory((self.memory_s > 0).then_some(self.memory_s))
+            }
         }
     }
 
@@ -172,8 +182,12 @@ impl TeacherSection {
                 config_err!("key `{k}` must be 0 or positive, got {v}");
             }
         }
-        if self.memory_s > 0 && self.sight != TeacherSight::ViewMemory {
-            config_err!("key `teacher.memory_s` needs `teacher.sight = \"view-memory\"`");
+        if self.memory_s > 0
+            && !matches!(self.sight, TeacherSight::ViewMemory | TeacherSight::PixelsMemory)
+        {
+            config_err!(
+                "key `teacher.memory_s` needs `teacher.sight = \"view-memory\"` or `\"pixels-memory\"`"
+            );
         }
         if self.demos() && self.demo_capacity == 0 {
             config_err!(
@@ -284,6 +298,8 @@ impl Teacher {
                 (c.labels, c.label_ns) = (c.labels + 1, c.label_ns + elapsed(t));
                 a.map_or(NO_EXPERT, f32::from)
             } else {
+                // A remembering planner sees every frame, labelled or not.
+                self.planner.watch(env, i);
                 NO_EXPERT
             };
         }

@@ -89,6 +89,25 @@ pub enum Sight {
     /// `Some(s)` seconds, a mover whose half cycle is longer than that is
     /// never known (its turn does not fit in what the pilot remembers).
     ViewMemory(Option<u16>),
+    /// What the pixels show: the obstacles that at least one of the
+    /// camera's rays meets first in the present frame (occlusion, depth
+    /// range and field of view as the renderer has them,
+    /// [`VecEnv::visible_obstacles`]), and those within [`NEARBY`]; each
+    /// moving one seen as [`Sight::ViewVelocity`] guesses it (what two
+    /// frames show). The ceiling of a pilot without memory.
+    Pixels,
+    /// As [`Sight::Pixels`], and every obstacle a ray met this episode,
+    /// within the last `Some(s)` seconds (or the whole episode); each moving
+    /// one as [`Sight::ViewMemory`] knows it. The ceiling of a pilot with
+    /// memory of what its camera showed.
+    PixelsMemory(Option<u16>),
+}
+
+impl Sight {
+    /// Whether the planner knows only what the pixels show.
+    fn pixels(self) -> bool {
+        matches!(self, Sight::Pixels | Sight::PixelsMemory(_))
+    }
 }
 
 /// Obstacles this close to a drone (m, from its surface) are known to a
@@ -106,9 +125,30 @@ pub struct Planner {
     plans: Vec<Option<Plan>>,
     /// Episodes whose first search, from the spawn, found no way through.
     hopeless: usize,
-    /// Per agent ([`Sight::ViewMemory`]): when each moving obstacle (its
-    /// index in the arena) was first in view this episode.
-    watched: Vec<HashMap<usize, f64>>,
+    /// Per agent: what it has seen this episode ([`Sight::ViewMemory`],
+    /// [`Sight::PixelsMemory`]).
+    watched: Vec<Watched>,
+}
+
+/// What one agent's camera has shown this episode: per obstacle (its
+/// index in the arena), when it was first and last in view.
+#[derive(Debug, Clone, Default)]
+struct Watched {
+    first: HashMap<usize, f64>,
+    last: HashMap<usize, f64>,
+}
+
+impl Watched {
+    fn clear(&mut self) {
+        self.first.clear();
+        self.last.clear();
+    }
+
+    /// Notes that obstacle `k` is in view at time `t`.
+    fn see(&mut self, k: usize, t: f64) {
+        self.first.entry(k).or_insert(t);
+        self.last.insert(k, t);
+    }
 }
 
 impl Planner {
@@ -120,7 +160,7 @@ impl Planner {
             geometry: Geometry::new(env.arena()),
             plans: (0..env.agents()).map(|_| None).collect(),
             hopeless: 0,
-            watched: vec![HashMap::new(); env.agents()],
+            watched: vec![Watched::default(); env.agents()],
         }
     }
 
@@ -148,6 +188,23 @@ impl Planner {
     /// Forgets agent `i`'s plan (it flies without the planner now).
     pub fn forget(&mut self, i: usize) {
         self.plans[i] = None;
+    }
+
+    /// Notes what agent `i`'s pixels show now, for a planner of
+    /// [`Sight::PixelsMemory`] asked about it only now and then (a
+    /// teacher's share of labels): its memory then holds every frame. Does
+    /// nothing for other sights.
+    pub fn watch(&mut self, env: &VecEnv, i: usize) {
+        if !matches!(self.sight, Sight::PixelsMemory(_)) {
+            return;
+        }
+        if env.steps_of(i) == 0 {
+            self.watched[i].clear();
+        }
+        let t = env.time();
+        for k in env.visible_obstacles(i) {
+            self.watched[i].see(k, t);
+        }
     }
 
     /// The next action of agent `i`: its plan's next step while the drone
@@ -187,6 +244,20 @@ impl Planner {
     /// none does. One short search per action, each stopping at its first
     /// way through; the agent's plan is left alone.
     pub fn label(&mut self, env: &VecEnv, i: usize, horizon: usize) -> Option<u8> {
+        let safe = self.safe_actions(env, i, horizon, 2);
+        (safe.len() == 1).then(|| safe[0])
+    }
+
+    /// Every action of agent `i` now that starts a way clear for `horizon`
+    /// actions (as [`Planner::label`] searches), ties kept: empty where
+    /// none does. The agreement audit's judge (`hive eval --agree`).
+    pub fn allowed(&mut self, env: &VecEnv, i: usize, horizon: usize) -> Vec<u8> {
+        self.safe_actions(env, i, horizon, usize::MAX)
+    }
+
+    /// The actions that start a way clear for `horizon` actions, in order,
+    /// the search stopping once `enough` are found.
+    fn safe_actions(&mut self, env: &VecEnv, i: usize, horizon: usize, enough: usize) -> Vec<u8> {
         if env.steps_of(i) == 0 {
             self.watched[i].clear();
         }
@@ -194,14 +265,13 @@ impl Planner {
             .then(|| Geometry::new(&in_view(env, i, self.sight, &mut self.watched[i])));
         let geometry = seen.as_ref().unwrap_or(&self.geometry);
         let actions = if env.config().hold_action { 3 } else { 2 };
-        let mut safe = None;
-        for a in 0..actions {
-            let first = Some(a as u8);
-            if search(geometry, env, i, LABEL_MARGIN, horizon.max(1), first).through {
-                if safe.is_some() {
-                    return None;
-                }
-                safe = Some(a as u8);
+        let mut safe = Vec::new();
+        for a in 0..actions as u8 {
+            if safe.len() >= enough {
+                break;
+            }
+            if search(geometry, env, i, LABEL_MARGIN, horizon.max(1), Some(a)).through {
+                safe.push(a);
             }
         }
         safe
@@ -320,20 +390,19 @@ fn search(
 /// ([`Sight::ViewTrack`]), or as it moves once watched for half its cycle
 /// (`watched`: when each was first in view) and over its track until then
 /// ([`Sight::ViewMemory`]).
-fn in_view(env: &VecEnv, i: usize, sight: Sight, watched: &mut HashMap<usize, f64>) -> Arena {
-    let (d, t) = (env.drone(i), env.time());
+fn in_view(env: &VecEnv, i: usize, sight: Sight, watched: &mut Watched) -> Arena {
+    let t = env.time();
     let world = env.arena();
-    let obstacles = world
-        .obstacles
-        .iter()
-        .enumerate()
-        .filter(|(_, o)| in_sight(env, d.p, d.q * Vector::X, &o.at(t)))
-        .map(|(k, o)| {
+    let known = known_obstacles(env, i, sight, watched);
+    let obstacles = known
+        .into_iter()
+        .map(|k| {
+            let o = &world.obstacles[k];
             let Some(m) = o.motion().filter(|_| sight != Sight::View) else { return o.clone() };
             match sight {
                 Sight::ViewTrack => over_track(o),
-                Sight::ViewMemory(memory_s) => {
-                    let since = *watched.entry(k).or_insert(t);
+                Sight::ViewMemory(memory_s) | Sight::PixelsMemory(memory_s) => {
+                    let since = *watched.first.entry(k).or_insert(t);
                     let half = half_cycle(m);
                     let fits = memory_s.is_none_or(|s| half <= f64::from(s));
                     if fits && t - since >= half { o.clone() } else { over_track(o) }
@@ -343,6 +412,40 @@ fn in_view(env: &VecEnv, i: usize, sight: Sight, watched: &mut HashMap<usize, f6
         })
         .collect();
     Arena { name: world.name.clone(), spawn: world.spawn.clone(), obstacles, ..*world }
+}
+
+/// The obstacles (indices into the world's, ascending) a planner of
+/// `sight` knows for agent `i` now; notes what its pixels show in
+/// `watched`.
+fn known_obstacles(env: &VecEnv, i: usize, sight: Sight, watched: &mut Watched) -> Vec<usize> {
+    let (d, t) = (env.drone(i), env.time());
+    let world = env.arena();
+    if !sight.pixels() {
+        return (0..world.obstacles.len())
+            .filter(|&k| in_sight(env, d.p, d.q * Vector::X, &world.obstacles[k].at(t)))
+            .collect();
+    }
+    for k in env.visible_obstacles(i) {
+        watched.see(k, t);
+    }
+    let remembered = |k: usize| match (sight, watched.last.get(&k)) {
+        (Sight::PixelsMemory(memory_s), Some(&at)) => {
+            at == t || memory_s.is_none_or(|s| t - at <= f64::from(s))
+        }
+        (_, Some(&at)) => at == t,
+        _ => false,
+    };
+    (0..world.obstacles.len())
+        .filter(|&k| remembered(k) || nearby(d.p, &world.obstacles[k].at(t)))
+        .collect()
+}
+
+/// Whether an obstacle (where it is now) is within [`NEARBY`] of `p`.
+fn nearby(p: Vector, now: &crate::Obstacle) -> bool {
+    let (lo, hi) = now.aabb();
+    let reach = 0.5 * (hi[0] - lo[0]).hypot(hi[1] - lo[1]);
+    let c = now.center();
+    (c[0] - p.x).hypot(c[1] - p.y) - reach <= NEARBY
 }
 
 /// Whether an obstacle (where it is now) is within the camera's depth
@@ -541,9 +644,19 @@ mod tests {
         let mut env = VecEnv::new(cfg, arena, 1).unwrap();
         let mut planner = Planner::new(&env, Sight::All);
         let (mut labels, mut alive) = (Vec::new(), true);
-        // Straight on (the setpoint held near 0) toward the wall.
+        // Straight on (the setpoint held near 0) toward the wall; the
+        // actions allowed agree with the label, ties kept.
         for t in 0..11 {
+            let allowed = planner.allowed(&env, 0, 10);
             labels.push(planner.label(&env, 0, 10));
+            let last = labels[labels.len() - 1];
+            match last {
+                Some(a) => assert_eq!(allowed, vec![a], "step {t}"),
+                None => assert!(allowed.len() != 1, "step {t}: {allowed:?}"),
+            }
+            if t == 0 {
+                assert_eq!(allowed, vec![0, 1], "far from the wall both ways keep clear");
+            }
             env.step(&[(t % 2) as u8]).unwrap();
             if !env.finished().is_empty() {
                 alive = false;
@@ -558,6 +671,49 @@ mod tests {
         // lateral setpoint (action 1: +0.25 m/s).
         assert_eq!(first, Some(1), "{labels:?}");
         assert!(labels.iter().flatten().all(|a| *a == 1), "{labels:?}");
+    }
+
+    /// A planner of the pixels knows what a ray met and nothing behind it:
+    /// a box hidden behind a wider one is known to [`Sight::View`] (which
+    /// knows occluded obstacles) and not to [`Sight::Pixels`]; with memory
+    /// it is known while remembered, and forgotten after `memory_s`.
+    #[test]
+    fn a_planner_of_the_pixels_never_knows_an_obstacle_no_ray_hit() {
+        let bx =
+            |x: f32, y: f32, half: f32| crate::Obstacle::still_box([x, y, 3.0], [0.3, half, 3.0]);
+        let mut arena =
+            Arena::generate("open", 0, &GenParams { length: 40.0, ..GenParams::default() });
+        // Ahead a wide box, a narrow one hidden right behind it, and one to
+        // the side in plain view.
+        arena.obstacles = vec![bx(10.0, 0.0, 1.5), bx(15.0, 0.0, 0.5), bx(12.0, 4.0, 0.5)];
+        arena.spawn.y = [0.0, 0.0];
+        let cfg = SimConfig { agents: 1, ..SimConfig::default() };
+        let env = VecEnv::new(cfg, arena, 1).unwrap();
+        assert_eq!(env.visible_obstacles(0), vec![0, 2]);
+        let mut w = Watched::default();
+        assert_eq!(known_obstacles(&env, 0, Sight::View, &mut w), vec![0, 1, 2]);
+        assert_eq!(known_obstacles(&env, 0, Sight::Pixels, &mut w), vec![0, 2]);
+        // The hidden one seen 10 s ago (as if from elsewhere): remembered
+        // by a memory of the episode, not by one of 5 s, never without.
+        let t = env.time();
+        w.see(1, t - 10.0);
+        w.last.insert(1, t - 10.0);
+        assert_eq!(known_obstacles(&env, 0, Sight::PixelsMemory(None), &mut w), vec![0, 1, 2]);
+        assert_eq!(known_obstacles(&env, 0, Sight::PixelsMemory(Some(5)), &mut w), vec![0, 2]);
+        assert_eq!(known_obstacles(&env, 0, Sight::Pixels, &mut w), vec![0, 2]);
+        // And it flies around what it knows: the way through is found.
+        let mut planner = Planner::new(&env, Sight::Pixels);
+        let mut env = env;
+        let mut end = None;
+        for _ in 0..200 {
+            let a = planner.actions(&env, &[true]);
+            env.step(&a).unwrap();
+            if let Some(e) = env.finished().first() {
+                end = Some(e.done);
+                break;
+            }
+        }
+        assert_eq!(end, Some(Done::Goal));
     }
 
     /// [`Sight::ViewTrack`]'s still box holds the mover wherever it is on

@@ -208,6 +208,48 @@ impl Scene {
     pub fn is_empty(&self) -> bool {
         self.shapes.is_empty()
     }
+
+    /// The obstacles (their indices, ascending) that at least one of the
+    /// camera's rays meets first, nearer than the depth range and before the
+    /// walls, floor and ceiling: what a depth image of `spec` from `cam`
+    /// shows, occlusion as the renderer has it (the obstacles where the
+    /// scene has them now; other drones are not obstacles).
+    pub fn visible(&self, spec: &CameraSpec, cam: &CameraPose) -> Vec<usize> {
+        let view = View::new(spec, cam);
+        let (mut lo, mut hi) =
+            floor_plan_of(view.o, view.fwd, view.left, view.up, view.tan, view.range);
+        let walls = self.lane_of(view.o.y).unwrap_or([-self.half_width, self.half_width]);
+        lo[1] = lo[1].max(walls[0]);
+        hi[1] = hi[1].min(walls[1]);
+        let mut stamp = vec![0; self.len()];
+        let mut candidates = Vec::new();
+        self.gather(lo, hi, &mut stamp, 1, &mut candidates);
+        candidates.retain(|&i| {
+            let (min, max) = self.shapes[i as usize].aabb();
+            max.y > walls[0] && min.y < walls[1]
+        });
+        let mut hit = vec![false; candidates.len()];
+        for v in 0..view.n {
+            for u in 0..view.n {
+                let d = view.dir(u, v);
+                let mut nearest = view.range.min(planes(walls, self.height, view.o, d));
+                let mut who = None;
+                for (k, &i) in candidates.iter().enumerate() {
+                    let t = hit_shape(&self.shapes[i as usize], view.o, d, nearest);
+                    if t < nearest {
+                        (nearest, who) = (t, Some(k));
+                    }
+                }
+                if let Some(k) = who {
+                    hit[k] = true;
+                }
+            }
+        }
+        let mut seen: Vec<usize> =
+            candidates.iter().zip(&hit).filter(|(_, h)| **h).map(|(&i, _)| i as usize).collect();
+        seen.sort_unstable();
+        seen
+    }
 }
 
 fn cell_of(x0: f32, y0: f32, x: f32, y: f32, nx: usize, ny: usize) -> (usize, usize) {
@@ -589,7 +631,6 @@ fn planes([y0, y1]: [f32; 2], height: f32, o: Vector, d: Vector) -> f32 {
 }
 
 /// Ray parameter of the first hit of a shape, or `tmax` when none is nearer.
-#[cfg(test)]
 #[inline]
 fn hit_shape(shape: &Shape, o: Vector, d: Vector, tmax: f32) -> f32 {
     match *shape {

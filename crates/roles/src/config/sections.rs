@@ -124,13 +124,13 @@ impl Default for EvalSection {
             every_s: 15.0,
             episodes: 100,
             arena: String::new(),
-            validation_arenas: 10,
+            validation_arenas: 20,
             target_success: 0.9,
             after_threshold_s: 240.0,
             confirm_episodes: 300,
             every_env_steps: 0,
             test_arenas: vec![PathBuf::from("configs/arenas/test.toml")],
-            test_layouts: 4,
+            test_layouts: 49,
         }
     }
 }

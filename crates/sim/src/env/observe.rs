@@ -29,6 +29,14 @@ impl VecEnv {
         cam
     }
 
+    /// The obstacles (indices into [`VecEnv::arena`]'s, ascending) that
+    /// agent `i`'s present depth frame shows: at least one of its camera's
+    /// rays meets each first, within the range
+    /// ([`Scene::visible`](crate::Scene::visible)).
+    pub fn visible_obstacles(&self, i: usize) -> Vec<usize> {
+        self.scene.visible(&self.cfg.camera, &self.camera_at(i))
+    }
+
     /// How many physics steps back agent `i`'s camera sees (its latency,
     /// within the last action's path; 0 at the start of an episode).
     fn camera_lag(&self, i: usize) -> usize {
