@@ -171,9 +171,8 @@ pub struct RunResult {
     best_validation: Option<f64>,
     final_validation: Option<f64>,
     result_validation: Option<f64>,
-    test_success: Option<f64>,
-    /// The test set's per-layout quartiles and layouts under 50 %.
-    test_spread: Option<([f64; 3], usize)>,
+    /// The result on the held-out test set.
+    test: Option<TestScore>,
     env_steps_per_s: f64,
     updates_per_s: f64,
     skipped_updates: u64,
@@ -196,7 +195,7 @@ impl RunResult {
             pct(self.best_validation),
             pct(self.final_validation),
             pct(self.result_validation),
-            pct(self.test_success),
+            pct(self.test.map(|t| t.success)),
         ]
     }
 }
@@ -275,10 +274,10 @@ fn pooled_success(
 /// A policy on the held-out test set: pooled success, and its spread over
 /// the layouts (quartiles of per-layout success, layouts under 50 %).
 #[derive(Debug, Clone, Copy)]
-struct TestScore {
-    success: f64,
-    quartiles: [f64; 3],
-    under_half: usize,
+pub(crate) struct TestScore {
+    pub(crate) success: f64,
+    pub(crate) quartiles: [f64; 3],
+    pub(crate) under_half: usize,
 }
 
 /// The success rate of a run's result on the held-out test set, flown
@@ -359,8 +358,7 @@ fn run_one(a: &SeedsArgs, exe: &Path, arm: &Arm, seed: u64, dir: &Path) -> Resul
         best_validation: validation.iter().map(|p| p.1).reduce(f64::max),
         final_validation: summary.final_validation_success,
         result_validation: summary.result_validation_success,
-        test_success: test.map(|t| t.success),
-        test_spread: test.map(|t| (t.quartiles, t.under_half)),
+        test,
         env_steps_per_s: summary.env_steps_per_s,
         updates_per_s: summary.updates_per_s,
         skipped_updates: summary.skipped_updates,
@@ -490,7 +488,7 @@ impl ArmStats {
             median(&runs.iter().filter_map(|r| f(r)).collect::<Vec<_>>())
         };
         let each = |f: &dyn Fn(&RunResult) -> Option<f64>| runs.iter().map(|r| f(r)).collect();
-        let tests: Vec<f64> = runs.iter().filter_map(|r| r.test_success).collect();
+        let tests: Vec<f64> = runs.iter().filter_map(|r| Some(r.test?.success)).collect();
         let collapse = runs.iter().filter_map(|r| Some(r.best_validation? - r.final_validation?));
         Self {
             name: name.to_string(),
@@ -511,9 +509,9 @@ impl ArmStats {
             median_epsilon_at_threshold: med(&|r| r.at_threshold.2),
             reactive_test_success: reactive,
             times_to_target_s: each(&|r| r.time_to_target_s),
-            test_success: each(&|r| r.test_success),
-            test_layout_quartiles: runs.iter().map(|r| r.test_spread.map(|t| t.0)).collect(),
-            test_layouts_under_half: runs.iter().map(|r| r.test_spread.map(|t| t.1)).collect(),
+            test_success: each(&|r| Some(r.test?.success)),
+            test_layout_quartiles: runs.iter().map(|r| r.test.map(|t| t.quartiles)).collect(),
+            test_layouts_under_half: runs.iter().map(|r| r.test.map(|t| t.under_half)).collect(),
             test_success_min: tests.iter().copied().reduce(f64::min),
             test_success_iqm: iqm(&tests),
             result_validation: each(&|r| r.result_validation),

@@ -149,6 +149,14 @@ impl Watched {
         self.first.entry(k).or_insert(t);
         self.last.insert(k, t);
     }
+
+    /// Notes every obstacle agent `i`'s present frame shows.
+    fn see_frame(&mut self, env: &VecEnv, i: usize) {
+        let t = env.time();
+        for k in env.visible_obstacles(i) {
+            self.see(k, t);
+        }
+    }
 }
 
 impl Planner {
@@ -195,25 +203,24 @@ impl Planner {
     /// teacher's share of labels): its memory then holds every frame. Does
     /// nothing for other sights.
     pub fn watch(&mut self, env: &VecEnv, i: usize) {
-        if !matches!(self.sight, Sight::PixelsMemory(_)) {
-            return;
+        if matches!(self.sight, Sight::PixelsMemory(_)) {
+            self.watched_now(env, i).see_frame(env, i);
         }
+    }
+
+    /// What agent `i` has seen this episode (forgotten where one starts).
+    fn watched_now(&mut self, env: &VecEnv, i: usize) -> &mut Watched {
         if env.steps_of(i) == 0 {
             self.watched[i].clear();
         }
-        let t = env.time();
-        for k in env.visible_obstacles(i) {
-            self.watched[i].see(k, t);
-        }
+        &mut self.watched[i]
     }
 
     /// The next action of agent `i`: its plan's next step while the drone
     /// keeps to the plan (with [`Sight::All`]), else a new search from its
     /// true state. An agent at the start of an episode plans anew.
     pub fn act(&mut self, env: &VecEnv, i: usize) -> u8 {
-        if env.steps_of(i) == 0 {
-            self.watched[i].clear();
-        }
+        self.watched_now(env, i);
         let at = env.drone(i).p;
         let keep = self.sight == Sight::All
             && env.steps_of(i) > 0
@@ -258,11 +265,9 @@ impl Planner {
     /// The actions that start a way clear for `horizon` actions, in order,
     /// the search stopping once `enough` are found.
     fn safe_actions(&mut self, env: &VecEnv, i: usize, horizon: usize, enough: usize) -> Vec<u8> {
-        if env.steps_of(i) == 0 {
-            self.watched[i].clear();
-        }
-        let seen = (self.sight != Sight::All)
-            .then(|| Geometry::new(&in_view(env, i, self.sight, &mut self.watched[i])));
+        let sight = self.sight;
+        let watched = self.watched_now(env, i);
+        let seen = (sight != Sight::All).then(|| Geometry::new(&in_view(env, i, sight, watched)));
         let geometry = seen.as_ref().unwrap_or(&self.geometry);
         let actions = if env.config().hold_action { 3 } else { 2 };
         let mut safe = Vec::new();
@@ -425,12 +430,10 @@ fn known_obstacles(env: &VecEnv, i: usize, sight: Sight, watched: &mut Watched) 
             .filter(|&k| in_sight(env, d.p, d.q * Vector::X, &world.obstacles[k].at(t)))
             .collect();
     }
-    for k in env.visible_obstacles(i) {
-        watched.see(k, t);
-    }
+    watched.see_frame(env, i);
     let remembered = |k: usize| match (sight, watched.last.get(&k)) {
         (Sight::PixelsMemory(memory_s), Some(&at)) => {
-            at == t || memory_s.is_none_or(|s| t - at <= f64::from(s))
+            memory_s.is_none_or(|s| t - at <= f64::from(s))
         }
         (_, Some(&at)) => at == t,
         _ => false,
@@ -461,7 +464,7 @@ fn in_sight(env: &VecEnv, p: Vector, ahead: Vector, now: &crate::Obstacle) -> bo
     let dist = to.length();
     let bearing = (ahead.x * to.y - ahead.y * to.x).atan2(ahead.dot(to));
     let seen = dist - reach <= cfg.camera.range && bearing.abs() - reach.atan2(dist) <= half_fov;
-    seen || dist - reach <= NEARBY
+    seen || nearby(p, now)
 }
 
 /// How long a mover takes to cover half its cycle (s): one end of a

@@ -199,6 +199,19 @@ impl Scene {
         }
     }
 
+    /// Gathers into `out` the obstacles a camera's `view` can reach (in
+    /// cells of the floor plan its range covers, between its side walls);
+    /// the side walls bounding it: its lane's, or the arena's.
+    fn reach(&self, view: &View, stamp: &mut [u32], tick: u32, out: &mut Vec<u32>) -> [f32; 2] {
+        let (mut lo, mut hi) =
+            floor_plan_of(view.o, view.fwd, view.left, view.up, view.tan, view.range);
+        let walls = self.lane_of(view.o.y).unwrap_or([-self.half_width, self.half_width]);
+        lo[1] = lo[1].max(walls[0]);
+        hi[1] = hi[1].min(walls[1]);
+        self.gather(lo, hi, stamp, tick, out);
+        walls
+    }
+
     /// Number of obstacles.
     pub fn len(&self) -> usize {
         self.shapes.len()
@@ -216,17 +229,11 @@ impl Scene {
     /// scene has them now; other drones are not obstacles).
     pub fn visible(&self, spec: &CameraSpec, cam: &CameraPose) -> Vec<usize> {
         let view = View::new(spec, cam);
-        let (mut lo, mut hi) =
-            floor_plan_of(view.o, view.fwd, view.left, view.up, view.tan, view.range);
-        let walls = self.lane_of(view.o.y).unwrap_or([-self.half_width, self.half_width]);
-        lo[1] = lo[1].max(walls[0]);
-        hi[1] = hi[1].min(walls[1]);
-        let mut stamp = vec![0; self.len()];
         let mut candidates = Vec::new();
-        self.gather(lo, hi, &mut stamp, 1, &mut candidates);
+        let walls = self.reach(&view, &mut vec![0; self.len()], 1, &mut candidates);
         candidates.retain(|&i| {
             let (min, max) = self.shapes[i as usize].aabb();
-            max.y > walls[0] && min.y < walls[1]
+            !beyond(walls, min, max)
         });
         let mut hit = vec![false; candidates.len()];
         for v in 0..view.n {
@@ -250,6 +257,12 @@ impl Scene {
         seen.sort_unstable();
         seen
     }
+}
+
+/// Whether an obstacle's bounds `[min, max]` lie beyond a camera's side
+/// `walls` (another lane's obstacles, the walls themselves).
+fn beyond(walls: [f32; 2], min: Vector, max: Vector) -> bool {
+    max.y <= walls[0] || min.y >= walls[1]
 }
 
 fn cell_of(x0: f32, y0: f32, x: f32, y: f32, nx: usize, ny: usize) -> (usize, usize) {
@@ -386,19 +399,13 @@ fn render_rows(
     let view = View::new(spec, cam);
     let n = view.n;
     let (r0, r1) = (first_row, first_row + img.len() / n);
-    let (mut lo, mut hi) =
-        floor_plan_of(view.o, view.fwd, view.left, view.up, view.tan, view.range);
-    // The side walls bounding this camera's view: its lane's, or the arena's.
-    let walls = scene.lane_of(view.o.y).unwrap_or([-scene.half_width, scene.half_width]);
-    lo[1] = lo[1].max(walls[0]);
-    hi[1] = hi[1].min(walls[1]);
     s.tick = s.tick.wrapping_add(1);
     if s.tick == 0 {
         s.stamp.fill(0);
         s.tick = 1;
     }
     s.candidates.clear();
-    scene.gather(lo, hi, &mut s.stamp, s.tick, &mut s.candidates);
+    let walls = scene.reach(&view, &mut s.stamp, s.tick, &mut s.candidates);
 
     // The corridor's planes bound every ray; `img` holds depth in metres
     // until the end.
@@ -414,8 +421,7 @@ fn render_rows(
     for &ci in &s.candidates {
         let shape = &scene.shapes[ci as usize];
         let (min, max) = shape.aabb();
-        // Beyond the walls (another lane's obstacles, the walls themselves).
-        if max.y <= walls[0] || min.y >= walls[1] {
+        if beyond(walls, min, max) {
             continue;
         }
         let Some(rect) = view.rect(min, max).and_then(clip) else {
