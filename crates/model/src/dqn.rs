@@ -12,7 +12,7 @@ use crate::checkpoint;
 use crate::kernels::{Rows, Workspace, poisoned};
 use crate::ops::{AdamHyper, AdamStep, adam};
 use crate::{ModelError, QNet, Result, Shapes, argmax, params};
-use rotorhive_msg::NO_EXPERT;
+use rotorhive_msg::{label_action, label_mask};
 
 /// Hyper-parameters of the DQN update.
 #[derive(Debug, Clone, Copy)]
@@ -44,6 +44,57 @@ pub struct DqnConfig {
     pub margin: f32,
 }
 
+/// How the teacher's labels weigh in an update, against the TD loss (the
+/// learner sets it at every minibatch from `[teacher]`, its fade and
+/// `learner.td_weight`). The default is the plain TD update.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Teaching {
+    /// Weight of the TD loss (1: as without a teacher).
+    pub td: f32,
+    /// Weight of DQfD's large-margin loss on rows labelled with one action.
+    pub margin: f32,
+    /// Weight of the imitation loss on labelled rows: the cross-entropy of
+    /// the softmax of the Q-values over `temperature` toward the actions
+    /// the label allows, `logsumexp_a z_a − logsumexp_{a ∈ E} z_a` with
+    /// z = Q / temperature (0 where every action is allowed: ties are not
+    /// broken).
+    pub imitation: f32,
+    /// The imitation loss's temperature, in the network's units (scaled
+    /// rewards): a Q-value gap of a few temperatures satisfies it.
+    pub temperature: f32,
+}
+
+impl Default for Teaching {
+    fn default() -> Self {
+        Self { td: 1.0, margin: 0.0, imitation: 0.0, temperature: 1.0 }
+    }
+}
+
+impl Teaching {
+    /// The margin loss at `weight` alone beside the full TD loss.
+    pub fn margin(weight: f32) -> Self {
+        Self { margin: weight, ..Self::default() }
+    }
+}
+
+/// The imitation loss of one row's Q-values `q` at temperature `tau`
+/// toward the actions in `mask` (bit `a`: action `a` allowed), and its
+/// gradient added into `grad` (softmax − the softmax renormalised over the
+/// allowed actions, over `tau`) scaled by `k`.
+pub(crate) fn imitation_row(q: &[f32], mask: u8, tau: f32, k: f32, grad: &mut [f32]) -> f32 {
+    let top = q.iter().fold(f32::NEG_INFINITY, |m, v| m.max(*v));
+    let e: Vec<f32> = q.iter().map(|v| ((v - top) / tau).exp()).collect();
+    let k = k / tau;
+    let all: f32 = e.iter().sum();
+    let allowed: f32 =
+        e.iter().enumerate().filter(|(a, _)| mask >> a & 1 == 1).map(|(_, v)| v).sum();
+    for (a, g) in grad.iter_mut().enumerate() {
+        let inside = if mask >> a & 1 == 1 { e[a] / allowed } else { 0.0 };
+        *g += k * (e[a] / all - inside);
+    }
+    all.ln() - allowed.ln()
+}
+
 /// What the last update saw, for the learner's diagnostics: sums over the
 /// minibatch's rows, in the network's units (scaled rewards).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -54,9 +105,9 @@ pub struct UpdateStats {
     pub max_q_sum: f64,
     /// Sum over rows of |Q(s, a) − y|.
     pub abs_td_sum: f64,
-    /// Rows with an expert action (the large-margin loss's rows).
+    /// Rows with a label (the teacher's losses' rows).
     pub labelled: u32,
-    /// Of those, rows whose greedy action is the expert's.
+    /// Of those, rows whose greedy action is one the label allows.
     pub agree: u32,
     /// Sum over labelled rows of the large-margin loss (unweighted).
     pub margin_sum: f64,
@@ -193,9 +244,9 @@ pub struct Dqn {
     stats: UpdateStats,
     /// Per row of the last update: the absolute TD error.
     td: Vec<f32>,
-    /// Weight of the large-margin loss now (0: none; the learner sets it
-    /// from `teacher.weight` and the teacher's fade).
-    margin_weight: f32,
+    /// How the labels weigh now (the learner sets it from `[teacher]`,
+    /// the teacher's fade and `learner.td_weight`).
+    teaching: Teaching,
 }
 
 /// The gradients [`Dqn::compute_gradients`] left, flat in canonical order.
@@ -227,9 +278,9 @@ fn rows_of(batch: &[f32], shapes: Shapes) -> Result<usize> {
                 got: a as usize,
             });
         }
-        if !(e == NO_EXPERT || one_of(e)) {
+        if label_mask(e, shapes.actions).is_none() {
             return Err(ModelError::Shape {
-                what: "minibatch expert action (-1 or one of the actions)",
+                what: "minibatch label (-1, one of the actions or a set of them)",
                 expected: shapes.actions,
                 got: e as usize,
             });
@@ -267,17 +318,23 @@ impl Dqn {
             skipped: 0,
             stats: UpdateStats::default(),
             td: Vec::new(),
-            margin_weight: 0.0,
+            teaching: Teaching::default(),
         })
     }
 
     /// Weight of DQfD's large-margin loss `max_a [Q(s,a) + l(a_E,a)] −
     /// Q(s,a_E)` (l = `margin` for every action but the expert's a_E),
-    /// added on every row with an expert action to the TD loss, both means
-    /// over the minibatch's rows. 0 (the default) turns it off: the update
-    /// is then exactly the plain one.
+    /// added on every row labelled with one action to the TD loss, both
+    /// means over the minibatch's rows. 0 (the default) turns it off: the
+    /// update is then exactly the plain one.
     pub fn set_margin_weight(&mut self, weight: f32) {
-        self.margin_weight = weight;
+        self.teaching = Teaching::margin(weight);
+    }
+
+    /// How the TD, margin and imitation losses weigh (see [`Teaching`]);
+    /// the default is the plain update.
+    pub fn set_teaching(&mut self, teaching: Teaching) {
+        self.teaching = teaching;
     }
 
     /// The large-margin loss of one row's Q-values `q` with expert action
@@ -402,12 +459,21 @@ impl Dqn {
         if let Some(w) = weights {
             loss = (loss * Tensor::from_slice(w, (n, 1), dev)?)?;
         }
+        let k = self.teaching;
         let mut loss = loss.sum_all()?;
+        if k.td != 1.0 {
+            loss = loss.affine(k.td as f64, 0.0)?;
+        }
         let experts: Vec<f32> = batch.chunks_exact(tl).map(|t| t[2 * ol + 3]).collect();
-        if self.margin_weight > 0.0
+        if k.margin > 0.0
             && let Some(margin) = margin_sum(&q, &experts, self.cfg.margin)?
         {
-            loss = (loss + margin.affine(self.margin_weight as f64, 0.0)?)?;
+            loss = (loss + margin.affine(k.margin as f64, 0.0)?)?;
+        }
+        if k.imitation > 0.0
+            && let Some(imitation) = imitation_sum(&q, &experts, k.temperature)?
+        {
+            loss = (loss + imitation.affine(k.imitation as f64, 0.0)?)?;
         }
         Ok((loss.affine(1.0 / n as f64, 0.0)?, td))
     }
@@ -449,20 +515,29 @@ impl Dqn {
                 );
                 let at = i * na + t[2 * ol] as usize;
                 let (l, g) = self.huber(q[at] - y);
-                let w = weights.map_or(1.0, |w| w[i]);
-                loss += l * w;
-                dq[at] = g * w / denom as f32;
-                let expert = t[2 * ol + 3];
-                if self.margin_weight > 0.0 && expert != NO_EXPERT {
-                    let (row, e) = (&q[i * na..(i + 1) * na], expert as usize);
+                let (w, k) = (weights.map_or(1.0, |w| w[i]), self.teaching);
+                loss += k.td * l * w;
+                dq[at] = k.td * g * w / denom as f32;
+                let (row, label) = (&q[i * na..(i + 1) * na], t[2 * ol + 3]);
+                let mask = label_mask(label, na).unwrap_or(0);
+                if k.margin > 0.0
+                    && let Some(e) = label_action(label)
+                {
                     let (m, best) = self.margin_of(row, e);
-                    let k = self.margin_weight;
-                    loss += k * m;
-                    dq[i * na + best] += k / denom as f32;
-                    dq[i * na + e] -= k / denom as f32;
-                    stats.labelled += 1;
-                    stats.agree += (argmax(row) == e) as u32;
+                    loss += k.margin * m;
+                    dq[i * na + best] += k.margin / denom as f32;
+                    dq[i * na + e] -= k.margin / denom as f32;
                     stats.margin_sum += m as f64;
+                }
+                if k.imitation > 0.0 && mask != 0 {
+                    let grad = &mut dq[i * na..(i + 1) * na];
+                    let scale = k.imitation / denom as f32;
+                    let ce = imitation_row(row, mask, k.temperature, scale, grad);
+                    loss += k.imitation * ce;
+                }
+                if (k.margin > 0.0 || k.imitation > 0.0) && mask != 0 {
+                    stats.labelled += 1;
+                    stats.agree += (mask >> argmax(row) & 1) as u32;
                 }
                 stats.max_q_sum +=
                     q[i * na..(i + 1) * na].iter().fold(f32::NEG_INFINITY, |m, v| m.max(*v)) as f64;
@@ -633,18 +708,47 @@ impl Dqn {
     }
 }
 
+/// The imitation loss `logsumexp_a z_a − logsumexp_{a ∈ E} z_a` (z = Q /
+/// `tau`) summed over the rows of `q` (`[rows][actions]`) whose label `labels[i]`
+/// allows some actions (see [`label_mask`]; the others masked out), in
+/// stock candle ops (the generic path of both learners, and the reference
+/// the fused path is tested against); none where no row is labelled.
+pub(crate) fn imitation_sum(q: &Tensor, labels: &[f32], tau: f32) -> Result<Option<Tensor>> {
+    let (n, na, dev) = (labels.len(), q.dim(D::Minus1)?, q.device());
+    let masks: Vec<u8> = labels.iter().map(|l| label_mask(*l, na).unwrap_or(0)).collect();
+    if masks.iter().all(|m| *m == 0) {
+        return Ok(None);
+    }
+    // Disallowed actions drop out of the second log-sum-exp by a large
+    // negative offset; unlabelled rows count 0 through the row mask.
+    let mut off = vec![0f32; n * na];
+    for (i, m) in masks.iter().enumerate() {
+        for a in 0..na {
+            off[i * na + a] = if *m == 0 || m >> a & 1 == 1 { 0.0 } else { -1e4 };
+        }
+    }
+    let rows: Vec<f32> = masks.iter().map(|m| (*m != 0) as u8 as f32).collect();
+    let off = Tensor::from_vec(off, (n, na), dev)?;
+    let q = q.affine(1.0 / tau as f64, 0.0)?;
+    let lse = |t: &Tensor| -> Result<Tensor> {
+        let top = t.max_keepdim(D::Minus1)?.detach();
+        Ok((t.broadcast_sub(&top)?.exp()?.sum_keepdim(D::Minus1)?.log()? + top)?)
+    };
+    let per_row = (lse(&q)? - lse(&(&q + off)?)?)?;
+    Ok(Some((per_row * Tensor::from_vec(rows, (n, 1), dev)?)?.sum_all()?))
+}
+
 /// DQfD's large-margin loss `max_a [Q(s,a) + l(a_E,a)] − Q(s,a_E)` summed
-/// over the rows of `q` (`[rows][actions]`) whose expert action `experts[i]`
-/// is not [`NO_EXPERT`] (the others masked out), in stock candle ops (the
-/// generic path of both learners); none where no row is labelled.
+/// over the rows of `q` (`[rows][actions]`) whose label `experts[i]` names
+/// one action (the others masked out), in stock candle ops (the generic
+/// path of both learners); none where no row is labelled so.
 pub(crate) fn margin_sum(q: &Tensor, experts: &[f32], margin: f32) -> Result<Option<Tensor>> {
-    if experts.iter().all(|e| *e == NO_EXPERT) {
+    if experts.iter().all(|e| label_action(*e).is_none()) {
         return Ok(None);
     }
     let (n, na, dev) = (experts.len(), q.dim(D::Minus1)?, q.device());
     let (mut l, mut mask, mut ae) = (vec![0f32; n * na], vec![0f32; n], vec![0u32; n]);
-    for (i, e) in experts.iter().enumerate().filter(|(_, e)| **e != NO_EXPERT) {
-        let e = *e as usize;
+    for (i, e) in experts.iter().enumerate().filter_map(|(i, e)| Some((i, label_action(*e)?))) {
         (mask[i], ae[i]) = (1.0, e as u32);
         l[i * na..(i + 1) * na].iter_mut().enumerate().for_each(|(a, v)| {
             *v = if a == e { 0.0 } else { margin };

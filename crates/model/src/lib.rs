@@ -36,7 +36,7 @@ use candle_core::{Tensor, Var};
 pub use checkpoint::{
     CHECKPOINT_LAYOUT, checkpoint_memory, checkpoint_metadata, checkpoint_shapes, memory_name,
 };
-pub use dqn::{Dqn, DqnConfig, UpdateStats, UpdateTiming};
+pub use dqn::{Dqn, DqnConfig, Teaching, UpdateStats, UpdateTiming};
 use kernels::{Rows, Weights, Workspace};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;

@@ -26,7 +26,7 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
 use crate::checkpoint::{self, recurrent_metadata};
-use crate::dqn::{Adam, UpdateTiming};
+use crate::dqn::{Adam, Teaching, UpdateTiming};
 use crate::kernels::{Rows, Weights, Workspace, offsets};
 use crate::{HID, ModelError, Result, Scratch, Shapes, argmax, params, trunk};
 
@@ -392,8 +392,8 @@ pub struct SeqDqn {
     /// The online trunk's fused pass, kept from its forward for its
     /// backward.
     work: Workspace,
-    /// Weight of the large-margin loss now (0: none).
-    margin_weight: f32,
+    /// How the labels weigh now (the default: the plain TD update).
+    teaching: Teaching,
     /// The last update's priority of each sequence (R2D2's mix of its
     /// trained steps' largest and mean |TD error|).
     priorities: Vec<f32>,
@@ -423,7 +423,7 @@ impl SeqDqn {
             cfg,
             opt,
             work,
-            margin_weight: 0.0,
+            teaching: Teaching::default(),
             priorities: Vec::new(),
             timing: UpdateTiming::default(),
         })
@@ -433,7 +433,13 @@ impl SeqDqn {
     /// Q(s,a_E)` on the trained steps with an expert action, against the
     /// mean TD loss (both divided by the trained steps); 0 turns it off.
     pub fn set_margin_weight(&mut self, weight: f32) {
-        self.margin_weight = weight;
+        self.teaching = Teaching::margin(weight);
+    }
+
+    /// How the TD, margin and imitation losses weigh on the trained steps
+    /// (see [`Teaching`]); the default is the plain update.
+    pub fn set_teaching(&mut self, teaching: Teaching) {
+        self.teaching = teaching;
     }
 
     /// Chooses the fused CPU path for both networks' trunks, or the generic
@@ -561,8 +567,11 @@ impl SeqDqn {
             let w = Tensor::from_slice(batch.weights, (1, n), &dev)?;
             huber_weighted(&err, &w, self.cfg.huber_delta)?
         };
-        if let Some(margin) = self.margin_loss(batch, &q.narrow(0, 0, trained)?)? {
-            loss = (loss + margin)?;
+        if self.teaching.td != 1.0 {
+            loss = loss.affine(self.teaching.td as f64, 0.0)?;
+        }
+        if let Some(taught) = self.teacher_loss(batch, &q.narrow(0, 0, trained)?)? {
+            loss = (loss + taught)?;
         }
         let value = loss.to_scalar::<f32>()?;
         if !value.is_finite() {
@@ -575,25 +584,40 @@ impl SeqDqn {
         Ok((value, grads))
     }
 
-    /// DQfD's large-margin loss of the trained steps' Q-values `q`
-    /// (`[trained][sequences][actions]`) on the steps with an expert action,
-    /// weighted and divided by the trained steps; none without a weight or a
-    /// label.
-    fn margin_loss(&self, b: &SeqBatch, q: &Tensor) -> Result<Option<Tensor>> {
+    /// The teacher's losses of the trained steps' Q-values `q`
+    /// (`[trained][sequences][actions]`) on the labelled steps: DQfD's
+    /// large margin and the imitation loss, weighted and divided by the
+    /// trained steps; none without a weight or a label.
+    fn teacher_loss(&self, b: &SeqBatch, q: &Tensor) -> Result<Option<Tensor>> {
         let (n, t, burn) = (b.sequences, b.steps, self.cfg.burn_in);
-        let (trained, na) = (t - burn, self.online.shapes.actions);
-        if self.margin_weight <= 0.0 || b.experts.is_empty() {
+        let (trained, na, k) = (t - burn, self.online.shapes.actions, self.teaching);
+        if (k.margin <= 0.0 && k.imitation <= 0.0) || b.experts.is_empty() {
             return Ok(None);
         }
         // The trained steps' labels in `q`'s (step-major) order.
         let experts: Vec<f32> =
             (0..trained).flat_map(|s| (0..n).map(move |i| b.experts[i * t + burn + s])).collect();
         let rows = q.reshape((trained * n, na))?;
-        let Some(sum) = crate::dqn::margin_sum(&rows, &experts, self.cfg.margin)? else {
-            return Ok(None);
+        let scale = |w: f32| w as f64 / (trained * n) as f64;
+        let mut sum: Option<Tensor> = None;
+        let margin = if k.margin > 0.0 {
+            crate::dqn::margin_sum(&rows, &experts, self.cfg.margin)?.map(|m| (m, k.margin))
+        } else {
+            None
         };
-        let scale = self.margin_weight as f64 / (trained * n) as f64;
-        Ok(Some(sum.affine(scale, 0.0)?))
+        let imitation = if k.imitation > 0.0 {
+            crate::dqn::imitation_sum(&rows, &experts, k.temperature)?.map(|m| (m, k.imitation))
+        } else {
+            None
+        };
+        for (part, w) in [margin, imitation].into_iter().flatten() {
+            let part = part.affine(scale(w), 0.0)?;
+            sum = Some(match sum {
+                Some(s) => (s + part)?,
+                None => part,
+            });
+        }
+        Ok(sum)
     }
 
     /// The gradient of `loss`, flat in canonical order: the GRU's and the

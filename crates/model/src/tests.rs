@@ -2,7 +2,7 @@
 
 use super::*;
 use candle_core::DType;
-use rotorhive_msg::{DEPTH_PIXELS, NO_EXPERT};
+use rotorhive_msg::{DEPTH_PIXELS, NO_EXPERT, label_mask};
 
 // The paper's task's shapes, as most checks here use them.
 const OBS_LEN: usize = Shapes::PAPER.obs_len();
@@ -168,6 +168,89 @@ fn the_margin_losss_gradients_match_stock_candle() {
         }
         assert!(fused.iter().zip(&g0).any(|(a, b)| a != b), "the margin moves the gradient");
     }
+}
+
+/// The imitation loss: one row by hand, then its fused gradients (the
+/// softmax minus the softmax over the allowed actions) against candle's
+/// autograd over stock ops (log-sum-exp), with the TD loss at half weight,
+/// labels of one action and of sets, one shard and two, two and three
+/// actions.
+#[test]
+fn the_imitation_losss_gradients_match_stock_candle() {
+    let mut g = [0.0f32; 3];
+    let l = dqn::imitation_row(&[0.5, 1.0, 0.0], 0b011, 0.5, 0.5, &mut g);
+    let e = [1f32.exp(), 2f32.exp(), 1.0];
+    let want = (e[0] + e[1] + e[2]).ln() - (e[0] + e[1]).ln();
+    assert!((l - want).abs() < 1e-6, "{l} vs {want}");
+    let sum = e.iter().sum::<f32>();
+    // Scaled by k = 0.5 over tau = 0.5: once.
+    let g_want = [e[0] / sum - e[0] / (e[0] + e[1]), e[1] / sum - e[1] / (e[0] + e[1]), e[2] / sum];
+    g.iter().zip(g_want).for_each(|(a, b)| assert!((a - b).abs() < 1e-6, "{g:?}"));
+    let goal = Shapes::task(FRAMES, true, true);
+    for (seed, threads, shapes) in [(1, 1, Shapes::PAPER), (2, 2, Shapes::PAPER), (3, 2, goal)] {
+        let mut dqn = Dqn::with_shapes(cfg(true), shapes, seed, &Device::Cpu).unwrap();
+        dqn.set_threads(threads);
+        dqn.target.load_flat(&random(num_params(shapes), seed + 50, -0.1, 0.1)).unwrap();
+        let mut batch = labelled(shapes, 19, seed + 20);
+        let ol = shapes.obs_len();
+        for (i, t) in batch.chunks_exact_mut(shapes.transition_len()).enumerate() {
+            if shapes.actions == 3 && i % 3 == 0 {
+                t[2 * ol + 3] = rotorhive_msg::label_of_mask(0b101);
+            }
+        }
+        let (l0, g0) = dqn.gradients(&batch).unwrap();
+        dqn.set_teaching(Teaching { td: 0.5, margin: 0.0, imitation: 0.7, temperature: 0.3 });
+        let (l1, fused) = dqn.gradients(&batch).unwrap();
+        assert_ne!(l1, l0);
+        let st = dqn.stats();
+        let tl = shapes.transition_len();
+        let labelled = batch.chunks_exact(tl).filter(|t| t[2 * ol + 3] != NO_EXPERT).count();
+        assert_eq!(st.labelled as usize, labelled, "{st:?}");
+        assert!(labelled >= 14, "{labelled}");
+        let plain = autograd(&dqn, &batch);
+        let l2 = dqn.loss(&batch).unwrap().to_scalar::<f32>().unwrap();
+        assert!((l1 - l2).abs() <= 1e-4 * l2.abs().max(1.0), "loss {l1} vs {l2}");
+        for (i, (name, _)) in params(shapes).iter().enumerate() {
+            close(part(&fused, shapes, i), part(&plain, shapes, i), 1e-3, name);
+        }
+        assert!(fused.iter().zip(&g0).any(|(a, b)| a != b), "imitation moves the gradient");
+    }
+}
+
+/// With the TD loss off (`learner.td_weight = 0`), imitation alone makes a
+/// learner's greedy action one its labels allow on its training states.
+#[test]
+fn a_learner_fed_only_labels_by_imitation_agrees_with_them() {
+    let shapes = Shapes::task(FRAMES, false, true);
+    let (tl, ol) = (shapes.transition_len(), shapes.obs_len());
+    let mut dqn =
+        Dqn::with_shapes(DqnConfig { lr: 3e-3, ..cfg(true) }, shapes, 7, &Device::Cpu).unwrap();
+    dqn.set_teaching(Teaching { td: 0.0, margin: 0.0, imitation: 1.0, temperature: 0.2 });
+    // Left half nearer: "go right or hold" (a set); else "go left" alone.
+    let mut batch = random(64 * tl, 3, 0.0, 1.0);
+    for (i, t) in batch.chunks_exact_mut(tl).enumerate() {
+        let left = i % 2 == 0;
+        for y in 0..SIDE {
+            for x in 0..SIDE {
+                let v = &mut t[DEPTH_PIXELS + y * SIDE + x];
+                *v = if (x < SIDE / 2) == left { *v * 0.3 } else { 0.7 + *v * 0.3 };
+            }
+        }
+        t[2 * ol..2 * ol + 5].copy_from_slice(&[(i % 3) as f32, -3.0, 0.0, 0.0, 0.0]);
+        t[2 * ol + 3] = if left { rotorhive_msg::label_of_mask(0b110) } else { 0.0 };
+    }
+    let obs: Vec<f32> = batch.chunks_exact(tl).flat_map(|t| t[..ol].to_vec()).collect();
+    let agree = |dqn: &Dqn| {
+        let g = dqn.online.greedy(&obs).unwrap();
+        let masks = batch.chunks_exact(tl).map(|t| label_mask(t[2 * ol + 3], 3).unwrap());
+        g.iter().zip(masks).filter(|(a, m)| m >> **a & 1 == 1).count()
+    };
+    let before = agree(&dqn);
+    for _ in 0..150 {
+        dqn.update(&batch).unwrap();
+    }
+    let after = agree(&dqn);
+    assert!(after >= 62, "greedy agrees with {after} of 64 labels (before: {before})");
 }
 
 /// A learner fed only labelled transitions (no reward to tell the actions

@@ -17,11 +17,13 @@ use iceoryx2::prelude::ZeroCopySend;
 
 mod counters;
 pub mod durable;
+mod label;
 pub mod protobuf;
 mod sequence;
 mod telemetry;
 
 pub use counters::Counters;
+pub use label::{LABEL_SET, label_action, label_mask, label_of_mask};
 pub use sequence::{RowLayout, SeqLayout, Unpacked};
 pub use telemetry::{
     ActorStage, Delivery, LearnerStage, Learning, LinkStage, ReplayStage, RoleKind, STAGES,
@@ -47,14 +49,14 @@ pub const VEL_DIM: usize = 3;
 pub const GOAL_DIM: usize = 3;
 /// Floats after `s` and `s'` in a transition: the action taken, the
 /// (n-step) reward, done (0 or 1), the teacher's label at `s` (the action
-/// it holds the only right one there; [`NO_EXPERT`] where it gave none)
+/// it holds the only right one there, or the set it holds best, see
+/// [`label_mask`]; [`NO_EXPERT`] where it gave none)
 /// and whether the teacher flew the step (1: a demonstration, 0: the
 /// student's).
 pub const TAIL: usize = 5;
 /// The expert action of a transition or observation the teacher did not
 /// label.
 pub const NO_EXPERT: f32 = -1.0;
-
 /// Number of discrete actions of the paper's task (lateral velocity
 /// −0.25 m/s, +0.25 m/s); a task with the hold action has a third.
 pub const NUM_ACTIONS: usize = 2;
@@ -208,7 +210,7 @@ impl Shapes {
     /// True when a packed transition's scalars ([`Shapes::packed_scalars`]
     /// of them, see [`Shapes::packed_scalar`]) are not what an actor writes: an
     /// action that is not one of the run's, a done flag other than 0 or 1,
-    /// an expert action that is neither [`NO_EXPERT`] nor one of the run's,
+    /// a label that is none of [`label_mask`]'s,
     /// a demonstration flag other than 0 or 1, or a scalar that is not
     /// finite. A torn or forged write shows
     /// here (16-bit depth has no invalid value to look for).
@@ -222,7 +224,7 @@ impl Shapes {
         let flag = |f: f32| f == 0.0 || f == 1.0;
         !one_of(action)
             || !flag(done)
-            || !(expert == NO_EXPERT || one_of(expert))
+            || label_mask(expert, self.actions).is_none()
             || !flag(demo)
             || scalars.iter().any(|v| !v.is_finite())
     }

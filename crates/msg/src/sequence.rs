@@ -5,7 +5,7 @@
 //! transition is ([`Shapes::packed_len`]): depth as 16-bit fixed point, every
 //! other value's `f32` bits as two words (low, high).
 
-use crate::{NO_EXPERT, Shapes, TAIL, dequantize_depth, f32_words, quantize_depth, word_f32};
+use crate::{Shapes, TAIL, dequantize_depth, f32_words, quantize_depth, word_f32};
 
 /// The layout of one packed sequence.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -99,8 +99,8 @@ impl SeqLayout {
 
     /// True when a packed sequence's values are not what an actor writes:
     /// a step's action not one of the run's, a done or demonstration flag
-    /// other than 0 or 1, an expert action neither [`NO_EXPERT`] nor one of
-    /// the run's, or a value that is not finite.
+    /// other than 0 or 1, a label none of [`crate::label_mask`]'s, or a
+    /// value that is not finite.
     pub fn values_corrupt(self, values: &[f32]) -> bool {
         if values.len() != self.packed_values() {
             return true;
@@ -109,7 +109,10 @@ impl SeqLayout {
         let one_of = |a: f32| a >= 0.0 && a < self.shapes.actions as f32 && a.fract() == 0.0;
         let flag = |f: f32| f == 0.0 || f == 1.0;
         values[start..start + self.steps * TAIL].chunks_exact(TAIL).any(|t| {
-            !one_of(t[0]) || !flag(t[2]) || !(t[3] == NO_EXPERT || one_of(t[3])) || !flag(t[4])
+            !one_of(t[0])
+                || !flag(t[2])
+                || crate::label_mask(t[3], self.shapes.actions).is_none()
+                || !flag(t[4])
         }) || values.iter().any(|v| !v.is_finite())
     }
 }
@@ -205,7 +208,7 @@ pub struct Unpacked {
     pub rewards: Vec<f32>,
     /// Episode ends, `[sequences][steps]`.
     pub dones: Vec<bool>,
-    /// The teacher's action at each step ([`NO_EXPERT`]: none),
+    /// The teacher's action at each step ([`NO_EXPERT`](crate::NO_EXPERT): none),
     /// `[sequences][steps]`.
     pub experts: Vec<f32>,
     /// Start states, `[sequences][width]`.
@@ -228,6 +231,7 @@ impl Unpacked {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::NO_EXPERT;
 
     const LAYOUT: SeqLayout = SeqLayout { shapes: Shapes::PAPER, steps: 3, width: 4 };
 

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use crate::error::{Doing, Result, RoleError, protocol_err};
-use rotorhive_model::{Dqn, DqnConfig, QNet, num_params};
+use rotorhive_model::{Dqn, DqnConfig, QNet, Teaching, num_params};
 use rotorhive_msg::{
     LearnerStage, MinibatchHeader, PICK_WORDS, Pick, PriorityHeader, RoleKind, Shapes, Telemetry,
     WeightsHeader,
@@ -188,22 +188,21 @@ fn add_timing(sample: &mut Telemetry, tm: rotorhive_model::UpdateTiming) {
     sample.add_stage(LearnerStage::Optimiser, tm.optimiser_ns);
 }
 
-/// Sets DQfD's large-margin loss to the teacher's weight now (the
-/// replay's fade, as minibatch `mb` says; without a teacher none: the plain
-/// update).
+/// Sets the teacher's losses to its weight now (the replay's fade, as
+/// minibatch `mb` says; without a teacher none: the plain update).
 fn teach(cfg: &Config, dqn: &mut Dqn, mb: &MinibatchHeader) {
-    if let Some(w) = margin_weight(cfg, mb) {
-        dqn.set_margin_weight(w);
+    if let Some(t) = teaching(cfg, mb) {
+        dqn.set_teaching(t);
     }
 }
 
-/// The large-margin loss's weight for minibatch `mb`: the teacher's weight
-/// times the replay's fade (a fade that is not finite counts as 0); none
-/// without a teacher.
-fn margin_weight(cfg: &Config, mb: &MinibatchHeader) -> Option<f32> {
+/// How minibatch `mb` weighs the labels: the teacher's weight times the
+/// replay's fade (a fade that is not finite counts as 0), the TD loss at
+/// `learner.td_weight` beside imitation; none without a teacher.
+fn teaching(cfg: &Config, mb: &MinibatchHeader) -> Option<Teaching> {
     cfg.teacher.on().then(|| {
         let fade = if mb.teacher.is_finite() { mb.teacher.clamp(0.0, 1.0) } else { 0.0 };
-        cfg.teacher.weight as f32 * fade
+        cfg.teacher.teaching(fade, cfg.learner.td_weight as f32)
     })
 }
 

@@ -11,7 +11,8 @@ use std::time::Instant;
 
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
-use rotorhive_msg::{NO_EXPERT, TeacherCounts, Telemetry};
+use rotorhive_model::Teaching;
+use rotorhive_msg::{NO_EXPERT, TeacherCounts, Telemetry, label_of_mask};
 use rotorhive_sim::{Planner, Sight, VecEnv};
 use serde::{Deserialize, Serialize};
 
@@ -50,6 +51,30 @@ pub enum TeacherSight {
     PixelsMemory,
 }
 
+/// `teacher.labels`: which of the student's steps a label reaches.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum TeacherLabels {
+    /// Where exactly one action keeps a way clear (the last moments before
+    /// a row).
+    Decisive,
+    /// Also where several do: the actions whose way keeps the most room
+    /// (the earlier choice of a gap); none where all keep as much.
+    Graded,
+}
+
+/// `teacher.loss`: how the labels train the student.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum TeacherLoss {
+    /// DQfD's large margin on steps labelled with one action.
+    Margin,
+    /// A cross-entropy of the Q-values' softmax toward the actions a label
+    /// allows, on every labelled step; the TD loss at `learner.td_weight`,
+    /// handed the whole weight back as the teacher fades.
+    Imitation,
+}
+
 /// `[teacher]`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -70,10 +95,17 @@ pub struct TeacherSection {
     /// Actions a label's search looks ahead (a way clear for this many;
     /// 0: to the end, as the planner flies, at several times the cost).
     pub label_horizon: usize,
+    /// Which steps a label reaches: `decisive` or `graded`.
+    pub labels: TeacherLabels,
+    /// How labels train: `margin` (DQfD) or `imitation`.
+    pub loss: TeacherLoss,
     /// DQfD's margin l(a_E, a) for every action other than the expert's
     /// (in the network's units: scaled rewards).
     pub margin: f64,
-    /// Weight of the large-margin loss against the TD loss (DQfD: 1).
+    /// With `loss = "imitation"`: the softmax's temperature over the
+    /// Q-values (in the network's units: scaled rewards).
+    pub temperature: f64,
+    /// Weight of the teacher's loss against the TD loss (DQfD: 1).
     pub weight: f64,
     /// Agent-steps (every host's) over which the label share, the
     /// demonstrations, their batch share and the loss weight fall linearly
@@ -100,7 +132,10 @@ impl Default for TeacherSection {
             demo_agents: 5,
             label_share: 0.5,
             label_horizon: 10,
+            labels: TeacherLabels::Decisive,
+            loss: TeacherLoss::Margin,
             margin: 0.8,
+            temperature: 0.2,
             weight: 1.0,
             fade_env_steps: 0,
             demo_capacity: 50_000,
@@ -114,6 +149,26 @@ impl TeacherSection {
     /// Whether the run has a teacher.
     pub fn on(&self) -> bool {
         self.policy != TeacherPolicy::None
+    }
+
+    /// How an update weighs the labels with the teacher at strength `fade`
+    /// (1: full; 0: gone) and the TD loss at `td_weight` beside imitation
+    /// (handed back to 1 as the teacher fades); the plain update without a
+    /// teacher.
+    pub fn teaching(&self, fade: f32, td_weight: f32) -> Teaching {
+        if !self.on() {
+            return Teaching::default();
+        }
+        let w = self.weight as f32 * fade;
+        match self.loss {
+            TeacherLoss::Margin => Teaching::margin(w),
+            TeacherLoss::Imitation => Teaching {
+                td: 1.0 - fade * (1.0 - td_weight),
+                margin: 0.0,
+                imitation: w,
+                temperature: self.temperature as f32,
+            },
+        }
     }
 
     /// What the planner is told.
@@ -176,6 +231,9 @@ impl TeacherSection {
             if !(0.0..=1.0).contains(&v) {
                 config_err!("key `{k}` must lie in [0, 1], got {v}");
             }
+        }
+        if !(self.temperature.is_finite() && self.temperature > 0.0) {
+            config_err!("key `teacher.temperature` must be positive, got {}", self.temperature);
         }
         for (k, v) in [("teacher.margin", self.margin), ("teacher.weight", self.weight)] {
             if !(v.is_finite() && v >= 0.0) {
@@ -294,9 +352,14 @@ impl Teacher {
             };
             self.labels[i] = if flies || (share > 0.0 && self.rng.random::<f64>() < share) {
                 let t = Instant::now();
-                let a = self.planner.label(env, i, horizon);
+                let label = match self.cfg.labels {
+                    TeacherLabels::Decisive => {
+                        self.planner.label(env, i, horizon).map_or(NO_EXPERT, f32::from)
+                    }
+                    TeacherLabels::Graded => label_of_mask(self.planner.graded(env, i, horizon)),
+                };
                 (c.labels, c.label_ns) = (c.labels + 1, c.label_ns + elapsed(t));
-                a.map_or(NO_EXPERT, f32::from)
+                label
             } else {
                 // A remembering planner sees every frame, labelled or not.
                 self.planner.watch(env, i);

@@ -39,6 +39,9 @@ const MARGINS: [f32; 3] = [0.15, 0.05, 0.0];
 /// The margin of a teacher's label's searches ([`Planner::label`]): an
 /// action counts as safe where a way starting with it keeps this much room.
 const LABEL_MARGIN: f32 = 0.05;
+/// The margins of a graded label's searches ([`Planner::graded`]), widest
+/// first: the label is the actions whose way keeps the most room.
+const GRADED_MARGINS: [f32; 6] = [0.6, 0.45, 0.3, 0.2, 0.1, LABEL_MARGIN];
 /// How far the drone may stray from its plan before a new one (m).
 const STRAY: f32 = 0.05;
 
@@ -253,6 +256,31 @@ impl Planner {
     pub fn label(&mut self, env: &VecEnv, i: usize, horizon: usize) -> Option<u8> {
         let safe = self.safe_actions(env, i, horizon, 2);
         (safe.len() == 1).then(|| safe[0])
+    }
+
+    /// A graded label of agent `i`'s state now, as bits (bit `a`: action
+    /// `a`): the actions whose way clear for `horizon` actions keeps the
+    /// most room (the widest of [`GRADED_MARGINS`] at which any action has
+    /// one), so that the choice of a gap is taught before only one action
+    /// is left; 0 where every action keeps as much room (the choice does
+    /// not matter) or none keeps a way. Where [`Planner::label`] names an
+    /// action, this is that action alone.
+    pub fn graded(&mut self, env: &VecEnv, i: usize, horizon: usize) -> u8 {
+        let sight = self.sight;
+        let watched = self.watched_now(env, i);
+        let seen = (sight != Sight::All).then(|| Geometry::new(&in_view(env, i, sight, watched)));
+        let geometry = seen.as_ref().unwrap_or(&self.geometry);
+        let actions = if env.config().hold_action { 3 } else { 2 };
+        let all = (1u8 << actions) - 1;
+        for margin in GRADED_MARGINS {
+            let mask = (0..actions as u8)
+                .filter(|a| search(geometry, env, i, margin, horizon.max(1), Some(*a)).through)
+                .fold(0u8, |m, a| m | 1 << a);
+            if mask != 0 {
+                return if mask == all { 0 } else { mask };
+            }
+        }
+        0
     }
 
     /// Every action of agent `i` now that starts a way clear for `horizon`
@@ -646,7 +674,7 @@ mod tests {
         let cfg = SimConfig { agents: 1, ..SimConfig::default() };
         let mut env = VecEnv::new(cfg, arena, 1).unwrap();
         let mut planner = Planner::new(&env, Sight::All);
-        let (mut labels, mut alive) = (Vec::new(), true);
+        let (mut labels, mut alive, mut graded_steps) = (Vec::new(), true, 0);
         // Straight on (the setpoint held near 0) toward the wall; the
         // actions allowed agree with the label, ties kept.
         for t in 0..11 {
@@ -657,6 +685,14 @@ mod tests {
                 Some(a) => assert_eq!(allowed, vec![a], "step {t}"),
                 None => assert!(allowed.len() != 1, "step {t}: {allowed:?}"),
             }
+            // A graded label refines the label: the same action where
+            // that names one, else none or the action with more room.
+            let graded = planner.graded(&env, 0, 10);
+            match last {
+                Some(a) => assert_eq!(graded, 1 << a, "step {t}"),
+                None => assert!(graded != 0b11, "step {t}"),
+            }
+            graded_steps += (graded != 0) as usize;
             if t == 0 {
                 assert_eq!(allowed, vec![0, 1], "far from the wall both ways keep clear");
             }
@@ -674,6 +710,8 @@ mod tests {
         // lateral setpoint (action 1: +0.25 m/s).
         assert_eq!(first, Some(1), "{labels:?}");
         assert!(labels.iter().flatten().all(|a| *a == 1), "{labels:?}");
+        let decisive = labels.iter().flatten().count();
+        assert!(graded_steps > decisive, "graded {graded_steps}, decisive {decisive}");
     }
 
     /// A planner of the pixels knows what a ray met and nothing behind it:

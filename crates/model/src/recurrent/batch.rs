@@ -1,7 +1,7 @@
 //! A minibatch of stored sequences as the recurrent learner takes it, and
 //! the checks it passes before an update.
 
-use rotorhive_msg::NO_EXPERT;
+use rotorhive_msg::label_mask;
 
 use crate::{ModelError, Result, Shapes};
 
@@ -26,7 +26,7 @@ pub struct SeqBatch<'a> {
     /// The state each sequence started from (its actor's there),
     /// `[sequences][width]`.
     pub states: &'a [f32],
-    /// The teacher's action at each step ([`NO_EXPERT`]: none),
+    /// The teacher's action at each step ([`NO_EXPERT`](rotorhive_msg::NO_EXPERT): none),
     /// `[sequences][steps]`; empty: no step labelled.
     pub experts: &'a [f32],
     /// Each sequence's importance weight (prioritized replay),
@@ -82,10 +82,9 @@ impl SeqBatch<'_> {
                 got: self.weights.len(),
             });
         }
-        let one_of = |e: f32| e >= 0.0 && e < shapes.actions as f32 && e.fract() == 0.0;
-        if let Some(&e) = self.experts.iter().find(|&&e| !(e == NO_EXPERT || one_of(e))) {
+        if let Some(&e) = self.experts.iter().find(|&&e| label_mask(e, shapes.actions).is_none()) {
             return Err(ModelError::Shape {
-                what: "sequence expert action (none or one of the actions)",
+                what: "sequence label (none, one of the actions or a set of them)",
                 expected: shapes.actions,
                 got: e as usize,
             });

@@ -472,7 +472,12 @@ fn a_bad_label_is_refused_by_name() {
     };
     assert!(seq.update(&b).unwrap().is_finite());
     let e = seq.update(&SeqBatch { experts: &[0.5, 1.0], ..b }).unwrap_err().to_string();
-    assert!(e.contains("sequence expert action"), "{e}");
+    assert!(e.contains("sequence label"), "{e}");
+    // A set of actions beyond the task's two is no label either.
+    let e = seq.update(&SeqBatch { experts: &[12.0, 1.0], ..b }).unwrap_err().to_string();
+    assert!(e.contains("sequence label"), "{e}");
+    let three = seq.update(&SeqBatch { experts: &[11.0, 1.0], ..b }).unwrap();
+    assert!(three.is_finite(), "both actions (8 + 0b11) are a set of the two");
     let e = seq.update(&SeqBatch { experts: &[1.0], ..b }).unwrap_err().to_string();
     assert!(e.contains("sequence expert actions"), "{e}");
 }

@@ -348,6 +348,10 @@ pub struct LearnerSection {
     /// With memory: steps at a sequence's start that only warm its stored
     /// state up (no loss); sequences overlap by this many steps.
     pub burn_in: usize,
+    /// Weight of the TD loss beside `teacher.loss = "imitation"` (1: as
+    /// without a teacher; 0: imitation alone), rising to 1 as the teacher
+    /// fades.
+    pub td_weight: f64,
 }
 
 impl Default for SimSection {
@@ -440,6 +444,7 @@ impl Default for LearnerSection {
             memory: "none".into(),
             sequence_steps: 22,
             burn_in: 8,
+            td_weight: 1.0,
         }
     }
 }

@@ -162,3 +162,34 @@ fn memory_is_named_and_sized_and_refused_where_it_does_not_work_yet() {
     let taught = load(&["learner.memory=\"gru:64\"", "teacher.policy=\"planner\""]).unwrap();
     assert!(taught.teacher.demos() && taught.memory() == Some(64));
 }
+
+#[test]
+fn imitation_and_its_td_weight_are_named_and_checked() {
+    let set = |s: &[&str]| Config::load(None, &s.iter().map(|x| x.to_string()).collect::<Vec<_>>());
+    let e = format!("{:#}", set(&["learner.td_weight=0.5"]).unwrap_err());
+    assert!(e.contains("learner.td_weight") && e.contains("imitation"), "{e}");
+    let e = format!("{:#}", set(&["learner.td_weight=1.5"]).unwrap_err());
+    assert!(e.contains("learner.td_weight"), "{e}");
+    let e = format!("{:#}", set(&["teacher.policy=planner", "teacher.temperature=0"]).unwrap_err());
+    assert!(e.contains("teacher.temperature"), "{e}");
+    let e = format!("{:#}", set(&["teacher.loss=cloning"]).unwrap_err());
+    assert!(e.contains("teacher.loss") || e.contains("cloning"), "{e}");
+    let c = set(&[
+        "teacher.policy=planner",
+        "teacher.loss=imitation",
+        "teacher.labels=graded",
+        "learner.td_weight=0.25",
+    ])
+    .unwrap();
+    let t = &c.teacher;
+    assert_eq!(t.labels, crate::teacher::TeacherLabels::Graded);
+    // The TD loss at its weight beside full imitation, handed back as the
+    // teacher fades; the margin loss is the default's.
+    let full = t.teaching(1.0, 0.25);
+    assert_eq!((full.td, full.margin, full.imitation, full.temperature), (0.25, 0.0, 1.0, 0.2));
+    let half = t.teaching(0.5, 0.25);
+    assert_eq!((half.td, half.imitation), (0.625, 0.5));
+    assert_eq!(t.teaching(0.0, 0.25).td, 1.0);
+    let margin = Config::default().teacher;
+    assert_eq!(margin.teaching(1.0, 1.0), rotorhive_model::Teaching::default(), "no teacher");
+}

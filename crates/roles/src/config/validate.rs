@@ -3,6 +3,7 @@
 
 use super::Config;
 use crate::error::{Doing, Result, RoleError, config_err};
+use crate::teacher::TeacherLoss;
 use rotorhive_sim::PhysicsKind;
 
 /// A key that must be a positive number.
@@ -308,6 +309,15 @@ impl Config {
             config_err!(
                 "key `learner.average_updates` must be 0 (off) or positive, got {}",
                 l.average_updates
+            );
+        }
+        if !(0.0..=1.0).contains(&l.td_weight) {
+            config_err!("key `learner.td_weight` must lie in [0, 1], got {}", l.td_weight);
+        }
+        if l.td_weight < 1.0 && !(self.teacher.on() && self.teacher.loss == TeacherLoss::Imitation)
+        {
+            config_err!(
+                "key `learner.td_weight` below 1 needs `teacher.loss = \"imitation\"` (and a teacher)"
             );
         }
         if !(l.max_rate_hz.is_finite() && l.max_rate_hz >= 0.0) {

@@ -143,8 +143,8 @@ fn learn<S: Service>(
     lost: &mut u64,
 ) -> Result<f32> {
     prio.load_weights();
-    if let Some(w) = super::margin_weight(cfg, mb) {
-        dqn.set_margin_weight(w);
+    if let Some(t) = super::teaching(cfg, mb) {
+        dqn.set_teaching(t);
     }
     let loss = dqn.update(&SeqBatch {
         sequences: mb.batch as usize,
