@@ -71,6 +71,13 @@ pub enum BenchError {
     },
 }
 
+/// A config's error, as the roles take it (the same text).
+impl From<rotorhive_config::ConfigError> for BenchError {
+    fn from(e: rotorhive_config::ConfigError) -> Self {
+        Self::Role(e.into())
+    }
+}
+
 /// Result of this crate.
 pub type Result<T> = std::result::Result<T, BenchError>;
 

@@ -12,7 +12,7 @@ use rotorhive_msg::{
 };
 
 use crate::delivery::LinkHeader;
-use crate::host::Host;
+use crate::head::host::Host;
 use crate::wire;
 
 pub use crate::wire::{MAX_BATCH, MAX_EPISODES};

@@ -50,7 +50,7 @@ pub const WINDOW_BYTES: usize = 128 << 20;
 /// a session that came back); and no sooner again after a resend request.
 pub const RESEND_AFTER: Duration = Duration::from_secs(1);
 /// The head acknowledges new batches at most this often, and says where
-/// each slot stands at least this often ([`HEARTBEAT`]; [`crate::inflow`]).
+/// each slot stands at least this often ([`HEARTBEAT`]; [`crate::head::inflow`]).
 pub const ACK_EVERY: Duration = Duration::from_millis(5);
 /// See [`ACK_EVERY`].
 pub const HEARTBEAT: Duration = Duration::from_millis(250);
@@ -183,7 +183,7 @@ pub fn new_epoch() -> u64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::inflow::{Admit, Inflow};
+    use crate::head::inflow::{Admit, Inflow};
     use proptest::prelude::*;
 
     /// `batches` batches over a link that loses and duplicates them as

@@ -66,7 +66,7 @@ pub struct Hello {
     /// token it first joined with ([`MAX_TOKEN`] bytes at most).
     pub token: String,
     /// What the worker process before it in its run directory had sent
-    /// when it stopped (its [`crate::worker_send::SentLog`]).
+    /// when it stopped (its [`crate::worker::send::SentLog`]).
     pub earlier: Earlier,
 }
 

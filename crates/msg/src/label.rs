@@ -24,7 +24,7 @@ pub fn label_mask(label: f32, actions: usize) -> Option<u8> {
         return Some(1 << label as u8);
     }
     let mask = label - LABEL_SET;
-    (mask >= 1.0 && mask <= all as f32).then_some(mask as u8)
+    (1.0..=all as f32).contains(&mask).then_some(mask as u8)
 }
 
 /// The label of the actions in `mask` (bit `a`: action `a`): [`NO_EXPERT`]
@@ -41,7 +41,7 @@ pub fn label_of_mask(mask: u8) -> f32 {
 /// margin loss needs one expert action; a set of several counts as none
 /// there).
 pub fn label_action(label: f32) -> Option<usize> {
-    (label >= 0.0 && label < LABEL_SET && label.fract() == 0.0).then_some(label as usize)
+    ((0.0..LABEL_SET).contains(&label) && label.fract() == 0.0).then_some(label as usize)
 }
 
 #[cfg(test)]

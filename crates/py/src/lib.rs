@@ -22,11 +22,11 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
+use rotorhive_config::Config;
+use rotorhive_config::SimSection;
 use rotorhive_model::{
     Device, FRAMES, QNet, RecurrentQNet, Shapes, checkpoint_memory, checkpoint_shapes, params,
 };
-use rotorhive_roles::Config;
-use rotorhive_roles::config::SimSection;
 use rotorhive_sim::view::{self, Canvas, Focus, Tracks};
 use rotorhive_sim::{Arena, Autoreset, GpuError, VecEnv};
 
@@ -93,7 +93,7 @@ fn build_env(
     let arenas = lanes(&cfg, src)?;
     let lanes = arenas.len();
     let env =
-        VecEnv::new_lanes(cfg.sim_config(), &arenas, rotorhive_roles::seeds::sim(cfg.seed, 0))
+        VecEnv::new_lanes(cfg.sim_config(), &arenas, rotorhive_config::streams::sim(cfg.seed, 0))
             .map_err(|e| PyRuntimeError::new_err(format!("the simulator could not start: {e}")))?;
     Ok((env, lanes))
 }
@@ -493,7 +493,7 @@ fn reference_rollout<'py>(
 /// The graded levels: (name, Gymnasium ID), in order of difficulty.
 #[pyfunction]
 fn levels() -> Vec<(&'static str, &'static str)> {
-    rotorhive_roles::levels::LEVELS.iter().map(|(name, id, _)| (*name, *id)).collect()
+    rotorhive_config::levels::LEVELS.iter().map(|(name, id, _)| (*name, *id)).collect()
 }
 
 /// The keys of the config's `[sim]` section, which the environments take as

@@ -20,8 +20,8 @@ use rotorhive_transport::Service;
 use rotorhive_transport::{Receiver, Sender};
 
 use crate::config::Config;
+use crate::ctx::{Counters, Ctx, POLL, STALL_TIMEOUT, episodes_channel, roles_of};
 use crate::schedule::Schedule;
-use crate::{Counters, Ctx, POLL, STALL_TIMEOUT, episodes_channel, roles_of};
 
 /// Exploration rate after `transitions` (across all actors): constant until
 /// the replay memory is full, then linear decay.
@@ -217,8 +217,11 @@ impl<'a, S: Service> Actor<'a, S> {
                 EPISODE_FIELDS * n,
                 STALL_TIMEOUT,
             )?,
-            tel: crate::counters(hub, RoleKind::Actor, e, roles_of(cfg))?,
-            rng: Pcg64Mcg::seed_from_u64(crate::seeds::actor(cfg.seed, cfg.cluster.env_offset + e)),
+            tel: crate::ctx::counters(hub, RoleKind::Actor, e, roles_of(cfg))?,
+            rng: Pcg64Mcg::seed_from_u64(crate::streams::actor(
+                cfg.seed,
+                cfg.cluster.env_offset + e,
+            )),
             schedule: cfg.deterministic.then(|| Schedule::new(cfg)),
             nstep: NStep::new(steps_n, cfg.learner.gamma as f32, n, shapes.obs_len()),
             actions: vec![0; n],

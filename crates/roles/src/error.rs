@@ -54,6 +54,21 @@ pub enum RoleError {
 /// Result of this crate.
 pub type Result<T> = std::result::Result<T, RoleError>;
 
+/// A config's error as the role's, with the same text.
+impl From<rotorhive_config::ConfigError> for RoleError {
+    fn from(e: rotorhive_config::ConfigError) -> Self {
+        use rotorhive_config::ConfigError as C;
+        match e {
+            C::Invalid(s) => Self::Config(s),
+            C::Arena(e) => Self::Arena(e),
+            C::Lanes(e) => Self::Lanes(e),
+            C::Model(e) => Self::Model(e),
+            C::Io(e) => Self::Io(e),
+            C::While { doing, err } => Self::While { doing, err: Box::new((*err).into()) },
+        }
+    }
+}
+
 /// Says what the role was doing when an error happened (this crate's
 /// `anyhow::Context`).
 pub trait Doing<T> {

@@ -16,7 +16,7 @@ use rotorhive_transport::Channel;
 use rotorhive_transport::Service;
 
 use crate::config::Config;
-use crate::{Ctx, POLL, STALL_TIMEOUT, roles_of};
+use crate::ctx::{Ctx, POLL, STALL_TIMEOUT, roles_of};
 
 pub mod recurrent;
 
@@ -55,7 +55,7 @@ fn restore(cfg: &crate::config::Config, state_path: &Path) -> Result<Dqn> {
     let mut dqn = Dqn::with_shapes(
         dqn_config(cfg),
         cfg.shapes(),
-        crate::seeds::network(cfg.seed),
+        crate::streams::network(cfg.seed),
         &rotorhive_model::device(cfg.learner.device.kind())?,
     )?;
     dqn.set_threads(cfg.learner.threads);
@@ -120,7 +120,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
         num_params(cfg.shapes()),
         STALL_TIMEOUT,
     )?;
-    let mut tel = crate::counters(hub, RoleKind::Learner, 0, roles_of(cfg))?;
+    let mut tel = crate::ctx::counters(hub, RoleKind::Learner, 0, roles_of(cfg))?;
     let mut version = dqn.updates(); // increasing across restarts
     let mut average = Average::new(cfg);
     publish(&mut w_tx, &dqn, average.as_mut(), &mut version)?;

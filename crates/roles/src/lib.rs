@@ -8,58 +8,32 @@
 //! fast role tests. A role takes a [`Ctx`] and no command-line types.
 
 pub mod actor;
-pub mod config;
+mod ctx;
 pub mod error;
 pub mod eval;
 pub mod learner;
-pub mod levels;
 pub mod replay;
 pub mod schedule;
-pub mod seeds;
 pub mod sim;
 pub mod teacher;
+
+pub use ctx::{Counters, Ctx, POLL, STALL_TIMEOUT, counters, episodes_channel, roles_of};
+/// The run's config (its own crate, without the transport).
+pub use rotorhive_config as config;
+pub use rotorhive_config::{levels, streams};
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::thread::JoinHandle;
-use std::time::Duration;
 
 use crate::error::{Doing, Result, protocol_err};
 pub use rotorhive_msg::EpisodeHeader;
-use rotorhive_msg::{RoleKind, Telemetry};
+use rotorhive_msg::RoleKind;
 use rotorhive_transport::Service;
-use rotorhive_transport::{Channel, Hub, Local, Periodic};
+use rotorhive_transport::{Hub, Local};
 
 pub use config::{Config, DeviceName, Exploration, ObservationMode};
-
-/// What a role runs in: its run's hub (the node and the service-name
-/// prefix), the run's resolved config and its directory. A role stops when
-/// `hub.shutdown_requested()` (a signal, or `rotorhive_transport::request_stop`).
-pub struct Ctx<'a, S: Service> {
-    /// The role's node in the run.
-    pub hub: &'a Hub<S>,
-    /// The run's validated config.
-    pub cfg: &'a Config,
-    /// The run directory (checkpoints, the replay's file); none for a role
-    /// that keeps nothing.
-    pub run_dir: Option<&'a Path>,
-}
-
-/// How long a send may wait on a full receiver before the stall is reported.
-pub const STALL_TIMEOUT: Duration = Duration::from_secs(2);
-/// How long a role sleeps on an empty channel before re-checking for shutdown.
-pub const POLL: Duration = Duration::from_millis(100);
-
-/// The episodes channel, actors → supervisor.
-pub fn episodes_channel(envs: usize) -> Channel {
-    Channel::episodes(envs)
-}
-
-/// Processes (or threads) that publish telemetry in a run.
-pub fn roles_of(cfg: &Config) -> usize {
-    2 * cfg.sim.envs + 2
-}
 
 /// The roles of a run, by node name and what starts them: the learner, the
 /// replay, and an actor and a sim per environment.
@@ -159,24 +133,4 @@ pub fn join_threads(threads: Vec<(String, JoinHandle<Result<()>>)>) -> Option<St
         first = first.or(err);
     }
     first
-}
-
-/// A role's telemetry: its counters and stage timers ([`Telemetry`]),
-/// published about once a second by the transport's one periodic publisher.
-pub type Counters<S> = Periodic<S, Telemetry>;
-
-/// The counters of role `role` number `index` in a run of `roles` roles.
-pub fn counters<S: Service>(
-    hub: &Hub<S>,
-    role: RoleKind,
-    index: usize,
-    roles: usize,
-) -> Result<Counters<S>> {
-    let sample = Telemetry {
-        role: role as u32,
-        index: index as u32,
-        pid: std::process::id(),
-        ..Telemetry::default()
-    };
-    Ok(Periodic::new(hub, &Channel::telemetry(roles), sample)?)
 }

@@ -14,7 +14,7 @@ use rotorhive_transport::{Channel, TransportError};
 
 use rotorhive_transport::Service;
 
-use crate::{Counters, Ctx, roles_of};
+use crate::ctx::{Counters, Ctx, roles_of};
 
 mod scheduled;
 
@@ -64,7 +64,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
         minibatch_len(cfg.row_len(), r.batch),
         Duration::from_millis(1),
     )?;
-    let tel = crate::counters(hub, RoleKind::Replay, 0, roles_of(cfg))?;
+    let tel = crate::ctx::counters(hub, RoleKind::Replay, 0, roles_of(cfg))?;
     let receipts = Receipts::new(hub, cfg.sim.envs)?;
     let seq_log = SeqLog::open(cx.run_dir, hub.prefix(), cfg.sim.envs);
     let picks = vec![Pick::default(); r.batch];
@@ -154,7 +154,7 @@ impl<S: Service> Memory<'_, S> {
             if !got && !sent {
                 let t = Instant::now();
                 // Nothing to do: sleep on the transitions channel.
-                let wait = if ready { Duration::from_millis(2) } else { crate::POLL };
+                let wait = if ready { Duration::from_millis(2) } else { crate::ctx::POLL };
                 if let Some(m) = self.rx.recv_timeout(wait).doing("waiting for transitions")? {
                     let lost = &mut self.tel.sample.lost;
                     let seen = (&mut next_seq, lost);
@@ -477,7 +477,7 @@ fn open_demos(
     }
     // With memory a row is a sequence: the capacity counts its trained
     // steps, as the memory's does.
-    let (width, seed) = (cfg.row_len(), crate::seeds::demos(cfg.seed));
+    let (width, seed) = (cfg.row_len(), crate::streams::demos(cfg.seed));
     let rows = (t.demo_capacity / cfg.steps_per_row()).max(1);
     Ok(Some(match run_dir {
         Some(d) if cfg.replay.snapshot_every_s > 0.0 => {
@@ -502,7 +502,7 @@ fn open_memory(
                 &d.join("replay.bin"),
                 cfg.replay_rows().0,
                 cfg.row_len(),
-                crate::seeds::replay(cfg.seed),
+                crate::streams::replay(cfg.seed),
             )
             .doing("restoring the replay memory")?;
             if !m.is_empty() {
@@ -511,9 +511,10 @@ fn open_memory(
             }
             (m, Some(j))
         }
-        _ => {
-            (Replay::new(cfg.replay_rows().0, cfg.row_len(), crate::seeds::replay(cfg.seed)), None)
-        }
+        _ => (
+            Replay::new(cfg.replay_rows().0, cfg.row_len(), crate::streams::replay(cfg.seed)),
+            None,
+        ),
     })
 }
 

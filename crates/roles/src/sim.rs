@@ -13,8 +13,8 @@ use rotorhive_transport::Channel;
 use rotorhive_transport::Service;
 use rotorhive_transport::{Hub, Receiver, Sender};
 
+use crate::ctx::{Ctx, POLL, STALL_TIMEOUT, roles_of};
 use crate::teacher::Teacher;
-use crate::{Ctx, POLL, STALL_TIMEOUT, roles_of};
 
 /// How long a sim waits for actions before publishing the same step again.
 const RESEND: std::time::Duration = std::time::Duration::from_millis(1000);
@@ -35,7 +35,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
         STALL_TIMEOUT,
     )?;
     let mut act_rx = hub.receiver::<u8, ActionHeader>(&Channel::actions(env_index))?;
-    let mut tel = crate::counters(hub, RoleKind::Sim, env_index, roles_of(cfg))?;
+    let mut tel = crate::ctx::counters(hub, RoleKind::Sim, env_index, roles_of(cfg))?;
     let mut limiter = RateLimiter::new(hub, cfg)?;
     let mut teacher = Teacher::start(cfg, &env, env_index);
     let mut step = 0u64;
@@ -109,7 +109,7 @@ fn open_env(cfg: &crate::Config, env_index: usize) -> Result<VecEnv> {
         );
     }
     let arenas = cfg.lane_arenas(env_index)?;
-    let seed = crate::seeds::sim(cfg.seed, cfg.cluster.env_offset + env_index);
+    let seed = crate::streams::sim(cfg.seed, cfg.cluster.env_offset + env_index);
     VecEnv::new_lanes(cfg.sim_config(), &arenas, seed).doing("starting the simulator")
 }
 

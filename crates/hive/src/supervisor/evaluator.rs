@@ -255,7 +255,7 @@ impl Judge {
         cfg: &Config,
         best: Option<(f64, f64)>,
     ) -> Result<(rotorhive_roles::eval::EvalStats, Option<(f64, f64)>)> {
-        let seed = rotorhive_roles::seeds::validation(cfg.seed);
+        let seed = rotorhive_roles::streams::validation(cfg.seed);
         let (pilot, sim) = (net.pilot(), cfg.sim_config());
         let st =
             rotorhive_roles::eval::fly(pilot, sim.clone(), &self.arenas, cfg.eval.episodes, seed)?;
@@ -265,7 +265,7 @@ impl Judge {
         }
         // Fresh spawns for every confirmation.
         self.confirmations += 1;
-        let seed = rotorhive_roles::seeds::confirmation(cfg.seed, self.confirmations);
+        let seed = rotorhive_roles::streams::confirmation(cfg.seed, self.confirmations);
         let c = rotorhive_roles::eval::fly(pilot, sim, &self.arenas, k, seed)?;
         Ok((st, Some((c.success_rate(), c.mean_reward))))
     }

@@ -223,7 +223,7 @@ proptest! {
         let _ = weights(3, Some(&att), &p);
         let _ = wire::Hello::decode(&p);
         let _ = wire::Welcome::decode(&p);
-        let _ = crate::host::slot_of(&String::from_utf8_lossy(&p), "r", "transitions");
+        let _ = crate::head::host::slot_of(&String::from_utf8_lossy(&p), "r", "transitions");
     }
 
     /// A header that fits, with arbitrary counts, indexes and payloads.

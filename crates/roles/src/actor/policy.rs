@@ -31,7 +31,7 @@ impl Policy {
     /// The network of `cfg` (`learner.memory`), on `device`, for `agents`
     /// agents.
     pub fn new(cfg: &Config, device: &rotorhive_model::Device, agents: usize) -> Result<Self> {
-        let seed = crate::seeds::network(cfg.seed);
+        let seed = crate::streams::network(cfg.seed);
         let (Some(width), Some(layout)) = (cfg.memory(), cfg.seq_layout()) else {
             let mut net = QNet::with_shapes(cfg.shapes(), seed, device)?;
             net.set_threads(cfg.actor.threads);

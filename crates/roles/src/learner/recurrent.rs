@@ -24,8 +24,8 @@ use rotorhive_transport::{Channel, Service};
 
 use super::Gauges;
 use crate::config::Config;
+use crate::ctx::{Ctx, POLL, STALL_TIMEOUT, roles_of};
 use crate::error::{Doing, Result, protocol_err};
-use crate::{Ctx, POLL, STALL_TIMEOUT, roles_of};
 
 /// The sequence update's settings of a config's `[learner]`.
 pub fn seq_config(cfg: &Config) -> SeqConfig {
@@ -59,7 +59,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, width: usize, layout: SeqLayout) -> Resul
         cfg.num_params(),
         STALL_TIMEOUT,
     )?;
-    let mut tel = crate::counters(hub, RoleKind::Learner, 0, roles_of(cfg))?;
+    let mut tel = crate::ctx::counters(hub, RoleKind::Learner, 0, roles_of(cfg))?;
     let mut version = 0;
     let mut average = super::Average::new(cfg);
     publish(&mut w_tx, &dqn, average.as_mut(), &mut version)?;
@@ -112,7 +112,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, width: usize, layout: SeqLayout) -> Resul
 /// networks and Adam) or, failing that, from its latest weights.
 fn start(cfg: &Config, width: usize, latest: &Path, state: &Path) -> Result<SeqDqn> {
     let device = rotorhive_model::device(cfg.learner.device.kind())?;
-    let seed = crate::seeds::network(cfg.seed);
+    let seed = crate::streams::network(cfg.seed);
     let mut dqn = SeqDqn::new(seq_config(cfg), cfg.shapes(), width, seed, &device)?;
     if state.exists() {
         dqn.load_state(state)

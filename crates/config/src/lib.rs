@@ -4,22 +4,27 @@
 //! written into the run directory and read back by the roles.
 
 mod arenas;
+pub mod error;
+pub mod levels;
 mod sections;
 mod sizing;
+pub mod streams;
 mod validate;
 
 use std::path::Path;
 
-use crate::error::{Doing, Result, RoleError, config_err};
+use crate::error::{Result, config_err};
 use serde::{Deserialize, Serialize};
 
 use rotorhive_msg::Shapes;
 
 pub use sizing::{SIZED_KEYS, Sizing};
 
+pub use error::{ConfigError, Doing};
 pub use sections::{
     ActorSection, ClusterSection, Curriculum, DeviceName, EvalSection, Exploration, LearnerSection,
-    ReplaySection, SimSection,
+    ReplaySection, SimSection, TeacherLabels, TeacherLoss, TeacherPolicy, TeacherSection,
+    TeacherSight,
 };
 
 /// `sim.observation_mode`: the records' enum, so that `summary.json` names
@@ -68,7 +73,7 @@ pub struct Config {
     /// Hosts of the run (`hive train --listen`, `hive worker`).
     pub cluster: ClusterSection,
     /// The privileged teacher (none by default).
-    pub teacher: crate::teacher::TeacherSection,
+    pub teacher: TeacherSection,
     /// The keys this config left at 0 that sizing filled (not a key).
     #[serde(skip)]
     pub sized: Vec<&'static str>,
@@ -97,7 +102,7 @@ impl Default for Config {
             learner: LearnerSection::default(),
             eval: EvalSection::default(),
             cluster: ClusterSection::default(),
-            teacher: crate::teacher::TeacherSection::default(),
+            teacher: TeacherSection::default(),
             sized: Vec::new(),
         }
     }
@@ -150,13 +155,13 @@ impl Config {
     /// overrides and validates.
     pub fn parse(text: &str, source: &str, overrides: &[String]) -> Result<Self> {
         let mut table: toml::Table = toml::from_str(text).map_err(|e| {
-            RoleError::Config(format!("config {source}: {}", e.to_string().trim_end()))
+            ConfigError::Invalid(format!("config {source}: {}", e.to_string().trim_end()))
         })?;
         for o in overrides {
             apply_override(&mut table, o)?;
         }
         let mut cfg: Config = Config::deserialize(toml::Value::Table(table)).map_err(|e| {
-            RoleError::Config(format!("config {source}: {}", e.to_string().trim_end()))
+            ConfigError::Invalid(format!("config {source}: {}", e.to_string().trim_end()))
         })?;
         cfg.sized = cfg.size(Sizing::machine_cores());
         cfg.validate().doing_with(|| format!("config {source}"))?;
@@ -263,7 +268,9 @@ fn apply_override(table: &mut toml::Table, o: &str) -> Result<()> {
             .entry(p.to_string())
             .or_insert_with(|| toml::Value::Table(toml::Table::new()))
             .as_table_mut()
-            .ok_or_else(|| RoleError::Config(format!("override {o:?}: `{p}` is not a section")))?;
+            .ok_or_else(|| {
+                ConfigError::Invalid(format!("override {o:?}: `{p}` is not a section"))
+            })?;
     }
     t.insert(parts[parts.len() - 1].to_string(), value);
     Ok(())

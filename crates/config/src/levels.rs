@@ -2,7 +2,7 @@
 //! and the Python package so that `--level NAME` and the Gymnasium IDs work
 //! from any directory. Each is an ordinary config.
 
-use crate::error::{Result, RoleError};
+use crate::error::{ConfigError, Result};
 
 /// Every level: its name, its Gymnasium ID and its config.
 pub const LEVELS: &[(&str, &str, &str)] = &[
@@ -23,7 +23,10 @@ pub fn names() -> Vec<&'static str> {
 /// list of known ones.
 pub fn text(name: &str) -> Result<&'static str> {
     LEVELS.iter().find(|l| l.0 == name).map(|l| l.2).ok_or_else(|| {
-        RoleError::Config(format!("unknown level `{name}`: the levels are {}", names().join(", ")))
+        ConfigError::Invalid(format!(
+            "unknown level `{name}`: the levels are {}",
+            names().join(", ")
+        ))
     })
 }
 
@@ -45,7 +48,7 @@ mod tests {
         }
         // The paper's level is the defaults with one environment and one
         // thread of each, on any machine.
-        let ones = crate::config::SIZED_KEYS.map(|k| format!("{k}=1"));
+        let ones = crate::SIZED_KEYS.map(|k| format!("{k}=1"));
         assert_eq!(
             Config::level("paper", &[]).unwrap().to_toml(),
             Config::load(None, &ones).unwrap().to_toml()

@@ -182,7 +182,7 @@ fn imitation_and_its_td_weight_are_named_and_checked() {
     ])
     .unwrap();
     let t = &c.teacher;
-    assert_eq!(t.labels, crate::teacher::TeacherLabels::Graded);
+    assert_eq!(t.labels, crate::TeacherLabels::Graded);
     // The TD loss at its weight beside full imitation, handed back as the
     // teacher fades; the margin loss is the default's.
     let full = t.teaching(1.0, 0.25);

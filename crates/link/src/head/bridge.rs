@@ -17,11 +17,11 @@ use zenoh::Wait;
 use zenoh::qos::CongestionControl;
 
 use crate::error::{LinkError, Result, zerr};
-use crate::head::accept;
-use crate::head::{ConfigFor, Head, HeadStats, refuse, reply};
-use crate::head_flows::Flows;
-use crate::host::{Host, same_token};
-use crate::inflow::Admit;
+use crate::head::admit::accept;
+use crate::head::admit::{ConfigFor, Head, HeadStats, refuse, reply};
+use crate::head::flows::Flows;
+use crate::head::host::{Host, same_token};
+use crate::head::inflow::Admit;
 use crate::reject::{Reason, Reject};
 use crate::shared::{LinkTelemetry, key, link_telemetry, missing_before};
 use crate::wire::Welcome;
@@ -166,7 +166,7 @@ pub(crate) fn head_loop<S: Service>(
 const RECEIPTS_EVERY: Duration = Duration::from_millis(1);
 
 /// How long the head takes the workers' batches after the run's end: longer
-/// than they wait for their acknowledgements ([`crate::worker_bridge`]).
+/// than they wait for their acknowledgements ([`crate::worker::bridge`]).
 const DRAIN: Duration = Duration::from_secs(7);
 
 /// The head's link at work: what it sends and receives on the head's

@@ -16,8 +16,8 @@ use zenoh::sample::SampleKind;
 use crate::delivery::{Outbox, WINDOW_BYTES};
 use crate::error::{LinkError, Result, zerr};
 use crate::shared::{Fifo, LinkTelemetry, host_key, key, link_telemetry};
-use crate::worker::SentLog;
-use crate::worker::{Worker, WorkerEnd, WorkerStats};
+use crate::worker::join::SentLog;
+use crate::worker::join::{Worker, WorkerEnd, WorkerStats};
 use crate::{check, wire};
 
 impl Worker {
@@ -86,7 +86,7 @@ impl Worker {
 }
 
 /// How long a worker waits, once the run ends, for the head to acknowledge
-/// what it sent (the head waits a little longer: [`crate::head_bridge`]).
+/// what it sent (the head waits a little longer: [`crate::head::bridge`]).
 pub(crate) const DRAIN: Duration = Duration::from_secs(5);
 
 /// A worker's link at work: its Zenoh publishers and subscribers, its

@@ -15,8 +15,8 @@ use crate::error::{Result, zerr};
 use crate::shared::missing_before;
 use crate::wire;
 use crate::wire::Earlier;
-use crate::worker::WorkerStats;
-use crate::worker_bridge::WorkerBridge;
+use crate::worker::bridge::WorkerBridge;
+use crate::worker::join::WorkerStats;
 
 impl<S: Service> WorkerBridge<S> {
     /// One transition batch out, if there is one and the window has room

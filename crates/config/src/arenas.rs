@@ -5,7 +5,7 @@
 use super::Config;
 use std::path::Path;
 
-use crate::error::{Result, RoleError, config_err};
+use crate::error::{ConfigError, Result, config_err};
 use rotorhive_sim::{Arena, CameraSpec, GenParams, SimConfig};
 use serde::Deserialize;
 
@@ -58,7 +58,7 @@ impl Config {
             return Ok(p);
         };
         let mut table = toml::Table::try_from(&p)
-            .map_err(|e| RoleError::Config(format!("key `sim.generator`: {e}")))?;
+            .map_err(|e| ConfigError::Invalid(format!("key `sim.generator`: {e}")))?;
         let Some(to) = table
             .get(&c.key)
             .and_then(|v| v.as_float().or_else(|| v.as_integer().map(|i| i as f64)))
@@ -77,9 +77,9 @@ impl Config {
         };
         table.insert(c.key.clone(), v);
         let q: GenParams = GenParams::deserialize(toml::Value::Table(table))
-            .map_err(|e| RoleError::Config(format!("key `sim.curriculum`: {e}")))?;
+            .map_err(|e| ConfigError::Invalid(format!("key `sim.curriculum`: {e}")))?;
         q.validate().map_err(|e| {
-            RoleError::Config(format!("key `sim.curriculum` at stage {stage}: {e}"))
+            ConfigError::Invalid(format!("key `sim.curriculum` at stage {stage}: {e}"))
         })?;
         Ok(GenParams { drone_radius: self.sim.drone_radius, ..q })
     }
@@ -121,7 +121,7 @@ impl Config {
     fn lanes_with(&self, base: Option<Arena>, env: usize, p: &GenParams) -> Vec<Arena> {
         let mut v: Vec<Arena> = base.into_iter().collect();
         for k in 0..self.sim.generated_lanes {
-            let seed = crate::seeds::lane(self.seed, env, k);
+            let seed = crate::streams::lane(self.seed, env, k);
             v.push(Arena::generate(&format!("lane-{k}"), seed, p));
         }
         v
@@ -137,7 +137,11 @@ impl Config {
         if self.eval.test_layouts > 0 {
             let p = self.gen_params()?;
             v.extend((0..self.eval.test_layouts).map(|k| {
-                Arena::generate(&format!("test-layout-{}", k + 1), crate::seeds::test_layout(k), &p)
+                Arena::generate(
+                    &format!("test-layout-{}", k + 1),
+                    crate::streams::test_layout(k),
+                    &p,
+                )
             }));
         }
         Ok(v)
@@ -153,7 +157,7 @@ impl Config {
         let p = self.gen_params()?;
         Ok((0..self.eval.validation_arenas)
             .map(|k| {
-                Arena::generate(&format!("validation-{k}"), crate::seeds::validation_arena(k), &p)
+                Arena::generate(&format!("validation-{k}"), crate::streams::validation_arena(k), &p)
             })
             .collect())
     }

@@ -2,8 +2,8 @@
 //! each refused with the key's name.
 
 use super::Config;
-use crate::error::{Doing, Result, RoleError, config_err};
-use crate::teacher::TeacherLoss;
+use crate::TeacherLoss;
+use crate::error::{ConfigError, Doing, Result, config_err};
 use rotorhive_sim::PhysicsKind;
 
 /// A key that must be a positive number.
@@ -151,7 +151,7 @@ impl Config {
         }
         if let Some(g) = &s.generator {
             g.validate().map_err(|e| {
-                RoleError::Config(format!("key `sim.generator.{}`: {}", e.key, e.message))
+                ConfigError::Invalid(format!("key `sim.generator.{}`: {}", e.key, e.message))
             })?;
         }
         if s.arena.as_os_str().is_empty() && (s.generator.is_none() || s.generated_lanes == 0) {
@@ -161,11 +161,13 @@ impl Config {
         }
         s.noise
             .validate()
-            .map_err(|(k, m)| RoleError::Config(format!("key `sim.noise.{k}` {m}")))?;
+            .map_err(|(k, m)| ConfigError::Invalid(format!("key `sim.noise.{k}` {m}")))?;
         s.randomize
             .validate()
-            .map_err(|(k, m)| RoleError::Config(format!("key `sim.randomize.{k}` {m}")))?;
-        s.goal.validate().map_err(|(k, m)| RoleError::Config(format!("key `sim.goal.{k}` {m}")))?;
+            .map_err(|(k, m)| ConfigError::Invalid(format!("key `sim.randomize.{k}` {m}")))?;
+        s.goal
+            .validate()
+            .map_err(|(k, m)| ConfigError::Invalid(format!("key `sim.goal.{k}` {m}")))?;
         let latency = s.noise.latency_s != [0.0, 0.0];
         if s.physics == PhysicsKind::Rapier && (latency || s.randomize.dynamics()) {
             config_err!(

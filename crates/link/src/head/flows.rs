@@ -12,9 +12,9 @@ use zenoh::qos::CongestionControl;
 
 use crate::delivery::LinkHeader;
 use crate::error::{Result, zerr};
-use crate::head::{Flow, HeadStats};
-use crate::host::Host;
-use crate::inflow::{Admit, Inflow};
+use crate::head::admit::{Flow, HeadStats};
+use crate::head::host::Host;
+use crate::head::inflow::{Admit, Inflow};
 use crate::shared::host_key;
 use crate::wire;
 use crate::wire::Earlier;
