@@ -10,7 +10,7 @@ use anyhow::{Result, bail};
 use clap::{Args, ValueEnum};
 use rotorhive_model::Shapes;
 use rotorhive_roles::Config;
-use rotorhive_roles::eval::{
+use rotorhive_roles::flights::{
     Agreement, EpisodeLog, EvalStats, LogSpec, Network, Pilot, agreement, fly_layouts_logged,
     layout_spread,
 };
@@ -364,7 +364,7 @@ fn report_found(a: &EvalArgs, (layouts, stats): (&[Arena], &[EvalStats]), found:
             g.all.1,
             pct(g.decisive),
             g.decisive.1,
-            rotorhive_roles::eval::LAST_STEPS,
+            rotorhive_roles::flights::LAST_STEPS,
             pct(g.before_crash),
             g.before_crash.1,
             g.no_way

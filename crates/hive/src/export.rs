@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::{Result, bail};
 use clap::Args;
-use rotorhive_roles::eval::Network;
+use rotorhive_roles::flights::Network;
 
 #[derive(Args, Debug)]
 pub struct ExportArgs {

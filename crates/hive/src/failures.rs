@@ -9,7 +9,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use rotorhive_roles::Config;
-use rotorhive_roles::eval::{EpisodeLog, EvalStats, LAST_STEPS, LogSpec, Pilot, fly_logged, traps};
+use rotorhive_roles::flights::{
+    EpisodeLog, EvalStats, LAST_STEPS, LogSpec, Pilot, fly_logged, traps,
+};
 use rotorhive_sim::{Arena, Done, Sight};
 
 /// What the failure map found.

@@ -9,7 +9,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
-use rotorhive_roles::eval::Network;
+use rotorhive_roles::flights::Network;
 use rotorhive_sim::view::{self, Canvas, Focus, Tracks};
 use rotorhive_sim::{Arena, Autoreset, SimConfig, VecEnv};
 

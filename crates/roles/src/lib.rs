@@ -10,7 +10,7 @@
 pub mod actor;
 mod ctx;
 pub mod error;
-pub mod eval;
+pub mod flights;
 pub mod learner;
 pub mod replay;
 pub mod schedule;

@@ -10,7 +10,7 @@
 
 use rapier3d::math::{Rotation, Vector};
 
-use crate::lane::{Lane, cross, dot, normalize_or};
+use crate::simd::{Simd, cross, dot, normalize_or};
 
 /// Physical constants of the quadrotor (an X-frame of about 1 kg).
 #[derive(Debug, Clone, Copy)]
@@ -144,7 +144,7 @@ pub fn control(
 /// A drone's motion as the cascade reads it: position and velocity (world
 /// frame), the body axes in the world frame (`[bx, by, bz]`, the columns of
 /// the rotation) and the body-frame angular velocity, for one drone (`f32`)
-/// or a group ([`Lane`]). Vectors are `[x, y, z]`.
+/// or a group ([`Simd`]). Vectors are `[x, y, z]`.
 #[derive(Clone, Copy)]
 pub(crate) struct Kinematics<T> {
     pub(crate) position: [T; 3],
@@ -153,14 +153,14 @@ pub(crate) struct Kinematics<T> {
     pub(crate) w: [T; 3],
 }
 
-/// The cascade itself, over any [`Lane`] type: one drone (`f32`, as
+/// The cascade itself, over any [`Simd`] type: one drone (`f32`, as
 /// [`control`] runs it) or a group (the direct path's vectorised kernel,
 /// `flight.rs`). The horizontal velocity setpoint `vel_sp` (`[x, y]`) and
 /// the altitude setpoint in; the four rotor thrusts (N), clamped, out.
 /// `vel_gain` stands for `g.vel_xy` (a drone's own, under domain
 /// randomisation).
 #[inline(always)]
-pub(crate) fn thrusts<T: Lane>(
+pub(crate) fn thrusts<T: Simd>(
     p: &QuadParams,
     g: &Gains,
     vel_gain: T,
@@ -218,9 +218,9 @@ pub fn body_wrench(p: &QuadParams, f: [f32; 4]) -> (f32, Vector) {
     (thrust, Vector::from(torque))
 }
 
-/// [`body_wrench`] over any [`Lane`] type.
+/// [`body_wrench`] over any [`Simd`] type.
 #[inline(always)]
-pub(crate) fn wrench<T: Lane>(p: &QuadParams, f: [T; 4]) -> (T, [T; 3]) {
+pub(crate) fn wrench<T: Simd>(p: &QuadParams, f: [T; 4]) -> (T, [T; 3]) {
     let l = T::splat(p.arm / std::f32::consts::SQRT_2);
     let torque = [
         l * (f[0] + f[1] - f[2] - f[3]),

@@ -16,10 +16,10 @@ use crate::arena::{Arena, Lanes, Spawn};
 use crate::dynamics::DroneState;
 use crate::flight::{Body, Drone, Flight, Geometry};
 use crate::goal::{Goal, Progress};
-use crate::gpu::{GpuDepthRenderer, GpuError};
 use crate::rapier_flight::RapierFlight;
 use crate::realism::{PixelNoise, WIND_DRAG};
-use crate::render::{DepthRenderer, Scene};
+use crate::render::cpu::{DepthRenderer, Scene};
+use crate::render::wgpu::{GpuDepthRenderer, GpuError};
 
 /// Why an episode ended: the done codes every process shares (one type,
 /// `rotorhive_msg::DoneKind`, so the codes cannot drift apart).
@@ -34,7 +34,7 @@ pub use settings::{
 
 /// Agents per piece of physics work handed to a pool thread: whole groups
 /// of the vectorised flight kernel.
-const PHYSICS_CHUNK: usize = 2 * crate::lane::LANES;
+const PHYSICS_CHUNK: usize = 2 * crate::simd::LANES;
 
 /// The flight computation of an environment.
 #[derive(Debug)]
@@ -109,7 +109,7 @@ pub struct VecEnv {
     scene: Scene,
     renderer: DepthRenderer,
     gpu: Option<GpuDepthRenderer>,
-    /// Lane centre lines and spawns (one lane: the arena itself).
+    /// Simd centre lines and spawns (one lane: the arena itself).
     lane_offsets: Vec<f32>,
     lane_spawns: Vec<Spawn>,
     /// Agent index of every camera, for the GPU renderer.

@@ -33,7 +33,7 @@ use rapier3d::parry::shape::SharedShape;
 
 use crate::arena::{Arena, Motion, Obstacle};
 use crate::dynamics::{GRAVITY, Gains, Kinematics, QuadParams, thrusts, wrench};
-use crate::lane::{LANES, Lane, Wide, cross};
+use crate::simd::{LANES, Simd, Wide, cross};
 
 /// Inner integration steps per physics step (rapier's solver substeps).
 pub(crate) const INNER: usize = 4;
@@ -166,7 +166,7 @@ impl Flight {
     /// thrusts (world-frame force held over the step, body-frame torque with
     /// the gyroscopic term), then the linear damping.
     #[inline(always)]
-    fn kernel<T: Lane>(&self, s: &mut State<T>) {
+    fn kernel<T: Simd>(&self, s: &mut State<T>) {
         let q = &self.quad;
         let c = T::splat;
         let axes = axes(s.q);
@@ -215,7 +215,7 @@ pub(crate) struct State<T> {
     push: T,
 }
 
-impl<T: Lane> State<T> {
+impl<T: Simd> State<T> {
     /// Drones' states, one per lane: `lane(value)` builds a `T` from every
     /// drone's `value`.
     #[inline(always)]
@@ -295,7 +295,7 @@ fn fly_group(flight: &Flight, drones: &mut [Drone], path: &mut [Vector], steps: 
 /// The body axes in the world frame (the rotation's columns) of a unit
 /// quaternion `[x, y, z, w]`.
 #[inline(always)]
-fn axes<T: Lane>([x, y, z, w]: [T; 4]) -> [[T; 3]; 3] {
+fn axes<T: Simd>([x, y, z, w]: [T; 4]) -> [[T; 3]; 3] {
     let (one, two) = (T::splat(1.0), T::splat(2.0));
     let (xx, yy, zz, xy, xz, yz, wx, wy, wz) =
         (x * x, y * y, z * z, x * y, x * z, y * z, w * x, w * y, w * z);
@@ -309,7 +309,7 @@ fn axes<T: Lane>([x, y, z, w]: [T; 4]) -> [[T; 3]; 3] {
 /// `q ⊗ (a, b, c, 1)`: a rotation by the small angle vector `2 (a, b, c)`
 /// after `q`, unnormalised.
 #[inline(always)]
-fn mul_q<T: Lane>([x, y, z, w]: [T; 4], [a, b, c]: [T; 3]) -> [T; 4] {
+fn mul_q<T: Simd>([x, y, z, w]: [T; 4], [a, b, c]: [T; 3]) -> [T; 4] {
     [
         w * a + x + y * c - z * b,
         w * b - x * c + y + z * a,
@@ -319,7 +319,7 @@ fn mul_q<T: Lane>([x, y, z, w]: [T; 4], [a, b, c]: [T; 3]) -> [T; 4] {
 }
 
 #[inline(always)]
-fn normalize_q<T: Lane>(q: [T; 4]) -> [T; 4] {
+fn normalize_q<T: Simd>(q: [T; 4]) -> [T; 4] {
     let inv = T::splat(1.0) / (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
     q.map(|x| x * inv)
 }

@@ -10,13 +10,12 @@ pub mod env;
 mod flight;
 pub mod generate;
 pub mod goal;
-pub mod gpu;
-mod lane;
 pub mod planner;
 mod pool;
 mod rapier_flight;
 pub mod realism;
 pub mod render;
+mod simd;
 pub mod view;
 
 pub use arena::{Arena, ArenaError, Lanes, MAX_OBSTACLE_SPEED, Motion, Obstacle, Spawn};
@@ -25,7 +24,6 @@ pub use env::{
 };
 pub use generate::{GenMode, GenParamError, GenParams};
 pub use goal::Goal;
-pub use gpu::{GpuDepthRenderer, GpuError};
 pub use planner::{Planner, Sight};
 pub use realism::{Noise, Randomize};
-pub use render::{CameraPose, CameraSpec, DepthRenderer, Scene};
+pub use render::{CameraPose, CameraSpec, DepthRenderer, GpuDepthRenderer, GpuError, Scene};

@@ -21,7 +21,7 @@ use anyhow::{Context, Result};
 use rotorhive_msg::WeightsHeader;
 use rotorhive_records::rows::{self, EvalRow};
 use rotorhive_roles::Config;
-use rotorhive_roles::eval::Network;
+use rotorhive_roles::flights::Network;
 use rotorhive_transport::Service;
 use rotorhive_transport::{Channel, Hub};
 
@@ -254,11 +254,16 @@ impl Judge {
         net: &Network,
         cfg: &Config,
         best: Option<(f64, f64)>,
-    ) -> Result<(rotorhive_roles::eval::EvalStats, Option<(f64, f64)>)> {
+    ) -> Result<(rotorhive_roles::flights::EvalStats, Option<(f64, f64)>)> {
         let seed = rotorhive_roles::streams::validation(cfg.seed);
         let (pilot, sim) = (net.pilot(), cfg.sim_config());
-        let st =
-            rotorhive_roles::eval::fly(pilot, sim.clone(), &self.arenas, cfg.eval.episodes, seed)?;
+        let st = rotorhive_roles::flights::fly(
+            pilot,
+            sim.clone(),
+            &self.arenas,
+            cfg.eval.episodes,
+            seed,
+        )?;
         let k = cfg.eval.confirm_episodes;
         if k == 0 || best.is_some_and(|b| st.success_rate() + CANDIDATE_SLACK < b.0) {
             return Ok((st, None));
@@ -266,7 +271,7 @@ impl Judge {
         // Fresh spawns for every confirmation.
         self.confirmations += 1;
         let seed = rotorhive_roles::streams::confirmation(cfg.seed, self.confirmations);
-        let c = rotorhive_roles::eval::fly(pilot, sim, &self.arenas, k, seed)?;
+        let c = rotorhive_roles::flights::fly(pilot, sim, &self.arenas, k, seed)?;
         Ok((st, Some((c.success_rate(), c.mean_reward))))
     }
 }

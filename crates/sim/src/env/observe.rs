@@ -9,9 +9,9 @@ use rand_pcg::Pcg64Mcg;
 
 use super::{Autoreset, Done, VecEnv};
 use crate::goal::Goal;
-use crate::gpu::GpuError;
-use crate::render::CameraPose;
-use crate::render::Drones;
+use crate::render::cpu::CameraPose;
+use crate::render::cpu::Drones;
+use crate::render::wgpu::GpuError;
 
 /// Agents per piece of observation writing handed to a pool thread.
 const OBS_CHUNK: usize = 16;

@@ -4,9 +4,9 @@
 use crate::arena::ArenaError;
 use crate::dynamics::{Gains, QuadParams};
 use crate::goal::Goal;
-use crate::gpu::GpuError;
 use crate::realism::{Noise, Randomize};
-use crate::render::CameraSpec;
+use crate::render::cpu::CameraSpec;
+use crate::render::wgpu::GpuError;
 use rotorhive_msg::DoneKind as Done;
 use rotorhive_msg::Shapes;
 

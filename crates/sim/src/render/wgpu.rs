@@ -22,7 +22,7 @@ mod mesh;
 use mesh::{SceneLayout, shape_triangles, sphere_triangles};
 
 use crate::arena::Motion;
-use crate::render::{CameraPose, CameraSpec, Drones, Scene, frustum_floor_plan};
+use crate::render::cpu::{CameraPose, CameraSpec, Drones, Scene, frustum_floor_plan};
 
 /// wgpu's error as it came (boxed: wgpu has one type per operation).
 pub type GpuCause = Box<dyn std::error::Error + Send + Sync + 'static>;

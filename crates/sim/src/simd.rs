@@ -8,7 +8,7 @@ pub(crate) const LANES: usize = 16;
 
 /// The arithmetic the flight kernel needs, for one drone (`f32`) or a
 /// group of [`LANES`] ([`Wide`]), lane by lane the same operations.
-pub(crate) trait Lane:
+pub(crate) trait Simd:
     Copy
     + std::ops::Add<Output = Self>
     + std::ops::Sub<Output = Self>
@@ -24,7 +24,7 @@ pub(crate) trait Lane:
     fn gt_select(self, o: Self, a: Self, b: Self) -> Self;
 }
 
-impl Lane for f32 {
+impl Simd for f32 {
     #[inline(always)]
     fn splat(x: f32) -> Self {
         x
@@ -76,7 +76,7 @@ impl std::ops::Neg for Wide {
     }
 }
 
-impl Lane for Wide {
+impl Simd for Wide {
     #[inline(always)]
     fn splat(x: f32) -> Self {
         Wide([x; LANES])
@@ -100,18 +100,18 @@ impl Lane for Wide {
 }
 
 #[inline(always)]
-pub(crate) fn dot<T: Lane>(a: [T; 3], b: [T; 3]) -> T {
+pub(crate) fn dot<T: Simd>(a: [T; 3], b: [T; 3]) -> T {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
 #[inline(always)]
-pub(crate) fn cross<T: Lane>(a: [T; 3], b: [T; 3]) -> [T; 3] {
+pub(crate) fn cross<T: Simd>(a: [T; 3], b: [T; 3]) -> [T; 3] {
     [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
 }
 
 /// `v / |v|`, or `fallback` where `v` is zero.
 #[inline(always)]
-pub(crate) fn normalize_or<T: Lane>(v: [T; 3], fallback: [T; 3]) -> [T; 3] {
+pub(crate) fn normalize_or<T: Simd>(v: [T; 3], fallback: [T; 3]) -> [T; 3] {
     let n2 = dot(v, v);
     let inv = T::splat(1.0) / n2.sqrt();
     let tiny = T::splat(f32::MIN_POSITIVE);
