@@ -26,6 +26,7 @@ mod kernels;
 mod onnx;
 mod ops;
 mod recurrent;
+mod teaching;
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -36,11 +37,12 @@ use candle_core::{Tensor, Var};
 pub use checkpoint::{
     CHECKPOINT_LAYOUT, checkpoint_memory, checkpoint_metadata, checkpoint_shapes, memory_name,
 };
-pub use dqn::{Dqn, DqnConfig, Teaching, UpdateStats, UpdateTiming};
+pub use dqn::{Dqn, DqnConfig, UpdateStats, UpdateTiming};
 use kernels::{Rows, Weights, Workspace};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 pub use recurrent::{MAX_WIDTH, RecurrentQNet, SeqBatch, SeqConfig, SeqDqn, recurrent_params};
+pub use teaching::Teaching;
 
 /// Where a network runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -26,8 +26,9 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
 use crate::checkpoint::{self, recurrent_metadata};
-use crate::dqn::{Adam, Teaching, UpdateTiming};
+use crate::dqn::{Adam, UpdateTiming};
 use crate::kernels::{Rows, Weights, Workspace, offsets};
+use crate::teaching::Teaching;
 use crate::{HID, ModelError, Result, Scratch, Shapes, argmax, params, trunk};
 
 /// The widest GRU a network may have.
@@ -601,12 +602,13 @@ impl SeqDqn {
         let scale = |w: f32| w as f64 / (trained * n) as f64;
         let mut sum: Option<Tensor> = None;
         let margin = if k.margin > 0.0 {
-            crate::dqn::margin_sum(&rows, &experts, self.cfg.margin)?.map(|m| (m, k.margin))
+            crate::teaching::margin_sum(&rows, &experts, self.cfg.margin)?.map(|m| (m, k.margin))
         } else {
             None
         };
         let imitation = if k.imitation > 0.0 {
-            crate::dqn::imitation_sum(&rows, &experts, k.temperature)?.map(|m| (m, k.imitation))
+            crate::teaching::imitation_sum(&rows, &experts, k.temperature)?
+                .map(|m| (m, k.imitation))
         } else {
             None
         };

@@ -178,7 +178,7 @@ fn the_margin_losss_gradients_match_stock_candle() {
 #[test]
 fn the_imitation_losss_gradients_match_stock_candle() {
     let mut g = [0.0f32; 3];
-    let l = dqn::imitation_row(&[0.5, 1.0, 0.0], 0b011, 0.5, 0.5, &mut g);
+    let l = teaching::imitation_row(&[0.5, 1.0, 0.0], 0b011, 0.5, 0.5, &mut g);
     let e = [1f32.exp(), 2f32.exp(), 1.0];
     let want = (e[0] + e[1] + e[2]).ln() - (e[0] + e[1]).ln();
     assert!((l - want).abs() < 1e-6, "{l} vs {want}");
