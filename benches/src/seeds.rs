@@ -289,9 +289,9 @@ fn test_success(
     episodes: usize,
 ) -> Result<TestScore> {
     let cfg = Config::load(Some(&run_dir.join("config.toml")), &[])?;
-    let net = rotorhive_roles::flights::Network::for_config(&cfg)?;
+    let net = rotorhive_roles::flights::network_for(&cfg)?;
     net.load_checkpoint(checkpoint)?;
-    pooled_success(&cfg, net.pilot(), arena, episodes)
+    pooled_success(&cfg, rotorhive_roles::flights::Pilot::Net(&net), arena, episodes)
 }
 
 /// Runs one seed of one arm and scores it.
@@ -559,7 +559,9 @@ impl ArmStats {
 }
 
 /// The probability that a run of arm `b` is sooner than a run of arm `a`,
-/// to the threshold and to the validation target, with their intervals.
+/// to the threshold and to the validation target, and that it flies more
+/// of the held-out test set (none where a run has no test score), with
+/// their intervals.
 #[derive(Debug, Clone, serde::Serialize)]
 struct Pair {
     a: String,
@@ -568,6 +570,8 @@ struct Pair {
     ci: [f64; 2],
     p_target: f64,
     ci_target: [f64; 2],
+    p_test: Option<f64>,
+    ci_test: Option<[f64; 2]>,
 }
 
 impl Pair {
@@ -586,6 +590,17 @@ impl Pair {
         };
         let (ga, gb) = (target(ra), target(rb));
         let ci_target = bootstrap(&[&ga, &gb], a.resamples, rng, |d| prob_lower(&d[0], &d[1]));
+        // Test success, higher is better: its negation, lower is better.
+        let test = |runs: &[&RunResult]| -> Option<Vec<f64>> {
+            runs.iter().map(|r| r.test.as_ref().map(|t| -t.success)).collect()
+        };
+        let (p_test, ci_test) = match (test(ra), test(rb)) {
+            (Some(xa), Some(xb)) => (
+                Some(prob_lower(&xa, &xb)),
+                Some(bootstrap(&[&xa, &xb], a.resamples, rng, |d| prob_lower(&d[0], &d[1]))),
+            ),
+            _ => (None, None),
+        };
         Self {
             a: na.to_string(),
             b: nb.to_string(),
@@ -593,6 +608,8 @@ impl Pair {
             ci,
             p_target: prob_lower(&ga, &gb),
             ci_target,
+            p_test,
+            ci_test,
         }
     }
 }

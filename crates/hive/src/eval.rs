@@ -8,11 +8,10 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Result, bail};
 use clap::{Args, ValueEnum};
-use rotorhive_model::Shapes;
+use rotorhive_model::{PolicyNet, Shapes};
 use rotorhive_roles::Config;
 use rotorhive_roles::flights::{
-    Agreement, EpisodeLog, EvalStats, LogSpec, Network, Pilot, agreement, fly_layouts_logged,
-    layout_spread,
+    Agreement, EpisodeLog, EvalStats, LogSpec, Pilot, agreement, fly_layouts_logged, layout_spread,
 };
 use rotorhive_sim::{Arena, Sight};
 
@@ -210,7 +209,8 @@ pub fn run(a: EvalArgs) -> Result<()> {
     // one whose header names a memory flies as a recurrent network.
     let net = match (policy, &a.checkpoint) {
         (PolicyKind::Greedy, Some(c)) => {
-            let net = Network::new(cfg.shapes(), rotorhive_model::checkpoint_memory(c)?)?;
+            let memory = rotorhive_model::checkpoint_memory(c)?;
+            let net = PolicyNet::new(cfg.shapes(), memory, 0, &rotorhive_model::Device::Cpu)?;
             net.load_checkpoint(c)?;
             Some(net)
         }
@@ -226,7 +226,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
         (None, false) => a.arena.iter().map(|p| Arena::load(p)).collect::<Result<_, _>>()?,
     };
     let pilot = match (&net, policy) {
-        (Some(net), _) => net.pilot(),
+        (Some(net), _) => Pilot::Net(net),
         (None, PolicyKind::Planner) => Pilot::Planner(a.sight.sight(a.memory_s)),
         (None, _) => Pilot::Reactive,
     };
@@ -243,7 +243,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
         },
         agreement: a.agree.map(|_| agreement(&logs.concat())),
     };
-    let memory = net.as_ref().and_then(Network::memory);
+    let memory = net.as_ref().and_then(PolicyNet::memory);
     report(&a, (policy, memory), &source, cfg.shapes(), (&layouts, &stats), &found);
     Ok(())
 }

@@ -1,11 +1,11 @@
 //! `hive export`: a checkpoint as an ONNX model (`rotorhive_model`'s
-//! `QNet::to_onnx`, or `RecurrentQNet::to_onnx` for one with memory).
+//! `PolicyNet::to_onnx`: one with memory as a single step with its state).
 
 use std::path::PathBuf;
 
 use anyhow::{Result, bail};
 use clap::Args;
-use rotorhive_roles::flights::Network;
+use rotorhive_model::PolicyNet;
 
 #[derive(Args, Debug)]
 pub struct ExportArgs {
@@ -23,7 +23,7 @@ pub fn run(a: ExportArgs) -> Result<()> {
     }
     // Either network, as the checkpoint's header says (shapes, memory): a
     // recurrent one exports its one step, the state in and out.
-    let net = Network::load(&a.checkpoint)?;
+    let net = PolicyNet::load(&a.checkpoint)?;
     net.to_onnx(&a.out, &[("source", a.checkpoint.display().to_string())])?;
     let shapes = net.shapes();
     let ins = format!("depth (B, {}, 32, 32) and velocity (B, {})", shapes.frames, shapes.scalars);

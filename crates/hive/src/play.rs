@@ -9,7 +9,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
-use rotorhive_roles::flights::Network;
+use rotorhive_model::PolicyNet;
 use rotorhive_sim::view::{self, Canvas, Focus, Tracks};
 use rotorhive_sim::{Arena, Autoreset, SimConfig, VecEnv};
 
@@ -59,7 +59,7 @@ pub fn run(a: PlayArgs) -> Result<()> {
         bail!("--out {}: only .gif videos are written", a.out.display());
     }
     // Either network, as the checkpoint's header says (shapes, memory).
-    let net = Network::load(&a.checkpoint)?;
+    let net = PolicyNet::load(&a.checkpoint)?;
     let arena = Arena::load(&a.arena)?;
     let start = Instant::now();
     let file = std::fs::File::create(&a.out)
@@ -110,7 +110,7 @@ impl<W: std::io::Write> Recording<W> {
     /// Flies round `round` (`--agents` drones, one episode each, seeded
     /// `seed + round`) to its end, a frame per action step, following the
     /// focused drone and then the next one still flying.
-    fn round(&mut self, a: &PlayArgs, net: &Network, arena: &Arena, round: usize) -> Result<()> {
+    fn round(&mut self, a: &PlayArgs, net: &PolicyNet, arena: &Arena, round: usize) -> Result<()> {
         // A checkpoint of a task with a goal, the hold action or another
         // count of frames flies with them (the goal's default settings).
         let shapes = net.shapes();

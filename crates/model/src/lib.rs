@@ -25,6 +25,7 @@ mod dqn;
 mod kernels;
 mod onnx;
 mod ops;
+mod policy;
 mod recurrent;
 mod teaching;
 
@@ -39,6 +40,7 @@ pub use checkpoint::{
 };
 pub use dqn::{Dqn, DqnConfig, UpdateStats, UpdateTiming};
 use kernels::{Rows, Weights, Workspace};
+pub use policy::PolicyNet;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 pub use recurrent::{MAX_WIDTH, RecurrentQNet, SeqBatch, SeqConfig, SeqDqn, recurrent_params};

@@ -318,7 +318,7 @@ impl<'a, S: Service> Actor<'a, S> {
         // `h.step` of a deterministic run, which must follow the acting).
         send_actions(&mut self.act_tx, self.e, h.step, &self.actions, &mut self.tel.sample.lost);
         let t = Instant::now();
-        if matches!(self.policy, Policy::Recurrent(_)) {
+        if self.policy.seqs.is_some() {
             self.send_sequences(obs, rewards, dones)?;
         } else if self.have_prev {
             self.send_transitions(obs, rewards, dones)?;
@@ -480,7 +480,8 @@ impl<'a, S: Service> Actor<'a, S> {
     /// trained steps as transitions (a deterministic run sends every round,
     /// as [`Actor::send_transitions`]).
     fn send_sequences(&mut self, obs: &[f32], rewards: &[f32], dones: &[f32]) -> Result<()> {
-        let Policy::Recurrent(m) = &mut self.policy else {
+        let policy = &mut self.policy;
+        let Some(seqs) = policy.seqs.as_mut() else {
             return Ok(());
         };
         let taken = Taken {
@@ -488,9 +489,8 @@ impl<'a, S: Service> Actor<'a, S> {
             experts: &self.prev_experts,
             flown: &self.prev_flown,
         };
-        let m = &mut **m;
-        m.seqs.push(self.have_prev.then_some((taken, rewards, dones)), obs, &m.before);
-        let count = m.seqs.agents.len();
+        seqs.push(self.have_prev.then_some((taken, rewards, dones)), obs, &policy.before);
+        let count = seqs.agents.len();
         // A deterministic run sends every round, empty or not: round `h`
         // holds the outcome of step `h`, so none at a stream's first step.
         if count == 0 && (self.schedule.is_none() || !self.have_prev) {
@@ -504,12 +504,12 @@ impl<'a, S: Service> Actor<'a, S> {
         };
         let hub = self.hub;
         let give_up = |receivers| receivers == 0 || hub.shutdown_requested();
-        let packed = &m.seqs.out;
+        let packed = &seqs.out;
         let sent = self.trans_tx.send_retrying(packed.len(), give_up, |th, out| {
             *th = header;
             out.copy_from_slice(packed);
         });
-        let (trained, taught) = ((count * m.seqs.period()) as u64, m.seqs.taught);
+        let (trained, taught) = ((count * seqs.period()) as u64, seqs.taught);
         if self.sent(sent, trained)? {
             let tc = &mut self.tel.sample.teacher;
             tc.demo_transitions += taught.0;

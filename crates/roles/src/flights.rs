@@ -10,7 +10,7 @@ use crate::error::Result;
 mod record;
 use record::Recorder;
 pub use record::{Agreement, EpisodeLog, LAST_STEPS, LogSpec, Trap, agreement, traps};
-use rotorhive_model::{QNet, RecurrentQNet};
+use rotorhive_model::PolicyNet;
 use rotorhive_sim::{Arena, Done, Planner, Sight, SimConfig, VecEnv};
 
 /// What a greedy evaluation found.
@@ -86,127 +86,18 @@ pub fn wilson(k: usize, n: usize) -> [f64; 2] {
     [(centre - half).max(0.0), (centre + half).min(1.0)]
 }
 
-/// A run's network for evaluation: the feedforward one, or (with
-/// `learner.memory`) the recurrent one.
-pub enum Network {
-    /// The feedforward Q-network.
-    Feedforward(QNet),
-    /// The recurrent Q-network.
-    Recurrent(RecurrentQNet),
-}
-
-impl Network {
-    /// A freshly initialised network of `shapes`, recurrent with a GRU of
-    /// `memory` units where it is given, on the CPU.
-    pub fn new(shapes: rotorhive_model::Shapes, memory: Option<usize>) -> Result<Self> {
-        let cpu = rotorhive_model::Device::Cpu;
-        Ok(match memory {
-            Some(w) => Network::Recurrent(RecurrentQNet::new(shapes, w, 0, &cpu)?),
-            None => Network::Feedforward(QNet::with_shapes(shapes, 0, &cpu)?),
-        })
-    }
-
-    /// A network of `cfg`'s shapes and memory, on the CPU.
-    pub fn for_config(cfg: &crate::Config) -> Result<Self> {
-        Self::new(cfg.shapes(), cfg.memory())
-    }
-
-    /// The network a checkpoint holds (its header's shapes and memory).
-    pub fn load(path: &std::path::Path) -> Result<Self> {
-        let shapes = rotorhive_model::checkpoint_shapes(path)?;
-        let net = Self::new(shapes, rotorhive_model::checkpoint_memory(path)?)?;
-        net.load_checkpoint(path)?;
-        Ok(net)
-    }
-
-    /// The GRU's width of a recurrent network; `None` for the feedforward
-    /// one.
-    pub fn memory(&self) -> Option<usize> {
-        match self {
-            Network::Feedforward(_) => None,
-            Network::Recurrent(n) => Some(n.width()),
-        }
-    }
-
-    /// Writes the network as an ONNX model (a recurrent one's single step
-    /// takes and gives the state), `extra` in its metadata.
-    pub fn to_onnx(&self, path: &std::path::Path, extra: &[(&str, String)]) -> Result<()> {
-        match self {
-            Network::Feedforward(n) => n.to_onnx(path, extra)?,
-            Network::Recurrent(n) => n.to_onnx(path, extra)?,
-        }
-        Ok(())
-    }
-
-    /// Loads a checkpoint into this network (of other shapes or another
-    /// memory: refused by name).
-    pub fn load_checkpoint(&self, path: &std::path::Path) -> Result<()> {
-        match self {
-            Network::Feedforward(n) => n.load(path)?,
-            Network::Recurrent(n) => n.load(path)?,
-        }
-        Ok(())
-    }
-
-    /// Replaces the weights with a flat vector (as the weights channel
-    /// carries them).
-    pub fn load_flat(&self, flat: &[f32]) -> Result<()> {
-        match self {
-            Network::Feedforward(n) => n.load_flat(flat)?,
-            Network::Recurrent(n) => n.load_flat(flat)?,
-        }
-        Ok(())
-    }
-
-    /// Saves the weights as a checkpoint with `tags` in its header.
-    pub fn save(&self, path: &std::path::Path, tags: &[(&str, String)]) -> Result<()> {
-        match self {
-            Network::Feedforward(n) => n.save_with(path, tags)?,
-            Network::Recurrent(n) => n.save(path, tags)?,
-        }
-        Ok(())
-    }
-
-    /// The observation and action shapes it takes and gives.
-    pub fn shapes(&self) -> rotorhive_model::Shapes {
-        match self {
-            Network::Feedforward(n) => n.shapes(),
-            Network::Recurrent(n) => n.shapes(),
-        }
-    }
-
-    /// Q-values of one step's observations; a recurrent network steps
-    /// `state`, its agents' states (zeros to start: sized so when empty;
-    /// the caller zeroes an agent's where its episode starts).
-    pub fn q_values(&self, obs: &[f32], state: &mut Vec<f32>) -> Result<Vec<f32>> {
-        match self {
-            Network::Feedforward(n) => Ok(n.q_values(obs)?),
-            Network::Recurrent(n) => {
-                if state.is_empty() {
-                    state.resize(obs.len() / n.shapes().obs_len() * n.width(), 0.0);
-                }
-                Ok(n.step(obs, state)?)
-            }
-        }
-    }
-
-    /// The pilot flying it greedily.
-    pub fn pilot(&self) -> Pilot<'_> {
-        match self {
-            Network::Feedforward(n) => Pilot::Net(n),
-            Network::Recurrent(n) => Pilot::Recurrent(n),
-        }
-    }
+/// A freshly initialised network of `cfg`'s shapes and memory, on the CPU
+/// (the evaluator's and the harness's, which load weights into it).
+pub fn network_for(cfg: &crate::Config) -> Result<PolicyNet> {
+    Ok(PolicyNet::new(cfg.shapes(), cfg.memory(), 0, &rotorhive_model::Device::Cpu)?)
 }
 
 /// Who flies: a network's greedy action, or the scripted reactive rule.
 #[derive(Clone, Copy)]
 pub enum Pilot<'a> {
-    /// The greedy action of a Q-network.
-    Net(&'a QNet),
-    /// The greedy action of a recurrent Q-network, each agent's state
-    /// carried from step to step and zeroed where its episode starts.
-    Recurrent(&'a RecurrentQNet),
+    /// The greedy action of a policy network (one with memory carries each
+    /// agent's state from step to step, zeroed where its episode starts).
+    Net(&'a PolicyNet),
     /// [`reactive`]: steer toward the clearest columns of the depth image.
     Reactive,
     /// [`Planner`]: a search that knows every obstacle's motion
@@ -222,15 +113,15 @@ impl Pilot<'_> {
     /// velocity).
     pub fn act(&self, obs: &[f32], obs_len: usize, side: usize, frames: usize) -> Result<Vec<u8>> {
         match self {
-            Pilot::Net(net) => Ok(net.greedy(obs)?),
+            Pilot::Net(net) if net.state_width() == 0 => Ok(net.greedy(obs, &mut Vec::new())?),
+            Pilot::Net(_) => Err(crate::error::RoleError::Config(
+                "a network with memory flies with its state: see `fly`".into(),
+            )),
             Pilot::Reactive => {
                 Ok(obs.chunks_exact(obs_len).map(|o| reactive(o, side, frames)).collect())
             }
             Pilot::Planner(_) => Err(crate::error::RoleError::Config(
                 "the planner flies from the environment, not from observations".into(),
-            )),
-            Pilot::Recurrent(_) => Err(crate::error::RoleError::Config(
-                "a recurrent network flies with its state: see `fly`".into(),
             )),
         }
     }
@@ -305,7 +196,7 @@ pub fn nearest_per_column(frame: &[f32], side: usize) -> Vec<f32> {
 /// first episode counted; with several arenas, side by side, each agent in
 /// one drawn at random (the same ones for the same seed).
 pub fn fly_greedy(
-    net: &QNet,
+    net: &PolicyNet,
     sim: SimConfig,
     arenas: &[Arena],
     episodes: usize,
@@ -351,9 +242,10 @@ pub fn fly_logged(
         _ => None,
     };
     let mut recorder = log.map(|spec| Recorder::new(&env, spec));
-    // A recurrent pilot's state per agent, zeroed where an episode starts.
+    // A pilot's state per agent (a network with memory), zeroed where an
+    // episode starts.
     let width = match pilot {
-        Pilot::Recurrent(net) => net.width(),
+        Pilot::Net(net) => net.state_width(),
         _ => 0,
     };
     let mut state = vec![0.0f32; n * width];
@@ -361,7 +253,7 @@ pub fn fly_logged(
         let active: Vec<bool> = result.iter().map(Option::is_none).collect();
         let actions = match (planner.as_mut(), pilot) {
             (Some(p), _) => p.actions(&env, &active),
-            (None, Pilot::Recurrent(net)) => net.greedy(env.observations(), &mut state)?,
+            (None, Pilot::Net(net)) => net.greedy(env.observations(), &mut state)?,
             (None, _) => pilot.act(env.observations(), obs_len, side, frames)?,
         };
         if let Some(r) = recorder.as_mut() {
@@ -507,21 +399,20 @@ mod tests {
     }
 
     #[test]
-    fn a_recurrent_network_flies_repeatably_and_only_with_its_state() {
+    fn a_network_with_memory_flies_repeatably_and_only_with_its_state() {
         let root =
             std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/arenas/test.toml");
         let arena = Arena::load(&root).unwrap();
         let sim = SimConfig::default();
         let shapes = rotorhive_model::Shapes::PAPER;
-        let net = RecurrentQNet::new(shapes, 8, 1, &rotorhive_model::Device::Cpu).unwrap();
-        let one =
-            |seed| fly(Pilot::Recurrent(&net), sim.clone(), std::slice::from_ref(&arena), 8, seed);
+        let net = PolicyNet::new(shapes, Some(8), 1, &rotorhive_model::Device::Cpu).unwrap();
+        let one = |seed| fly(Pilot::Net(&net), sim.clone(), std::slice::from_ref(&arena), 8, seed);
         let (a, b) = (one(3).unwrap(), one(3).unwrap());
         assert_eq!(a.episodes, 8);
         assert_eq!((a.successes, a.collisions), (b.successes, b.collisions));
         assert_eq!(a.mean_reward, b.mean_reward);
         assert!(a.mean_reward.is_finite());
-        let e = Pilot::Recurrent(&net).act(&[0.0; 2051], 2051, 32, 2).unwrap_err().to_string();
+        let e = Pilot::Net(&net).act(&[0.0; 2051], 2051, 32, 2).unwrap_err().to_string();
         assert!(e.contains("state"), "{e}");
     }
 

@@ -18,10 +18,10 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
+use rotorhive_model::PolicyNet;
 use rotorhive_msg::WeightsHeader;
 use rotorhive_records::rows::{self, EvalRow};
 use rotorhive_roles::Config;
-use rotorhive_roles::flights::Network;
 use rotorhive_transport::Service;
 use rotorhive_transport::{Channel, Hub};
 
@@ -176,7 +176,7 @@ fn fly<S: Service>(job: Job) -> Result<()> {
     let cfg = &job.cfg;
     let hub = Hub::<S>::new(&job.prefix, "eval")?;
     let mut rx = hub.receiver::<f32, WeightsHeader>(&Channel::weights(cfg.sim.envs))?;
-    let net = Network::for_config(cfg)?;
+    let net = rotorhive_roles::flights::network_for(cfg)?;
     let mut judge = Judge { arenas: cfg.eval_arenas()?, confirmations: 0 };
     let mut cadence = Cadence::new(cfg);
     // A resumed run goes on from its best score (so `best.safetensors` only
@@ -251,12 +251,12 @@ impl Judge {
     /// confirmation's (success, mean reward).
     fn fly(
         &mut self,
-        net: &Network,
+        net: &PolicyNet,
         cfg: &Config,
         best: Option<(f64, f64)>,
     ) -> Result<(rotorhive_roles::flights::EvalStats, Option<(f64, f64)>)> {
         let seed = rotorhive_roles::streams::validation(cfg.seed);
-        let (pilot, sim) = (net.pilot(), cfg.sim_config());
+        let (pilot, sim) = (rotorhive_roles::flights::Pilot::Net(net), cfg.sim_config());
         let st = rotorhive_roles::flights::fly(
             pilot,
             sim.clone(),

@@ -1,30 +1,22 @@
-//! The network an actor flies: the feedforward one, or a recurrent one with
-//! each agent's state (zeroed where its episode starts), whose steps leave
-//! as R2D2's stored sequences ([`Sequences`]).
+//! The network an actor flies ([`PolicyNet`]) with each agent's state
+//! (zeroed where its episode starts; none without memory), and, in a run
+//! with memory, the R2D2 windows its steps leave through ([`Sequences`]).
 
-use rotorhive_model::{QNet, RecurrentQNet};
+use rotorhive_model::PolicyNet;
 
 use super::sequences::Sequences;
 use crate::config::Config;
 use crate::error::Result;
 
-/// A recurrent policy's network, states and sequence windows.
-pub struct Memory {
-    net: RecurrentQNet,
-    /// Each agent's state now.
+/// The network an actor flies, its agents' states and its windows.
+pub struct Policy {
+    net: PolicyNet,
+    /// Each agent's state now (empty without memory).
     state: Vec<f32>,
     /// Each agent's state before it acted on its last observation.
     pub before: Vec<f32>,
-    /// The windows its steps fill.
-    pub seqs: Sequences,
-}
-
-/// The network an actor flies.
-pub enum Policy {
-    /// The feedforward network.
-    Feedforward(QNet),
-    /// The recurrent network and its agents' states.
-    Recurrent(Box<Memory>),
+    /// With memory: the windows its steps fill, sent as stored sequences.
+    pub seqs: Option<Sequences>,
 }
 
 impl Policy {
@@ -32,51 +24,36 @@ impl Policy {
     /// agents.
     pub fn new(cfg: &Config, device: &rotorhive_model::Device, agents: usize) -> Result<Self> {
         let seed = crate::streams::network(cfg.seed);
-        let (Some(width), Some(layout)) = (cfg.memory(), cfg.seq_layout()) else {
-            let mut net = QNet::with_shapes(cfg.shapes(), seed, device)?;
-            net.set_threads(cfg.actor.threads);
-            return Ok(Policy::Feedforward(net));
-        };
-        Ok(Policy::Recurrent(Box::new(Memory {
-            net: RecurrentQNet::new(cfg.shapes(), width, seed, device)?,
-            state: vec![0.0; agents * width],
-            before: vec![0.0; agents * width],
-            seqs: Sequences::new(layout, cfg.learner.burn_in, agents),
-        })))
+        let mut net = PolicyNet::new(cfg.shapes(), cfg.memory(), seed, device)?;
+        net.set_threads(cfg.actor.threads);
+        let width = net.state_width();
+        let seqs = cfg.seq_layout().map(|l| Sequences::new(l, cfg.learner.burn_in, agents));
+        Ok(Self { net, state: vec![0.0; agents * width], before: vec![0.0; agents * width], seqs })
     }
 
     /// Replaces the weights with a flat vector in canonical order.
     pub fn load_flat(&self, flat: &[f32]) -> Result<()> {
-        match self {
-            Policy::Feedforward(net) => net.load_flat(flat)?,
-            Policy::Recurrent(m) => m.net.load_flat(flat)?,
-        }
-        Ok(())
+        Ok(self.net.load_flat(flat)?)
     }
 
-    /// Greedy actions on `obs`; a recurrent network first zeroes the state
-    /// of every agent whose episode starts here (`dones[i] != 0`: its last
-    /// one ended, and `obs` is its next one's first), keeps the states it
-    /// acts from in `before`, then steps them.
+    /// Greedy actions on `obs`; with memory, it first zeroes the state of
+    /// every agent whose episode starts here (`dones[i] != 0`: its last one
+    /// ended, and `obs` is its next one's first), keeps the states it acts
+    /// from in `before`, then steps them.
     pub fn greedy(&mut self, obs: &[f32], dones: &[f32]) -> Result<Vec<u8>> {
-        match self {
-            Policy::Feedforward(net) => Ok(net.greedy(obs)?),
-            Policy::Recurrent(m) => {
-                let w = m.net.width();
-                for (i, _) in dones.iter().enumerate().filter(|(_, d)| **d != 0.0) {
-                    m.state[i * w..(i + 1) * w].fill(0.0);
-                }
-                m.before.copy_from_slice(&m.state);
-                Ok(m.net.greedy(obs, &mut m.state)?)
-            }
+        let w = self.net.state_width();
+        for (i, _) in dones.iter().enumerate().filter(|(_, d)| **d != 0.0) {
+            self.state[i * w..(i + 1) * w].fill(0.0);
         }
+        self.before.copy_from_slice(&self.state);
+        Ok(self.net.greedy(obs, &mut self.state)?)
     }
 
     /// Forgets every agent's state and open window (the sim restarted).
     pub fn restart(&mut self) {
-        if let Policy::Recurrent(m) = self {
-            m.state.fill(0.0);
-            m.seqs.clear();
+        self.state.fill(0.0);
+        if let Some(seqs) = self.seqs.as_mut() {
+            seqs.clear();
         }
     }
 }
