@@ -1,5 +1,5 @@
 use super::*;
-use crate::{Dqn, DqnConfig, QNet};
+use crate::{Dqn, DqnConfig, QNet, Teaching};
 use rotorhive_msg::NO_EXPERT;
 
 const SHAPES: Shapes = Shapes::PAPER;
@@ -401,15 +401,27 @@ fn a_sequences_priority_mixes_its_largest_and_mean_td_error() {
 
 #[test]
 fn a_learner_fed_only_labelled_sequences_follows_the_labels() {
-    // No reward anywhere: only the margin loss can order the actions. The
-    // label depends on what the observation shows (its first velocity
+    // By DQfD's margin beside the TD loss, and by imitation alone (the TD
+    // loss at weight 0).
+    let imitation = Teaching { td: 0.0, margin: 0.0, imitation: 1.0, temperature: 0.2 };
+    for teaching in [Teaching::margin(1.0), imitation] {
+        let share = follows_the_labels(teaching);
+        assert!(share >= 0.9, "{teaching:?}: the greedy action agrees on {share} of the steps");
+    }
+}
+
+/// The share of fresh steps on which a learner taught by `teaching` on
+/// labelled sequences alone agrees with the labels.
+fn follows_the_labels(teaching: Teaching) -> f64 {
+    // No reward anywhere: only the teacher's loss can order the actions.
+    // The label depends on what the observation shows (its first velocity
     // input's sign), so the network must read it to agree.
     let dev = Device::Cpu;
     let cfg = SeqConfig { lr: 3e-3, target_update: 20, ..base_config() };
     let (n, t, width, len) = (8, 8, 8, SHAPES.obs_len());
     let vel = SHAPES.obs_depth();
     let mut seq = SeqDqn::new(cfg, SHAPES, width, 2, &dev).unwrap();
-    seq.set_margin_weight(1.0);
+    seq.set_teaching(teaching);
     let mut rng = Pcg64Mcg::seed_from_u64(5);
     let label_of = |o: &[f32]| if o[vel] > 0.0 { 1.0 } else { 0.0 };
     let draw = |rng: &mut Pcg64Mcg| {
@@ -450,8 +462,7 @@ fn a_learner_fed_only_labelled_sequences_follows_the_labels() {
             total += 1;
         }
     }
-    let share = agree as f64 / total as f64;
-    assert!(share >= 0.9, "the greedy action agrees with the label on {share} of the steps");
+    agree as f64 / total as f64
 }
 
 #[test]
