@@ -170,6 +170,17 @@ fn the_margin_losss_gradients_match_stock_candle() {
     }
 }
 
+/// Makes the newest frame of transition `t` nearer on its left half
+/// (`left`) or its right one, clearly either way.
+fn nearer_half(t: &mut [f32], left: bool) {
+    for y in 0..SIDE {
+        for x in 0..SIDE {
+            let v = &mut t[DEPTH_PIXELS + y * SIDE + x];
+            *v = if (x < SIDE / 2) == left { *v * 0.3 } else { 0.7 + *v * 0.3 };
+        }
+    }
+}
+
 /// The imitation loss: one row by hand, then its fused gradients (the
 /// softmax minus the softmax over the allowed actions) against candle's
 /// autograd over stock ops (log-sum-exp), with the TD loss at half weight,
@@ -230,12 +241,7 @@ fn a_learner_fed_only_labels_by_imitation_agrees_with_them() {
     let mut batch = random(64 * tl, 3, 0.0, 1.0);
     for (i, t) in batch.chunks_exact_mut(tl).enumerate() {
         let left = i % 2 == 0;
-        for y in 0..SIDE {
-            for x in 0..SIDE {
-                let v = &mut t[DEPTH_PIXELS + y * SIDE + x];
-                *v = if (x < SIDE / 2) == left { *v * 0.3 } else { 0.7 + *v * 0.3 };
-            }
-        }
+        nearer_half(t, left);
         t[2 * ol..2 * ol + 5].copy_from_slice(&[(i % 3) as f32, -3.0, 0.0, 0.0, 0.0]);
         t[2 * ol + 3] = if left { rotorhive_msg::label_of_mask(0b110) } else { 0.0 };
     }
@@ -274,12 +280,7 @@ fn a_learner_fed_only_labels_makes_its_argmax_agree_with_them() {
     for (i, t) in batch.chunks_exact_mut(tl).enumerate() {
         // A bias that makes the halves differ clearly, either way.
         let left = i % 2 == 0;
-        for y in 0..SIDE {
-            for x in 0..SIDE {
-                let v = &mut t[DEPTH_PIXELS + y * SIDE + x];
-                *v = if (x < SIDE / 2) == left { *v * 0.3 } else { 0.7 + *v * 0.3 };
-            }
-        }
+        nearer_half(t, left);
         let e = label(t);
         t[2 * ol] = (i / 2 % 2) as f32;
         t[2 * ol + 1] = 3.0;

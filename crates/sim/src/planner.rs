@@ -254,7 +254,7 @@ impl Planner {
     /// none does. One short search per action, each stopping at its first
     /// way through; the agent's plan is left alone.
     pub fn label(&mut self, env: &VecEnv, i: usize, horizon: usize) -> Option<u8> {
-        let safe = self.safe_actions(env, i, horizon, 2);
+        let safe = self.safe_actions(env, i, horizon, &[LABEL_MARGIN], 2);
         (safe.len() == 1).then(|| safe[0])
     }
 
@@ -266,48 +266,50 @@ impl Planner {
     /// not matter) or none keeps a way. Where [`Planner::label`] names an
     /// action, this is that action alone.
     pub fn graded(&mut self, env: &VecEnv, i: usize, horizon: usize) -> u8 {
-        let sight = self.sight;
-        let watched = self.watched_now(env, i);
-        let seen = (sight != Sight::All).then(|| Geometry::new(&in_view(env, i, sight, watched)));
-        let geometry = seen.as_ref().unwrap_or(&self.geometry);
-        let actions = if env.config().hold_action { 3 } else { 2 };
-        let all = (1u8 << actions) - 1;
-        for margin in GRADED_MARGINS {
-            let mask = (0..actions as u8)
-                .filter(|a| search(geometry, env, i, margin, horizon.max(1), Some(*a)).through)
-                .fold(0u8, |m, a| m | 1 << a);
-            if mask != 0 {
-                return if mask == all { 0 } else { mask };
-            }
-        }
-        0
+        let safe = self.safe_actions(env, i, horizon, &GRADED_MARGINS, usize::MAX);
+        let mask = safe.iter().fold(0u8, |m, a| m | 1 << a);
+        if safe.len() == env.config().shapes().actions { 0 } else { mask }
     }
 
     /// Every action of agent `i` now that starts a way clear for `horizon`
     /// actions (as [`Planner::label`] searches), ties kept: empty where
     /// none does. The agreement audit's judge (`hive eval --agree`).
     pub fn allowed(&mut self, env: &VecEnv, i: usize, horizon: usize) -> Vec<u8> {
-        self.safe_actions(env, i, horizon, usize::MAX)
+        self.safe_actions(env, i, horizon, &[LABEL_MARGIN], usize::MAX)
     }
 
     /// The actions that start a way clear for `horizon` actions, in order,
-    /// the search stopping once `enough` are found.
-    fn safe_actions(&mut self, env: &VecEnv, i: usize, horizon: usize, enough: usize) -> Vec<u8> {
+    /// at the first of `margins` (widest first) at which any does, the
+    /// search stopping once `enough` are found; empty where none does at
+    /// any.
+    fn safe_actions(
+        &mut self,
+        env: &VecEnv,
+        i: usize,
+        horizon: usize,
+        margins: &[f32],
+        enough: usize,
+    ) -> Vec<u8> {
         let sight = self.sight;
         let watched = self.watched_now(env, i);
         let seen = (sight != Sight::All).then(|| Geometry::new(&in_view(env, i, sight, watched)));
         let geometry = seen.as_ref().unwrap_or(&self.geometry);
-        let actions = if env.config().hold_action { 3 } else { 2 };
-        let mut safe = Vec::new();
-        for a in 0..actions as u8 {
-            if safe.len() >= enough {
-                break;
+        let actions = env.config().shapes().actions as u8;
+        for &margin in margins {
+            let mut safe = Vec::new();
+            for a in 0..actions {
+                if safe.len() >= enough {
+                    break;
+                }
+                if search(geometry, env, i, margin, horizon.max(1), Some(a)).through {
+                    safe.push(a);
+                }
             }
-            if search(geometry, env, i, LABEL_MARGIN, horizon.max(1), Some(a)).through {
-                safe.push(a);
+            if !safe.is_empty() {
+                return safe;
             }
         }
-        safe
+        Vec::new()
     }
 
     /// A plan for agent `i` from its true state now: with the widest
