@@ -67,11 +67,31 @@ fn every_benchmark_runs_at_its_smallest_size_and_prints_its_json() {
         assert!(std::fs::read(&plot).unwrap().starts_with(b"\x89PNG"));
     }
 
-    let v = bench(&["learner", "--updates", "3", "--batch", "8"]);
-    for k in ["updates_per_s", "infer_b1_ms", "infer_b50_ms"] {
-        positive(&v, k);
+    // A level's lanes, fixed and renewed with fresh layouts, side by side.
+    let v = bench(&[
+        "sim",
+        "--agents",
+        "4",
+        "--steps",
+        "60",
+        "--config",
+        "configs/levels/dense.toml",
+        "--fresh-layouts",
+        "1",
+    ]);
+    let rows = v["rows"].as_array().expect("two rows");
+    assert_eq!(rows.len(), 2, "{v}");
+    assert_eq!((rows[0]["lanes"].as_str(), rows[1]["lanes"].as_str()), (Some("fixed"), Some("fresh/1")));
+    positive(&rows[1], "agent_steps_per_s");
+
+    for hidden in ["64", "96,32"] {
+        let v = bench(&["learner", "--updates", "3", "--batch", "8", "--hidden", hidden]);
+        for k in ["updates_per_s", "infer_b1_ms", "infer_b50_ms"] {
+            positive(&v, k);
+        }
+        assert_eq!(v["batch"].as_u64(), Some(8), "{v}");
+        assert_eq!(v["layers"].as_str(), Some(format!("conv:16,32 hidden:{hidden}").as_str()), "{v}");
     }
-    assert_eq!(v["batch"].as_u64(), Some(8), "{v}");
 
     let v = bench(&["replay", "--producers", "1", "--seconds", "0.3"]);
     positive(&v, "inserts_per_s");

@@ -34,7 +34,7 @@ fn kinds() -> [(&'static str, usize); 4] {
     [
         ("obs_batch", Shapes::PAPER.obs_batch_len(50)),
         ("transition_batch", 50 * PACKED_LEN / 2),
-        ("weights", rotorhive_model::num_params(Shapes::PAPER)),
+        ("weights", rotorhive_model::num_params(Shapes::PAPER, Default::default())),
         ("empty", 1),
     ]
 }

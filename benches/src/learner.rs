@@ -6,7 +6,7 @@ use std::time::Instant;
 use crate::error::{Result, usage};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
-use rotorhive_model::{Device, Dqn, DqnConfig};
+use rotorhive_model::{Device, Dqn, DqnConfig, Layers};
 use rotorhive_msg::Shapes;
 
 const OBS_LEN: usize = Shapes::PAPER.obs_len();
@@ -34,12 +34,12 @@ impl PathFigures {
 /// `device` (the fused path: the CPU only).
 fn measure(
     (fused, device): (bool, &Device),
-    threads: usize,
-    batch: usize,
-    updates: usize,
+    layers: Layers,
+    (threads, batch, updates): (usize, usize, usize),
 ) -> Result<PathFigures> {
     let cfg = Config::default();
-    let mut dqn = Dqn::new(DqnConfig { double: false, ..dqn_config(&cfg) }, 1, device)?;
+    let dqn_cfg = DqnConfig { double: false, ..dqn_config(&cfg) };
+    let mut dqn = Dqn::with_layers(dqn_cfg, Shapes::PAPER, layers, 1, device)?;
     dqn.set_fused(fused)?;
     dqn.set_threads(threads);
     let mut rng = Pcg64Mcg::seed_from_u64(3);
@@ -87,12 +87,12 @@ fn measure(
 }
 
 /// `hive bench learner`: updates per second on random minibatches through the
-/// same update path, and actor inference latency at batch 1 and 50; with
-/// `compare`, the generic path of stock candle ops measured in the same run.
+/// same update path of a network of widths `layers`, and actor inference
+/// latency at batch 1 and 50; with `compare`, the generic path of stock
+/// candle ops measured in the same run.
 pub fn bench(
-    threads: usize,
-    batch: usize,
-    updates: usize,
+    (threads, batch, updates): (usize, usize, usize),
+    layers: Layers,
     (compare, cuda): (bool, bool),
     json: bool,
 ) -> Result<()> {
@@ -100,12 +100,17 @@ pub fn bench(
         usage!("--threads, --batch and --updates must be positive");
     }
     if cuda {
-        return bench_cuda(batch, updates, json);
+        return bench_cuda(batch, updates, layers, json);
     }
     // The pools' threads were set by `main` (`BenchCmd::thread_env`).
-    let fused = measure((true, &Device::Cpu), threads, batch, updates)?;
-    let generic =
-        if compare { Some(measure((false, &Device::Cpu), threads, batch, updates)?) } else { None };
+    let sizes = (threads, batch, updates);
+    let fused = measure((true, &Device::Cpu), layers, sizes)?;
+    let generic = if compare { Some(measure((false, &Device::Cpu), layers, sizes)?) } else { None };
+    println!(
+        "network {}: {} parameters",
+        layers.name(),
+        rotorhive_model::num_params(Shapes::PAPER, layers)
+    );
     for (name, p) in
         std::iter::once(("fused", &fused)).chain(generic.as_ref().map(|g| ("generic", g)))
     {
@@ -129,6 +134,8 @@ pub fn bench(
     if json {
         let mut v = fused.json();
         v["device"] = "cpu".into();
+        v["layers"] = layers.name().into();
+        v["params"] = rotorhive_model::num_params(Shapes::PAPER, layers).into();
         v["threads"] = threads.into();
         v["batch"] = batch.into();
         if let Some(g) = &generic {
@@ -142,9 +149,9 @@ pub fn bench(
 
 /// `hive bench learner --device cuda`: the generic path (stock candle ops)
 /// on GPU 0, the minibatch copied there once per update as in a run.
-fn bench_cuda(batch: usize, updates: usize, json: bool) -> Result<()> {
+fn bench_cuda(batch: usize, updates: usize, layers: Layers, json: bool) -> Result<()> {
     let device = rotorhive_model::device(rotorhive_model::DeviceKind::Cuda)?;
-    let p = measure((false, &device), 1, batch, updates)?;
+    let p = measure((false, &device), layers, (1, batch, updates))?;
     println!(
         "    cuda: batch {batch}: {:.1} updates/s (forward {:.2} ms, backward {:.2} ms, optimiser {:.2} ms); inference batch 1: {:.3} ms, batch 50: {:.3} ms",
         p.updates_per_s, p.forward_ms, p.backward_ms, p.optimiser_ms, p.infer_b1_ms, p.infer_b50_ms
@@ -152,6 +159,7 @@ fn bench_cuda(batch: usize, updates: usize, json: bool) -> Result<()> {
     if json {
         let mut v = p.json();
         v["device"] = "cuda".into();
+        v["layers"] = layers.name().into();
         v["batch"] = batch.into();
         v["samples_per_s"] = (p.updates_per_s * batch as f64).into();
         println!("{v}");

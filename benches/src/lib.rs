@@ -58,6 +58,11 @@ pub enum BenchCmd {
         /// training lanes, speeds, noise and randomisation.
         #[arg(long, conflicts_with = "arena")]
         config: Option<PathBuf>,
+        /// With --config: also measure its lanes renewed with fresh layouts
+        /// every this many finished episodes (`sim.fresh_layouts`), side by
+        /// side with the fixed ones.
+        #[arg(long, requires = "config")]
+        fresh_layouts: Option<usize>,
         /// Print one JSON object as the last line.
         #[arg(long)]
         json: bool,
@@ -200,6 +205,12 @@ pub enum BenchCmd {
         /// Also measure the generic path of stock candle ops, side by side.
         #[arg(long)]
         compare: bool,
+        /// The network's convolution channels (as `learner.conv_channels`).
+        #[arg(long, value_delimiter = ',', default_value = "16,32")]
+        conv_channels: Vec<usize>,
+        /// The network's hidden widths (as `learner.hidden`).
+        #[arg(long, value_delimiter = ',', default_value = "64")]
+        hidden: Vec<usize>,
         /// Where the update runs: "cpu" (the fused path), or "cuda" (the
         /// generic path on GPU 0, in a build with `--features cuda`).
         #[arg(long, default_value = "cpu", value_parser = ["cpu", "cuda"])]
@@ -229,14 +240,19 @@ impl BenchCmd {
 
 pub fn run(cmd: BenchCmd) -> Result<()> {
     match cmd {
-        BenchCmd::Sim { agents, steps, threads, physics, arena, config, json } => {
+        BenchCmd::Sim { agents, steps, threads, physics, arena, config, fresh_layouts, json } => {
             let world = match config {
                 Some(c) => {
                     SimWorld::Config(Box::new(rotorhive_roles::Config::load(Some(&c), &[])?))
                 }
                 None => SimWorld::Arena(Arena::load(&arena)?),
             };
-            bench_sim(&agents, (steps, threads), &physics, &world, json)
+            if fresh_layouts == Some(0) {
+                usage!("--fresh-layouts must be positive");
+            }
+            let lanes: Vec<Option<usize>> =
+                std::iter::once(None).chain(fresh_layouts.map(Some)).collect();
+            bench_sim(&agents, (steps, threads), (&physics, &lanes), &world, json)
         }
         BenchCmd::Render { agents, renderer, steps, threads, arena, plot, json } => {
             bench_render(&agents, &renderer, steps, threads, &arena, &plot, json)
@@ -257,8 +273,21 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
             crate::table::run(&config, train_config.as_deref(), &out, json)
         }
         BenchCmd::Seeds(args) => crate::seeds::run(&args),
-        BenchCmd::Learner { threads, batch, updates, compare, device, json } => {
-            crate::learner::bench(threads, batch, updates, (compare, device == "cuda"), json)
+        BenchCmd::Learner {
+            threads,
+            batch,
+            updates,
+            compare,
+            conv_channels,
+            hidden,
+            device,
+            json,
+        } => {
+            let layers = rotorhive_model::Layers::new(&conv_channels, &hidden).map_err(|e| {
+                crate::error::BenchError::Usage(format!("--conv-channels, --hidden: {e}"))
+            })?;
+            let sizes = (threads, batch, updates);
+            crate::learner::bench(sizes, layers, (compare, device == "cuda"), json)
         }
     }
 }
@@ -286,8 +315,15 @@ enum SimWorld {
 }
 
 impl SimWorld {
-    /// The environment of `n` agents with `threads` and `physics`.
-    fn env(&self, n: usize, threads: usize, physics: PhysicsKind) -> Result<VecEnv> {
+    /// The environment of `n` agents with `threads` and `physics`, its
+    /// lanes renewed every `fresh` finished episodes where that is given.
+    fn env(
+        &self,
+        n: usize,
+        threads: usize,
+        physics: PhysicsKind,
+        fresh: Option<usize>,
+    ) -> Result<VecEnv> {
         Ok(match self {
             SimWorld::Arena(a) => VecEnv::new(
                 SimConfig { agents: n, render_threads: threads, physics, ..SimConfig::default() },
@@ -297,7 +333,17 @@ impl SimWorld {
             SimWorld::Config(c) => {
                 let sim =
                     SimConfig { agents: n, render_threads: threads, physics, ..c.sim_config() };
-                VecEnv::new_lanes(sim, &c.lane_arenas(0)?, 1)?
+                let arenas = c.lane_arenas(0)?;
+                let mut env = VecEnv::new_lanes(sim, &arenas, 1)?;
+                if let Some(every) = fresh {
+                    let mut renewing = (**c).clone();
+                    renewing.sim.fresh_layouts = every;
+                    renewing.validate()?;
+                    if let Some((first, make)) = renewing.fresh_layouts(0)? {
+                        env.renew_lanes(every, first, arenas, make)?;
+                    }
+                }
+                env
             }
         })
     }
@@ -306,7 +352,7 @@ impl SimWorld {
 fn bench_sim(
     agents: &[usize],
     (steps, threads): (usize, usize),
-    physics: &[PhysicsKind],
+    (physics, lanes): (&[PhysicsKind], &[Option<usize>]),
     world: &SimWorld,
     json: bool,
 ) -> Result<()> {
@@ -315,9 +361,10 @@ fn bench_sim(
     }
     let mut rows = Vec::new();
     println!(
-        "{:>7} {:>8} {:>16} {:>12} {:>11} {:>11} {:>11} {:>15} {:>14}",
+        "{:>7} {:>8} {:>9} {:>16} {:>12} {:>11} {:>11} {:>11} {:>15} {:>14}",
         "agents",
         "physics",
+        "lanes",
         "agent-steps/s",
         "step ms",
         "physics ms",
@@ -326,8 +373,9 @@ fn bench_sim(
         "physics µs/agent",
         "render µs/agent"
     );
-    for (&n, &kind) in agents.iter().flat_map(|n| physics.iter().map(move |p| (n, p))) {
-        let mut env = world.env(n, threads, kind)?;
+    let runs = agents.iter().flat_map(|n| physics.iter().map(move |p| (*n, *p)));
+    for ((n, kind), fresh) in runs.flat_map(|r| lanes.iter().map(move |l| (r, *l))) {
+        let mut env = world.env(n, threads, kind, fresh)?;
         // A fixed pseudo-random action pattern: agents crash and reset as in training.
         let actions = |t: usize| -> Vec<u8> {
             (0..n).map(|i| (((t * 31 + i * 17) >> 2) % 2) as u8).collect()
@@ -347,10 +395,12 @@ fn bench_sim(
         let wall = start.elapsed().as_secs_f64();
         let per = |ns: u64| ns as f64 / 1e6 / steps as f64;
         let sps = (n * steps) as f64 / wall;
+        let lanes_name = fresh.map_or_else(|| "fixed".to_string(), |e| format!("fresh/{e}"));
         println!(
-            "{:>7} {:>8} {:>16.0} {:>12.3} {:>11.3} {:>11.3} {:>11.3} {:>15.2} {:>14.2}",
+            "{:>7} {:>8} {:>9} {:>16.0} {:>12.3} {:>11.3} {:>11.3} {:>11.3} {:>15.2} {:>14.2}",
             n,
             physics_name(kind),
+            lanes_name,
             sps,
             wall * 1e3 / steps as f64,
             per(phys),
@@ -362,6 +412,9 @@ fn bench_sim(
         rows.push(json!({
             "agents": n,
             "physics": physics_name(kind),
+            "lanes": lanes_name,
+            "fresh_layouts_flown": env.fresh_stats().renewed,
+            "fresh_wait_ms": env.fresh_stats().wait_ns as f64 / 1e6,
             "agent_steps_per_s": sps,
             "step_ms": wall * 1e3 / steps as f64,
             "stage_ms": { "physics": per(phys), "render": per(rend), "reset": per(reset) },

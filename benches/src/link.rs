@@ -221,7 +221,8 @@ pub fn side(
     batch: usize,
     tls: Option<std::path::PathBuf>,
 ) -> Result<()> {
-    let layout = rotorhive_link::layout(rotorhive_model::num_params(Shapes::PAPER));
+    let layout =
+        rotorhive_link::layout(rotorhive_model::num_params(Shapes::PAPER, Default::default()));
     // The run's access control as `hive train` and `hive worker` set it.
     match side {
         "head" => head_side(
@@ -334,10 +335,16 @@ fn worker_side(
     let (ready_tx, ready_rx) = std::sync::mpsc::channel::<()>();
     let producer = spawn_producer(batch, stop.clone(), ready_rx);
     let mut stats = rotorhive_link::WorkerStats::default();
-    let end =
-        w.bridge(&hub, 1, 2, rotorhive_model::num_params(Shapes::PAPER), &mut stats, move || {
+    let end = w.bridge(
+        &hub,
+        1,
+        2,
+        rotorhive_model::num_params(Shapes::PAPER, Default::default()),
+        &mut stats,
+        move || {
             let _ = ready_tx.send(());
-        });
+        },
+    );
     stop.store(true, Ordering::SeqCst);
     let produced =
         producer.join().map_err(|_| BenchError::Failed("producer panicked".into()))??;

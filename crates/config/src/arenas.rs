@@ -6,7 +6,7 @@ use super::Config;
 use std::path::Path;
 
 use crate::error::{ConfigError, Result, config_err};
-use rotorhive_sim::{Arena, CameraSpec, GenParams, SimConfig};
+use rotorhive_sim::{Arena, CameraSpec, GenParams, LayoutMaker, SimConfig};
 use serde::Deserialize;
 
 impl Config {
@@ -125,6 +125,27 @@ impl Config {
             v.push(Arena::generate(&format!("lane-{k}"), seed, p));
         }
         v
+    }
+
+    /// With `sim.fresh_layouts`: environment `env`'s renewals of its lanes:
+    /// the first lane that may be renewed (after `sim.arena`, if any) and
+    /// the arena of renewal `n`, of the generated lanes' parameters and
+    /// seeds of its own ([`crate::streams::fresh_lane`]: never a lane's, a
+    /// validation arena's or a test layout's).
+    pub fn fresh_layouts(&self, env: usize) -> Result<Option<(usize, LayoutMaker)>> {
+        if self.sim.fresh_layouts == 0 {
+            return Ok(None);
+        }
+        let base = self.base_arena()?;
+        let p = match &base {
+            Some(b) => self.gen_params_like(b),
+            None => self.generator_at_stage(0)?,
+        };
+        let seed = self.seed;
+        let make = move |n: u64| {
+            Arena::generate(&format!("fresh-{n}"), crate::streams::fresh_lane(seed, env, n), &p)
+        };
+        Ok(Some((usize::from(base.is_some()), Box::new(make))))
     }
 
     /// The held-out test set: `eval.test_arenas` (files) and

@@ -223,15 +223,22 @@ impl Config {
         }
     }
 
+    /// The network's widths (`learner.conv_channels`, `learner.hidden`;
+    /// validated: the design's where they were not).
+    pub fn layers(&self) -> rotorhive_model::Layers {
+        rotorhive_model::Layers::new(&self.learner.conv_channels, &self.learner.hidden)
+            .unwrap_or_default()
+    }
+
     /// Floats of the network's flat weights (as the weights channel carries
     /// them).
     pub fn num_params(&self) -> usize {
         match self.memory() {
-            Some(w) => rotorhive_model::recurrent_params(self.shapes(), w)
+            Some(w) => rotorhive_model::recurrent_params(self.shapes(), self.layers(), w)
                 .iter()
                 .map(|(_, s)| s.iter().product::<usize>())
                 .sum(),
-            None => rotorhive_model::num_params(self.shapes()),
+            None => rotorhive_model::num_params(self.shapes(), self.layers()),
         }
     }
 

@@ -153,6 +153,11 @@ pub struct SimSection {
     /// different seeds in every environment); agents start each episode in
     /// a lane drawn at random. 0 trains on `arena` alone.
     pub generated_lanes: usize,
+    /// Fresh layouts: every this many finished episodes (of one
+    /// environment), one generated lane is renewed with a layout never
+    /// flown before (built on a thread of its own, swapped in once the
+    /// lane's last episode ends); 0 keeps the generated lanes all run.
+    pub fresh_layouts: usize,
     /// Forward speed setpoint (m/s).
     pub forward_speed: f32,
     /// Lateral velocity change per action (m/s).
@@ -342,9 +347,13 @@ pub struct LearnerSection {
     pub n_step: usize,
     /// Device for training: "cpu", or "cuda" in a build with `--features cuda`.
     pub device: DeviceName,
+    /// The two convolutions' channels (the design's `[16, 32]`).
+    pub conv_channels: Vec<usize>,
+    /// The hidden layers' widths, one to three (the design's `[64]`).
+    pub hidden: Vec<usize>,
     /// The network's memory: "none" (the feedforward network), or
-    /// "gru:WIDTH", a GRU of WIDTH units after `fc1`, trained on stored
-    /// sequences (R2D2).
+    /// "gru:WIDTH", a GRU of WIDTH units after the last hidden layer,
+    /// trained on stored sequences (R2D2).
     pub memory: String,
     /// With memory: transitions per stored sequence, burn-in included.
     pub sequence_steps: usize,
@@ -364,6 +373,7 @@ impl Default for SimSection {
             agents: 50,
             arena: PathBuf::from("configs/arenas/train.toml"),
             generated_lanes: 15,
+            fresh_layouts: 0,
             renderer: RendererKind::Cpu,
             observation_mode: ObservationMode::Batched,
             interactive: false,
@@ -444,6 +454,8 @@ impl Default for LearnerSection {
             double_dqn: true,
             n_step: 3,
             device: DeviceName::Cpu,
+            conv_channels: vec![16, 32],
+            hidden: vec![64],
             memory: "none".into(),
             sequence_steps: 22,
             burn_in: 8,

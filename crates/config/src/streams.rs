@@ -45,6 +45,16 @@ pub fn lane(seed: u64, env: usize, lane: usize) -> u64 {
         .wrapping_add(lane as u64)
 }
 
+/// Fresh layout `n` (0, 1, …) of environment `env` (`sim.fresh_layouts`):
+/// seeds of their own, above every lane's and below every test layout's
+/// (for run seeds below 2^13, environments below 2^10 and 2^26 renewals).
+pub fn fresh_lane(seed: u64, env: usize, n: u64) -> u64 {
+    FRESH_LANE_BASE
+        .wrapping_add(seed.wrapping_mul(FRESH_SEED_STRIDE))
+        .wrapping_add(env as u64 * FRESH_ENV_STRIDE)
+        .wrapping_add(n)
+}
+
 /// Generated validation arena `k`: the same for every seed, so that
 /// validations of different runs compare.
 pub fn validation_arena(k: usize) -> u64 {
@@ -85,6 +95,12 @@ const LANE_BASE: u64 = 1_000_000;
 const LANE_SEED_STRIDE: u64 = 100_000;
 /// Lanes of two environments of a run are this far apart.
 const LANE_ENV_STRIDE: u64 = 1000;
+/// Fresh layouts: far above every lane.
+const FRESH_LANE_BASE: u64 = 1 << 50;
+/// Fresh layouts of two run seeds are this far apart.
+const FRESH_SEED_STRIDE: u64 = 1 << 36;
+/// Fresh layouts of two environments of a run are this far apart.
+const FRESH_ENV_STRIDE: u64 = 1 << 26;
 /// Generated validation arenas.
 const VALIDATION_ARENA_BASE: u64 = 4242;
 /// Held-out test layouts: past any lane of a run seed below 10^13.
@@ -113,6 +129,7 @@ mod tests {
                 spawns.push(sim(seed, e));
                 sampling.push(actor(seed, e));
                 arenas.extend((0..256).map(|k| lane(seed, e, k)));
+                arenas.extend((0..64).map(|n| fresh_lane(seed, e, n)));
             }
             for (kind, v) in [("spawn", spawns), ("arena", arenas), ("sampling", sampling)] {
                 let unique: std::collections::HashSet<_> = v.iter().collect();

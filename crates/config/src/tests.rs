@@ -193,3 +193,83 @@ fn imitation_and_its_td_weight_are_named_and_checked() {
     let margin = Config::default().teacher;
     assert_eq!(margin.teaching(1.0, 1.0), rotorhive_model::Teaching::default(), "no teacher");
 }
+
+#[test]
+fn the_networks_widths_are_keys_checked_by_name() {
+    let set = |s: &[&str]| Config::load(None, &s.iter().map(|x| x.to_string()).collect::<Vec<_>>());
+    assert_eq!(Config::default().layers(), rotorhive_model::Layers::DEFAULT);
+    let c = set(&["learner.conv_channels=[24, 48]", "learner.hidden=[256, 128]"]).unwrap();
+    assert_eq!(c.layers().name(), "conv:24,48 hidden:256,128");
+    // The weights channel carries the wider network's floats, with or
+    // without memory.
+    let shapes = c.shapes();
+    assert_eq!(c.num_params(), rotorhive_model::num_params(shapes, c.layers()));
+    assert!(c.num_params() > Config::default().num_params() * 4);
+    let gru = set(&["learner.hidden=[32]", "learner.memory=gru:16"]).unwrap();
+    let net = rotorhive_model::PolicyNet::new(
+        gru.shapes(),
+        gru.layers(),
+        gru.memory(),
+        0,
+        &rotorhive_model::Device::Cpu,
+    )
+    .unwrap();
+    assert_eq!(gru.layers().out(), 32);
+    assert_eq!(
+        format!("{net:?}"),
+        format!(
+            "PolicyNet {{ shapes: {:?}, layers: conv:16,32 hidden:32, memory: Some(16) }}",
+            gru.shapes()
+        )
+    );
+    for (bad, says) in [
+        ("learner.hidden=[]", "hidden has 0 entries"),
+        ("learner.hidden=[64, 64, 64, 64]", "hidden has 4 entries"),
+        ("learner.conv_channels=[16]", "two convolutions"),
+        ("learner.conv_channels=[16, 0]", "a width of 0"),
+        ("learner.hidden=[5000]", "a width of 5000"),
+    ] {
+        let e = format!("{:#}", set(&[bad]).unwrap_err());
+        assert!(e.contains("learner.conv_channels") && e.contains(says), "{bad}: {e}");
+    }
+}
+
+#[test]
+fn fresh_layouts_are_checked_and_never_a_held_out_or_trained_layout() {
+    let over = |s: &[&str]| s.iter().map(|x| x.to_string()).collect::<Vec<_>>();
+    let c = Config::level("dense", &over(&["sim.fresh_layouts=200"])).unwrap();
+    assert!(Config::level("dense", &[]).unwrap().fresh_layouts(0).unwrap().is_none());
+    let (first, mut make) = c.fresh_layouts(0).unwrap().expect("fresh layouts are on");
+    assert_eq!(first, 0, "the level trains on generated lanes alone");
+    let held: Vec<_> = c
+        .test_arenas()
+        .unwrap()
+        .into_iter()
+        .chain(c.eval_arenas().unwrap())
+        .chain(c.lane_arenas(0).unwrap())
+        .chain(c.lane_arenas(1).unwrap())
+        .map(|a| a.obstacles)
+        .collect();
+    let fresh: Vec<_> = (0..20).map(|n| make(n).obstacles).collect();
+    for (n, f) in fresh.iter().enumerate() {
+        assert!(!held.contains(f), "fresh layout {n} is a test, validation or lane layout");
+        assert!(!fresh[..n].contains(f), "fresh layout {n} repeats one");
+    }
+    // Another environment's are others.
+    let (_, mut other) = c.fresh_layouts(1).unwrap().unwrap();
+    assert_ne!(other(0).obstacles, fresh[0]);
+    for (bad, says) in [
+        (&["sim.fresh_layouts=10", "sim.physics=rapier"][..], "sim.physics"),
+        (
+            &[
+                "sim.fresh_layouts=10",
+                "sim.generated_lanes=0",
+                "sim.arena=configs/arenas/train.toml",
+            ],
+            "generated_lanes",
+        ),
+    ] {
+        let e = format!("{:#}", Config::level("dense", &over(bad)).unwrap_err());
+        assert!(e.contains("sim.fresh_layouts") && e.contains(says), "{bad:?}: {e}");
+    }
+}

@@ -110,6 +110,21 @@ impl Config {
         if s.generated_lanes > 256 {
             config_err!("key `sim.generated_lanes` must be at most 256, got {}", s.generated_lanes);
         }
+        if s.fresh_layouts > 0 {
+            if s.generator.is_none() || s.generated_lanes == 0 {
+                config_err!(
+                    "key `sim.fresh_layouts` renews generated lanes: it needs `[sim.generator]` and `sim.generated_lanes` above 0"
+                );
+            }
+            if s.curriculum.is_some() {
+                config_err!(
+                    "key `sim.fresh_layouts` and `[sim.curriculum]` both change the lanes: give one"
+                );
+            }
+            if s.physics != rotorhive_sim::PhysicsKind::Direct {
+                config_err!("key `sim.fresh_layouts` needs `sim.physics = \"direct\"`");
+            }
+        }
         let (max_envs, max_agents) =
             (rotorhive_msg::MAX_ENVS_PER_HOST, rotorhive_msg::MAX_AGENTS_PER_ENV);
         if s.envs > max_envs || s.agents > max_agents {
@@ -311,6 +326,13 @@ impl Config {
             config_err!(
                 "key `learner.average_updates` must be 0 (off) or positive, got {}",
                 l.average_updates
+            );
+        }
+        if let Err(e) = rotorhive_model::Layers::new(&l.conv_channels, &l.hidden) {
+            config_err!(
+                "keys `learner.conv_channels` {:?} and `learner.hidden` {:?}: {e}",
+                l.conv_channels,
+                l.hidden
             );
         }
         if !(0.0..=1.0).contains(&l.td_weight) {

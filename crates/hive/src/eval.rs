@@ -210,7 +210,9 @@ pub fn run(a: EvalArgs) -> Result<()> {
     let net = match (policy, &a.checkpoint) {
         (PolicyKind::Greedy, Some(c)) => {
             let memory = rotorhive_model::checkpoint_memory(c)?;
-            let net = PolicyNet::new(cfg.shapes(), memory, 0, &rotorhive_model::Device::Cpu)?;
+            let layers = rotorhive_model::checkpoint_layers(c)?;
+            let dev = rotorhive_model::Device::Cpu;
+            let net = PolicyNet::new(cfg.shapes(), layers, memory, 0, &dev)?;
             net.load_checkpoint(c)?;
             Some(net)
         }

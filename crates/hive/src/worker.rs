@@ -64,7 +64,10 @@ pub fn run(a: WorkerArgs) -> Result<()> {
     let token = join_token(&run_dir)?;
     let sent_log = run_dir.join("link-sent");
     let hello = Hello {
-        layout: rotorhive_link::layout(rotorhive_model::num_params(rotorhive_msg::Shapes::PAPER)),
+        layout: rotorhive_link::layout(rotorhive_model::num_params(
+            rotorhive_msg::Shapes::PAPER,
+            rotorhive_model::Layers::DEFAULT,
+        )),
         envs: a.envs,
         agents: a.agents.unwrap_or(0),
         host: name.clone(),

@@ -7,7 +7,7 @@ use std::path::Path;
 
 use candle_core::{DType, Device, Tensor, Var};
 
-use crate::{ModelError, Result, SIDE, Shapes};
+use crate::{Layers, ModelError, Result, SIDE, Shapes};
 
 /// The checkpoint layout this build writes and reads: the tensors' names
 /// and shapes, conv2's weights as (out, kh, kw, in) and fc1's pooled
@@ -18,7 +18,7 @@ pub const CHECKPOINT_LAYOUT: &str = "rotorhive-qnet/1";
 /// for `shapes`: `layout` ([`CHECKPOINT_LAYOUT`]), `observation`, `frames`,
 /// `frame_stride`, `obs_len`, `scalars`, `actions` and `memory` (`none`).
 pub fn checkpoint_metadata(shapes: Shapes) -> HashMap<String, String> {
-    recurrent_metadata(shapes, None)
+    network_metadata(shapes, Layers::DEFAULT, None)
 }
 
 /// The name of a network's memory in a checkpoint's header: `none`, or
@@ -27,15 +27,21 @@ pub fn memory_name(width: Option<usize>) -> String {
     width.map_or_else(|| "none".to_string(), |w| format!("gru:{w}"))
 }
 
-/// [`checkpoint_metadata`] of a network with a GRU of `width` units (none:
-/// the feedforward one).
-pub(crate) fn recurrent_metadata(shapes: Shapes, width: Option<usize>) -> HashMap<String, String> {
+/// [`checkpoint_metadata`] of a network of widths `layers` (named in the
+/// entry `layers` unless they are the default, so that a checkpoint of the
+/// design's network has the bytes of earlier builds) with a GRU of `width`
+/// units (none: the feedforward one).
+pub(crate) fn network_metadata(
+    shapes: Shapes,
+    layers: Layers,
+    width: Option<usize>,
+) -> HashMap<String, String> {
     let goal = if shapes.scalars > rotorhive_msg::VEL_DIM {
         ", then the goal's bearing (rad), distance and lateral offset (10 m)"
     } else {
         ""
     };
-    HashMap::from([
+    let mut meta = HashMap::from([
         ("layout".to_string(), CHECKPOINT_LAYOUT.to_string()),
         (
             "observation".to_string(),
@@ -51,7 +57,11 @@ pub(crate) fn recurrent_metadata(shapes: Shapes, width: Option<usize>) -> HashMa
         ("scalars".to_string(), shapes.scalars.to_string()),
         ("actions".to_string(), shapes.actions.to_string()),
         ("memory".to_string(), memory_name(width)),
-    ])
+    ]);
+    if layers != Layers::DEFAULT {
+        meta.insert("layers".to_string(), layers.name());
+    }
+    meta
 }
 
 /// The shapes a checkpoint was written for, from its header (`frames`,
@@ -114,15 +124,22 @@ fn check_layout(bytes: &[u8], file: &str, ours: &HashMap<String, String>) -> Res
     let Some(theirs) = header.metadata() else {
         return Ok(());
     };
-    // A checkpoint of a build before memory is a feedforward network's.
-    let none = memory_name(None);
-    let keys = ["layout", "obs_len", "frames", "frame_stride", "scalars", "actions", "memory"];
+    // A checkpoint of a build before memory is a feedforward network's, one
+    // without `layers` the design's widths.
+    let (none, widths) = (memory_name(None), Layers::DEFAULT.name());
+    let default = |k: &str| match k {
+        "memory" => Some(&none),
+        "layers" => Some(&widths),
+        _ => None,
+    };
+    let keys =
+        ["layout", "obs_len", "frames", "frame_stride", "scalars", "actions", "memory", "layers"];
     let diffs: Vec<String> = keys
         .iter()
         .filter_map(|k| {
-            let v = theirs.get(*k).or(if *k == "memory" { Some(&none) } else { None });
-            v.filter(|v| Some(*v) != ours.get(*k))
-                .map(|v| format!("{k} {v} (this network: {})", ours[*k]))
+            let ours = ours.get(*k).or(default(k))?;
+            let v = theirs.get(*k).or(default(k))?;
+            (v != ours).then(|| format!("{k} {v} (this network: {ours})"))
         })
         .collect();
     if diffs.is_empty() {
@@ -152,6 +169,20 @@ pub fn checkpoint_memory(path: &Path) -> Result<Option<usize>> {
             .filter(|w| (1..=crate::MAX_WIDTH).contains(w))
             .map(Some)
             .ok_or_else(|| bad(format!("header entry `memory` is {m:?}, not none or gru:WIDTH"))),
+    }
+}
+
+/// The widths of a checkpoint's network, from its header's `layers` (the
+/// design's where it has none).
+pub fn checkpoint_layers(path: &Path) -> Result<Layers> {
+    let file = path.display().to_string();
+    let bad = |message: String| ModelError::Checkpoint { file: file.clone(), message };
+    let bytes = std::fs::read(path).map_err(|e| bad(format!("cannot read: {e}")))?;
+    let (_, header) = safetensors::SafeTensors::read_metadata(&bytes)
+        .map_err(|e| bad(format!("not a valid safetensors file: {e}")))?;
+    match header.metadata().as_ref().and_then(|m| m.get("layers")) {
+        None => Ok(Layers::DEFAULT),
+        Some(l) => Layers::parse(l).map_err(|e| bad(format!("header entry `layers`: {e}"))),
     }
 }
 

@@ -11,7 +11,7 @@ use candle_core::{D, Tensor};
 use crate::checkpoint;
 use crate::kernels::{Rows, Workspace, poisoned};
 use crate::ops::{AdamHyper, AdamStep, adam};
-use crate::{ModelError, QNet, Result, Shapes, argmax, params};
+use crate::{Layers, ModelError, QNet, Result, Shapes, argmax, params};
 use rotorhive_msg::{label_action, label_mask};
 
 use crate::teaching::{Teaching, imitation_row, imitation_sum, margin_sum};
@@ -104,8 +104,8 @@ pub(crate) struct Adam {
 }
 
 impl Adam {
-    fn new(cfg: &DqnConfig, shapes: Shapes) -> Self {
-        let specs = params(shapes);
+    fn new(cfg: &DqnConfig, shapes: Shapes, layers: Layers) -> Self {
+        let specs = params(shapes, layers);
         let sizes = specs.iter().map(|(_, s)| s.iter().product::<usize>());
         Self::with_sizes((cfg.lr as f32, cfg.lr_final as f32, cfg.lr_decay_updates), sizes)
     }
@@ -254,12 +254,24 @@ impl Dqn {
         seed: u64,
         device: &candle_core::Device,
     ) -> Result<Self> {
-        let online = QNet::with_shapes(shapes, seed, device)?;
-        let target = QNet::with_shapes(shapes, seed, device)?;
+        Self::with_layers(cfg, shapes, Layers::DEFAULT, seed, device)
+    }
+
+    /// A learner with freshly initialised networks for `shapes` of widths
+    /// `layers`.
+    pub fn with_layers(
+        cfg: DqnConfig,
+        shapes: Shapes,
+        layers: Layers,
+        seed: u64,
+        device: &candle_core::Device,
+    ) -> Result<Self> {
+        let online = QNet::with_layers(shapes, layers, seed, device)?;
+        let target = QNet::with_layers(shapes, layers, seed, device)?;
         Ok(Self {
             online,
             target,
-            opt: Adam::new(&cfg, shapes),
+            opt: Adam::new(&cfg, shapes, layers),
             cfg,
             updates: 0,
             timing: UpdateTiming::default(),
@@ -643,13 +655,14 @@ impl Dqn {
     pub fn save_state(&self, path: &Path) -> Result<()> {
         let nets = (self.online.vars(), self.target.vars());
         let o = &self.opt;
-        let specs = params(self.online.shapes());
+        let specs = params(self.online.shapes(), self.online.layers());
         checkpoint::save_state(path, &specs, nets, (&o.m, &o.v, o.t), self.updates)
     }
 
     /// Restores a state written by [`Dqn::save_state`], checking every tensor.
     pub fn load_state(&mut self, path: &Path) -> Result<()> {
-        let st = checkpoint::read_state(path, &params(self.online.shapes()))?;
+        let specs = params(self.online.shapes(), self.online.layers());
+        let st = checkpoint::read_state(path, &specs)?;
         let file = path.display().to_string();
         self.online.load_named(&st.online, &file)?;
         self.target.load_named(&st.target, &file)?;
@@ -690,13 +703,14 @@ mod schedule_tests {
             max_grad_norm: 0.0,
             margin: 0.8,
         };
-        let adam = Adam::new(&cfg, Shapes::PAPER);
+        let adam = Adam::new(&cfg, Shapes::PAPER, Layers::DEFAULT);
         let close = |a: f32, b: f32| (a - b).abs() < 1e-9;
         assert!(close(adam.lr_at(1), 1e-3));
         assert!(close(adam.lr_at(51), 6e-4), "{}", adam.lr_at(51));
         assert!(close(adam.lr_at(101), 2e-4));
         assert!(close(adam.lr_at(10_000), 2e-4));
-        let constant = Adam::new(&DqnConfig { lr_decay_updates: 0, ..cfg }, Shapes::PAPER);
+        let constant =
+            Adam::new(&DqnConfig { lr_decay_updates: 0, ..cfg }, Shapes::PAPER, Layers::DEFAULT);
         assert!(close(constant.lr_at(10_000), 1e-3));
     }
 }

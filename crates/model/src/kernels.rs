@@ -23,36 +23,56 @@
 //! flat vector in canonical order. The weights stay the candle variables of
 //! [`crate::QNet`]; this module only reads them.
 //!
-//! Activations are channels-last: conv1's output `[B·14·14, 16]`, conv2's
-//! `[B·12·12, 32]`, the features `[B, 6·6·32 + 16]` (pooled map, then the
-//! velocity branch).
+//! Activations are channels-last: conv1's output `[B·14·14, c1]`, conv2's
+//! `[B·12·12, c2]`, the features `[B, 6·6·c2 + 16]` (pooled map, then the
+//! velocity branch), then each hidden layer's `[B, width]` ([`Layers`]; the
+//! design's 16, 32 and 64 on loops of those constant widths).
 
 use multiversion::multiversion;
 
+use crate::layers::VEL_H;
 use crate::ops::{View, matmul};
-use crate::{C1, C2, FEAT, H1, H2, HID, HP, K1, K2, S1, SIDE, Shapes, VEL_H};
+use crate::{H1, H2, HP, K1, K2, Layers, S1, SIDE, Shapes};
 
 /// Columns of conv1's patch matrix: (frame, ky, kx).
 const fn p1(shapes: Shapes) -> usize {
     shapes.frames * K1 * K1
 }
-/// Columns of conv2's patch matrix: (ky, kx, channel).
-const P2: usize = K2 * K2 * C1;
-/// Features entering fc1: the pooled map and the velocity branch.
-const F: usize = FEAT + VEL_H;
 
-/// The ten parameter slices, in canonical order, and the network's shapes.
-pub(crate) struct Weights<'a>(pub(crate) [&'a [f32]; 10], pub(crate) Shapes);
+/// Columns of conv2's patch matrix: (ky, kx, channel).
+const fn p2(c1: usize) -> usize {
+    K2 * K2 * c1
+}
+
+/// The parameter slices in canonical order (the trunk's, then the Q
+/// head's two where the network has one), the network's shapes and widths.
+pub(crate) struct Weights<'a> {
+    pub(crate) p: Vec<&'a [f32]>,
+    pub(crate) shapes: Shapes,
+    pub(crate) layers: Layers,
+}
+
+impl<'a> Weights<'a> {
+    /// The slices `p` of a network for `shapes` of widths `layers`: all of
+    /// them, or the trunk's alone (whose forward pass stops before the head).
+    pub(crate) fn new(p: &[&'a [f32]], shapes: Shapes, layers: Layers) -> Self {
+        Self { p: p.to_vec(), shapes, layers }
+    }
+
+    /// The Q head's weight and bias, where they were given.
+    fn head(&self) -> Option<(&'a [f32], &'a [f32])> {
+        let t = self.layers.trunk_len();
+        Some((*self.p.get(t)?, *self.p.get(t + 1)?))
+    }
+}
 
 /// Offsets of each parameter in the flat gradient vector of a network for
-/// `shapes`.
-pub(crate) fn offsets(shapes: Shapes) -> [usize; 11] {
-    let (vel, actions, p1) = (shapes.scalars, shapes.actions, p1(shapes));
-    let sizes =
-        [C1 * p1, C1, C2 * P2, C2, VEL_H * vel, VEL_H, HID * F, HID, actions * HID, actions];
-    let mut off = [0; 11];
-    for i in 0..10 {
-        off[i + 1] = off[i] + sizes[i];
+/// `shapes` of widths `layers` (one more than the parameters: the last is
+/// the total).
+pub(crate) fn offsets(shapes: Shapes, layers: Layers) -> Vec<usize> {
+    let mut off = vec![0];
+    for (_, shape) in crate::params(shapes, layers) {
+        off.push(off[off.len() - 1] + shape.iter().product::<usize>());
     }
     off
 }
@@ -84,8 +104,8 @@ impl<'a> Rows<'a> {
 #[derive(Default)]
 pub(crate) struct Workspace {
     rows: usize,
-    /// The shapes the buffers were sized for.
-    shapes: Option<Shapes>,
+    /// The shapes and widths the buffers were sized for.
+    sized: Option<(Shapes, Layers)>,
     cols1: Vec<f32>,
     a1: Vec<f32>,
     cols2: Vec<f32>,
@@ -93,13 +113,15 @@ pub(crate) struct Workspace {
     arg: Vec<u8>,
     feat: Vec<f32>,
     vel: Vec<f32>,
-    h: Vec<f32>,
-    /// Q-values of the last forward pass, `[rows, 2]`.
+    /// Each hidden layer's activations.
+    h: Vec<Vec<f32>>,
+    /// Q-values of the last forward pass, `[rows, actions]`.
     pub(crate) q: Vec<f32>,
     /// Q-values kept from an earlier pass ([`Workspace::keep_q`]).
     q_kept: Vec<f32>,
     dq: Vec<f32>,
-    dh: Vec<f32>,
+    /// The gradient with respect to each hidden layer's activations.
+    dh: Vec<Vec<f32>>,
     dfeat: Vec<f32>,
     da2: Vec<f32>,
     dcols2: Vec<f32>,
@@ -121,14 +143,32 @@ fn fit(v: &mut Vec<f32>, len: usize) {
     }
 }
 
-/// `y = max(y + b, 0)` for every row of `y`.
+/// `y = max(y + b, 0)` for every row of `y` (rows of `b.len()`): the
+/// design's widths on loops of a constant width, which LLVM vectorises
+/// whole, any other on [`bias_relu_any`].
+fn bias_relu(y: &mut [f32], b: &[f32]) {
+    match b.len() {
+        16 => bias_relu_of::<16>(y, b),
+        32 => bias_relu_of::<32>(y, b),
+        64 => bias_relu_of::<64>(y, b),
+        _ => bias_relu_any(y, b),
+    }
+}
+
 #[multiversion(targets("x86_64+avx2+fma+avx"))]
-fn bias_relu<const C: usize>(y: &mut [f32], b: &[f32]) {
+fn bias_relu_of<const C: usize>(y: &mut [f32], b: &[f32]) {
     let b: &[f32; C] = b.try_into().expect("a bias of the layer's width");
     for row in y.chunks_exact_mut(C) {
         for c in 0..C {
             row[c] = (row[c] + b[c]).max(0.0);
         }
+    }
+}
+
+#[multiversion(targets("x86_64+avx2+fma+avx"))]
+fn bias_relu_any(y: &mut [f32], b: &[f32]) {
+    for row in y.chunks_exact_mut(b.len()) {
+        row.iter_mut().zip(b).for_each(|(y, b)| *y = (*y + b).max(0.0));
     }
 }
 
@@ -139,11 +179,20 @@ fn mask(g: &mut [f32], y: &[f32]) {
 }
 
 /// `g = 0` where the layer's output `y ≤ 0` (ReLU's gradient), and
-/// `db += Σ_rows g`.
-#[multiversion(targets("x86_64+avx2+fma+avx"))]
-fn mask_and_sum<const C: usize>(g: &mut [f32], y: &[f32], db: &mut [f32]) {
+/// `db += Σ_rows g` (rows of `db.len()`).
+fn mask_and_sum(g: &mut [f32], y: &[f32], db: &mut [f32]) {
     // Two passes: LLVM left the fused loop scalar at C = 16.
     mask(g, y);
+    match db.len() {
+        16 => sum_rows_of::<16>(g, db),
+        32 => sum_rows_of::<32>(g, db),
+        64 => sum_rows_of::<64>(g, db),
+        _ => sum_rows_any(g, db),
+    }
+}
+
+#[multiversion(targets("x86_64+avx2+fma+avx"))]
+fn sum_rows_of<const C: usize>(g: &[f32], db: &mut [f32]) {
     let mut acc = [0f32; C];
     for row in g.as_chunks::<C>().0 {
         for c in 0..C {
@@ -151,6 +200,13 @@ fn mask_and_sum<const C: usize>(g: &mut [f32], y: &[f32], db: &mut [f32]) {
         }
     }
     db.iter_mut().zip(acc).for_each(|(d, a)| *d += a);
+}
+
+#[multiversion(targets("x86_64+avx2+fma+avx"))]
+fn sum_rows_any(g: &[f32], db: &mut [f32]) {
+    for row in g.chunks_exact(db.len()) {
+        db.iter_mut().zip(row).for_each(|(d, g)| *d += g);
+    }
 }
 
 /// conv1's patch rows of one observation: for every output pixel (oy, ox),
@@ -171,17 +227,17 @@ fn im2col1(obs: &[f32], frames: usize, out: &mut [f32]) {
     }
 }
 
-/// The runs of conv2's im2col for one map: `f(at, o)` for each run of
-/// K2·C1 values, `at` its start in the channels-last conv1 map and `o` in
-/// the patch matrix.
+/// The runs of conv2's im2col for one map of `c1` channels: `f(at, o)` for
+/// each run of K2·c1 values, `at` its start in the channels-last conv1 map
+/// and `o` in the patch matrix.
 #[inline(always)]
-fn conv2_runs(mut f: impl FnMut(usize, usize)) {
+fn conv2_runs(c1: usize, mut f: impl FnMut(usize, usize)) {
     let mut o = 0;
     for oy in 0..H2 {
         for ox in 0..H2 {
             for ky in 0..K2 {
-                f(((oy + ky) * H1 + ox) * C1, o);
-                o += K2 * C1;
+                f(((oy + ky) * H1 + ox) * c1, o);
+                o += K2 * c1;
             }
         }
     }
@@ -195,49 +251,49 @@ fn window(py: usize, px: usize) -> [usize; 4] {
     [r, r + 1, r + H2, r + H2 + 1]
 }
 
-/// conv2's patch rows of `n` channels-last maps: runs of K2·C1 values.
+/// conv2's patch rows of `n` channels-last maps of `c1` channels: runs of
+/// K2·c1 values.
 #[multiversion(targets("x86_64+avx2+fma+avx"))]
-fn im2col2(a1: &[f32], cols: &mut [f32], n: usize) {
-    let (hw1, hw2) = (H1 * H1, H2 * H2);
+fn im2col2(a1: &[f32], cols: &mut [f32], n: usize, c1: usize) {
+    let (hw1, hw2, p2) = (H1 * H1, H2 * H2, p2(c1));
     for s in 0..n {
-        let src = &a1[s * hw1 * C1..(s + 1) * hw1 * C1];
-        let out = &mut cols[s * hw2 * P2..(s + 1) * hw2 * P2];
-        conv2_runs(|at, o| out[o..o + K2 * C1].copy_from_slice(&src[at..at + K2 * C1]));
+        let src = &a1[s * hw1 * c1..(s + 1) * hw1 * c1];
+        let out = &mut cols[s * hw2 * p2..(s + 1) * hw2 * p2];
+        conv2_runs(c1, |at, o| out[o..o + K2 * c1].copy_from_slice(&src[at..at + K2 * c1]));
     }
 }
 
 /// The gradient of [`im2col2`]: every run added back where it was read (col2im).
 #[multiversion(targets("x86_64+avx2+fma+avx"))]
-fn col2im2(dcols: &[f32], da1: &mut [f32], n: usize) {
-    let (hw1, hw2) = (H1 * H1, H2 * H2);
-    da1[..n * hw1 * C1].fill(0.0);
+fn col2im2(dcols: &[f32], da1: &mut [f32], n: usize, c1: usize) {
+    let (hw1, hw2, p2) = (H1 * H1, H2 * H2, p2(c1));
+    da1[..n * hw1 * c1].fill(0.0);
     for s in 0..n {
-        let src = &dcols[s * hw2 * P2..(s + 1) * hw2 * P2];
-        let out = &mut da1[s * hw1 * C1..(s + 1) * hw1 * C1];
-        conv2_runs(|at, o| {
-            let (d, g) = (&mut out[at..at + K2 * C1], &src[o..o + K2 * C1]);
-            for j in 0..K2 * C1 {
-                d[j] += g[j];
-            }
+        let src = &dcols[s * hw2 * p2..(s + 1) * hw2 * p2];
+        let out = &mut da1[s * hw1 * c1..(s + 1) * hw1 * c1];
+        conv2_runs(c1, |at, o| {
+            let (d, g) = (&mut out[at..at + K2 * c1], &src[o..o + K2 * c1]);
+            d.iter_mut().zip(g).for_each(|(d, g)| *d += g);
         });
     }
 }
 
-/// 2×2 max-pooling of `n` channels-last conv2 maps into the features' head,
-/// with the argmax (0..4, the window's first maximum) of every output.
+/// 2×2 max-pooling of `n` channels-last conv2 maps of `c2` channels into
+/// the features' head (rows of `f`), with the argmax (0..4, the window's
+/// first maximum) of every output.
 #[multiversion(targets("x86_64+avx2+fma+avx"))]
-fn pool(a2: &[f32], feat: &mut [f32], arg: &mut [u8], n: usize) {
-    let hw2 = H2 * H2;
+fn pool(a2: &[f32], feat: &mut [f32], arg: &mut [u8], n: usize, c2: usize, f: usize) {
+    let (hw2, pooled) = (H2 * H2, HP * HP * c2);
     for s in 0..n {
-        let x = &a2[s * hw2 * C2..(s + 1) * hw2 * C2];
-        let out = &mut feat[s * F..s * F + FEAT];
-        let arg = &mut arg[s * FEAT..(s + 1) * FEAT];
+        let x = &a2[s * hw2 * c2..(s + 1) * hw2 * c2];
+        let out = &mut feat[s * f..s * f + pooled];
+        let arg = &mut arg[s * pooled..(s + 1) * pooled];
         for py in 0..HP {
             for px in 0..HP {
-                let [x0, x1, x2, x3] = window(py, px).map(|r| &x[r * C2..(r + 1) * C2]);
-                let o = (py * HP + px) * C2;
-                let (out, arg) = (&mut out[o..o + C2], &mut arg[o..o + C2]);
-                for c in 0..C2 {
+                let [x0, x1, x2, x3] = window(py, px).map(|r| &x[r * c2..(r + 1) * c2]);
+                let o = (py * HP + px) * c2;
+                let (out, arg) = (&mut out[o..o + c2], &mut arg[o..o + c2]);
+                for c in 0..c2 {
                     let (mut best, mut at) = (x0[c], 0u8);
                     (best, at) = if x1[c] > best { (x1[c], 1) } else { (best, at) };
                     (best, at) = if x2[c] > best { (x2[c], 2) } else { (best, at) };
@@ -251,82 +307,89 @@ fn pool(a2: &[f32], feat: &mut [f32], arg: &mut [u8], n: usize) {
 }
 
 /// The gradient of [`pool`]: each pooled gradient to its argmax (`da2` is
-/// zeroed first); conv2's bias gradient is their sum, since every pooled
-/// gradient lands on exactly one position.
+/// zeroed first); conv2's bias gradient `db2` (of `c2`) is their sum, since
+/// every pooled gradient lands on exactly one position.
 #[multiversion(targets("x86_64+avx2+fma+avx"))]
-fn unpool(dfeat: &[f32], arg: &[u8], da2: &mut [f32], db2: &mut [f32], n: usize) {
-    let hw2 = H2 * H2;
-    da2[..n * hw2 * C2].fill(0.0);
-    let mut acc = [0f32; C2];
+fn unpool(dfeat: &[f32], arg: &[u8], da2: &mut [f32], db2: &mut [f32], n: usize, f: usize) {
+    let c2 = db2.len();
+    let (hw2, pooled) = (H2 * H2, HP * HP * c2);
+    da2[..n * hw2 * c2].fill(0.0);
     for s in 0..n {
-        let d = &dfeat[s * F..s * F + FEAT];
-        let arg = &arg[s * FEAT..(s + 1) * FEAT];
-        let out = &mut da2[s * hw2 * C2..(s + 1) * hw2 * C2];
+        let d = &dfeat[s * f..s * f + pooled];
+        let arg = &arg[s * pooled..(s + 1) * pooled];
+        let out = &mut da2[s * hw2 * c2..(s + 1) * hw2 * c2];
         for py in 0..HP {
             for px in 0..HP {
                 let rows = window(py, px);
-                let o = (py * HP + px) * C2;
-                for c in 0..C2 {
-                    out[rows[arg[o + c] as usize] * C2 + c] = d[o + c];
-                    acc[c] += d[o + c];
+                let o = (py * HP + px) * c2;
+                for c in 0..c2 {
+                    out[rows[arg[o + c] as usize] * c2 + c] = d[o + c];
+                    db2[c] += d[o + c];
                 }
             }
         }
     }
-    db2.iter_mut().zip(acc).for_each(|(b, a)| *b += a);
 }
 
 impl Workspace {
-    fn reserve(&mut self, rows: usize, shapes: Shapes) {
-        if rows <= self.rows && self.shapes == Some(shapes) {
+    fn reserve(&mut self, rows: usize, shapes: Shapes, layers: Layers) {
+        if rows <= self.rows && self.sized == Some((shapes, layers)) {
             return;
         }
-        (self.rows, self.shapes) = (rows.max(self.rows), Some(shapes));
+        (self.rows, self.sized) = (rows.max(self.rows), Some((shapes, layers)));
         let rows = self.rows;
-        let (vel, actions) = (shapes.scalars, shapes.actions);
-        let hw1 = H1 * H1;
-        let hw2 = H2 * H2;
+        let (vel, actions, f) = (shapes.scalars, shapes.actions, layers.features());
+        let [c1, c2] = layers.conv();
+        let (hw1, hw2) = (H1 * H1, H2 * H2);
         for (v, len) in [
             (&mut self.cols1, rows * hw1 * p1(shapes)),
-            (&mut self.a1, rows * hw1 * C1),
-            (&mut self.cols2, rows * hw2 * P2),
-            (&mut self.a2, rows * hw2 * C2),
-            (&mut self.feat, rows * F),
+            (&mut self.a1, rows * hw1 * c1),
+            (&mut self.cols2, rows * hw2 * p2(c1)),
+            (&mut self.a2, rows * hw2 * c2),
+            (&mut self.feat, rows * f),
             (&mut self.vel, rows * vel),
-            (&mut self.h, rows * HID),
             (&mut self.q, rows * actions),
             (&mut self.dq, rows * actions),
-            (&mut self.dh, rows * HID),
-            (&mut self.dfeat, rows * F),
-            (&mut self.da2, rows * hw2 * C2),
-            (&mut self.dcols2, rows * hw2 * P2),
-            (&mut self.da1, rows * hw1 * C1),
+            (&mut self.dfeat, rows * f),
+            (&mut self.da2, rows * hw2 * c2),
+            (&mut self.dcols2, rows * hw2 * p2(c1)),
+            (&mut self.da1, rows * hw1 * c1),
         ] {
             fit(v, len);
         }
-        self.arg.resize(rows * FEAT, 0);
-        fit(&mut self.grads, offsets(shapes)[10]);
+        let depth = layers.hidden().len();
+        self.h.resize_with(depth, Vec::new);
+        self.dh.resize_with(depth, Vec::new);
+        for (k, &w) in layers.hidden().iter().enumerate() {
+            fit(&mut self.h[k], rows * w);
+            fit(&mut self.dh[k], rows * w);
+        }
+        self.arg.resize(rows * layers.pooled(), 0);
+        fit(&mut self.grads, offsets(shapes, layers).last().copied().unwrap_or(0));
     }
 
-    /// Q-values of every row of `parts` (in order) into `self.q`, keeping the
-    /// activations for [`Workspace::backward`]. Returns the rows forwarded.
+    /// Q-values of every row of `parts` (in order) into `self.q` (none
+    /// where `w` has no Q head), keeping the activations for
+    /// [`Workspace::backward`]. Returns the rows forwarded.
     pub(crate) fn forward(&mut self, w: &Weights, parts: &[Rows]) -> crate::Result<usize> {
         let n: usize = parts.iter().map(|p| p.n).sum();
-        self.reserve(n, w.1);
-        let [w1, b1, w2, b2, wv, bv, w3, b3, w4, b4] = w.0;
-        let (vel, actions) = (w.1.scalars, w.1.actions);
-        let (hw1, hw2, p1) = (H1 * H1, H2 * H2, p1(w.1));
+        let (shapes, layers) = (w.shapes, w.layers);
+        self.reserve(n, shapes, layers);
+        let [w1, b1, w2, b2, wv, bv] = [0, 1, 2, 3, 4, 5].map(|i| w.p[i]);
+        let [c1, c2] = layers.conv();
+        let (vel, f, pooled) = (shapes.scalars, layers.features(), layers.pooled());
+        let (hw1, hw2, p1, p2) = (H1 * H1, H2 * H2, p1(shapes), p2(c1));
         // conv1: patches straight from the observation rows, runs of K1 pixels.
         let mut i = 0;
         for p in parts {
             for r in 0..p.n {
                 let obs = p.row(r);
-                im2col1(obs, w.1.frames, &mut self.cols1[i * hw1 * p1..(i + 1) * hw1 * p1]);
+                im2col1(obs, shapes.frames, &mut self.cols1[i * hw1 * p1..(i + 1) * hw1 * p1]);
                 // The velocity branch (and the goal's), 3 or 6 → 16, into
                 // the features' tail.
-                let v = &obs[w.1.obs_depth()..];
+                let v = &obs[shapes.obs_depth()..];
                 self.vel[i * vel..(i + 1) * vel].copy_from_slice(v);
-                let tail = &mut self.feat[i * F + FEAT..(i + 1) * F];
+                let tail = &mut self.feat[i * f + pooled..(i + 1) * f];
                 for (j, t) in tail.iter_mut().enumerate() {
                     let s = bv[j] + (0..vel).map(|k| wv[j * vel + k] * v[k]).sum::<f32>();
                     *t = s.max(0.0);
@@ -334,21 +397,33 @@ impl Workspace {
                 i += 1;
             }
         }
-        let a1 = &mut self.a1[..n * hw1 * C1];
-        matmul(n * hw1, C1, p1, View::rows(&self.cols1, p1), View::transposed(w1, p1), a1, false)?;
-        bias_relu::<C1>(a1, b1);
-        im2col2(&self.a1, &mut self.cols2, n);
-        let a2 = &mut self.a2[..n * hw2 * C2];
-        matmul(n * hw2, C2, P2, View::rows(&self.cols2, P2), View::transposed(w2, P2), a2, false)?;
-        bias_relu::<C2>(a2, b2);
-        pool(&self.a2, &mut self.feat, &mut self.arg, n);
-        let h = &mut self.h[..n * HID];
-        matmul(n, HID, F, View::rows(&self.feat, F), View::transposed(w3, F), h, false)?;
-        bias_relu::<HID>(h, b3);
-        for (q, h) in self.q[..n * actions].chunks_exact_mut(actions).zip(h.chunks_exact(HID)) {
-            for (a, q) in q.iter_mut().enumerate() {
-                *q = b4[a]
-                    + w4[a * HID..(a + 1) * HID].iter().zip(h).map(|(w, x)| w * x).sum::<f32>();
+        let a1 = &mut self.a1[..n * hw1 * c1];
+        matmul(n * hw1, c1, p1, View::rows(&self.cols1, p1), View::transposed(w1, p1), a1, false)?;
+        bias_relu(a1, b1);
+        im2col2(&self.a1, &mut self.cols2, n, c1);
+        let a2 = &mut self.a2[..n * hw2 * c2];
+        matmul(n * hw2, c2, p2, View::rows(&self.cols2, p2), View::transposed(w2, p2), a2, false)?;
+        bias_relu(a2, b2);
+        pool(&self.a2, &mut self.feat, &mut self.arg, n, c2, f);
+        // The hidden layers, each on the one before (the first on the features).
+        let mut input = f;
+        for (k, &out) in layers.hidden().iter().enumerate() {
+            let (before, rest) = self.h.split_at_mut(k);
+            let x = if k == 0 { &self.feat[..n * f] } else { &before[k - 1][..n * input] };
+            let h = &mut rest[0][..n * out];
+            let (wk, bk) = (w.p[6 + 2 * k], w.p[7 + 2 * k]);
+            matmul(n, out, input, View::rows(x, input), View::transposed(wk, input), h, false)?;
+            bias_relu(h, bk);
+            input = out;
+        }
+        if let Some((w4, b4)) = w.head() {
+            let (actions, hid) = (shapes.actions, layers.out());
+            let h = &self.h[self.h.len() - 1][..n * hid];
+            for (q, h) in self.q[..n * actions].chunks_exact_mut(actions).zip(h.chunks_exact(hid)) {
+                for (a, q) in q.iter_mut().enumerate() {
+                    *q = b4[a]
+                        + w4[a * hid..(a + 1) * hid].iter().zip(h).map(|(w, x)| w * x).sum::<f32>();
+                }
             }
         }
         Ok(n)
@@ -363,8 +438,8 @@ impl Workspace {
 
     /// What the loss reads and writes: the last forward pass's Q-values,
     /// the kept ones, and the gradient with respect to the Q-values of the
-    /// first `n` rows (`[n, 2]`, zeroed) for the caller to write before
-    /// [`Workspace::backward`].
+    /// first `n` rows (`[n, actions]`, zeroed) for the caller to write
+    /// before [`Workspace::backward`].
     pub(crate) fn loss_view(&mut self, n: usize, actions: usize) -> (&[f32], &[f32], &mut [f32]) {
         let dq = &mut self.dq[..n * actions];
         dq.fill(0.0);
@@ -375,24 +450,26 @@ impl Workspace {
     /// pass into `self.grads`, from the `dq` written through
     /// [`Workspace::loss_view`].
     pub(crate) fn backward(&mut self, w: &Weights, n: usize) -> crate::Result<()> {
-        let w4 = w.0[8];
-        let actions = w.1.actions;
-        let off = offsets(w.1);
-        let (g4, gb4) = self.grads[off[8]..off[10]].split_at_mut(actions * HID);
+        let (w4, _) = w.head().ok_or(crate::ModelError::Fused("a backward pass without a head"))?;
+        let (actions, hid, t) = (w.shapes.actions, w.layers.out(), w.layers.trunk_len());
+        let off = offsets(w.shapes, w.layers);
+        let (g4, gb4) = self.grads[off[t]..off[t + 2]].split_at_mut(actions * hid);
         g4.fill(0.0);
         gb4.fill(0.0);
-        // fc2 (2 outputs): by hand.
-        let (dq, h, dh) = (&self.dq[..n * actions], &self.h[..n * HID], &mut self.dh[..n * HID]);
+        // The Q head (a few outputs): by hand.
+        let last = self.h.len() - 1;
+        let (dq, h) = (&self.dq[..n * actions], &self.h[last][..n * hid]);
+        let dh = &mut self.dh[last][..n * hid];
         for ((dq, h), dh) in
-            dq.chunks_exact(actions).zip(h.chunks_exact(HID)).zip(dh.chunks_exact_mut(HID))
+            dq.chunks_exact(actions).zip(h.chunks_exact(hid)).zip(dh.chunks_exact_mut(hid))
         {
             dh.fill(0.0);
             for (a, &d) in dq.iter().enumerate() {
                 gb4[a] += d;
                 if d != 0.0 {
-                    for j in 0..HID {
-                        g4[a * HID + j] += d * h[j];
-                        dh[j] += d * w4[a * HID + j];
+                    for j in 0..hid {
+                        g4[a * hid + j] += d * h[j];
+                        dh[j] += d * w4[a * hid + j];
                     }
                 }
             }
@@ -400,50 +477,79 @@ impl Workspace {
         self.backward_trunk(w, n)
     }
 
-    /// The `fc1` activations `[n, 64]` of the last forward pass: what the
-    /// recurrent network's GRU reads.
-    pub(crate) fn trunk_out(&self, n: usize) -> &[f32] {
-        &self.h[..n * HID]
+    /// The last hidden layer's activations `[n, out]` of the last forward
+    /// pass: what the recurrent network's GRU reads.
+    pub(crate) fn trunk_out(&self, n: usize, layers: Layers) -> &[f32] {
+        &self.h[self.h.len() - 1][..n * layers.out()]
     }
 
-    /// The gradient with respect to the `fc1` activations of the first `n`
-    /// rows, for the caller to write before [`Workspace::backward_trunk`].
-    pub(crate) fn trunk_grad(&mut self, n: usize) -> &mut [f32] {
-        &mut self.dh[..n * HID]
+    /// The gradient with respect to the last hidden layer's activations of
+    /// the first `n` rows, for the caller to write before
+    /// [`Workspace::backward_trunk`].
+    pub(crate) fn trunk_grad(&mut self, n: usize, layers: Layers) -> &mut [f32] {
+        let last = self.dh.len() - 1;
+        &mut self.dh[last][..n * layers.out()]
     }
 
-    /// Gradients of the layers up to `fc1` (the first eight parameters, at
-    /// their offsets in `self.grads`) from the gradient with respect to the
-    /// `fc1` activations written through [`Workspace::trunk_grad`] (or by
-    /// [`Workspace::backward`]'s head).
+    /// Gradients of the trunk (every parameter before the Q head, at its
+    /// offset in `self.grads`) from the gradient with respect to the last
+    /// hidden layer's activations written through
+    /// [`Workspace::trunk_grad`] (or by [`Workspace::backward`]'s head).
     pub(crate) fn backward_trunk(&mut self, w: &Weights, n: usize) -> crate::Result<()> {
-        let [_, _, w2, _, _, _, w3, _, _, _] = w.0;
-        let vel = w.1.scalars;
-        let (hw1, hw2, p1) = (H1 * H1, H2 * H2, p1(w.1));
-        let off = offsets(w.1);
-        let g = &mut self.grads[..off[8]];
+        let (shapes, layers) = (w.shapes, w.layers);
+        let off = offsets(shapes, layers);
+        let f = layers.features();
+        // The hidden layers, last to first: each one's weights, bias and
+        // the gradient of what it read.
+        for k in (0..layers.hidden().len()).rev() {
+            let (out, input) =
+                (layers.hidden()[k], if k == 0 { f } else { layers.hidden()[k - 1] });
+            let (gw, gb) = self.grads[off[6 + 2 * k]..off[8 + 2 * k]].split_at_mut(out * input);
+            gb.fill(0.0);
+            let (dbefore, drest) = self.dh.split_at_mut(k);
+            let dh = &mut drest[0][..n * out];
+            mask_and_sum(dh, &self.h[k][..n * out], gb);
+            let (x, dx) = if k == 0 {
+                (&self.feat[..n * f], &mut self.dfeat[..n * f])
+            } else {
+                (&self.h[k - 1][..n * input], &mut dbefore[k - 1][..n * input])
+            };
+            matmul(out, input, n, View::transposed(dh, out), View::rows(x, input), gw, false)?;
+            matmul(
+                n,
+                input,
+                out,
+                View::rows(dh, out),
+                View::rows(w.p[6 + 2 * k], input),
+                dx,
+                false,
+            )?;
+        }
+        self.backward_convolutions(w, n, &off)
+    }
+
+    /// [`Workspace::backward_trunk`] below the hidden layers: from the
+    /// features' gradient to the velocity branch and the convolutions.
+    fn backward_convolutions(&mut self, w: &Weights, n: usize, off: &[usize]) -> crate::Result<()> {
+        let (shapes, layers) = (w.shapes, w.layers);
+        let [c1, c2] = layers.conv();
+        let (vel, f, pooled) = (shapes.scalars, layers.features(), layers.pooled());
+        let (hw1, hw2, p1, p2) = (H1 * H1, H2 * H2, p1(shapes), p2(c1));
+        let g = &mut self.grads[..off[6]];
         let (g1, rest) = g.split_at_mut(off[1]);
-        let (gb1, rest) = rest.split_at_mut(C1);
-        let (g2, rest) = rest.split_at_mut(C2 * P2);
-        let (gb2, rest) = rest.split_at_mut(C2);
-        let (gv, rest) = rest.split_at_mut(VEL_H * vel);
-        let (gbv, rest) = rest.split_at_mut(VEL_H);
-        let (g3, gb3) = rest.split_at_mut(HID * F);
-        // The products overwrite g1, g2 and g3; the rest accumulates.
-        for acc in [&mut *gb1, gb2, gv, gbv, gb3] {
+        let (gb1, rest) = rest.split_at_mut(c1);
+        let (g2, rest) = rest.split_at_mut(c2 * p2);
+        let (gb2, rest) = rest.split_at_mut(c2);
+        let (gv, gbv) = rest.split_at_mut(VEL_H * vel);
+        // The products overwrite g1 and g2; the rest accumulates.
+        for acc in [&mut *gb1, gb2, gv, gbv] {
             acc.fill(0.0);
         }
-        let (h, dh) = (&self.h[..n * HID], &mut self.dh[..n * HID]);
-        mask_and_sum::<HID>(dh, h, gb3);
-        // fc1: dW = dhᵀ·features, dfeatures = dh·W.
-        let feat = &self.feat[..n * F];
-        matmul(HID, F, n, View::transposed(dh, HID), View::rows(feat, F), g3, false)?;
-        let dfeat = &mut self.dfeat[..n * F];
-        matmul(n, F, HID, View::rows(dh, HID), View::rows(w3, F), dfeat, false)?;
+        let (feat, dfeat) = (&self.feat[..n * f], &mut self.dfeat[..n * f]);
         mask(dfeat, feat);
         // The velocity branch, from the inputs the forward pass kept.
         for s in 0..n {
-            let d = &dfeat[s * F + FEAT..(s + 1) * F];
+            let d = &dfeat[s * f + pooled..(s + 1) * f];
             let v = &self.vel[s * vel..(s + 1) * vel];
             for j in 0..VEL_H {
                 gbv[j] += d[j];
@@ -453,17 +559,17 @@ impl Workspace {
             }
         }
         // Pooling (the ReLU's mask is in `feat > 0`).
-        let da2 = &mut self.da2[..n * hw2 * C2];
-        unpool(dfeat, &self.arg, da2, gb2, n);
+        let da2 = &mut self.da2[..n * hw2 * c2];
+        unpool(dfeat, &self.arg, da2, gb2, n, f);
         // conv2: dW = da2ᵀ·patches, dpatches = da2·W, then col2im.
-        matmul(C2, P2, n * hw2, View::transposed(da2, C2), View::rows(&self.cols2, P2), g2, false)?;
-        let dcols2 = &mut self.dcols2[..n * hw2 * P2];
-        matmul(n * hw2, P2, C2, View::rows(da2, C2), View::rows(w2, P2), dcols2, false)?;
-        let da1 = &mut self.da1[..n * hw1 * C1];
-        col2im2(dcols2, da1, n);
-        mask_and_sum::<C1>(da1, &self.a1[..n * hw1 * C1], gb1);
+        matmul(c2, p2, n * hw2, View::transposed(da2, c2), View::rows(&self.cols2, p2), g2, false)?;
+        let dcols2 = &mut self.dcols2[..n * hw2 * p2];
+        matmul(n * hw2, p2, c2, View::rows(da2, c2), View::rows(w.p[2], p2), dcols2, false)?;
+        let da1 = &mut self.da1[..n * hw1 * c1];
+        col2im2(dcols2, da1, n, c1);
+        mask_and_sum(da1, &self.a1[..n * hw1 * c1], gb1);
         // conv1: dW = da1ᵀ·patches (the image needs no gradient).
-        matmul(C1, p1, n * hw1, View::transposed(da1, C1), View::rows(&self.cols1, p1), g1, false)?;
+        matmul(c1, p1, n * hw1, View::transposed(da1, c1), View::rows(&self.cols1, p1), g1, false)?;
         Ok(())
     }
 }

@@ -4,7 +4,8 @@
 //! → max-pool 2 → 1152 features; velocity 3→16 (with a goal: velocity and
 //! goal, 6→16); concat → 64 → one Q-value per action (2, or 3 with hold).
 //! The observation and action shapes come from the run's config
-//! ([`Shapes`]).
+//! ([`Shapes`]), and so do the widths ([`Layers`]: the convolutions'
+//! channels, one to three hidden layers).
 //!
 //! Two paths compute the same function and gradients:
 //! - the fused CPU path ([`kernels`]): forward and hand-written backward over
@@ -23,6 +24,7 @@
 mod checkpoint;
 mod dqn;
 mod kernels;
+mod layers;
 mod onnx;
 mod ops;
 mod policy;
@@ -36,10 +38,12 @@ use std::sync::{Arc, Mutex};
 pub use candle_core::Device;
 use candle_core::{Tensor, Var};
 pub use checkpoint::{
-    CHECKPOINT_LAYOUT, checkpoint_memory, checkpoint_metadata, checkpoint_shapes, memory_name,
+    CHECKPOINT_LAYOUT, checkpoint_layers, checkpoint_memory, checkpoint_metadata,
+    checkpoint_shapes, memory_name,
 };
 pub use dqn::{Dqn, DqnConfig, UpdateStats, UpdateTiming};
 use kernels::{Rows, Weights, Workspace};
+pub use layers::{Layers, MAX_HIDDEN, MAX_LAYER_WIDTH, num_params, params};
 pub use policy::PolicyNet;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
@@ -71,46 +75,48 @@ pub fn device(kind: DeviceKind) -> Result<Device> {
 // floats per observation, actions, floats per transition.
 pub use rotorhive_msg::{DEPTH_SIDE as SIDE, FRAMES, Shapes};
 
-const C1: usize = 16; // conv1 channels
+// The geometry (the widths are [`Layers`]'s): conv1 6×6 stride 2 (32 → 14),
+// conv2 3×3 (14 → 12), max-pool 2 (12 → 6).
 const K1: usize = 6;
 const S1: usize = 2;
 const H1: usize = (SIDE - K1) / S1 + 1; // 14
-const C2: usize = 32;
 const K2: usize = 3;
 const H2: usize = H1 - K2 + 1; // 12
 const HP: usize = H2 / 2; // 6
-const FEAT: usize = HP * HP * C2; // 1152
-const VEL_H: usize = 16;
-const HID: usize = 64;
 
-/// The layers up to `fc1` (the first eight of `p`, in canonical order) on
-/// stock candle ops: the `fc1` activations `[B, 64]` of observations
-/// `[B, obs_len]`. The feedforward network puts its Q head on top, the
-/// recurrent one its GRU.
-pub(crate) fn trunk(p: &[Var], shapes: Shapes, obs: &Tensor) -> Result<Tensor> {
+/// The trunk (every layer before the Q head, the first
+/// [`Layers::trunk_len`] of `p` in canonical order) on stock candle ops: the
+/// last hidden layer's activations `[B, out]` of observations `[B,
+/// obs_len]`. The feedforward network puts its Q head on top, the recurrent
+/// one its GRU.
+pub(crate) fn trunk(p: &[Var], shapes: Shapes, layers: Layers, obs: &Tensor) -> Result<Tensor> {
     let p = |i: usize| p[i].as_tensor();
     let b = obs.dim(0)?;
     let frames = shapes.frames;
+    let [c1, c2] = layers.conv();
     let img =
         obs.narrow(1, 0, frames * SIDE * SIDE)?.contiguous()?.reshape((b, frames, SIDE, SIDE))?;
-    let w1 = p(0).reshape((C1, frames, K1, K1))?;
-    let x = img.conv2d(&w1, 0, S1, 1, 1)?.broadcast_add(&p(1).reshape((1, C1, 1, 1))?)?.relu()?;
-    let w2 = p(2).reshape((C2, K2, K2, C1))?.permute((0, 3, 1, 2))?.contiguous()?;
-    let x = x.conv2d(&w2, 0, 1, 1, 1)?.broadcast_add(&p(3).reshape((1, C2, 1, 1))?)?.relu()?;
+    let w1 = p(0).reshape((c1, frames, K1, K1))?;
+    let x = img.conv2d(&w1, 0, S1, 1, 1)?.broadcast_add(&p(1).reshape((1, c1, 1, 1))?)?.relu()?;
+    let w2 = p(2).reshape((c2, K2, K2, c1))?.permute((0, 3, 1, 2))?.contiguous()?;
+    let x = x.conv2d(&w2, 0, 1, 1, 1)?.broadcast_add(&p(3).reshape((1, c2, 1, 1))?)?.relu()?;
     // 2×2 max-pool as two reductions over a split view, then channels-last.
     let x = x
-        .reshape((b, C2, HP, 2, HP, 2))?
+        .reshape((b, c2, HP, 2, HP, 2))?
         .max(5)?
         .max(3)?
         .permute((0, 2, 3, 1))?
-        .reshape((b, FEAT))?;
+        .reshape((b, layers.pooled()))?;
     // A column slice is a strided view: candle's CUDA matmul takes only
     // contiguous operands (a GPU run died here at its first update,
     // `../shared/research/scale.md`), so it is copied out first.
     let v = obs.narrow(1, shapes.obs_depth(), shapes.scalars)?.contiguous()?;
     let v = v.matmul(&p(4).t()?)?.broadcast_add(p(5))?.relu()?;
-    let h = Tensor::cat(&[&x, &v], 1)?;
-    Ok(h.matmul(&p(6).t()?)?.broadcast_add(p(7))?.relu()?)
+    let mut h = Tensor::cat(&[&x, &v], 1)?;
+    for k in 0..layers.hidden().len() {
+        h = h.matmul(&p(6 + 2 * k).t()?)?.broadcast_add(p(7 + 2 * k))?.relu()?;
+    }
+    Ok(h)
 }
 
 /// Runs `f` on the CPU slices of `vars` (each read-locked for its
@@ -133,29 +139,6 @@ pub(crate) fn with_cpu_slices<R>(
     f(&slices)
 }
 
-/// Parameter names and shapes of a network for `shapes`, in the canonical
-/// (flat) order: the observation's scalars enter `vel.weight` (the velocity
-/// branch, the goal's floats after the velocity), the actions leave `fc2`.
-pub fn params(shapes: Shapes) -> [(&'static str, Vec<usize>); 10] {
-    [
-        ("conv1.weight", vec![C1, shapes.frames * K1 * K1]),
-        ("conv1.bias", vec![C1]),
-        ("conv2.weight", vec![C2, K2 * K2 * C1]),
-        ("conv2.bias", vec![C2]),
-        ("vel.weight", vec![VEL_H, shapes.scalars]),
-        ("vel.bias", vec![VEL_H]),
-        ("fc1.weight", vec![HID, FEAT + VEL_H]),
-        ("fc1.bias", vec![HID]),
-        ("fc2.weight", vec![shapes.actions, HID]),
-        ("fc2.bias", vec![shapes.actions]),
-    ]
-}
-
-/// Number of floats in the flat weight vector of a network for `shapes`.
-pub fn num_params(shapes: Shapes) -> usize {
-    params(shapes).iter().map(|(_, s)| s.iter().product::<usize>()).sum()
-}
-
 /// Errors of the model layer.
 #[derive(Debug, thiserror::Error)]
 pub enum ModelError {
@@ -174,6 +157,9 @@ pub enum ModelError {
     /// A device that cannot be used.
     #[error("{0}")]
     Device(&'static str),
+    /// Network widths that cannot be built.
+    #[error("network widths: {0}")]
+    Layers(String),
     /// An optimiser step before a backward pass gave every parameter its
     /// gradient.
     #[error("no gradient: {0}")]
@@ -233,6 +219,7 @@ impl Scratch {
 pub struct QNet {
     params: Vec<Var>,
     shapes: Shapes,
+    layers: Layers,
     scratch: Arc<Scratch>,
     device: Device,
     fused: bool,
@@ -250,8 +237,13 @@ impl QNet {
     /// `shapes` (PyTorch's default uniform ±1/√fan_in), deterministic for a
     /// seed.
     pub fn with_shapes(shapes: Shapes, seed: u64, device: &Device) -> Result<Self> {
+        Self::with_layers(shapes, Layers::DEFAULT, seed, device)
+    }
+
+    /// [`QNet::with_shapes`] with the widths `layers`.
+    pub fn with_layers(shapes: Shapes, layers: Layers, seed: u64, device: &Device) -> Result<Self> {
         let mut rng = Pcg64Mcg::seed_from_u64(seed);
-        let specs = params(shapes);
+        let specs = params(shapes, layers);
         let mut vars = Vec::with_capacity(specs.len());
         for (i, (_, shape)) in specs.iter().enumerate() {
             // A bias shares the fan-in of the weight before it.
@@ -264,6 +256,7 @@ impl QNet {
         Ok(Self {
             params: vars,
             shapes,
+            layers,
             scratch: Arc::default(),
             device: device.clone(),
             fused: device.is_cpu(),
@@ -276,9 +269,14 @@ impl QNet {
         self.shapes
     }
 
+    /// Its widths.
+    pub fn layers(&self) -> Layers {
+        self.layers
+    }
+
     /// Floats in its flat weight vector.
     pub fn num_params(&self) -> usize {
-        num_params(self.shapes)
+        num_params(self.shapes, self.layers)
     }
 
     /// The device the network lives on.
@@ -329,25 +327,22 @@ impl QNet {
 
     /// Runs `f` on the parameters' CPU slices (read-locked for its duration).
     pub(crate) fn with_weights<R>(&self, f: impl FnOnce(&Weights) -> Result<R>) -> Result<R> {
-        with_cpu_slices(&self.params, |s| {
-            let mut w: [&[f32]; 10] = [&[]; 10];
-            w.copy_from_slice(s);
-            f(&Weights(w, self.shapes))
-        })
+        with_cpu_slices(&self.params, |s| f(&Weights::new(s, self.shapes, self.layers)))
     }
 
     /// The same network with stock candle ops (channels-first `conv2d`),
     /// differentiable by candle's autograd.
     pub(crate) fn forward_generic(&self, obs: &Tensor) -> Result<Tensor> {
         let h = self.features(obs)?;
-        Ok(h.matmul(&self.p(8).t()?)?.broadcast_add(self.p(9))?)
+        let head = self.layers.trunk_len();
+        Ok(h.matmul(&self.p(head).t()?)?.broadcast_add(self.p(head + 1))?)
     }
 
-    /// The `fc1` activations `[B, 64]` of observations `[B, obs_len]`, on
-    /// stock candle ops (the generic path up to the last layer): what the
-    /// network has learned to see, for a probe that reuses it.
+    /// The last hidden layer's activations `[B, out]` of observations `[B,
+    /// obs_len]`, on stock candle ops (the generic path up to the Q head):
+    /// what the network has learned to see, for a probe that reuses it.
     pub fn features(&self, obs: &Tensor) -> Result<Tensor> {
-        trunk(&self.params, self.shapes, obs)
+        trunk(&self.params, self.shapes, self.layers, obs)
     }
 
     /// Q-values of a flat batch of observations (`n × obs_len` floats); on
@@ -428,7 +423,7 @@ impl QNet {
         }
         self.with_weights(|w| {
             let mut off = 0;
-            for p in w.0 {
+            for p in &w.p {
                 into[off..off + p.len()].copy_from_slice(p);
                 off += p.len();
             }
@@ -447,7 +442,7 @@ impl QNet {
             });
         }
         let mut off = 0;
-        for (v, (_, shape)) in self.params.iter().zip(params(self.shapes)) {
+        for (v, (_, shape)) in self.params.iter().zip(params(self.shapes, self.layers)) {
             let n: usize = shape.iter().product();
             let part = &flat[off..off + n];
             if self.device.is_cpu() {
@@ -460,9 +455,10 @@ impl QNet {
         Ok(())
     }
 
-    /// Copies another network's weights into this one (of the same shapes).
+    /// Copies another network's weights into this one (of the same shapes
+    /// and widths).
     pub fn copy_from(&self, other: &QNet) -> Result<()> {
-        if other.shapes != self.shapes {
+        if other.shapes != self.shapes || other.layers != self.layers {
             return Err(ModelError::Shape {
                 what: "network to copy",
                 expected: self.num_params(),
@@ -477,7 +473,7 @@ impl QNet {
 
     /// The weights by name.
     pub fn named(&self) -> HashMap<String, Tensor> {
-        params(self.shapes)
+        params(self.shapes, self.layers)
             .iter()
             .zip(&self.params)
             .map(|((n, _), v)| (n.to_string(), v.as_tensor().clone()))
@@ -486,7 +482,8 @@ impl QNet {
 
     /// Loads weights by name, checking every name and shape.
     pub fn load_named(&self, tensors: &HashMap<String, Tensor>, file: &str) -> Result<()> {
-        checkpoint::load_vars(&params(self.shapes), &self.params, tensors, file, &self.device)
+        let specs = params(self.shapes, self.layers);
+        checkpoint::load_vars(&specs, &self.params, tensors, file, &self.device)
     }
 
     /// Saves the weights as safetensors, with the layout's description in
@@ -498,7 +495,7 @@ impl QNet {
     /// [`QNet::save`] with more header entries (the learner adds the hash
     /// of its run's config).
     pub fn save_with(&self, path: &Path, extra: &[(&str, String)]) -> Result<()> {
-        let mut meta = checkpoint_metadata(self.shapes);
+        let mut meta = self.metadata();
         meta.extend(extra.iter().map(|(k, v)| (k.to_string(), v.clone())));
         checkpoint::write(path, self.named(), meta)
     }
@@ -508,22 +505,26 @@ impl QNet {
     /// output `q` `(B, actions)`; the checkpoint's header entries (and
     /// `extra`) as metadata properties.
     pub fn to_onnx(&self, path: &Path, extra: &[(&str, String)]) -> Result<()> {
-        let mut meta: Vec<(String, String)> =
-            checkpoint_metadata(self.shapes).into_iter().collect();
+        let mut meta: Vec<(String, String)> = self.metadata().into_iter().collect();
         meta.extend(extra.iter().map(|(k, v)| (k.to_string(), v.clone())));
         meta.sort();
-        let bytes = onnx::model(&self.named(), self.shapes, None, &meta)?;
+        let bytes = onnx::model(&self.named(), self.shapes, self.layers, None, &meta)?;
         std::fs::write(path, bytes).map_err(|e| ModelError::Checkpoint {
             file: path.display().to_string(),
             message: format!("cannot write: {e}"),
         })
     }
 
+    /// What its checkpoints' headers say of it.
+    fn metadata(&self) -> HashMap<String, String> {
+        checkpoint::network_metadata(self.shapes, self.layers, None)
+    }
+
     /// Loads weights saved by [`QNet::save`], with a clear error for a missing,
     /// truncated or mismatched file, or one written in another layout.
     pub fn load(&self, path: &Path) -> Result<()> {
         let file = path.display().to_string();
-        let tensors = checkpoint::read(path, &self.device, &checkpoint_metadata(self.shapes))?;
+        let tensors = checkpoint::read(path, &self.device, &self.metadata())?;
         self.load_named(&tensors, &file)
     }
 }

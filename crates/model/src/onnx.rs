@@ -4,7 +4,8 @@
 //! Inputs `depth` `(B, frames, 32, 32)` and `velocity` `(B, scalars)` (the
 //! velocity, 3; with a goal, the velocity then the goal's 3), output `q`
 //! `(B, actions)`: conv 6×6/2 → ReLU → conv 3×3 → ReLU → max-pool 2 → flatten;
-//! velocity → Gemm → ReLU; concatenated → Gemm → ReLU → Gemm. The weights go
+//! velocity → Gemm → ReLU; concatenated → (Gemm → ReLU) for each hidden
+//! layer (`fc1`, then `fc1b`, `fc1c`) → Gemm. The weights go
 //! in ONNX's (PyTorch's) layout: conv2's `(out, kh, kw, in)` becomes
 //! `(out, in, kh, kw)` and fc1's pooled columns `(y, x, c)` become
 //! `(c, y, x)`, as `rotorhive.net.torch_layout` does.
@@ -20,7 +21,8 @@ use std::collections::HashMap;
 use candle_core::Tensor;
 use rotorhive_msg::protobuf::{bytes, int};
 
-use crate::{C1, C2, FEAT, HP, K1, K2, Result, S1, SIDE, Shapes, params};
+use crate::layers::{HIDDEN_NAMES, VEL_H};
+use crate::{HP, K1, K2, Layers, Result, S1, SIDE, Shapes, params};
 
 /// The IR version written (ONNX 1.14 and later read it).
 const IR_VERSION: u64 = 9;
@@ -37,43 +39,43 @@ const OPSET: u64 = 17;
 pub(crate) fn model(
     named: &HashMap<String, Tensor>,
     shapes: Shapes,
+    layers: Layers,
     width: Option<usize>,
     metadata: &[(String, String)],
 ) -> Result<Vec<u8>> {
     let (vel, actions) = (shapes.scalars, shapes.actions);
     let mut weights: HashMap<&str, Vec<f32>> = HashMap::new();
     let names = match width {
-        Some(w) => crate::recurrent_params(shapes, w),
-        None => params(shapes).to_vec(),
+        Some(w) => crate::recurrent_params(shapes, layers, w),
+        None => params(shapes, layers),
     };
-    for (name, _) in names {
-        weights.insert(name, named[name].flatten_all()?.to_vec1::<f32>()?);
+    for (name, _) in &names {
+        weights.insert(name, named[*name].flatten_all()?.to_vec1::<f32>()?);
     }
-    let (conv2, fc1) = torch_layout(&weights["conv2.weight"], &weights["fc1.weight"]);
-    let cols = FEAT + crate::VEL_H;
-    let init = |name: &str, dims: &[usize], data: &[f32]| tensor(name, dims, data);
+    let (conv2, fc1) = torch_layout(&weights["conv2.weight"], &weights["fc1.weight"], layers);
     let mut graph = Vec::new();
-    for n in nodes(width) {
+    for n in nodes(layers, width) {
         bytes(&mut graph, 1, &n);
     }
     bytes(&mut graph, 2, b"rotorhive_qnet");
-    let head = width.unwrap_or(crate::HID);
-    for t in [
-        init("conv1.weight", &[C1, shapes.frames, K1, K1], &weights["conv1.weight"]),
-        init("conv1.bias", &[C1], &weights["conv1.bias"]),
-        init("conv2.weight", &[C2, C1, K2, K2], &conv2),
-        init("conv2.bias", &[C2], &weights["conv2.bias"]),
-        init("vel.weight", &[crate::VEL_H, vel], &weights["vel.weight"]),
-        init("vel.bias", &[crate::VEL_H], &weights["vel.bias"]),
-        init("fc1.weight", &[crate::HID, cols], &fc1),
-        init("fc1.bias", &[crate::HID], &weights["fc1.bias"]),
-        init("fc2.weight", &[actions, head], &weights["fc2.weight"]),
-        init("fc2.bias", &[actions], &weights["fc2.bias"]),
-    ] {
-        bytes(&mut graph, 5, &t);
+    let [c1, c2] = layers.conv();
+    for (name, shape) in &names {
+        let dims = match *name {
+            "conv1.weight" => vec![c1, shapes.frames, K1, K1],
+            "conv2.weight" => vec![c2, c1, K2, K2],
+            _ => shape.clone(),
+        };
+        let data = match *name {
+            "conv2.weight" => &conv2,
+            "fc1.weight" => &fc1,
+            _ => &weights[name],
+        };
+        if !name.starts_with("gru.") {
+            bytes(&mut graph, 5, &tensor(name, &dims, data));
+        }
     }
     if let Some(w) = width {
-        for t in gru_initializers(&weights, w) {
+        for t in gru_initializers(&weights, w, layers.out()) {
             bytes(&mut graph, 5, &t);
         }
     }
@@ -111,14 +113,14 @@ pub(crate) fn model(
 /// The GRU's initializers in ONNX's layout (PyTorch's gate blocks r, z, n
 /// become ONNX's z, r, h; both biases in one `B`), and the axis the
 /// `Unsqueeze` nodes take.
-fn gru_initializers(weights: &HashMap<&str, Vec<f32>>, w: usize) -> [Vec<u8>; 4] {
+fn gru_initializers(weights: &HashMap<&str, Vec<f32>>, w: usize, input: usize) -> [Vec<u8>; 4] {
     let zrh = |v: &[f32]| -> Vec<f32> {
         let k = v.len() / 3;
         [&v[k..2 * k], &v[..k], &v[2 * k..]].concat()
     };
     let b = [zrh(&weights["gru.bias_ih"]), zrh(&weights["gru.bias_hh"])].concat();
     [
-        tensor("gru.W", &[1, 3 * w, crate::HID], &zrh(&weights["gru.weight_ih"])),
+        tensor("gru.W", &[1, 3 * w, input], &zrh(&weights["gru.weight_ih"])),
         tensor("gru.R", &[1, 3 * w, w], &zrh(&weights["gru.weight_hh"])),
         tensor("gru.B", &[1, 6 * w], &b),
         int64s("axis0", &[0]),
@@ -127,23 +129,24 @@ fn gru_initializers(weights: &HashMap<&str, Vec<f32>>, w: usize) -> [Vec<u8>; 4]
 
 /// conv2's `(out, kh, kw, in)` as `(out, in, kh, kw)`, and fc1's pooled
 /// columns `(y, x, c)` as `(c, y, x)`: PyTorch's (ONNX's) layouts.
-fn torch_layout(conv2: &[f32], fc1: &[f32]) -> (Vec<f32>, Vec<f32>) {
-    let conv2: Vec<f32> = (0..C2 * C1 * K2 * K2)
+fn torch_layout(conv2: &[f32], fc1: &[f32], layers: Layers) -> (Vec<f32>, Vec<f32>) {
+    let [c1, c2] = layers.conv();
+    let conv2: Vec<f32> = (0..c2 * c1 * K2 * K2)
         .map(|i| {
-            let (o, rest) = (i / (C1 * K2 * K2), i % (C1 * K2 * K2));
+            let (o, rest) = (i / (c1 * K2 * K2), i % (c1 * K2 * K2));
             let (c, ky, kx) = (rest / (K2 * K2), rest % (K2 * K2) / K2, rest % K2);
-            conv2[((o * K2 + ky) * K2 + kx) * C1 + c]
+            conv2[((o * K2 + ky) * K2 + kx) * c1 + c]
         })
         .collect();
-    let cols = FEAT + crate::VEL_H;
-    let fc1: Vec<f32> = (0..crate::HID * cols)
+    let (cols, pooled) = (layers.pooled() + VEL_H, layers.pooled());
+    let fc1: Vec<f32> = (0..layers.hidden()[0] * cols)
         .map(|i| {
             let (r, j) = (i / cols, i % cols);
-            if j >= FEAT {
+            if j >= pooled {
                 return fc1[r * cols + j];
             }
             let (c, y, x) = (j / (HP * HP), j % (HP * HP) / HP, j % HP);
-            fc1[r * cols + (y * HP + x) * C2 + c]
+            fc1[r * cols + (y * HP + x) * c2 + c]
         })
         .collect();
     (conv2, fc1)
@@ -151,8 +154,8 @@ fn torch_layout(conv2: &[f32], fc1: &[f32]) -> (Vec<f32>, Vec<f32>) {
 
 /// The graph's nodes, in order: the Q head on `fc1`'s activations, or
 /// (with a GRU of `width`) on the GRU's new state.
-fn nodes(width: Option<usize>) -> Vec<Vec<u8>> {
-    let mut all = trunk_nodes().to_vec();
+fn nodes(layers: Layers, width: Option<usize>) -> Vec<Vec<u8>> {
+    let mut all = trunk_nodes(layers);
     let Some(width) = width else {
         all.push(node("Gemm", &["h", "fc2.weight", "fc2.bias"], "q", &[], Some(("transB", 1))));
         return all;
@@ -182,9 +185,9 @@ fn gru(width: usize) -> Vec<u8> {
     n
 }
 
-/// The trunk's nodes, up to `fc1`'s activations `h`.
-fn trunk_nodes() -> [Vec<u8>; 11] {
-    [
+/// The trunk's nodes, up to the last hidden layer's activations `h`.
+fn trunk_nodes(layers: Layers) -> Vec<Vec<u8>> {
+    let mut all = vec![
         node(
             "Conv",
             &["depth", "conv1.weight", "conv1.bias"],
@@ -206,9 +209,19 @@ fn trunk_nodes() -> [Vec<u8>; 11] {
         node("Gemm", &["velocity", "vel.weight", "vel.bias"], "v1", &[], Some(("transB", 1))),
         node("Relu", &["v1"], "v", &[], None),
         node("Concat", &["features", "v"], "joined", &[], Some(("axis", 1))),
-        node("Gemm", &["joined", "fc1.weight", "fc1.bias"], "h1", &[], Some(("transB", 1))),
-        node("Relu", &["h1"], "h", &[], None),
-    ]
+    ];
+    // The hidden layers: `fc1` reads the joined features, each next one
+    // the layer before; the last one's activations are `h`.
+    let depth = layers.hidden().len();
+    let mut input = "joined".to_string();
+    for (k, [w, b]) in HIDDEN_NAMES.iter().enumerate().take(depth) {
+        let out = if k + 1 == depth { "h".to_string() } else { format!("a{}", k + 1) };
+        let pre = format!("h{}", k + 1);
+        all.push(node("Gemm", &[&input, w, b], &pre, &[], Some(("transB", 1))));
+        all.push(node("Relu", &[&pre], &out, &[], None));
+        input = out;
+    }
+    all
 }
 
 /// A `NodeProto`: inputs, one output, the operator, `ints` attributes and

@@ -8,7 +8,10 @@
 
 use std::path::Path;
 
-use crate::{Device, QNet, RecurrentQNet, Result, Shapes, checkpoint_memory, checkpoint_shapes};
+use crate::{
+    Device, Layers, QNet, RecurrentQNet, Result, Shapes, checkpoint_layers, checkpoint_memory,
+    checkpoint_shapes,
+};
 
 /// The two networks a run may train.
 enum Net {
@@ -21,20 +24,27 @@ enum Net {
 pub struct PolicyNet(Net);
 
 impl PolicyNet {
-    /// A freshly initialised network of `shapes` from `seed` on `device`,
-    /// recurrent with a GRU of `memory` units where it is given.
-    pub fn new(shapes: Shapes, memory: Option<usize>, seed: u64, device: &Device) -> Result<Self> {
+    /// A freshly initialised network of `shapes` and widths `layers` from
+    /// `seed` on `device`, recurrent with a GRU of `memory` units where it
+    /// is given.
+    pub fn new(
+        shapes: Shapes,
+        layers: Layers,
+        memory: Option<usize>,
+        seed: u64,
+        device: &Device,
+    ) -> Result<Self> {
         Ok(Self(match memory {
-            Some(w) => Net::Recurrent(RecurrentQNet::new(shapes, w, seed, device)?),
-            None => Net::Feedforward(QNet::with_shapes(shapes, seed, device)?),
+            Some(w) => Net::Recurrent(RecurrentQNet::with_layers(shapes, layers, w, seed, device)?),
+            None => Net::Feedforward(QNet::with_layers(shapes, layers, seed, device)?),
         }))
     }
 
-    /// The network a checkpoint holds (its header's shapes and memory), on
-    /// the CPU.
+    /// The network a checkpoint holds (its header's shapes, widths and
+    /// memory), on the CPU.
     pub fn load(path: &Path) -> Result<Self> {
-        let shapes = checkpoint_shapes(path)?;
-        let net = Self::new(shapes, checkpoint_memory(path)?, 0, &Device::Cpu)?;
+        let (shapes, layers) = (checkpoint_shapes(path)?, checkpoint_layers(path)?);
+        let net = Self::new(shapes, layers, checkpoint_memory(path)?, 0, &Device::Cpu)?;
         net.load_checkpoint(path)?;
         Ok(net)
     }
@@ -58,6 +68,14 @@ impl PolicyNet {
         match &self.0 {
             Net::Feedforward(n) => n.shapes(),
             Net::Recurrent(n) => n.shapes(),
+        }
+    }
+
+    /// Its widths.
+    pub fn layers(&self) -> Layers {
+        match &self.0 {
+            Net::Feedforward(n) => n.layers(),
+            Net::Recurrent(n) => n.layers(),
         }
     }
 
@@ -140,6 +158,7 @@ impl PolicyNet {
 
 impl std::fmt::Debug for PolicyNet {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "PolicyNet {{ shapes: {:?}, memory: {:?} }}", self.shapes(), self.memory())
+        let (shapes, layers, memory) = (self.shapes(), self.layers().name(), self.memory());
+        write!(f, "PolicyNet {{ shapes: {shapes:?}, layers: {layers}, memory: {memory:?} }}")
     }
 }

@@ -25,23 +25,29 @@ use candle_core::{D, DType, Device, Tensor, Var};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
-use crate::checkpoint::{self, recurrent_metadata};
+use crate::checkpoint;
 use crate::dqn::{Adam, UpdateTiming};
 use crate::kernels::{Rows, Weights, Workspace, offsets};
+use crate::layers::trunk_params;
 use crate::teaching::Teaching;
-use crate::{HID, ModelError, Result, Scratch, Shapes, argmax, params, trunk};
+use crate::{Layers, ModelError, Result, Scratch, Shapes, argmax, trunk};
 
 /// The widest GRU a network may have.
 pub const MAX_WIDTH: usize = 1024;
 
-/// Parameter names and shapes of a recurrent network for `shapes` with a
-/// GRU of `width` units, in canonical (flat) order: the feedforward
-/// network's first eight (up to `fc1`), the GRU's in PyTorch's layout (gates
-/// r, z, n stacked), then the Q head on the GRU's state.
-pub fn recurrent_params(shapes: Shapes, width: usize) -> Vec<(&'static str, Vec<usize>)> {
-    let mut p: Vec<_> = params(shapes).into_iter().take(8).collect();
+/// Parameter names and shapes of a recurrent network for `shapes` of
+/// widths `layers` with a GRU of `width` units, in canonical (flat) order:
+/// the feedforward network's trunk (up to its last hidden layer), the GRU's
+/// in PyTorch's layout (gates r, z, n stacked), then the Q head on the
+/// GRU's state.
+pub fn recurrent_params(
+    shapes: Shapes,
+    layers: Layers,
+    width: usize,
+) -> Vec<(&'static str, Vec<usize>)> {
+    let mut p = trunk_params(shapes, layers);
     p.extend([
-        ("gru.weight_ih", vec![3 * width, HID]),
+        ("gru.weight_ih", vec![3 * width, layers.out()]),
         ("gru.weight_hh", vec![3 * width, width]),
         ("gru.bias_ih", vec![3 * width]),
         ("gru.bias_hh", vec![3 * width]),
@@ -56,6 +62,7 @@ pub fn recurrent_params(shapes: Shapes, width: usize) -> Vec<(&'static str, Vec<
 pub struct RecurrentQNet {
     params: Vec<Var>,
     shapes: Shapes,
+    layers: Layers,
     width: usize,
     device: Device,
     fused: bool,
@@ -67,17 +74,29 @@ impl RecurrentQNet {
     /// ±1/√fan_in, the GRU's and the head's ±1/√width), deterministic for a
     /// seed. A width of 0 or above [`MAX_WIDTH`] is refused.
     pub fn new(shapes: Shapes, width: usize, seed: u64, device: &Device) -> Result<Self> {
+        Self::with_layers(shapes, Layers::DEFAULT, width, seed, device)
+    }
+
+    /// [`RecurrentQNet::new`] with a trunk of widths `layers`.
+    pub fn with_layers(
+        shapes: Shapes,
+        layers: Layers,
+        width: usize,
+        seed: u64,
+        device: &Device,
+    ) -> Result<Self> {
         if width == 0 || width > MAX_WIDTH {
             return Err(ModelError::Shape { what: "GRU width", expected: MAX_WIDTH, got: width });
         }
         let mut rng = Pcg64Mcg::seed_from_u64(seed);
-        let specs = recurrent_params(shapes, width);
+        let specs = recurrent_params(shapes, layers, width);
+        let trunk = layers.trunk_len();
         let mut vars = Vec::with_capacity(specs.len());
         for (i, (_, shape)) in specs.iter().enumerate() {
             let fan_in = match i {
-                0..8 if i % 2 == 0 => shape[1],
-                0..8 => specs[i - 1].1[1],
-                _ => width,
+                _ if i >= trunk => width,
+                _ if i % 2 == 0 => shape[1],
+                _ => specs[i - 1].1[1],
             };
             let bound = 1.0 / (fan_in as f32).sqrt();
             let n: usize = shape.iter().product();
@@ -87,6 +106,7 @@ impl RecurrentQNet {
         Ok(Self {
             params: vars,
             shapes,
+            layers,
             width,
             device: device.clone(),
             fused: device.is_cpu(),
@@ -109,34 +129,30 @@ impl RecurrentQNet {
         Ok(())
     }
 
-    /// Runs `f` on the trunk's CPU slices (read-locked for its duration),
-    /// with a zero feedforward head in the two slots the kernels expect
-    /// (its Q-values are computed and never read).
+    /// Runs `f` on the trunk's CPU slices (read-locked for its duration):
+    /// weights without a Q head, whose forward pass stops at the trunk.
     fn with_trunk<R>(&self, f: impl FnOnce(&Weights) -> Result<R>) -> Result<R> {
-        let head = vec![0.0f32; self.shapes.actions * (HID + 1)];
-        crate::with_cpu_slices(&self.params[..8], |s| {
-            let mut w: [&[f32]; 10] = [&[]; 10];
-            w[..8].copy_from_slice(s);
-            (w[8], w[9]) = head.split_at(self.shapes.actions * HID);
-            f(&Weights(w, self.shapes))
+        crate::with_cpu_slices(&self.params[..self.layers.trunk_len()], |s| {
+            f(&Weights::new(s, self.shapes, self.layers))
         })
     }
 
-    /// The trunk's activations `[rows, 64]` of flat observations on the
+    /// The trunk's activations `[rows, out]` of flat observations on the
     /// fused path, in `ws` (kept there for [`Workspace::backward_trunk`]).
     fn trunk_fused(&self, ws: &mut Workspace, obs: &[f32]) -> Result<Tensor> {
         let len = self.shapes.obs_len();
         let n = self.with_trunk(|w| ws.forward(w, &[Rows::packed(obs, len)]))?;
-        Ok(Tensor::from_slice(ws.trunk_out(n), (n, HID), &self.device)?)
+        let out = ws.trunk_out(n, self.layers);
+        Ok(Tensor::from_slice(out, (n, self.layers.out()), &self.device)?)
     }
 
-    /// The trunk's activations `[rows, 64]` of flat observations, on either
-    /// path (differentiable on the generic one).
+    /// The trunk's activations `[rows, out]` of flat observations, on
+    /// either path (differentiable on the generic one).
     fn features(&self, obs: &[f32]) -> Result<Tensor> {
         let len = self.shapes.obs_len();
         if !self.fused {
             let o = Tensor::from_slice(obs, (obs.len() / len, len), &self.device)?;
-            return trunk(&self.params, self.shapes, &o);
+            return trunk(&self.params, self.shapes, self.layers, &o);
         }
         let mut ws = self.scratch.take();
         let feat = self.trunk_fused(&mut ws, obs);
@@ -147,6 +163,11 @@ impl RecurrentQNet {
     /// The observation and action shapes the network takes and gives.
     pub fn shapes(&self) -> Shapes {
         self.shapes
+    }
+
+    /// The trunk's widths.
+    pub fn layers(&self) -> Layers {
+        self.layers
     }
 
     /// Units of the GRU: floats of one agent's state.
@@ -161,7 +182,7 @@ impl RecurrentQNet {
 
     /// Floats in its flat weight vector.
     pub fn num_params(&self) -> usize {
-        recurrent_params(self.shapes, self.width)
+        recurrent_params(self.shapes, self.layers, self.width)
             .iter()
             .map(|(_, s)| s.iter().product::<usize>())
             .sum()
@@ -175,7 +196,8 @@ impl RecurrentQNet {
     /// `[B, 3W]`) and the state `h` (`[B, W]`): the new state.
     fn cell(&self, xp: &Tensor, h: &Tensor) -> Result<Tensor> {
         let w = self.width;
-        let hp = h.matmul(&self.p(9).t()?)?.broadcast_add(self.p(11))?;
+        let g = self.layers.trunk_len();
+        let hp = h.matmul(&self.p(g + 1).t()?)?.broadcast_add(self.p(g + 3))?;
         // σ(x) = 1 / (1 + e^−x): candle-core has no sigmoid of its own.
         let sigmoid =
             |x: Tensor| -> Result<Tensor> { Ok(x.neg()?.exp()?.affine(1.0, 1.0)?.recip()?) };
@@ -196,13 +218,13 @@ impl RecurrentQNet {
         let feat = if self.fused {
             self.features(&obs.flatten_all()?.to_vec1::<f32>()?)?
         } else {
-            trunk(&self.params, self.shapes, &obs.reshape((t * b, len))?)?
+            trunk(&self.params, self.shapes, self.layers, &obs.reshape((t * b, len))?)?
         };
         self.unroll_features(&feat, t, b, h0, keep)
     }
 
     /// [`RecurrentQNet::unroll`] from the trunk's activations `feat`
-    /// `[T × B, 64]` (step major).
+    /// `[T × B, out]` (step major).
     fn unroll_features(
         &self,
         feat: &Tensor,
@@ -211,8 +233,9 @@ impl RecurrentQNet {
         h0: &Tensor,
         keep: &Tensor,
     ) -> Result<(Tensor, Tensor)> {
-        let w = self.width;
-        let xp = feat.matmul(&self.p(8).t()?)?.broadcast_add(self.p(10))?.reshape((t, b, 3 * w))?;
+        let (w, g) = (self.width, self.layers.trunk_len());
+        let xp = feat.matmul(&self.p(g).t()?)?.broadcast_add(self.p(g + 2))?;
+        let xp = xp.reshape((t, b, 3 * w))?;
         let mut h = h0.clone();
         let mut states = Vec::with_capacity(t);
         for s in 0..t {
@@ -221,7 +244,7 @@ impl RecurrentQNet {
             states.push(h.clone());
         }
         let hs = Tensor::stack(&states, 0)?.reshape((t * b, w))?;
-        let q = hs.matmul(&self.p(12).t()?)?.broadcast_add(self.p(13))?;
+        let q = hs.matmul(&self.p(g + 4).t()?)?.broadcast_add(self.p(g + 5))?;
         Ok((q.reshape((t, b, self.shapes.actions))?, h))
     }
 
@@ -262,7 +285,7 @@ impl RecurrentQNet {
 
     /// The weights by name.
     pub fn named(&self) -> HashMap<String, Tensor> {
-        recurrent_params(self.shapes, self.width)
+        recurrent_params(self.shapes, self.layers, self.width)
             .iter()
             .zip(&self.params)
             .map(|((n, _), v)| (n.to_string(), v.as_tensor().clone()))
@@ -272,18 +295,22 @@ impl RecurrentQNet {
     /// Saves the weights as safetensors, the header naming the memory
     /// (`memory = "gru:WIDTH"`) with the shapes, and `extra` entries.
     pub fn save(&self, path: &Path, extra: &[(&str, String)]) -> Result<()> {
-        let mut meta = recurrent_metadata(self.shapes, Some(self.width));
+        let mut meta = self.metadata();
         meta.extend(extra.iter().map(|(k, v)| (k.to_string(), v.clone())));
         checkpoint::write(path, self.named(), meta)
+    }
+
+    /// What its checkpoints' headers say of it.
+    fn metadata(&self) -> HashMap<String, String> {
+        checkpoint::network_metadata(self.shapes, self.layers, Some(self.width))
     }
 
     /// Loads weights saved by [`RecurrentQNet::save`]; a checkpoint of
     /// another memory (a feedforward network's, another width) or other
     /// shapes is refused by name.
     pub fn load(&self, path: &Path) -> Result<()> {
-        let ours = recurrent_metadata(self.shapes, Some(self.width));
-        let tensors = checkpoint::read(path, &self.device, &ours)?;
-        let specs = recurrent_params(self.shapes, self.width);
+        let tensors = checkpoint::read(path, &self.device, &self.metadata())?;
+        let specs = recurrent_params(self.shapes, self.layers, self.width);
         let file = path.display().to_string();
         checkpoint::load_vars(&specs, &self.params, &tensors, &file, &self.device)
     }
@@ -293,11 +320,11 @@ impl RecurrentQNet {
     /// `(B, actions)` and `next_state` `(B, width)`, one step; the
     /// checkpoint's header entries (and `extra`) as metadata properties.
     pub fn to_onnx(&self, path: &Path, extra: &[(&str, String)]) -> Result<()> {
-        let mut meta: Vec<(String, String)> =
-            recurrent_metadata(self.shapes, Some(self.width)).into_iter().collect();
+        let mut meta: Vec<(String, String)> = self.metadata().into_iter().collect();
         meta.extend(extra.iter().map(|(k, v)| (k.to_string(), v.clone())));
         meta.sort();
-        let bytes = crate::onnx::model(&self.named(), self.shapes, Some(self.width), &meta)?;
+        let (shapes, layers, width) = (self.shapes, self.layers, Some(self.width));
+        let bytes = crate::onnx::model(&self.named(), shapes, layers, width, &meta)?;
         std::fs::write(path, bytes).map_err(|e| ModelError::Checkpoint {
             file: path.display().to_string(),
             message: format!("cannot write: {e}"),
@@ -315,7 +342,8 @@ impl RecurrentQNet {
             });
         }
         let mut off = 0;
-        for (v, (_, shape)) in self.params.iter().zip(recurrent_params(self.shapes, self.width)) {
+        let specs = recurrent_params(self.shapes, self.layers, self.width);
+        for (v, (_, shape)) in self.params.iter().zip(specs) {
             let n: usize = shape.iter().product();
             v.set(&Tensor::from_slice(&flat[off..off + n], shape.as_slice(), &self.device)?)?;
             off += n;
@@ -344,7 +372,7 @@ impl RecurrentQNet {
     /// Copies another network's weights into this one (of the same shapes
     /// and width).
     pub fn copy_from(&self, other: &RecurrentQNet) -> Result<()> {
-        if other.shapes != self.shapes || other.width != self.width {
+        if other.shapes != self.shapes || other.layers != self.layers || other.width != self.width {
             return Err(ModelError::Shape {
                 what: "recurrent network to copy",
                 expected: self.num_params(),
@@ -412,9 +440,21 @@ impl SeqDqn {
         seed: u64,
         device: &Device,
     ) -> Result<Self> {
-        let online = RecurrentQNet::new(shapes, width, seed, device)?;
-        let target = RecurrentQNet::new(shapes, width, seed, device)?;
-        let sizes = recurrent_params(shapes, width);
+        Self::with_layers(cfg, shapes, Layers::DEFAULT, width, seed, device)
+    }
+
+    /// [`SeqDqn::new`] with trunks of widths `layers`.
+    pub fn with_layers(
+        cfg: SeqConfig,
+        shapes: Shapes,
+        layers: Layers,
+        width: usize,
+        seed: u64,
+        device: &Device,
+    ) -> Result<Self> {
+        let online = RecurrentQNet::with_layers(shapes, layers, width, seed, device)?;
+        let target = RecurrentQNet::with_layers(shapes, layers, width, seed, device)?;
+        let sizes = recurrent_params(shapes, layers, width);
         let sizes = sizes.iter().map(|(_, s)| s.iter().product::<usize>());
         let opt = Adam::with_sizes((cfg.lr, cfg.lr, 0), sizes);
         let work = Workspace::default();
@@ -473,7 +513,7 @@ impl SeqDqn {
     /// step) as one safetensors file, atomically: a restarted learner goes
     /// on as if it had not stopped ([`SeqDqn::load_state`]).
     pub fn save_state(&self, path: &Path) -> Result<()> {
-        let specs = recurrent_params(self.online.shapes, self.online.width);
+        let specs = recurrent_params(self.online.shapes, self.online.layers, self.online.width);
         let nets = (&self.online.params[..], &self.target.params[..]);
         let o = &self.opt;
         checkpoint::save_state(path, &specs, nets, (&o.m, &o.v, o.t), o.t)
@@ -482,7 +522,7 @@ impl SeqDqn {
     /// Restores a state written by [`SeqDqn::save_state`], checking every
     /// tensor (one of another memory or width is refused by name).
     pub fn load_state(&mut self, path: &Path) -> Result<()> {
-        let specs = recurrent_params(self.online.shapes, self.online.width);
+        let specs = recurrent_params(self.online.shapes, self.online.layers, self.online.width);
         let st = checkpoint::read_state(path, &specs)?;
         let (file, dev) = (path.display().to_string(), self.online.device.clone());
         checkpoint::load_vars(&specs, &self.online.params, &st.online, &file, &dev)?;
@@ -634,11 +674,13 @@ impl SeqDqn {
         let mut flat = Vec::with_capacity(self.online.num_params());
         let first = match leaf {
             Some(leaf) => {
-                self.work.trunk_grad(rows).copy_from_slice(&grad_of(leaf.as_tensor())?);
+                let layers = self.online.layers;
+                self.work.trunk_grad(rows, layers).copy_from_slice(&grad_of(leaf.as_tensor())?);
                 let (online, work) = (&self.online, &mut self.work);
                 online.with_trunk(|w| work.backward_trunk(w, rows))?;
-                flat.extend_from_slice(&self.work.grads[..offsets(self.online.shapes)[8]]);
-                8
+                let t = layers.trunk_len();
+                flat.extend_from_slice(&self.work.grads[..offsets(self.online.shapes, layers)[t]]);
+                t
             }
             None => 0,
         };

@@ -67,7 +67,7 @@ fn autograd(dqn: &Dqn, batch: &[f32]) -> Vec<f32> {
 
 /// The slice of parameter `i` in a flat vector of a network for `shapes`.
 fn part(flat: &[f32], shapes: Shapes, i: usize) -> &[f32] {
-    let off = kernels::offsets(shapes);
+    let off = kernels::offsets(shapes, Layers::DEFAULT);
     &flat[off[i]..off[i + 1]]
 }
 
@@ -98,27 +98,35 @@ fn forward_matches_stock_candle_convolutions() {
 /// convolutions, pooling to its argmax, ReLU masks, the TD-Huber loss)
 /// against candle's autograd over stock ops, plain and double DQN, one shard
 /// and two, for the paper's shapes, a goal task's (six scalars, three
-/// actions) and one of four depth frames.
+/// actions) and one of four depth frames, and for networks of other widths
+/// (other channels, two and three hidden layers).
 #[test]
 fn fused_gradients_match_stock_candle() {
     let goal = Shapes::task(FRAMES, true, true);
-    for (seed, double, threads, shapes) in [
-        (1, false, 1, Shapes::PAPER),
-        (2, true, 1, Shapes::PAPER),
-        (3, true, 2, Shapes::PAPER),
-        (4, true, 2, goal),
-        (5, true, 2, Shapes::task(4, false, false)),
+    let wide = Layers::new(&[8, 24], &[48, 20]).unwrap();
+    let deep = Layers::new(&[20, 12], &[40, 24, 16]).unwrap();
+    for (seed, double, threads, shapes, layers) in [
+        (1, false, 1, Shapes::PAPER, Layers::DEFAULT),
+        (2, true, 1, Shapes::PAPER, Layers::DEFAULT),
+        (3, true, 2, Shapes::PAPER, Layers::DEFAULT),
+        (4, true, 2, goal, Layers::DEFAULT),
+        (5, true, 2, Shapes::task(4, false, false), Layers::DEFAULT),
+        (6, true, 1, Shapes::PAPER, wide),
+        (7, true, 2, goal, deep),
     ] {
-        let mut dqn = Dqn::with_shapes(cfg(double), shapes, seed, &Device::Cpu).unwrap();
+        let mut dqn = Dqn::with_layers(cfg(double), shapes, layers, seed, &Device::Cpu).unwrap();
         dqn.set_threads(threads);
-        dqn.target.load_flat(&random(num_params(shapes), seed + 50, -0.1, 0.1)).unwrap();
+        let n = num_params(shapes, layers);
+        dqn.target.load_flat(&random(n, seed + 50, -0.1, 0.1)).unwrap();
         let batch = transitions_of(shapes, 17, seed + 20);
         let (l1, fused) = dqn.gradients(&batch).unwrap();
         let plain = autograd(&dqn, &batch);
         let l2 = dqn.loss(&batch).unwrap().to_scalar::<f32>().unwrap();
         assert!((l1 - l2).abs() <= 1e-4 * l2.abs().max(1.0), "loss {l1} vs {l2}");
-        for (i, (name, _)) in params(shapes).iter().enumerate() {
-            close(part(&fused, shapes, i), part(&plain, shapes, i), 1e-3, name);
+        let off = kernels::offsets(shapes, layers);
+        for (i, (name, _)) in params(shapes, layers).iter().enumerate() {
+            let (a, b) = (&fused[off[i]..off[i + 1]], &plain[off[i]..off[i + 1]]);
+            close(a, b, 1e-3, &format!("{name} of {}", layers.name()));
         }
         dqn.set_fused(false).unwrap();
         let (l3, generic) = dqn.gradients(&batch).unwrap();
@@ -148,7 +156,9 @@ fn the_margin_losss_gradients_match_stock_candle() {
     for (seed, threads, shapes) in [(1, 1, Shapes::PAPER), (2, 2, Shapes::PAPER), (3, 2, goal)] {
         let mut dqn = Dqn::with_shapes(cfg(true), shapes, seed, &Device::Cpu).unwrap();
         dqn.set_threads(threads);
-        dqn.target.load_flat(&random(num_params(shapes), seed + 50, -0.1, 0.1)).unwrap();
+        dqn.target
+            .load_flat(&random(num_params(shapes, Layers::DEFAULT), seed + 50, -0.1, 0.1))
+            .unwrap();
         let batch = labelled(shapes, 19, seed + 20);
         let plain_batch = transitions_of(shapes, 19, seed + 20);
         let (l0, g0) = dqn.gradients(&plain_batch).unwrap();
@@ -163,7 +173,7 @@ fn the_margin_losss_gradients_match_stock_candle() {
         let plain = autograd(&dqn, &batch);
         let l2 = dqn.loss(&batch).unwrap().to_scalar::<f32>().unwrap();
         assert!((l1 - l2).abs() <= 1e-4 * l2.abs().max(1.0), "loss {l1} vs {l2}");
-        for (i, (name, _)) in params(shapes).iter().enumerate() {
+        for (i, (name, _)) in params(shapes, Layers::DEFAULT).iter().enumerate() {
             close(part(&fused, shapes, i), part(&plain, shapes, i), 1e-3, name);
         }
         assert!(fused.iter().zip(&g0).any(|(a, b)| a != b), "the margin moves the gradient");
@@ -201,7 +211,9 @@ fn the_imitation_losss_gradients_match_stock_candle() {
     for (seed, threads, shapes) in [(1, 1, Shapes::PAPER), (2, 2, Shapes::PAPER), (3, 2, goal)] {
         let mut dqn = Dqn::with_shapes(cfg(true), shapes, seed, &Device::Cpu).unwrap();
         dqn.set_threads(threads);
-        dqn.target.load_flat(&random(num_params(shapes), seed + 50, -0.1, 0.1)).unwrap();
+        dqn.target
+            .load_flat(&random(num_params(shapes, Layers::DEFAULT), seed + 50, -0.1, 0.1))
+            .unwrap();
         let mut batch = labelled(shapes, 19, seed + 20);
         let ol = shapes.obs_len();
         for (i, t) in batch.chunks_exact_mut(shapes.transition_len()).enumerate() {
@@ -221,7 +233,7 @@ fn the_imitation_losss_gradients_match_stock_candle() {
         let plain = autograd(&dqn, &batch);
         let l2 = dqn.loss(&batch).unwrap().to_scalar::<f32>().unwrap();
         assert!((l1 - l2).abs() <= 1e-4 * l2.abs().max(1.0), "loss {l1} vs {l2}");
-        for (i, (name, _)) in params(shapes).iter().enumerate() {
+        for (i, (name, _)) in params(shapes, Layers::DEFAULT).iter().enumerate() {
             close(part(&fused, shapes, i), part(&plain, shapes, i), 1e-3, name);
         }
         assert!(fused.iter().zip(&g0).any(|(a, b)| a != b), "imitation moves the gradient");
@@ -383,7 +395,9 @@ fn gradients_match_finite_differences() {
     let dev = Device::Cpu;
     let mut dqn = Dqn::new(cfg(false), 4, &dev).unwrap();
     // Push the target net away from the online one so the TD error is not zero.
-    dqn.target.load_flat(&random(num_params(Shapes::PAPER), 99, -0.1, 0.1)).unwrap();
+    dqn.target
+        .load_flat(&random(num_params(Shapes::PAPER, Layers::DEFAULT), 99, -0.1, 0.1))
+        .unwrap();
     let n = 6;
     let mut data = random(n * TRANSITION_LEN, 5, 0.0, 1.0);
     for i in 0..n {
@@ -398,11 +412,12 @@ fn gradients_match_finite_differences() {
     let mut rng = Pcg64Mcg::seed_from_u64(7);
     let mut off = 0;
     let mut checked = 0;
-    for (pi, (name, shape)) in params(Shapes::PAPER).iter().enumerate() {
+    for (pi, (name, shape)) in params(Shapes::PAPER, Layers::DEFAULT).iter().enumerate() {
         let len: usize = shape.iter().product();
         assert_eq!(
             len,
-            kernels::offsets(Shapes::PAPER)[pi + 1] - kernels::offsets(Shapes::PAPER)[pi],
+            kernels::offsets(Shapes::PAPER, Layers::DEFAULT)[pi + 1]
+                - kernels::offsets(Shapes::PAPER, Layers::DEFAULT)[pi],
             "{name}"
         );
         let g = part(&grads, Shapes::PAPER, pi).to_vec();
@@ -446,10 +461,10 @@ fn flat_weights_and_checkpoints_round_trip() {
     assert_ne!(a.to_flat().unwrap(), b.to_flat().unwrap());
     b.load_flat(&a.to_flat().unwrap()).unwrap();
     assert_eq!(a.to_flat().unwrap(), b.to_flat().unwrap());
-    assert_eq!(a.to_flat().unwrap().len(), num_params(Shapes::PAPER));
+    assert_eq!(a.to_flat().unwrap().len(), num_params(Shapes::PAPER, Layers::DEFAULT));
     // Written straight into a buffer (as into a loaned message): the same
     // floats; a buffer of the wrong size is refused.
-    let mut buf = vec![f32::NAN; num_params(Shapes::PAPER)];
+    let mut buf = vec![f32::NAN; num_params(Shapes::PAPER, Layers::DEFAULT)];
     b.write_flat(&mut buf).unwrap();
     assert_eq!(buf, a.to_flat().unwrap());
     assert!(b.write_flat(&mut buf[1..]).unwrap_err().to_string().contains("weights buffer"));
@@ -544,6 +559,46 @@ fn flat_weights_and_checkpoints_round_trip() {
         let e = checkpoint_shapes(&path).unwrap_err().to_string();
         assert!(e.contains(claim), "{e}");
     }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A network of other widths: its header names them, a network of the
+/// design's widths refuses it by name (and it the design's), `PolicyNet`
+/// and `checkpoint_layers` load it as it is, with or without memory.
+#[test]
+fn a_network_of_other_widths_round_trips_and_is_refused_by_name() {
+    let dev = Device::Cpu;
+    let dir = std::env::temp_dir().join(format!("rotorhive-layers-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("w.safetensors");
+    let layers = Layers::new(&[24, 40], &[96, 32]).unwrap();
+    let obs = random(3 * OBS_LEN, 4, 0.0, 1.0);
+    for memory in [None, Some(8)] {
+        let a = PolicyNet::new(Shapes::PAPER, layers, memory, 3, &dev).unwrap();
+        a.save(&path, &[]).unwrap();
+        assert_eq!(checkpoint_layers(&path).unwrap(), layers);
+        assert_eq!(checkpoint_memory(&path).unwrap(), memory);
+        let b = PolicyNet::load(&path).unwrap();
+        assert_eq!((b.layers(), b.memory()), (layers, memory));
+        let (mut sa, mut sb) = (Vec::new(), Vec::new());
+        assert_eq!(a.q_values(&obs, &mut sa).unwrap(), b.q_values(&obs, &mut sb).unwrap());
+        let plain = PolicyNet::new(Shapes::PAPER, Layers::DEFAULT, memory, 0, &dev).unwrap();
+        let e = plain.load_checkpoint(&path).unwrap_err().to_string();
+        assert!(
+            e.contains("layers conv:24,40 hidden:96,32 (this network: conv:16,32 hidden:64)"),
+            "{e}"
+        );
+        plain.save(&path, &[]).unwrap();
+        let e = a.load_checkpoint(&path).unwrap_err().to_string();
+        assert!(e.contains("layers conv:16,32 hidden:64 (this network: conv:24,40"), "{e}");
+    }
+    // The design's network names no widths: its header is an earlier
+    // build's.
+    QNet::new(1, &dev).unwrap().save(&path).unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    let (_, header) = safetensors::SafeTensors::read_metadata(&bytes).unwrap();
+    assert!(!header.metadata().clone().unwrap().contains_key("layers"));
+    assert_eq!(checkpoint_layers(&path).unwrap(), Layers::DEFAULT);
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

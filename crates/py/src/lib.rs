@@ -25,7 +25,8 @@ use rand_pcg::Pcg64Mcg;
 use rotorhive_config::Config;
 use rotorhive_config::SimSection;
 use rotorhive_model::{
-    Device, FRAMES, QNet, RecurrentQNet, Shapes, checkpoint_memory, checkpoint_shapes, params,
+    Device, FRAMES, Layers, QNet, RecurrentQNet, Shapes, checkpoint_layers, checkpoint_memory,
+    checkpoint_shapes, params,
 };
 use rotorhive_sim::view::{self, Canvas, Focus, Tracks};
 use rotorhive_sim::{Arena, Autoreset, GpuError, VecEnv};
@@ -527,28 +528,47 @@ impl QNetwork {
     /// A freshly initialised network, deterministic for a seed: for the
     /// paper's task, or with the goal's floats in its observation (`goal`),
     /// the hold action (`hold`), another count of depth frames (`frames`)
-    /// and frames further apart (`frame_stride` action periods).
+    /// and frames further apart (`frame_stride` action periods); of the
+    /// widths `conv_channels` (two) and `hidden` (one to three), as
+    /// `learner.conv_channels` and `learner.hidden`.
     #[new]
-    #[pyo3(signature = (seed=0, goal=false, hold=false, frames=FRAMES, frame_stride=1))]
+    #[pyo3(signature = (seed=0, goal=false, hold=false, frames=FRAMES, frame_stride=1, conv_channels=vec![16, 32], hidden=vec![64]))]
     fn new(
         seed: u64,
         goal: bool,
         hold: bool,
         frames: usize,
         frame_stride: usize,
+        conv_channels: Vec<usize>,
+        hidden: Vec<usize>,
     ) -> PyResult<Self> {
         let shapes = task_shapes(goal, hold, frames, frame_stride)?;
-        Ok(Self { net: QNet::with_shapes(shapes, seed, &Device::Cpu).map_err(model_error)? })
+        let layers = Layers::new(&conv_channels, &hidden).map_err(model_error)?;
+        let net = QNet::with_layers(shapes, layers, seed, &Device::Cpu).map_err(model_error)?;
+        Ok(Self { net })
     }
 
     /// Loads a checkpoint written by `hive train` (`checkpoints/*.safetensors`),
-    /// of the shapes its header gives.
+    /// of the shapes and widths its header gives.
     #[staticmethod]
     fn load(path: PathBuf) -> PyResult<Self> {
         let shapes = checkpoint_shapes(&path).map_err(model_error)?;
-        let net = QNet::with_shapes(shapes, 0, &Device::Cpu).map_err(model_error)?;
+        let layers = checkpoint_layers(&path).map_err(model_error)?;
+        let net = QNet::with_layers(shapes, layers, 0, &Device::Cpu).map_err(model_error)?;
         net.load(&path).map_err(model_error)?;
         Ok(Self { net })
+    }
+
+    /// The two convolutions' channels.
+    #[getter]
+    fn conv_channels(&self) -> Vec<usize> {
+        self.net.layers().conv().to_vec()
+    }
+
+    /// The hidden layers' widths.
+    #[getter]
+    fn hidden(&self) -> Vec<usize> {
+        self.net.layers().hidden().to_vec()
     }
 
     /// Floats of one flat observation (2051, or 2054 with a goal).
@@ -610,7 +630,7 @@ impl QNetwork {
     fn weights<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let d = PyDict::new(py);
         let named = self.net.named();
-        for (name, shape) in params(self.net.shapes()) {
+        for (name, shape) in params(self.net.shapes(), self.net.layers()) {
             let data: Vec<f32> = named[name]
                 .flatten_all()
                 .and_then(|t| t.to_vec1())
@@ -636,7 +656,8 @@ impl RecurrentQNetwork {
     /// A freshly initialised network, deterministic for a seed, with a GRU
     /// of `width` units (the other arguments as `QNetwork`'s).
     #[new]
-    #[pyo3(signature = (width=64, seed=0, goal=false, hold=false, frames=FRAMES, frame_stride=1))]
+    #[pyo3(signature = (width=64, seed=0, goal=false, hold=false, frames=FRAMES, frame_stride=1, conv_channels=vec![16, 32], hidden=vec![64]))]
+    #[allow(clippy::too_many_arguments)]
     fn new(
         width: usize,
         seed: u64,
@@ -644,11 +665,14 @@ impl RecurrentQNetwork {
         hold: bool,
         frames: usize,
         frame_stride: usize,
+        conv_channels: Vec<usize>,
+        hidden: Vec<usize>,
     ) -> PyResult<Self> {
         let shapes = task_shapes(goal, hold, frames, frame_stride)?;
-        Ok(Self {
-            net: RecurrentQNet::new(shapes, width, seed, &Device::Cpu).map_err(model_error)?,
-        })
+        let layers = Layers::new(&conv_channels, &hidden).map_err(model_error)?;
+        let net = RecurrentQNet::with_layers(shapes, layers, width, seed, &Device::Cpu)
+            .map_err(model_error)?;
+        Ok(Self { net })
     }
 
     /// Loads a checkpoint whose header names a memory (`gru:WIDTH`), of the
@@ -662,7 +686,9 @@ impl RecurrentQNetwork {
                 path.display()
             )));
         };
-        let net = RecurrentQNet::new(shapes, width, 0, &Device::Cpu).map_err(model_error)?;
+        let layers = checkpoint_layers(&path).map_err(model_error)?;
+        let net = RecurrentQNet::with_layers(shapes, layers, width, 0, &Device::Cpu)
+            .map_err(model_error)?;
         net.load(&path).map_err(model_error)?;
         Ok(Self { net })
     }

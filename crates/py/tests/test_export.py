@@ -103,6 +103,41 @@ def test_a_goal_network_exports_its_own_shapes(tmp_path):
         loaded.q_values(np.zeros((1, 2051), np.float32))
 
 
+def test_a_network_of_other_widths_round_trips_through_a_checkpoint_onnx_and_numpy(tmp_path):
+    import onnx
+    import onnxruntime as ort
+
+    from rotorhive.net import load_checkpoint, numpy_q_values
+
+    net = rotorhive.QNetwork(seed=4, conv_channels=[24, 40], hidden=[96, 32])
+    path = tmp_path / "wide.safetensors"
+    net.save(str(path))
+    back = rotorhive.QNetwork.load(str(path))
+    assert (back.conv_channels, back.hidden) == ([24, 40], [96, 32])
+    depth, vel = observations(25)
+    want = back.q_values(flat_observations(depth, vel))
+    np.testing.assert_allclose(numpy_q_values(load_checkpoint(path), depth, vel), want, rtol=1e-4, atol=1e-5)
+    out = export_onnx(path, tmp_path / "wide.onnx")
+    model = onnx.load(out)
+    onnx.checker.check_model(model, full_check=True)
+    assert {p.key: p.value for p in model.metadata_props}["layers"] == "conv:24,40 hidden:96,32"
+    sess = ort.InferenceSession(out, providers=["CPUExecutionProvider"])
+    got = sess.run(["q"], {"depth": depth.astype(np.float32), "velocity": vel.astype(np.float32)})[0]
+    assert np.abs(got - want).max() <= 1e-4, np.abs(got - want).max()
+    # A recurrent network of other widths too: its GRU reads the last hidden layer.
+    gru = rotorhive.RecurrentQNetwork(width=8, seed=3, conv_channels=[8, 16], hidden=[48])
+    gpath = tmp_path / "gru-wide.safetensors"
+    gru.save(str(gpath))
+    gout = export_onnx(gpath, tmp_path / "gru-wide.onnx")
+    gsess = ort.InferenceSession(gout, providers=["CPUExecutionProvider"])
+    d, v = depth[:25], vel[:25]
+    q_rust, h_rust = rotorhive.RecurrentQNetwork.load(str(gpath)).step(flat_observations(d, v), gru.initial_state(25))
+    q_onnx, h_onnx = gsess.run(["q", "next_state"], {"depth": d, "velocity": v, "state": np.zeros((25, 8), np.float32)})
+    assert np.abs(q_onnx - q_rust).max() <= 1e-4 and np.abs(h_onnx - h_rust).max() <= 1e-4
+    with pytest.raises(ValueError, match="hidden has 4 entries"):
+        rotorhive.QNetwork(hidden=[8, 8, 8, 8])
+
+
 def test_a_recurrent_network_exports_its_state_and_matches_over_a_sequence(tmp_path):
     import onnx
     import onnxruntime as ort

@@ -89,7 +89,7 @@ pub fn wilson(k: usize, n: usize) -> [f64; 2] {
 /// A freshly initialised network of `cfg`'s shapes and memory, on the CPU
 /// (the evaluator's and the harness's, which load weights into it).
 pub fn network_for(cfg: &crate::Config) -> Result<PolicyNet> {
-    Ok(PolicyNet::new(cfg.shapes(), cfg.memory(), 0, &rotorhive_model::Device::Cpu)?)
+    Ok(PolicyNet::new(cfg.shapes(), cfg.layers(), cfg.memory(), 0, &rotorhive_model::Device::Cpu)?)
 }
 
 /// Who flies: a network's greedy action, or the scripted reactive rule.
@@ -405,7 +405,8 @@ mod tests {
         let arena = Arena::load(&root).unwrap();
         let sim = SimConfig::default();
         let shapes = rotorhive_model::Shapes::PAPER;
-        let net = PolicyNet::new(shapes, Some(8), 1, &rotorhive_model::Device::Cpu).unwrap();
+        let dev = rotorhive_model::Device::Cpu;
+        let net = PolicyNet::new(shapes, Default::default(), Some(8), 1, &dev).unwrap();
         let one = |seed| fly(Pilot::Net(&net), sim.clone(), std::slice::from_ref(&arena), 8, seed);
         let (a, b) = (one(3).unwrap(), one(3).unwrap());
         assert_eq!(a.episodes, 8);

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use crate::error::{Doing, Result, RoleError, protocol_err};
-use rotorhive_model::{Dqn, DqnConfig, QNet, Teaching, num_params};
+use rotorhive_model::{Dqn, DqnConfig, QNet, Teaching};
 use rotorhive_msg::{
     LearnerStage, MinibatchHeader, PICK_WORDS, Pick, PriorityHeader, RoleKind, Shapes, Telemetry,
     WeightsHeader,
@@ -52,9 +52,10 @@ fn save_state_atomic(dqn: &Dqn, path: &Path) -> Result<()> {
 /// resumed) one goes on from its last saved state at `state_path`:
 /// weights, target, Adam moments and counters.
 fn restore(cfg: &crate::config::Config, state_path: &Path) -> Result<Dqn> {
-    let mut dqn = Dqn::with_shapes(
+    let mut dqn = Dqn::with_layers(
         dqn_config(cfg),
         cfg.shapes(),
+        cfg.layers(),
         crate::streams::network(cfg.seed),
         &rotorhive_model::device(cfg.learner.device.kind())?,
     )?;
@@ -117,7 +118,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>) -> Result<()> {
     let mut mb_in = Minibatch::new(hub, cfg)?;
     let mut w_tx = hub.sender::<f32, WeightsHeader>(
         &Channel::weights(cfg.sim.envs),
-        num_params(cfg.shapes()),
+        cfg.num_params(),
         STALL_TIMEOUT,
     )?;
     let mut tel = crate::ctx::counters(hub, RoleKind::Learner, 0, roles_of(cfg))?;

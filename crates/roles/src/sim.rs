@@ -40,6 +40,7 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
     let mut teacher = Teacher::start(cfg, &env, env_index);
     let mut step = 0u64;
     let mut stage = 0u32;
+    let mut renewed = (0u64, false);
     let mut need_send = true;
     let mut last_send = Instant::now();
     while !hub.shutdown_requested() {
@@ -88,7 +89,8 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, env_index: usize) -> Result<()> {
         step += 1;
         count_step(&mut tel.sample, &env, n);
         need_send = true;
-        let new_world = follow_curriculum(cfg, &mut env, env_index, step, &mut stage)?;
+        let mut new_world = follow_curriculum(cfg, &mut env, env_index, step, &mut stage)?;
+        new_world |= follow_fresh_layouts(&env, env_index, &mut renewed);
         Teacher::follow(teacher.as_mut(), &env, step, new_world, &mut tel.sample);
         let t = Instant::now();
         limiter.wait(hub, step)?;
@@ -110,7 +112,36 @@ fn open_env(cfg: &crate::Config, env_index: usize) -> Result<VecEnv> {
     }
     let arenas = cfg.lane_arenas(env_index)?;
     let seed = crate::streams::sim(cfg.seed, cfg.cluster.env_offset + env_index);
-    VecEnv::new_lanes(cfg.sim_config(), &arenas, seed).doing("starting the simulator")
+    let mut env =
+        VecEnv::new_lanes(cfg.sim_config(), &arenas, seed).doing("starting the simulator")?;
+    if let Some((first, make)) = cfg.fresh_layouts(env_index)? {
+        env.renew_lanes(cfg.sim.fresh_layouts, first, arenas, make)
+            .doing("starting fresh layouts")?;
+    }
+    Ok(env)
+}
+
+/// Whether the environment renewed a lane since the last step (the
+/// teacher's planner then sees the new world); `seen` holds the renewals
+/// counted and whether a renewal that stopped was reported.
+fn follow_fresh_layouts(env: &VecEnv, env_index: usize, seen: &mut (u64, bool)) -> bool {
+    let stats = env.fresh_stats();
+    if let Some(e) = env.fresh_error().filter(|_| !seen.1) {
+        tracing::warn!("sim {env_index}: fresh layouts stopped: {e}");
+        seen.1 = true;
+    }
+    if stats.renewed == seen.0 {
+        return false;
+    }
+    seen.0 = stats.renewed;
+    if stats.renewed.is_power_of_two() {
+        let waited = stats.wait_ns as f64 / 1e6;
+        tracing::info!(
+            "sim {env_index}: {} fresh layouts flown ({waited:.0} ms waited for them)",
+            stats.renewed
+        );
+    }
+    true
 }
 
 /// Counts a step of `n` agents: its stages' times, its agent-steps and

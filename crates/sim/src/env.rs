@@ -25,8 +25,12 @@ use crate::render::wgpu::{GpuDepthRenderer, GpuError};
 /// `rotorhive_msg::DoneKind`, so the codes cannot drift apart).
 pub use rotorhive_msg::DoneKind as Done;
 
+mod fresh;
 mod observe;
 mod settings;
+
+use fresh::Fresh;
+pub use fresh::{FreshStats, LayoutMaker};
 
 pub use settings::{
     Autoreset, Episode, LanesError, PhysicsKind, RendererKind, SimConfig, StepTiming,
@@ -106,6 +110,10 @@ pub struct VecEnv {
     pixel_noise: PixelNoise,
     /// Arenas that replace the world at the next step (a curriculum).
     pending: Option<Lanes>,
+    /// Lanes renewed with fresh layouts, if that is on.
+    fresh: Option<Fresh>,
+    /// The lane each agent's episode flies in.
+    agent_lane: Vec<usize>,
     scene: Scene,
     renderer: DepthRenderer,
     gpu: Option<GpuDepthRenderer>,
@@ -188,6 +196,8 @@ impl VecEnv {
             lag: vec![0; n],
             pixel_noise: PixelNoise::new(seed),
             pending: None,
+            fresh: None,
+            agent_lane: vec![0; n],
             rng: Pcg64Mcg::seed_from_u64(seed),
             steps: vec![0; n],
             returns: vec![0.0; n],
@@ -515,6 +525,7 @@ impl VecEnv {
         if let Some(lanes) = self.pending.take() {
             self.change_world(lanes)?;
         }
+        self.renew_lane()?;
         let t2 = Instant::now();
         self.age_frames();
         self.render()?;
@@ -562,11 +573,17 @@ impl VecEnv {
     }
 
     fn reset_agent(&mut self, i: usize) {
-        let lane = if self.lane_offsets.len() > 1 {
-            self.rng.random_range(0..self.lane_offsets.len())
-        } else {
-            0
+        let lanes = self.lane_offsets.len();
+        let lane = match self.fresh.as_ref().and_then(|f| f.retiring) {
+            // No episode starts in a lane about to be renewed.
+            Some(k) if lanes > 1 => {
+                let l = self.rng.random_range(0..lanes - 1);
+                if l >= k { l + 1 } else { l }
+            }
+            _ if lanes > 1 => self.rng.random_range(0..lanes),
+            _ => 0,
         };
+        self.agent_lane[i] = lane;
         let s = &self.lane_spawns[lane];
         let y = self.lane_offsets[lane]
             + if s.y[1] > s.y[0] { self.rng.random_range(s.y[0]..s.y[1]) } else { s.y[0] };
@@ -633,6 +650,74 @@ impl VecEnv {
     /// episode as a timeout and starts the next one in the new lanes.
     pub fn replace_arenas(&mut self, arenas: &[Arena]) -> Result<(), LanesError> {
         self.pending = Some(Lanes::new(arenas)?);
+        Ok(())
+    }
+
+    /// Renews the generated lanes `first..` with fresh layouts (see
+    /// `env/fresh.rs`): every `every` finished episodes, the next lane is
+    /// retired and, once its last episode ends, replaced by `make`'s next
+    /// arena, built on a thread of its own. `arenas` are the ones the
+    /// environment was built from. The direct physics only (the rapier
+    /// pipeline's drones live in its world).
+    pub fn renew_lanes(
+        &mut self,
+        every: usize,
+        first: usize,
+        arenas: Vec<Arena>,
+        make: LayoutMaker,
+    ) -> Result<(), LanesError> {
+        if self.cfg.physics != PhysicsKind::Direct {
+            return Err(LanesError::Fresh("fresh layouts need the direct physics"));
+        }
+        if arenas.len() != self.lane_offsets.len() || first >= arenas.len() {
+            return Err(LanesError::Fresh(
+                "fresh layouts need the arenas of the lanes and one to renew",
+            ));
+        }
+        self.fresh = Some(Fresh::start(every, first, arenas, make));
+        Ok(())
+    }
+
+    /// What renewing lanes has done (zeros when it is off).
+    pub fn fresh_stats(&self) -> FreshStats {
+        self.fresh.as_ref().map(|f| f.stats).unwrap_or_default()
+    }
+
+    /// Why renewing lanes stopped, if it did (the builder could not put a
+    /// new layout beside the others).
+    pub fn fresh_error(&self) -> Option<&str> {
+        self.fresh.as_ref().and_then(|f| f.error.as_deref())
+    }
+
+    /// Counts the step's finished episodes toward the next renewal, and
+    /// swaps the renewed world in once its retired lane is empty.
+    fn renew_lane(&mut self) -> Result<(), GpuError> {
+        let Some(fresh) = self.fresh.as_mut() else {
+            return Ok(());
+        };
+        fresh.count(self.finished.len());
+        let (lanes, dones) = (&self.agent_lane, &self.dones);
+        let empty =
+            |k: usize| !lanes.iter().zip(dones).any(|(l, d)| *l == k && *d == Done::Running);
+        let built = match fresh.take(empty) {
+            None => return Ok(()),
+            Some(Err(e)) => {
+                // The lanes stay as they are; the run goes on, and the
+                // caller reads why (`fresh_error`).
+                fresh.error = Some(e.to_string());
+                return Ok(());
+            }
+            Some(Ok(b)) => b,
+        };
+        let fresh::Built { lanes, geometry, scene, .. } = built;
+        debug_assert_eq!(lanes.offsets, self.lane_offsets, "every lane keeps its place");
+        self.gpu = match self.cfg.renderer {
+            RendererKind::Cpu => None,
+            RendererKind::Wgpu => Some(GpuDepthRenderer::new(self.cfg.camera, &scene)?),
+        };
+        (self.physics, self.scene, self.arena) = (Physics::Direct(geometry), scene, lanes.world);
+        self.lane_offsets = lanes.offsets;
+        self.lane_spawns = lanes.spawns;
         Ok(())
     }
 

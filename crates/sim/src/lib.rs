@@ -20,7 +20,8 @@ pub mod view;
 
 pub use arena::{Arena, ArenaError, Lanes, MAX_OBSTACLE_SPEED, Motion, Obstacle, Spawn};
 pub use env::{
-    Autoreset, Done, Episode, LanesError, PhysicsKind, RendererKind, SimConfig, StepTiming, VecEnv,
+    Autoreset, Done, Episode, FreshStats, LanesError, LayoutMaker, PhysicsKind, RendererKind,
+    SimConfig, StepTiming, VecEnv,
 };
 pub use generate::{GenMode, GenParamError, GenParams};
 pub use goal::Goal;

@@ -614,3 +614,48 @@ fn a_new_world_ends_every_flight_as_a_timeout_and_starts_the_next_in_it() {
     }
     assert_eq!(hit, 4, "every drone flies into the new wall");
 }
+
+/// Fresh layouts: lanes are renewed with new arenas as episodes end, never
+/// under an agent in flight (no episode is cut short as a timeout), and
+/// two environments of one seed renew the same lanes at the same steps
+/// (the builder thread's timing never shows).
+#[test]
+fn fresh_layouts_renew_lanes_without_cutting_an_episode_and_reproducibly() {
+    let box_at = |x: f32| Obstacle::still_box([x, 0.0, 4.0], [0.5, 1.0, 4.0]);
+    let arenas: Vec<Arena> =
+        (0..3).map(|k| open_arena(40.0, vec![box_at(20.0 + k as f32)])).collect();
+    let c = SimConfig { max_steps: 25, ..cfg(8) };
+    let start = |seed| {
+        let mut env = VecEnv::new_lanes(c.clone(), &arenas, seed).unwrap();
+        let make = move |n: u64| open_arena(40.0, vec![box_at(10.0 + (n % 20) as f32)]);
+        env.renew_lanes(4, 0, arenas.clone(), Box::new(make)).unwrap();
+        env
+    };
+    let (mut a, mut b) = (start(5), start(5));
+    let first = a.arena().obstacles.clone();
+    let mut renewals = Vec::new();
+    for step in 0..600u32 {
+        let actions: Vec<u8> = (0..8u32).map(|i| ((step / 3 + i) % 2) as u8).collect();
+        a.step(&actions).unwrap();
+        b.step(&actions).unwrap();
+        assert_eq!(a.observations(), b.observations(), "step {step}");
+        assert_eq!(a.fresh_stats().renewed, b.fresh_stats().renewed, "step {step}");
+        for e in a.finished() {
+            assert!(
+                e.done != Done::Timeout || e.steps == 25,
+                "an episode cut short at step {step}: {e:?}"
+            );
+        }
+        renewals.push(a.fresh_stats().renewed);
+    }
+    let renewed = a.fresh_stats().renewed;
+    assert!(renewed >= 5, "{renewed} lanes renewed in 600 steps");
+    assert_ne!(a.arena().obstacles, first, "the world holds the new layouts");
+    assert!(renewals.windows(2).all(|w| w[1] <= w[0] + 1), "one lane at a time");
+    // The rapier pipeline keeps its drones in its world: refused by name.
+    let rapier = SimConfig { physics: PhysicsKind::Rapier, ..c.clone() };
+    let mut env = VecEnv::new_lanes(rapier, &arenas, 1).unwrap();
+    let e =
+        env.renew_lanes(4, 0, arenas.clone(), Box::new(|_| open_arena(40.0, vec![]))).unwrap_err();
+    assert!(e.to_string().contains("direct physics"), "{e}");
+}

@@ -233,7 +233,10 @@ fn gather_workers(
     let mut head = rotorhive_link::Head::listen(
         ep,
         prefix,
-        rotorhive_link::layout(rotorhive_model::num_params(rotorhive_msg::Shapes::PAPER)),
+        rotorhive_link::layout(rotorhive_model::num_params(
+            rotorhive_msg::Shapes::PAPER,
+            rotorhive_model::Layers::DEFAULT,
+        )),
         opts,
     )?;
     let wanted = cfg.cluster.workers;

@@ -378,8 +378,13 @@ fn the_fused_trunk_gives_the_generic_gradients() {
 /// 1e-3 of the generic one `gg` (the difference's norm against the
 /// gradient's).
 fn same_gradients(gf: &[f32], gg: &[f32], width: usize) {
+    same_gradients_of(gf, gg, Layers::DEFAULT, width);
+}
+
+/// [`same_gradients`] for a trunk of widths `layers`.
+fn same_gradients_of(gf: &[f32], gg: &[f32], layers: Layers, width: usize) {
     let mut off = 0;
-    for (name, shape) in recurrent_params(SHAPES, width) {
+    for (name, shape) in recurrent_params(SHAPES, layers, width) {
         let k: usize = shape.iter().product();
         let (a, b) = (&gf[off..off + k], &gg[off..off + k]);
         let diff = a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<f32>().sqrt();
@@ -388,6 +393,48 @@ fn same_gradients(gf: &[f32], gg: &[f32], width: usize) {
         assert!(diff <= 1e-3 * norm, "{name}: |fused - generic| {diff} against |generic| {norm}");
         off += k;
     }
+}
+
+/// A trunk of other widths (two hidden layers): the fused trunk's
+/// gradients are the generic path's, and a step of each keeps them together.
+#[test]
+fn a_trunk_of_other_widths_gives_the_generic_gradients() {
+    let dev = Device::Cpu;
+    let layers = Layers::new(&[12, 20], &[40, 24]).unwrap();
+    let (n, t, width) = (2, 6, 8);
+    let mut rng = Pcg64Mcg::seed_from_u64(9);
+    let obs = random_obs(&mut rng, n * (t + 1));
+    let actions: Vec<u8> = (0..n * t).map(|_| rng.random_range(0..2)).collect();
+    let rewards: Vec<f32> = (0..n * t).map(|_| rng.random_range(-1.0..1.0)).collect();
+    let dones: Vec<bool> = (0..n * t).map(|i| i % 4 == 3).collect();
+    let states: Vec<f32> = (0..n * width).map(|_| rng.random_range(-1.0..1.0)).collect();
+    let batch = SeqBatch {
+        sequences: n,
+        steps: t,
+        obs: &obs,
+        actions: &actions,
+        rewards: &rewards,
+        dones: &dones,
+        states: &states,
+        experts: &[],
+        weights: &[],
+    };
+    let cfg = base_config();
+    let mut fused = SeqDqn::with_layers(cfg, SHAPES, layers, width, 6, &dev).unwrap();
+    let mut generic = SeqDqn::with_layers(cfg, SHAPES, layers, width, 6, &dev).unwrap();
+    generic.set_fused(false).unwrap();
+    let (lf, gf) = fused.gradients(&batch).unwrap();
+    let (lg, gg) = generic.gradients(&batch).unwrap();
+    assert!((lf - lg).abs() < 1e-5 * lg.abs().max(1.0), "loss {lf} against {lg}");
+    assert_eq!(gf.len(), fused.online.num_params());
+    same_gradients_of(&gf, &gg, layers, width);
+    fused.update(&batch).unwrap();
+    generic.update(&batch).unwrap();
+    let mut state = (vec![0.0; width], vec![0.0; width]);
+    let len = SHAPES.obs_len();
+    let qf = fused.online.step(&obs[..len], &mut state.0).unwrap();
+    let qg = generic.online.step(&obs[..len], &mut state.1).unwrap();
+    assert!(qf.iter().zip(&qg).all(|(a, b)| (a - b).abs() < 1e-4), "{qf:?} {qg:?}");
 }
 
 #[test]

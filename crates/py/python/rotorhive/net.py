@@ -10,7 +10,11 @@ PyTorch (when torch is installed) with a checkpoint loaded.
 
 The network: depth (2, 32, 32) -> conv 6x6 stride 2 (16) -> ReLU -> conv 3x3
 (32) -> ReLU -> max-pool 2x2 -> 1152 features; velocity (3) -> linear (16) ->
-ReLU; both -> linear (64) -> ReLU -> linear (2 Q-values).
+ReLU; both -> linear (64) -> ReLU -> linear (2 Q-values). A network of other
+widths (``learner.conv_channels``, ``learner.hidden``: ``QNetwork(conv_channels=...,
+hidden=...)``) has other channels and one to three hidden layers (``fc1``,
+then ``fc1b``, ``fc1c``); `torch_layout` and `numpy_q_values` read the widths
+from the weights' shapes (`torch_qnet` builds the design's network only).
 """
 
 from __future__ import annotations
@@ -30,11 +34,14 @@ def torch_layout(weights: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     as `torch_qnet`'s ``state_dict``."""
     w = {k: np.asarray(v, np.float32) for k, v in weights.items()}
     out = dict(w)
-    out["conv1.weight"] = w["conv1.weight"].reshape(16, 2, 6, 6)
-    out["conv2.weight"] = w["conv2.weight"].reshape(32, 3, 3, 16).transpose(0, 3, 1, 2)
+    c1, frames = w["conv1.weight"].shape[0], w["conv1.weight"].shape[1] // 36
+    c2 = w["conv2.weight"].shape[0]
+    out["conv1.weight"] = w["conv1.weight"].reshape(c1, frames, 6, 6)
+    out["conv2.weight"] = w["conv2.weight"].reshape(c2, 3, 3, c1).transpose(0, 3, 1, 2)
     fc1 = w["fc1.weight"]
-    pooled = fc1[:, :FEATURES].reshape(64, 6, 6, 32).transpose(0, 3, 1, 2).reshape(64, FEATURES)
-    out["fc1.weight"] = np.concatenate([pooled, fc1[:, FEATURES:]], axis=1)
+    h, features = fc1.shape[0], c2 * 36
+    pooled = fc1[:, :features].reshape(h, 6, 6, c2).transpose(0, 3, 1, 2).reshape(h, features)
+    out["fc1.weight"] = np.concatenate([pooled, fc1[:, features:]], axis=1)
     return {k: np.ascontiguousarray(v) for k, v in out.items()}
 
 
@@ -60,10 +67,13 @@ def numpy_q_values(w: dict[str, np.ndarray], depth: np.ndarray, velocity: np.nda
     w = {k: v.astype(np.float64) for k, v in w.items()}
     x = _relu(_conv(np.asarray(depth, np.float64), w["conv1.weight"], w["conv1.bias"], 2))
     x = _relu(_conv(x, w["conv2.weight"], w["conv2.bias"], 1))
-    b = x.shape[0]
-    x = x.reshape(b, 32, 6, 2, 6, 2).max(axis=(3, 5)).reshape(b, FEATURES)
+    b, c2 = x.shape[0], x.shape[1]
+    x = x.reshape(b, c2, 6, 2, 6, 2).max(axis=(3, 5)).reshape(b, c2 * 36)
     v = _relu(np.asarray(velocity, np.float64) @ w["vel.weight"].T + w["vel.bias"])
-    h = _relu(np.concatenate([x, v], axis=1) @ w["fc1.weight"].T + w["fc1.bias"])
+    h = np.concatenate([x, v], axis=1)
+    for layer in ("fc1", "fc1b", "fc1c"):
+        if layer + ".weight" in w:
+            h = _relu(h @ w[layer + ".weight"].T + w[layer + ".bias"])
     return h @ w["fc2.weight"].T + w["fc2.bias"]
 
 

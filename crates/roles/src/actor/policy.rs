@@ -24,7 +24,7 @@ impl Policy {
     /// agents.
     pub fn new(cfg: &Config, device: &rotorhive_model::Device, agents: usize) -> Result<Self> {
         let seed = crate::streams::network(cfg.seed);
-        let mut net = PolicyNet::new(cfg.shapes(), cfg.memory(), seed, device)?;
+        let mut net = PolicyNet::new(cfg.shapes(), cfg.layers(), cfg.memory(), seed, device)?;
         net.set_threads(cfg.actor.threads);
         let width = net.state_width();
         let seqs = cfg.seq_layout().map(|l| Sequences::new(l, cfg.learner.burn_in, agents));

@@ -113,7 +113,8 @@ pub fn run<S: Service>(cx: Ctx<'_, S>, width: usize, layout: SeqLayout) -> Resul
 fn start(cfg: &Config, width: usize, latest: &Path, state: &Path) -> Result<SeqDqn> {
     let device = rotorhive_model::device(cfg.learner.device.kind())?;
     let seed = crate::streams::network(cfg.seed);
-    let mut dqn = SeqDqn::new(seq_config(cfg), cfg.shapes(), width, seed, &device)?;
+    let mut dqn =
+        SeqDqn::with_layers(seq_config(cfg), cfg.shapes(), cfg.layers(), width, seed, &device)?;
     if state.exists() {
         dqn.load_state(state)
             .doing_with(|| format!("restoring the learner from {}", state.display()))?;

@@ -59,6 +59,9 @@ pub enum LanesError {
     /// The renderer could not start.
     #[error(transparent)]
     Gpu(#[from] GpuError),
+    /// Fresh layouts cannot be had here.
+    #[error("{0}")]
+    Fresh(&'static str),
 }
 
 /// Settings of the simulator.

@@ -1,0 +1,186 @@
+//! Fresh layouts: an environment's generated lanes renewed one at a time
+//! from the generator as training goes on, so a run trains on as many
+//! layouts as it has time for instead of a fixed few.
+//!
+//! A thread of its own builds the next world whole (the new lane's arena,
+//! the lanes side by side, the collision geometry and the CPU scene) while
+//! the environment steps. The environment then retires the lane the next
+//! layout replaces (no episode starts there), and once no agent is left in
+//! it swaps the prebuilt world in between two steps: no episode is cut, no
+//! agent moves (every other lane keeps its place), and the step path only
+//! moves the built parts in (and uploads the scene with the wgpu renderer).
+//! Which lane is renewed when depends only on the simulation, never on the
+//! thread's timing: a run stays bit-reproducible (when a swap is due and
+//! the world is not built yet, the step waits for it, and that wait is
+//! counted).
+
+use std::sync::Mutex;
+use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
+use std::thread::JoinHandle;
+use std::time::Instant;
+
+use crate::arena::{Arena, ArenaError, Lanes};
+use crate::flight::Geometry;
+use crate::render::cpu::Scene;
+
+/// The arena of renewal number `n` (0, 1, …): a layout never trained on
+/// before (the caller's seeds keep it off every held-out one).
+pub type LayoutMaker = Box<dyn FnMut(u64) -> Arena + Send>;
+
+/// A world built off the step path for renewal `n`.
+pub(crate) struct Built {
+    pub(crate) n: u64,
+    pub(crate) lanes: Lanes,
+    pub(crate) geometry: Geometry,
+    pub(crate) scene: Scene,
+}
+
+/// What renewing lanes has done so far.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct FreshStats {
+    /// Lanes renewed (new layouts flown).
+    pub renewed: u64,
+    /// Nanoseconds steps waited for a world not yet built.
+    pub wait_ns: u64,
+}
+
+/// The renewal of an environment's lanes: the builder thread and where
+/// the next renewal stands.
+pub(crate) struct Fresh {
+    /// Episodes (finished in this environment) between renewals.
+    every: usize,
+    /// The first lane that may be renewed (after a shipped arena).
+    first: usize,
+    /// Lanes in the world.
+    lanes: usize,
+    /// Episodes finished since the last renewal began.
+    since: usize,
+    /// The renewal under way: its number, and the lane retired for it.
+    pub(crate) retiring: Option<usize>,
+    next: u64,
+    /// The builder's worlds (in a mutex: an environment is shared with
+    /// its pool's threads, a receiver may not be).
+    built: Mutex<Receiver<Result<Built, ArenaError>>>,
+    ask: Option<SyncSender<u64>>,
+    thread: Option<JoinHandle<()>>,
+    pub(crate) stats: FreshStats,
+    /// Why renewing stopped, if it did.
+    pub(crate) error: Option<String>,
+}
+
+impl Fresh {
+    /// Renews lanes `first..` of the world of `arenas` (as the environment
+    /// was built from them) every `every` finished episodes, each with
+    /// `make`'s next arena; the first world is built at once.
+    pub(crate) fn start(every: usize, first: usize, arenas: Vec<Arena>, make: LayoutMaker) -> Self {
+        let lanes = arenas.len();
+        let (ask, asked) = sync_channel::<u64>(1);
+        let (send, built) = sync_channel(1);
+        let thread = std::thread::Builder::new()
+            .name("fresh-layouts".into())
+            .spawn(move || build_worlds(arenas, first, make, &asked, &send))
+            .ok();
+        let _ = ask.send(0);
+        Self {
+            every: every.max(1),
+            first,
+            lanes,
+            since: 0,
+            retiring: None,
+            next: 0,
+            built: Mutex::new(built),
+            ask: Some(ask),
+            thread,
+            stats: FreshStats::default(),
+            error: None,
+        }
+    }
+
+    /// The lane renewal `n` replaces.
+    fn slot(&self, n: u64) -> usize {
+        self.first + (n % (self.lanes - self.first) as u64) as usize
+    }
+
+    /// Counts `finished` episodes; retires the next lane when a renewal is
+    /// due.
+    pub(crate) fn count(&mut self, finished: usize) {
+        self.since += finished;
+        if self.retiring.is_none() && self.since >= self.every && self.ask.is_some() {
+            self.since = 0;
+            self.retiring = Some(self.slot(self.next));
+        }
+    }
+
+    /// The world of the renewal under way, once `empty` says no agent is
+    /// left in its lane (waiting for the builder if it is not done yet).
+    /// An error of the builder ends renewing (the lanes stay as they are).
+    pub(crate) fn take(
+        &mut self,
+        empty: impl Fn(usize) -> bool,
+    ) -> Option<Result<Built, ArenaError>> {
+        let lane = self.retiring?;
+        if !empty(lane) {
+            return None;
+        }
+        let start = Instant::now();
+        let got = self.built.get_mut().map_err(|_| ()).and_then(|r| r.recv().map_err(|_| ()));
+        self.stats.wait_ns += start.elapsed().as_nanos() as u64;
+        self.retiring = None;
+        match got {
+            Ok(Ok(b)) => {
+                self.next = b.n + 1;
+                self.stats.renewed += 1;
+                if let Some(ask) = &self.ask {
+                    let _ = ask.send(self.next);
+                }
+                Some(Ok(b))
+            }
+            Ok(Err(e)) => {
+                self.ask = None;
+                Some(Err(e))
+            }
+            Err(()) => {
+                self.ask = None;
+                None
+            }
+        }
+    }
+}
+
+impl Drop for Fresh {
+    fn drop(&mut self) {
+        // The builder ends when its requests stop (after the world it is
+        // building, whose send then fails).
+        // At most one renewal is asked for at a time, and the channel holds
+        // its world: the builder never blocks on a send here.
+        self.ask = None;
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+/// The builder thread: for every renewal asked for, the new arena in its
+/// lane and the world built from every lane.
+fn build_worlds(
+    mut arenas: Vec<Arena>,
+    first: usize,
+    mut make: LayoutMaker,
+    asked: &Receiver<u64>,
+    send: &SyncSender<Result<Built, ArenaError>>,
+) {
+    let renewable = arenas.len() - first;
+    while let Ok(n) = asked.recv() {
+        let slot = first + (n % renewable as u64) as usize;
+        arenas[slot] = make(n);
+        let built = Lanes::new(&arenas).map(|lanes| {
+            let geometry = Geometry::new(&lanes.world);
+            let mut scene = Scene::new(&lanes.world);
+            scene.set_lanes(&lanes.bounds);
+            Built { n, lanes, geometry, scene }
+        });
+        if send.send(built).is_err() {
+            return;
+        }
+    }
+}
