@@ -81,7 +81,10 @@ fn every_benchmark_runs_at_its_smallest_size_and_prints_its_json() {
     ]);
     let rows = v["rows"].as_array().expect("two rows");
     assert_eq!(rows.len(), 2, "{v}");
-    assert_eq!((rows[0]["lanes"].as_str(), rows[1]["lanes"].as_str()), (Some("fixed"), Some("fresh/1")));
+    assert_eq!(
+        (rows[0]["lanes"].as_str(), rows[1]["lanes"].as_str()),
+        (Some("fixed"), Some("fresh/1"))
+    );
     positive(&rows[1], "agent_steps_per_s");
 
     for hidden in ["64", "96,32"] {
@@ -90,7 +93,11 @@ fn every_benchmark_runs_at_its_smallest_size_and_prints_its_json() {
             positive(&v, k);
         }
         assert_eq!(v["batch"].as_u64(), Some(8), "{v}");
-        assert_eq!(v["layers"].as_str(), Some(format!("conv:16,32 hidden:{hidden}").as_str()), "{v}");
+        assert_eq!(
+            v["layers"].as_str(),
+            Some(format!("conv:16,32 hidden:{hidden}").as_str()),
+            "{v}"
+        );
     }
 
     let v = bench(&["replay", "--producers", "1", "--seconds", "0.3"]);

@@ -12,19 +12,15 @@
 //! margin loss on the labelled steps, weighted and faded as the
 //! feedforward learner's.
 
-use std::path::{Path, PathBuf};
-use std::time::{Duration, Instant};
+use std::path::Path;
 
-use rotorhive_model::{SeqBatch, SeqConfig, SeqDqn};
-use rotorhive_msg::{
-    LearnerStage, MinibatchHeader, PICK_WORDS, Pick, RoleKind, SeqLayout, Telemetry, Unpacked,
-    WeightsHeader,
-};
-use rotorhive_transport::{Channel, Service};
+use rotorhive_model::{SeqBatch, SeqConfig, SeqDqn, UpdateTiming};
+use rotorhive_msg::{MinibatchHeader, PICK_WORDS, Pick, SeqLayout, Unpacked};
+use rotorhive_transport::Service;
 
-use super::Gauges;
+use super::learning::{Learning, teaching};
+use super::minibatch::Minibatch;
 use crate::config::Config;
-use crate::ctx::{Ctx, POLL, STALL_TIMEOUT, roles_of};
 use crate::error::{Doing, Result, protocol_err};
 
 /// The sequence update's settings of a config's `[learner]`.
@@ -42,127 +38,113 @@ pub fn seq_config(cfg: &Config) -> SeqConfig {
     }
 }
 
-/// Runs the recurrent learner until the run stops.
-pub fn run<S: Service>(cx: Ctx<'_, S>, width: usize, layout: SeqLayout) -> Result<()> {
-    let (cfg, hub) = (cx.cfg, cx.hub);
-    let run_dir = cx.run_dir.map_or_else(|| PathBuf::from("."), Path::to_path_buf);
-    let ckpt_dir = run_dir.join("checkpoints");
-    std::fs::create_dir_all(&ckpt_dir)
-        .doing_with(|| format!("cannot create {}", ckpt_dir.display()))?;
-    let latest = ckpt_dir.join("latest.safetensors");
-    let state = ckpt_dir.join("learner-state.safetensors");
-    let mut dqn = start(cfg, width, &latest, &state)?;
-    let mut rx =
-        hub.receiver::<u16, MinibatchHeader>(&Channel::minibatches(cfg.replay.prefetch))?;
-    let mut w_tx = hub.sender::<f32, WeightsHeader>(
-        &Channel::weights(cfg.sim.envs),
-        cfg.num_params(),
-        STALL_TIMEOUT,
-    )?;
-    let mut tel = crate::ctx::counters(hub, RoleKind::Learner, 0, roles_of(cfg))?;
-    let mut version = 0;
-    let mut average = super::Average::new(cfg);
-    publish(&mut w_tx, &dqn, average.as_mut(), &mut version)?;
-    let mut last_ckpt = Instant::now();
-    let mut gauges = Gauges::default();
-    let mut batch = Unpacked::default();
-    // Its picks and, under prioritized replay, the priorities' channel
-    // (its float batch stays empty: the sequences unpack into `batch`).
-    let mut prio = super::Minibatch::new(hub, cfg)?;
-    let tags = cfg.checkpoint_tags();
-    while !hub.shutdown_requested() {
-        let t = Instant::now();
-        let msg = rx.recv_timeout(POLL).doing("waiting for minibatches")?;
-        tel.sample.time_stage(LearnerStage::TransportWait, t);
-        if tel.tick(false, Telemetry::beat) {
-            gauges = Gauges::default();
-        }
-        let Some(msg) = msg else { continue };
-        let mb = *msg.user_header();
-        unpack(layout, msg.payload(), mb.batch as usize, &mut batch, &mut prio.picks)?;
-        drop(msg);
-        let loss = learn(cfg, &mut dqn, (layout, &mb), &batch, &mut prio, &mut tel.sample.lost)?;
-        super::add_timing(&mut tel.sample, dqn.timing());
-        tel.sample.work = dqn.updates();
-        gauges.add(loss, &mb, version, &mut tel.sample);
-        if dqn.updates() % cfg.learner.publish_every == 0 {
-            publish(&mut w_tx, &dqn, average.as_mut(), &mut version)?;
-            tel.sample.weight_version = version;
-            tel.sample.work2 = version;
-        }
-        if last_ckpt.elapsed() >= Duration::from_secs_f64(cfg.learner.checkpoint_every_s) {
-            save(&dqn, (&latest, &state), &tags)?;
-            last_ckpt = Instant::now();
-        }
-    }
-    save(&dqn, (&latest, &state), &tags)?;
-    if let Some(avg) = &average {
-        // Training is over: the online network becomes the run's average.
-        dqn.online.load_flat(avg.weights())?;
-    }
-    let fin = run_dir.join("final.safetensors");
-    dqn.online
-        .save(&fin, &tags)
-        .doing_with(|| format!("cannot write checkpoint {}", fin.display()))?;
-    tel.tick(true, Telemetry::beat);
-    Ok(())
+/// The recurrent update and its minibatch of sequences, unpacked.
+pub struct Recurrent {
+    dqn: SeqDqn,
+    layout: SeqLayout,
+    batch: Unpacked,
 }
 
-/// A new learner of `width`, or one restarted from its state (`state`: both
-/// networks and Adam) or, failing that, from its latest weights.
-fn start(cfg: &Config, width: usize, latest: &Path, state: &Path) -> Result<SeqDqn> {
-    let device = rotorhive_model::device(cfg.learner.device.kind())?;
-    let seed = crate::streams::network(cfg.seed);
-    let mut dqn =
-        SeqDqn::with_layers(seq_config(cfg), cfg.shapes(), cfg.layers(), width, seed, &device)?;
-    if state.exists() {
-        dqn.load_state(state)
-            .doing_with(|| format!("restoring the learner from {}", state.display()))?;
-        tracing::info!(
-            "learner restored its state from {} ({} updates)",
-            state.display(),
-            dqn.updates()
-        );
-    } else if latest.exists() {
-        dqn.restore(latest)
-            .doing_with(|| format!("restoring the learner from {}", latest.display()))?;
-        tracing::info!("learner restored its weights from {}", latest.display());
+impl Recurrent {
+    /// A new learner of `width`, or one restarted from its state (`state`:
+    /// both networks and Adam) or, failing that, from its latest weights.
+    pub fn start(
+        cfg: &Config,
+        (width, layout): (usize, SeqLayout),
+        latest: &Path,
+        state: &Path,
+    ) -> Result<Self> {
+        let device = rotorhive_model::device(cfg.learner.device.kind())?;
+        let seed = crate::streams::network(cfg.seed);
+        let (shapes, layers) = (cfg.shapes(), cfg.layers());
+        let mut dqn = SeqDqn::with_layers(seq_config(cfg), shapes, layers, width, seed, &device)?;
+        if state.exists() {
+            dqn.load_state(state)
+                .doing_with(|| format!("restoring the learner from {}", state.display()))?;
+            tracing::info!(
+                "learner restored its state from {} ({} updates)",
+                state.display(),
+                dqn.updates()
+            );
+        } else if latest.exists() {
+            dqn.restore(latest)
+                .doing_with(|| format!("restoring the learner from {}", latest.display()))?;
+            tracing::info!("learner restored its weights from {}", latest.display());
+        }
+        Ok(Self { dqn, layout, batch: Unpacked::default() })
     }
-    Ok(dqn)
 }
 
-/// One update on the sequences unpacked into `batch` (minibatch `mb` of
-/// `layout`): the teacher's margin weight as the replay's fade says, each
-/// sequence's importance weight and, under prioritized replay, its new
-/// priority sent back (a send that fails counts in `lost`); the loss.
-fn learn<S: Service>(
-    cfg: &Config,
-    dqn: &mut SeqDqn,
-    (layout, mb): (SeqLayout, &MinibatchHeader),
-    batch: &Unpacked,
-    prio: &mut super::Minibatch<S>,
-    lost: &mut u64,
-) -> Result<f32> {
-    prio.load_weights();
-    if let Some(t) = super::teaching(cfg, mb) {
-        dqn.set_teaching(t);
+impl Learning for Recurrent {
+    fn unpack<S: Service>(
+        &mut self,
+        payload: &[u16],
+        rows: usize,
+        io: &mut Minibatch<S>,
+    ) -> Result<()> {
+        unpack(self.layout, payload, rows, &mut self.batch, &mut io.picks)
     }
-    let loss = dqn.update(&SeqBatch {
-        sequences: mb.batch as usize,
-        steps: layout.steps,
-        obs: &batch.obs,
-        actions: &batch.actions,
-        rewards: &batch.rewards,
-        dones: &batch.dones,
-        states: &batch.states,
-        experts: &batch.experts,
-        weights: &prio.weights,
-    })?;
-    if let Some(tx) = &mut prio.prio_tx {
-        let (picks, det) = (&mut prio.picks, cfg.deterministic);
-        super::send_priorities(tx, picks, dqn.priorities(), mb.seq, det, lost)?;
+
+    fn update<S: Service>(
+        &mut self,
+        cfg: &Config,
+        mb: &MinibatchHeader,
+        io: &mut Minibatch<S>,
+        lost: &mut u64,
+    ) -> Result<f32> {
+        io.load_weights();
+        if let Some(t) = teaching(cfg, mb) {
+            self.dqn.set_teaching(t);
+        }
+        let b = &self.batch;
+        let loss = self.dqn.update(&SeqBatch {
+            sequences: mb.batch as usize,
+            steps: self.layout.steps,
+            obs: &b.obs,
+            actions: &b.actions,
+            rewards: &b.rewards,
+            dones: &b.dones,
+            states: &b.states,
+            experts: &b.experts,
+            weights: &io.weights,
+        })?;
+        io.send_back(self.dqn.priorities(), mb.seq, cfg.deterministic, lost)?;
+        Ok(loss)
     }
-    Ok(loss)
+
+    fn updates(&self) -> u64 {
+        self.dqn.updates()
+    }
+
+    fn timing(&self) -> UpdateTiming {
+        self.dqn.timing()
+    }
+
+    fn num_params(&self) -> usize {
+        self.dqn.online.num_params()
+    }
+
+    fn write_flat(&self, into: &mut [f32]) -> Result<()> {
+        Ok(self.dqn.online.write_flat(into)?)
+    }
+
+    fn load_flat(&mut self, flat: &[f32]) -> Result<()> {
+        Ok(self.dqn.online.load_flat(flat)?)
+    }
+
+    fn save_weights(&self, path: &Path, tags: &[(&str, String)]) -> Result<()> {
+        // The header names the memory.
+        self.dqn
+            .online
+            .save(path, tags)
+            .doing_with(|| format!("cannot write checkpoint {}", path.display()))
+    }
+
+    fn save_state(&self, path: &Path) -> Result<()> {
+        self.dqn
+            .save_state(path)
+            .doing_with(|| format!("cannot write learner state {}", path.display()))
+    }
 }
 
 /// A minibatch of `rows` packed sequences into `out` and their picks into
@@ -190,27 +172,4 @@ fn unpack(
     picks.clear();
     picks.extend(tail.chunks_exact(PICK_WORDS).map(Pick::unpack));
     Ok(())
-}
-
-/// Writes the latest checkpoint (its header naming the memory) and the
-/// learner's whole state (networks, Adam's moments and step), each
-/// atomically.
-fn save(dqn: &SeqDqn, (latest, state): (&Path, &Path), tags: &[(&str, String)]) -> Result<()> {
-    dqn.online
-        .save(latest, tags)
-        .doing_with(|| format!("cannot write checkpoint {}", latest.display()))?;
-    dqn.save_state(state).doing_with(|| format!("cannot write learner state {}", state.display()))
-}
-
-/// Publishes the online network (or its average) as the next weight
-/// version, as the feedforward learner does.
-fn publish<S: Service>(
-    w_tx: &mut rotorhive_transport::Sender<S, f32, WeightsHeader>,
-    dqn: &SeqDqn,
-    average: Option<&mut super::Average>,
-    version: &mut u64,
-) -> Result<()> {
-    let net = &dqn.online;
-    let write = |p: &mut [f32]| Ok(net.write_flat(p)?);
-    super::publish_flat(w_tx, (net.num_params(), dqn.updates()), write, average, version)
 }
