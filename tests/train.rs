@@ -292,12 +292,13 @@ fn the_scripted_pilots_fly_a_levels_test_layouts() {
 /// consecutive ones; a `--set` that contradicts it is refused by name.
 #[test]
 fn a_checkpoint_flies_a_level_with_its_own_frames() {
-    use rotorhive_model::{Device, QNet, Shapes};
+    use rotorhive_model::{Device, Layers, PolicyNet, Shapes};
     let dir = tmp("strided");
     std::fs::create_dir_all(&dir).unwrap();
     let path = dir.join("strided.safetensors");
     let shapes = Shapes::task(4, false, false).with_stride(3);
-    QNet::with_shapes(shapes, 5, &Device::Cpu).unwrap().save(&path).unwrap();
+    let net = |layers, memory| PolicyNet::new(shapes, layers, memory, 5, &Device::Cpu).unwrap();
+    net(Layers::DEFAULT, None).save(&path, &[]).unwrap();
     let ckpt = path.to_str().unwrap();
     let v = eval_json(&["--checkpoint", ckpt, "--level", "moving", "--episodes", "5"]);
     assert_eq!((v["frames"].as_u64(), v["frame_stride"].as_u64()), (Some(4), Some(3)));
@@ -305,11 +306,25 @@ fn a_checkpoint_flies_a_level_with_its_own_frames() {
     assert_eq!(v["memory"], "none");
     // A recurrent checkpoint flies as one, its header naming its memory.
     let gru = dir.join("gru.safetensors");
-    let net = rotorhive_model::RecurrentQNet::new(shapes, 8, 5, &Device::Cpu).unwrap();
-    net.save(&gru, &[]).unwrap();
+    net(Layers::DEFAULT, Some(8)).save(&gru, &[]).unwrap();
     let v =
         eval_json(&["--checkpoint", gru.to_str().unwrap(), "--level", "moving", "--episodes", "5"]);
     assert_eq!((v["memory"].as_str(), v["episodes"].as_u64()), (Some("gru:8"), Some(5)));
+    // A network of other widths flies as it was built, its header naming them.
+    let wide = dir.join("wide.safetensors");
+    net(Layers::new(&[8, 24], &[96, 32]).unwrap(), None).save(&wide, &[]).unwrap();
+    let v = eval_json(&[
+        "--checkpoint",
+        wide.to_str().unwrap(),
+        "--level",
+        "moving",
+        "--episodes",
+        "5",
+    ]);
+    assert_eq!(
+        (v["layers"].as_str(), v["episodes"].as_u64()),
+        (Some("conv:8,24 hidden:96,32"), Some(5))
+    );
     // And plays, its state carried per drone.
     let gif = dir.join("gru.gif");
     let args = ["--agents", "2", "--out", gif.to_str().unwrap(), "--json"];

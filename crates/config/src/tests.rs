@@ -144,9 +144,15 @@ fn memory_is_named_and_sized_and_refused_where_it_does_not_work_yet() {
     assert_eq!(gru.replay_rows(), (200_000 / 14, 15_000 / 14));
     assert_eq!(
         gru.num_params(),
-        rotorhive_model::RecurrentQNet::new(gru.shapes(), 64, 0, &rotorhive_model::Device::Cpu)
-            .unwrap()
-            .num_params()
+        rotorhive_model::PolicyNet::new(
+            gru.shapes(),
+            gru.layers(),
+            Some(64),
+            0,
+            &rotorhive_model::Device::Cpu
+        )
+        .unwrap()
+        .num_params()
     );
     for (sets, needle) in [
         (&["learner.memory=\"lstm:64\""][..], "learner.memory"),

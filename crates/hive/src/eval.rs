@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Result, bail};
 use clap::{Args, ValueEnum};
-use rotorhive_model::{PolicyNet, Shapes};
+use rotorhive_model::{Layers, PolicyNet, Shapes};
 use rotorhive_roles::Config;
 use rotorhive_roles::flights::{
     Agreement, EpisodeLog, EvalStats, LogSpec, Pilot, agreement, fly_layouts_logged, layout_spread,
@@ -245,8 +245,8 @@ pub fn run(a: EvalArgs) -> Result<()> {
         },
         agreement: a.agree.map(|_| agreement(&logs.concat())),
     };
-    let memory = net.as_ref().and_then(PolicyNet::memory);
-    report(&a, (policy, memory), &source, cfg.shapes(), (&layouts, &stats), &found);
+    let net = net.as_ref().map(|n| (n.memory(), n.layers()));
+    report(&a, (policy, net), &source, cfg.shapes(), (&layouts, &stats), &found);
     Ok(())
 }
 
@@ -280,12 +280,13 @@ fn training_layouts(run: &Path, cfg: &Config) -> Result<Vec<Arena>> {
 /// `--json` one object as the last line.
 fn report(
     a: &EvalArgs,
-    (policy, memory): (PolicyKind, Option<usize>),
+    (policy, net): (PolicyKind, Option<(Option<usize>, Layers)>),
     source: &str,
     shapes: Shapes,
     (layouts, stats): (&[Arena], &[EvalStats]),
     found: &Found,
 ) {
+    let memory = net.and_then(|n| n.0);
     let pooled = EvalStats::pooled(stats);
     let pct = |s: &EvalStats| {
         let [lo, hi] = s.wilson();
@@ -333,7 +334,7 @@ fn report(
     }
     report_found(a, (layouts, stats), found);
     if a.json {
-        print_json(a, policy, source, shapes, (layouts, stats), (&pooled, memory), found);
+        print_json(a, policy, source, shapes, (layouts, stats), (&pooled, net), found);
     }
 }
 
@@ -397,9 +398,10 @@ fn print_json(
     source: &str,
     shapes: Shapes,
     (layouts, stats): (&[Arena], &[EvalStats]),
-    (pooled, memory): (&EvalStats, Option<usize>),
+    (pooled, net): (&EvalStats, Option<(Option<usize>, Layers)>),
     found: &Found,
 ) {
+    let memory = net.and_then(|n| n.0);
     let (quartiles, under) = layout_spread(stats);
     let planner = policy == PolicyKind::Planner;
     let layouts_json: Vec<serde_json::Value> = layouts
@@ -419,6 +421,7 @@ fn print_json(
             "sight": planner.then(|| a.sight.name().0),
             "memory_s": a.memory_s,
             "memory": (policy == PolicyKind::Greedy).then(|| rotorhive_model::memory_name(memory)),
+            "layers": net.map(|n| n.1.name()),
             "layouts": layouts_json,
             "policy": policy.name(),
             "level": a.level,

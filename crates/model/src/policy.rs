@@ -58,6 +58,14 @@ impl PolicyNet {
         }
     }
 
+    /// Floats of its flat weights (as the weights channel carries them).
+    pub fn num_params(&self) -> usize {
+        match &self.0 {
+            Net::Feedforward(n) => n.num_params(),
+            Net::Recurrent(n) => n.num_params(),
+        }
+    }
+
     /// Floats of state an agent carries (0 without memory).
     pub fn state_width(&self) -> usize {
         self.memory().unwrap_or(0)

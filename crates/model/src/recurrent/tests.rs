@@ -1,3 +1,4 @@
+use super::update::sequence_priorities;
 use super::*;
 use crate::{Dqn, DqnConfig, QNet, Teaching};
 use rotorhive_msg::NO_EXPERT;
