@@ -250,6 +250,11 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
             if fresh_layouts == Some(0) {
                 usage!("--fresh-layouts must be positive");
             }
+            // A config that renews its lanes is measured both ways too.
+            let fresh_layouts = fresh_layouts.or(match &world {
+                SimWorld::Config(c) if c.sim.fresh_layouts > 0 => Some(c.sim.fresh_layouts),
+                _ => None,
+            });
             let lanes: Vec<Option<usize>> =
                 std::iter::once(None).chain(fresh_layouts.map(Some)).collect();
             bench_sim(&agents, (steps, threads), (&physics, &lanes), &world, json)
