@@ -354,17 +354,8 @@ impl SimWorld {
     }
 }
 
-fn bench_sim(
-    agents: &[usize],
-    (steps, threads): (usize, usize),
-    (physics, lanes): (&[PhysicsKind], &[Option<usize>]),
-    world: &SimWorld,
-    json: bool,
-) -> Result<()> {
-    if agents.contains(&0) || steps == 0 || threads == 0 {
-        usage!("--agents, --steps and --threads must be positive");
-    }
-    let mut rows = Vec::new();
+/// The column heads of `hive bench sim`'s table.
+fn print_sim_header() {
     println!(
         "{:>7} {:>8} {:>9} {:>16} {:>12} {:>11} {:>11} {:>11} {:>15} {:>14}",
         "agents",
@@ -378,6 +369,20 @@ fn bench_sim(
         "physics µs/agent",
         "render µs/agent"
     );
+}
+
+fn bench_sim(
+    agents: &[usize],
+    (steps, threads): (usize, usize),
+    (physics, lanes): (&[PhysicsKind], &[Option<usize>]),
+    world: &SimWorld,
+    json: bool,
+) -> Result<()> {
+    if agents.contains(&0) || steps == 0 || threads == 0 {
+        usage!("--agents, --steps and --threads must be positive");
+    }
+    let mut rows = Vec::new();
+    print_sim_header();
     let runs = agents.iter().flat_map(|n| physics.iter().map(move |p| (*n, *p)));
     for ((n, kind), fresh) in runs.flat_map(|r| lanes.iter().map(move |l| (r, *l))) {
         let mut env = world.env(n, threads, kind, fresh)?;

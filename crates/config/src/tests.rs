@@ -244,7 +244,9 @@ fn the_networks_widths_are_keys_checked_by_name() {
 fn fresh_layouts_are_checked_and_never_a_held_out_or_trained_layout() {
     let over = |s: &[&str]| s.iter().map(|x| x.to_string()).collect::<Vec<_>>();
     let c = Config::level("dense", &over(&["sim.fresh_layouts=200"])).unwrap();
-    assert!(Config::level("dense", &[]).unwrap().fresh_layouts(0).unwrap().is_none());
+    let off = Config::level("dense", &over(&["sim.fresh_layouts=0"])).unwrap();
+    assert!(off.fresh_layouts(0).unwrap().is_none());
+    assert_eq!(Config::level("dense", &[]).unwrap().sim.fresh_layouts, 50, "L1 trains so");
     let (first, mut make) = c.fresh_layouts(0).unwrap().expect("fresh layouts are on");
     assert_eq!(first, 0, "the level trains on generated lanes alone");
     let held: Vec<_> = c
