@@ -64,16 +64,22 @@ pub(crate) fn network_metadata(
     meta
 }
 
+/// A checkpoint's header entries (none in a file of an early build), and
+/// how to name a fault of the file.
+fn header_of(path: &Path) -> Result<(HashMap<String, String>, impl Fn(String) -> ModelError)> {
+    let file = path.display().to_string();
+    let bad = move |message: String| ModelError::Checkpoint { file: file.clone(), message };
+    let bytes = std::fs::read(path).map_err(|e| bad(format!("cannot read: {e}")))?;
+    let (_, header) = safetensors::SafeTensors::read_metadata(&bytes)
+        .map_err(|e| bad(format!("not a valid safetensors file: {e}")))?;
+    Ok((header.metadata().clone().unwrap_or_default(), bad))
+}
+
 /// The shapes a checkpoint was written for, from its header (`frames`,
 /// `frame_stride`, `scalars` and `actions`; an entry missing in a checkpoint of an earlier
 /// build is the paper's), checked to be ones a task has.
 pub fn checkpoint_shapes(path: &Path) -> Result<Shapes> {
-    let file = path.display().to_string();
-    let bad = |message: String| ModelError::Checkpoint { file: file.clone(), message };
-    let bytes = std::fs::read(path).map_err(|e| bad(format!("cannot read: {e}")))?;
-    let (_, header) = safetensors::SafeTensors::read_metadata(&bytes)
-        .map_err(|e| bad(format!("not a valid safetensors file: {e}")))?;
-    let meta = header.metadata().clone().unwrap_or_default();
+    let (meta, bad) = header_of(path)?;
     let field = |k: &str, default: usize| -> Result<usize> {
         meta.get(k).map_or(Ok(default), |v| {
             v.parse().map_err(|_| bad(format!("header entry `{k}` is {v:?}, not a count")))
@@ -156,12 +162,8 @@ fn check_layout(bytes: &[u8], file: &str, ours: &HashMap<String, String>) -> Res
 /// feedforward one (or a checkpoint of a build before memory), `Some(width)`
 /// for a GRU's.
 pub fn checkpoint_memory(path: &Path) -> Result<Option<usize>> {
-    let file = path.display().to_string();
-    let bad = |message: String| ModelError::Checkpoint { file: file.clone(), message };
-    let bytes = std::fs::read(path).map_err(|e| bad(format!("cannot read: {e}")))?;
-    let (_, header) = safetensors::SafeTensors::read_metadata(&bytes)
-        .map_err(|e| bad(format!("not a valid safetensors file: {e}")))?;
-    match header.metadata().as_ref().and_then(|m| m.get("memory")).map(String::as_str) {
+    let (meta, bad) = header_of(path)?;
+    match meta.get("memory").map(String::as_str) {
         None | Some("none") => Ok(None),
         Some(m) => m
             .strip_prefix("gru:")
@@ -175,12 +177,8 @@ pub fn checkpoint_memory(path: &Path) -> Result<Option<usize>> {
 /// The widths of a checkpoint's network, from its header's `layers` (the
 /// design's where it has none).
 pub fn checkpoint_layers(path: &Path) -> Result<Layers> {
-    let file = path.display().to_string();
-    let bad = |message: String| ModelError::Checkpoint { file: file.clone(), message };
-    let bytes = std::fs::read(path).map_err(|e| bad(format!("cannot read: {e}")))?;
-    let (_, header) = safetensors::SafeTensors::read_metadata(&bytes)
-        .map_err(|e| bad(format!("not a valid safetensors file: {e}")))?;
-    match header.metadata().as_ref().and_then(|m| m.get("layers")) {
+    let (meta, bad) = header_of(path)?;
+    match meta.get("layers") {
         None => Ok(Layers::DEFAULT),
         Some(l) => Layers::parse(l).map_err(|e| bad(format!("header entry `layers`: {e}"))),
     }
