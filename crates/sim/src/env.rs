@@ -80,14 +80,19 @@ impl World {
                 t,
             ))),
         };
-        let mut scene = Scene::new(arena);
-        scene.set_lanes(bounds);
-        let gpu = match cfg.renderer {
-            RendererKind::Cpu => None,
-            RendererKind::Wgpu => Some(GpuDepthRenderer::new(cfg.camera, &scene)?),
-        };
+        let scene = Scene::of_lanes(arena, bounds);
+        let gpu = gpu_scene(cfg, &scene)?;
         Ok(Self { flight, physics, scene, gpu })
     }
+}
+
+/// The wgpu renderer's copy of `scene`, with that renderer (none with the
+/// CPU one).
+fn gpu_scene(cfg: &SimConfig, scene: &Scene) -> Result<Option<GpuDepthRenderer>, GpuError> {
+    Ok(match cfg.renderer {
+        RendererKind::Cpu => None,
+        RendererKind::Wgpu => Some(GpuDepthRenderer::new(cfg.camera, scene)?),
+    })
 }
 
 /// N quadrotors in one arena.
@@ -711,10 +716,7 @@ impl VecEnv {
         };
         let fresh::Built { lanes, geometry, scene, .. } = built;
         debug_assert_eq!(lanes.offsets, self.lane_offsets, "every lane keeps its place");
-        self.gpu = match self.cfg.renderer {
-            RendererKind::Cpu => None,
-            RendererKind::Wgpu => Some(GpuDepthRenderer::new(self.cfg.camera, &scene)?),
-        };
+        self.gpu = gpu_scene(&self.cfg, &scene)?;
         (self.physics, self.scene, self.arena) = (Physics::Direct(geometry), scene, lanes.world);
         self.lane_offsets = lanes.offsets;
         self.lane_spawns = lanes.spawns;

@@ -55,7 +55,7 @@ pub(crate) struct Fresh {
     lanes: usize,
     /// Episodes finished since the last renewal began.
     since: usize,
-    /// The renewal under way: its number, and the lane retired for it.
+    /// The lane retired for the renewal under way.
     pub(crate) retiring: Option<usize>,
     next: u64,
     /// The builder's worlds (in a mutex: an environment is shared with
@@ -96,18 +96,13 @@ impl Fresh {
         }
     }
 
-    /// The lane renewal `n` replaces.
-    fn slot(&self, n: u64) -> usize {
-        self.first + (n % (self.lanes - self.first) as u64) as usize
-    }
-
     /// Counts `finished` episodes; retires the next lane when a renewal is
     /// due.
     pub(crate) fn count(&mut self, finished: usize) {
         self.since += finished;
         if self.retiring.is_none() && self.since >= self.every && self.ask.is_some() {
             self.since = 0;
-            self.retiring = Some(self.slot(self.next));
+            self.retiring = Some(slot(self.first, self.lanes, self.next));
         }
     }
 
@@ -149,15 +144,19 @@ impl Fresh {
 
 impl Drop for Fresh {
     fn drop(&mut self) {
-        // The builder ends when its requests stop (after the world it is
-        // building, whose send then fails).
-        // At most one renewal is asked for at a time, and the channel holds
-        // its world: the builder never blocks on a send here.
+        // The builder ends when its requests stop. At most one renewal is
+        // asked for at a time and the channel holds its world, so the
+        // builder never blocks on a send here.
         self.ask = None;
         if let Some(t) = self.thread.take() {
             let _ = t.join();
         }
     }
+}
+
+/// The lane renewal `n` replaces, of `lanes` whose first `first` are kept.
+fn slot(first: usize, lanes: usize, n: u64) -> usize {
+    first + (n % (lanes - first) as u64) as usize
 }
 
 /// The builder thread: for every renewal asked for, the new arena in its
@@ -169,14 +168,12 @@ fn build_worlds(
     asked: &Receiver<u64>,
     send: &SyncSender<Result<Built, ArenaError>>,
 ) {
-    let renewable = arenas.len() - first;
     while let Ok(n) = asked.recv() {
-        let slot = first + (n % renewable as u64) as usize;
-        arenas[slot] = make(n);
+        let k = slot(first, arenas.len(), n);
+        arenas[k] = make(n);
         let built = Lanes::new(&arenas).map(|lanes| {
             let geometry = Geometry::new(&lanes.world);
-            let mut scene = Scene::new(&lanes.world);
-            scene.set_lanes(&lanes.bounds);
+            let scene = Scene::of_lanes(&lanes.world, &lanes.bounds);
             Built { n, lanes, geometry, scene }
         });
         if send.send(built).is_err() {

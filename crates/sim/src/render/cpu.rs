@@ -170,6 +170,14 @@ impl Scene {
         }
     }
 
+    /// The scene of `arena`, its lanes along y at `bounds` (see
+    /// [`Scene::set_lanes`]).
+    pub fn of_lanes(arena: &Arena, bounds: &[[f32; 2]]) -> Self {
+        let mut scene = Self::new(arena);
+        scene.set_lanes(bounds);
+        scene
+    }
+
     /// Tells the scene where its lanes lie along y (see
     /// [`Lanes::bounds`](crate::Lanes::bounds)), so that a camera inside a
     /// lane looks only at that lane's obstacles.
