@@ -103,11 +103,18 @@ impl Config {
     /// [`Config::lane_arenas`] at curriculum stage `stage`.
     pub fn lane_arenas_at(&self, env: usize, stage: u32) -> Result<Vec<Arena>> {
         let base = self.base_arena()?;
-        let p = match &base {
-            Some(b) if self.sim.curriculum.is_none() => self.gen_params_like(b),
-            _ => self.generator_at_stage(stage)?,
-        };
+        let p = self.lane_params(base.as_ref(), stage)?;
         Ok(self.lanes_with(base, env, &p))
+    }
+
+    /// The generator's parameters of the lanes beside `base` at curriculum
+    /// stage `stage`: `base`'s size without a curriculum, the stage's
+    /// generator otherwise (or without a base).
+    fn lane_params(&self, base: Option<&Arena>, stage: u32) -> Result<GenParams> {
+        match base {
+            Some(b) if self.sim.curriculum.is_none() => Ok(self.gen_params_like(b)),
+            _ => self.generator_at_stage(stage),
+        }
     }
 
     /// `base` and the `sim.generated_lanes` generated arenas of environment
@@ -136,11 +143,9 @@ impl Config {
         if self.sim.fresh_layouts == 0 {
             return Ok(None);
         }
+        // The lanes' own parameters (validation refuses a curriculum here).
         let base = self.base_arena()?;
-        let p = match &base {
-            Some(b) => self.gen_params_like(b),
-            None => self.generator_at_stage(0)?,
-        };
+        let p = self.lane_params(base.as_ref(), 0)?;
         let seed = self.seed;
         let make = move |n: u64| {
             Arena::generate(&format!("fresh-{n}"), crate::streams::fresh_lane(seed, env, n), &p)
