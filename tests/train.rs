@@ -394,6 +394,10 @@ fn bad_input_is_refused_clearly() {
         &["eval", "--policy", "planner", "--sight", "view", "--memory-s", "9"],
         &["--memory-s", "view-memory"],
     );
+    fails_with(
+        &["eval", "--policy", "planner", "--sight", "view", "--rays", "64"],
+        &["--rays", "pixels-memory"],
+    );
     fails_with(&["train", "--resume", dir.to_str().unwrap()], &["--resume", "learner state"]);
     fails_with(&["train", "--set", "sim.renderer=\"vulkan\""], &["sim.renderer"]);
     fails_with(&["train", "--set", "eval.target_success=2"], &["eval.target_success"]);

@@ -13,7 +13,7 @@ use rotorhive_roles::Config;
 use rotorhive_roles::flights::{
     Agreement, EpisodeLog, EvalStats, LogSpec, Pilot, agreement, fly_layouts_logged, layout_spread,
 };
-use rotorhive_sim::{Arena, Sight};
+use rotorhive_sim::{Arena, Sight, SimConfig};
 
 /// Who flies in `hive eval`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -117,6 +117,11 @@ pub struct EvalArgs {
     /// whose half cycle is longer is never known (default: the episode).
     #[arg(long, value_name = "S")]
     pub memory_s: Option<u16>,
+    /// Rays a side that a `--sight pixels` or `pixels-memory` planner
+    /// casts to learn what the camera shows (default: the camera's 32): what
+    /// a camera of more pixels would tell it.
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u16).range(4..=512))]
+    pub rays: Option<u16>,
     /// A level (`configs/levels/NAME.toml`): its sim settings and its
     /// held-out test layouts (a checkpoint's stacked frames and their
     /// stride taken from its header). Without it: the settings of the run
@@ -204,6 +209,10 @@ pub fn run(a: EvalArgs) -> Result<()> {
     if a.memory_s.is_some() && (policy != PolicyKind::Planner || !remembers) {
         bail!("--memory-s is for --policy planner --sight view-memory or pixels-memory");
     }
+    let pixels = matches!(a.sight, SightArg::Pixels | SightArg::PixelsMemory);
+    if a.rays.is_some() && (policy != PolicyKind::Planner || !pixels) {
+        bail!("--rays is for --policy planner --sight pixels or pixels-memory");
+    }
     let (cfg, source) = config(&a)?;
     // The task's network: a checkpoint of other shapes is refused by name;
     // one whose header names a memory flies as a recurrent network.
@@ -234,7 +243,8 @@ pub fn run(a: EvalArgs) -> Result<()> {
     };
     let spec = (a.failures.is_some() || a.agree.is_some())
         .then(|| LogSpec { audit: a.agree.map(|s| s.sight(None)), horizon: AUDIT_HORIZON });
-    let flown = fly_layouts_logged(pilot, &cfg.sim_config(), &layouts, a.episodes, a.seed, spec)?;
+    let sim = SimConfig { sight_rays: a.rays.map_or(0, usize::from), ..cfg.sim_config() };
+    let flown = fly_layouts_logged(pilot, &sim, &layouts, a.episodes, a.seed, spec)?;
     let (stats, logs): (Vec<EvalStats>, Vec<Vec<EpisodeLog>>) = flown.into_iter().unzip();
     let found = Found {
         failures: match &a.failures {
@@ -301,7 +311,8 @@ fn report(
         PolicyKind::Reactive => "the reactive rule".into(),
         PolicyKind::Planner => {
             let memory = a.memory_s.map_or(String::new(), |s| format!(", remembering {s} s"));
-            format!("the planner (privileged), knowing {}{memory}", a.sight.name().1)
+            let rays = a.rays.map_or(String::new(), |n| format!(", {n} x {n} rays"));
+            format!("the planner (privileged), knowing {}{memory}{rays}", a.sight.name().1)
         }
     };
     println!(
@@ -420,6 +431,7 @@ fn print_json(
             "hopeless": planner.then_some(pooled.hopeless),
             "sight": planner.then(|| a.sight.name().0),
             "memory_s": a.memory_s,
+            "rays": a.rays,
             "memory": (policy == PolicyKind::Greedy).then(|| rotorhive_model::memory_name(memory)),
             "layers": net.map(|n| n.1.name()),
             "layouts": layouts_json,

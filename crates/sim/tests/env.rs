@@ -659,3 +659,20 @@ fn fresh_layouts_renew_lanes_without_cutting_an_episode_and_reproducibly() {
         env.renew_lanes(4, 0, arenas.clone(), Box::new(|_| open_arena(40.0, vec![]))).unwrap_err();
     assert!(e.to_string().contains("direct physics"), "{e}");
 }
+
+/// `sight_rays`: a planner of the pixels told by more rays than the
+/// camera's 32 a side knows a thin pole far ahead that falls between the
+/// camera's rays; the observation keeps its 32 × 32 pixels.
+#[test]
+fn more_sight_rays_show_a_thin_pole_between_the_cameras_rays() {
+    // 15 m ahead on the axis: the camera's two middle rays pass 0.37 m to
+    // either side of it, 256 rays' middle ones 0.05 m.
+    let pole = Obstacle::still_box([17.0, 0.0, 3.0], [0.1, 0.1, 3.0]);
+    let side = Obstacle::still_box([10.0, 3.0, 3.0], [0.5, 0.5, 3.0]);
+    let arena = open_arena(40.0, vec![pole, side]);
+    let camera = VecEnv::new(cfg(1), arena.clone(), 1).unwrap();
+    assert_eq!(camera.visible_obstacles(0), vec![1]);
+    let rays = VecEnv::new(SimConfig { sight_rays: 256, ..cfg(1) }, arena, 1).unwrap();
+    assert_eq!(rays.visible_obstacles(0), vec![0, 1]);
+    assert_eq!(rays.obs_len(), camera.obs_len());
+}

@@ -9,8 +9,8 @@ use rand_pcg::Pcg64Mcg;
 
 use super::{Autoreset, Done, VecEnv};
 use crate::goal::Goal;
-use crate::render::cpu::CameraPose;
 use crate::render::cpu::Drones;
+use crate::render::cpu::{CameraPose, CameraSpec};
 use crate::render::wgpu::GpuError;
 
 /// Agents per piece of observation writing handed to a pool thread.
@@ -32,9 +32,16 @@ impl VecEnv {
     /// The obstacles (indices into [`VecEnv::arena`]'s, ascending) that
     /// agent `i`'s present depth frame shows: at least one of its camera's
     /// rays meets each first, within the range
-    /// ([`Scene::visible`](crate::Scene::visible)).
+    /// ([`Scene::visible`](crate::Scene::visible)); with
+    /// [`SimConfig::sight_rays`](crate::SimConfig::sight_rays), that many
+    /// rays a side instead of the camera's pixels.
     pub fn visible_obstacles(&self, i: usize) -> Vec<usize> {
-        self.scene.visible(&self.cfg.camera, &self.camera_at(i))
+        let rays = self.cfg.sight_rays;
+        let spec = CameraSpec {
+            side: if rays > 0 { rays } else { self.cfg.camera.side },
+            ..self.cfg.camera
+        };
+        self.scene.visible(&spec, &self.camera_at(i))
     }
 
     /// How many physics steps back agent `i`'s camera sees (its latency,

@@ -122,6 +122,11 @@ pub struct SimConfig {
     pub frames: usize,
     /// Action periods between two stacked frames (1: consecutive views).
     pub frame_stride: usize,
+    /// Rays per side that a planner of the pixels (`Sight::Pixels`,
+    /// `Sight::PixelsMemory`) casts to learn what the camera shows (0: the
+    /// camera's `side`): what a camera of more or fewer pixels would tell
+    /// it. The observation keeps the camera's pixels.
+    pub sight_rays: usize,
 }
 
 impl SimConfig {
@@ -167,6 +172,7 @@ impl Default for SimConfig {
             hold_action: false,
             frames: rotorhive_msg::FRAMES,
             frame_stride: 1,
+            sight_rays: 0,
         }
     }
 }
