@@ -63,6 +63,11 @@ pub enum BenchCmd {
         /// side with the fixed ones.
         #[arg(long, requires = "config")]
         fresh_layouts: Option<usize>,
+        /// With --config: a config key to change, as `hive train --set`
+        /// takes it (repeatable). A config with the camera's map
+        /// (`sim.map`) is measured without it too, side by side.
+        #[arg(long = "set", value_name = "KEY=VALUE", requires = "config")]
+        set: Vec<String>,
         /// Print one JSON object as the last line.
         #[arg(long)]
         json: bool,
@@ -240,10 +245,20 @@ impl BenchCmd {
 
 pub fn run(cmd: BenchCmd) -> Result<()> {
     match cmd {
-        BenchCmd::Sim { agents, steps, threads, physics, arena, config, fresh_layouts, json } => {
+        BenchCmd::Sim {
+            agents,
+            steps,
+            threads,
+            physics,
+            arena,
+            config,
+            fresh_layouts,
+            set,
+            json,
+        } => {
             let world = match config {
                 Some(c) => {
-                    SimWorld::Config(Box::new(rotorhive_roles::Config::load(Some(&c), &[])?))
+                    SimWorld::Config(Box::new(rotorhive_roles::Config::load(Some(&c), &set)?))
                 }
                 None => SimWorld::Arena(Arena::load(&arena)?),
             };
@@ -257,7 +272,16 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
             });
             let lanes: Vec<Option<usize>> =
                 std::iter::once(None).chain(fresh_layouts.map(Some)).collect();
-            bench_sim(&agents, (steps, threads), (&physics, &lanes), &world, json)
+            // The map's cost: the same config without it, beside it.
+            let mut worlds = vec![world];
+            if let SimWorld::Config(c) = &worlds[0]
+                && c.sim.map.enabled()
+            {
+                let mut bare = (**c).clone();
+                bare.sim.map = rotorhive_sim::MapSpec::default();
+                worlds.push(SimWorld::Config(Box::new(bare)));
+            }
+            bench_sim(&agents, (steps, threads), (&physics, &lanes), &worlds, json)
         }
         BenchCmd::Render { agents, renderer, steps, threads, arena, plot, json } => {
             bench_render(&agents, &renderer, steps, threads, &arena, &plot, json)
@@ -320,6 +344,18 @@ enum SimWorld {
 }
 
 impl SimWorld {
+    /// The encoding of its camera's map (`none` without one).
+    fn map_name(&self) -> &'static str {
+        match self {
+            SimWorld::Config(c) => match c.sim.map.encoding {
+                rotorhive_sim::MapEncoding::None => "none",
+                rotorhive_sim::MapEncoding::Grid => "grid",
+                rotorhive_sim::MapEncoding::Rays => "rays",
+            },
+            SimWorld::Arena(_) => "none",
+        }
+    }
+
     /// The environment of `n` agents with `threads` and `physics`, its
     /// lanes renewed every `fresh` finished episodes where that is given.
     fn env(
@@ -357,10 +393,11 @@ impl SimWorld {
 /// The column heads of `hive bench sim`'s table.
 fn print_sim_header() {
     println!(
-        "{:>7} {:>8} {:>9} {:>16} {:>12} {:>11} {:>11} {:>11} {:>15} {:>14}",
+        "{:>7} {:>8} {:>9} {:>6} {:>16} {:>12} {:>11} {:>11} {:>11} {:>15} {:>14}",
         "agents",
         "physics",
         "lanes",
+        "map",
         "agent-steps/s",
         "step ms",
         "physics ms",
@@ -375,7 +412,7 @@ fn bench_sim(
     agents: &[usize],
     (steps, threads): (usize, usize),
     (physics, lanes): (&[PhysicsKind], &[Option<usize>]),
-    world: &SimWorld,
+    worlds: &[SimWorld],
     json: bool,
 ) -> Result<()> {
     if agents.contains(&0) || steps == 0 || threads == 0 {
@@ -384,8 +421,10 @@ fn bench_sim(
     let mut rows = Vec::new();
     print_sim_header();
     let runs = agents.iter().flat_map(|n| physics.iter().map(move |p| (*n, *p)));
-    for ((n, kind), fresh) in runs.flat_map(|r| lanes.iter().map(move |l| (r, *l))) {
+    let runs = runs.flat_map(|r| lanes.iter().map(move |l| (r, *l)));
+    for (((n, kind), fresh), world) in runs.flat_map(|r| worlds.iter().map(move |w| (r, w))) {
         let mut env = world.env(n, threads, kind, fresh)?;
+        let map = world.map_name();
         // A fixed pseudo-random action pattern: agents crash and reset as in training.
         let actions = |t: usize| -> Vec<u8> {
             (0..n).map(|i| (((t * 31 + i * 17) >> 2) % 2) as u8).collect()
@@ -407,10 +446,11 @@ fn bench_sim(
         let sps = (n * steps) as f64 / wall;
         let lanes_name = fresh.map_or_else(|| "fixed".to_string(), |e| format!("fresh/{e}"));
         println!(
-            "{:>7} {:>8} {:>9} {:>16.0} {:>12.3} {:>11.3} {:>11.3} {:>11.3} {:>15.2} {:>14.2}",
+            "{:>7} {:>8} {:>9} {:>6} {:>16.0} {:>12.3} {:>11.3} {:>11.3} {:>11.3} {:>15.2} {:>14.2}",
             n,
             physics_name(kind),
             lanes_name,
+            map,
             sps,
             wall * 1e3 / steps as f64,
             per(phys),
@@ -423,6 +463,8 @@ fn bench_sim(
             "agents": n,
             "physics": physics_name(kind),
             "lanes": lanes_name,
+            "map": map,
+            "map_bytes_per_agent": env.map_bytes_per_agent(),
             "fresh_layouts_flown": env.fresh_stats().renewed,
             "fresh_wait_ms": env.fresh_stats().wait_ns as f64 / 1e6,
             "agent_steps_per_s": sps,

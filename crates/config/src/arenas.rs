@@ -216,6 +216,7 @@ impl Config {
             hold_action: s.hold_action,
             frames: s.frames,
             frame_stride: s.frame_stride,
+            map: s.map.clone(),
             ..SimConfig::default()
         }
     }

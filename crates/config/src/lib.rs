@@ -174,6 +174,7 @@ impl Config {
     pub fn shapes(&self) -> Shapes {
         Shapes::task(self.sim.frames, self.sim.goal.enabled, self.sim.hold_action)
             .with_stride(self.sim.frame_stride)
+            .with_map(self.sim.map.floats())
     }
 
     /// The GRU width of `learner.memory` (validated): `None` for the

@@ -6,7 +6,9 @@ use std::path::PathBuf;
 
 use rotorhive_model::Teaching;
 use rotorhive_records::ObservationMode;
-use rotorhive_sim::{GenParams, Goal, Noise, PhysicsKind, Randomize, RendererKind, Sight};
+use rotorhive_sim::{
+    GenParams, Goal, MapSpec, Noise, PhysicsKind, Randomize, RendererKind, Sight,
+};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Result, config_err};
@@ -218,6 +220,9 @@ pub struct SimSection {
     pub goal: Goal,
     /// A third action that holds the lateral setpoint.
     pub hold_action: bool,
+    /// The camera's map in the observation (`[sim.map]`; off: none).
+    #[serde(skip_serializing_if = "MapSpec::is_off")]
+    pub map: MapSpec,
 }
 
 /// `[sim.curriculum]`: one key of `[sim.generator]` ramps linearly from
@@ -396,6 +401,7 @@ impl Default for SimSection {
             randomize: Randomize::default(),
             curriculum: None,
             goal: Goal::default(),
+            map: MapSpec::default(),
             hold_action: false,
             frames: rotorhive_msg::FRAMES,
             frame_stride: 1,

@@ -183,6 +183,9 @@ impl Config {
         s.goal
             .validate()
             .map_err(|(k, m)| ConfigError::Invalid(format!("key `sim.goal.{k}` {m}")))?;
+        s.map
+            .validate()
+            .map_err(|(k, m)| ConfigError::Invalid(format!("key `sim.map.{k}` {m}")))?;
         let latency = s.noise.latency_s != [0.0, 0.0];
         if s.physics == PhysicsKind::Rapier && (latency || s.randomize.dynamics()) {
             config_err!(

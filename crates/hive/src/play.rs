@@ -120,7 +120,7 @@ impl<W: std::io::Write> Recording<W> {
             frame_stride: shapes.stride,
             ..SimConfig::default()
         };
-        cfg.goal.enabled = shapes.scalars > rotorhive_msg::VEL_DIM;
+        cfg.goal.enabled = shapes.goal();
         cfg.hold_action = shapes.actions > rotorhive_msg::NUM_ACTIONS;
         let mut env = VecEnv::new(cfg, arena.clone(), a.seed + round as u64)?;
         env.set_autoreset(Autoreset::Disabled);

@@ -36,10 +36,15 @@ pub(crate) fn network_metadata(
     layers: Layers,
     width: Option<usize>,
 ) -> HashMap<String, String> {
-    let goal = if shapes.scalars > rotorhive_msg::VEL_DIM {
+    let goal = if shapes.goal() {
         ", then the goal's bearing (rad), distance and lateral offset (10 m)"
     } else {
         ""
+    };
+    let map = if shapes.map > 0 {
+        format!(", then {} floats of the camera's map", shapes.map)
+    } else {
+        String::new()
     };
     let mut meta = HashMap::from([
         ("layout".to_string(), CHECKPOINT_LAYOUT.to_string()),
@@ -47,7 +52,7 @@ pub(crate) fn network_metadata(
             "observation".to_string(),
             format!(
                 "depth {}x{SIDE}x{SIDE} in [0, 1] (oldest frame first, {} action period(s) \
-                 apart), then velocity 3 (m/s, body frame){goal}",
+                 apart), then velocity 3 (m/s, body frame){goal}{map}",
                 shapes.frames, shapes.stride
             ),
         ),
@@ -60,6 +65,11 @@ pub(crate) fn network_metadata(
     ]);
     if layers != Layers::DEFAULT {
         meta.insert("layers".to_string(), layers.name());
+    }
+    // Named only with a map, so that a checkpoint without one has the
+    // bytes of earlier builds.
+    if shapes.map > 0 {
+        meta.insert("map".to_string(), shapes.map.to_string());
     }
     meta
 }
@@ -90,6 +100,7 @@ pub fn checkpoint_shapes(path: &Path) -> Result<Shapes> {
         stride: field("frame_stride", Shapes::PAPER.stride)?,
         scalars: field("scalars", Shapes::PAPER.scalars)?,
         actions: field("actions", Shapes::PAPER.actions)?,
+        map: field("map", 0)?,
     };
     shapes.check().map_err(|m| bad(format!("header claims {m}")))
 }
@@ -132,14 +143,25 @@ fn check_layout(bytes: &[u8], file: &str, ours: &HashMap<String, String>) -> Res
     };
     // A checkpoint of a build before memory is a feedforward network's, one
     // without `layers` the design's widths.
-    let (none, widths) = (memory_name(None), Layers::DEFAULT.name());
+    // One without `map` has none.
+    let (none, widths, no_map) = (memory_name(None), Layers::DEFAULT.name(), "0".to_string());
     let default = |k: &str| match k {
         "memory" => Some(&none),
         "layers" => Some(&widths),
+        "map" => Some(&no_map),
         _ => None,
     };
-    let keys =
-        ["layout", "obs_len", "frames", "frame_stride", "scalars", "actions", "memory", "layers"];
+    let keys = [
+        "layout",
+        "obs_len",
+        "frames",
+        "frame_stride",
+        "scalars",
+        "actions",
+        "memory",
+        "layers",
+        "map",
+    ];
     let diffs: Vec<String> = keys
         .iter()
         .filter_map(|k| {

@@ -47,6 +47,9 @@ pub const VEL_DIM: usize = 3;
 /// (`[sim.goal]`): its bearing (rad, body frame), its distance and its
 /// lateral offset (body frame), both in tens of metres.
 pub const GOAL_DIM: usize = 3;
+/// The most floats the camera's map (`[sim.map]`) may add to an
+/// observation's scalars.
+pub const MAX_MAP_FLOATS: usize = 1024;
 /// Floats after `s` and `s'` in a transition: the action taken, the
 /// (n-step) reward, done (0 or 1), the teacher's label at `s` (the action
 /// it holds the only right one there, or the set it holds best, see
@@ -76,16 +79,19 @@ pub struct Shapes {
     /// another's observations wrongly, so checkpoints say it too.
     pub stride: usize,
     /// Floats after the depth frames: the body-frame velocity, then (with a
-    /// goal) the goal's [`GOAL_DIM`] floats.
+    /// goal) the goal's [`GOAL_DIM`] floats, then the camera's map's
+    /// [`Shapes::map`] floats.
     pub scalars: usize,
     /// Discrete actions.
     pub actions: usize,
+    /// Floats of the camera's map at the end of the scalars (0: no map).
+    pub map: usize,
 }
 
 impl Shapes {
     /// The paper's task: velocity only, two actions.
     pub const PAPER: Shapes =
-        Shapes { frames: FRAMES, stride: 1, scalars: VEL_DIM, actions: NUM_ACTIONS };
+        Shapes { frames: FRAMES, stride: 1, scalars: VEL_DIM, actions: NUM_ACTIONS, map: 0 };
     /// The most actions any task has.
     pub const MAX_ACTIONS: usize = NUM_ACTIONS + 1;
 
@@ -97,7 +103,20 @@ impl Shapes {
             stride: 1,
             scalars: VEL_DIM + if goal { GOAL_DIM } else { 0 },
             actions: NUM_ACTIONS + hold as usize,
+            map: 0,
         }
+    }
+
+    /// The same shapes with `floats` of the camera's map after the other
+    /// scalars (replacing any map they had).
+    pub const fn with_map(self, floats: usize) -> Self {
+        Self { scalars: self.scalars - self.map + floats, map: floats, ..self }
+    }
+
+    /// Whether the observation holds a goal's [`GOAL_DIM`] floats (after
+    /// the velocity, before the map).
+    pub const fn goal(self) -> bool {
+        self.scalars >= self.map + VEL_DIM + GOAL_DIM
     }
 
     /// The same shapes with the stacked frames `stride` action periods apart.
@@ -257,10 +276,16 @@ impl Shapes {
                 self.stride
             ));
         }
-        if self.scalars != VEL_DIM && self.scalars != VEL_DIM + GOAL_DIM {
+        if self.map > MAX_MAP_FLOATS {
+            return Err(format!("{} floats of the map (at most {MAX_MAP_FLOATS})", self.map));
+        }
+        let task = self.scalars.checked_sub(self.map);
+        if task != Some(VEL_DIM) && task != Some(VEL_DIM + GOAL_DIM) {
             return Err(format!(
-                "{} observation scalars (a task has {VEL_DIM}, or {} with a goal)",
+                "{} observation scalars with {} of the map (a task has {VEL_DIM}, or {} with \
+                 a goal, then the map's)",
                 self.scalars,
+                self.map,
                 VEL_DIM + GOAL_DIM
             ));
         }

@@ -26,6 +26,7 @@ use crate::render::wgpu::{GpuDepthRenderer, GpuError};
 pub use rotorhive_msg::DoneKind as Done;
 
 mod fresh;
+mod mapping;
 mod observe;
 mod settings;
 
@@ -153,6 +154,10 @@ pub struct VecEnv {
     autoreset: Autoreset,
     /// Agents that started a new episode in the last step (`NextStep`).
     restarted: Vec<bool>,
+    /// Each lane's free space along y, and every agent's camera map
+    /// (`[sim.map]`; `env/mapping.rs`).
+    lane_bounds: Vec<[f32; 2]>,
+    maps: Option<crate::map::Maps>,
 }
 
 impl VecEnv {
@@ -184,6 +189,7 @@ impl VecEnv {
             "an observation holds at least one frame"
         );
         let obs_len = cfg.frames * px + cfg.shapes().scalars;
+        let maps = mapping::maps_of(&cfg, &lane_bounds, &arena);
         let mut env = Self {
             renderer: DepthRenderer::new(cfg.camera, cfg.render_threads),
             gpu,
@@ -219,12 +225,15 @@ impl VecEnv {
             before: vec![Vector::ZERO; n],
             autoreset: Autoreset::SameStep,
             restarted: vec![false; n],
+            maps,
+            lane_bounds,
             cfg,
         };
         for i in 0..n {
             env.reset_agent(i);
         }
         env.render()?;
+        env.map_frames(None);
         for i in 0..n {
             env.fill_past(i);
         }
@@ -534,6 +543,7 @@ impl VecEnv {
         let t2 = Instant::now();
         self.age_frames();
         self.render()?;
+        self.map_frames(None);
         let t3 = Instant::now();
         // A reset agent starts with every frame equal to its first view.
         for i in 0..self.cfg.agents {
@@ -589,6 +599,9 @@ impl VecEnv {
             _ => 0,
         };
         self.agent_lane[i] = lane;
+        if let Some(m) = &mut self.maps {
+            m.clear(i, self.lane_bounds[lane]);
+        }
         let s = &self.lane_spawns[lane];
         let y = self.lane_offsets[lane]
             + if s.y[1] > s.y[0] { self.rng.random_range(s.y[0]..s.y[1]) } else { s.y[0] };
@@ -720,6 +733,7 @@ impl VecEnv {
         (self.physics, self.scene, self.arena) = (Physics::Direct(geometry), scene, lanes.world);
         self.lane_offsets = lanes.offsets;
         self.lane_spawns = lanes.spawns;
+        self.lane_bounds = lanes.bounds;
         Ok(())
     }
 
@@ -728,6 +742,8 @@ impl VecEnv {
         let Lanes { world, offsets, spawns, bounds } = lanes;
         let World { flight, physics, scene, gpu } =
             World::new(&self.cfg, &world, &bounds, self.time())?;
+        self.maps = mapping::maps_of(&self.cfg, &bounds, &world);
+        self.lane_bounds = bounds;
         (self.flight, self.physics, self.scene, self.gpu) = (flight, physics, scene, gpu);
         self.arena = world;
         self.lane_offsets = offsets;

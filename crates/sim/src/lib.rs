@@ -10,6 +10,7 @@ pub mod env;
 mod flight;
 pub mod generate;
 pub mod goal;
+pub mod map;
 pub mod planner;
 mod pool;
 mod rapier_flight;
@@ -25,6 +26,7 @@ pub use env::{
 };
 pub use generate::{GenMode, GenParamError, GenParams};
 pub use goal::Goal;
+pub use map::{MapEncoding, MapSpec};
 pub use planner::{Planner, Sight};
 pub use realism::{Noise, Randomize};
 pub use render::{CameraPose, CameraSpec, DepthRenderer, GpuDepthRenderer, GpuError, Scene};

@@ -19,7 +19,7 @@ const OBS_CHUNK: usize = 16;
 impl VecEnv {
     /// Where agent `i`'s camera sees from: its pose, `lag` physics steps
     /// back along the last action's path where it has a latency.
-    fn camera_at(&self, i: usize) -> CameraPose {
+    pub(super) fn camera_at(&self, i: usize) -> CameraPose {
         let mut cam = self.camera(i);
         let lag = self.camera_lag(i);
         if lag > 0 {
@@ -180,9 +180,12 @@ impl VecEnv {
                 let i = first + j;
                 self.write_depth(i, &mut o[..fd]);
                 o[fd..fd + 3].copy_from_slice(&self.body_velocity(i));
+                let mut k = fd + 3;
                 if self.cfg.goal.enabled {
-                    o[fd + 3..].copy_from_slice(&self.goal_observation(i));
+                    o[k..k + 3].copy_from_slice(&self.goal_observation(i));
+                    k += 3;
                 }
+                self.write_map(i, &mut o[k..]);
             }
         };
         // Copies of the frames, the step's largest serial work after
@@ -242,6 +245,7 @@ impl VecEnv {
             self.pixel_noise.apply(&self.cfg.noise, self.cfg.camera.range, &mut img);
             self.put_frames(&reset, &img);
         }
+        self.map_frames(Some(&reset));
         for i in reset {
             self.fill_past(i);
         }
@@ -266,7 +270,7 @@ impl VecEnv {
         }
     }
 
-    fn camera(&self, agent: usize) -> CameraPose {
+    pub(super) fn camera(&self, agent: usize) -> CameraPose {
         let d = &self.drones[agent];
         let pitch = self.pitch[agent];
         let rotation =

@@ -127,6 +127,8 @@ pub struct SimConfig {
     /// camera's `side`): what a camera of more or fewer pixels would tell
     /// it. The observation keeps the camera's pixels.
     pub sight_rays: usize,
+    /// The camera's map in the observation (`[sim.map]`; off by default).
+    pub map: crate::map::MapSpec,
 }
 
 impl SimConfig {
@@ -140,6 +142,7 @@ impl SimConfig {
     pub fn shapes(&self) -> Shapes {
         Shapes::task(self.frames, self.goal.enabled, self.hold_action)
             .with_stride(self.frame_stride)
+            .with_map(self.map.floats())
     }
 }
 
@@ -173,6 +176,7 @@ impl Default for SimConfig {
             frames: rotorhive_msg::FRAMES,
             frame_stride: 1,
             sight_rays: 0,
+            map: crate::map::MapSpec::default(),
         }
     }
 }

@@ -1,0 +1,480 @@
+//! The camera's map (`[sim.map]`): per agent, a top-down grid of what its
+//! own depth frames have shown it this episode, built from those frames as
+//! it observes them (noise, dropout and latency included) and its own
+//! pose, cleared when an episode starts. The student reads it as an
+//! egocentric image turned to its heading (`grid`) or as distances cast
+//! through it over 360 degrees (`rays`, NavRL's form), after its velocity
+//! (and goal) in the observation's scalars.
+//!
+//! A cell is one byte: unknown, free (a ray crossed it), wall (a ray ended
+//! on the lane's wall) or obstacle (a ray ended in it, stamped with the
+//! frame it was seen in, so that `keep_s` can let a sighting expire). The
+//! map never holds what no ray met: a cell is written only by a ray of the
+//! agent's own frames. Rays that end on the floor or the ceiling mark the
+//! cells they crossed free and nothing else.
+
+use std::f32::consts::TAU;
+
+use rapier3d::math::Vector;
+
+use crate::render::cpu::{CameraPose, CameraSpec};
+
+/// How the map enters the observation (`sim.map.encoding`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MapEncoding {
+    /// No map: the observation is depth, velocity (and goal) as ever.
+    #[default]
+    None,
+    /// An egocentric window of `window × window` cells turned to the
+    /// heading, the drone a quarter of the way from its back edge; each
+    /// cell 0 (unknown), 1/3 (free), 2/3 (wall) or 1 (obstacle).
+    Grid,
+    /// `rays` distances cast through the map over 360 degrees from the
+    /// heading, counter-clockwise, to the first obstacle or wall, then as
+    /// many to the first unknown cell; each divided by `ray_range_m` (1:
+    /// nothing within it).
+    Rays,
+}
+
+/// The map's settings (`[sim.map]`; off by default).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MapSpec {
+    /// How the student reads the map (`none`: no map).
+    pub encoding: MapEncoding,
+    /// Side of one cell (m).
+    pub cell_m: f32,
+    /// Cells a side of the `grid` encoding's window.
+    pub window: usize,
+    /// Directions of the `rays` encoding.
+    pub rays: usize,
+    /// How far the `rays` encoding looks (m).
+    pub ray_range_m: f32,
+    /// How long a sighting of an obstacle is kept (s; 0: the whole
+    /// episode). With it, a ray that crosses a cell clears an earlier
+    /// sighting there (an obstacle that moved away); without it sightings
+    /// stay (a still obstacle never leaves).
+    pub keep_s: f32,
+    /// Rows of each frame read, about its middle (0: every row): the band
+    /// at the flight's altitude.
+    pub band: usize,
+}
+
+impl Default for MapSpec {
+    fn default() -> Self {
+        Self {
+            encoding: MapEncoding::None,
+            cell_m: 0.5,
+            window: 16,
+            rays: 36,
+            ray_range_m: 10.0,
+            keep_s: 0.0,
+            band: 4,
+        }
+    }
+}
+
+impl MapSpec {
+    /// Whether the settings are the defaults (no map): a config writes no
+    /// `[sim.map]` then.
+    pub fn is_off(&self) -> bool {
+        *self == Self::default()
+    }
+
+    /// Whether the observation holds the map.
+    pub fn enabled(&self) -> bool {
+        self.encoding != MapEncoding::None
+    }
+
+    /// Floats the map adds to an observation.
+    pub fn floats(&self) -> usize {
+        match self.encoding {
+            MapEncoding::None => 0,
+            MapEncoding::Grid => self.window * self.window,
+            MapEncoding::Rays => 2 * self.rays,
+        }
+    }
+
+    /// Checks the ranges; the key (under `[sim.map]`) and what is wrong.
+    pub fn validate(&self) -> Result<(), (&'static str, String)> {
+        for (key, v, lo, hi) in [
+            ("cell_m", self.cell_m, 0.05, 5.0),
+            ("ray_range_m", self.ray_range_m, 0.5, 100.0),
+            ("keep_s", self.keep_s, 0.0, MAX_KEEP_S),
+        ] {
+            if !(lo..=hi).contains(&v) {
+                return Err((key, format!("must lie in [{lo}, {hi}], got {v}")));
+            }
+        }
+        if !(2..=32).contains(&self.window) {
+            return Err(("window", format!("must be 2 to 32 cells, got {}", self.window)));
+        }
+        if !(4..=360).contains(&self.rays) {
+            return Err(("rays", format!("must be 4 to 360 directions, got {}", self.rays)));
+        }
+        if self.band > 1024 {
+            return Err(("band", format!("must be 0 (every row) to 1024 rows, got {}", self.band)));
+        }
+        if self.floats() > rotorhive_msg::MAX_MAP_FLOATS {
+            return Err((
+                "encoding",
+                format!(
+                    "gives {} floats, more than {}",
+                    self.floats(),
+                    rotorhive_msg::MAX_MAP_FLOATS
+                ),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The longest a sighting may be kept (s): stamps count frames modulo
+/// [`STAMPS`], and an age must stay under it.
+pub const MAX_KEEP_S: f32 = 240.0;
+
+const UNKNOWN: u8 = 0;
+const FREE: u8 = 1;
+const WALL: u8 = 2;
+/// An obstacle cell holds `HIT + frame % STAMPS`.
+const HIT: u8 = 3;
+const STAMPS: u32 = 253;
+/// A ray that ends this close (m) to the lane's wall face, the floor or
+/// the ceiling ended on it.
+const FACE: f32 = 0.05;
+/// Metres before a ray's end up to which the cells it crossed are free:
+/// a ray that grazes the corner of an obstacle's cell does not clear it.
+const SHY: f32 = 0.5;
+
+/// What a cell of an agent's map holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Cell {
+    /// No ray met it this episode (or its sighting expired).
+    Unknown,
+    /// A ray crossed it.
+    Free,
+    /// A ray ended on the lane's wall there.
+    Wall,
+    /// A ray ended on an obstacle there.
+    Obstacle,
+}
+
+/// Every agent's map.
+#[derive(Debug, Clone)]
+pub(crate) struct Maps {
+    spec: MapSpec,
+    /// Frames a sighting is kept (0: the episode).
+    keep: u32,
+    /// x of the grid's first column (m) and columns along x.
+    x0: f32,
+    nx: usize,
+    /// Rows along y: the widest lane's, plus a ring of wall cells each side.
+    ny: usize,
+    /// The arena's height (m): where the ceiling is.
+    height: f32,
+    /// `agents × nx × ny` cells, agent by agent, x-major.
+    cells: Vec<u8>,
+    /// Each agent's lane: free space between its walls' faces along y.
+    lane: Vec<[f32; 2]>,
+    /// Frames each agent's map has taken this episode.
+    clock: Vec<u32>,
+}
+
+impl Maps {
+    /// Maps for `agents` in a world `length` long and `height` high, whose
+    /// lanes are as wide as `widest` at most; every cell unknown.
+    pub(crate) fn new(
+        spec: &MapSpec,
+        agents: usize,
+        length: f32,
+        height: f32,
+        widest: f32,
+        action_period: f32,
+    ) -> Self {
+        let cell = spec.cell_m;
+        let x0 = -2.0;
+        let nx = ((length + 2.0 - x0) / cell).ceil() as usize;
+        let ny = (widest / cell).ceil() as usize + 3;
+        let keep = if spec.keep_s > 0.0 {
+            ((spec.keep_s / action_period).round() as u32).clamp(1, STAMPS - 2)
+        } else {
+            0
+        };
+        Self {
+            spec: spec.clone(),
+            keep,
+            x0,
+            nx,
+            ny,
+            height,
+            cells: vec![UNKNOWN; agents * nx * ny],
+            lane: vec![[-widest / 2.0, widest / 2.0]; agents],
+            clock: vec![0; agents],
+        }
+    }
+
+    /// Bytes of one agent's map.
+    pub(crate) fn bytes_per_agent(&self) -> usize {
+        self.nx * self.ny
+    }
+
+    /// Agent `i` starts an episode in the lane whose free space is `lane`
+    /// along y: its map forgets everything.
+    pub(crate) fn clear(&mut self, i: usize, lane: [f32; 2]) {
+        let n = self.nx * self.ny;
+        self.cells[i * n..(i + 1) * n].fill(UNKNOWN);
+        self.lane[i] = lane;
+        self.clock[i] = 0;
+    }
+
+    /// Agent `i`'s map takes its frame `depth` (normalised, `spec.side²`,
+    /// as the agent observes it) seen from `cam`.
+    pub(crate) fn integrate(&mut self, i: usize, depth: &[f32], spec: &CameraSpec, cam: &CameraPose) {
+        let n = self.nx * self.ny;
+        let geo = Geo { x0: self.x0, nx: self.nx, ny: self.ny, cell: self.spec.cell_m };
+        let mut one = Agent {
+            cells: &mut self.cells[i * n..(i + 1) * n],
+            lane: self.lane[i],
+            clock: &mut self.clock[i],
+        };
+        one.integrate(&geo, self.keep, self.height, self.spec.band, depth, spec, cam);
+    }
+
+    /// Every agent's map takes its frame (`frames`: `agents × side²`),
+    /// seen from `cams[i]`, on `pool`'s threads.
+    pub(crate) fn integrate_all(
+        &mut self,
+        pool: &crate::pool::Pool,
+        frames: &[f32],
+        spec: &CameraSpec,
+        cams: &[CameraPose],
+    ) {
+        const CHUNK: usize = 16;
+        let n = self.nx * self.ny;
+        let px = spec.side * spec.side;
+        let geo = Geo { x0: self.x0, nx: self.nx, ny: self.ny, cell: self.spec.cell_m };
+        let (keep, height, band) = (self.keep, self.height, self.spec.band);
+        let work = |(k, (cells, clock)): (usize, (&mut [u8], &mut [u32]))| {
+            let first = k * CHUNK;
+            for (j, (cells, clock)) in cells.chunks_exact_mut(n).zip(clock).enumerate() {
+                let i = first + j;
+                let mut one = Agent { cells, lane: self.lane[i], clock };
+                one.integrate(&geo, keep, height, band, &frames[i * px..(i + 1) * px], spec, &cams[i]);
+            }
+        };
+        let pieces =
+            self.cells.chunks_mut(CHUNK * n).zip(self.clock.chunks_mut(CHUNK)).enumerate();
+        if pool.threads() == 1 {
+            pieces.for_each(work);
+        } else {
+            pool.share(pieces, work);
+        }
+    }
+
+    /// What agent `i`'s map holds at `(x, y)`.
+    pub fn at(&self, i: usize, x: f32, y: f32) -> Cell {
+        let n = self.nx * self.ny;
+        let geo = Geo { x0: self.x0, nx: self.nx, ny: self.ny, cell: self.spec.cell_m };
+        read(&geo, &self.cells[i * n..(i + 1) * n], self.lane[i], self.keep, self.clock[i], x, y)
+    }
+
+    /// Writes agent `i`'s map as its observation reads it (`out`:
+    /// [`MapSpec::floats`]) for a drone at `p` heading `yaw` (rad).
+    pub(crate) fn encode(&self, i: usize, p: Vector, yaw: f32, out: &mut [f32]) {
+        let s = &self.spec;
+        let at = |x: f32, y: f32| self.at(i, x, y);
+        let (c, sn) = (yaw.cos(), yaw.sin());
+        match s.encoding {
+            MapEncoding::None => {}
+            MapEncoding::Grid => {
+                let w = s.window;
+                for (k, o) in out.iter_mut().enumerate() {
+                    let (r, col) = (k / w, k % w);
+                    let f = (r as f32 - w as f32 / 4.0 + 0.5) * s.cell_m;
+                    let l = (w as f32 / 2.0 - col as f32 - 0.5) * s.cell_m;
+                    let (x, y) = (p.x + c * f - sn * l, p.y + sn * f + c * l);
+                    *o = match at(x, y) {
+                        Cell::Unknown => 0.0,
+                        Cell::Free => 1.0 / 3.0,
+                        Cell::Wall => 2.0 / 3.0,
+                        Cell::Obstacle => 1.0,
+                    };
+                }
+            }
+            MapEncoding::Rays => {
+                let (rays, range) = (s.rays, s.ray_range_m);
+                let step = s.cell_m / 2.0;
+                let steps = (range / step).ceil() as usize;
+                let (occupied, unknown) = out.split_at_mut(rays);
+                for k in 0..rays {
+                    let a = yaw + TAU * k as f32 / rays as f32;
+                    let (dx, dy) = (a.cos(), a.sin());
+                    let (mut hit, mut unseen) = (range, range);
+                    for j in 0..steps {
+                        let t = (j as f32 + 0.5) * step;
+                        match at(p.x + dx * t, p.y + dy * t) {
+                            Cell::Free => continue,
+                            Cell::Unknown => unseen = unseen.min(t),
+                            Cell::Wall | Cell::Obstacle => {
+                                hit = t;
+                                unseen = unseen.min(t);
+                                break;
+                            }
+                        }
+                    }
+                    occupied[k] = (hit / range).min(1.0);
+                    unknown[k] = (unseen / range).min(1.0);
+                }
+            }
+        }
+    }
+}
+
+/// The grid's placement.
+struct Geo {
+    x0: f32,
+    nx: usize,
+    ny: usize,
+    cell: f32,
+}
+
+impl Geo {
+    /// The cell at `(x, y)` in a lane whose free space is `lane` along y
+    /// (row 0 and the row past its upper face are its walls' ring).
+    fn index(&self, lane: [f32; 2], x: f32, y: f32) -> Option<usize> {
+        let fx = (x - self.x0) / self.cell;
+        let fy = (y - lane[0]) / self.cell + 1.0;
+        let top = ((lane[1] - lane[0]) / self.cell).ceil() as usize + 1;
+        if !(fx >= 0.0 && fx < self.nx as f32) || !fy.is_finite() {
+            return None;
+        }
+        let iy = if y <= lane[0] {
+            0
+        } else if y >= lane[1] {
+            top
+        } else {
+            (fy as usize).clamp(1, top - 1)
+        };
+        (iy < self.ny).then(|| fx as usize * self.ny + iy)
+    }
+}
+
+/// One agent's map, borrowed.
+struct Agent<'a> {
+    cells: &'a mut [u8],
+    lane: [f32; 2],
+    clock: &'a mut u32,
+}
+
+impl Agent<'_> {
+    #[allow(clippy::too_many_arguments)]
+    fn integrate(
+        &mut self,
+        geo: &Geo,
+        keep: u32,
+        height: f32,
+        band: usize,
+        depth: &[f32],
+        spec: &CameraSpec,
+        cam: &CameraPose,
+    ) {
+        let side = spec.side;
+        let (rows, first) = if band == 0 || band >= side {
+            (side, 0)
+        } else {
+            (band, (side - band) / 2)
+        };
+        let tan = (spec.fov_deg.to_radians() / 2.0).tan();
+        let half = side as f32 / 2.0;
+        let (fwd, left, up) =
+            (cam.rotation * Vector::X, cam.rotation * Vector::Y, cam.rotation * Vector::Z);
+        let o = cam.position;
+        let stamp = HIT + (*self.clock % STAMPS) as u8;
+        // The column's nearest return within the band (a dropped-out pixel
+        // reads 0: no return), and where its ray ends.
+        let nearest = |u: usize| -> Option<(Vector, bool)> {
+            let mut best: Option<(f32, usize)> = None;
+            for v in first..first + rows {
+                let d = depth[v * side + u];
+                if d > 0.0 && best.is_none_or(|(b, _)| d < b) {
+                    best = Some((d, v));
+                }
+            }
+            let (d, v) = best?;
+            let su = (u as f32 + 0.5 - half) / half * tan;
+            let sv = (half - v as f32 - 0.5) / half * tan;
+            let dir = fwd - left * su + up * sv;
+            Some((o + dir * (d.min(1.0) * spec.range), d < 1.0))
+        };
+        for u in 0..side {
+            if let Some((end, met)) = nearest(u) {
+                self.cross(geo, keep, o, end, met);
+            }
+        }
+        // Hits after every crossing of the frame: a ray of this frame never
+        // clears what another of this frame met.
+        for u in 0..side {
+            let Some((end, true)) = nearest(u) else { continue };
+            if end.z <= FACE || end.z >= height - FACE {
+                continue;
+            }
+            let [lo, hi] = self.lane;
+            let (y, value) = if end.y <= lo + FACE {
+                (lo - 1.0, WALL)
+            } else if end.y >= hi - FACE {
+                (hi + 1.0, WALL)
+            } else {
+                (end.y, stamp)
+            };
+            if let Some(k) = geo.index(self.lane, end.x, y) {
+                self.cells[k] = value;
+            }
+        }
+        *self.clock += 1;
+    }
+
+    /// Marks free the cells a ray from `o` to `end` crossed (up to [`SHY`]
+    /// before its end when it met something).
+    fn cross(&mut self, geo: &Geo, keep: u32, o: Vector, end: Vector, met: bool) {
+        let (dx, dy) = (end.x - o.x, end.y - o.y);
+        let len = dx.hypot(dy);
+        let reach = if met { len - SHY } else { len };
+        if reach <= 0.0 {
+            return;
+        }
+        let step = geo.cell / 2.0;
+        let (ux, uy) = (dx / len, dy / len);
+        let mut t = 0.0;
+        while t < reach {
+            let (x, y) = (o.x + ux * t, o.y + uy * t);
+            if y > self.lane[0] && y < self.lane[1]
+                && let Some(k) = geo.index(self.lane, x, y)
+            {
+                let c = &mut self.cells[k];
+                if *c == UNKNOWN || (keep > 0 && *c >= HIT) {
+                    *c = FREE;
+                }
+            }
+            t += step;
+        }
+    }
+}
+
+/// What `cells` (one agent's, lane `lane`, at frame `clock`) hold at `(x, y)`.
+fn read(geo: &Geo, cells: &[u8], lane: [f32; 2], keep: u32, clock: u32, x: f32, y: f32) -> Cell {
+    let Some(k) = geo.index(lane, x, y) else { return Cell::Unknown };
+    match cells[k] {
+        UNKNOWN => Cell::Unknown,
+        FREE => Cell::Free,
+        WALL => Cell::Wall,
+        v => {
+            // The frame of the sighting was the clock's value then; the map
+            // has taken `clock` frames since the episode started.
+            let seen = u32::from(v - HIT);
+            let now = clock.wrapping_sub(1) % STAMPS;
+            let age = (now + STAMPS - seen) % STAMPS;
+            if keep > 0 && age >= keep { Cell::Unknown } else { Cell::Obstacle }
+        }
+    }
+}
