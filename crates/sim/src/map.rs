@@ -96,6 +96,17 @@ impl MapSpec {
         }
     }
 
+    /// How far from the camera a frame's crossed cells are marked free (m):
+    /// as far as the encoding reads (the rays' range, the window's far
+    /// corner). Farther cells are marked when the drone comes nearer; hits
+    /// are marked at any distance.
+    pub fn reach(&self) -> f32 {
+        match self.encoding {
+            MapEncoding::Rays => self.ray_range_m,
+            _ => self.window as f32 * self.cell_m * 0.9,
+        }
+    }
+
     /// Checks the ranges; the key (under `[sim.map]`) and what is wrong.
     pub fn validate(&self) -> Result<(), (&'static str, String)> {
         for (key, v, lo, hi) in [
@@ -179,6 +190,8 @@ pub(crate) struct Maps {
     lane: Vec<[f32; 2]>,
     /// Frames each agent's map has taken this episode.
     clock: Vec<u32>,
+    /// The `rays` encoding's directions from the heading (cos, sin).
+    dirs: Vec<(f32, f32)>,
 }
 
 impl Maps {
@@ -211,12 +224,23 @@ impl Maps {
             cells: vec![UNKNOWN; agents * nx * ny],
             lane: vec![[-widest / 2.0, widest / 2.0]; agents],
             clock: vec![0; agents],
+            dirs: (0..spec.rays)
+                .map(|k| {
+                    let a = TAU * k as f32 / spec.rays as f32;
+                    (a.cos(), a.sin())
+                })
+                .collect(),
         }
     }
 
     /// Bytes of one agent's map.
     pub(crate) fn bytes_per_agent(&self) -> usize {
         self.nx * self.ny
+    }
+
+    /// Agent `i`'s placement of its grid.
+    fn geo(&self, i: usize) -> Geo {
+        Geo::new(self.x0, self.nx, self.ny, self.spec.cell_m, self.lane[i])
     }
 
     /// Agent `i` starts an episode in the lane whose free space is `lane`
@@ -228,17 +252,18 @@ impl Maps {
         self.clock[i] = 0;
     }
 
+    /// What one frame's integration needs besides the agent's cells.
+    fn sight(&self) -> Sight {
+        Sight { keep: self.keep, height: self.height, band: self.spec.band, reach: self.spec.reach() }
+    }
+
     /// Agent `i`'s map takes its frame `depth` (normalised, `spec.side²`,
     /// as the agent observes it) seen from `cam`.
     pub(crate) fn integrate(&mut self, i: usize, depth: &[f32], spec: &CameraSpec, cam: &CameraPose) {
         let n = self.nx * self.ny;
-        let geo = Geo { x0: self.x0, nx: self.nx, ny: self.ny, cell: self.spec.cell_m };
-        let mut one = Agent {
-            cells: &mut self.cells[i * n..(i + 1) * n],
-            lane: self.lane[i],
-            clock: &mut self.clock[i],
-        };
-        one.integrate(&geo, self.keep, self.height, self.spec.band, depth, spec, cam);
+        let (geo, sight) = (self.geo(i), self.sight());
+        let cells = &mut self.cells[i * n..(i + 1) * n];
+        sight.integrate(&geo, cells, &mut self.clock[i], depth, spec, cam);
     }
 
     /// Every agent's map takes its frame (`frames`: `agents × side²`),
@@ -253,14 +278,15 @@ impl Maps {
         const CHUNK: usize = 16;
         let n = self.nx * self.ny;
         let px = spec.side * spec.side;
-        let geo = Geo { x0: self.x0, nx: self.nx, ny: self.ny, cell: self.spec.cell_m };
-        let (keep, height, band) = (self.keep, self.height, self.spec.band);
+        let sight = self.sight();
+        let (x0, nx, ny, cell, lanes) = (self.x0, self.nx, self.ny, self.spec.cell_m, &self.lane);
         let work = |(k, (cells, clock)): (usize, (&mut [u8], &mut [u32]))| {
             let first = k * CHUNK;
             for (j, (cells, clock)) in cells.chunks_exact_mut(n).zip(clock).enumerate() {
                 let i = first + j;
-                let mut one = Agent { cells, lane: self.lane[i], clock };
-                one.integrate(&geo, keep, height, band, &frames[i * px..(i + 1) * px], spec, &cams[i]);
+                let geo = Geo::new(x0, nx, ny, cell, lanes[i]);
+                let frame = &frames[i * px..(i + 1) * px];
+                sight.integrate(&geo, cells, clock, frame, spec, &cams[i]);
             }
         };
         let pieces =
@@ -272,18 +298,27 @@ impl Maps {
         }
     }
 
+    /// Agent `i`'s cells and how to read them.
+    fn reader(&self, i: usize) -> Reader<'_> {
+        let n = self.nx * self.ny;
+        Reader {
+            geo: self.geo(i),
+            cells: &self.cells[i * n..(i + 1) * n],
+            keep: self.keep,
+            now: self.clock[i].wrapping_sub(1) % STAMPS,
+        }
+    }
+
     /// What agent `i`'s map holds at `(x, y)`.
     pub fn at(&self, i: usize, x: f32, y: f32) -> Cell {
-        let n = self.nx * self.ny;
-        let geo = Geo { x0: self.x0, nx: self.nx, ny: self.ny, cell: self.spec.cell_m };
-        read(&geo, &self.cells[i * n..(i + 1) * n], self.lane[i], self.keep, self.clock[i], x, y)
+        self.reader(i).at(x, y)
     }
 
     /// Writes agent `i`'s map as its observation reads it (`out`:
     /// [`MapSpec::floats`]) for a drone at `p` heading `yaw` (rad).
     pub(crate) fn encode(&self, i: usize, p: Vector, yaw: f32, out: &mut [f32]) {
         let s = &self.spec;
-        let at = |x: f32, y: f32| self.at(i, x, y);
+        let map = self.reader(i);
         let (c, sn) = (yaw.cos(), yaw.sin());
         match s.encoding {
             MapEncoding::None => {}
@@ -294,7 +329,7 @@ impl Maps {
                     let f = (r as f32 - w as f32 / 4.0 + 0.5) * s.cell_m;
                     let l = (w as f32 / 2.0 - col as f32 - 0.5) * s.cell_m;
                     let (x, y) = (p.x + c * f - sn * l, p.y + sn * f + c * l);
-                    *o = match at(x, y) {
+                    *o = match map.at(x, y) {
                         Cell::Unknown => 0.0,
                         Cell::Free => 1.0 / 3.0,
                         Cell::Wall => 2.0 / 3.0,
@@ -304,93 +339,145 @@ impl Maps {
             }
             MapEncoding::Rays => {
                 let (rays, range) = (s.rays, s.ray_range_m);
-                let step = s.cell_m / 2.0;
-                let steps = (range / step).ceil() as usize;
+                // One sample a cell, in cell units: a ray may pass a
+                // cell's corner unread (a distance a cell long at most).
+                let g = map.geo;
+                let steps = (range * g.inv).ceil() as usize;
+                let nx = g.nx as f32;
+                let (ox, oy) = ((p.x - g.x0) * g.inv, (p.y - g.lo) * g.inv);
                 let (occupied, unknown) = out.split_at_mut(rays);
-                for k in 0..rays {
-                    let a = yaw + TAU * k as f32 / rays as f32;
-                    let (dx, dy) = (a.cos(), a.sin());
-                    let (mut hit, mut unseen) = (range, range);
+                for (k, &(ca, sa)) in self.dirs.iter().enumerate() {
+                    // The ray's direction: the heading turned by its angle.
+                    let (dx, dy) = (c * ca - sn * sa, sn * ca + c * sa);
+                    let (mut fx, mut fy) = (ox + dx * 0.5, oy + dy * 0.5);
+                    let (mut hit, mut unseen) = (steps, steps);
                     for j in 0..steps {
-                        let t = (j as f32 + 0.5) * step;
-                        match at(p.x + dx * t, p.y + dy * t) {
-                            Cell::Free => continue,
-                            Cell::Unknown => unseen = unseen.min(t),
+                        let cell = if fx >= 0.0 && fx < nx {
+                            // Row 0 is the lower wall's ring, `top` the upper's.
+                            let iy = ((fy + 1.0).max(0.0) as usize).min(g.top);
+                            map.cell(map.cells[fx as usize * g.ny + iy])
+                        } else {
+                            Cell::Unknown
+                        };
+                        match cell {
+                            Cell::Free => {}
+                            Cell::Unknown => unseen = unseen.min(j),
                             Cell::Wall | Cell::Obstacle => {
-                                hit = t;
-                                unseen = unseen.min(t);
+                                hit = j;
+                                unseen = unseen.min(j);
                                 break;
                             }
                         }
+                        fx += dx;
+                        fy += dy;
                     }
-                    occupied[k] = (hit / range).min(1.0);
-                    unknown[k] = (unseen / range).min(1.0);
+                    let dist = |j: usize| {
+                        if j == steps { 1.0 } else { ((j as f32 + 0.5) * s.cell_m / range).min(1.0) }
+                    };
+                    occupied[k] = dist(hit);
+                    unknown[k] = dist(unseen);
                 }
             }
         }
     }
 }
 
-/// The grid's placement.
+/// One agent's grid: where it lies and its lane. Row 0 and row `top` are
+/// the ring of its lane's walls.
+#[derive(Clone, Copy)]
 struct Geo {
     x0: f32,
+    inv: f32,
     nx: usize,
+    lo: f32,
+    hi: f32,
     ny: usize,
-    cell: f32,
+    top: usize,
 }
 
 impl Geo {
-    /// The cell at `(x, y)` in a lane whose free space is `lane` along y
-    /// (row 0 and the row past its upper face are its walls' ring).
-    fn index(&self, lane: [f32; 2], x: f32, y: f32) -> Option<usize> {
-        let fx = (x - self.x0) / self.cell;
-        let fy = (y - lane[0]) / self.cell + 1.0;
-        let top = ((lane[1] - lane[0]) / self.cell).ceil() as usize + 1;
-        if !(fx >= 0.0 && fx < self.nx as f32) || !fy.is_finite() {
+    fn new(x0: f32, nx: usize, ny: usize, cell: f32, [lo, hi]: [f32; 2]) -> Self {
+        let top = (((hi - lo) / cell).ceil() as usize + 1).min(ny - 1);
+        Self { x0, inv: 1.0 / cell, nx, lo, hi, ny, top }
+    }
+
+    /// The cell at `(x, y)`, if the grid has one there.
+    #[inline(always)]
+    fn index(&self, x: f32, y: f32) -> Option<usize> {
+        let fx = (x - self.x0) * self.inv;
+        if !(fx >= 0.0 && fx < self.nx as f32) {
             return None;
         }
-        let iy = if y <= lane[0] {
+        let iy = if y <= self.lo {
             0
-        } else if y >= lane[1] {
-            top
+        } else if y >= self.hi {
+            self.top
         } else {
-            (fy as usize).clamp(1, top - 1)
+            (((y - self.lo) * self.inv) as usize + 1).min(self.top - 1)
         };
-        (iy < self.ny).then(|| fx as usize * self.ny + iy)
+        Some(fx as usize * self.ny + iy)
     }
 }
 
-/// One agent's map, borrowed.
-struct Agent<'a> {
-    cells: &'a mut [u8],
-    lane: [f32; 2],
-    clock: &'a mut u32,
+/// Reads one agent's cells.
+struct Reader<'a> {
+    geo: Geo,
+    cells: &'a [u8],
+    keep: u32,
+    /// The stamp of the latest frame the map took.
+    now: u32,
 }
 
-impl Agent<'_> {
-    #[allow(clippy::too_many_arguments)]
+impl Reader<'_> {
+    #[inline(always)]
+    fn at(&self, x: f32, y: f32) -> Cell {
+        let Some(k) = self.geo.index(x, y) else { return Cell::Unknown };
+        self.cell(self.cells[k])
+    }
+
+    #[inline(always)]
+    fn cell(&self, value: u8) -> Cell {
+        match value {
+            UNKNOWN => Cell::Unknown,
+            FREE => Cell::Free,
+            WALL => Cell::Wall,
+            v => {
+                let age = (self.now + STAMPS - u32::from(v - HIT)) % STAMPS;
+                if self.keep > 0 && age >= self.keep { Cell::Unknown } else { Cell::Obstacle }
+            }
+        }
+    }
+}
+
+/// What a frame's integration needs besides the agent's cells.
+#[derive(Clone, Copy)]
+struct Sight {
+    keep: u32,
+    height: f32,
+    band: usize,
+    /// How far from the camera crossed cells are marked free (m).
+    reach: f32,
+}
+
+impl Sight {
     fn integrate(
-        &mut self,
+        &self,
         geo: &Geo,
-        keep: u32,
-        height: f32,
-        band: usize,
+        cells: &mut [u8],
+        clock: &mut u32,
         depth: &[f32],
         spec: &CameraSpec,
         cam: &CameraPose,
     ) {
         let side = spec.side;
-        let (rows, first) = if band == 0 || band >= side {
-            (side, 0)
-        } else {
-            (band, (side - band) / 2)
-        };
+        let band = self.band;
+        let (rows, first) = if band == 0 || band >= side { (side, 0) } else { (band, (side - band) / 2) };
         let tan = (spec.fov_deg.to_radians() / 2.0).tan();
         let half = side as f32 / 2.0;
         let (fwd, left, up) =
             (cam.rotation * Vector::X, cam.rotation * Vector::Y, cam.rotation * Vector::Z);
         let o = cam.position;
-        let stamp = HIT + (*self.clock % STAMPS) as u8;
+        let stamp = HIT + (*clock % STAMPS) as u8;
         // The column's nearest return within the band (a dropped-out pixel
         // reads 0: no return), and where its ray ends.
         let nearest = |u: usize| -> Option<(Vector, bool)> {
@@ -407,74 +494,69 @@ impl Agent<'_> {
             let dir = fwd - left * su + up * sv;
             Some((o + dir * (d.min(1.0) * spec.range), d < 1.0))
         };
+        // At most 64 columns' ends kept on the stack; wider frames
+        // compute the rest again.
+        let mut ends = [None; 64];
         for u in 0..side {
-            if let Some((end, met)) = nearest(u) {
-                self.cross(geo, keep, o, end, met);
+            let end = nearest(u);
+            if let Some((end, met)) = end {
+                cross(geo, cells, self.keep, o, end, met, self.reach);
+            }
+            if u < ends.len() {
+                ends[u] = end;
             }
         }
         // Hits after every crossing of the frame: a ray of this frame never
         // clears what another of this frame met.
         for u in 0..side {
-            let Some((end, true)) = nearest(u) else { continue };
-            if end.z <= FACE || end.z >= height - FACE {
+            let end = if u < ends.len() { ends[u] } else { nearest(u) };
+            let Some((end, true)) = end else { continue };
+            if end.z <= FACE || end.z >= self.height - FACE {
                 continue;
             }
-            let [lo, hi] = self.lane;
-            let (y, value) = if end.y <= lo + FACE {
-                (lo - 1.0, WALL)
-            } else if end.y >= hi - FACE {
-                (hi + 1.0, WALL)
+            let (y, value) = if end.y <= geo.lo + FACE {
+                (geo.lo - 1.0, WALL)
+            } else if end.y >= geo.hi - FACE {
+                (geo.hi + 1.0, WALL)
             } else {
                 (end.y, stamp)
             };
-            if let Some(k) = geo.index(self.lane, end.x, y) {
-                self.cells[k] = value;
+            if let Some(k) = geo.index(end.x, y) {
+                cells[k] = value;
             }
         }
-        *self.clock += 1;
-    }
-
-    /// Marks free the cells a ray from `o` to `end` crossed (up to [`SHY`]
-    /// before its end when it met something).
-    fn cross(&mut self, geo: &Geo, keep: u32, o: Vector, end: Vector, met: bool) {
-        let (dx, dy) = (end.x - o.x, end.y - o.y);
-        let len = dx.hypot(dy);
-        let reach = if met { len - SHY } else { len };
-        if reach <= 0.0 {
-            return;
-        }
-        let step = geo.cell / 2.0;
-        let (ux, uy) = (dx / len, dy / len);
-        let mut t = 0.0;
-        while t < reach {
-            let (x, y) = (o.x + ux * t, o.y + uy * t);
-            if y > self.lane[0] && y < self.lane[1]
-                && let Some(k) = geo.index(self.lane, x, y)
-            {
-                let c = &mut self.cells[k];
-                if *c == UNKNOWN || (keep > 0 && *c >= HIT) {
-                    *c = FREE;
-                }
-            }
-            t += step;
-        }
+        *clock += 1;
     }
 }
 
-/// What `cells` (one agent's, lane `lane`, at frame `clock`) hold at `(x, y)`.
-fn read(geo: &Geo, cells: &[u8], lane: [f32; 2], keep: u32, clock: u32, x: f32, y: f32) -> Cell {
-    let Some(k) = geo.index(lane, x, y) else { return Cell::Unknown };
-    match cells[k] {
-        UNKNOWN => Cell::Unknown,
-        FREE => Cell::Free,
-        WALL => Cell::Wall,
-        v => {
-            // The frame of the sighting was the clock's value then; the map
-            // has taken `clock` frames since the episode started.
-            let seen = u32::from(v - HIT);
-            let now = clock.wrapping_sub(1) % STAMPS;
-            let age = (now + STAMPS - seen) % STAMPS;
-            if keep > 0 && age >= keep { Cell::Unknown } else { Cell::Obstacle }
+/// Marks free the cells a ray from `o` to `end` crossed (up to [`SHY`]
+/// before its end when it met something, and no farther than `reach`),
+/// one sample a cell: a cell whose corner the ray clips may stay unknown,
+/// and no cell it missed is marked.
+#[allow(clippy::too_many_arguments)]
+fn cross(geo: &Geo, cells: &mut [u8], keep: u32, o: Vector, end: Vector, met: bool, reach: f32) {
+    let (dx, dy) = (end.x - o.x, end.y - o.y);
+    let len = (dx * dx + dy * dy).sqrt();
+    let upto = if met { len - SHY } else { len }.min(reach);
+    if upto <= 0.0 {
+        return;
+    }
+    // In cell units: x from the grid's first column, y from the lane's
+    // lower face (row 1 is the first inside it).
+    let n = (upto * geo.inv).ceil() as usize;
+    let (sx, sy) = (dx / len, dy / len);
+    let (mut fx, mut fy) = ((o.x - geo.x0) * geo.inv, (o.y - geo.lo) * geo.inv);
+    let (nx, width) = (geo.nx as f32, (geo.hi - geo.lo) * geo.inv);
+    let last = geo.top - 1;
+    for _ in 0..n {
+        if fy > 0.0 && fy < width && fx >= 0.0 && fx < nx {
+            let k = fx as usize * geo.ny + (fy as usize + 1).min(last);
+            let c = &mut cells[k];
+            if *c == UNKNOWN || (keep > 0 && *c >= HIT) {
+                *c = FREE;
+            }
         }
+        fx += sx;
+        fy += sy;
     }
 }
