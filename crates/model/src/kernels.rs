@@ -30,7 +30,7 @@
 
 use multiversion::multiversion;
 
-use crate::layers::VEL_H;
+use crate::layers::vel_units;
 use crate::ops::{View, matmul};
 use crate::{H1, H2, HP, K1, K2, Layers, S1, SIDE, Shapes};
 
@@ -338,7 +338,7 @@ impl Workspace {
         }
         (self.rows, self.sized) = (rows.max(self.rows), Some((shapes, layers)));
         let rows = self.rows;
-        let (vel, actions, f) = (shapes.scalars, shapes.actions, layers.features());
+        let (vel, actions, f) = (shapes.scalars, shapes.actions, layers.features(shapes));
         let [c1, c2] = layers.conv();
         let (hw1, hw2) = (H1 * H1, H2 * H2);
         for (v, len) in [
@@ -377,7 +377,7 @@ impl Workspace {
         self.reserve(n, shapes, layers);
         let [w1, b1, w2, b2, wv, bv] = [0, 1, 2, 3, 4, 5].map(|i| w.p[i]);
         let [c1, c2] = layers.conv();
-        let (vel, f, pooled) = (shapes.scalars, layers.features(), layers.pooled());
+        let (vel, f, pooled) = (shapes.scalars, layers.features(shapes), layers.pooled());
         let (hw1, hw2, p1, p2) = (H1 * H1, H2 * H2, p1(shapes), p2(c1));
         // conv1: patches straight from the observation rows, runs of K1 pixels.
         let mut i = 0;
@@ -498,7 +498,7 @@ impl Workspace {
     pub(crate) fn backward_trunk(&mut self, w: &Weights, n: usize) -> crate::Result<()> {
         let (shapes, layers) = (w.shapes, w.layers);
         let off = offsets(shapes, layers);
-        let f = layers.features();
+        let f = layers.features(shapes);
         // The hidden layers, last to first: each one's weights, bias and
         // the gradient of what it read.
         for k in (0..layers.hidden().len()).rev() {
@@ -533,14 +533,15 @@ impl Workspace {
     fn backward_convolutions(&mut self, w: &Weights, n: usize, off: &[usize]) -> crate::Result<()> {
         let (shapes, layers) = (w.shapes, w.layers);
         let [c1, c2] = layers.conv();
-        let (vel, f, pooled) = (shapes.scalars, layers.features(), layers.pooled());
+        let (vel, f, pooled) = (shapes.scalars, layers.features(shapes), layers.pooled());
         let (hw1, hw2, p1, p2) = (H1 * H1, H2 * H2, p1(shapes), p2(c1));
         let g = &mut self.grads[..off[6]];
         let (g1, rest) = g.split_at_mut(off[1]);
         let (gb1, rest) = rest.split_at_mut(c1);
         let (g2, rest) = rest.split_at_mut(c2 * p2);
         let (gb2, rest) = rest.split_at_mut(c2);
-        let (gv, gbv) = rest.split_at_mut(VEL_H * vel);
+        let units = vel_units(shapes);
+        let (gv, gbv) = rest.split_at_mut(units * vel);
         // The products overwrite g1 and g2; the rest accumulates.
         for acc in [&mut *gb1, gb2, gv, gbv] {
             acc.fill(0.0);
@@ -551,7 +552,7 @@ impl Workspace {
         for s in 0..n {
             let d = &dfeat[s * f + pooled..(s + 1) * f];
             let v = &self.vel[s * vel..(s + 1) * vel];
-            for j in 0..VEL_H {
+            for j in 0..units {
                 gbv[j] += d[j];
                 for k in 0..vel {
                     gv[j * vel + k] += d[j] * v[k];

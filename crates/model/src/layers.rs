@@ -15,6 +15,14 @@ pub const MAX_HIDDEN: usize = 3;
 pub const MAX_LAYER_WIDTH: usize = 1024;
 /// Units of the velocity (and goal) branch.
 pub(crate) const VEL_H: usize = 16;
+/// Units of that branch when the scalars hold the camera's map too: the
+/// map's tens of floats need more than the velocity's 16.
+pub(crate) const MAP_VEL_H: usize = 64;
+
+/// Units of the scalars' branch of a network for `shapes`.
+pub(crate) const fn vel_units(shapes: Shapes) -> usize {
+    if shapes.map > 0 { MAP_VEL_H } else { VEL_H }
+}
 
 /// Names of the hidden layers' parameters: `fc1` first (the name every
 /// checkpoint has), then `fc1b`, `fc1c`.
@@ -82,10 +90,10 @@ impl Layers {
         HP * HP * self.conv[1]
     }
 
-    /// Floats entering the first hidden layer: the pooled map, then the
-    /// velocity branch.
-    pub(crate) fn features(&self) -> usize {
-        self.pooled() + VEL_H
+    /// Floats entering the first hidden layer of a network for `shapes`:
+    /// the pooled map, then the velocity branch.
+    pub(crate) fn features(&self, shapes: Shapes) -> usize {
+        self.pooled() + vel_units(shapes)
     }
 
     /// Parameters of the trunk (the convolutions, the velocity branch and
@@ -139,10 +147,10 @@ pub(crate) fn trunk_params(shapes: Shapes, layers: Layers) -> Vec<(&'static str,
         ("conv1.bias", vec![c1]),
         ("conv2.weight", vec![c2, K2 * K2 * c1]),
         ("conv2.bias", vec![c2]),
-        ("vel.weight", vec![VEL_H, shapes.scalars]),
-        ("vel.bias", vec![VEL_H]),
+        ("vel.weight", vec![vel_units(shapes), shapes.scalars]),
+        ("vel.bias", vec![vel_units(shapes)]),
     ];
-    let mut input = layers.features();
+    let mut input = layers.features(shapes);
     for (&w, [wn, bn]) in layers.hidden().iter().zip(HIDDEN_NAMES) {
         p.extend([(wn, vec![w, input]), (bn, vec![w])]);
         input = w;

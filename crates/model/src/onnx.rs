@@ -21,7 +21,7 @@ use std::collections::HashMap;
 use candle_core::Tensor;
 use rotorhive_msg::protobuf::{bytes, int};
 
-use crate::layers::{HIDDEN_NAMES, VEL_H};
+use crate::layers::HIDDEN_NAMES;
 use crate::{HP, K1, K2, Layers, Result, S1, SIDE, Shapes, params};
 
 /// The IR version written (ONNX 1.14 and later read it).
@@ -52,7 +52,7 @@ pub(crate) fn model(
     for (name, _) in &names {
         weights.insert(name, named[*name].flatten_all()?.to_vec1::<f32>()?);
     }
-    let (conv2, fc1) = torch_layout(&weights["conv2.weight"], &weights["fc1.weight"], layers);
+    let (conv2, fc1) = torch_layout(&weights["conv2.weight"], &weights["fc1.weight"], layers, shapes);
     let mut graph = Vec::new();
     for n in nodes(layers, width) {
         bytes(&mut graph, 1, &n);
@@ -129,7 +129,12 @@ fn gru_initializers(weights: &HashMap<&str, Vec<f32>>, w: usize, input: usize) -
 
 /// conv2's `(out, kh, kw, in)` as `(out, in, kh, kw)`, and fc1's pooled
 /// columns `(y, x, c)` as `(c, y, x)`: PyTorch's (ONNX's) layouts.
-fn torch_layout(conv2: &[f32], fc1: &[f32], layers: Layers) -> (Vec<f32>, Vec<f32>) {
+fn torch_layout(
+    conv2: &[f32],
+    fc1: &[f32],
+    layers: Layers,
+    shapes: Shapes,
+) -> (Vec<f32>, Vec<f32>) {
     let [c1, c2] = layers.conv();
     let conv2: Vec<f32> = (0..c2 * c1 * K2 * K2)
         .map(|i| {
@@ -138,7 +143,7 @@ fn torch_layout(conv2: &[f32], fc1: &[f32], layers: Layers) -> (Vec<f32>, Vec<f3
             conv2[((o * K2 + ky) * K2 + kx) * c1 + c]
         })
         .collect();
-    let (cols, pooled) = (layers.pooled() + VEL_H, layers.pooled());
+    let (cols, pooled) = (layers.features(shapes), layers.pooled());
     let fc1: Vec<f32> = (0..layers.hidden()[0] * cols)
         .map(|i| {
             let (r, j) = (i / cols, i % cols);

@@ -98,11 +98,14 @@ fn forward_matches_stock_candle_convolutions() {
 /// convolutions, pooling to its argmax, ReLU masks, the TD-Huber loss)
 /// against candle's autograd over stock ops, plain and double DQN, one shard
 /// and two, for the paper's shapes, a goal task's (six scalars, three
-/// actions) and one of four depth frames, and for networks of other widths
-/// (other channels, two and three hidden layers).
+/// actions) and one of four depth frames, a task with the camera's map
+/// (72 more scalars, a 64-unit branch for them), and for networks of other
+/// widths (other channels, two and three hidden layers).
 #[test]
 fn fused_gradients_match_stock_candle() {
     let goal = Shapes::task(FRAMES, true, true);
+    let map = Shapes::task(FRAMES, false, false).with_map(72);
+    let goal_map = goal.with_map(256);
     let wide = Layers::new(&[8, 24], &[48, 20]).unwrap();
     let deep = Layers::new(&[20, 12], &[40, 24, 16]).unwrap();
     for (seed, double, threads, shapes, layers) in [
@@ -113,6 +116,8 @@ fn fused_gradients_match_stock_candle() {
         (5, true, 2, Shapes::task(4, false, false), Layers::DEFAULT),
         (6, true, 1, Shapes::PAPER, wide),
         (7, true, 2, goal, deep),
+        (8, true, 2, map, Layers::DEFAULT),
+        (9, false, 1, goal_map, wide),
     ] {
         let mut dqn = Dqn::with_layers(cfg(double), shapes, layers, seed, &Device::Cpu).unwrap();
         dqn.set_threads(threads);
@@ -546,6 +551,21 @@ fn flat_weights_and_checkpoints_round_trip() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("frame_stride 3 (this network: 1)") && !e.contains("obs_len"), "{e}");
+    // A network reading the camera's map names it, and one without a map
+    // (or with another) refuses it by name.
+    let mapped = Shapes::PAPER.with_map(72);
+    let m = QNet::with_shapes(mapped, 3, &dev).unwrap();
+    m.save(&path).unwrap();
+    assert_eq!(checkpoint_shapes(&path).unwrap(), mapped);
+    let e = c.load(&path).unwrap_err().to_string();
+    assert!(e.contains("map 72 (this network: 0)") && e.contains("scalars 75 (this network: 3)"), "{e}");
+    let e = QNet::with_shapes(Shapes::PAPER.with_map(256), 0, &dev)
+        .unwrap()
+        .load(&path)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("map 72 (this network: 256)"), "{e}");
+    QNet::with_shapes(mapped, 0, &dev).unwrap().load(&path).unwrap();
     // A header that claims shapes no task has is refused by name.
     for (key, value, claim) in [
         ("scalars", "7", "header claims 7 observation scalars"),
