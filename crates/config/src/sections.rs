@@ -6,9 +6,7 @@ use std::path::PathBuf;
 
 use rotorhive_model::Teaching;
 use rotorhive_records::ObservationMode;
-use rotorhive_sim::{
-    GenParams, Goal, MapSpec, Noise, PhysicsKind, Randomize, RendererKind, Sight,
-};
+use rotorhive_sim::{GenParams, Goal, MapSpec, Noise, PhysicsKind, Randomize, RendererKind, Sight};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Result, config_err};
@@ -501,6 +499,8 @@ pub enum TeacherSight {
     /// What the pixels showed over `memory_s` (a mover known once watched
     /// for half its cycle).
     PixelsMemory,
+    /// What the student's camera map (`[sim.map]`) holds, and nothing more.
+    Map,
 }
 
 /// `teacher.labels`: which of the student's steps a label reaches.
@@ -637,6 +637,7 @@ impl TeacherSection {
             TeacherSight::PixelsMemory => {
                 Sight::PixelsMemory((self.memory_s > 0).then_some(self.memory_s))
             }
+            TeacherSight::Map => Sight::Map,
         }
     }
 

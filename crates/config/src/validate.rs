@@ -186,6 +186,16 @@ impl Config {
         s.map
             .validate()
             .map_err(|(k, m)| ConfigError::Invalid(format!("key `sim.map.{k}` {m}")))?;
+        if self.teacher.on()
+            && self.teacher.sight == crate::sections::TeacherSight::Map
+            && !s.map.enabled()
+        {
+            return Err(ConfigError::Invalid(
+                "key `teacher.sight` is \"map\" without the camera's map: set \
+                 `sim.map.encoding`"
+                    .into(),
+            ));
+        }
         let latency = s.noise.latency_s != [0.0, 0.0];
         if s.physics == PhysicsKind::Rapier && (latency || s.randomize.dynamics()) {
             config_err!(

@@ -53,6 +53,9 @@ pub enum SightArg {
     /// Every obstacle a ray met this episode (within `--memory-s`), each
     /// moving one as `view-memory` knows it.
     PixelsMemory,
+    /// What the camera's map (`[sim.map]`) holds: the obstacles with a
+    /// cell marked as met, each moving one over its whole track.
+    Map,
 }
 
 impl PolicyKind {
@@ -78,6 +81,7 @@ impl SightArg {
             SightArg::ViewMemory => Sight::ViewMemory(memory_s),
             SightArg::Pixels => Sight::Pixels,
             SightArg::PixelsMemory => Sight::PixelsMemory(memory_s),
+            SightArg::Map => Sight::Map,
         }
     }
 
@@ -98,6 +102,7 @@ impl SightArg {
             ),
             SightArg::Pixels => ("pixels", "what the pixels show now"),
             SightArg::PixelsMemory => ("pixels-memory", "what the pixels showed this episode"),
+            SightArg::Map => ("map", "what the camera's map holds"),
         }
     }
 }
@@ -170,6 +175,53 @@ fn run_config(checkpoint: &Path) -> Option<PathBuf> {
     checkpoint.ancestors().skip(1).take(2).map(|d| d.join("config.toml")).find(|p| p.is_file())
 }
 
+/// The camera's map a checkpoint reads (`[sim.map]` of the run that wrote
+/// it), as `--set` keys: none for a checkpoint without a map; refused by
+/// name when its run's `config.toml` is not beside it or names another.
+pub(crate) fn map_of(checkpoint: &Path) -> Result<Option<rotorhive_sim::MapSpec>> {
+    let shapes = rotorhive_model::checkpoint_shapes(checkpoint)?;
+    if shapes.map == 0 {
+        return Ok(None);
+    }
+    let Some(path) = run_config(checkpoint) else {
+        bail!(
+            "{}: the network reads {} floats of the camera's map, whose settings are in its \
+             run's config.toml, not found beside it",
+            checkpoint.display(),
+            shapes.map
+        );
+    };
+    let map = Config::load(Some(&path), &[])?.sim.map;
+    if map.floats() != shapes.map {
+        bail!(
+            "{}: the network reads {} floats of the camera's map, {} names {}",
+            checkpoint.display(),
+            shapes.map,
+            path.display(),
+            map.floats()
+        );
+    }
+    Ok(Some(map))
+}
+
+/// `--set` keys that give a config the camera's map `m`.
+pub(crate) fn map_sets(m: &rotorhive_sim::MapSpec) -> Vec<String> {
+    let encoding = match m.encoding {
+        rotorhive_sim::MapEncoding::None => "none",
+        rotorhive_sim::MapEncoding::Grid => "grid",
+        rotorhive_sim::MapEncoding::Rays => "rays",
+    };
+    vec![
+        format!("sim.map.encoding=\"{encoding}\""),
+        format!("sim.map.cell_m={:?}", m.cell_m),
+        format!("sim.map.window={}", m.window),
+        format!("sim.map.rays={}", m.rays),
+        format!("sim.map.ray_range_m={:?}", m.ray_range_m),
+        format!("sim.map.keep_s={:?}", m.keep_s),
+        format!("sim.map.band={}", m.band),
+    ]
+}
+
 /// The config an evaluation flies with, and where it came from.
 fn config(a: &EvalArgs) -> Result<(Config, String)> {
     if let (Some(run), None) = (&a.training_layouts, &a.level) {
@@ -190,6 +242,10 @@ fn config(a: &EvalArgs) -> Result<(Config, String)> {
             let shapes = rotorhive_model::checkpoint_shapes(c)?;
             set.push(format!("sim.frames={}", shapes.frames));
             set.push(format!("sim.frame_stride={}", shapes.stride));
+            // And the camera's map its run built.
+            if let Some(m) = map_of(c)? {
+                set.extend(map_sets(&m));
+            }
         }
         set.extend(a.set.iter().cloned());
         return Ok((Config::level(level, &set)?, format!("level {level}")));
@@ -214,6 +270,14 @@ pub fn run(a: EvalArgs) -> Result<()> {
         bail!("--rays is for --policy planner --sight pixels or pixels-memory");
     }
     let (cfg, source) = config(&a)?;
+    let judged_by_map = a.agree == Some(SightArg::Map)
+        || (policy == PolicyKind::Planner && a.sight == SightArg::Map);
+    if judged_by_map && !cfg.sim.map.enabled() {
+        bail!(
+            "the sight `map` needs the camera's map: {source} has no [sim.map] (add \
+             --set sim.map.encoding=\"rays\", or fly a checkpoint that reads one)"
+        );
+    }
     // The task's network: a checkpoint of other shapes is refused by name;
     // one whose header names a memory flies as a recurrent network.
     let net = match (policy, &a.checkpoint) {

@@ -26,7 +26,14 @@ pub fn run(a: ExportArgs) -> Result<()> {
     let net = PolicyNet::load(&a.checkpoint)?;
     net.to_onnx(&a.out, &[("source", a.checkpoint.display().to_string())])?;
     let shapes = net.shapes();
-    let ins = format!("depth (B, {}, 32, 32) and velocity (B, {})", shapes.frames, shapes.scalars);
+    let mut ins = format!(
+        "depth (B, {}, 32, 32) and velocity (B, {})",
+        shapes.frames,
+        shapes.scalars - shapes.map
+    );
+    if shapes.map > 0 {
+        ins.push_str(&format!(" and map (B, {})", shapes.map));
+    }
     let (out, actions) = (a.out.display(), shapes.actions);
     match net.memory() {
         Some(w) => println!(

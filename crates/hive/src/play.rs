@@ -121,6 +121,10 @@ impl<W: std::io::Write> Recording<W> {
             ..SimConfig::default()
         };
         cfg.goal.enabled = shapes.goal();
+        // A network that reads the camera's map flies with its run's map.
+        if let Some(m) = crate::eval::map_of(&a.checkpoint)? {
+            cfg.map = m;
+        }
         cfg.hold_action = shapes.actions > rotorhive_msg::NUM_ACTIONS;
         let mut env = VecEnv::new(cfg, arena.clone(), a.seed + round as u64)?;
         env.set_autoreset(Autoreset::Disabled);

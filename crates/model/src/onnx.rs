@@ -2,7 +2,8 @@
 //! any runtime that reads ONNX (onnxruntime, TensorRT, OpenVINO, a browser).
 //!
 //! Inputs `depth` `(B, frames, 32, 32)` and `velocity` `(B, scalars)` (the
-//! velocity, 3; with a goal, the velocity then the goal's 3), output `q`
+//! velocity, 3; with a goal, the velocity then the goal's 3), then, with the
+//! camera's map, `map` `(B, floats)` (joined after the velocity), output `q`
 //! `(B, actions)`: conv 6×6/2 → ReLU → conv 3×3 → ReLU → max-pool 2 → flatten;
 //! velocity → Gemm → ReLU; concatenated → (Gemm → ReLU) for each hidden
 //! layer (`fc1`, then `fc1b`, `fc1c`) → Gemm. The weights go
@@ -52,9 +53,10 @@ pub(crate) fn model(
     for (name, _) in &names {
         weights.insert(name, named[*name].flatten_all()?.to_vec1::<f32>()?);
     }
-    let (conv2, fc1) = torch_layout(&weights["conv2.weight"], &weights["fc1.weight"], layers, shapes);
+    let (conv2, fc1) =
+        torch_layout(&weights["conv2.weight"], &weights["fc1.weight"], layers, shapes);
     let mut graph = Vec::new();
-    for n in nodes(layers, width) {
+    for n in nodes(layers, width, shapes.map > 0) {
         bytes(&mut graph, 1, &n);
     }
     bytes(&mut graph, 2, b"rotorhive_qnet");
@@ -84,7 +86,10 @@ pub(crate) fn model(
         11,
         &value_info("depth", &[None, Some(shapes.frames), Some(SIDE), Some(SIDE)]),
     );
-    bytes(&mut graph, 11, &value_info("velocity", &[None, Some(vel)]));
+    bytes(&mut graph, 11, &value_info("velocity", &[None, Some(vel - shapes.map)]));
+    if shapes.map > 0 {
+        bytes(&mut graph, 11, &value_info("map", &[None, Some(shapes.map)]));
+    }
     if let Some(w) = width {
         bytes(&mut graph, 11, &value_info("state", &[None, Some(w)]));
     }
@@ -159,8 +164,8 @@ fn torch_layout(
 
 /// The graph's nodes, in order: the Q head on `fc1`'s activations, or
 /// (with a GRU of `width`) on the GRU's new state.
-fn nodes(layers: Layers, width: Option<usize>) -> Vec<Vec<u8>> {
-    let mut all = trunk_nodes(layers);
+fn nodes(layers: Layers, width: Option<usize>, map: bool) -> Vec<Vec<u8>> {
+    let mut all = trunk_nodes(layers, map);
     let Some(width) = width else {
         all.push(node("Gemm", &["h", "fc2.weight", "fc2.bias"], "q", &[], Some(("transB", 1))));
         return all;
@@ -191,7 +196,7 @@ fn gru(width: usize) -> Vec<u8> {
 }
 
 /// The trunk's nodes, up to the last hidden layer's activations `h`.
-fn trunk_nodes(layers: Layers) -> Vec<Vec<u8>> {
+fn trunk_nodes(layers: Layers, map: bool) -> Vec<Vec<u8>> {
     let mut all = vec![
         node(
             "Conv",
@@ -211,10 +216,20 @@ fn trunk_nodes(layers: Layers) -> Vec<Vec<u8>> {
         node("Relu", &["c2"], "r2", &[], None),
         node("MaxPool", &["r2"], "p", &[("kernel_shape", &[2, 2]), ("strides", &[2, 2])], None),
         node("Flatten", &["p"], "features", &[], Some(("axis", 1))),
-        node("Gemm", &["velocity", "vel.weight", "vel.bias"], "v1", &[], Some(("transB", 1))),
+    ];
+    // With the camera's map, the scalars' branch reads the velocity (and
+    // goal) then the map, joined.
+    let scalars = if map {
+        all.push(node("Concat", &["velocity", "map"], "scalars", &[], Some(("axis", 1))));
+        "scalars"
+    } else {
+        "velocity"
+    };
+    all.extend([
+        node("Gemm", &[scalars, "vel.weight", "vel.bias"], "v1", &[], Some(("transB", 1))),
         node("Relu", &["v1"], "v", &[], None),
         node("Concat", &["features", "v"], "joined", &[], Some(("axis", 1))),
-    ];
+    ]);
     // The hidden layers: `fc1` reads the joined features, each next one
     // the layer before; the last one's activations are `h`.
     let depth = layers.hidden().len();

@@ -558,7 +558,10 @@ fn flat_weights_and_checkpoints_round_trip() {
     m.save(&path).unwrap();
     assert_eq!(checkpoint_shapes(&path).unwrap(), mapped);
     let e = c.load(&path).unwrap_err().to_string();
-    assert!(e.contains("map 72 (this network: 0)") && e.contains("scalars 75 (this network: 3)"), "{e}");
+    assert!(
+        e.contains("map 72 (this network: 0)") && e.contains("scalars 75 (this network: 3)"),
+        "{e}"
+    );
     let e = QNet::with_shapes(Shapes::PAPER.with_map(256), 0, &dev)
         .unwrap()
         .load(&path)

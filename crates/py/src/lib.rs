@@ -368,6 +368,27 @@ impl Sim {
         Ok(())
     }
 
+    /// Floats of the camera's map in an observation (`[sim.map]`; 0:
+    /// none): observations then have a `map` part.
+    #[getter]
+    fn map_floats(&self) -> usize {
+        self.env.config().map.floats()
+    }
+
+    /// Writes every agent's camera map as its observation reads it
+    /// (`agents × map_floats`, each in [0, 1]; nothing without a map).
+    fn observe_map(&self, mut map: PyReadwriteArray2<'_, f32>) -> PyResult<()> {
+        let m = map.as_slice_mut()?;
+        let k = self.env.config().map.floats();
+        check_len("map", m.len(), self.env.agents() * k)?;
+        if k > 0 {
+            for (i, row) in m.chunks_exact_mut(k).enumerate() {
+                self.env.write_map(i, row);
+            }
+        }
+        Ok(())
+    }
+
     /// Writes every agent's current observation.
     fn observe(
         &self,
@@ -497,10 +518,14 @@ fn levels() -> Vec<(&'static str, &'static str)> {
 /// keyword arguments.
 #[pyfunction]
 fn sim_keys() -> Vec<String> {
-    match toml::Value::try_from(SimSection::default()) {
+    let mut keys = match toml::Value::try_from(SimSection::default()) {
         Ok(toml::Value::Table(t)) => t.keys().cloned().collect(),
         _ => Vec::new(),
-    }
+    };
+    // The camera's map, a section left out of a config without it: a
+    // keyword argument of a dict (`map={"encoding": "rays"}`).
+    keys.push("map".to_string());
+    keys
 }
 
 mod networks;

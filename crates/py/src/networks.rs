@@ -44,9 +44,11 @@ impl QNetwork {
     /// the hold action (`hold`), another count of depth frames (`frames`)
     /// and frames further apart (`frame_stride` action periods); of the
     /// widths `conv_channels` (two) and `hidden` (one to three), as
-    /// `learner.conv_channels` and `learner.hidden`.
+    /// `learner.conv_channels` and `learner.hidden`; with `map` floats of
+    /// the camera's map after the other scalars (`[sim.map]`).
     #[new]
-    #[pyo3(signature = (seed=0, goal=false, hold=false, frames=FRAMES, frame_stride=1, conv_channels=vec![16, 32], hidden=vec![64]))]
+    #[pyo3(signature = (seed=0, goal=false, hold=false, frames=FRAMES, frame_stride=1, conv_channels=vec![16, 32], hidden=vec![64], map=0))]
+    #[allow(clippy::too_many_arguments)]
     fn new(
         seed: u64,
         goal: bool,
@@ -55,8 +57,13 @@ impl QNetwork {
         frame_stride: usize,
         conv_channels: Vec<usize>,
         hidden: Vec<usize>,
+        map: usize,
     ) -> PyResult<Self> {
-        let shapes = task_shapes(goal, hold, frames, frame_stride)?;
+        let shapes = Shapes::task(frames, goal, hold)
+            .with_stride(frame_stride)
+            .with_map(map)
+            .check()
+            .map_err(value_error)?;
         let layers = Layers::new(&conv_channels, &hidden).map_err(model_error)?;
         let net = QNet::with_layers(shapes, layers, seed, &Device::Cpu).map_err(model_error)?;
         Ok(Self { net })
@@ -97,6 +104,12 @@ impl QNetwork {
         self.net.shapes().actions
     }
 
+    /// Floats of the camera's map at the end of an observation (0: none).
+    #[getter]
+    fn map(&self) -> usize {
+        self.net.shapes().map
+    }
+
     /// Action periods between the depth frames it was trained on (1:
     /// consecutive views; the checkpoint's `frame_stride`).
     #[getter]
@@ -111,7 +124,8 @@ impl QNetwork {
 
     /// Writes the network as an ONNX model: inputs `depth` `(B, 2, 32, 32)`
     /// and `velocity` `(B, 3)` (with a goal `(B, 6)`: the velocity, then the
-    /// goal's floats), output `q` `(B, actions)` (as `hive export`).
+    /// goal's floats), then with the camera's map `map` `(B, floats)`,
+    /// output `q` `(B, actions)` (as `hive export`).
     fn to_onnx(&self, path: PathBuf) -> PyResult<()> {
         self.net.to_onnx(&path, &[]).map_err(model_error)
     }

@@ -52,6 +52,21 @@ def test_make_vec_gives_the_native_vector_env_with_its_spaces(mode):
     envs.close()
 
 
+def test_the_cameras_map_is_its_own_part_of_the_observation():
+    envs = gym.make_vec("rotorhive/Navigate-v0", num_envs=N, map={"encoding": "rays", "rays": 24})
+    assert envs.single_observation_space["map"] == gym.spaces.Box(0, 1, (48,), np.float32)
+    obs, _ = envs.reset(seed=3)
+    assert obs["map"].shape == (N, 48) and envs.observation_space.contains(obs)
+    # Straight behind the drone nothing was seen: unknown at once.
+    assert (obs["map"][:, 24 + 12] < 0.1).all(), obs["map"][:, 36]
+    for _ in range(3):
+        obs, *_ = envs.step(envs.action_space.sample())
+    check_obs(obs, envs.observation_space, "step")
+    envs.close()
+    with pytest.raises(ValueError, match="sim.map.rays"):
+        gym.make_vec("rotorhive/Navigate-v0", num_envs=N, map={"encoding": "rays", "rays": 1})
+
+
 def test_same_step_agrees_step_for_step_with_the_rust_vecenv():
     """SAME_STEP returns what `hive train`'s VecEnv gives (reset inside the
     step) for the same seed, arena and actions."""

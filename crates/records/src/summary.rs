@@ -163,6 +163,10 @@ pub struct Summary {
     /// `learner_threads`, and `sized`, the keys the sizing filled.
     #[serde(default)]
     pub sizing: Option<serde_json::Value>,
+    /// The run's camera map (`[sim.map]`) as it ran, with `floats` (the
+    /// observation's share); null without a map.
+    #[serde(default)]
+    pub map: Option<serde_json::Value>,
     /// Stopped by a signal.
     pub interrupted: bool,
     /// Continued from an earlier run (`--resume`).
@@ -277,6 +281,7 @@ mod tests {
             skipped_updates: 0,
             teaching: Teaching::default(),
             sizing: Some(serde_json::json!({ "cores": 2, "envs": 1 })),
+            map: None,
             interrupted: false,
             resumed: false,
             failure: None,
@@ -310,6 +315,7 @@ mod tests {
             "demo_transitions",
             "labelled_transitions",
             "sizing",
+            "map",
         ] {
             assert!(v.get(key).is_some(), "no key {key}");
         }

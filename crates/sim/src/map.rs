@@ -254,12 +254,23 @@ impl Maps {
 
     /// What one frame's integration needs besides the agent's cells.
     fn sight(&self) -> Sight {
-        Sight { keep: self.keep, height: self.height, band: self.spec.band, reach: self.spec.reach() }
+        Sight {
+            keep: self.keep,
+            height: self.height,
+            band: self.spec.band,
+            reach: self.spec.reach(),
+        }
     }
 
     /// Agent `i`'s map takes its frame `depth` (normalised, `spec.side²`,
     /// as the agent observes it) seen from `cam`.
-    pub(crate) fn integrate(&mut self, i: usize, depth: &[f32], spec: &CameraSpec, cam: &CameraPose) {
+    pub(crate) fn integrate(
+        &mut self,
+        i: usize,
+        depth: &[f32],
+        spec: &CameraSpec,
+        cam: &CameraPose,
+    ) {
         let n = self.nx * self.ny;
         let (geo, sight) = (self.geo(i), self.sight());
         let cells = &mut self.cells[i * n..(i + 1) * n];
@@ -289,8 +300,7 @@ impl Maps {
                 sight.integrate(&geo, cells, clock, frame, spec, &cams[i]);
             }
         };
-        let pieces =
-            self.cells.chunks_mut(CHUNK * n).zip(self.clock.chunks_mut(CHUNK)).enumerate();
+        let pieces = self.cells.chunks_mut(CHUNK * n).zip(self.clock.chunks_mut(CHUNK)).enumerate();
         if pool.threads() == 1 {
             pieces.for_each(work);
         } else {
@@ -312,6 +322,27 @@ impl Maps {
     /// What agent `i`'s map holds at `(x, y)`.
     pub fn at(&self, i: usize, x: f32, y: f32) -> Cell {
         self.reader(i).at(x, y)
+    }
+
+    /// Whether agent `i`'s map holds an obstacle cell within the floor-plan
+    /// rectangle `[lo, hi]` (widened by half a cell: a face's hits may land
+    /// in the cell before it).
+    pub(crate) fn shows(&self, i: usize, lo: [f32; 2], hi: [f32; 2]) -> bool {
+        let map = self.reader(i);
+        let h = self.spec.cell_m / 2.0;
+        let step = self.spec.cell_m;
+        let mut x = lo[0] - h;
+        while x <= hi[0] + h {
+            let mut y = lo[1] - h;
+            while y <= hi[1] + h {
+                if map.at(x, y) == Cell::Obstacle {
+                    return true;
+                }
+                y += step;
+            }
+            x += step;
+        }
+        false
     }
 
     /// Writes agent `i`'s map as its observation reads it (`out`:
@@ -372,7 +403,11 @@ impl Maps {
                         fy += dy;
                     }
                     let dist = |j: usize| {
-                        if j == steps { 1.0 } else { ((j as f32 + 0.5) * s.cell_m / range).min(1.0) }
+                        if j == steps {
+                            1.0
+                        } else {
+                            ((j as f32 + 0.5) * s.cell_m / range).min(1.0)
+                        }
                     };
                     occupied[k] = dist(hit);
                     unknown[k] = dist(unseen);
@@ -471,7 +506,8 @@ impl Sight {
     ) {
         let side = spec.side;
         let band = self.band;
-        let (rows, first) = if band == 0 || band >= side { (side, 0) } else { (band, (side - band) / 2) };
+        let (rows, first) =
+            if band == 0 || band >= side { (side, 0) } else { (band, (side - band) / 2) };
         let tan = (spec.fov_deg.to_radians() / 2.0).tan();
         let half = side as f32 / 2.0;
         let (fwd, left, up) =

@@ -729,6 +729,11 @@ impl Supervisor<'_> {
                 .map_or(0, |t| t.learning.skipped_updates as u64),
             teaching: self.teaching(),
             sizing: sizing_json(cfg),
+            map: cfg.sim.map.enabled().then(|| {
+                let mut v = serde_json::json!(cfg.sim.map);
+                v["floats"] = cfg.sim.map.floats().into();
+                v
+            }),
             interrupted: ending.interrupted,
             resumed: self.a.resume.is_some(),
             failure: ending.failure.clone(),

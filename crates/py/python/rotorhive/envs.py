@@ -68,7 +68,11 @@ def _overrides(env_id: str, sim: dict[str, Any]) -> list[str]:
     for k, v in sim.items():
         if k not in keys:
             raise TypeError(f"{env_id}: unknown keyword argument {k!r} (the simulator's keys are {', '.join(keys)})")
-        out.append(f"sim.{k}={_toml(k, v)}")
+        if isinstance(v, dict):
+            # A section, e.g. map={"encoding": "rays"}: its keys one by one.
+            out.extend(f"sim.{k}.{kk}={_toml(f'{k}.{kk}', vv)}" for kk, vv in v.items())
+        else:
+            out.append(f"sim.{k}={_toml(k, v)}")
     return out
 
 
@@ -100,7 +104,7 @@ def _check_render_mode(render_mode: str | None) -> None:
         raise ValueError(f"render_mode {render_mode!r} is not supported: only 'rgb_array' (or None)")
 
 
-def _spaces(side: int, goal: bool, frames: int = 2) -> spaces.Dict:
+def _spaces(side: int, goal: bool, frames: int = 2, map_floats: int = 0) -> spaces.Dict:
     parts = {
         # The depth frames, oldest first (``sim.frames``; 2: previous, current).
         "depth": spaces.Box(0.0, 1.0, (frames, side, side), np.float32),
@@ -109,16 +113,22 @@ def _spaces(side: int, goal: bool, frames: int = 2) -> spaces.Dict:
     if goal:
         # Bearing (rad), distance and lateral offset (tens of metres), body frame.
         parts["goal"] = spaces.Box(-np.inf, np.inf, (3,), np.float32)
+    if map_floats:
+        # The camera's map (``[sim.map]``): an egocentric grid of cells (0
+        # unknown, 1/3 free, 2/3 wall, 1 obstacle) or rays through it (to the
+        # first obstacle, then to the first unknown cell, shares of their reach).
+        parts["map"] = spaces.Box(0.0, 1.0, (map_floats,), np.float32)
     return spaces.Dict(parts)
 
 
 class _Buffers:
     """The arrays the simulator writes into, owned by the environment."""
 
-    def __init__(self, n: int, side: int, goal: bool = False, frames: int = 2) -> None:
+    def __init__(self, n: int, side: int, goal: bool = False, frames: int = 2, map_floats: int = 0) -> None:
         self.depth = np.zeros((n, frames, side, side), np.float32)
         self.velocity = np.zeros((n, 3), np.float32)
         self.goal = np.zeros((n, 3), np.float32) if goal else None
+        self.map = np.zeros((n, map_floats), np.float32) if map_floats else None
         self.rewards = np.zeros(n, np.float32)
         self.dones = np.zeros(n, np.uint8)
         self.ep_return = np.zeros(n, np.float32)
@@ -130,14 +140,19 @@ class _Buffers:
         out = {"depth": self.depth, "velocity": self.velocity}
         if self.goal is not None:
             out["goal"] = self.goal
+        if self.map is not None:
+            out["map"] = self.map
         if i is not None:
             out = {k: v[i] for k, v in out.items()}
         return {k: v.copy() for k, v in out.items()} if copy else out
 
     def read_goal(self, sim: Any) -> None:
-        """Takes the goal's part from the simulator, with a goal."""
+        """Takes the goal's part from the simulator, with a goal (and the
+        camera's map, with one)."""
         if self.goal is not None:
             sim.observe_goal(self.goal)
+        if self.map is not None:
+            sim.observe_map(self.map)
 
 
 def _check_action_values(a: np.ndarray, count: int) -> None:
@@ -200,11 +215,11 @@ class NavigateVectorEnv(VectorEnv):
         self.num_envs = n
         self.copy = bool(copy)
         self.render_mode = render_mode
-        self.single_observation_space = _spaces(self._sim.side, self._sim.has_goal, self._sim.frames)
+        self.single_observation_space = _spaces(self._sim.side, self._sim.has_goal, self._sim.frames, self._sim.map_floats)
         self.single_action_space = spaces.Discrete(self._sim.num_actions)
         self.observation_space = batch_space(self.single_observation_space, n)
         self.action_space = batch_space(self.single_action_space, n)
-        self._b = _Buffers(n, self._sim.side, self._sim.has_goal, self._sim.frames)
+        self._b = _Buffers(n, self._sim.side, self._sim.has_goal, self._sim.frames, self._sim.map_floats)
         # Agents whose episode ended and that have not started the next one.
         self._ended = np.zeros(n, np.bool_)
         self._needs_reset = True
@@ -341,9 +356,9 @@ class NavigateEnv(gym.Env):
         _check_render_mode(render_mode)
         self._sim = _rotorhive.Sim(1, seed, _arena(arena), arena_seed, _overrides("rotorhive/NavigateSingle-v0", sim), _level(level))
         self.render_mode = render_mode
-        self.observation_space = _spaces(self._sim.side, self._sim.has_goal, self._sim.frames)
+        self.observation_space = _spaces(self._sim.side, self._sim.has_goal, self._sim.frames, self._sim.map_floats)
         self.action_space = spaces.Discrete(self._sim.num_actions)
-        self._b = _Buffers(1, self._sim.side, self._sim.has_goal, self._sim.frames)
+        self._b = _Buffers(1, self._sim.side, self._sim.has_goal, self._sim.frames, self._sim.map_floats)
         self._a = np.zeros(1, np.uint8)
         self._needs_reset = True
 

@@ -4,10 +4,10 @@
 //! was taken at) and written after the other scalars of its observation.
 
 use super::VecEnv;
+use crate::SimConfig;
 use crate::arena::Arena;
 use crate::map::Maps;
 use crate::render::cpu::CameraPose;
-use crate::SimConfig;
 
 /// Every agent's map for a world of `arena` with lanes `bounds`, where the
 /// config has one.
@@ -47,7 +47,7 @@ impl VecEnv {
 
     /// Writes agent `i`'s map as its observation reads it (nothing without
     /// a map): `out` holds [`crate::MapSpec::floats`] floats.
-    pub(super) fn write_map(&self, i: usize, out: &mut [f32]) {
+    pub fn write_map(&self, i: usize, out: &mut [f32]) {
         if let Some(m) = &self.maps {
             let d = &self.drones[i];
             let f = d.q * rapier3d::math::Vector::X;
@@ -58,6 +58,12 @@ impl VecEnv {
     /// What agent `i`'s map holds at `(x, y)` (`None` without a map).
     pub fn map_cell(&self, i: usize, x: f32, y: f32) -> Option<crate::map::Cell> {
         self.maps.as_ref().map(|m| m.at(i, x, y))
+    }
+
+    /// Whether agent `i`'s map holds an obstacle cell within the floor-plan
+    /// rectangle `[lo, hi]` (false without a map).
+    pub fn map_shows(&self, i: usize, lo: [f32; 2], hi: [f32; 2]) -> bool {
+        self.maps.as_ref().is_some_and(|m| m.shows(i, lo, hi))
     }
 
     /// Bytes of one agent's map (0 without one).
