@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use std::process::Command;
 
 use rotorhive_roles::config::{Config, Curriculum};
-use rotorhive_sim::{GenParams, Goal};
+use rotorhive_sim::{GenParams, Goal, MapEncoding, MapSpec};
 
 mod common;
 use common::root;
@@ -57,9 +57,12 @@ fn code_keys() -> BTreeMap<String, toml::Value> {
     );
     // A goal that is on is written out; `enabled` itself is off by default.
     cfg.sim.goal = Goal { enabled: true, ..Goal::default() };
+    // So is a camera map that is on; its encoding is `none` by default.
+    cfg.sim.map = MapSpec { encoding: MapEncoding::Rays, ..MapSpec::default() };
     let mut out = BTreeMap::new();
     flatten("", &toml::Value::try_from(&cfg).unwrap(), &mut out);
     out.insert("sim.goal.enabled".into(), toml::Value::Boolean(Goal::default().enabled));
+    out.insert("sim.map.encoding".into(), toml::Value::String("none".into()));
     out
 }
 

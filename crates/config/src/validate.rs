@@ -174,28 +174,7 @@ impl Config {
                 "key `sim.arena` is empty: training then needs `[sim.generator]` and `sim.generated_lanes` above 0"
             );
         }
-        s.noise
-            .validate()
-            .map_err(|(k, m)| ConfigError::Invalid(format!("key `sim.noise.{k}` {m}")))?;
-        s.randomize
-            .validate()
-            .map_err(|(k, m)| ConfigError::Invalid(format!("key `sim.randomize.{k}` {m}")))?;
-        s.goal
-            .validate()
-            .map_err(|(k, m)| ConfigError::Invalid(format!("key `sim.goal.{k}` {m}")))?;
-        s.map
-            .validate()
-            .map_err(|(k, m)| ConfigError::Invalid(format!("key `sim.map.{k}` {m}")))?;
-        if self.teacher.on()
-            && self.teacher.sight == crate::sections::TeacherSight::Map
-            && !s.map.enabled()
-        {
-            return Err(ConfigError::Invalid(
-                "key `teacher.sight` is \"map\" without the camera's map: set \
-                 `sim.map.encoding`"
-                    .into(),
-            ));
-        }
+        self.validate_sections()?;
         let latency = s.noise.latency_s != [0.0, 0.0];
         if s.physics == PhysicsKind::Rapier && (latency || s.randomize.dynamics()) {
             config_err!(
@@ -230,6 +209,35 @@ impl Config {
         }
         if e.test_layouts > 64 {
             config_err!("key `eval.test_layouts` must be at most 64, got {}", e.test_layouts);
+        }
+        Ok(())
+    }
+
+    /// The sim's sections of their own: noise, randomisation, goal and the
+    /// camera's map (and a teacher that reads the map needs one).
+    fn validate_sections(&self) -> Result<()> {
+        let s = &self.sim;
+        s.noise
+            .validate()
+            .map_err(|(k, m)| ConfigError::Invalid(format!("key `sim.noise.{k}` {m}")))?;
+        s.randomize
+            .validate()
+            .map_err(|(k, m)| ConfigError::Invalid(format!("key `sim.randomize.{k}` {m}")))?;
+        s.goal
+            .validate()
+            .map_err(|(k, m)| ConfigError::Invalid(format!("key `sim.goal.{k}` {m}")))?;
+        s.map
+            .validate()
+            .map_err(|(k, m)| ConfigError::Invalid(format!("key `sim.map.{k}` {m}")))?;
+        if self.teacher.on()
+            && self.teacher.sight == crate::sections::TeacherSight::Map
+            && !s.map.enabled()
+        {
+            return Err(ConfigError::Invalid(
+                "key `teacher.sight` is \"map\" without the camera's map: set \
+                 `sim.map.encoding`"
+                    .into(),
+            ));
         }
         Ok(())
     }

@@ -687,10 +687,7 @@ impl Supervisor<'_> {
             agents_total: cfg.agents_total(),
             hosts,
             observation_mode: cfg.sim.observation_mode,
-            renderer: match cfg.sim.renderer {
-                rotorhive_sim::RendererKind::Cpu => rotorhive_records::Renderer::Cpu,
-                rotorhive_sim::RendererKind::Wgpu => rotorhive_records::Renderer::Wgpu,
-            },
+            renderer: records::renderer_of(cfg),
             env_steps_per_s: env_steps as f64 / wall,
             updates_per_s: updates as f64 / wall,
             cpu_util_mean_pct: m.cpu.mean(),
@@ -729,11 +726,7 @@ impl Supervisor<'_> {
                 .map_or(0, |t| t.learning.skipped_updates as u64),
             teaching: self.teaching(),
             sizing: sizing_json(cfg),
-            map: cfg.sim.map.enabled().then(|| {
-                let mut v = serde_json::json!(cfg.sim.map);
-                v["floats"] = cfg.sim.map.floats().into();
-                v
-            }),
+            map: records::map_json(cfg),
             interrupted: ending.interrupted,
             resumed: self.a.resume.is_some(),
             failure: ending.failure.clone(),

@@ -294,6 +294,24 @@ impl EpisodeOrder {
     }
 }
 
+/// The renderer as `summary.json` names it.
+pub(super) fn renderer_of(cfg: &Config) -> rotorhive_records::Renderer {
+    match cfg.sim.renderer {
+        rotorhive_sim::RendererKind::Cpu => rotorhive_records::Renderer::Cpu,
+        rotorhive_sim::RendererKind::Wgpu => rotorhive_records::Renderer::Wgpu,
+    }
+}
+
+/// The run's camera map as `summary.json` holds it, with its floats (none
+/// without a map).
+pub(super) fn map_json(cfg: &Config) -> Option<serde_json::Value> {
+    cfg.sim.map.enabled().then(|| {
+        let mut v = serde_json::json!(cfg.sim.map);
+        v["floats"] = cfg.sim.map.floats().into();
+        v
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
