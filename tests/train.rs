@@ -441,7 +441,11 @@ fn bad_input_is_refused_clearly() {
 fn a_stopped_run_resumes() {
     let _turn = TRAINING.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
     let dir = tmp("resume");
+    // A threshold no run reaches: on a fast CPU the default config
+    // converges in under 9 s, before its third evaluation.
     let small = [
+        "--set",
+        "threshold=100000",
         "--set",
         "learner.checkpoint_every_s=3",
         "--set",

@@ -347,11 +347,7 @@ impl SimWorld {
     /// The encoding of its camera's map (`none` without one).
     fn map_name(&self) -> &'static str {
         match self {
-            SimWorld::Config(c) => match c.sim.map.encoding {
-                rotorhive_sim::MapEncoding::None => "none",
-                rotorhive_sim::MapEncoding::Grid => "grid",
-                rotorhive_sim::MapEncoding::Rays => "rays",
-            },
+            SimWorld::Config(c) => c.sim.map.encoding.name(),
             SimWorld::Arena(_) => "none",
         }
     }

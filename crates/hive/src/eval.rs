@@ -206,13 +206,8 @@ pub(crate) fn map_of(checkpoint: &Path) -> Result<Option<rotorhive_sim::MapSpec>
 
 /// `--set` keys that give a config the camera's map `m`.
 pub(crate) fn map_sets(m: &rotorhive_sim::MapSpec) -> Vec<String> {
-    let encoding = match m.encoding {
-        rotorhive_sim::MapEncoding::None => "none",
-        rotorhive_sim::MapEncoding::Grid => "grid",
-        rotorhive_sim::MapEncoding::Rays => "rays",
-    };
     vec![
-        format!("sim.map.encoding=\"{encoding}\""),
+        format!("sim.map.encoding=\"{}\"", m.encoding.name()),
         format!("sim.map.cell_m={:?}", m.cell_m),
         format!("sim.map.window={}", m.window),
         format!("sim.map.rays={}", m.rays),

@@ -37,6 +37,17 @@ pub enum MapEncoding {
     Rays,
 }
 
+impl MapEncoding {
+    /// Its name in configs (`sim.map.encoding`).
+    pub fn name(self) -> &'static str {
+        match self {
+            MapEncoding::None => "none",
+            MapEncoding::Grid => "grid",
+            MapEncoding::Rays => "rays",
+        }
+    }
+}
+
 /// The map's settings (`[sim.map]`; off by default).
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]
