@@ -217,18 +217,14 @@ impl Config {
     /// camera's map (and a teacher that reads the map needs one).
     fn validate_sections(&self) -> Result<()> {
         let s = &self.sim;
-        s.noise
-            .validate()
-            .map_err(|(k, m)| ConfigError::Invalid(format!("key `sim.noise.{k}` {m}")))?;
-        s.randomize
-            .validate()
-            .map_err(|(k, m)| ConfigError::Invalid(format!("key `sim.randomize.{k}` {m}")))?;
-        s.goal
-            .validate()
-            .map_err(|(k, m)| ConfigError::Invalid(format!("key `sim.goal.{k}` {m}")))?;
-        s.map
-            .validate()
-            .map_err(|(k, m)| ConfigError::Invalid(format!("key `sim.map.{k}` {m}")))?;
+        // Each section names its bad key; the message puts it under its section.
+        let section = |name: &str, r: std::result::Result<(), (&str, String)>| {
+            r.map_err(|(k, m)| ConfigError::Invalid(format!("key `sim.{name}.{k}` {m}")))
+        };
+        section("noise", s.noise.validate())?;
+        section("randomize", s.randomize.validate())?;
+        section("goal", s.goal.validate())?;
+        section("map", s.map.validate())?;
         if self.teacher.on()
             && self.teacher.sight == crate::sections::TeacherSight::Map
             && !s.map.enabled()
