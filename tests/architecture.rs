@@ -145,6 +145,12 @@ fn no_function_is_longer_than_80_lines() {
             if !is_fn || code.ends_with(';') || code.ends_with('}') {
                 continue;
             }
+            // A declaration without a body (a trait's required method)
+            // whose signature spans lines ends in `;` before any `{`.
+            let signature_end = lines[i..].iter().find(|x| x.ends_with('{') || x.ends_with(';'));
+            if signature_end.is_some_and(|x| x.ends_with(';')) {
+                continue;
+            }
             checked += 1;
             let end = lines[i..]
                 .iter()

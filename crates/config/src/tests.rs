@@ -159,6 +159,9 @@ fn memory_is_named_and_sized_and_refused_where_it_does_not_work_yet() {
         (&["learner.memory=\"gru:0\""], "learner.memory"),
         (&["learner.memory=\"gru:64\"", "learner.burn_in=22"], "learner.burn_in"),
         (&["learner.memory=\"gru:64\"", "learner.sequence_steps=1"], "learner.sequence_steps"),
+        // A key that changes nothing in this run is refused by name.
+        (&["learner.sequence_steps=40"], "`learner.sequence_steps` = 40 changes nothing"),
+        (&["learner.burn_in=4"], "`learner.burn_in` = 4 changes nothing without memory"),
     ] {
         let e = format!("{:#}", load(sets).unwrap_err());
         assert!(e.contains(needle), "{sets:?}: {e}");
@@ -167,6 +170,12 @@ fn memory_is_named_and_sized_and_refused_where_it_does_not_work_yet() {
     // sequences as the memory does.
     let taught = load(&["learner.memory=\"gru:64\"", "teacher.policy=\"planner\""]).unwrap();
     assert!(taught.teacher.demos() && taught.memory() == Some(64));
+    // The keys a run does not use are named (for its log).
+    assert_eq!(
+        plain.unused_keys(),
+        ["learner.sequence_steps", "learner.burn_in", "teacher.* (but teacher.policy)"]
+    );
+    assert!(taught.unused_keys().is_empty());
 }
 
 #[test]

@@ -2,8 +2,8 @@
 //! each refused with the key's name.
 
 use super::Config;
-use crate::TeacherLoss;
 use crate::error::{ConfigError, Doing, Result, config_err};
+use crate::{LearnerSection, TeacherLoss};
 use rotorhive_sim::PhysicsKind;
 
 /// A key that must be a positive number.
@@ -370,10 +370,22 @@ impl Config {
         self.validate_memory()
     }
 
-    /// `learner.memory` and its sequences.
+    /// `learner.memory` and its sequences; without memory, a sequence key
+    /// set to anything but its default changes nothing and is refused.
     fn validate_memory(&self) -> Result<()> {
         let l = &self.learner;
         if l.memory == "none" {
+            let d = LearnerSection::default();
+            for (key, set, default) in [
+                ("learner.sequence_steps", l.sequence_steps, d.sequence_steps),
+                ("learner.burn_in", l.burn_in, d.burn_in),
+            ] {
+                if set != default {
+                    config_err!(
+                        "key `{key}` = {set} changes nothing without memory (`learner.memory = \"none\"`): drop it, or set `learner.memory = \"gru:WIDTH\"`"
+                    );
+                }
+            }
             return Ok(());
         }
         let width = self.memory().filter(|w| (1..=rotorhive_model::MAX_WIDTH).contains(w));
@@ -398,5 +410,21 @@ impl Config {
             );
         }
         Ok(())
+    }
+}
+
+impl Config {
+    /// The keys that do nothing in this run, left at values that change
+    /// nothing (the run's log names them): the sequences' without memory,
+    /// the teacher's without a teacher.
+    pub fn unused_keys(&self) -> Vec<&'static str> {
+        let mut unused = Vec::new();
+        if self.memory().is_none() {
+            unused.extend(["learner.sequence_steps", "learner.burn_in"]);
+        }
+        if !self.teacher.on() {
+            unused.push("teacher.* (but teacher.policy)");
+        }
+        unused
     }
 }

@@ -12,6 +12,10 @@ fn main() {
     let s = Shapes::PAPER;
     let cfg = SeqConfig {
         lr: 1e-4,
+        lr_final: 1e-4,
+        lr_decay_updates: 0,
+        max_grad_norm: 0.0,
+        double: true,
         gamma: 0.99,
         n_step: 3,
         burn_in: 8,

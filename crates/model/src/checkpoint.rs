@@ -249,7 +249,10 @@ pub(crate) fn read(
 }
 
 /// Sets `vars` (of `specs`' names and shapes, in order) from `tensors`,
-/// checking every name and shape.
+/// checking every name, shape, dtype and value: a tensor the network does
+/// not have, one of integers, or one holding a NaN or an infinity is
+/// refused by name, so no command flies or exports weights that cannot
+/// compute a Q-value.
 pub(crate) fn load_vars(
     specs: &[(&'static str, Vec<usize>)],
     vars: &[Var],
@@ -257,24 +260,48 @@ pub(crate) fn load_vars(
     file: &str,
     device: &Device,
 ) -> Result<()> {
+    let bad = |message: String| ModelError::Checkpoint { file: file.into(), message };
+    let mut extra: Vec<&str> =
+        tensors.keys().map(String::as_str).filter(|k| !specs.iter().any(|(n, _)| n == k)).collect();
+    if !extra.is_empty() {
+        extra.sort_unstable();
+        return Err(bad(format!(
+            "tensor `{}` is not part of this network ({} such)",
+            extra[0],
+            extra.len()
+        )));
+    }
     for ((name, shape), v) in specs.iter().zip(vars) {
-        let t = tensors.get(*name).ok_or_else(|| ModelError::Checkpoint {
-            file: file.into(),
-            message: format!("tensor `{name}` is missing"),
-        })?;
+        let t = tensors.get(*name).ok_or_else(|| bad(format!("tensor `{name}` is missing")))?;
         if t.dims() != *shape {
-            return Err(ModelError::Checkpoint {
-                file: file.into(),
-                message: format!(
-                    "tensor `{name}` has shape {:?}, the network needs {:?}",
-                    t.dims(),
-                    shape
-                ),
-            });
+            return Err(bad(format!(
+                "tensor `{name}` has shape {:?}, the network needs {:?}",
+                t.dims(),
+                shape
+            )));
         }
-        v.set(&t.to_dtype(DType::F32)?.to_device(device)?)?;
+        let values = finite_floats(t, name, &bad)?;
+        v.set(&Tensor::from_vec(values, shape.as_slice(), device)?)?;
     }
     Ok(())
+}
+
+/// The values of a checkpoint's tensor `name` as f32, refused (through
+/// `bad`) when it holds integers or any value that is not finite.
+fn finite_floats(t: &Tensor, name: &str, bad: &dyn Fn(String) -> ModelError) -> Result<Vec<f32>> {
+    if !t.dtype().is_float() {
+        return Err(bad(format!("tensor `{name}` holds {:?}, not floats", t.dtype())));
+    }
+    let values =
+        t.to_device(&Device::Cpu)?.to_dtype(DType::F32)?.flatten_all()?.to_vec1::<f32>()?;
+    let broken = values.iter().filter(|x| !x.is_finite()).count();
+    if broken > 0 {
+        return Err(bad(format!(
+            "tensor `{name}` holds {broken} values of {} that are not finite (NaN or infinity)",
+            values.len()
+        )));
+    }
+    Ok(values)
 }
 
 /// A learner's whole state as read back by [`read_state`]: both networks'
@@ -363,7 +390,7 @@ pub(crate) fn read_state(
                     x.dims()
                 )));
             }
-            vecs.push(x.to_dtype(DType::F32)?.flatten_all()?.to_vec1::<f32>()?);
+            vecs.push(finite_floats(x, &format!("{prefix}{name}"), &bad)?);
         }
         moments.push(vecs);
     }
@@ -371,3 +398,6 @@ pub(crate) fn read_state(
     let m = moments.pop().unwrap_or_default();
     Ok(LearnerState { online: sub("online."), target: sub("target."), m, v, t, updates })
 }
+
+#[cfg(test)]
+mod tests;

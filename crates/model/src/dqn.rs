@@ -10,7 +10,7 @@ use candle_core::{D, Tensor};
 
 use crate::checkpoint;
 use crate::kernels::{Rows, Workspace, poisoned};
-use crate::ops::{AdamHyper, AdamStep, adam};
+use crate::optimiser::{Optimiser, Schedule};
 use crate::{Layers, ModelError, QNet, Result, Shapes, argmax, params};
 use rotorhive_msg::{label_action, label_mask};
 
@@ -91,82 +91,6 @@ pub struct UpdateTiming {
     pub optimiser_ns: u64,
 }
 
-/// Adam without weight decay; the moments are plain vectors so the fused
-/// path updates every parameter in place in one pass. Both learners use it
-/// (the recurrent one through [`Adam::with_sizes`] and [`Adam::step_vars`]).
-pub(crate) struct Adam {
-    lr: f32,
-    lr_final: f32,
-    decay: u64,
-    pub(crate) t: u64,
-    pub(crate) m: Vec<Vec<f32>>,
-    pub(crate) v: Vec<Vec<f32>>,
-}
-
-impl Adam {
-    fn new(cfg: &DqnConfig, shapes: Shapes, layers: Layers) -> Self {
-        let specs = params(shapes, layers);
-        let sizes = specs.iter().map(|(_, s)| s.iter().product::<usize>());
-        Self::with_sizes((cfg.lr as f32, cfg.lr_final as f32, cfg.lr_decay_updates), sizes)
-    }
-
-    /// Adam at learning rate `lr` falling to `lr_final` over `decay` steps,
-    /// for parameters of `sizes` floats each (in canonical order).
-    pub(crate) fn with_sizes(
-        (lr, lr_final, decay): (f32, f32, u64),
-        sizes: impl Iterator<Item = usize> + Clone,
-    ) -> Self {
-        Self {
-            lr,
-            lr_final,
-            decay,
-            t: 0,
-            m: sizes.clone().map(|n| vec![0.0; n]).collect(),
-            v: sizes.map(|n| vec![0.0; n]).collect(),
-        }
-    }
-
-    /// The learning rate of step `t` (from 1): linear from `lr` to `lr_final`
-    /// over `decay` steps.
-    fn lr_at(&self, t: u64) -> f32 {
-        if self.decay == 0 {
-            return self.lr;
-        }
-        let frac = ((t - 1) as f64 / self.decay as f64).min(1.0) as f32;
-        self.lr + (self.lr_final - self.lr) * frac
-    }
-
-    /// One step with the gradients of every parameter, flat in canonical order.
-    fn step(&mut self, net: &QNet, grads: &[f32]) -> Result<()> {
-        self.step_vars(net.vars(), grads)
-    }
-
-    /// One step of `vars` (in canonical order) with their gradients, flat in
-    /// the same order: in place on the CPU.
-    pub(crate) fn step_vars(&mut self, vars: &[candle_core::Var], grads: &[f32]) -> Result<()> {
-        self.t += 1;
-        let hyper =
-            AdamHyper { lr: self.lr_at(self.t), beta1: 0.9, beta2: 0.999, eps: 1e-8, t: self.t };
-        let mut off = 0;
-        for ((var, m), v) in vars.iter().zip(&mut self.m).zip(&mut self.v) {
-            let g = &grads[off..off + m.len()];
-            off += m.len();
-            if var.device().is_cpu() {
-                var.as_tensor().inplace_op1(&AdamStep {
-                    grad: g,
-                    moments: Mutex::new((m.as_mut_slice(), v.as_mut_slice())),
-                    hyper,
-                })?;
-            } else {
-                let mut p = var.as_tensor().flatten_all()?.to_vec1::<f32>()?;
-                adam(&mut p, g, m, v, hyper);
-                var.set(&Tensor::from_vec(p, var.shape(), var.device())?)?;
-            }
-        }
-        Ok(())
-    }
-}
-
 /// One shard's share of an update.
 struct Shard {
     loss: f32,
@@ -180,9 +104,9 @@ pub struct Dqn {
     /// The online network.
     pub online: QNet,
     pub(crate) target: QNet,
-    opt: Adam,
+    /// Adam, its schedule, clipping, skips and the target's cadence.
+    opt: Optimiser,
     cfg: DqnConfig,
-    updates: u64,
     timing: UpdateTiming,
     shards: usize,
     /// One workspace per shard of the fused path.
@@ -190,8 +114,6 @@ pub struct Dqn {
     /// The generic path's gradients, flat in canonical order (the fused
     /// path sums its shards' into the first workspace).
     grads: Vec<f32>,
-    /// Updates skipped for a non-finite loss or gradient.
-    skipped: u64,
     stats: UpdateStats,
     /// Per row of the last update: the absolute TD error.
     td: Vec<f32>,
@@ -240,6 +162,18 @@ fn rows_of(batch: &[f32], shapes: Shapes) -> Result<usize> {
     Ok(batch.len() / len)
 }
 
+/// The update policy of `cfg` for a network of `shapes` and `layers`.
+fn optimiser(cfg: &DqnConfig, shapes: Shapes, layers: Layers) -> Optimiser {
+    let schedule = Schedule {
+        lr: cfg.lr as f32,
+        lr_final: cfg.lr_final as f32,
+        decay: cfg.lr_decay_updates,
+        max_grad_norm: cfg.max_grad_norm,
+        target_update: cfg.target_update,
+    };
+    Optimiser::new(schedule, params(shapes, layers).iter().map(|(_, s)| s.iter().product()))
+}
+
 impl Dqn {
     /// A learner with freshly initialised networks of the paper's task's
     /// shapes; see [`Dqn::with_shapes`].
@@ -271,14 +205,12 @@ impl Dqn {
         Ok(Self {
             online,
             target,
-            opt: Adam::new(&cfg, shapes, layers),
+            opt: optimiser(&cfg, shapes, layers),
             cfg,
-            updates: 0,
             timing: UpdateTiming::default(),
             shards: 1,
             work: Vec::new(),
             grads: Vec::new(),
-            skipped: 0,
             stats: UpdateStats::default(),
             td: Vec::new(),
             teaching: Teaching::default(),
@@ -326,7 +258,7 @@ impl Dqn {
 
     /// Updates done so far.
     pub fn updates(&self) -> u64 {
-        self.updates
+        self.opt.updates
     }
 
     /// Timing of the last update.
@@ -337,7 +269,7 @@ impl Dqn {
     /// Updates skipped so far because their loss or gradient was not
     /// finite (they count in [`Dqn::updates`] but changed nothing).
     pub fn skipped(&self) -> u64 {
-        self.skipped
+        self.opt.skipped
     }
 
     /// What the last update's minibatch showed (max-Q, TD error, terminals).
@@ -622,25 +554,14 @@ impl Dqn {
         let mut total = self.compute_gradients(batch, weights)?;
         let t2 = Instant::now();
         let grads = gradients_in(&self.online, &mut self.grads, &mut self.work)?;
-        let norm = grads.iter().map(|g| (*g as f64) * (*g as f64)).sum::<f64>().sqrt();
-        total.stats.grad_norm = norm;
+        let step = self.opt.step(self.online.vars(), Some(grads), total.loss)?;
+        total.stats.grad_norm = step.grad_norm;
         self.stats = total.stats;
-        self.updates += 1;
-        if !(total.loss.is_finite() && norm.is_finite()) {
-            self.skipped += 1;
-            if self.updates.is_multiple_of(self.cfg.target_update) {
-                self.sync_target()?;
-            }
-            return Ok(if total.loss.is_finite() { f32::NAN } else { total.loss });
-        }
-        let max = self.cfg.max_grad_norm as f64;
-        if max > 0.0 && norm > max {
-            let k = (max / norm) as f32;
-            grads.iter_mut().for_each(|g| *g *= k);
-        }
-        self.opt.step(&self.online, grads)?;
-        if self.updates.is_multiple_of(self.cfg.target_update) {
+        if step.sync_target {
             self.sync_target()?;
+        }
+        if !step.applied {
+            return Ok(if total.loss.is_finite() { f32::NAN } else { total.loss });
         }
         self.timing = UpdateTiming {
             forward_ns: total.forward_ns,
@@ -654,9 +575,9 @@ impl Dqn {
     /// the update count) as one safetensors file, atomically.
     pub fn save_state(&self, path: &Path) -> Result<()> {
         let nets = (self.online.vars(), self.target.vars());
-        let o = &self.opt;
+        let o = &self.opt.adam;
         let specs = params(self.online.shapes(), self.online.layers());
-        checkpoint::save_state(path, &specs, nets, (&o.m, &o.v, o.t), self.updates)
+        checkpoint::save_state(path, &specs, nets, (&o.m, &o.v, o.t), self.opt.updates)
     }
 
     /// Restores a state written by [`Dqn::save_state`], checking every tensor.
@@ -666,8 +587,8 @@ impl Dqn {
         let file = path.display().to_string();
         self.online.load_named(&st.online, &file)?;
         self.target.load_named(&st.target, &file)?;
-        (self.opt.m, self.opt.v, self.opt.t) = (st.m, st.v, st.t);
-        self.updates = st.updates;
+        (self.opt.adam.m, self.opt.adam.v, self.opt.adam.t) = (st.m, st.v, st.t);
+        self.opt.updates = st.updates;
         Ok(())
     }
 }
@@ -676,12 +597,12 @@ impl Dqn {
 impl Dqn {
     /// One Adam step with given gradients (tests compare it with candle-nn).
     pub(crate) fn opt_step(&mut self, grads: &[f32]) -> Result<()> {
-        self.opt.step(&self.online, grads)
+        self.opt.adam.step_vars(self.online.vars(), grads)
     }
 
     /// Adam's first moments, flat (tests check what clipping fed it).
     pub(crate) fn first_moments(&self) -> Vec<f32> {
-        self.opt.m.concat()
+        self.opt.adam.m.concat()
     }
 }
 
@@ -703,14 +624,15 @@ mod schedule_tests {
             max_grad_norm: 0.0,
             margin: 0.8,
         };
-        let adam = Adam::new(&cfg, Shapes::PAPER, Layers::DEFAULT);
+        let adam = optimiser(&cfg, Shapes::PAPER, Layers::DEFAULT).adam;
         let close = |a: f32, b: f32| (a - b).abs() < 1e-9;
         assert!(close(adam.lr_at(1), 1e-3));
         assert!(close(adam.lr_at(51), 6e-4), "{}", adam.lr_at(51));
         assert!(close(adam.lr_at(101), 2e-4));
         assert!(close(adam.lr_at(10_000), 2e-4));
         let constant =
-            Adam::new(&DqnConfig { lr_decay_updates: 0, ..cfg }, Shapes::PAPER, Layers::DEFAULT);
+            optimiser(&DqnConfig { lr_decay_updates: 0, ..cfg }, Shapes::PAPER, Layers::DEFAULT)
+                .adam;
         assert!(close(constant.lr_at(10_000), 1e-3));
     }
 }

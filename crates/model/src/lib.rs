@@ -27,6 +27,7 @@ mod kernels;
 mod layers;
 mod onnx;
 mod ops;
+mod optimiser;
 mod policy;
 mod recurrent;
 mod teaching;

@@ -112,6 +112,10 @@ pub fn run(a: TrainArgs) -> Result<()> {
             None
         }
     };
+    let unused = cfg.unused_keys();
+    if !unused.is_empty() {
+        tracing::info!("keys this run does not use: {}", unused.join(", "));
+    }
     let cfg_path = run_dir.join("config.toml");
     std::fs::write(&cfg_path, cfg.to_toml())
         .with_context(|| format!("cannot write {}", cfg_path.display()))?;

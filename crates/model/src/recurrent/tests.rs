@@ -9,6 +9,10 @@ const SHAPES: Shapes = Shapes::PAPER;
 fn base_config() -> SeqConfig {
     SeqConfig {
         lr: 1e-3,
+        lr_final: 1e-3,
+        lr_decay_updates: 0,
+        max_grad_norm: 0.0,
+        double: true,
         gamma: 0.9,
         n_step: 3,
         burn_in: 2,
@@ -615,4 +619,73 @@ fn a_checkpoint_names_its_memory_and_a_network_of_another_is_refused() {
     let e = RecurrentQNet::new(SHAPES, 16, 0, &dev).unwrap().load(&gru).unwrap_err().to_string();
     assert!(e.contains("memory gru:8 (this network: gru:16)"), "{e}");
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The recurrent update follows the feedforward one's policy: a
+/// non-finite loss is skipped and counted (the weights untouched, the
+/// learner alive), the gauges are filled, double DQN is a choice.
+#[test]
+fn the_sequence_update_skips_a_broken_loss_and_keeps_its_gauges() {
+    let dev = Device::Cpu;
+    let cfg = SeqConfig { n_step: 2, burn_in: 1, target_update: 2, ..base_config() };
+    let (n, t, width) = (2, 4, 8);
+    let mut rng = Pcg64Mcg::seed_from_u64(5);
+    let obs = random_obs(&mut rng, n * (t + 1));
+    let actions: Vec<u8> = (0..n * t).map(|_| rng.random_range(0..2)).collect();
+    let rewards: Vec<f32> = (0..n * t).map(|_| rng.random_range(-1.0..1.0)).collect();
+    let mut dones = vec![false; n * t];
+    dones[t + 2] = true;
+    let states = vec![0.1; n * width];
+    {
+        let mut seq = SeqDqn::new(cfg, SHAPES, width, 1, &dev).unwrap();
+        let b = SeqBatch {
+            sequences: n,
+            steps: t,
+            obs: &obs,
+            actions: &actions,
+            rewards: &rewards,
+            dones: &dones,
+            states: &states,
+            experts: &[],
+            weights: &[],
+        };
+        seq.update(&b).unwrap();
+        let st = seq.stats();
+        assert_eq!((st.rows, st.terminal), (((t - 1) * n) as u32, 1));
+        assert!(st.max_q_sum.is_finite() && st.abs_td_sum > 0.0 && st.grad_norm > 0.0);
+        let mut w = vec![0.0; seq.online.num_params()];
+        seq.online.write_flat(&mut w).unwrap();
+        let before = w.clone();
+        // Finite rewards (non-finite ones are refused by the batch's
+        // check) whose loss overflows.
+        let broken = vec![f32::MAX; rewards.len()];
+        let loss = seq.update(&SeqBatch { rewards: &broken, ..b }).unwrap();
+        assert!(!loss.is_finite(), "{loss}");
+        assert_eq!((seq.updates(), seq.skipped()), (2, 1));
+        seq.online.write_flat(&mut w).unwrap();
+        assert!(w == before, "a skipped update changed the weights");
+        assert!(seq.update(&b).unwrap().is_finite());
+        assert_eq!((seq.updates(), seq.skipped()), (3, 1));
+    }
+    // Double DQN or not: other targets.
+    let q = vec![vec![vec![1.0, 0.0]; n]; t + 1 - 1];
+    let qt = vec![vec![vec![0.0, 2.0]; n]; t + 1];
+    let b = SeqBatch {
+        sequences: n,
+        steps: t,
+        obs: &obs,
+        actions: &actions,
+        rewards: &rewards,
+        dones: &vec![false; n * t],
+        states: &states,
+        experts: &[],
+        weights: &[],
+    };
+    let seq = |double| SeqDqn::new(SeqConfig { double, ..cfg }, SHAPES, width, 1, &dev).unwrap();
+    let (y_double, y_max) = (seq(true).targets(&b, &q, &qt), seq(false).targets(&b, &q, &qt));
+    let last = (t - 1 - 1) * n; // the last trained step bootstraps from qt[t]
+    assert!(
+        (y_max[last] - y_double[last] - cfg.gamma * 2.0).abs() < 1e-5,
+        "{y_max:?} {y_double:?}"
+    );
 }

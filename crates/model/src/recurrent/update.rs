@@ -1,6 +1,10 @@
 //! The recurrent network's update ([`SeqDqn`]): R2D2's on stored
-//! sequences (burn-in, n-step double-DQN targets inside a sequence, each
-//! sequence's priority), with the teacher's losses on its labelled steps.
+//! sequences (burn-in, n-step targets inside a sequence, double DQN or
+//! not, each sequence's priority), with the teacher's losses on its
+//! labelled steps, under the feedforward update's policy
+//! ([`crate::optimiser`]: the learning rate's decay, clipping, a
+//! non-finite loss skipped and counted, the target's cadence) and with its
+//! gauges ([`UpdateStats`]).
 
 use std::path::Path;
 use std::time::Instant;
@@ -9,16 +13,28 @@ use candle_core::{D, Device, Tensor, Var};
 
 use super::{RecurrentQNet, SeqBatch, recurrent_params};
 use crate::checkpoint;
-use crate::dqn::{Adam, UpdateTiming};
+use crate::dqn::{UpdateStats, UpdateTiming};
 use crate::kernels::{Workspace, offsets};
+use crate::optimiser::{Optimiser, Schedule};
 use crate::teaching::Teaching;
 use crate::{Layers, ModelError, Result, Shapes, argmax};
 
 /// Hyper-parameters of the sequence update.
 #[derive(Debug, Clone, Copy)]
 pub struct SeqConfig {
-    /// Adam's learning rate.
+    /// Adam's learning rate at the first update.
     pub lr: f32,
+    /// The learning rate reached after `lr_decay_updates` updates (linear
+    /// decay; held from then on).
+    pub lr_final: f32,
+    /// Updates over which the learning rate falls from `lr` to `lr_final`;
+    /// 0 keeps `lr` throughout.
+    pub lr_decay_updates: u64,
+    /// The gradient's global L2 norm is clipped to this; 0 = no clipping.
+    pub max_grad_norm: f32,
+    /// Double DQN: the online network picks the next action, the target
+    /// network values it; else the target network's largest value.
+    pub double: bool,
     /// Discount.
     pub gamma: f32,
     /// Steps of return before bootstrapping (cut at an episode's end and at
@@ -44,8 +60,11 @@ pub struct SeqDqn {
     pub online: RecurrentQNet,
     target: RecurrentQNet,
     cfg: SeqConfig,
-    /// The project's Adam (its step count is the update count).
-    opt: Adam,
+    /// Adam, its schedule, clipping, skips and the target's cadence.
+    opt: Optimiser,
+    /// What the last update's trained steps showed (max-Q, |TD|,
+    /// terminals, the gradient's norm).
+    stats: UpdateStats,
     /// The online trunk's fused pass, kept from its forward for its
     /// backward.
     work: Workspace,
@@ -84,13 +103,21 @@ impl SeqDqn {
         let target = RecurrentQNet::with_layers(shapes, layers, width, seed, device)?;
         let sizes = recurrent_params(shapes, layers, width);
         let sizes = sizes.iter().map(|(_, s)| s.iter().product::<usize>());
-        let opt = Adam::with_sizes((cfg.lr, cfg.lr, 0), sizes);
+        let schedule = Schedule {
+            lr: cfg.lr,
+            lr_final: cfg.lr_final,
+            decay: cfg.lr_decay_updates,
+            max_grad_norm: cfg.max_grad_norm,
+            target_update: cfg.target_update,
+        };
+        let opt = Optimiser::new(schedule, sizes);
         let work = Workspace::default();
         Ok(Self {
             online,
             target,
             cfg,
             opt,
+            stats: UpdateStats::default(),
             work,
             teaching: Teaching::default(),
             priorities: Vec::new(),
@@ -118,9 +145,21 @@ impl SeqDqn {
         self.target.set_fused(fused)
     }
 
-    /// Updates made.
+    /// Updates made, skipped ones included.
     pub fn updates(&self) -> u64 {
-        self.opt.t
+        self.opt.updates
+    }
+
+    /// Updates skipped so far because their loss or gradient was not
+    /// finite (they count in [`SeqDqn::updates`] but changed nothing).
+    pub fn skipped(&self) -> u64 {
+        self.opt.skipped
+    }
+
+    /// What the last update's trained steps showed: their count (`rows`),
+    /// max-Q and |TD error| sums, terminals, the gradient's norm.
+    pub fn stats(&self) -> UpdateStats {
+        self.stats
     }
 
     /// The last update's priority of each of its sequences: `ETA` times
@@ -143,8 +182,8 @@ impl SeqDqn {
     pub fn save_state(&self, path: &Path) -> Result<()> {
         let specs = recurrent_params(self.online.shapes, self.online.layers, self.online.width);
         let nets = (&self.online.params[..], &self.target.params[..]);
-        let o = &self.opt;
-        checkpoint::save_state(path, &specs, nets, (&o.m, &o.v, o.t), o.t)
+        let o = &self.opt.adam;
+        checkpoint::save_state(path, &specs, nets, (&o.m, &o.v, o.t), self.opt.updates)
     }
 
     /// Restores a state written by [`SeqDqn::save_state`], checking every
@@ -155,18 +194,26 @@ impl SeqDqn {
         let (file, dev) = (path.display().to_string(), self.online.device.clone());
         checkpoint::load_vars(&specs, &self.online.params, &st.online, &file, &dev)?;
         checkpoint::load_vars(&specs, &self.target.params, &st.target, &file, &dev)?;
-        (self.opt.m, self.opt.v, self.opt.t) = (st.m, st.v, st.t);
+        (self.opt.adam.m, self.opt.adam.v, self.opt.adam.t) = (st.m, st.v, st.t);
+        self.opt.updates = st.updates;
         Ok(())
     }
 
-    /// One update on `batch`; the loss. The target network is copied from
-    /// the online one every `target_update` updates.
+    /// One update on `batch`; the loss. A loss or gradient that is not
+    /// finite skips the step (the weights and Adam's moments stay as they
+    /// were), counts in [`SeqDqn::skipped`] and is returned; the update
+    /// still counts. The target network is copied from the online one every
+    /// `target_update` updates.
     pub fn update(&mut self, batch: &SeqBatch) -> Result<f32> {
-        let (loss, grads) = self.gradients(batch)?;
+        let (loss, mut grads) = self.loss_and_gradients(batch)?;
         let t = Instant::now();
-        self.apply(&grads)?;
+        let step = self.opt.step(&self.online.params, grads.as_deref_mut(), loss)?;
+        self.stats.grad_norm = step.grad_norm;
+        if step.sync_target {
+            self.target.copy_from(&self.online)?;
+        }
         self.timing.optimiser_ns = t.elapsed().as_nanos() as u64;
-        Ok(loss)
+        Ok(if step.applied || !loss.is_finite() { loss } else { f32::NAN })
     }
 
     /// Where the last update's time went: the forward passes and the loss
@@ -177,8 +224,17 @@ impl SeqDqn {
     }
 
     /// The loss on `batch` and its gradient, flat in canonical order
-    /// (nothing is updated).
+    /// (nothing is updated); a loss that is not finite is an error.
     pub fn gradients(&mut self, batch: &SeqBatch) -> Result<(f32, Vec<f32>)> {
+        match self.loss_and_gradients(batch)? {
+            (loss, Some(grads)) => Ok((loss, grads)),
+            _ => Err(ModelError::NoGradient("the sequence loss is not finite")),
+        }
+    }
+
+    /// The loss on `batch` and, where it is finite, its gradient; the
+    /// trained steps' gauges into [`SeqDqn::stats`].
+    fn loss_and_gradients(&mut self, batch: &SeqBatch) -> Result<(f32, Option<Vec<f32>>)> {
         let start = Instant::now();
         let (shapes, width) = (self.online.shapes, self.online.width);
         batch.check(shapes, width, self.cfg.burn_in)?;
@@ -217,7 +273,9 @@ impl SeqDqn {
             &keep.narrow(0, burn, rest)?,
         )?;
         let qt = self.target.unroll_features(&self.target.features(&obs)?, t + 1, n, &h0, &keep)?.0;
-        let y = self.targets(batch, &q.detach().to_vec3::<f32>()?, &qt.to_vec3::<f32>()?);
+        let q_rows = q.detach().to_vec3::<f32>()?;
+        let y = self.targets(batch, &q_rows, &qt.to_vec3::<f32>()?);
+        self.stats = trained_stats(batch, &q_rows, &y, burn);
         let trained = t - burn;
         let mut onehot = vec![0.0f32; trained * n * shapes.actions];
         for (i, a) in batch.actions.chunks_exact(t).enumerate() {
@@ -243,14 +301,14 @@ impl SeqDqn {
             loss = (loss + taught)?;
         }
         let value = loss.to_scalar::<f32>()?;
-        if !value.is_finite() {
-            return Err(ModelError::NoGradient("the sequence loss is not finite"));
-        }
         self.timing.forward_ns = start.elapsed().as_nanos() as u64;
+        if !value.is_finite() {
+            return Ok((value, None));
+        }
         let back = Instant::now();
         let grads = self.backward(&loss, leaf.as_ref(), (t + 1) * n)?;
         self.timing.backward_ns = back.elapsed().as_nanos() as u64;
-        Ok((value, grads))
+        Ok((value, Some(grads)))
     }
 
     /// The teacher's losses of the trained steps' Q-values `q`
@@ -318,19 +376,10 @@ impl SeqDqn {
         Ok(flat)
     }
 
-    /// One Adam step with `grads` (flat in canonical order); the target
-    /// copied when due.
-    fn apply(&mut self, grads: &[f32]) -> Result<()> {
-        self.opt.step_vars(&self.online.params, grads)?;
-        if self.opt.t.is_multiple_of(self.cfg.target_update.max(1)) {
-            self.target.copy_from(&self.online)?;
-        }
-        Ok(())
-    }
-
-    /// The n-step double-DQN targets `[trained][sequences]` of the trained
-    /// steps, from the online network's Q-values `q` (from the burn-in's end)
-    /// and the target network's `qt` (from the sequence's start).
+    /// The n-step targets `[trained][sequences]` of the trained steps, from
+    /// the online network's Q-values `q` (from the burn-in's end) and the
+    /// target network's `qt` (from the sequence's start): the next action
+    /// the online network's pick under double DQN, else the target's.
     pub(crate) fn targets(
         &self,
         b: &SeqBatch,
@@ -356,7 +405,8 @@ impl SeqDqn {
                 }
                 if boot {
                     let s = u + k;
-                    let best = argmax(&q[s - burn][i]);
+                    let pick = if c.double { &q[s - burn][i] } else { &qt[s][i] };
+                    let best = argmax(pick);
                     g += disc * qt[s][i][best];
                 }
                 y[(u - burn) * n + i] = g;
@@ -383,6 +433,24 @@ fn step_major(b: &SeqBatch, len: usize) -> (Vec<f32>, Vec<f32>) {
         }
     }
     (obs, keep)
+}
+
+/// The gauges of a batch's trained steps: their count, the sums of the
+/// online network's max-Q (`q`, from the burn-in's end) and of |Q(s, a) −
+/// y| against the targets `y` (`[trained][sequences]`), the terminals.
+fn trained_stats(b: &SeqBatch, q: &[Vec<Vec<f32>>], y: &[f32], burn: usize) -> UpdateStats {
+    let (n, t) = (b.sequences, b.steps);
+    let mut st = UpdateStats { rows: ((t - burn) * n) as u32, ..UpdateStats::default() };
+    for i in 0..n {
+        for u in burn..t {
+            let row = &q[u - burn][i];
+            let a = b.actions[i * t + u] as usize;
+            st.max_q_sum += row.iter().fold(f32::MIN, |m, x| m.max(*x)) as f64;
+            st.abs_td_sum += (row[a.min(row.len() - 1)] - y[(u - burn) * n + i]).abs() as f64;
+            st.terminal += b.dones[i * t + u] as u32;
+        }
+    }
+    st
 }
 
 /// R2D2's mix of a sequence's largest and mean |TD error|.

@@ -124,7 +124,7 @@ impl Learning for Feedforward {
     }
 
     fn gauge(&self, gauges: &mut Gauges, reward_scale: f64, tel: &mut rotorhive_msg::Telemetry) {
-        gauges.learn(&self.dqn, reward_scale, tel);
+        gauges.learn(self.dqn.stats(), self.dqn.skipped(), reward_scale, tel);
     }
 }
 

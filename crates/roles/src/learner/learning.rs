@@ -4,7 +4,7 @@
 
 use std::path::Path;
 
-use rotorhive_model::{Dqn, Teaching, UpdateTiming};
+use rotorhive_model::{Teaching, UpdateStats, UpdateTiming};
 use rotorhive_msg::MinibatchHeader;
 use rotorhive_transport::Service;
 
@@ -59,10 +59,8 @@ pub trait Learning {
     /// Writes the whole learner state (networks, Adam, counters) at `path`.
     fn save_state(&self, path: &Path) -> Result<()>;
 
-    /// Adds the last update's learning diagnostics to the gauges (none by
-    /// default).
-    fn gauge(&self, _gauges: &mut Gauges, _reward_scale: f64, _tel: &mut rotorhive_msg::Telemetry) {
-    }
+    /// Adds the last update's learning diagnostics to the gauges.
+    fn gauge(&self, gauges: &mut Gauges, reward_scale: f64, tel: &mut rotorhive_msg::Telemetry);
 }
 
 /// How minibatch `mb` weighs the labels: the teacher's weight times the
@@ -116,11 +114,17 @@ impl Gauges {
 }
 
 impl Gauges {
-    /// Adds the last update's learning diagnostics (in reward units: the
-    /// network's values divided by `reward_scale`).
-    pub fn learn(&mut self, dqn: &Dqn, reward_scale: f64, tel: &mut rotorhive_msg::Telemetry) {
-        let st = dqn.stats();
-        tel.learning.skipped_updates = dqn.skipped().min(u32::MAX as u64) as u32;
+    /// Adds the last update's learning diagnostics `st` and the count of
+    /// skipped updates (in reward units: the network's values divided by
+    /// `reward_scale`).
+    pub fn learn(
+        &mut self,
+        st: UpdateStats,
+        skipped: u64,
+        reward_scale: f64,
+        tel: &mut rotorhive_msg::Telemetry,
+    ) {
+        tel.learning.skipped_updates = skipped.min(u32::MAX as u64) as u32;
         if !(st.max_q_sum.is_finite() && st.abs_td_sum.is_finite()) || st.rows == 0 {
             return;
         }

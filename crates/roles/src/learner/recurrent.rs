@@ -10,7 +10,9 @@
 //! of its largest |TD error| and the rest of their mean), its importance
 //! weight scaling its loss. With a teacher, DQfD's
 //! margin loss on the labelled steps, weighted and faded as the
-//! feedforward learner's.
+//! feedforward learner's. The update's policy (the learning rate's decay,
+//! clipping, double DQN, a non-finite loss skipped and counted) and its
+//! gauges are the feedforward learner's.
 
 use std::path::Path;
 
@@ -18,7 +20,7 @@ use rotorhive_model::{SeqBatch, SeqConfig, SeqDqn, UpdateTiming};
 use rotorhive_msg::{MinibatchHeader, PICK_WORDS, Pick, SeqLayout, Unpacked};
 use rotorhive_transport::Service;
 
-use super::learning::{Learning, teaching};
+use super::learning::{Gauges, Learning, teaching};
 use super::minibatch::Minibatch;
 use crate::config::Config;
 use crate::error::{Doing, Result, protocol_err};
@@ -28,6 +30,10 @@ pub fn seq_config(cfg: &Config) -> SeqConfig {
     let l = &cfg.learner;
     SeqConfig {
         lr: l.lr as f32,
+        lr_final: l.lr_final as f32,
+        lr_decay_updates: l.lr_decay_updates,
+        max_grad_norm: l.max_grad_norm as f32,
+        double: l.double_dqn,
         gamma: l.gamma as f32,
         n_step: l.n_step,
         burn_in: l.burn_in,
@@ -144,6 +150,10 @@ impl Learning for Recurrent {
         self.dqn
             .save_state(path)
             .doing_with(|| format!("cannot write learner state {}", path.display()))
+    }
+
+    fn gauge(&self, gauges: &mut Gauges, reward_scale: f64, tel: &mut rotorhive_msg::Telemetry) {
+        gauges.learn(self.dqn.stats(), self.dqn.skipped(), reward_scale, tel);
     }
 }
 
