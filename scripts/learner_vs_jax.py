@@ -1,10 +1,10 @@
 #!/usr/bin/env python3
-"""`hive bench learner` beside the JAX peer (`../shared/peer-bench/bench_jax.py`),
+"""`hive bench learner` beside a JAX version of the same step (`--jax-script`, a peer's `bench_jax.py`),
 in alternating rounds at 1 thread (pinned to core 0) and 2 threads; prints the
 medians and their ratios.
 
     python3 -m venv /some/venv && /some/venv/bin/pip install "jax[cpu]" optax numpy
-    scripts/learner_vs_jax.py --python /some/venv/bin/python [--rounds 3]
+    scripts/learner_vs_jax.py --python /some/venv/bin/python --jax-script PATH/bench_jax.py [--rounds 3]
 """
 
 import argparse
@@ -37,7 +37,7 @@ def main() -> None:
     ap.add_argument("--python", required=True, help="a Python with jax, optax and numpy")
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--hive", default=str(ROOT / "target/release/hive"))
-    ap.add_argument("--jax-script", default=str(ROOT.parent / "shared/peer-bench/bench_jax.py"))
+    ap.add_argument("--jax-script", required=True, help="the JAX peer benchmark (bench_jax.py)")
     a = ap.parse_args()
     rows = []
     for threads in (1, 2):

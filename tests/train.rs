@@ -380,6 +380,17 @@ fn bad_input_is_refused_clearly() {
         &["play", "--checkpoint", trunc.to_str().unwrap(), "--out", "x.gif"],
         &["w.safetensors"],
     );
+    // Weights that cannot compute a Q-value: every command refuses them by
+    // the tensor's name.
+    let nan = dir.join("nan.safetensors");
+    let net = rotorhive_model::QNet::new(0, &rotorhive_model::Device::Cpu).unwrap();
+    net.load_flat(&vec![f32::NAN; net.num_params()]).unwrap();
+    net.save(&nan).unwrap();
+    let nan = nan.to_str().unwrap();
+    let why = ["nan.safetensors", "tensor `conv1.weight`", "not finite"];
+    fails_with(&["eval", "--checkpoint", nan, "--episodes", "1"], &why);
+    fails_with(&["play", "--checkpoint", nan, "--out", "x.gif"], &why);
+    fails_with(&["export", "--checkpoint", nan, "--out", "x.onnx"], &why);
     fails_with(&["play", "--checkpoint", "c.safetensors", "--out", "x.mp4"], &["x.mp4", ".gif"]);
     fails_with(
         &["export", "--checkpoint", trunc.to_str().unwrap(), "--out", "x.onnx"],

@@ -93,8 +93,8 @@ pub enum BenchCmd {
         /// Arena file.
         #[arg(long, default_value = "configs/arenas/train.toml")]
         arena: PathBuf,
-        /// Plot of both curves against the agent count.
-        #[arg(long, default_value = "render-bench.png")]
+        /// Plot of both curves against the agent count (its folder made).
+        #[arg(long, default_value = "runs/render-bench.png")]
         plot: PathBuf,
         /// Print one JSON object as the last line.
         #[arg(long)]
@@ -539,6 +539,9 @@ fn bench_render(
         "renderer {renderer} ({adapter}); observations carried through iceoryx2 to a gathering thread as in training"
     );
     println!("paper (AirSim, RTX 2070): 10 agents 61 ms batched, 197 ms non-batched");
+    if let Some(dir) = plot.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir)?;
+    }
     rotorhive_records::plot::lines_plot(
         &format!("observation gathering per step ({renderer})"),
         "agents",

@@ -255,17 +255,17 @@ fn test_set(cfg: &Config, arena: Option<&Path>) -> Result<Vec<rotorhive_sim::Are
 /// simulator settings of `cfg`.
 fn pooled_success(
     cfg: &Config,
-    pilot: rotorhive_roles::flights::Pilot<'_>,
+    pilot: rotorhive_roles::evaluation::Pilot<'_>,
     arena: Option<&Path>,
     episodes: usize,
 ) -> Result<TestScore> {
     let layouts = test_set(cfg, arena)?;
     let sim =
         rotorhive_sim::SimConfig { renderer: rotorhive_sim::RendererKind::Cpu, ..cfg.sim_config() };
-    let stats = rotorhive_roles::flights::fly_layouts(pilot, &sim, &layouts, episodes, 12345)?;
-    let (quartiles, under_half) = rotorhive_roles::flights::layout_spread(&stats);
+    let stats = rotorhive_roles::evaluation::fly_layouts(pilot, &sim, &layouts, episodes, 12345)?;
+    let (quartiles, under_half) = rotorhive_roles::evaluation::layout_spread(&stats);
     Ok(TestScore {
-        success: rotorhive_roles::flights::EvalStats::pooled(&stats).success_rate(),
+        success: rotorhive_roles::evaluation::EvalStats::pooled(&stats).success_rate(),
         quartiles,
         under_half,
     })
@@ -289,9 +289,9 @@ fn test_success(
     episodes: usize,
 ) -> Result<TestScore> {
     let cfg = Config::load(Some(&run_dir.join("config.toml")), &[])?;
-    let net = rotorhive_roles::flights::network_for(&cfg)?;
+    let net = rotorhive_roles::evaluation::network_for(&cfg)?;
     net.load_checkpoint(checkpoint)?;
-    pooled_success(&cfg, rotorhive_roles::flights::Pilot::Net(&net), arena, episodes)
+    pooled_success(&cfg, rotorhive_roles::evaluation::Pilot::Net(&net), arena, episodes)
 }
 
 /// Runs one seed of one arm and scores it.
@@ -645,7 +645,7 @@ pub fn run(a: &SeedsArgs) -> Result<()> {
     let reactive: Vec<Option<f64>> = configs
         .iter()
         .map(|cfg| {
-            let pilot = rotorhive_roles::flights::Pilot::Reactive;
+            let pilot = rotorhive_roles::evaluation::Pilot::Reactive;
             (a.test_episodes > 0)
                 .then(|| pooled_success(cfg, pilot, a.test_arena.as_deref(), a.test_episodes))
                 .transpose()

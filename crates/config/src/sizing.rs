@@ -36,7 +36,8 @@ impl Sizing {
     /// default result was measured with). Beyond: the learner, the run's
     /// bottleneck wherever it was profiled, takes half the cores (at most
     /// 8: `hive bench learner` gains little past 8 threads on 16 cores,
-    /// 473 against 520 updates/s at 16, `../shared/research/scale.md`);
+    /// 473 against 520 updates/s at 16 on the H100 machine of
+    /// `docs/results/performance.md`);
     /// the replay a core; what is left goes to environments of two render
     /// threads and one actor thread each (one render thread while fewer
     /// than six cores are left).

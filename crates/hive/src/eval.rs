@@ -10,7 +10,7 @@ use anyhow::{Result, bail};
 use clap::{Args, ValueEnum};
 use rotorhive_model::{Layers, PolicyNet, Shapes};
 use rotorhive_roles::Config;
-use rotorhive_roles::flights::{
+use rotorhive_roles::evaluation::{
     Agreement, EpisodeLog, EvalStats, LogSpec, Pilot, agreement, fly_layouts_logged, layout_spread,
 };
 use rotorhive_sim::{Arena, Sight, SimConfig};
@@ -437,7 +437,7 @@ fn report_found(a: &EvalArgs, (layouts, stats): (&[Arena], &[EvalStats]), found:
             g.all.1,
             pct(g.decisive),
             g.decisive.1,
-            rotorhive_roles::flights::LAST_STEPS,
+            rotorhive_roles::evaluation::LAST_STEPS,
             pct(g.before_crash),
             g.before_crash.1,
             g.no_way

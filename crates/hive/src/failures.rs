@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use rotorhive_roles::Config;
-use rotorhive_roles::flights::{
+use rotorhive_roles::evaluation::{
     EpisodeLog, EvalStats, LAST_STEPS, LogSpec, Pilot, fly_logged, traps,
 };
 use rotorhive_sim::{Arena, Done, Sight};

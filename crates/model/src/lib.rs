@@ -110,7 +110,7 @@ pub(crate) fn trunk(p: &[Var], shapes: Shapes, layers: Layers, obs: &Tensor) -> 
         .reshape((b, layers.pooled()))?;
     // A column slice is a strided view: candle's CUDA matmul takes only
     // contiguous operands (a GPU run died here at its first update,
-    // `../shared/research/scale.md`), so it is copied out first.
+    // the H100 machine of `docs/results/performance.md`), so it is copied out first.
     let v = obs.narrow(1, shapes.obs_depth(), shapes.scalars)?.contiguous()?;
     let v = v.matmul(&p(4).t()?)?.broadcast_add(p(5))?.relu()?;
     let mut h = Tensor::cat(&[&x, &v], 1)?;

@@ -110,3 +110,16 @@ def test_single_env_bad_actions():
     for bad, error in [(2, ValueError), (0.5, TypeError), (np.array([0, 1]), TypeError)]:
         with pytest.raises(error):
             env.step(bad)
+
+
+def test_a_checkpoint_of_broken_weights_is_refused_by_name(tmp_path):
+    """Weights holding NaN load nowhere: the error names the file and the
+    tensor."""
+    path = tmp_path / "w.safetensors"
+    rotorhive.QNetwork(seed=1).save(str(path))
+    raw = bytearray(path.read_bytes())
+    header = 8 + int.from_bytes(raw[:8], "little")
+    raw[header:] = b"\xff" * (len(raw) - header)  # every float a NaN
+    path.write_bytes(bytes(raw))
+    with pytest.raises(ValueError, match=r"w\.safetensors.*not finite"):
+        rotorhive.QNetwork.load(str(path))

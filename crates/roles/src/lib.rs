@@ -10,7 +10,7 @@
 pub mod actor;
 mod ctx;
 pub mod error;
-pub mod flights;
+pub mod evaluation;
 pub mod learner;
 pub mod replay;
 pub mod schedule;

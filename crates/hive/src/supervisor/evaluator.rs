@@ -176,7 +176,7 @@ fn fly<S: Service>(job: Job) -> Result<()> {
     let cfg = &job.cfg;
     let hub = Hub::<S>::new(&job.prefix, "eval")?;
     let mut rx = hub.receiver::<f32, WeightsHeader>(&Channel::weights(cfg.sim.envs))?;
-    let net = rotorhive_roles::flights::network_for(cfg)?;
+    let net = rotorhive_roles::evaluation::network_for(cfg)?;
     let mut judge = Judge { arenas: cfg.eval_arenas()?, confirmations: 0 };
     let mut cadence = Cadence::new(cfg);
     // A resumed run goes on from its best score (so `best.safetensors` only
@@ -254,10 +254,10 @@ impl Judge {
         net: &PolicyNet,
         cfg: &Config,
         best: Option<(f64, f64)>,
-    ) -> Result<(rotorhive_roles::flights::EvalStats, Option<(f64, f64)>)> {
+    ) -> Result<(rotorhive_roles::evaluation::EvalStats, Option<(f64, f64)>)> {
         let seed = rotorhive_roles::streams::validation(cfg.seed);
-        let (pilot, sim) = (rotorhive_roles::flights::Pilot::Net(net), cfg.sim_config());
-        let st = rotorhive_roles::flights::fly(
+        let (pilot, sim) = (rotorhive_roles::evaluation::Pilot::Net(net), cfg.sim_config());
+        let st = rotorhive_roles::evaluation::fly(
             pilot,
             sim.clone(),
             &self.arenas,
@@ -271,7 +271,7 @@ impl Judge {
         // Fresh spawns for every confirmation.
         self.confirmations += 1;
         let seed = rotorhive_roles::streams::confirmation(cfg.seed, self.confirmations);
-        let c = rotorhive_roles::flights::fly(pilot, sim, &self.arenas, k, seed)?;
+        let c = rotorhive_roles::evaluation::fly(pilot, sim, &self.arenas, k, seed)?;
         Ok((st, Some((c.success_rate(), c.mean_reward))))
     }
 }

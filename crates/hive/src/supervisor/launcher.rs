@@ -70,7 +70,7 @@ impl Launcher {
             // global pool, which RAYON_NUM_THREADS sizes, so theirs is their
             // `threads` (at 1 for every role, a learner of 8 threads ran its
             // shards one after another: 107 updates/s in a run on 16 cores
-            // against 473 alone, `../shared/research/scale.md`); the sims'
+            // against 473 alone, on a 16-core machine); the sims'
             // render threads are a pool of their own. Candle's elementwise
             // pool stays single-threaded (it serialises concurrent callers).
             .env("RAYON_NUM_THREADS", rayon.to_string())

@@ -190,7 +190,7 @@ impl VecEnv {
         };
         // Copies of the frames, the step's largest serial work after
         // physics and rendering (800 agents at 16 threads: 42 % of a step
-        // before it shared the render threads, `../shared/research/scale.md`):
+        // before it shared the render threads, on a 16-core machine):
         // pieces of OBS_CHUNK agents handed out as threads come free, the
         // same bytes whatever the threads.
         let pool = self.renderer.pool();
