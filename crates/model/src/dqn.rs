@@ -561,7 +561,7 @@ impl Dqn {
             self.sync_target()?;
         }
         if !step.applied {
-            return Ok(if total.loss.is_finite() { f32::NAN } else { total.loss });
+            return Ok(step.reported(total.loss));
         }
         self.timing = UpdateTiming {
             forward_ns: total.forward_ns,

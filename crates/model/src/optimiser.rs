@@ -39,16 +39,13 @@ pub(crate) struct Adam {
 }
 
 impl Adam {
-    /// Adam at learning rate `lr` falling to `lr_final` over `decay` steps,
-    /// for parameters of `sizes` floats each (in canonical order).
-    fn with_sizes(
-        (lr, lr_final, decay): (f32, f32, u64),
-        sizes: impl Iterator<Item = usize> + Clone,
-    ) -> Self {
+    /// Adam at `s.lr` falling to `s.lr_final` over `s.decay` steps, for
+    /// parameters of `sizes` floats each (in canonical order).
+    fn new(s: &Schedule, sizes: impl Iterator<Item = usize> + Clone) -> Self {
         Self {
-            lr,
-            lr_final,
-            decay,
+            lr: s.lr,
+            lr_final: s.lr_final,
+            decay: s.decay,
             t: 0,
             m: sizes.clone().map(|n| vec![0.0; n]).collect(),
             v: sizes.map(|n| vec![0.0; n]).collect(),
@@ -104,6 +101,15 @@ pub(crate) struct Step {
     pub sync_target: bool,
 }
 
+impl Step {
+    /// The loss an update reports for `loss`: itself, or NaN where a
+    /// finite loss was skipped for its gradient, so that a skip always
+    /// reads as a loss that is not finite.
+    pub(crate) fn reported(&self, loss: f32) -> f32 {
+        if self.applied || !loss.is_finite() { loss } else { f32::NAN }
+    }
+}
+
 /// Adam, its schedule, clipping, skip-and-count and the target's cadence:
 /// the one update policy of both learners.
 pub(crate) struct Optimiser {
@@ -122,7 +128,7 @@ impl Optimiser {
     /// canonical order).
     pub(crate) fn new(s: Schedule, sizes: impl Iterator<Item = usize> + Clone) -> Self {
         Self {
-            adam: Adam::with_sizes((s.lr, s.lr_final, s.decay), sizes),
+            adam: Adam::new(&s, sizes),
             max_grad_norm: s.max_grad_norm,
             target_update: s.target_update.max(1),
             updates: 0,

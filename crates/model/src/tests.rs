@@ -38,7 +38,7 @@ fn transitions_of(shapes: Shapes, n: usize, seed: u64) -> Vec<f32> {
     data
 }
 
-fn cfg(double: bool) -> DqnConfig {
+pub(crate) fn cfg(double: bool) -> DqnConfig {
     DqnConfig {
         lr: 1e-3,
         lr_final: 1e-3,

@@ -6,7 +6,7 @@ use std::collections::HashMap;
 
 use candle_core::{DType, Device, Tensor};
 
-use crate::{Dqn, DqnConfig, Layers, PolicyNet, QNet, Shapes, params};
+use crate::{Dqn, Layers, PolicyNet, QNet, Shapes, params};
 
 fn dir(name: &str) -> std::path::PathBuf {
     let d = std::env::temp_dir().join(format!("rotorhive-{name}-{}", std::process::id()));
@@ -69,18 +69,7 @@ fn a_learner_state_with_a_broken_moment_is_refused_by_name() {
     let dev = Device::Cpu;
     let d = dir("checked-state");
     let path = d.join("learner-state.safetensors");
-    let cfg = DqnConfig {
-        lr: 1e-3,
-        lr_final: 1e-3,
-        lr_decay_updates: 0,
-        gamma: 0.9,
-        target_update: 10,
-        huber_delta: 1.0,
-        double: true,
-        reward_scale: 1.0,
-        max_grad_norm: 0.0,
-        margin: 0.8,
-    };
+    let cfg = crate::tests::cfg(true);
     let dqn = Dqn::new(cfg, 1, &dev).unwrap();
     dqn.save_state(&path).unwrap();
     let mut back = Dqn::new(cfg, 2, &dev).unwrap();

@@ -636,19 +636,19 @@ fn the_sequence_update_skips_a_broken_loss_and_keeps_its_gauges() {
     let mut dones = vec![false; n * t];
     dones[t + 2] = true;
     let states = vec![0.1; n * width];
+    let b = SeqBatch {
+        sequences: n,
+        steps: t,
+        obs: &obs,
+        actions: &actions,
+        rewards: &rewards,
+        dones: &dones,
+        states: &states,
+        experts: &[],
+        weights: &[],
+    };
     {
         let mut seq = SeqDqn::new(cfg, SHAPES, width, 1, &dev).unwrap();
-        let b = SeqBatch {
-            sequences: n,
-            steps: t,
-            obs: &obs,
-            actions: &actions,
-            rewards: &rewards,
-            dones: &dones,
-            states: &states,
-            experts: &[],
-            weights: &[],
-        };
         seq.update(&b).unwrap();
         let st = seq.stats();
         assert_eq!((st.rows, st.terminal), (((t - 1) * n) as u32, 1));
@@ -670,17 +670,8 @@ fn the_sequence_update_skips_a_broken_loss_and_keeps_its_gauges() {
     // Double DQN or not: other targets.
     let q = vec![vec![vec![1.0, 0.0]; n]; t + 1 - 1];
     let qt = vec![vec![vec![0.0, 2.0]; n]; t + 1];
-    let b = SeqBatch {
-        sequences: n,
-        steps: t,
-        obs: &obs,
-        actions: &actions,
-        rewards: &rewards,
-        dones: &vec![false; n * t],
-        states: &states,
-        experts: &[],
-        weights: &[],
-    };
+    let no_end = vec![false; n * t];
+    let b = SeqBatch { dones: &no_end, ..b };
     let seq = |double| SeqDqn::new(SeqConfig { double, ..cfg }, SHAPES, width, 1, &dev).unwrap();
     let (y_double, y_max) = (seq(true).targets(&b, &q, &qt), seq(false).targets(&b, &q, &qt));
     let last = (t - 1 - 1) * n; // the last trained step bootstraps from qt[t]

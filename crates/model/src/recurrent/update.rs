@@ -213,7 +213,7 @@ impl SeqDqn {
             self.target.copy_from(&self.online)?;
         }
         self.timing.optimiser_ns = t.elapsed().as_nanos() as u64;
-        Ok(if step.applied || !loss.is_finite() { loss } else { f32::NAN })
+        Ok(step.reported(loss))
     }
 
     /// Where the last update's time went: the forward passes and the loss
@@ -444,9 +444,10 @@ fn trained_stats(b: &SeqBatch, q: &[Vec<Vec<f32>>], y: &[f32], burn: usize) -> U
     for i in 0..n {
         for u in burn..t {
             let row = &q[u - burn][i];
+            // The actions are one of the network's (`SeqBatch::check`).
             let a = b.actions[i * t + u] as usize;
-            st.max_q_sum += row.iter().fold(f32::MIN, |m, x| m.max(*x)) as f64;
-            st.abs_td_sum += (row[a.min(row.len() - 1)] - y[(u - burn) * n + i]).abs() as f64;
+            st.max_q_sum += row[argmax(row)] as f64;
+            st.abs_td_sum += (row[a] - y[(u - burn) * n + i]).abs() as f64;
             st.terminal += b.dones[i * t + u] as u32;
         }
     }
