@@ -59,6 +59,16 @@ fn code_keys() -> BTreeMap<String, toml::Value> {
     cfg.sim.goal = Goal { enabled: true, ..Goal::default() };
     // So is a camera map that is on; its encoding is `none` by default.
     cfg.sim.map = MapSpec { encoding: MapEncoding::Rays, ..MapSpec::default() };
+    // And a camera with every key given (each optional: the preset's).
+    cfg.sim.camera = rotorhive_roles::config::camera::CameraSection {
+        preset: Some(rotorhive_roles::config::camera::CameraPreset::Paper),
+        width: Some(32),
+        height: Some(32),
+        hfov_deg: Some(90.0),
+        range: Some(20.0),
+        pool: Some(1),
+    };
+    cfg.sim.depth_range = Some(20.0);
     let mut out = BTreeMap::new();
     flatten("", &toml::Value::try_from(&cfg).unwrap(), &mut out);
     out.insert("sim.goal.enabled".into(), toml::Value::Boolean(Goal::default().enabled));

@@ -346,6 +346,61 @@ fn a_checkpoint_flies_a_level_with_its_own_frames() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A run of another camera (64 × 64) trains, and its checkpoint flies,
+/// plays and exports with that camera wherever it goes (its run's config
+/// beside it, a level's, or none: the header names it); a camera that
+/// contradicts it is refused by name.
+#[test]
+#[ignore = "slow multi-process test: scripts/test runs it (--include-ignored)"]
+fn a_run_of_another_camera_trains_flies_plays_and_exports() {
+    let _turn = TRAINING.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    let dir = tmp("camera64");
+    let camera = ["--set", "sim.camera.width=64", "--set", "sim.camera.height=64"];
+    let out = hive()
+        .args(["train", "configs/default.toml", "--quiet", "--max-seconds", "12", "--run-dir"])
+        .arg(&dir)
+        .args(common::SMALL_RUN)
+        .args(camera)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "train failed: {}", String::from_utf8_lossy(&out.stderr));
+    let summary = common::summary(&dir);
+    assert!(summary.env_steps > 100 && summary.learner_updates > 0, "{summary:?}");
+    let ckpt = dir.join("final.safetensors");
+    let c = ckpt.to_str().unwrap();
+    let named = "64x64 hfov 90 range 20 pool 1";
+    let v = eval_json(&["--checkpoint", c, "--episodes", "4"]);
+    assert_eq!((v["camera"].as_str(), v["episodes"].as_u64()), (Some(named), Some(4)));
+    // Alone, or on a level of the paper's camera: the header's camera.
+    let lone = dir.join("lone.safetensors");
+    std::fs::copy(&ckpt, &lone).unwrap();
+    let l = lone.to_str().unwrap();
+    for args in [&["--checkpoint", l][..], &["--checkpoint", l, "--level", "dense"]] {
+        let v = eval_json(&[args, &["--episodes", "4"]].concat());
+        assert_eq!(v["camera"].as_str(), Some(named), "{args:?}");
+    }
+    fails_with(
+        &["eval", "--checkpoint", c, "--set", "sim.camera.hfov_deg=100"],
+        &["final.safetensors", "trained with the camera 64x64 hfov 90", "gives 64x64 hfov 100"],
+    );
+    fails_with(
+        &["eval", "--checkpoint", l, "--set", "sim.camera.width=32"],
+        &["lone.safetensors", "trained with the camera 64x64", "gives 32x64"],
+    );
+    let onnx = dir.join("c64.onnx");
+    let out = hive().args(["export", "--checkpoint", l, "--out"]).arg(&onnx).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(String::from_utf8_lossy(&out.stdout).contains("depth (B, 2, 64, 64)"));
+    let gif = dir.join("c64.gif");
+    let out = hive()
+        .args(["play", "--checkpoint", l, "--agents", "2", "--out", gif.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(std::fs::metadata(&gif).unwrap().len() > 1000);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn bad_input_is_refused_clearly() {
     let dir = tmp("bad");
@@ -420,6 +475,23 @@ fn bad_input_is_refused_clearly() {
     fails_with(&["bench", "seeds", "--arm", "a:nonsense"], &["key=value"]);
     fails_with(&["bench", "seeds", "--arm", "a:sim.agnets=3"], &["arm a", "agnets"]);
     fails_with(&["train", "--set", "sim.generated_lanes=-1"], &["generated_lanes"]);
+    // Cameras the renderers or the network cannot take, and two names of
+    // one range.
+    fails_with(
+        &["train", "--set", "sim.camera.width=100", "--set", "sim.camera.pool=3"],
+        &["sim.camera.width", "99 or 102"],
+    );
+    let huge = ["--set", "replay.capacity=4000000", "--set", "sim.camera.width=256"];
+    fails_with(
+        &[&["train", "--set", "sim.camera.height=256"][..], &huge].concat(),
+        &["replay.capacity", "GB; this machine has"],
+    );
+    fails_with(&["train", "--set", "sim.camera.height=8"], &["sim.camera.height", "12 to 256"]);
+    fails_with(&["train", "--set", "sim.camera.preset=\"kinect\""], &["sim.camera.preset"]);
+    fails_with(
+        &["train", "--set", "sim.depth_range=30", "--set", "sim.camera.range=25"],
+        &["sim.depth_range", "sim.camera.range"],
+    );
     let teacher =
         |k: &str| ["train", "--set", "teacher.policy=\"planner\"", "--set", k].map(String::from);
     for (set, needle) in [

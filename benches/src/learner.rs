@@ -8,9 +8,6 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use rotorhive_model::{Device, Dqn, DqnConfig, Layers};
 use rotorhive_msg::Shapes;
-
-const OBS_LEN: usize = Shapes::PAPER.obs_len();
-const TRANSITION_LEN: usize = Shapes::PAPER.transition_len();
 use rotorhive_roles::Config;
 use rotorhive_roles::learner::dqn_config;
 
@@ -34,19 +31,20 @@ impl PathFigures {
 /// `device` (the fused path: the CPU only).
 fn measure(
     (fused, device): (bool, &Device),
-    layers: Layers,
+    (shapes, layers): (Shapes, Layers),
     (threads, batch, updates): (usize, usize, usize),
 ) -> Result<PathFigures> {
     let cfg = Config::default();
     let dqn_cfg = DqnConfig { double: false, ..dqn_config(&cfg) };
-    let mut dqn = Dqn::with_layers(dqn_cfg, Shapes::PAPER, layers, 1, device)?;
+    let mut dqn = Dqn::with_layers(dqn_cfg, shapes, layers, 1, device)?;
+    let (obs_len, transition_len) = (shapes.obs_len(), shapes.transition_len());
     dqn.set_fused(fused)?;
     dqn.set_threads(threads);
     let mut rng = Pcg64Mcg::seed_from_u64(3);
-    let mut data: Vec<f32> = (0..batch * TRANSITION_LEN).map(|_| rng.random::<f32>()).collect();
+    let mut data: Vec<f32> = (0..batch * transition_len).map(|_| rng.random::<f32>()).collect();
     for i in 0..batch {
-        data[i * TRANSITION_LEN + 2 * OBS_LEN] = (i % 2) as f32;
-        data[i * TRANSITION_LEN + 2 * OBS_LEN + 3] = rotorhive_msg::NO_EXPERT;
+        data[i * transition_len + 2 * obs_len] = (i % 2) as f32;
+        data[i * transition_len + 2 * obs_len + 3] = rotorhive_msg::NO_EXPERT;
     }
     // The update as the default config trains: with prioritized replay,
     // each row's loss weighted and its TD error kept for the feedback.
@@ -67,7 +65,7 @@ fn measure(
     let wall = start.elapsed().as_secs_f64();
     let ms = |ns: u64| ns as f64 / 1e6 / updates as f64;
     let infer = |n: usize| -> Result<f64> {
-        let obs: Vec<f32> = (0..n * OBS_LEN).map(|i| (i % 97) as f32 / 97.0).collect();
+        let obs: Vec<f32> = (0..n * obs_len).map(|i| (i % 97) as f32 / 97.0).collect();
         dqn.online.greedy(&obs)?;
         let reps = 50;
         let t = Instant::now();
@@ -87,12 +85,12 @@ fn measure(
 }
 
 /// `hive bench learner`: updates per second on random minibatches through the
-/// same update path of a network of widths `layers`, and actor inference
-/// latency at batch 1 and 50; with `compare`, the generic path of stock
-/// candle ops measured in the same run.
+/// same update path of a network for `shapes` of widths `layers`, and actor
+/// inference latency at batch 1 and 50; with `compare`, the generic path of
+/// stock candle ops measured in the same run.
 pub fn bench(
     (threads, batch, updates): (usize, usize, usize),
-    layers: Layers,
+    (shapes, layers): (Shapes, Layers),
     (compare, cuda): (bool, bool),
     json: bool,
 ) -> Result<()> {
@@ -100,16 +98,20 @@ pub fn bench(
         usage!("--threads, --batch and --updates must be positive");
     }
     if cuda {
-        return bench_cuda(batch, updates, layers, json);
+        return bench_cuda(batch, updates, (shapes, layers), json);
     }
     // The pools' threads were set by `main` (`BenchCmd::thread_env`).
     let sizes = (threads, batch, updates);
-    let fused = measure((true, &Device::Cpu), layers, sizes)?;
-    let generic = if compare { Some(measure((false, &Device::Cpu), layers, sizes)?) } else { None };
+    let net = (shapes, layers);
+    let fused = measure((true, &Device::Cpu), net, sizes)?;
+    let generic = if compare { Some(measure((false, &Device::Cpu), net, sizes)?) } else { None };
+    let params = rotorhive_model::num_params(shapes, layers);
+    let depth = format!("{}x{}", shapes.depth[0], shapes.depth[1]);
     println!(
-        "network {}: {} parameters",
+        "network {} on {} frames of {depth}: {params} parameters, {} bytes a stored transition",
         layers.name(),
-        rotorhive_model::num_params(Shapes::PAPER, layers)
+        shapes.frames,
+        2 * shapes.packed_len()
     );
     for (name, p) in
         std::iter::once(("fused", &fused)).chain(generic.as_ref().map(|g| ("generic", g)))
@@ -135,7 +137,9 @@ pub fn bench(
         let mut v = fused.json();
         v["device"] = "cpu".into();
         v["layers"] = layers.name().into();
-        v["params"] = rotorhive_model::num_params(Shapes::PAPER, layers).into();
+        v["params"] = params.into();
+        v["depth"] = depth.into();
+        v["transition_bytes"] = (2 * shapes.packed_len()).into();
         v["threads"] = threads.into();
         v["batch"] = batch.into();
         if let Some(g) = &generic {
@@ -149,9 +153,10 @@ pub fn bench(
 
 /// `hive bench learner --device cuda`: the generic path (stock candle ops)
 /// on GPU 0, the minibatch copied there once per update as in a run.
-fn bench_cuda(batch: usize, updates: usize, layers: Layers, json: bool) -> Result<()> {
+fn bench_cuda(batch: usize, updates: usize, net: (Shapes, Layers), json: bool) -> Result<()> {
+    let layers = net.1;
     let device = rotorhive_model::device(rotorhive_model::DeviceKind::Cuda)?;
-    let p = measure((false, &device), layers, (1, batch, updates))?;
+    let p = measure((false, &device), net, (1, batch, updates))?;
     println!(
         "    cuda: batch {batch}: {:.1} updates/s (forward {:.2} ms, backward {:.2} ms, optimiser {:.2} ms); inference batch 1: {:.3} ms, batch 50: {:.3} ms",
         p.updates_per_s, p.forward_ms, p.backward_ms, p.optimiser_ms, p.infer_b1_ms, p.infer_b50_ms

@@ -96,6 +96,13 @@ pub enum BenchCmd {
         /// Plot of both curves against the agent count (its folder made).
         #[arg(long, default_value = "runs/render-bench.png")]
         plot: PathBuf,
+        /// The camera of this config (`[sim.camera]`; the defaults' without one).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// A config key to change, as `hive train --set` takes it
+        /// (repeatable): `sim.camera.width=64`.
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
         /// Print one JSON object as the last line.
         #[arg(long)]
         json: bool,
@@ -220,6 +227,14 @@ pub enum BenchCmd {
         /// generic path on GPU 0, in a build with `--features cuda`).
         #[arg(long, default_value = "cpu", value_parser = ["cpu", "cuda"])]
         device: String,
+        /// The observation of this config (its camera, frames, goal, map;
+        /// the defaults' without one).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// A config key to change, as `hive train --set` takes it
+        /// (repeatable): `sim.camera.width=64`.
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
         /// Print one JSON object as the last line.
         #[arg(long)]
         json: bool,
@@ -262,29 +277,12 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
                 }
                 None => SimWorld::Arena(Arena::load(&arena)?),
             };
-            if fresh_layouts == Some(0) {
-                usage!("--fresh-layouts must be positive");
-            }
-            // A config that renews its lanes is measured both ways too.
-            let fresh_layouts = fresh_layouts.or(match &world {
-                SimWorld::Config(c) if c.sim.fresh_layouts > 0 => Some(c.sim.fresh_layouts),
-                _ => None,
-            });
-            let lanes: Vec<Option<usize>> =
-                std::iter::once(None).chain(fresh_layouts.map(Some)).collect();
-            // The map's cost: the same config without it, beside it.
-            let mut worlds = vec![world];
-            if let SimWorld::Config(c) = &worlds[0]
-                && c.sim.map.enabled()
-            {
-                let mut bare = (**c).clone();
-                bare.sim.map = rotorhive_sim::MapSpec::default();
-                worlds.push(SimWorld::Config(Box::new(bare)));
-            }
-            bench_sim(&agents, (steps, threads), (&physics, &lanes), &worlds, json)
+            run_sim(&agents, (steps, threads), &physics, world, fresh_layouts, json)
         }
-        BenchCmd::Render { agents, renderer, steps, threads, arena, plot, json } => {
-            bench_render(&agents, &renderer, steps, threads, &arena, &plot, json)
+        BenchCmd::Render { agents, renderer, steps, threads, arena, plot, config, set, json } => {
+            let camera = rotorhive_roles::Config::load(config.as_deref(), &set)?.camera();
+            let setup = (renderer.as_str(), steps, threads, camera);
+            bench_render(&agents, setup, &arena, &plot, json)
         }
         BenchCmd::Ipc { iters, json } => crate::ipc::run(iters, json),
         BenchCmd::IpcPeer { prefix } => crate::ipc::peer(&prefix),
@@ -310,15 +308,50 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
             conv_channels,
             hidden,
             device,
+            config,
+            set,
             json,
         } => {
             let layers = rotorhive_model::Layers::new(&conv_channels, &hidden).map_err(|e| {
                 crate::error::BenchError::Usage(format!("--conv-channels, --hidden: {e}"))
             })?;
+            let shapes = rotorhive_roles::Config::load(config.as_deref(), &set)?.shapes();
             let sizes = (threads, batch, updates);
-            crate::learner::bench(sizes, layers, (compare, device == "cuda"), json)
+            crate::learner::bench(sizes, (shapes, layers), (compare, device == "cuda"), json)
         }
     }
+}
+
+/// `hive bench sim` of `world`: its fixed lanes, and renewed ones where
+/// asked or its config renews them; a config with the camera's map also
+/// without it, side by side.
+fn run_sim(
+    agents: &[usize],
+    (steps, threads): (usize, usize),
+    physics: &[PhysicsKind],
+    world: SimWorld,
+    fresh_layouts: Option<usize>,
+    json: bool,
+) -> Result<()> {
+    if fresh_layouts == Some(0) {
+        usage!("--fresh-layouts must be positive");
+    }
+    // A config that renews its lanes is measured both ways too.
+    let fresh_layouts = fresh_layouts.or(match &world {
+        SimWorld::Config(c) if c.sim.fresh_layouts > 0 => Some(c.sim.fresh_layouts),
+        _ => None,
+    });
+    let lanes: Vec<Option<usize>> = std::iter::once(None).chain(fresh_layouts.map(Some)).collect();
+    // The map's cost: the same config without it, beside it.
+    let mut worlds = vec![world];
+    if let SimWorld::Config(c) = &worlds[0]
+        && c.sim.map.enabled()
+    {
+        let mut bare = (**c).clone();
+        bare.sim.map = rotorhive_sim::MapSpec::default();
+        worlds.push(SimWorld::Config(Box::new(bare)));
+    }
+    bench_sim(agents, (steps, threads), (physics, &lanes), &worlds, json)
 }
 
 fn parse_physics(s: &str) -> std::result::Result<PhysicsKind, String> {
@@ -487,9 +520,7 @@ fn bench_sim(
 /// synchronisation per step) and non-batched (one of each per agent).
 fn bench_render(
     agents: &[usize],
-    renderer: &str,
-    steps: usize,
-    threads: usize,
+    (renderer, steps, threads, camera): (&str, usize, usize, rotorhive_sim::CameraSpec),
     arena: &std::path::Path,
     plot: &std::path::Path,
     json: bool,
@@ -510,7 +541,7 @@ fn bench_render(
     };
     let mut adapter =
         format!("cpu ray casting, {threads} thread{}", if threads == 1 { "" } else { "s" });
-    let setup = RenderSetup { kind, threads, steps, arena: &arena };
+    let setup = RenderSetup { kind, threads, steps, arena: &arena, camera };
     let mut measure = |n: usize, batched: bool| -> Result<(f64, f64)> {
         let (render, total, gpu) = setup.measure(n, batched)?;
         adapter = gpu.unwrap_or(adapter.clone());
@@ -536,7 +567,8 @@ fn bench_render(
         rows.push(json!({ "agents": n, "batched_ms": b, "non_batched_ms": nb, "ratio": nb / b, "batched_render_ms": br, "non_batched_render_ms": nbr }));
     }
     println!(
-        "renderer {renderer} ({adapter}); observations carried through iceoryx2 to a gathering thread as in training"
+        "renderer {renderer} ({adapter}), camera {}; observations carried through iceoryx2 to a gathering thread as in training",
+        rotorhive_roles::config::camera::camera_name(&camera)
     );
     println!("paper (AirSim, RTX 2070): 10 agents 61 ms batched, 197 ms non-batched");
     if let Some(dir) = plot.parent().filter(|d| !d.as_os_str().is_empty()) {
@@ -565,6 +597,7 @@ struct RenderSetup<'a> {
     threads: usize,
     steps: usize,
     arena: &'a Arena,
+    camera: rotorhive_sim::CameraSpec,
 }
 
 impl RenderSetup<'_> {
@@ -576,13 +609,15 @@ impl RenderSetup<'_> {
             renderer: self.kind,
             batched,
             render_threads: self.threads,
+            camera: self.camera,
             ..SimConfig::default()
         };
+        let shapes = cfg.shapes();
         let mut env = VecEnv::new(cfg, self.arena.clone(), 1)?;
         // As in `hive sim`: observations are assembled in the loaned sample.
         env.drop_observation_buffer();
         let adapter = env.gpu().map(|g| g.adapter().to_string());
-        let mut hop = ObsHop::new(n, batched)?;
+        let mut hop = ObsHop::new(n, batched, shapes)?;
         let actions = |t: usize| -> Vec<u8> {
             (0..n).map(|i| (((t * 31 + i * 17) >> 2) % 2) as u8).collect()
         };
@@ -614,14 +649,14 @@ struct ObsHop {
 }
 
 impl ObsHop {
-    fn new(n: usize, batched: bool) -> Result<Self> {
+    fn new(n: usize, batched: bool, shapes: rotorhive_msg::Shapes) -> Result<Self> {
         use rotorhive_transport::{Channel, Hub, Ipc};
         let prefix = rotorhive_transport::unique_prefix(&format!("bench-render-{n}-{batched}"));
         let ch = Channel::obs(0, if batched { 1 } else { n });
         let hub = Hub::<Ipc>::new(&prefix, "bench-render-sim")?;
         let tx = hub.sender::<f32, rotorhive_msg::ObsHeader>(
             &ch,
-            rotorhive_msg::Shapes::PAPER.obs_batch_len(n),
+            shapes.obs_batch_len(n),
             std::time::Duration::from_secs(5),
         )?;
         let (done_tx, gathered) = std::sync::mpsc::channel();
@@ -632,8 +667,7 @@ impl ObsHop {
             let hub = Hub::<Ipc>::new(&prefix, "bench-render-actor")?;
             let mut rx = hub.receiver::<f32, rotorhive_msg::ObsHeader>(&ch)?;
             let _ = ready_tx.send(());
-            let mut gather =
-                rotorhive_roles::actor::Gather::new(n, rotorhive_msg::Shapes::PAPER.obs_len());
+            let mut gather = rotorhive_roles::actor::Gather::new(n, shapes.obs_len());
             while !halt.load(std::sync::atomic::Ordering::Relaxed) {
                 let Some(m) = rx.recv_timeout(std::time::Duration::from_millis(10))? else {
                     continue;

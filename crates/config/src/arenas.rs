@@ -6,7 +6,7 @@ use super::Config;
 use std::path::Path;
 
 use crate::error::{ConfigError, Result, config_err};
-use rotorhive_sim::{Arena, CameraSpec, GenParams, LayoutMaker, SimConfig};
+use rotorhive_sim::{Arena, GenParams, LayoutMaker, SimConfig};
 use serde::Deserialize;
 
 impl Config {
@@ -198,7 +198,7 @@ impl Config {
             action_period: s.action_period,
             max_steps: s.max_steps,
             interactive: s.interactive,
-            camera: CameraSpec { range: s.depth_range, ..CameraSpec::default() },
+            camera: self.camera(),
             render_threads: s.render_threads,
             renderer: s.renderer,
             batched: self.batched(),

@@ -4,6 +4,7 @@
 //! written into the run directory and read back by the roles.
 
 mod arenas;
+pub mod camera;
 pub mod error;
 pub mod levels;
 mod sections;
@@ -24,7 +25,6 @@ pub use error::{ConfigError, Doing};
 pub use sections::{
     ActorSection, ClusterSection, Curriculum, DeviceName, EvalSection, Exploration, LearnerSection,
     ReplaySection, SimSection, TeacherLabels, TeacherLoss, TeacherPolicy, TeacherSection,
-    TeacherSight,
 };
 
 /// `sim.observation_mode`: the records' enum, so that `summary.json` names
@@ -163,6 +163,16 @@ impl Config {
         let mut cfg: Config = Config::deserialize(toml::Value::Table(table)).map_err(|e| {
             ConfigError::Invalid(format!("config {source}: {}", e.to_string().trim_end()))
         })?;
+        // `sim.depth_range` is the camera's range under its older name.
+        if let Some(r) = cfg.sim.depth_range.take() {
+            if cfg.sim.camera.range.is_some() {
+                return Err(ConfigError::Invalid(format!(
+                    "config {source}: keys `sim.depth_range` and `sim.camera.range` name the \
+                     same range: set one"
+                )));
+            }
+            cfg.sim.camera.range = Some(r);
+        }
         cfg.sized = cfg.size(Sizing::machine_cores());
         cfg.validate().doing_with(|| format!("config {source}"))?;
         Ok(cfg)
@@ -175,6 +185,13 @@ impl Config {
         Shapes::task(self.sim.frames, self.sim.goal.enabled, self.sim.hold_action)
             .with_stride(self.sim.frame_stride)
             .with_map(self.sim.map.floats())
+            .with_depth(self.camera().observed_depth())
+    }
+
+    /// The run's depth camera (`[sim.camera]`, `sim.depth_range` read into
+    /// it).
+    pub fn camera(&self) -> rotorhive_sim::CameraSpec {
+        self.sim.camera.spec()
     }
 
     /// The GRU width of `learner.memory` (validated): `None` for the
@@ -251,7 +268,14 @@ impl Config {
     /// What a checkpoint's header says of the run that wrote it: the CRC-32C
     /// of the resolved config (`config.toml` of the run directory).
     pub fn checkpoint_tags(&self) -> Vec<(&'static str, String)> {
-        vec![("config_crc32c", format!("{:08x}", crc32c::crc32c(self.to_toml().as_bytes())))]
+        let mut tags =
+            vec![("config_crc32c", format!("{:08x}", crc32c::crc32c(self.to_toml().as_bytes())))];
+        // Named only for a camera other than the paper's, so that those
+        // checkpoints keep the bytes of earlier builds.
+        if self.camera() != rotorhive_sim::CameraSpec::default() {
+            tags.push(("camera", self.sim.camera.name()));
+        }
+        tags
     }
 }
 

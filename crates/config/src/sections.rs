@@ -190,8 +190,14 @@ pub struct SimSection {
     pub action_period: f32,
     /// Steps before a timeout.
     pub max_steps: u32,
-    /// Depth clip range (m).
-    pub depth_range: f32,
+    /// Depth clip range (m): another name of `sim.camera.range` (read into
+    /// it; setting both is refused).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub depth_range: Option<f32>,
+    /// The depth camera (`[sim.camera]`; every key left out is its
+    /// preset's, the paper's 32 × 32 without one).
+    #[serde(skip_serializing_if = "crate::camera::CameraSection::is_unset")]
+    pub camera: crate::camera::CameraSection,
     /// Depth frames stacked in one observation, one action period apart
     /// (2: the paper's, previous and current); 1 to
     /// [`rotorhive_msg::MAX_FRAMES`].
@@ -384,7 +390,8 @@ impl Default for SimSection {
             physics: PhysicsKind::Direct,
             action_period: 1.0,
             max_steps: 400,
-            depth_range: 20.0,
+            depth_range: None,
+            camera: crate::camera::CameraSection::default(),
             render_threads: 0,
             forward_speed: 1.0,
             lateral_step: 0.25,
@@ -478,31 +485,6 @@ pub enum TeacherPolicy {
     Planner,
 }
 
-/// `teacher.sight`: what the planner may know (as `hive eval --sight`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum TeacherSight {
-    /// Every obstacle, and where each moving one will be.
-    All,
-    /// What the camera shows now, with the movers' future.
-    View,
-    /// What the camera shows now, the movers' present velocity kept 3 s.
-    ViewVelocity,
-    /// What the camera shows now, each mover standing over its whole track.
-    ViewTrack,
-    /// What the camera showed over `memory_s` (a mover known once watched
-    /// for half its cycle).
-    ViewMemory,
-    /// What the pixels show now: the obstacles a ray meets first, the
-    /// movers' present velocity kept 3 s.
-    Pixels,
-    /// What the pixels showed over `memory_s` (a mover known once watched
-    /// for half its cycle).
-    PixelsMemory,
-    /// What the student's camera map (`[sim.map]`) holds, and nothing more.
-    Map,
-}
-
 /// `teacher.labels`: which of the student's steps a label reaches.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -533,8 +515,8 @@ pub enum TeacherLoss {
 pub struct TeacherSection {
     /// `none` (no teacher) or `planner`.
     pub policy: TeacherPolicy,
-    /// What the planner knows.
-    pub sight: TeacherSight,
+    /// What the planner knows (its name, as `hive eval --sight`).
+    pub sight: Sight,
     /// With `sight = "view-memory"`: seconds the planner remembers (0: the
     /// whole episode).
     pub memory_s: u16,
@@ -579,7 +561,7 @@ impl Default for TeacherSection {
     fn default() -> Self {
         Self {
             policy: TeacherPolicy::None,
-            sight: TeacherSight::All,
+            sight: Sight::All,
             memory_s: 0,
             demo_agents: 5,
             label_share: 0.5,
@@ -623,22 +605,10 @@ impl TeacherSection {
         }
     }
 
-    /// What the planner is told.
+    /// What the planner is told: its sight, remembering `memory_s` (0:
+    /// the whole episode).
     pub fn planner_sight(&self) -> Sight {
-        match self.sight {
-            TeacherSight::All => Sight::All,
-            TeacherSight::View => Sight::View,
-            TeacherSight::ViewVelocity => Sight::ViewVelocity,
-            TeacherSight::ViewTrack => Sight::ViewTrack,
-            TeacherSight::ViewMemory => {
-                Sight::ViewMemory((self.memory_s > 0).then_some(self.memory_s))
-            }
-            TeacherSight::Pixels => Sight::Pixels,
-            TeacherSight::PixelsMemory => {
-                Sight::PixelsMemory((self.memory_s > 0).then_some(self.memory_s))
-            }
-            TeacherSight::Map => Sight::Map,
-        }
+        self.sight.with_memory((self.memory_s > 0).then_some(self.memory_s))
     }
 
     /// Agents of each simulator the planner flies (none without a teacher).
@@ -693,9 +663,7 @@ impl TeacherSection {
                 config_err!("key `{k}` must be 0 or positive, got {v}");
             }
         }
-        if self.memory_s > 0
-            && !matches!(self.sight, TeacherSight::ViewMemory | TeacherSight::PixelsMemory)
-        {
+        if self.memory_s > 0 && !self.sight.remembers() {
             config_err!(
                 "key `teacher.memory_s` needs `teacher.sight = \"view-memory\"` or `\"pixels-memory\"`"
             );

@@ -290,3 +290,30 @@ fn fresh_layouts_are_checked_and_never_a_held_out_or_trained_layout() {
         assert!(e.contains("sim.fresh_layouts") && e.contains(says), "{bad:?}: {e}");
     }
 }
+
+#[test]
+fn the_teachers_sight_is_the_planners_by_name_and_remembers_its_key() {
+    use rotorhive_sim::Sight;
+    let set = |s: &[&str]| Config::load(None, &s.iter().map(|x| x.to_string()).collect::<Vec<_>>());
+    for sight in Sight::EVERY {
+        let c = set(&["teacher.policy=planner", &format!("teacher.sight=\"{sight}\"")]);
+        let c = match sight {
+            // The map's planner needs the map (refused without it, by name).
+            Sight::Map => {
+                let e = format!("{:#}", c.unwrap_err());
+                assert!(e.contains("teacher.sight") && e.contains("sim.map"), "{e}");
+                continue;
+            }
+            _ => c.unwrap(),
+        };
+        assert_eq!(c.teacher.sight, sight);
+        // What a run writes as its config.toml reads back the same.
+        let again: Config = toml::from_str(&toml::to_string(&c).unwrap()).unwrap();
+        assert_eq!(again.teacher.sight, sight);
+    }
+    let c =
+        set(&["teacher.policy=planner", "teacher.sight=\"pixels-memory\"", "teacher.memory_s=5"]);
+    assert_eq!(c.unwrap().teacher.planner_sight(), Sight::PixelsMemory(Some(5)));
+    let e = format!("{:#}", set(&["teacher.sight=\"psychic\""]).unwrap_err());
+    assert!(e.contains("teacher.sight") && e.contains("pixels-memory"), "{e}");
+}

@@ -84,7 +84,7 @@ impl Config {
         positive("sim.physics_dt", s.physics_dt as f64)?;
         positive("sim.action_period", s.action_period as f64)?;
         positive("sim.max_steps", s.max_steps as f64)?;
-        positive("sim.depth_range", s.depth_range as f64)?;
+        s.camera.validate()?;
         positive("sim.render_threads", s.render_threads as f64)?;
         if s.physics_dt > s.action_period {
             config_err!(
@@ -225,9 +225,7 @@ impl Config {
         section("randomize", s.randomize.validate())?;
         section("goal", s.goal.validate())?;
         section("map", s.map.validate())?;
-        if self.teacher.on()
-            && self.teacher.sight == crate::sections::TeacherSight::Map
-            && !s.map.enabled()
+        if self.teacher.on() && self.teacher.sight == rotorhive_sim::Sight::Map && !s.map.enabled()
         {
             return Err(ConfigError::Invalid(
                 "key `teacher.sight` is \"map\" without the camera's map: set \

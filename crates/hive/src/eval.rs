@@ -29,33 +29,12 @@ pub enum PolicyKind {
     Planner,
 }
 
-/// What `--policy planner` knows (`rotorhive_sim::Sight`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum SightArg {
-    /// Every obstacle, and where each moving one will be.
-    All,
-    /// What the camera shows now (depth range and field of view, and what
-    /// is beside the drone), with the moving ones' future.
-    View,
-    /// What the camera shows now, each moving one guessed to keep its
-    /// present velocity for 3 s and turn back.
-    ViewVelocity,
-    /// What the camera shows now, each moving one standing over its whole
-    /// track (where it goes, not when).
-    ViewTrack,
-    /// What the camera shows now, each moving one known once it has been
-    /// in view for half its cycle, over its whole track until then.
-    ViewMemory,
-    /// What the pixels show now: the obstacles that at least one of the
-    /// camera's rays meets first (occluded ones not), and what is beside
-    /// the drone; the moving ones' present velocity kept 3 s.
-    Pixels,
-    /// Every obstacle a ray met this episode (within `--memory-s`), each
-    /// moving one as `view-memory` knows it.
-    PixelsMemory,
-    /// What the camera's map (`[sim.map]`) holds: the obstacles with a
-    /// cell marked as met, each moving one over its whole track.
-    Map,
+/// `--sight`'s and `--agree`'s values: every [`Sight`] by its name, each
+/// with what it knows in `--help`.
+fn sight_parser() -> impl clap::builder::TypedValueParser<Value = Sight> {
+    use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
+    let values = Sight::EVERY.map(|s| PossibleValue::new(s.name()).help(s.what()));
+    PossibleValuesParser::new(values).try_map(|s| s.parse::<Sight>())
 }
 
 impl PolicyKind {
@@ -69,44 +48,6 @@ impl PolicyKind {
     }
 }
 
-impl SightArg {
-    /// What the planner is told (`memory_s`: how long a
-    /// [`SightArg::ViewMemory`] planner remembers).
-    fn sight(self, memory_s: Option<u16>) -> Sight {
-        match self {
-            SightArg::All => Sight::All,
-            SightArg::View => Sight::View,
-            SightArg::ViewVelocity => Sight::ViewVelocity,
-            SightArg::ViewTrack => Sight::ViewTrack,
-            SightArg::ViewMemory => Sight::ViewMemory(memory_s),
-            SightArg::Pixels => Sight::Pixels,
-            SightArg::PixelsMemory => Sight::PixelsMemory(memory_s),
-            SightArg::Map => Sight::Map,
-        }
-    }
-
-    /// Its name on the command line and in JSON, and what it means.
-    fn name(self) -> (&'static str, &'static str) {
-        match self {
-            SightArg::All => ("all", "every obstacle's motion"),
-            SightArg::View => ("view", "what the camera shows, with the movers' future"),
-            SightArg::ViewVelocity => {
-                ("view-velocity", "what the camera shows, the movers' velocity kept 3 s")
-            }
-            SightArg::ViewTrack => {
-                ("view-track", "what the camera shows, each mover over its whole track")
-            }
-            SightArg::ViewMemory => (
-                "view-memory",
-                "what the camera shows, each mover known once watched for half its cycle",
-            ),
-            SightArg::Pixels => ("pixels", "what the pixels show now"),
-            SightArg::PixelsMemory => ("pixels-memory", "what the pixels showed this episode"),
-            SightArg::Map => ("map", "what the camera's map holds"),
-        }
-    }
-}
-
 #[derive(Args, Debug)]
 pub struct EvalArgs {
     /// Weights (safetensors) written by `hive train`.
@@ -116,8 +57,8 @@ pub struct EvalArgs {
     #[arg(long, value_enum)]
     pub policy: Option<PolicyKind>,
     /// What the planner knows (with `--policy planner`).
-    #[arg(long, value_enum, default_value_t = SightArg::All)]
-    pub sight: SightArg,
+    #[arg(long, value_parser = sight_parser(), default_value = "all")]
+    pub sight: Sight,
     /// How long (s) a `--sight view-memory` planner remembers: a mover
     /// whose half cycle is longer is never known (default: the episode).
     #[arg(long, value_name = "S")]
@@ -153,8 +94,8 @@ pub struct EvalArgs {
     /// the policy takes (the actions that keep a way clear, ties kept);
     /// reports how often the policy's is one of them, over all steps, the
     /// decisive ones and the last five before each crash.
-    #[arg(long, value_enum, value_name = "SIGHT")]
-    pub agree: Option<SightArg>,
+    #[arg(long, value_parser = sight_parser(), value_name = "SIGHT")]
+    pub agree: Option<Sight>,
     /// Episodes in all, shared evenly among the layouts.
     #[arg(long, default_value_t = 500)]
     pub episodes: usize,
@@ -217,8 +158,54 @@ pub(crate) fn map_sets(m: &rotorhive_sim::MapSpec) -> Vec<String> {
     ]
 }
 
-/// The config an evaluation flies with, and where it came from.
+/// The config an evaluation flies with, and where it came from: a
+/// checkpoint flies with the camera its header names (a `--set` or a
+/// config of another camera is refused by name).
 fn config(a: &EvalArgs) -> Result<(Config, String)> {
+    let (cfg, source) = chosen_config(a)?;
+    if let Some(c) = &a.checkpoint {
+        same_camera(c, &cfg, &source)?;
+    }
+    Ok((cfg, source))
+}
+
+/// Refuses to fly `checkpoint` with `cfg` (from `source`) where their
+/// cameras differ, naming both.
+pub(crate) fn same_camera(checkpoint: &Path, cfg: &Config, source: &str) -> Result<()> {
+    use rotorhive_roles::config::camera::{camera_name, checkpoint_camera};
+    let theirs = checkpoint_camera(checkpoint)?;
+    if cfg.camera() != theirs {
+        bail!(
+            "{} was trained with the camera {}; {source} (with the --set keys) gives {}",
+            checkpoint.display(),
+            camera_name(&theirs),
+            camera_name(&cfg.camera())
+        );
+    }
+    Ok(())
+}
+
+/// The `--set` keys a checkpoint brings to a config of no run of its own:
+/// its frames, their stride, its camera and the camera's map its run
+/// built.
+fn checkpoint_sets(c: &Path) -> Result<Vec<String>> {
+    let shapes = rotorhive_model::checkpoint_shapes(c)?;
+    let mut set = vec![
+        format!("sim.frames={}", shapes.frames),
+        format!("sim.frame_stride={}", shapes.stride),
+    ];
+    let camera = rotorhive_roles::config::camera::checkpoint_camera(c)?;
+    if camera != rotorhive_sim::CameraSpec::default() {
+        set.extend(rotorhive_roles::config::camera::camera_sets(&camera));
+    }
+    if let Some(m) = map_of(c)? {
+        set.extend(map_sets(&m));
+    }
+    Ok(set)
+}
+
+/// [`config`] before the camera's check.
+fn chosen_config(a: &EvalArgs) -> Result<(Config, String)> {
     if let (Some(run), None) = (&a.training_layouts, &a.level) {
         let path = run.join("config.toml");
         if !path.is_file() {
@@ -229,26 +216,23 @@ fn config(a: &EvalArgs) -> Result<(Config, String)> {
         }
         return Ok((Config::load(Some(&path), &a.set)?, path.display().to_string()));
     }
-    if let Some(level) = &a.level {
-        // A checkpoint sees as it was trained to: its frames and their
-        // stride come from its header (a `--set` of them still wins).
-        let mut set = Vec::new();
-        if let Some(c) = &a.checkpoint {
-            let shapes = rotorhive_model::checkpoint_shapes(c)?;
-            set.push(format!("sim.frames={}", shapes.frames));
-            set.push(format!("sim.frame_stride={}", shapes.stride));
-            // And the camera's map its run built.
-            if let Some(m) = map_of(c)? {
-                set.extend(map_sets(&m));
-            }
-        }
-        set.extend(a.set.iter().cloned());
-        return Ok((Config::level(level, &set)?, format!("level {level}")));
-    }
-    if let Some(path) = a.checkpoint.as_deref().and_then(run_config) {
+    if let Some(path) = a.checkpoint.as_deref().and_then(run_config)
+        && a.level.is_none()
+    {
         return Ok((Config::load(Some(&path), &a.set)?, path.display().to_string()));
     }
-    Ok((Config::load(None, &a.set)?, "the defaults".into()))
+    // A checkpoint sees as it was trained to: its frames, their stride and
+    // its camera come from its header (a `--set` of them still wins, and
+    // one that contradicts the camera is refused).
+    let mut set = match &a.checkpoint {
+        Some(c) => checkpoint_sets(c)?,
+        None => Vec::new(),
+    };
+    set.extend(a.set.iter().cloned());
+    match &a.level {
+        Some(level) => Ok((Config::level(level, &set)?, format!("level {level}"))),
+        None => Ok((Config::load(None, &set)?, "the defaults".into())),
+    }
 }
 
 pub fn run(a: EvalArgs) -> Result<()> {
@@ -256,17 +240,24 @@ pub fn run(a: EvalArgs) -> Result<()> {
         bail!("--episodes must be positive");
     }
     let policy = a.policy.unwrap_or(PolicyKind::Greedy);
-    let remembers = matches!(a.sight, SightArg::ViewMemory | SightArg::PixelsMemory);
+    let remembers = a.sight.remembers();
     if a.memory_s.is_some() && (policy != PolicyKind::Planner || !remembers) {
         bail!("--memory-s is for --policy planner --sight view-memory or pixels-memory");
     }
-    let pixels = matches!(a.sight, SightArg::Pixels | SightArg::PixelsMemory);
+    let pixels = a.sight.pixels();
     if a.rays.is_some() && (policy != PolicyKind::Planner || !pixels) {
         bail!("--rays is for --policy planner --sight pixels or pixels-memory");
     }
+    match (policy, &a.checkpoint) {
+        (PolicyKind::Greedy, None) => bail!("--policy greedy needs --checkpoint"),
+        (PolicyKind::Reactive | PolicyKind::Planner, Some(_)) => {
+            bail!("--policy {} flies no checkpoint: leave out --checkpoint", policy.name())
+        }
+        _ => {}
+    }
     let (cfg, source) = config(&a)?;
-    let judged_by_map = a.agree == Some(SightArg::Map)
-        || (policy == PolicyKind::Planner && a.sight == SightArg::Map);
+    let judged_by_map =
+        a.agree == Some(Sight::Map) || (policy == PolicyKind::Planner && a.sight == Sight::Map);
     if judged_by_map && !cfg.sim.map.enabled() {
         bail!(
             "the sight `map` needs the camera's map: {source} has no [sim.map] (add \
@@ -284,11 +275,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
             net.load_checkpoint(c)?;
             Some(net)
         }
-        (PolicyKind::Greedy, None) => bail!("--policy greedy needs --checkpoint"),
-        (_, Some(_)) => {
-            bail!("--policy {} flies no checkpoint: leave out --checkpoint", policy.name())
-        }
-        (PolicyKind::Reactive | PolicyKind::Planner, None) => None,
+        _ => None,
     };
     let layouts: Vec<Arena> = match (&a.training_layouts, a.arena.is_empty()) {
         (Some(run), _) => training_layouts(run, &cfg)?,
@@ -297,11 +284,11 @@ pub fn run(a: EvalArgs) -> Result<()> {
     };
     let pilot = match (&net, policy) {
         (Some(net), _) => Pilot::Net(net),
-        (None, PolicyKind::Planner) => Pilot::Planner(a.sight.sight(a.memory_s)),
+        (None, PolicyKind::Planner) => Pilot::Planner(a.sight.with_memory(a.memory_s)),
         (None, _) => Pilot::Reactive,
     };
     let spec = (a.failures.is_some() || a.agree.is_some())
-        .then(|| LogSpec { audit: a.agree.map(|s| s.sight(None)), horizon: AUDIT_HORIZON });
+        .then_some(LogSpec { audit: a.agree, horizon: AUDIT_HORIZON });
     let sim = SimConfig { sight_rays: a.rays.map_or(0, usize::from), ..cfg.sim_config() };
     let flown = fly_layouts_logged(pilot, &sim, &layouts, a.episodes, a.seed, spec)?;
     let (stats, logs): (Vec<EvalStats>, Vec<Vec<EpisodeLog>>) = flown.into_iter().unzip();
@@ -315,7 +302,8 @@ pub fn run(a: EvalArgs) -> Result<()> {
         agreement: a.agree.map(|_| agreement(&logs.concat())),
     };
     let net = net.as_ref().map(|n| (n.memory(), n.layers()));
-    report(&a, (policy, net), &source, cfg.shapes(), (&layouts, &stats), &found);
+    let settings = (source.as_str(), &cfg.camera());
+    report(&a, (policy, net), settings, cfg.shapes(), (&layouts, &stats), &found);
     Ok(())
 }
 
@@ -350,7 +338,7 @@ fn training_layouts(run: &Path, cfg: &Config) -> Result<Vec<Arena>> {
 fn report(
     a: &EvalArgs,
     (policy, net): (PolicyKind, Option<(Option<usize>, Layers)>),
-    source: &str,
+    (source, camera): (&str, &rotorhive_sim::CameraSpec),
     shapes: Shapes,
     (layouts, stats): (&[Arena], &[EvalStats]),
     found: &Found,
@@ -371,12 +359,12 @@ fn report(
         PolicyKind::Planner => {
             let memory = a.memory_s.map_or(String::new(), |s| format!(", remembering {s} s"));
             let rays = a.rays.map_or(String::new(), |n| format!(", {n} x {n} rays"));
-            format!("the planner (privileged), knowing {}{memory}{rays}", a.sight.name().1)
+            format!("the planner (privileged), knowing {}{memory}{rays}", a.sight.what())
         }
     };
     println!(
-        "{who}, settings of {source} ({} depth frames, {} action period(s) apart):",
-        shapes.frames, shapes.stride
+        "{who}, settings of {source} ({} depth frames of {} x {}, {} action period(s) apart):",
+        shapes.frames, shapes.depth[0], shapes.depth[1], shapes.stride
     );
     for (l, s) in layouts.iter().zip(stats) {
         println!(
@@ -404,7 +392,7 @@ fn report(
     }
     report_found(a, (layouts, stats), found);
     if a.json {
-        print_json(a, policy, source, shapes, (layouts, stats), (&pooled, net), found);
+        print_json(a, policy, (source, camera), shapes, (layouts, stats), (&pooled, net), found);
     }
 }
 
@@ -432,7 +420,7 @@ fn report_found(a: &EvalArgs, (layouts, stats): (&[Arena], &[EvalStats]), found:
         let pct = |p| Agreement::share(p).map_or("-".into(), |x| format!("{:.1} %", x * 100.0));
         println!(
             "  agreement with the planner ({}): all steps {} of {}, decisive {} of {}, last {} before a crash {} of {}; no way at {} steps",
-            s.name().0,
+            s.name(),
             pct(g.all),
             g.all.1,
             pct(g.decisive),
@@ -446,12 +434,12 @@ fn report_found(a: &EvalArgs, (layouts, stats): (&[Arena], &[EvalStats]), found:
 }
 
 /// The agreement as JSON: each share and its step count.
-fn agreement_json(g: &Agreement, sight: SightArg) -> serde_json::Value {
+fn agreement_json(g: &Agreement, sight: Sight) -> serde_json::Value {
     let pair = |p: (usize, usize)| (Agreement::share(p), p.1);
     let ((all, n_all), (dec, n_dec), (crash, n_crash)) =
         (pair(g.all), pair(g.decisive), pair(g.before_crash));
     serde_json::json!({
-        "sight": sight.name().0,
+        "sight": sight.name(),
         "all": all, "all_steps": n_all,
         "decisive": dec, "decisive_steps": n_dec,
         "before_crash": crash, "before_crash_steps": n_crash,
@@ -465,7 +453,7 @@ fn agreement_json(g: &Agreement, sight: SightArg) -> serde_json::Value {
 fn print_json(
     a: &EvalArgs,
     policy: PolicyKind,
-    source: &str,
+    (source, camera): (&str, &rotorhive_sim::CameraSpec),
     shapes: Shapes,
     (layouts, stats): (&[Arena], &[EvalStats]),
     (pooled, net): (&EvalStats, Option<(Option<usize>, Layers)>),
@@ -488,7 +476,7 @@ fn print_json(
             "episodes": pooled.episodes,
             "collisions": pooled.collisions,
             "hopeless": planner.then_some(pooled.hopeless),
-            "sight": planner.then(|| a.sight.name().0),
+            "sight": planner.then(|| a.sight.name()),
             "memory_s": a.memory_s,
             "rays": a.rays,
             "memory": (policy == PolicyKind::Greedy).then(|| rotorhive_model::memory_name(memory)),
@@ -499,6 +487,7 @@ fn print_json(
             "settings": source,
             "frames": shapes.frames,
             "frame_stride": shapes.stride,
+            "camera": rotorhive_roles::config::camera::camera_name(camera),
             "layout_quartiles": quartiles,
             "layouts_under_half": under,
             "traps": found.failures.as_ref().map(|t| t.traps),

@@ -24,11 +24,19 @@ pub fn run(a: ExportArgs) -> Result<()> {
     // Either network, as the checkpoint's header says (shapes, memory): a
     // recurrent one exports its one step, the state in and out.
     let net = PolicyNet::load(&a.checkpoint)?;
-    net.to_onnx(&a.out, &[("source", a.checkpoint.display().to_string())])?;
+    // The camera it was trained with goes into the model's metadata too.
+    let camera = rotorhive_roles::config::camera::checkpoint_camera(&a.checkpoint)?;
+    let meta = [
+        ("source", a.checkpoint.display().to_string()),
+        ("camera", rotorhive_roles::config::camera::camera_name(&camera)),
+    ];
+    net.to_onnx(&a.out, &meta)?;
     let shapes = net.shapes();
     let mut ins = format!(
-        "depth (B, {}, 32, 32) and velocity (B, {})",
+        "depth (B, {}, {}, {}) and velocity (B, {})",
         shapes.frames,
+        shapes.depth[0],
+        shapes.depth[1],
         shapes.scalars - shapes.map
     );
     if shapes.map > 0 {

@@ -121,6 +121,8 @@ impl<W: std::io::Write> Recording<W> {
             ..SimConfig::default()
         };
         cfg.goal.enabled = shapes.goal();
+        // And with the camera its header names.
+        cfg.camera = rotorhive_roles::config::camera::checkpoint_camera(&a.checkpoint)?;
         // A network that reads the camera's map flies with its run's map.
         if let Some(m) = crate::eval::map_of(&a.checkpoint)? {
             cfg.map = m;

@@ -7,7 +7,7 @@ use std::path::Path;
 
 use candle_core::{DType, Device, Tensor, Var};
 
-use crate::{Layers, ModelError, Result, SIDE, Shapes};
+use crate::{Layers, ModelError, Result, Shapes};
 
 /// The checkpoint layout this build writes and reads: the tensors' names
 /// and shapes, conv2's weights as (out, kh, kw, in) and fc1's pooled
@@ -51,9 +51,9 @@ pub(crate) fn network_metadata(
         (
             "observation".to_string(),
             format!(
-                "depth {}x{SIDE}x{SIDE} in [0, 1] (oldest frame first, {} action period(s) \
+                "depth {}x{}x{} in [0, 1] (oldest frame first, {} action period(s) \
                  apart), then velocity 3 (m/s, body frame){goal}{map}",
-                shapes.frames, shapes.stride
+                shapes.frames, shapes.depth[0], shapes.depth[1], shapes.stride
             ),
         ),
         ("frames".to_string(), shapes.frames.to_string()),
@@ -65,6 +65,11 @@ pub(crate) fn network_metadata(
     ]);
     if layers != Layers::DEFAULT {
         meta.insert("layers".to_string(), layers.name());
+    }
+    // Named only for frames other than the paper's 32 × 32, so that a
+    // checkpoint of those has the bytes of earlier builds.
+    if shapes.depth != Shapes::PAPER.depth {
+        meta.insert("depth".to_string(), depth_name(shapes.depth));
     }
     // Named only with a map, so that a checkpoint without one has the
     // bytes of earlier builds.
@@ -95,14 +100,31 @@ pub fn checkpoint_shapes(path: &Path) -> Result<Shapes> {
             v.parse().map_err(|_| bad(format!("header entry `{k}` is {v:?}, not a count")))
         })
     };
+    let depth = match meta.get("depth") {
+        None => Shapes::PAPER.depth,
+        Some(v) => parse_depth(v)
+            .ok_or_else(|| bad(format!("header entry `depth` is {v:?}, not ROWSxCOLS")))?,
+    };
     let shapes = Shapes {
         frames: field("frames", Shapes::PAPER.frames)?,
         stride: field("frame_stride", Shapes::PAPER.stride)?,
         scalars: field("scalars", Shapes::PAPER.scalars)?,
         actions: field("actions", Shapes::PAPER.actions)?,
         map: field("map", 0)?,
+        depth,
     };
     shapes.check().map_err(|m| bad(format!("header claims {m}")))
+}
+
+/// A depth frame's size as a header entry's value, `ROWSxCOLS` (`32x32`).
+pub fn depth_name([rows, cols]: [usize; 2]) -> String {
+    format!("{rows}x{cols}")
+}
+
+/// A depth frame's size from [`depth_name`]'s form.
+fn parse_depth(v: &str) -> Option<[usize; 2]> {
+    let (r, c) = v.split_once('x')?;
+    Some([r.parse().ok()?, c.parse().ok()?])
 }
 
 /// Rewrites a safetensors file's JSON header with its keys sorted, so that
@@ -144,11 +166,14 @@ fn check_layout(bytes: &[u8], file: &str, ours: &HashMap<String, String>) -> Res
     // A checkpoint of a build before memory is a feedforward network's, one
     // without `layers` the design's widths.
     // One without `map` has none.
+    // One without `depth` reads the paper's 32 × 32.
     let (none, widths, no_map) = (memory_name(None), Layers::DEFAULT.name(), "0".to_string());
+    let paper = depth_name(Shapes::PAPER.depth);
     let default = |k: &str| match k {
         "memory" => Some(&none),
         "layers" => Some(&widths),
         "map" => Some(&no_map),
+        "depth" => Some(&paper),
         _ => None,
     };
     let keys = [
@@ -161,6 +186,7 @@ fn check_layout(bytes: &[u8], file: &str, ours: &HashMap<String, String>) -> Res
         "memory",
         "layers",
         "map",
+        "depth",
     ];
     let diffs: Vec<String> = keys
         .iter()
@@ -194,6 +220,11 @@ pub fn checkpoint_memory(path: &Path) -> Result<Option<usize>> {
             .map(Some)
             .ok_or_else(|| bad(format!("header entry `memory` is {m:?}, not none or gru:WIDTH"))),
     }
+}
+
+/// A checkpoint's header entry `key` (`None` where it has none).
+pub fn checkpoint_entry(path: &Path, key: &str) -> Result<Option<String>> {
+    Ok(header_of(path)?.0.remove(key))
 }
 
 /// The widths of a checkpoint's network, from its header's `layers` (the

@@ -24,15 +24,17 @@
 //! [`crate::QNet`]; this module only reads them.
 //!
 //! Activations are channels-last: conv1's output `[B·14·14, c1]`, conv2's
-//! `[B·12·12, c2]`, the features `[B, 6·6·c2 + 16]` (pooled map, then the
+//! `[B·12·12, c2]`, the features `[B, 6·6·c2 + 16]` on 32×32 depth (other
+//! sizes: [`Geometry`]; the pooled map, then the
 //! velocity branch), then each hidden layer's `[B, width]` ([`Layers`]; the
 //! design's 16, 32 and 64 on loops of those constant widths).
 
 use multiversion::multiversion;
 
+use crate::layers::Geometry;
 use crate::layers::vel_units;
 use crate::ops::{View, matmul};
-use crate::{H1, H2, HP, K1, K2, Layers, S1, SIDE, Shapes};
+use crate::{K1, K2, Layers, S1, Shapes};
 
 /// Columns of conv1's patch matrix: (frame, ky, kx).
 const fn p1(shapes: Shapes) -> usize {
@@ -212,13 +214,13 @@ fn sum_rows_any(g: &[f32], db: &mut [f32]) {
 /// conv1's patch rows of one observation: for every output pixel (oy, ox),
 /// runs of K1 pixels per (frame, ky).
 #[multiversion(targets("x86_64+avx2+fma+avx"))]
-fn im2col1(obs: &[f32], frames: usize, out: &mut [f32]) {
+fn im2col1(obs: &[f32], frames: usize, g: Geometry, out: &mut [f32]) {
     let mut o = 0;
-    for oy in 0..H1 {
-        for ox in 0..H1 {
+    for oy in 0..g.h1 {
+        for ox in 0..g.w1 {
             for c in 0..frames {
                 for ky in 0..K1 {
-                    let s = c * SIDE * SIDE + (oy * S1 + ky) * SIDE + ox * S1;
+                    let s = c * g.h * g.w + (oy * S1 + ky) * g.w + ox * S1;
                     out[o..o + K1].copy_from_slice(&obs[s..s + K1]);
                     o += K1;
                 }
@@ -231,12 +233,12 @@ fn im2col1(obs: &[f32], frames: usize, out: &mut [f32]) {
 /// each run of K2·c1 values, `at` its start in the channels-last conv1 map
 /// and `o` in the patch matrix.
 #[inline(always)]
-fn conv2_runs(c1: usize, mut f: impl FnMut(usize, usize)) {
+fn conv2_runs(c1: usize, g: Geometry, mut f: impl FnMut(usize, usize)) {
     let mut o = 0;
-    for oy in 0..H2 {
-        for ox in 0..H2 {
+    for oy in 0..g.h2 {
+        for ox in 0..g.w2 {
             for ky in 0..K2 {
-                f(((oy + ky) * H1 + ox) * c1, o);
+                f(((oy + ky) * g.w1 + ox) * c1, o);
                 o += K2 * c1;
             }
         }
@@ -246,32 +248,32 @@ fn conv2_runs(c1: usize, mut f: impl FnMut(usize, usize)) {
 /// The four conv2 positions (rows of its channels-last map) under pooled
 /// output (py, px).
 #[inline(always)]
-fn window(py: usize, px: usize) -> [usize; 4] {
-    let r = 2 * py * H2 + 2 * px;
-    [r, r + 1, r + H2, r + H2 + 1]
+fn window(py: usize, px: usize, w2: usize) -> [usize; 4] {
+    let r = 2 * py * w2 + 2 * px;
+    [r, r + 1, r + w2, r + w2 + 1]
 }
 
 /// conv2's patch rows of `n` channels-last maps of `c1` channels: runs of
 /// K2·c1 values.
 #[multiversion(targets("x86_64+avx2+fma+avx"))]
-fn im2col2(a1: &[f32], cols: &mut [f32], n: usize, c1: usize) {
-    let (hw1, hw2, p2) = (H1 * H1, H2 * H2, p2(c1));
+fn im2col2(a1: &[f32], cols: &mut [f32], n: usize, c1: usize, g: Geometry) {
+    let (hw1, hw2, p2) = (g.cells1(), g.cells2(), p2(c1));
     for s in 0..n {
         let src = &a1[s * hw1 * c1..(s + 1) * hw1 * c1];
         let out = &mut cols[s * hw2 * p2..(s + 1) * hw2 * p2];
-        conv2_runs(c1, |at, o| out[o..o + K2 * c1].copy_from_slice(&src[at..at + K2 * c1]));
+        conv2_runs(c1, g, |at, o| out[o..o + K2 * c1].copy_from_slice(&src[at..at + K2 * c1]));
     }
 }
 
 /// The gradient of [`im2col2`]: every run added back where it was read (col2im).
 #[multiversion(targets("x86_64+avx2+fma+avx"))]
-fn col2im2(dcols: &[f32], da1: &mut [f32], n: usize, c1: usize) {
-    let (hw1, hw2, p2) = (H1 * H1, H2 * H2, p2(c1));
+fn col2im2(dcols: &[f32], da1: &mut [f32], n: usize, c1: usize, g: Geometry) {
+    let (hw1, hw2, p2) = (g.cells1(), g.cells2(), p2(c1));
     da1[..n * hw1 * c1].fill(0.0);
     for s in 0..n {
         let src = &dcols[s * hw2 * p2..(s + 1) * hw2 * p2];
         let out = &mut da1[s * hw1 * c1..(s + 1) * hw1 * c1];
-        conv2_runs(c1, |at, o| {
+        conv2_runs(c1, g, |at, o| {
             let (d, g) = (&mut out[at..at + K2 * c1], &src[o..o + K2 * c1]);
             d.iter_mut().zip(g).for_each(|(d, g)| *d += g);
         });
@@ -282,16 +284,16 @@ fn col2im2(dcols: &[f32], da1: &mut [f32], n: usize, c1: usize) {
 /// the features' head (rows of `f`), with the argmax (0..4, the window's
 /// first maximum) of every output.
 #[multiversion(targets("x86_64+avx2+fma+avx"))]
-fn pool(a2: &[f32], feat: &mut [f32], arg: &mut [u8], n: usize, c2: usize, f: usize) {
-    let (hw2, pooled) = (H2 * H2, HP * HP * c2);
+fn pool(a2: &[f32], feat: &mut [f32], arg: &mut [u8], n: usize, c2: usize, f: usize, g: Geometry) {
+    let (hw2, pooled) = (g.cells2(), g.cells_pooled() * c2);
     for s in 0..n {
         let x = &a2[s * hw2 * c2..(s + 1) * hw2 * c2];
         let out = &mut feat[s * f..s * f + pooled];
         let arg = &mut arg[s * pooled..(s + 1) * pooled];
-        for py in 0..HP {
-            for px in 0..HP {
-                let [x0, x1, x2, x3] = window(py, px).map(|r| &x[r * c2..(r + 1) * c2]);
-                let o = (py * HP + px) * c2;
+        for py in 0..g.hp {
+            for px in 0..g.wp {
+                let [x0, x1, x2, x3] = window(py, px, g.w2).map(|r| &x[r * c2..(r + 1) * c2]);
+                let o = (py * g.wp + px) * c2;
                 let (out, arg) = (&mut out[o..o + c2], &mut arg[o..o + c2]);
                 for c in 0..c2 {
                     let (mut best, mut at) = (x0[c], 0u8);
@@ -310,18 +312,25 @@ fn pool(a2: &[f32], feat: &mut [f32], arg: &mut [u8], n: usize, c2: usize, f: us
 /// zeroed first); conv2's bias gradient `db2` (of `c2`) is their sum, since
 /// every pooled gradient lands on exactly one position.
 #[multiversion(targets("x86_64+avx2+fma+avx"))]
-fn unpool(dfeat: &[f32], arg: &[u8], da2: &mut [f32], db2: &mut [f32], n: usize, f: usize) {
+fn unpool(
+    dfeat: &[f32],
+    arg: &[u8],
+    (da2, db2): (&mut [f32], &mut [f32]),
+    n: usize,
+    f: usize,
+    g: Geometry,
+) {
     let c2 = db2.len();
-    let (hw2, pooled) = (H2 * H2, HP * HP * c2);
+    let (hw2, pooled) = (g.cells2(), g.cells_pooled() * c2);
     da2[..n * hw2 * c2].fill(0.0);
     for s in 0..n {
         let d = &dfeat[s * f..s * f + pooled];
         let arg = &arg[s * pooled..(s + 1) * pooled];
         let out = &mut da2[s * hw2 * c2..(s + 1) * hw2 * c2];
-        for py in 0..HP {
-            for px in 0..HP {
-                let rows = window(py, px);
-                let o = (py * HP + px) * c2;
+        for py in 0..g.hp {
+            for px in 0..g.wp {
+                let rows = window(py, px, g.w2);
+                let o = (py * g.wp + px) * c2;
                 for c in 0..c2 {
                     out[rows[arg[o + c] as usize] * c2 + c] = d[o + c];
                     db2[c] += d[o + c];
@@ -340,7 +349,8 @@ impl Workspace {
         let rows = self.rows;
         let (vel, actions, f) = (shapes.scalars, shapes.actions, layers.features(shapes));
         let [c1, c2] = layers.conv();
-        let (hw1, hw2) = (H1 * H1, H2 * H2);
+        let g = Geometry::of(shapes);
+        let (hw1, hw2) = (g.cells1(), g.cells2());
         for (v, len) in [
             (&mut self.cols1, rows * hw1 * p1(shapes)),
             (&mut self.a1, rows * hw1 * c1),
@@ -364,7 +374,7 @@ impl Workspace {
             fit(&mut self.h[k], rows * w);
             fit(&mut self.dh[k], rows * w);
         }
-        self.arg.resize(rows * layers.pooled(), 0);
+        self.arg.resize(rows * layers.pooled(shapes), 0);
         fit(&mut self.grads, offsets(shapes, layers).last().copied().unwrap_or(0));
     }
 
@@ -377,14 +387,15 @@ impl Workspace {
         self.reserve(n, shapes, layers);
         let [w1, b1, w2, b2, wv, bv] = [0, 1, 2, 3, 4, 5].map(|i| w.p[i]);
         let [c1, c2] = layers.conv();
-        let (vel, f, pooled) = (shapes.scalars, layers.features(shapes), layers.pooled());
-        let (hw1, hw2, p1, p2) = (H1 * H1, H2 * H2, p1(shapes), p2(c1));
+        let (vel, f, pooled) = (shapes.scalars, layers.features(shapes), layers.pooled(shapes));
+        let g = Geometry::of(shapes);
+        let (hw1, hw2, p1, p2) = (g.cells1(), g.cells2(), p1(shapes), p2(c1));
         // conv1: patches straight from the observation rows, runs of K1 pixels.
         let mut i = 0;
         for p in parts {
             for r in 0..p.n {
                 let obs = p.row(r);
-                im2col1(obs, shapes.frames, &mut self.cols1[i * hw1 * p1..(i + 1) * hw1 * p1]);
+                im2col1(obs, shapes.frames, g, &mut self.cols1[i * hw1 * p1..(i + 1) * hw1 * p1]);
                 // The velocity branch (and the goal's), 3 or 6 → 16, into
                 // the features' tail.
                 let v = &obs[shapes.obs_depth()..];
@@ -400,11 +411,11 @@ impl Workspace {
         let a1 = &mut self.a1[..n * hw1 * c1];
         matmul(n * hw1, c1, p1, View::rows(&self.cols1, p1), View::transposed(w1, p1), a1, false)?;
         bias_relu(a1, b1);
-        im2col2(&self.a1, &mut self.cols2, n, c1);
+        im2col2(&self.a1, &mut self.cols2, n, c1, g);
         let a2 = &mut self.a2[..n * hw2 * c2];
         matmul(n * hw2, c2, p2, View::rows(&self.cols2, p2), View::transposed(w2, p2), a2, false)?;
         bias_relu(a2, b2);
-        pool(&self.a2, &mut self.feat, &mut self.arg, n, c2, f);
+        pool(&self.a2, &mut self.feat, &mut self.arg, n, c2, f, g);
         // The hidden layers, each on the one before (the first on the features).
         let mut input = f;
         for (k, &out) in layers.hidden().iter().enumerate() {
@@ -533,8 +544,9 @@ impl Workspace {
     fn backward_convolutions(&mut self, w: &Weights, n: usize, off: &[usize]) -> crate::Result<()> {
         let (shapes, layers) = (w.shapes, w.layers);
         let [c1, c2] = layers.conv();
-        let (vel, f, pooled) = (shapes.scalars, layers.features(shapes), layers.pooled());
-        let (hw1, hw2, p1, p2) = (H1 * H1, H2 * H2, p1(shapes), p2(c1));
+        let (vel, f, pooled) = (shapes.scalars, layers.features(shapes), layers.pooled(shapes));
+        let geo = Geometry::of(shapes);
+        let (hw1, hw2, p1, p2) = (geo.cells1(), geo.cells2(), p1(shapes), p2(c1));
         let g = &mut self.grads[..off[6]];
         let (g1, rest) = g.split_at_mut(off[1]);
         let (gb1, rest) = rest.split_at_mut(c1);
@@ -561,13 +573,13 @@ impl Workspace {
         }
         // Pooling (the ReLU's mask is in `feat > 0`).
         let da2 = &mut self.da2[..n * hw2 * c2];
-        unpool(dfeat, &self.arg, da2, gb2, n, f);
+        unpool(dfeat, &self.arg, (da2, gb2), n, f, geo);
         // conv2: dW = da2ᵀ·patches, dpatches = da2·W, then col2im.
         matmul(c2, p2, n * hw2, View::transposed(da2, c2), View::rows(&self.cols2, p2), g2, false)?;
         let dcols2 = &mut self.dcols2[..n * hw2 * p2];
         matmul(n * hw2, p2, c2, View::rows(da2, c2), View::rows(w.p[2], p2), dcols2, false)?;
         let da1 = &mut self.da1[..n * hw1 * c1];
-        col2im2(dcols2, da1, n, c1);
+        col2im2(dcols2, da1, n, c1, geo);
         mask_and_sum(da1, &self.a1[..n * hw1 * c1], gb1);
         // conv1: dW = da1ᵀ·patches (the image needs no gradient).
         matmul(c1, p1, n * hw1, View::transposed(da1, c1), View::rows(&self.cols1, p1), g1, false)?;

@@ -1,13 +1,14 @@
 //! The network's widths ([`Layers`]): its two convolutions' channels and its
 //! hidden layers', and the parameter list they give ([`params`]).
 //!
-//! The geometry stays the design's (conv 6×6 stride 2, conv 3×3, max-pool
-//! 2 on 32×32 depth: a 6×6 pooled map); only the widths change. The
+//! The kernels stay the design's (conv 6×6 stride 2, conv 3×3, max-pool 2);
+//! the maps' sizes follow the depth frame's ([`Geometry`]: a 6×6 pooled map
+//! on the paper's 32×32). The
 //! default, `[16, 32]` and `[64]`, is the network every earlier checkpoint
 //! holds, and a checkpoint of it names no widths in its header (so its
 //! bytes are those of earlier builds).
 
-use crate::{HP, K1, K2, ModelError, Result, Shapes};
+use crate::{K1, K2, ModelError, Result, S1, Shapes};
 
 /// The most hidden layers a network may have.
 pub const MAX_HIDDEN: usize = 3;
@@ -28,6 +29,52 @@ pub(crate) const fn vel_units(shapes: Shapes) -> usize {
 /// checkpoint has), then `fc1b`, `fc1c`.
 pub(crate) const HIDDEN_NAMES: [[&str; 2]; MAX_HIDDEN] =
     [["fc1.weight", "fc1.bias"], ["fc1b.weight", "fc1b.bias"], ["fc1c.weight", "fc1c.bias"]];
+
+/// The sizes of the convolutions' maps on depth frames of `shapes.depth`:
+/// conv1 6×6 stride 2, conv2 3×3, a 2×2 max-pool, each rounding down (as
+/// candle's and ONNX's do): 32×32 → 14×14 → 12×12 → 6×6, the paper's; a
+/// side of 12, the least (`MIN_DEPTH_SIDE`), leaves one pooled cell.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct Geometry {
+    /// The depth frame's rows and columns.
+    pub(crate) h: usize,
+    pub(crate) w: usize,
+    /// conv1's output rows and columns.
+    pub(crate) h1: usize,
+    pub(crate) w1: usize,
+    /// conv2's.
+    pub(crate) h2: usize,
+    pub(crate) w2: usize,
+    /// The pooled map's.
+    pub(crate) hp: usize,
+    pub(crate) wp: usize,
+}
+
+impl Geometry {
+    /// The geometry of `shapes`' depth frames (checked sizes:
+    /// [`Shapes::check`]).
+    pub(crate) const fn of(shapes: Shapes) -> Self {
+        let [h, w] = shapes.depth;
+        let (h1, w1) = ((h - K1) / S1 + 1, (w - K1) / S1 + 1);
+        let (h2, w2) = (h1 - K2 + 1, w1 - K2 + 1);
+        Self { h, w, h1, w1, h2, w2, hp: h2 / 2, wp: w2 / 2 }
+    }
+
+    /// Positions of conv1's map.
+    pub(crate) const fn cells1(self) -> usize {
+        self.h1 * self.w1
+    }
+
+    /// Positions of conv2's map.
+    pub(crate) const fn cells2(self) -> usize {
+        self.h2 * self.w2
+    }
+
+    /// Positions of the pooled map.
+    pub(crate) const fn cells_pooled(self) -> usize {
+        self.hp * self.wp
+    }
+}
 
 /// A network's widths: the channels of its two convolutions and the units
 /// of each hidden layer (one to [`MAX_HIDDEN`]).
@@ -85,15 +132,16 @@ impl Layers {
         self.hidden[self.depth - 1]
     }
 
-    /// Floats of the pooled map: 6 × 6 × the second convolution's channels.
-    pub(crate) fn pooled(&self) -> usize {
-        HP * HP * self.conv[1]
+    /// Floats of the pooled map of `shapes`' depth frames: its cells (6 ×
+    /// 6 on 32 × 32) × the second convolution's channels.
+    pub(crate) fn pooled(&self, shapes: Shapes) -> usize {
+        Geometry::of(shapes).cells_pooled() * self.conv[1]
     }
 
     /// Floats entering the first hidden layer of a network for `shapes`:
     /// the pooled map, then the velocity branch.
     pub(crate) fn features(&self, shapes: Shapes) -> usize {
-        self.pooled() + vel_units(shapes)
+        self.pooled(shapes) + vel_units(shapes)
     }
 
     /// Parameters of the trunk (the convolutions, the velocity branch and
@@ -190,6 +238,13 @@ mod tests {
         }
         // The design's network: 80,818 parameters for the paper's task.
         assert_eq!(num_params(Shapes::PAPER, Layers::DEFAULT), 80_818);
+        // Other frames give other maps, rounding down: 64 × 48 → 30 × 22 →
+        // 28 × 20 → 14 × 10; 13 → 4 → 2 → 1.
+        let g = Geometry::of(Shapes::PAPER.with_depth([64, 48]));
+        assert_eq!([g.h1, g.w1, g.h2, g.w2, g.hp, g.wp], [30, 22, 28, 20, 14, 10]);
+        let g = Geometry::of(Shapes::PAPER.with_depth([13, 12]));
+        assert_eq!([g.h1, g.w1, g.h2, g.w2, g.hp, g.wp], [4, 4, 2, 2, 1, 1]);
+        assert_eq!(Layers::DEFAULT.pooled(Shapes::PAPER.with_depth([64, 48])), 14 * 10 * 32);
         let names: Vec<_> = params(Shapes::PAPER, l).into_iter().map(|(n, _)| n).collect();
         assert_eq!(
             names[6..],

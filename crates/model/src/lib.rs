@@ -39,8 +39,8 @@ use std::sync::{Arc, Mutex};
 pub use candle_core::Device;
 use candle_core::{Tensor, Var};
 pub use checkpoint::{
-    CHECKPOINT_LAYOUT, checkpoint_layers, checkpoint_memory, checkpoint_metadata,
-    checkpoint_shapes, memory_name,
+    CHECKPOINT_LAYOUT, checkpoint_entry, checkpoint_layers, checkpoint_memory, checkpoint_metadata,
+    checkpoint_shapes, depth_name, memory_name,
 };
 pub use dqn::{Dqn, DqnConfig, UpdateStats, UpdateTiming};
 use kernels::{Rows, Weights, Workspace};
@@ -74,16 +74,13 @@ pub fn device(kind: DeviceKind) -> Result<Device> {
 // The observation and transition layout, defined once in `rotorhive-msg`
 // (without its iceoryx2 feature): depth side, frames, velocity components,
 // floats per observation, actions, floats per transition.
-pub use rotorhive_msg::{DEPTH_SIDE as SIDE, FRAMES, Shapes};
+pub use rotorhive_msg::{FRAMES, Shapes};
 
-// The geometry (the widths are [`Layers`]'s): conv1 6×6 stride 2 (32 → 14),
-// conv2 3×3 (14 → 12), max-pool 2 (12 → 6).
+// The kernels (the widths are [`Layers`]'s, the maps' sizes
+// [`layers::Geometry`]'s): conv1 6×6 stride 2, conv2 3×3, max-pool 2.
 const K1: usize = 6;
 const S1: usize = 2;
-const H1: usize = (SIDE - K1) / S1 + 1; // 14
 const K2: usize = 3;
-const H2: usize = H1 - K2 + 1; // 12
-const HP: usize = H2 / 2; // 6
 
 /// The trunk (every layer before the Q head, the first
 /// [`Layers::trunk_len`] of `p` in canonical order) on stock candle ops: the
@@ -95,19 +92,23 @@ pub(crate) fn trunk(p: &[Var], shapes: Shapes, layers: Layers, obs: &Tensor) -> 
     let b = obs.dim(0)?;
     let frames = shapes.frames;
     let [c1, c2] = layers.conv();
-    let img =
-        obs.narrow(1, 0, frames * SIDE * SIDE)?.contiguous()?.reshape((b, frames, SIDE, SIDE))?;
+    let g = layers::Geometry::of(shapes);
+    let img = obs.narrow(1, 0, shapes.obs_depth())?.contiguous()?.reshape((b, frames, g.h, g.w))?;
     let w1 = p(0).reshape((c1, frames, K1, K1))?;
     let x = img.conv2d(&w1, 0, S1, 1, 1)?.broadcast_add(&p(1).reshape((1, c1, 1, 1))?)?.relu()?;
     let w2 = p(2).reshape((c2, K2, K2, c1))?.permute((0, 3, 1, 2))?.contiguous()?;
     let x = x.conv2d(&w2, 0, 1, 1, 1)?.broadcast_add(&p(3).reshape((1, c2, 1, 1))?)?.relu()?;
-    // 2×2 max-pool as two reductions over a split view, then channels-last.
+    // 2×2 max-pool as two reductions over a split view (an odd last row or
+    // column dropped, as the fused path and ONNX drop it), then channels-last.
     let x = x
-        .reshape((b, c2, HP, 2, HP, 2))?
+        .narrow(2, 0, 2 * g.hp)?
+        .narrow(3, 0, 2 * g.wp)?
+        .contiguous()?
+        .reshape((b, c2, g.hp, 2, g.wp, 2))?
         .max(5)?
         .max(3)?
         .permute((0, 2, 3, 1))?
-        .reshape((b, layers.pooled()))?;
+        .reshape((b, layers.pooled(shapes)))?;
     // A column slice is a strided view: candle's CUDA matmul takes only
     // contiguous operands (a GPU run died here at its first update,
     // the H100 machine of `docs/results/performance.md`), so it is copied out first.
@@ -502,7 +503,7 @@ impl QNet {
     }
 
     /// Writes the network as an ONNX model (see `onnx.rs`): inputs `depth`
-    /// `(B, frames, 32, 32)` (2 in the paper's task) and `velocity` `(B, scalars)` (3, or 6 with a goal),
+    /// `(B, frames, rows, cols)` (2 × 32 × 32 in the paper's task) and `velocity` `(B, scalars)` (3, or 6 with a goal),
     /// output `q` `(B, actions)`; the checkpoint's header entries (and
     /// `extra`) as metadata properties.
     pub fn to_onnx(&self, path: &Path, extra: &[(&str, String)]) -> Result<()> {

@@ -22,8 +22,9 @@ use std::collections::HashMap;
 use candle_core::Tensor;
 use rotorhive_msg::protobuf::{bytes, int};
 
+use crate::layers::Geometry;
 use crate::layers::HIDDEN_NAMES;
-use crate::{HP, K1, K2, Layers, Result, S1, SIDE, Shapes, params};
+use crate::{K1, K2, Layers, Result, S1, Shapes, params};
 
 /// The IR version written (ONNX 1.14 and later read it).
 const IR_VERSION: u64 = 9;
@@ -84,7 +85,10 @@ pub(crate) fn model(
     bytes(
         &mut graph,
         11,
-        &value_info("depth", &[None, Some(shapes.frames), Some(SIDE), Some(SIDE)]),
+        &value_info(
+            "depth",
+            &[None, Some(shapes.frames), Some(shapes.depth[0]), Some(shapes.depth[1])],
+        ),
     );
     bytes(&mut graph, 11, &value_info("velocity", &[None, Some(vel - shapes.map)]));
     if shapes.map > 0 {
@@ -148,15 +152,17 @@ fn torch_layout(
             conv2[((o * K2 + ky) * K2 + kx) * c1 + c]
         })
         .collect();
-    let (cols, pooled) = (layers.features(shapes), layers.pooled());
+    let (cols, pooled) = (layers.features(shapes), layers.pooled(shapes));
+    let g = Geometry::of(shapes);
+    let cells = g.cells_pooled();
     let fc1: Vec<f32> = (0..layers.hidden()[0] * cols)
         .map(|i| {
             let (r, j) = (i / cols, i % cols);
             if j >= pooled {
                 return fc1[r * cols + j];
             }
-            let (c, y, x) = (j / (HP * HP), j % (HP * HP) / HP, j % HP);
-            fc1[r * cols + (y * HP + x) * c2 + c]
+            let (c, y, x) = (j / cells, j % cells / g.wp, j % g.wp);
+            fc1[r * cols + (y * g.wp + x) * c2 + c]
         })
         .collect();
     (conv2, fc1)

@@ -6,11 +6,14 @@
 //! agent, zeroed where its episode starts); the feedforward one has none
 //! (`state_width` 0, `state` empty).
 
+use std::collections::HashMap;
 use std::path::Path;
+
+use candle_core::Tensor;
 
 use crate::{
     Device, Layers, QNet, RecurrentQNet, Result, Shapes, checkpoint_layers, checkpoint_memory,
-    checkpoint_shapes,
+    checkpoint_shapes, params, recurrent_params,
 };
 
 /// The two networks a run may train.
@@ -84,6 +87,22 @@ impl PolicyNet {
         match &self.0 {
             Net::Feedforward(n) => n.layers(),
             Net::Recurrent(n) => n.layers(),
+        }
+    }
+
+    /// Its parameters' names and shapes, in canonical (flat) order.
+    pub fn params(&self) -> Vec<(&'static str, Vec<usize>)> {
+        match &self.0 {
+            Net::Feedforward(n) => params(n.shapes(), n.layers()),
+            Net::Recurrent(n) => recurrent_params(n.shapes(), n.layers(), n.width()),
+        }
+    }
+
+    /// The weights by name.
+    pub fn named(&self) -> HashMap<String, Tensor> {
+        match &self.0 {
+            Net::Feedforward(n) => n.named(),
+            Net::Recurrent(n) => n.named(),
         }
     }
 

@@ -2,7 +2,7 @@
 
 use super::*;
 use candle_core::DType;
-use rotorhive_msg::{DEPTH_PIXELS, NO_EXPERT, label_mask};
+use rotorhive_msg::{DEPTH_PIXELS, DEPTH_SIDE as SIDE, NO_EXPERT, label_mask};
 
 // The paper's task's shapes, as most checks here use them.
 const OBS_LEN: usize = Shapes::PAPER.obs_len();
@@ -118,6 +118,10 @@ fn fused_gradients_match_stock_candle() {
         (7, true, 2, goal, deep),
         (8, true, 2, map, Layers::DEFAULT),
         (9, false, 1, goal_map, wide),
+        // Frames of other cameras: 48 × 40 (a 10 × 8 pooled map), and 13 ×
+        // 27, whose odd conv2 map loses its last column to the pooling.
+        (10, true, 2, Shapes::PAPER.with_depth([48, 40]), Layers::DEFAULT),
+        (11, false, 1, goal.with_depth([13, 27]), wide),
     ] {
         let mut dqn = Dqn::with_layers(cfg(double), shapes, layers, seed, &Device::Cpu).unwrap();
         dqn.set_threads(threads);
@@ -769,3 +773,6 @@ fn importance_weights_scale_each_rows_gradient_on_both_paths() {
             .contains("importance weights")
     );
 }
+
+// Networks of other cameras' frames.
+mod frames;

@@ -4,9 +4,10 @@
 //! and seeds as `hive train`'s first simulator, and steps it with the GIL
 //! released, writing observations, rewards and done codes straight into
 //! numpy arrays that the Python environment owns (no copy in between).
-//! [`QNetwork`] is the learner's network (`rotorhive_model::QNet`): it loads
-//! and saves `.safetensors` checkpoints and computes Q-values, so Python can
-//! check a conversion of the weights against it. The Gymnasium classes, the
+//! [`PolicyNetwork`] is the learner's network (`rotorhive_model::PolicyNet`,
+//! feedforward or with memory): it loads and saves `.safetensors`
+//! checkpoints and computes Q-values, so Python can check a conversion of
+//! the weights against it. The Gymnasium classes, the
 //! autoreset modes and the argument checks live in `python/rotorhive`.
 
 use std::path::Path;
@@ -177,9 +178,12 @@ impl Sim {
         self.env.agents()
     }
 
+    /// Rows and columns of one observed depth frame (the camera's image
+    /// after its min-pool).
     #[getter]
-    fn side(&self) -> usize {
-        self.env.config().camera.side
+    fn depth_shape(&self) -> (usize, usize) {
+        let [rows, cols] = self.env.config().camera.observed_depth();
+        (rows, cols)
     }
 
     #[getter]
@@ -401,7 +405,7 @@ impl Sim {
 
 fn write_obs(env: &VecEnv, depth: &mut [f32], velocity: &mut [f32]) -> PyResult<()> {
     let n = env.agents();
-    let px = env.config().camera.side.pow(2);
+    let px = env.config().camera.observed().pixels();
     check_len("depth", depth.len(), n * env.config().frames * px)?;
     check_len("velocity", velocity.len(), n * 3)?;
     env.write_observations_split(depth, velocity);
@@ -455,7 +459,7 @@ fn rust_agent_steps_per_second(
         // The start of the bench's Python environments: `reset(seed=1)`.
         env.reseed(1);
         env.reset_agents(&vec![true; agents]).map_err(render_error)?;
-        let px = env.config().camera.side.pow(2);
+        let px = env.config().camera.observed().pixels();
         let (mut depth, mut vel) = (vec![0.0f32; agents * 2 * px], vec![0.0f32; agents * 3]);
         let t0 = Instant::now();
         let mut steps = 0usize;
@@ -523,19 +527,22 @@ fn sim_keys() -> Vec<String> {
         _ => Vec::new(),
     };
     // The camera's map, a section left out of a config without it: a
-    // keyword argument of a dict (`map={"encoding": "rays"}`).
-    keys.push("map".to_string());
+    // keyword argument of a dict (`map={"encoding": "rays"}`); so is the
+    // camera (`camera={"width": 64, "height": 64}`), and `depth_range`, its
+    // range's older name.
+    keys.extend(["map", "camera", "depth_range"].map(String::from));
+    keys.sort();
+    keys.dedup();
     keys
 }
 
 mod networks;
-use networks::{QNetwork, RecurrentQNetwork, checkpoint_width};
+use networks::{PolicyNetwork, checkpoint_width};
 
 #[pymodule]
 fn _rotorhive(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Sim>()?;
-    m.add_class::<QNetwork>()?;
-    m.add_class::<RecurrentQNetwork>()?;
+    m.add_class::<PolicyNetwork>()?;
     m.add_function(wrap_pyfunction!(rust_agent_steps_per_second, m)?)?;
     m.add_function(wrap_pyfunction!(reference_rollout, m)?)?;
     m.add_function(wrap_pyfunction!(sim_keys, m)?)?;

@@ -56,3 +56,77 @@ def test_torch_module_matches_the_numpy_forward(tmp_path):
     with torch.no_grad():
         q_t = module(torch.from_numpy(obs["depth"]), torch.from_numpy(obs["velocity"])).numpy()
     np.testing.assert_allclose(q_t, net.numpy_q_values(net.load_checkpoint(path), obs["depth"], obs["velocity"]), rtol=1e-4, atol=1e-5)
+
+
+def test_one_network_class_flies_both_kinds_and_the_old_names_still_work(tmp_path):
+    ff = rotorhive.PolicyNetwork(seed=1, frames=4, conv_channels=[8, 16], hidden=[48, 24])
+    gru = rotorhive.PolicyNetwork(seed=1, memory=8)
+    assert (ff.memory, ff.width, gru.memory, gru.width) == (None, 0, 8, 8)
+    # The old names are the same class, with their arguments as before.
+    old = rotorhive.RecurrentQNetwork(width=8, seed=1)
+    assert isinstance(old, rotorhive.PolicyNetwork) and old.memory == 8
+    assert isinstance(rotorhive.QNetwork(1), rotorhive.PolicyNetwork) and rotorhive.QNetwork(1).memory is None
+    np.testing.assert_array_equal(old.weights()["gru.weight_ih"], gru.weights()["gru.weight_ih"])
+    # A feedforward network steps with a state of no column, as it answers q_values.
+    obs = np.random.default_rng(0).random((3, ff.obs_len), dtype=np.float32)
+    q, h = ff.step(obs, ff.initial_state(3))
+    assert h.shape == (3, 0)
+    np.testing.assert_array_equal(q, ff.q_values(obs))
+    with pytest.raises(ValueError, match="step"):
+        gru.q_values(np.zeros((3, gru.obs_len), np.float32))
+    # Each checkpoint loads as what it holds; the old names refuse the other kind by name.
+    p_ff, p_gru = tmp_path / "ff.safetensors", tmp_path / "gru.safetensors"
+    ff.save(str(p_ff))
+    gru.save(str(p_gru))
+    assert rotorhive.PolicyNetwork.load(str(p_gru)).memory == 8
+    assert rotorhive.PolicyNetwork.load(str(p_ff)).hidden == [48, 24]
+    with pytest.raises(ValueError, match="memory none"):
+        rotorhive.RecurrentQNetwork.load(str(p_ff))
+    # The numpy forward reads every size from the weights.
+    g = net.geometry(ff.weights())
+    assert (g.frames, g.channels, g.pooled, g.hidden, g.actions) == (4, (8, 16), (6, 6), (48, 24), 2)
+    depth, vel = obs[:, : 4 * 1024].reshape(3, 4, 32, 32), obs[:, 4 * 1024 :]
+    np.testing.assert_allclose(net.numpy_q_values(net.torch_layout(ff.weights()), depth, vel), ff.q_values(obs), rtol=1e-4, atol=1e-5)
+    with pytest.raises(ValueError, match="memory"):
+        net.torch_layout(gru.weights())
+
+
+def test_a_network_of_another_camera_converts_and_exports(tmp_path):
+    onnx = pytest.importorskip("onnx")
+    ort = pytest.importorskip("onnxruntime")
+    from rotorhive.export import export_onnx
+
+    # 48 x 40 frames: a pooled map of 10 x 8, neither square nor the paper's.
+    rust = rotorhive.PolicyNetwork(seed=4, depth=(48, 40))
+    assert rust.depth == (48, 40) and rust.obs_len == 2 * 48 * 40 + 3
+    path = tmp_path / "wide.safetensors"
+    rust.save(str(path))
+    back = rotorhive.PolicyNetwork.load(str(path))
+    assert back.depth == (48, 40)
+    assert net.pooled_grid((48, 40)) == (10, 8) and net.pooled_grid((32, 32)) == (6, 6)
+    rng = np.random.default_rng(1)
+    depth, vel = rng.random((7, 2, 48, 40), dtype=np.float32), rng.normal(size=(7, 3)).astype(np.float32)
+    want = back.q_values(net.flat_observations(depth, vel))
+    np.testing.assert_allclose(net.numpy_q_values(net.load_checkpoint(path), depth, vel), want, rtol=1e-4, atol=1e-5)
+    out = export_onnx(path, tmp_path / "wide.onnx")
+    model = onnx.load(out)
+    onnx.checker.check_model(model, full_check=True)
+    dims = [d.dim_value for d in model.graph.input[0].type.tensor_type.shape.dim]
+    assert dims[1:] == [2, 48, 40], dims
+    got = ort.InferenceSession(out, providers=["CPUExecutionProvider"]).run(["q"], {"depth": depth, "velocity": vel})[0]
+    assert np.abs(got - want).max() <= 1e-4
+    with pytest.raises(ValueError, match="depth frames of 8 x 40"):
+        rotorhive.PolicyNetwork(depth=(8, 40))
+
+
+def test_an_environment_of_another_camera_observes_its_frames():
+    envs = rotorhive.NavigateVectorEnv(3, seed=2, camera={"width": 64, "height": 48, "pool": 2, "hfov_deg": 100.0})
+    assert envs.single_observation_space["depth"].shape == (2, 24, 32)
+    obs, _ = envs.reset(seed=2)
+    assert obs["depth"].shape == (3, 2, 24, 32) and 0.0 <= obs["depth"].min() and obs["depth"].max() <= 1.0
+    obs, *_ = envs.step(np.zeros(3, np.int64))
+    # A network of that camera flies it.
+    q = rotorhive.PolicyNetwork(depth=(24, 32)).q_values(net.flat_observations(obs["depth"], obs["velocity"]))
+    assert q.shape == (3, 2)
+    with pytest.raises(ValueError, match="sim.camera.pool"):
+        rotorhive.NavigateVectorEnv(2, camera={"width": 64, "pool": 3})

@@ -21,7 +21,11 @@ def scalars(run_dir):
 def test_a_training_run_leaves_a_log_tensorboard_reads(tmp_path):
     run = tmp_path / "run"
     common = ["--quiet", "--set", "threshold=100000", "--set", "eval.every_s=5", "--set", "sim.agents=20", "--set", "replay.min_fill=500"]
-    p = subprocess.run([str(HIVE), "train", "configs/default.toml", "--max-seconds", "14", "--run-dir", str(run)] + common, cwd=ROOT, capture_output=True, text=True, timeout=120)
+    # Short evaluations (no confirmation), so that one ends well inside the
+    # run on a slow machine too (the defaults' 100 + 300 episodes took 7 s
+    # of these 14 on an AVX2 Zen 3).
+    quick = ["--set", "eval.episodes=40", "--set", "eval.confirm_episodes=0"]
+    p = subprocess.run([str(HIVE), "train", "configs/default.toml", "--max-seconds", "14", "--run-dir", str(run)] + common + quick, cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert p.returncode == 0, p.stderr
     s = scalars(run)
     long = [tag for tag, points in s.items() if len(points) >= 10]

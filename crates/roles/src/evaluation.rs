@@ -109,16 +109,22 @@ pub enum Pilot<'a> {
 
 impl Pilot<'_> {
     /// The actions of every agent for a batch of observations (rows of
-    /// `obs_len` floats: `frames` depth frames of `side`² pixels, the
-    /// velocity).
-    pub fn act(&self, obs: &[f32], obs_len: usize, side: usize, frames: usize) -> Result<Vec<u8>> {
+    /// `obs_len` floats: `frames` depth frames of `depth` (rows, columns)
+    /// pixels, the velocity).
+    pub fn act(
+        &self,
+        obs: &[f32],
+        obs_len: usize,
+        depth: [usize; 2],
+        frames: usize,
+    ) -> Result<Vec<u8>> {
         match self {
             Pilot::Net(net) if net.state_width() == 0 => Ok(net.greedy(obs, &mut Vec::new())?),
             Pilot::Net(_) => Err(crate::error::RoleError::Config(
                 "a network with memory flies with its state: see `fly`".into(),
             )),
             Pilot::Reactive => {
-                Ok(obs.chunks_exact(obs_len).map(|o| reactive(o, side, frames)).collect())
+                Ok(obs.chunks_exact(obs_len).map(|o| reactive(o, depth, frames)).collect())
             }
             Pilot::Planner(_) => Err(crate::error::RoleError::Config(
                 "the planner flies from the environment, not from observations".into(),
@@ -131,27 +137,31 @@ impl Pilot<'_> {
 /// (87.6 % there, 88.2 % of `configs/arenas/test.toml`;
 /// `shared/research/tasks/reactive_depth.py`, whose rule this is).
 const REACTIVE_NEAR: f32 = 0.5;
-/// Columns on each side that a column's clearance is the minimum over.
+/// Columns on each side that a column's clearance is the minimum over, of
+/// 32 (a wider image's window is as wide a share of it).
 const REACTIVE_WINDOW: usize = 4;
-/// Lateral speed wanted per column of the target off the centre (m/s).
+/// Lateral speed wanted per column of the target off the centre (m/s), of
+/// 32 columns (scaled to the image's).
 const REACTIVE_GAIN: f32 = 0.12;
 /// With a goal: lateral speed wanted per metre of the goal's lateral
 /// offset while the way ahead is clear (m/s per m, at most 1 m/s).
 const REACTIVE_GOAL_GAIN: f32 = 0.3;
 
 /// A scripted reactive policy on one observation (`frames` depth frames
-/// of `side`² pixels, the current one last, then the body velocity): the
+/// of `depth` (rows, columns) pixels, the current one last, then the body
+/// velocity): the
 /// nearest depth of each column over the middle rows, widened to the
 /// minimum over `REACTIVE_WINDOW` neighbours each side; when straight
 /// ahead is nearer than `REACTIVE_NEAR` of the range, the lateral velocity
 /// is pushed toward the clearest column, else toward zero (with a goal:
 /// toward the goal's side). Action 1 raises the lateral setpoint, 0 lowers
 /// it.
-pub fn reactive(obs: &[f32], side: usize, frames: usize) -> u8 {
-    let px = side * side;
+pub fn reactive(obs: &[f32], depth: [usize; 2], frames: usize) -> u8 {
+    let (side, px) = (depth[1], depth[0] * depth[1]);
     let fd = frames * px;
-    let nearest = nearest_per_column(&obs[fd - px..fd], side);
-    let w = REACTIVE_WINDOW;
+    let nearest = nearest_per_column(&obs[fd - px..fd], depth);
+    let scale = side as f32 / 32.0;
+    let w = ((REACTIVE_WINDOW as f32 * scale).round() as usize).max(1);
     // Beyond the image's edges reads as an obstacle at 0.
     let clear: Vec<f32> = (0..side)
         .map(|c| {
@@ -177,18 +187,19 @@ pub fn reactive(obs: &[f32], side: usize, frames: usize) -> u8 {
         Some(lat) => (REACTIVE_GOAL_GAIN * 10.0 * lat).clamp(-1.0, 1.0),
         None => 0.0,
     };
-    let want = if centre > REACTIVE_NEAR { cruise } else { -REACTIVE_GAIN * (target as f32 - mid) };
+    let gain = REACTIVE_GAIN / scale;
+    let want = if centre > REACTIVE_NEAR { cruise } else { -gain * (target as f32 - mid) };
     let vy = obs[fd + 1];
     u8::from(want > vy)
 }
 
-/// The nearest depth of each column of one depth frame (`side`² pixels)
-/// over its middle rows (10 to 21 of 32): the clearance ahead per
+/// The nearest depth of each column of one depth frame (`depth`: rows,
+/// columns) over its middle rows (10 to 21 of 32): the clearance ahead per
 /// direction, as the reactive rule reads it.
-pub fn nearest_per_column(frame: &[f32], side: usize) -> Vec<f32> {
-    let rows = (side * 10 / 32)..(side * 22 / 32).max(side * 10 / 32 + 1);
-    (0..side)
-        .map(|c| rows.clone().map(|r| frame[r * side + c]).fold(f32::INFINITY, f32::min))
+pub fn nearest_per_column(frame: &[f32], [height, width]: [usize; 2]) -> Vec<f32> {
+    let rows = (height * 10 / 32)..(height * 22 / 32).max(height * 10 / 32 + 1);
+    (0..width)
+        .map(|c| rows.clone().map(|r| frame[r * width + c]).fold(f32::INFINITY, f32::min))
         .collect()
 }
 
@@ -236,7 +247,8 @@ pub fn fly_logged(
     }
     let mut result: Vec<Option<(f32, Done)>> = vec![None; n];
     let max_steps = env.config().max_steps;
-    let (obs_len, side, frames) = (env.obs_len(), env.config().camera.side, env.config().frames);
+    let (obs_len, depth, frames) =
+        (env.obs_len(), env.config().camera.observed_depth(), env.config().frames);
     let mut planner = match pilot {
         Pilot::Planner(sight) => Some(Planner::new(&env, sight)),
         _ => None,
@@ -254,7 +266,7 @@ pub fn fly_logged(
         let actions = match (planner.as_mut(), pilot) {
             (Some(p), _) => p.actions(&env, &active),
             (None, Pilot::Net(net)) => net.greedy(env.observations(), &mut state)?,
-            (None, _) => pilot.act(env.observations(), obs_len, side, frames)?,
+            (None, _) => pilot.act(env.observations(), obs_len, depth, frames)?,
         };
         if let Some(r) = recorder.as_mut() {
             r.before(&env, &active, &actions);
@@ -383,7 +395,7 @@ mod tests {
                 obs[px + r * side + c] = 0.2;
             }
         }
-        assert_eq!(reactive(&obs, side, 2), 0);
+        assert_eq!(reactive(&obs, [side, side], 2), 0);
         // Mirrored: steer the other way.
         let mut obs = vec![1.0; 2 * px + 3];
         for r in 0..side {
@@ -391,11 +403,11 @@ mod tests {
                 obs[px + r * side + c] = 0.2;
             }
         }
-        assert_eq!(reactive(&obs, side, 2), 1);
+        assert_eq!(reactive(&obs, [side, side], 2), 1);
         // All clear and flying sideways: back toward zero lateral speed.
         let mut obs = vec![1.0; 2 * px + 3];
         obs[2 * px + 1] = 0.5;
-        assert_eq!(reactive(&obs, side, 2), 0);
+        assert_eq!(reactive(&obs, [side, side], 2), 0);
     }
 
     #[test]
@@ -413,7 +425,7 @@ mod tests {
         assert_eq!((a.successes, a.collisions), (b.successes, b.collisions));
         assert_eq!(a.mean_reward, b.mean_reward);
         assert!(a.mean_reward.is_finite());
-        let e = Pilot::Net(&net).act(&[0.0; 2051], 2051, 32, 2).unwrap_err().to_string();
+        let e = Pilot::Net(&net).act(&[0.0; 2051], 2051, [32, 32], 2).unwrap_err().to_string();
         assert!(e.contains("state"), "{e}");
     }
 

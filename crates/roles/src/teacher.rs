@@ -14,7 +14,7 @@ use rand_pcg::Pcg64Mcg;
 use rotorhive_msg::{NO_EXPERT, TeacherCounts, Telemetry, label_of_mask};
 use rotorhive_sim::{Planner, VecEnv};
 
-pub use crate::config::{TeacherLabels, TeacherLoss, TeacherPolicy, TeacherSection, TeacherSight};
+pub use crate::config::{TeacherLabels, TeacherLoss, TeacherPolicy, TeacherSection};
 
 /// Nanoseconds since `t`.
 fn elapsed(t: Instant) -> u64 {

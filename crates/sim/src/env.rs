@@ -18,8 +18,8 @@ use crate::flight::{Body, Drone, Flight, Geometry};
 use crate::goal::{Goal, Progress};
 use crate::rapier_flight::RapierFlight;
 use crate::realism::{PixelNoise, WIND_DRAG};
-use crate::render::cpu::{DepthRenderer, Scene};
 use crate::render::wgpu::{GpuDepthRenderer, GpuError};
+use crate::render::{DepthRenderer, Scene};
 
 /// Why an episode ended: the done codes every process shares (one type,
 /// `rotorhive_msg::DoneKind`, so the codes cannot drift apart).
@@ -133,6 +133,8 @@ pub struct VecEnv {
     returns: Vec<f32>,
     /// Current depth frame per agent, `N × side²`.
     cur: Vec<f32>,
+    /// The frames as rendered, before the camera's min-pool (without one: empty).
+    rendered: Vec<f32>,
     /// The earlier depth frames per agent, `N × (frames − 1) × side²`,
     /// oldest first (with two frames: the previous one).
     past: Vec<f32>,
@@ -183,7 +185,7 @@ impl VecEnv {
         assert!(cfg.agents > 0, "a VecEnv needs at least one agent");
         let World { flight, physics, scene, gpu } = World::new(&cfg, &arena, &lane_bounds, 0.0)?;
         let n = cfg.agents;
-        let px = cfg.camera.side * cfg.camera.side;
+        let px = cfg.camera.observed().pixels();
         assert!(
             cfg.frames >= 1 && cfg.frame_stride >= 1,
             "an observation holds at least one frame"
@@ -213,6 +215,7 @@ impl VecEnv {
             steps: vec![0; n],
             returns: vec![0.0; n],
             cur: vec![0.0; n * px],
+            rendered: Vec::new(),
             past: vec![0.0; n * (cfg.frames - 1) * cfg.frame_stride * px],
             obs: vec![0.0; n * obs_len],
             rewards: vec![0.0; n],
@@ -257,9 +260,9 @@ impl VecEnv {
         self.cfg.frames * self.px() + self.cfg.shapes().scalars
     }
 
-    /// Pixels in one depth frame.
+    /// Pixels in one depth frame as observed (after the camera's min-pool).
     fn px(&self) -> usize {
-        self.cfg.camera.side * self.cfg.camera.side
+        self.cfg.camera.observed().pixels()
     }
 
     /// Earlier frames kept per agent: `(frames − 1) × frame_stride`, the

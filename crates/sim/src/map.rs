@@ -17,7 +17,7 @@ use std::f32::consts::TAU;
 
 use rapier3d::math::Vector;
 
-use crate::render::cpu::{CameraPose, CameraSpec};
+use crate::render::{CameraPose, CameraSpec};
 
 /// How the map enters the observation (`sim.map.encoding`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
@@ -273,7 +273,7 @@ impl Maps {
         }
     }
 
-    /// Agent `i`'s map takes its frame `depth` (normalised, `spec.side²`,
+    /// Agent `i`'s map takes its frame `depth` (normalised, `spec`'s pixels,
     /// as the agent observes it) seen from `cam`.
     pub(crate) fn integrate(
         &mut self,
@@ -288,7 +288,7 @@ impl Maps {
         sight.integrate(&geo, cells, &mut self.clock[i], depth, spec, cam);
     }
 
-    /// Every agent's map takes its frame (`frames`: `agents × side²`),
+    /// Every agent's map takes its frame (`frames`: `agents` of `spec`'s),
     /// seen from `cams[i]`, on `pool`'s threads.
     pub(crate) fn integrate_all(
         &mut self,
@@ -299,7 +299,7 @@ impl Maps {
     ) {
         const CHUNK: usize = 16;
         let n = self.nx * self.ny;
-        let px = spec.side * spec.side;
+        let px = spec.pixels();
         let sight = self.sight();
         let (x0, nx, ny, cell, lanes) = (self.x0, self.nx, self.ny, self.spec.cell_m, &self.lane);
         let work = |(k, (cells, clock)): (usize, (&mut [u8], &mut [u32]))| {
@@ -515,12 +515,11 @@ impl Sight {
         spec: &CameraSpec,
         cam: &CameraPose,
     ) {
-        let side = spec.side;
-        let band = self.band;
+        let (cols, height, band) = (spec.width, spec.height, self.band);
         let (rows, first) =
-            if band == 0 || band >= side { (side, 0) } else { (band, (side - band) / 2) };
-        let tan = (spec.fov_deg.to_radians() / 2.0).tan();
-        let half = side as f32 / 2.0;
+            if band == 0 || band >= height { (height, 0) } else { (band, (height - band) / 2) };
+        let (tan_u, tan_v) = (spec.tan_h(), spec.tan_v());
+        let (half_u, half_v) = (cols as f32 / 2.0, height as f32 / 2.0);
         let (fwd, left, up) =
             (cam.rotation * Vector::X, cam.rotation * Vector::Y, cam.rotation * Vector::Z);
         let o = cam.position;
@@ -530,21 +529,21 @@ impl Sight {
         let nearest = |u: usize| -> Option<(Vector, bool)> {
             let mut best: Option<(f32, usize)> = None;
             for v in first..first + rows {
-                let d = depth[v * side + u];
+                let d = depth[v * cols + u];
                 if d > 0.0 && best.is_none_or(|(b, _)| d < b) {
                     best = Some((d, v));
                 }
             }
             let (d, v) = best?;
-            let su = (u as f32 + 0.5 - half) / half * tan;
-            let sv = (half - v as f32 - 0.5) / half * tan;
+            let su = (u as f32 + 0.5 - half_u) / half_u * tan_u;
+            let sv = (half_v - v as f32 - 0.5) / half_v * tan_v;
             let dir = fwd - left * su + up * sv;
             Some((o + dir * (d.min(1.0) * spec.range), d < 1.0))
         };
         // At most 64 columns' ends kept on the stack; wider frames
         // compute the rest again.
         let mut ends = [None; 64];
-        for u in 0..side {
+        for u in 0..cols {
             let end = nearest(u);
             if let Some((end, met)) = end {
                 cross(geo, cells, self.keep, o, end, met, self.reach);
@@ -555,7 +554,7 @@ impl Sight {
         }
         // Hits after every crossing of the frame: a ray of this frame never
         // clears what another of this frame met.
-        for u in 0..side {
+        for u in 0..cols {
             let end = if u < ends.len() { ends[u] } else { nearest(u) };
             let Some((end, true)) = end else { continue };
             if end.z <= FACE || end.z >= self.height - FACE {

@@ -66,8 +66,12 @@ struct Plan {
     through: bool,
 }
 
-/// What the planner knows.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// What the planner knows: one type for the planner, `teacher.sight` and
+/// `hive eval --sight` (written and read by its [`Sight::name`]; the
+/// memory of [`Sight::ViewMemory`] and [`Sight::PixelsMemory`] is another
+/// key, `teacher.memory_s` or `--memory-s`: see [`Sight::with_memory`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(try_from = "String", into = "String")]
 pub enum Sight {
     /// Every obstacle, and where each moving one will be.
     All,
@@ -113,9 +117,99 @@ pub enum Sight {
 }
 
 impl Sight {
+    /// Every sight (the memories the whole episode), in the order the
+    /// command line lists them.
+    pub const EVERY: [Sight; 8] = [
+        Sight::All,
+        Sight::View,
+        Sight::ViewVelocity,
+        Sight::ViewTrack,
+        Sight::ViewMemory(None),
+        Sight::Pixels,
+        Sight::PixelsMemory(None),
+        Sight::Map,
+    ];
+
+    /// Its name in configs, on the command line and in JSON.
+    pub fn name(self) -> &'static str {
+        match self {
+            Sight::All => "all",
+            Sight::View => "view",
+            Sight::ViewVelocity => "view-velocity",
+            Sight::ViewTrack => "view-track",
+            Sight::ViewMemory(_) => "view-memory",
+            Sight::Pixels => "pixels",
+            Sight::PixelsMemory(_) => "pixels-memory",
+            Sight::Map => "map",
+        }
+    }
+
+    /// What it knows, in a few words (for logs and `--help`).
+    pub fn what(self) -> &'static str {
+        match self {
+            Sight::All => "every obstacle's motion",
+            Sight::View => "what the camera shows, with the movers' future",
+            Sight::ViewVelocity => "what the camera shows, the movers' velocity kept 3 s",
+            Sight::ViewTrack => "what the camera shows, each mover over its whole track",
+            Sight::ViewMemory(_) => {
+                "what the camera shows, each mover known once watched for half its cycle"
+            }
+            Sight::Pixels => "what the pixels show now",
+            Sight::PixelsMemory(_) => "what the pixels showed this episode",
+            Sight::Map => "what the camera's map holds",
+        }
+    }
+
+    /// Whether it remembers (takes a memory in seconds).
+    pub fn remembers(self) -> bool {
+        matches!(self, Sight::ViewMemory(_) | Sight::PixelsMemory(_))
+    }
+
     /// Whether the planner knows only what the pixels show.
-    fn pixels(self) -> bool {
+    pub fn pixels(self) -> bool {
         matches!(self, Sight::Pixels | Sight::PixelsMemory(_))
+    }
+
+    /// The same sight remembering `memory_s` seconds (`None`: the whole
+    /// episode); a sight that does not remember is returned as it is.
+    pub fn with_memory(self, memory_s: Option<u16>) -> Self {
+        match self {
+            Sight::ViewMemory(_) => Sight::ViewMemory(memory_s),
+            Sight::PixelsMemory(_) => Sight::PixelsMemory(memory_s),
+            other => other,
+        }
+    }
+}
+
+impl std::str::FromStr for Sight {
+    type Err = String;
+
+    /// A sight by its [`Sight::name`] (a memory the whole episode).
+    fn from_str(s: &str) -> Result<Self, String> {
+        Sight::EVERY.into_iter().find(|k| k.name() == s).ok_or_else(|| {
+            let names: Vec<&str> = Sight::EVERY.iter().map(|k| k.name()).collect();
+            format!("unknown sight `{s}` (one of {})", names.join(", "))
+        })
+    }
+}
+
+impl TryFrom<String> for Sight {
+    type Error = String;
+
+    fn try_from(s: String) -> Result<Self, String> {
+        s.parse()
+    }
+}
+
+impl From<Sight> for String {
+    fn from(s: Sight) -> Self {
+        s.name().to_string()
+    }
+}
+
+impl std::fmt::Display for Sight {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
     }
 }
 
@@ -500,7 +594,7 @@ fn nearby(p: Vector, now: &crate::Obstacle) -> bool {
 /// [`NEARBY`].
 fn in_sight(env: &VecEnv, p: Vector, ahead: Vector, now: &crate::Obstacle) -> bool {
     let cfg = env.config();
-    let half_fov = (cfg.camera.fov_deg / 2.0).to_radians();
+    let half_fov = (cfg.camera.hfov_deg / 2.0).to_radians();
     let (lo, hi) = now.aabb();
     let reach = 0.5 * (hi[0] - lo[0]).hypot(hi[1] - lo[1]);
     let c = now.center();

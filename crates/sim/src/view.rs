@@ -264,7 +264,7 @@ pub fn draw(env: &VecEnv, tracks: &Tracks, focus: Focus<'_>, canvas: &mut Canvas
             canvas.disk(px, py, r, mark, TOP);
         }
     }
-    depth_panel(canvas, focus, env.config().camera.side);
+    depth_panel(canvas, focus, env.config().camera.observed_depth());
 }
 
 fn top_view(
@@ -303,17 +303,20 @@ fn top_view(
     }
 }
 
-fn depth_panel(canvas: &mut Canvas, focus: Focus<'_>, side: usize) {
+/// The panel beside the arena: the last two depth frames (of `rows` x
+/// `cols` pixels), then the actions' bars.
+fn depth_panel(canvas: &mut Canvas, focus: Focus<'_>, [rows, cols]: [usize; 2]) {
     canvas.rect(TOP as i32, 0, WIDTH as i32, HEIGHT as i32, PANEL, WIDTH);
-    let px = side * side;
-    let zoom = ((WIDTH - TOP - 24) / 2 / side.max(1)).max(1);
+    let px = rows * cols;
+    // Two frames side by side across the panel, and no taller than it.
+    let zoom = ((WIDTH - TOP - 24) / 2 / cols.max(1)).min(140 / rows.max(1)).max(1);
     if px > 0 && focus.depth.len().is_multiple_of(px) {
         let last_two = focus.depth.len().saturating_sub(2 * px);
         for (k, frame) in focus.depth[last_two..].chunks_exact(px).enumerate() {
-            let ox = TOP + 8 + k * (side * zoom + 8);
+            let ox = TOP + 8 + k * (cols * zoom + 8);
             for (j, d) in frame.iter().enumerate() {
                 let g = GREY + (d.clamp(0.0, 1.0) * 63.0).round() as u8;
-                let (u, v) = (j % side, j / side);
+                let (u, v) = (j % cols, j / cols);
                 canvas.rect(
                     (ox + u * zoom) as i32,
                     (12 + v * zoom) as i32,
@@ -327,7 +330,7 @@ fn depth_panel(canvas: &mut Canvas, focus: Focus<'_>, side: usize) {
     }
     // The actions (left, right, hold) as bars: heights from the Q-values
     // (their range scaled to the panel), or equal without a policy.
-    let base = (24 + side * zoom + 80) as i32;
+    let base = (24 + rows * zoom + 80) as i32;
     let heights: Vec<f32> = match focus.q {
         Some(q) if q.iter().all(|v| v.is_finite()) => {
             let lo = q.iter().copied().fold(f32::INFINITY, f32::min);

@@ -343,9 +343,9 @@ fn lanes_put_arenas_side_by_side_and_keep_them_apart() {
         position: rapier3d::math::Vector::new(50.0, lanes.offsets[0], 4.0),
         rotation: rapier3d::math::Rotation::from_rotation_z(std::f32::consts::FRAC_PI_2),
     };
-    let mut img = vec![0.0; spec.side * spec.side];
+    let mut img = vec![0.0; spec.pixels()];
     DepthRenderer::new(spec, 1).render(&scene, &[cam], 0, None, &mut img);
-    let centre = img[(spec.side / 2) * spec.side + spec.side / 2] * spec.range;
+    let centre = img[(spec.height / 2) * spec.width + spec.width / 2] * spec.range;
     assert!((centre - 10.0).abs() < 0.01, "sideways depth {centre}");
     // Lengths must agree.
     assert!(Lanes::new(&[a, open_arena(90.0, vec![])]).is_err());

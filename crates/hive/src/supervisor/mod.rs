@@ -11,6 +11,7 @@ mod evaluator;
 mod launcher;
 mod monitor;
 mod records;
+mod setup;
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -29,6 +30,7 @@ use rotorhive_transport::Service;
 use rotorhive_transport::{
     Channel, Hub, Ipc, Local, Receiver, cleanup_dead_nodes, services_of_run,
 };
+use setup::{replay_fits, resolve_config, resolve_paths, sizing_json, sizing_line};
 
 use crate::role_cmd::ConfigArgs;
 use board::Board;
@@ -81,6 +83,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
         a.link.check_listen(ep)?;
     }
     let mut cfg = resolve_config(&a)?;
+    replay_fits(&cfg)?;
     let run_dir = a
         .resume
         .clone()
@@ -163,69 +166,6 @@ impl TrainArgs {
     }
 }
 
-/// The run's config: the given file (or, with `--resume`, the run's own)
-/// plus `--set` and `--max-seconds`, with its arena checked.
-fn resolve_config(a: &TrainArgs) -> Result<Config> {
-    let mut sets = a.cfg.set.clone();
-    sets.extend(a.cores.map(|n| format!("cores={n}")));
-    let mut cfg = match &a.resume {
-        Some(dir) => {
-            if a.cfg.config.is_some() {
-                bail!(
-                    "--resume takes the config of the run it continues; drop the CONFIG argument (use --set to change keys)"
-                );
-            }
-            let state = dir.join("checkpoints/learner-state.safetensors");
-            if !state.exists() {
-                bail!(
-                    "--resume {}: no learner state ({}) to continue from",
-                    dir.display(),
-                    state.display()
-                );
-            }
-            Config::load(Some(&dir.join("config.toml")), &sets)
-                .with_context(|| format!("--resume {}", dir.display()))?
-        }
-        None => Config::load(a.cfg.config.as_deref(), &sets)?,
-    };
-    if let Some(s) = a.max_seconds {
-        if !(s.is_finite() && s > 0.0) {
-            bail!("--max-seconds must be positive, got {s}");
-        }
-        cfg.max_seconds = s;
-    }
-    // Fail on a bad arena or generator before anything starts.
-    if !cfg.sim.arena.as_os_str().is_empty() {
-        cfg.arena()?;
-    }
-    cfg.gen_params()?;
-    Ok(cfg)
-}
-
-/// Roles read the arenas relative to their working directory: resolve them.
-fn resolve_paths(cfg: &mut Config) -> Result<()> {
-    if !cfg.sim.arena.as_os_str().is_empty() {
-        cfg.sim.arena = cfg
-            .sim
-            .arena
-            .canonicalize()
-            .with_context(|| format!("arena {}", cfg.sim.arena.display()))?;
-    }
-    for t in &mut cfg.eval.test_arenas {
-        *t =
-            t.canonicalize().with_context(|| format!("key `eval.test_arenas`: {}", t.display()))?;
-    }
-    if !cfg.eval.arena.is_empty() {
-        cfg.eval.arena = Path::new(&cfg.eval.arena)
-            .canonicalize()
-            .with_context(|| format!("key `eval.arena`: {}", cfg.eval.arena))?
-            .display()
-            .to_string();
-        cfg.eval_arenas()?;
-    }
-    Ok(())
-}
-
 /// Listens on `ep` and waits for `cluster.workers` worker hosts; their
 /// environments and agents go into `cfg.cluster`.
 fn gather_workers(
@@ -270,33 +210,6 @@ fn gather_workers(
         ));
     }
     Ok(head)
-}
-
-/// The run's sizing as `hive train` prints it at the start.
-fn sizing_line(cfg: &Config) -> String {
-    let s = cfg.sizing();
-    let sized = if cfg.sized.is_empty() {
-        "all set by the config".to_string()
-    } else {
-        format!("sized: {}", cfg.sized.join(", "))
-    };
-    format!(
-        "sizing: {} cores (of {}): {} environment(s) of {} agents, {} render thread(s) each, {} actor thread(s) each, {} learner thread(s) ({sized})",
-        s.cores,
-        s.cores_available,
-        s.envs,
-        cfg.sim.agents,
-        s.render_threads,
-        s.actor_threads,
-        s.learner_threads,
-    )
-}
-
-/// The run's sizing as `summary.json` holds it, with the keys it filled.
-fn sizing_json(cfg: &Config) -> Option<serde_json::Value> {
-    let mut v = serde_json::to_value(cfg.sizing()).ok()?;
-    v["sized"] = serde_json::json!(cfg.sized);
-    Some(v)
 }
 
 /// Prints a line to stdout; a closed terminal (SIGHUP) makes this fail, which

@@ -10,7 +10,9 @@ fields from depth images, as Gymnasium environments.
 
 ``rotorhive/Navigate-v0`` is a native vector environment (N drones of one
 simulator, stepped in Rust with the GIL released); ``rotorhive/NavigateSingle-v0``
-is one drone. `rotorhive.net` loads `hive train` checkpoints (numpy, PyTorch),
+is one drone. `rotorhive.PolicyNetwork` is the Rust network (feedforward or
+with memory; `QNetwork` and `RecurrentQNetwork` its names before);
+`rotorhive.net` loads `hive train` checkpoints (numpy, PyTorch),
 `rotorhive.sb3` adapts the vector environment to Stable-Baselines3,
 `rotorhive.export` writes a checkpoint as ONNX, and
 `python -m rotorhive.bench` measures agent-steps per second. Both
@@ -20,7 +22,8 @@ environments take ``render_mode="rgb_array"`` (Gymnasium's ``RecordVideo``).
 import gymnasium as _gym
 
 from . import _rotorhive
-from ._rotorhive import OBS_LEN, QNetwork, RecurrentQNetwork
+from ._rotorhive import OBS_LEN, PolicyNetwork
+from .net import QNetwork, RecurrentQNetwork
 from .envs import COLLISION, DONE_NAMES, GOAL, LEVELS, RUNNING, TIMEOUT, NavigateEnv, NavigateVectorEnv, sim_keys
 
 __version__ = _rotorhive.__version__
@@ -35,6 +38,7 @@ __all__ = [
     "NavigateEnv",
     "NavigateVectorEnv",
     "LEVELS",
+    "PolicyNetwork",
     "QNetwork",
     "RecurrentQNetwork",
     "sim_keys",

@@ -104,10 +104,10 @@ def _check_render_mode(render_mode: str | None) -> None:
         raise ValueError(f"render_mode {render_mode!r} is not supported: only 'rgb_array' (or None)")
 
 
-def _spaces(side: int, goal: bool, frames: int = 2, map_floats: int = 0) -> spaces.Dict:
+def _spaces(depth: tuple[int, int], goal: bool, frames: int = 2, map_floats: int = 0) -> spaces.Dict:
     parts = {
         # The depth frames, oldest first (``sim.frames``; 2: previous, current).
-        "depth": spaces.Box(0.0, 1.0, (frames, side, side), np.float32),
+        "depth": spaces.Box(0.0, 1.0, (frames, *depth), np.float32),
         "velocity": spaces.Box(-np.inf, np.inf, (3,), np.float32),
     }
     if goal:
@@ -124,8 +124,8 @@ def _spaces(side: int, goal: bool, frames: int = 2, map_floats: int = 0) -> spac
 class _Buffers:
     """The arrays the simulator writes into, owned by the environment."""
 
-    def __init__(self, n: int, side: int, goal: bool = False, frames: int = 2, map_floats: int = 0) -> None:
-        self.depth = np.zeros((n, frames, side, side), np.float32)
+    def __init__(self, n: int, depth: tuple[int, int], goal: bool = False, frames: int = 2, map_floats: int = 0) -> None:
+        self.depth = np.zeros((n, frames, *depth), np.float32)
         self.velocity = np.zeros((n, 3), np.float32)
         self.goal = np.zeros((n, 3), np.float32) if goal else None
         self.map = np.zeros((n, map_floats), np.float32) if map_floats else None
@@ -215,11 +215,11 @@ class NavigateVectorEnv(VectorEnv):
         self.num_envs = n
         self.copy = bool(copy)
         self.render_mode = render_mode
-        self.single_observation_space = _spaces(self._sim.side, self._sim.has_goal, self._sim.frames, self._sim.map_floats)
+        self.single_observation_space = _spaces(self._sim.depth_shape, self._sim.has_goal, self._sim.frames, self._sim.map_floats)
         self.single_action_space = spaces.Discrete(self._sim.num_actions)
         self.observation_space = batch_space(self.single_observation_space, n)
         self.action_space = batch_space(self.single_action_space, n)
-        self._b = _Buffers(n, self._sim.side, self._sim.has_goal, self._sim.frames, self._sim.map_floats)
+        self._b = _Buffers(n, self._sim.depth_shape, self._sim.has_goal, self._sim.frames, self._sim.map_floats)
         # Agents whose episode ended and that have not started the next one.
         self._ended = np.zeros(n, np.bool_)
         self._needs_reset = True
@@ -356,9 +356,9 @@ class NavigateEnv(gym.Env):
         _check_render_mode(render_mode)
         self._sim = _rotorhive.Sim(1, seed, _arena(arena), arena_seed, _overrides("rotorhive/NavigateSingle-v0", sim), _level(level))
         self.render_mode = render_mode
-        self.observation_space = _spaces(self._sim.side, self._sim.has_goal, self._sim.frames, self._sim.map_floats)
+        self.observation_space = _spaces(self._sim.depth_shape, self._sim.has_goal, self._sim.frames, self._sim.map_floats)
         self.action_space = spaces.Discrete(self._sim.num_actions)
-        self._b = _Buffers(1, self._sim.side, self._sim.has_goal, self._sim.frames, self._sim.map_floats)
+        self._b = _Buffers(1, self._sim.depth_shape, self._sim.has_goal, self._sim.frames, self._sim.map_floats)
         self._a = np.zeros(1, np.uint8)
         self._needs_reset = True
 

@@ -21,16 +21,15 @@ from __future__ import annotations
 import argparse
 import os
 
-from ._rotorhive import QNetwork, RecurrentQNetwork, checkpoint_width
+from ._rotorhive import PolicyNetwork
 
 
 def export_onnx(checkpoint: str | os.PathLike, out: str | os.PathLike) -> str:
     """Writes the checkpoint's network to ``out`` as ONNX; returns the path.
     A missing, truncated or mismatched checkpoint raises ValueError naming it."""
     path = os.fspath(checkpoint)
-    # A checkpoint whose header names a memory holds a recurrent network.
-    net = RecurrentQNetwork.load(path) if checkpoint_width(path) else QNetwork.load(path)
-    net.to_onnx(os.fspath(out))
+    # The checkpoint's header names its network (a memory: the recurrent one).
+    PolicyNetwork.load(path).to_onnx(os.fspath(out))
     return os.fspath(out)
 
 

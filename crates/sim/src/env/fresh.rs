@@ -21,7 +21,7 @@ use std::time::Instant;
 
 use crate::arena::{Arena, ArenaError, Lanes};
 use crate::flight::Geometry;
-use crate::render::cpu::Scene;
+use crate::render::Scene;
 
 /// The arena of renewal number `n` (0, 1, …): a layout never trained on
 /// before (the caller's seeds keep it off every held-out one).

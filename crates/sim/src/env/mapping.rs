@@ -7,7 +7,7 @@ use super::VecEnv;
 use crate::SimConfig;
 use crate::arena::Arena;
 use crate::map::Maps;
-use crate::render::cpu::CameraPose;
+use crate::render::CameraPose;
 
 /// Every agent's map for a world of `arena` with lanes `bounds`, where the
 /// config has one.
@@ -26,7 +26,9 @@ impl VecEnv {
         if self.maps.is_none() {
             return;
         }
-        let spec = self.cfg.camera;
+        // The map reads the frames as observed: the camera's view at the
+        // pooled size.
+        let spec = self.cfg.camera.observed();
         match who {
             Some(who) => {
                 let px = self.px();

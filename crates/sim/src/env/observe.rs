@@ -9,9 +9,9 @@ use rand_pcg::Pcg64Mcg;
 
 use super::{Autoreset, Done, VecEnv};
 use crate::goal::Goal;
-use crate::render::cpu::Drones;
-use crate::render::cpu::{CameraPose, CameraSpec};
+use crate::render::camera::min_pool;
 use crate::render::wgpu::GpuError;
+use crate::render::{CameraPose, CameraSpec, Drones};
 
 /// Agents per piece of observation writing handed to a pool thread.
 const OBS_CHUNK: usize = 16;
@@ -36,12 +36,19 @@ impl VecEnv {
     /// [`SimConfig::sight_rays`](crate::SimConfig::sight_rays), that many
     /// rays a side instead of the camera's pixels.
     pub fn visible_obstacles(&self, i: usize) -> Vec<usize> {
-        let rays = self.cfg.sight_rays;
-        let spec = CameraSpec {
-            side: if rays > 0 { rays } else { self.cfg.camera.side },
-            ..self.cfg.camera
-        };
-        self.scene.visible(&spec, &self.camera_at(i))
+        self.scene.visible(&self.sight_camera(), &self.camera_at(i))
+    }
+
+    /// The camera a planner of the pixels casts its rays with: the observed
+    /// one, or [`SimConfig::sight_rays`](crate::SimConfig::sight_rays)
+    /// columns (and as many rows as the aspect gives) of the same view.
+    fn sight_camera(&self) -> CameraSpec {
+        let (spec, rays) = (self.cfg.camera.observed(), self.cfg.sight_rays);
+        if rays == 0 {
+            return spec;
+        }
+        let rows = (rays * spec.height).div_ceil(spec.width).max(1);
+        CameraSpec { width: rays, height: rows, ..spec }
     }
 
     /// How many physics steps back agent `i`'s camera sees (its latency,
@@ -79,23 +86,42 @@ impl VecEnv {
             .cfg
             .interactive
             .then_some(Drones { positions: &positions, radius: self.cfg.drone_radius });
-        let px = self.cfg.camera.side * self.cfg.camera.side;
-        match (&mut self.gpu, self.cfg.batched) {
-            (Some(g), true) => g.render(&cams, &self.agent_ids, drones, &mut self.cur)?,
-            (None, true) => self.renderer.render(&self.scene, &cams, 0, drones, &mut self.cur),
+        let (spec, px) = (self.cfg.camera, self.cfg.camera.pixels());
+        // The renderers draw into the frames themselves, or with a min-pool
+        // into the rendered frames first.
+        let pooled = spec.pool > 1;
+        let mut out = if pooled {
+            let mut r = std::mem::take(&mut self.rendered);
+            r.resize(cams.len() * px, 0.0);
+            r
+        } else {
+            std::mem::take(&mut self.cur)
+        };
+        let drawn = match (&mut self.gpu, self.cfg.batched) {
+            (Some(g), true) => g.render(&cams, &self.agent_ids, drones, &mut out),
+            (None, true) => {
+                self.renderer.render(&self.scene, &cams, 0, drones, &mut out);
+                Ok(())
+            }
             // Non-batched: one request, one submission and one
             // synchronisation per agent.
-            (Some(g), false) => {
-                for (i, img) in self.cur.chunks_mut(px).enumerate() {
-                    g.render(&cams[i..i + 1], &self.agent_ids[i..i + 1], drones, img)?;
-                }
-            }
+            (Some(g), false) => out.chunks_mut(px).enumerate().try_for_each(|(i, img)| {
+                g.render(&cams[i..i + 1], &self.agent_ids[i..i + 1], drones, img)
+            }),
             (None, false) => {
-                for (i, img) in self.cur.chunks_mut(px).enumerate() {
+                for (i, img) in out.chunks_mut(px).enumerate() {
                     self.renderer.render(&self.scene, &cams[i..i + 1], i, drones, img);
                 }
+                Ok(())
             }
+        };
+        if pooled {
+            min_pool(&spec, &out, &mut self.cur);
+            self.rendered = out;
+        } else {
+            self.cur = out;
         }
+        drawn?;
         self.pixel_noise.apply(&self.cfg.noise, self.cfg.camera.range, &mut self.cur);
         Ok(())
     }
@@ -129,9 +155,26 @@ impl VecEnv {
     }
 
     /// Draws the views of agents `who` from `cams` (one each) into `img`
-    /// (`who.len() × side²`), in one render call, without noise: the
-    /// obstacles where the scene has them now.
+    /// (`who.len()` observed frames), in one render call, without noise:
+    /// the obstacles where the scene has them now.
     fn render_some(
+        &mut self,
+        who: &[usize],
+        cams: &[CameraPose],
+        img: &mut [f32],
+    ) -> Result<(), GpuError> {
+        let spec = self.cfg.camera;
+        if spec.pool > 1 {
+            let mut rendered = vec![0.0; who.len() * spec.pixels()];
+            self.draw_some(who, cams, &mut rendered)?;
+            min_pool(&spec, &rendered, img);
+            return Ok(());
+        }
+        self.draw_some(who, cams, img)
+    }
+
+    /// [`VecEnv::render_some`] at the rendered size, before the min-pool.
+    fn draw_some(
         &mut self,
         who: &[usize],
         cams: &[CameraPose],

@@ -5,7 +5,7 @@ use crate::arena::ArenaError;
 use crate::dynamics::{Gains, QuadParams};
 use crate::goal::Goal;
 use crate::realism::{Noise, Randomize};
-use crate::render::cpu::CameraSpec;
+use crate::render::CameraSpec;
 use crate::render::wgpu::GpuError;
 use rotorhive_msg::DoneKind as Done;
 use rotorhive_msg::Shapes;
@@ -124,7 +124,8 @@ pub struct SimConfig {
     pub frame_stride: usize,
     /// Rays per side that a planner of the pixels (`Sight::Pixels`,
     /// `Sight::PixelsMemory`) casts to learn what the camera shows (0: the
-    /// camera's `side`): what a camera of more or fewer pixels would tell
+    /// observed camera's columns, and as many rows as its aspect gives):
+    /// what a camera of more or fewer pixels would tell
     /// it. The observation keeps the camera's pixels.
     pub sight_rays: usize,
     /// The camera's map in the observation (`[sim.map]`; off by default).
@@ -143,6 +144,7 @@ impl SimConfig {
         Shapes::task(self.frames, self.goal.enabled, self.hold_action)
             .with_stride(self.frame_stride)
             .with_map(self.map.floats())
+            .with_depth(self.camera.observed_depth())
     }
 }
 

@@ -230,3 +230,17 @@ fn a_goal_is_passed_within_its_radius_or_missed() {
     assert_eq!(passes([9.5, 3.0], 1.0, 0.0, &path(0.0)), None);
     assert_eq!(passes([8.5, 3.0], 1.0, 0.0, &path(0.0)), Some(false));
 }
+
+#[test]
+fn every_sight_reads_back_by_its_name_and_takes_a_memory_only_if_it_remembers() {
+    for s in Sight::EVERY {
+        assert_eq!(s.name().parse::<Sight>(), Ok(s));
+        assert_eq!(s.to_string(), s.name());
+        assert_eq!(s.with_memory(Some(5)).remembers(), s.remembers());
+    }
+    assert_eq!(Sight::ViewMemory(None).with_memory(Some(5)), Sight::ViewMemory(Some(5)));
+    assert_eq!(Sight::PixelsMemory(Some(5)).with_memory(None), Sight::PixelsMemory(None));
+    assert_eq!(Sight::View.with_memory(Some(5)), Sight::View);
+    let e = "psychic".parse::<Sight>().unwrap_err();
+    assert!(e.contains("psychic") && e.contains("pixels-memory"), "{e}");
+}

@@ -22,7 +22,8 @@ mod mesh;
 use mesh::{SceneLayout, shape_triangles, sphere_triangles};
 
 use crate::arena::Motion;
-use crate::render::cpu::{CameraPose, CameraSpec, Drones, Scene, frustum_floor_plan};
+use crate::render::camera::frustum_floor_plan;
+use crate::render::{CameraPose, CameraSpec, Drones, Scene};
 
 /// wgpu's error as it came (boxed: wgpu has one type per operation).
 pub type GpuCause = Box<dyn std::error::Error + Send + Sync + 'static>;
@@ -43,11 +44,19 @@ pub enum GpuError {
     /// Reading the rendered depth back failed.
     #[error("reading depth back from the GPU failed: {0}")]
     Readback(GpuCause),
+    /// The cameras of a call do not fit the adapter's largest texture.
+    #[error(
+        "{cameras} cameras of {width} x {height} pixels need an atlas of {need} texels a side; \
+         this adapter takes {limit} (fewer agents per simulator, or a smaller camera)"
+    )]
+    TooLarge { cameras: usize, width: usize, height: usize, need: u32, limit: u32 },
 }
 
-/// Tiles per atlas row: 8 × 32 px × 4 bytes = 1,024 bytes, a multiple of the
-/// 256-byte row alignment copies need.
+/// Tiles per atlas row (the row padded to [`ROW_TEXELS`]).
 const COLS: u32 = 8;
+/// Texels a read-back row is a multiple of: 64 × 4 bytes, the 256-byte row
+/// alignment copies need (8 tiles of 32 pixels fill it exactly).
+const ROW_TEXELS: u32 = 64;
 const NEAR: f32 = 0.02;
 
 #[repr(C)]
@@ -64,16 +73,17 @@ struct GpuCamera {
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 struct Params {
     inv_tan: f32,
+    inv_tan_v: f32,
     near: f32,
     far: f32,
     drones: u32,
     radius: f32,
-    _pad: [f32; 3],
+    _pad: [f32; 2],
 }
 
 const SHADER: &str = r"
 struct Camera { origin: vec3<f32>, agent: u32, fwd: vec4<f32>, right: vec4<f32>, up: vec4<f32> };
-struct Params { inv_tan: f32, near: f32, far: f32, drones: u32, radius: f32, p0: f32, p1: f32, p2: f32 };
+struct Params { inv_tan: f32, inv_tan_v: f32, near: f32, far: f32, drones: u32, radius: f32, p0: f32, p1: f32 };
 @group(0) @binding(0) var<storage, read> cams: array<Camera>;
 @group(0) @binding(1) var<uniform> params: Params;
 @group(0) @binding(2) var<storage, read> drones: array<vec4<f32>>;
@@ -86,7 +96,7 @@ fn project(cam: Camera, p: vec3<f32>) -> VOut {
     let y = dot(d, cam.up.xyz);
     let z = dot(d, cam.fwd.xyz);
     var o: VOut;
-    o.pos = vec4<f32>(x * params.inv_tan, y * params.inv_tan, params.far * (z - params.near) / (params.far - params.near), z);
+    o.pos = vec4<f32>(x * params.inv_tan, y * params.inv_tan_v, params.far * (z - params.near) / (params.far - params.near), z);
     o.depth = z;
     return o;
 }
@@ -379,6 +389,11 @@ impl GpuDepthRenderer {
         self.submissions
     }
 
+    /// Texels of one atlas row: [`COLS`] tiles, padded to [`ROW_TEXELS`].
+    fn atlas_width(&self) -> u32 {
+        (COLS * self.spec.width as u32).next_multiple_of(ROW_TEXELS)
+    }
+
     /// Makes sure the atlas and buffers hold `cameras` cameras and `drones` drones.
     fn ensure_frame(&mut self, cameras: u32, drones: u32) {
         let fits =
@@ -387,11 +402,10 @@ impl GpuDepthRenderer {
             let cameras = cameras.max(self.frame.as_ref().map_or(0, |f| f.cameras));
             let drone_capacity =
                 drones.max(1).max(self.frame.as_ref().map_or(0, |f| f.drone_capacity));
-            let side = self.spec.side as u32;
             let rows = cameras.div_ceil(COLS);
             let size = wgpu::Extent3d {
-                width: COLS * side,
-                height: rows * side,
+                width: self.atlas_width(),
+                height: rows * self.spec.height as u32,
                 depth_or_array_layers: 1,
             };
             let texture = |format, usage, label| {
@@ -426,7 +440,7 @@ impl GpuDepthRenderer {
             };
             let readback = buffer(
                 "readback",
-                u64::from(COLS * side * 4 * rows * side),
+                u64::from(self.atlas_width() * 4 * rows * self.spec.height as u32),
                 wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
             );
             let cams = buffer(
@@ -461,7 +475,8 @@ impl GpuDepthRenderer {
         }
     }
 
-    /// Renders every camera's depth image into `out` (`cameras × side²`,
+    /// Renders every camera's depth image into `out` (`cameras × width ×
+    /// height`,
     /// row-major, top row first, normalised to [0, 1] by the range): one
     /// render pass, one submission, one read-back. `agents[i]` names the
     /// drone camera `i` sits on, so it does not see itself.
@@ -472,14 +487,19 @@ impl GpuDepthRenderer {
         drones: Option<Drones<'_>>,
         out: &mut [f32],
     ) -> Result<(), GpuError> {
-        let side = self.spec.side;
-        let px = side * side;
+        let px = self.spec.pixels();
         assert_eq!(out.len(), cameras.len() * px, "depth buffer has the wrong size");
         assert_eq!(agents.len(), cameras.len(), "one agent index per camera");
         if cameras.is_empty() {
             return Ok(());
         }
         let n = cameras.len() as u32;
+        let need = self.atlas_width().max(n.div_ceil(COLS) * self.spec.height as u32);
+        let limit = self.device.limits().max_texture_dimension_2d;
+        if need > limit {
+            let (width, height) = (self.spec.width, self.spec.height);
+            return Err(GpuError::TooLarge { cameras: cameras.len(), width, height, need, limit });
+        }
         let nd = self.upload(cameras, agents, drones, n);
         let rows = n.div_ceil(COLS);
         let mut enc = self
@@ -496,7 +516,7 @@ impl GpuDepthRenderer {
     /// frame), with `nd` drones per camera.
     fn draw(&mut self, enc: &mut wgpu::CommandEncoder, cameras: &[CameraPose], nd: u32) {
         let f = self.frame.as_ref().expect("frame");
-        let s = self.spec.side as u32;
+        let (w, h) = (self.spec.width as u32, self.spec.height as u32);
         let n = cameras.len() as u32;
         let color_view = f.color.create_view(&Default::default());
         let depth_view = f.depth.create_view(&Default::default());
@@ -524,17 +544,16 @@ impl GpuDepthRenderer {
             multiview_mask: None,
         });
         pass.set_bind_group(0, &f.bind, &[]);
-        let tan = (self.spec.fov_deg.to_radians() / 2.0).tan();
         for (i, cam) in (0..n).zip(cameras) {
-            let (x, y) = ((i % COLS) * s, (i / COLS) * s);
-            pass.set_viewport(x as f32, y as f32, s as f32, s as f32, 0.0, 1.0);
-            pass.set_scissor_rect(x, y, s, s);
+            let (x, y) = ((i % COLS) * w, (i / COLS) * h);
+            pass.set_viewport(x as f32, y as f32, w as f32, h as f32, 0.0, 1.0);
+            pass.set_scissor_rect(x, y, w, h);
             pass.set_pipeline(&self.scene_pipeline);
             pass.set_vertex_buffer(0, self.scene_vertices.slice(..));
             pass.set_index_buffer(self.scene_indices.slice(..), wgpu::IndexFormat::Uint32);
             pass.draw_indexed(0..self.layout_cull.always, 0, i..i + 1);
             // Only the obstacles the camera's view (to its range) can reach.
-            let (lo, hi) = frustum_floor_plan(cam, tan, self.spec.range);
+            let (lo, hi) = frustum_floor_plan(&self.spec, cam);
             self.layout_cull.visible(lo, hi, &mut self.ranges);
             for r in &self.ranges {
                 pass.draw_indexed(r.clone(), 0, i..i + 1);
@@ -563,8 +582,7 @@ impl GpuDepthRenderer {
     /// read-back buffer.
     fn copy_out(&self, enc: &mut wgpu::CommandEncoder, rows: u32) {
         let f = self.frame.as_ref().expect("frame");
-        let s = self.spec.side as u32;
-        let row_bytes = COLS * s * 4;
+        let (width, h) = (self.atlas_width(), self.spec.height as u32);
         enc.copy_texture_to_buffer(
             wgpu::TexelCopyTextureInfo {
                 texture: &f.color,
@@ -576,11 +594,11 @@ impl GpuDepthRenderer {
                 buffer: &f.readback,
                 layout: wgpu::TexelCopyBufferLayout {
                     offset: 0,
-                    bytes_per_row: Some(row_bytes),
+                    bytes_per_row: Some(width * 4),
                     rows_per_image: None,
                 },
             },
-            wgpu::Extent3d { width: COLS * s, height: rows * s, depth_or_array_layers: 1 },
+            wgpu::Extent3d { width, height: rows * h, depth_or_array_layers: 1 },
         );
     }
 
@@ -606,14 +624,14 @@ impl GpuDepthRenderer {
                 up: v(c.rotation * Vector::Z),
             }
         }));
-        let tan = (self.spec.fov_deg.to_radians() / 2.0).tan();
         let params = Params {
-            inv_tan: 1.0 / tan,
+            inv_tan: 1.0 / self.spec.tan_h(),
+            inv_tan_v: 1.0 / self.spec.tan_v(),
             near: NEAR,
             far: self.spec.range,
             drones: nd.max(1),
             radius: drones.map_or(0.0, |d| d.radius),
-            _pad: [0.0; 3],
+            _pad: [0.0; 2],
         };
         self.ensure_frame(n, nd);
         let f = self.frame.as_ref().expect("frame");
@@ -630,10 +648,9 @@ impl GpuDepthRenderer {
     /// each camera's image into `out`.
     fn read_back(&self, rows: u32, out: &mut [f32]) -> Result<(), GpuError> {
         let f = self.frame.as_ref().expect("frame");
-        let side = self.spec.side;
-        let (px, s) = (side * side, side as u32);
-        let row_bytes = COLS * s * 4;
-        let used = u64::from(row_bytes * rows * s);
+        let (w, h, px) = (self.spec.width, self.spec.height, self.spec.pixels());
+        let stride = self.atlas_width() as usize;
+        let used = (stride * 4 * rows as usize * h) as u64;
         let slice = f.readback.slice(..used);
         let (tx, rx) = mpsc::channel();
         slice.map_async(wgpu::MapMode::Read, move |r| {
@@ -648,12 +665,11 @@ impl GpuDepthRenderer {
         {
             let data = slice.get_mapped_range().map_err(|e| GpuError::Readback(e.into()))?;
             let texels: &[f32] = bytemuck::cast_slice(&data);
-            let stride = (COLS * s) as usize;
             for (i, img) in out.chunks_mut(px).enumerate() {
-                let (x0, y0) = ((i % COLS as usize) * side, (i / COLS as usize) * side);
-                for r in 0..side {
+                let (x0, y0) = ((i % COLS as usize) * w, (i / COLS as usize) * h);
+                for r in 0..h {
                     let at = (y0 + r) * stride + x0;
-                    img[r * side..(r + 1) * side].copy_from_slice(&texels[at..at + side]);
+                    img[r * w..(r + 1) * w].copy_from_slice(&texels[at..at + w]);
                 }
             }
         }

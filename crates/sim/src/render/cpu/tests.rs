@@ -1,5 +1,8 @@
+use rapier3d::math::Rotation;
+
 use super::*;
-use crate::arena::Spawn;
+use crate::arena::{Arena, Obstacle, Spawn};
+use crate::render::scene::{hit_shape, hit_sphere, planes};
 
 fn arena(obstacles: Vec<Obstacle>) -> Arena {
     Arena {
@@ -35,7 +38,7 @@ fn a_camera_in_a_lane_sees_the_same_with_or_without_the_lane_cut() {
             cams.push(CameraPose { position: pos, rotation: Rotation::from_rotation_z(*yaw) });
         }
     }
-    let n = spec.side * spec.side;
+    let n = spec.pixels();
     let (mut a, mut b) = (vec![0.0; cams.len() * n], vec![0.0; cams.len() * n]);
     DepthRenderer::new(spec, 1).render(&full, &cams, 0, None, &mut a);
     DepthRenderer::new(spec, 1).render(&cut, &cams, 0, None, &mut b);
@@ -48,7 +51,7 @@ fn a_camera_in_a_lane_sees_the_same_with_or_without_the_lane_cut() {
 fn render(a: &Arena, cam: CameraPose, spec: CameraSpec) -> Vec<f32> {
     let scene = Scene::new(a);
     let mut r = DepthRenderer::new(spec, 1);
-    let mut out = vec![0.0; spec.side * spec.side];
+    let mut out = vec![0.0; spec.pixels()];
     r.render(&scene, &[cam], 0, None, &mut out);
     out.iter().map(|v| v * spec.range).collect()
 }
@@ -143,8 +146,8 @@ fn brute_force(
     img: &mut [f32],
 ) {
     let view = View::new(spec, cam);
-    for v in 0..view.n {
-        for u in 0..view.n {
+    for v in 0..view.nv {
+        for u in 0..view.nu {
             let d = view.dir(u, v);
             let mut t = view.range.min(planes(
                 [-scene.half_width, scene.half_width],
@@ -162,7 +165,7 @@ fn brute_force(
                     }
                 }
             }
-            img[v * view.n + u] = (t / view.range).clamp(0.0, 1.0);
+            img[v * view.nu + u] = (t / view.range).clamp(0.0, 1.0);
         }
     }
 }
@@ -174,8 +177,12 @@ fn culling_by_projected_rectangles_changes_no_pixel() {
     let scene = Scene::new(&a);
     let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(5);
     let mut seen = 0;
-    for spec in [CameraSpec::default(), CameraSpec { side: 17, fov_deg: 70.0, range: 35.0 }] {
-        let px = spec.side * spec.side;
+    for spec in [
+        CameraSpec::default(),
+        CameraSpec::square(17, 70.0, 35.0),
+        CameraSpec { width: 40, height: 18, hfov_deg: 100.0, range: 25.0, pool: 1 },
+    ] {
+        let px = spec.pixels();
         let positions: Vec<Vector> = (0..60)
             .map(|_| {
                 Vector::new(

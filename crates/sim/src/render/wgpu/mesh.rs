@@ -2,7 +2,7 @@
 //! out for culling (what every camera draws, then obstacles by band), and
 //! the triangles of each shape and of a drone's sphere.
 
-use crate::render::cpu::{Scene, Shape};
+use crate::render::scene::{Scene, Shape};
 
 /// Facets of a cylinder's side.
 const CYLINDER_FACETS: usize = 24;
