@@ -1,7 +1,10 @@
 //! `hive actor`: paired with one sim. Keeps a local Q-network, picks actions
 //! for all the sim's agents in one batched inference (epsilon-greedy),
 //! assembles transitions straight into shared memory for the replay process,
-//! and picks up newer weights by version.
+//! and picks up newer weights by version. Beside the loop: its exploration
+//! (`exploration.rs`), n-step returns (`nstep.rs`), the non-batched mode's
+//! gathering (`gather.rs`), the policy it acts with (`policy.rs`) and a
+//! recurrent run's stored sequences (`sequences.rs`).
 
 use std::time::Instant;
 
@@ -22,52 +25,6 @@ use rotorhive_transport::{Receiver, Sender};
 use crate::config::Config;
 use crate::ctx::{Counters, Ctx, POLL, STALL_TIMEOUT, episodes_channel, roles_of};
 use crate::schedule::Schedule;
-
-/// Exploration rate after `transitions` (across all actors): constant until
-/// the replay memory is full, then linear decay.
-pub fn epsilon(cfg: &Config, transitions: u64) -> f64 {
-    let a = &cfg.actor;
-    let start = cfg.replay.min_fill as u64;
-    if transitions <= start {
-        return a.eps_start;
-    }
-    let frac = ((transitions - start) as f64 / a.eps_decay.max(1) as f64).min(1.0);
-    a.eps_start + (a.eps_end - a.eps_start) * frac
-}
-
-/// Ape-X's exploration rate of agent `i` of `n` (every host's agents):
-/// base^(1 + alpha·i/(n−1)), from `base` for the first to
-/// base^(1 + alpha) for the last.
-pub fn per_actor_epsilon(base: f64, alpha: f64, i: usize, n: usize) -> f64 {
-    let frac = if n > 1 { i.min(n - 1) as f64 / (n - 1) as f64 } else { 0.0 };
-    base.powf(1.0 + alpha * frac)
-}
-
-/// The exploration rate of each agent of environment `e` (`out`, one per
-/// agent) after `transitions` (across all actors): the config's one
-/// schedule, or (per-actor) `eps_start` until the replay holds `min_fill`
-/// and then each agent's own fixed Ape-X rate, indexed over the run's
-/// agents in environment order.
-pub fn agent_epsilons(cfg: &Config, e: usize, transitions: u64, out: &mut [f64]) {
-    let a = &cfg.actor;
-    match a.exploration {
-        crate::Exploration::Decay => out.fill(epsilon(cfg, transitions)),
-        crate::Exploration::PerActor if transitions <= cfg.replay.min_fill as u64 => {
-            out.fill(a.eps_start)
-        }
-        crate::Exploration::PerActor => {
-            let first = (cfg.cluster.env_offset + e) * cfg.sim.agents;
-            for (i, o) in out.iter_mut().enumerate() {
-                *o = per_actor_epsilon(
-                    a.per_actor_base,
-                    a.per_actor_alpha,
-                    first + i,
-                    cfg.agents_total(),
-                );
-            }
-        }
-    }
-}
 
 /// Runs the actor of environment `e` until the run stops.
 pub fn run<S: Service>(cx: Ctx<'_, S>, e: usize) -> Result<()> {
@@ -582,191 +539,6 @@ fn take_weights<S: Service>(
     Ok(true)
 }
 
-/// One n-step transition ready to leave: the agent, the ring slot of its
-/// first observation, the action taken there, the discounted return of up
-/// to n rewards, whether the episode ended within them, and the teacher's
-/// action there and whether it flew it.
-#[derive(Debug, Clone, Copy)]
-pub struct Ready {
-    /// The agent.
-    pub agent: usize,
-    /// Ring slot of the transition's first observation ([`NStep::obs`]).
-    pub slot: usize,
-    /// The action taken there.
-    pub action: u8,
-    /// Discounted return of up to n rewards.
-    pub ret: f32,
-    /// Whether the episode ended within them.
-    pub done: bool,
-    /// The teacher's action at the first observation ([`NO_EXPERT`]: none).
-    pub expert: f32,
-    /// Whether the teacher flew that step (a demonstration).
-    pub demo: bool,
-}
-
-/// What every agent did at its last observation: the action taken, the
-/// teacher's action there ([`NO_EXPERT`]: none) and whether the teacher
-/// flew it.
-#[derive(Debug, Clone, Copy)]
-pub struct Taken<'a> {
-    /// The actions taken.
-    pub actions: &'a [u8],
-    /// The teacher's actions.
-    pub experts: &'a [f32],
-    /// Whether the teacher flew each agent.
-    pub flown: &'a [bool],
-}
-
-/// A step waiting in [`NStep`]: its ring slot, action, reward, the
-/// teacher's action and whether the teacher flew it.
-#[derive(Debug, Clone, Copy)]
-struct Pending {
-    slot: usize,
-    action: u8,
-    reward: f32,
-    expert: f32,
-    demo: bool,
-}
-
-/// n-step returns (as in Ape-X): the last n observations of every agent in
-/// a ring of n + 1 batches, and per agent the (slot, action, reward) of the
-/// steps whose transitions have not left yet. The learner bootstraps with
-/// gamma^n.
-pub struct NStep {
-    n: usize,
-    gamma: f32,
-    agents: usize,
-    /// Floats per observation.
-    len: usize,
-    ring: Vec<f32>,
-    /// Slot of the newest stored observation batch.
-    slot: usize,
-    queue: Vec<std::collections::VecDeque<Pending>>,
-    /// The transitions the last [`NStep::push`] released.
-    pub out: Vec<Ready>,
-}
-
-impl NStep {
-    /// n-step returns with discount `gamma` for `agents` agents whose
-    /// observations are `len` floats.
-    pub fn new(n: usize, gamma: f32, agents: usize, len: usize) -> Self {
-        Self {
-            n,
-            gamma,
-            agents,
-            len,
-            ring: vec![0.0; (n + 1) * agents * len],
-            slot: 0,
-            queue: vec![Default::default(); agents],
-            out: Vec::new(),
-        }
-    }
-
-    /// Forgets every pending step (the sim restarted).
-    pub fn clear(&mut self) {
-        self.queue.iter_mut().for_each(|q| q.clear());
-        self.out.clear();
-    }
-
-    /// The observation of `agent` stored in ring slot `slot`.
-    pub fn obs(&self, slot: usize, agent: usize) -> &[f32] {
-        let at = (slot * self.agents + agent) * self.len;
-        &self.ring[at..at + self.len]
-    }
-
-    /// Stores the observations the next actions are taken on.
-    pub fn store(&mut self, obs: &[f32]) {
-        self.slot = (self.slot + 1) % (self.n + 1);
-        let at = self.slot * self.agents * self.len;
-        self.ring[at..at + self.agents * self.len].copy_from_slice(obs);
-    }
-
-    /// Records the outcome of the last actions and fills `out` with the
-    /// transitions that can leave now.
-    pub fn push(&mut self, taken: Taken<'_>, rewards: &[f32], dones: &[f32]) {
-        self.out.clear();
-        for i in 0..self.agents {
-            let q = &mut self.queue[i];
-            q.push_back(Pending {
-                slot: self.slot,
-                action: taken.actions[i],
-                reward: rewards[i],
-                expert: taken.experts[i],
-                demo: taken.flown[i],
-            });
-            let ret = |q: &std::collections::VecDeque<Pending>, from: usize| {
-                q.iter().skip(from).rev().fold(0.0f32, |acc, e| e.reward + self.gamma * acc)
-            };
-            let ready = |k: usize, done: bool| Ready {
-                agent: i,
-                slot: q[k].slot,
-                action: q[k].action,
-                ret: ret(q, k),
-                done,
-                expert: q[k].expert,
-                demo: q[k].demo,
-            };
-            if dones[i] != 0.0 {
-                for k in 0..q.len() {
-                    self.out.push(ready(k, true));
-                }
-                q.clear();
-            } else if q.len() == self.n {
-                self.out.push(ready(0, false));
-                q.pop_front();
-            }
-        }
-    }
-}
-
-/// Assembles one step's observation batch (the layout of a batched message)
-/// from per-agent messages, as the non-batched mode sends them.
-pub struct Gather {
-    n: usize,
-    /// Floats per observation.
-    len: usize,
-    buf: Vec<f32>,
-    step: u64,
-    have: usize,
-}
-
-impl Gather {
-    /// A gatherer of `n` agents' observations of `len` floats.
-    pub fn new(n: usize, len: usize) -> Self {
-        Self { n, len, buf: vec![0.0; n * (len + 4)], step: u64::MAX, have: 0 }
-    }
-
-    /// Copies in the agents of one message; true once all agents of its
-    /// step are in (a message of a newer step starts the batch afresh).
-    pub fn add(&mut self, h: &ObsHeader, src: &[f32]) -> bool {
-        let n = self.n;
-        if h.step != self.step || self.have == 0 {
-            self.step = h.step;
-            self.have = 0;
-        }
-        let (a, k) = (h.first as usize, h.agents as usize);
-        let (g, l) = (&mut self.buf, self.len);
-        g[a * l..(a + k) * l].copy_from_slice(&src[..k * l]);
-        // Then the rewards, the dones, the teacher's actions and its labels.
-        for c in 0..4 {
-            let (to, from) = (n * l + c * n + a, k * l + c * k);
-            g[to..to + k].copy_from_slice(&src[from..from + k]);
-        }
-        self.have += k;
-        if self.have < n {
-            return false;
-        }
-        self.have = 0;
-        true
-    }
-
-    /// The gathered batch: observations, rewards, dones, the teacher's
-    /// actions and labels.
-    pub fn batch(&self) -> &[f32] {
-        &self.buf
-    }
-}
-
 /// Publishes one action batch answering observation step `step`; a failed
 /// send is reported and counted, and the sim will publish the step again.
 fn send_actions<S: Service>(
@@ -786,8 +558,15 @@ fn send_actions<S: Service>(
     }
 }
 
+mod exploration;
+mod gather;
+mod nstep;
 pub mod policy;
 pub mod sequences;
+
+pub use exploration::{agent_epsilons, epsilon, per_actor_epsilon};
+pub use gather::Gather;
+pub use nstep::{NStep, Ready, Taken};
 
 #[cfg(test)]
 mod tests;

@@ -25,7 +25,7 @@ pub use feedforward::dqn_config;
 pub use recurrent::seq_config;
 
 use feedforward::Feedforward;
-use learning::{Gauges, Learning};
+use learning::{Gauges, Learning, UpdateSettings};
 use minibatch::Minibatch;
 use publish::{Average, publish_flat};
 use recurrent::Recurrent;
@@ -84,7 +84,7 @@ fn learn<S: Service, L: Learning>(cx: Ctx<'_, S>, mut learner: L, paths: &Paths)
     } else {
         Duration::ZERO
     };
-    let tags = cfg.checkpoint_tags();
+    let (tags, settings) = (cfg.checkpoint_tags(), UpdateSettings::of(cfg));
     let (mut last_ckpt, mut last_update) = (Instant::now(), Instant::now());
     let mut saves = (0u32, Duration::ZERO);
     let mut gauges = Gauges::default();
@@ -105,11 +105,11 @@ fn learn<S: Service, L: Learning>(cx: Ctx<'_, S>, mut learner: L, paths: &Paths)
         let mb = *msg.user_header();
         learner.unpack(msg.payload(), mb.batch as usize, &mut io)?;
         drop(msg);
-        let loss = learner.update(cfg, &mb, &mut io, &mut tel.sample.lost)?;
+        let loss = learner.update(&settings, &mb, &mut io, &mut tel.sample.lost)?;
         add_timing(&mut tel.sample, learner.timing());
         tel.sample.work = learner.updates();
         gauges.add(loss, &mb, version, &mut tel.sample);
-        learner.gauge(&mut gauges, cfg.learner.reward_scale, &mut tel.sample);
+        learner.gauge(&mut gauges, settings.reward_scale, &mut tel.sample);
         if learner.updates().is_multiple_of(cfg.learner.publish_every) {
             publish(&mut w_tx, &learner, average.as_mut(), &mut version)?;
             tel.sample.weight_version = version;

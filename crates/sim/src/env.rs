@@ -14,7 +14,8 @@ use rapier3d::math::Vector;
 
 use crate::arena::{Arena, Lanes, Spawn};
 use crate::dynamics::DroneState;
-use crate::flight::{Body, Drone, Flight, Geometry};
+use crate::flight::{Body, Drone, Flight};
+use crate::geometry::Geometry;
 use crate::goal::{Goal, Progress};
 use crate::rapier_flight::RapierFlight;
 use crate::realism::{PixelNoise, WIND_DRAG};
@@ -108,8 +109,7 @@ pub struct VecEnv {
     path: Vec<Vector>,
     /// Positions per agent in `path` (0 before the first action).
     path_stride: usize,
-    /// Each agent's camera pitch (rad) and latency (physics steps) of its
-    /// episode.
+    /// Each agent's camera pitch (rad) and latency (physics steps), per episode.
     pitch: Vec<f32>,
     lag: Vec<usize>,
     /// The depth noise's random numbers.
@@ -131,11 +131,11 @@ pub struct VecEnv {
     rng: Pcg64Mcg,
     steps: Vec<u32>,
     returns: Vec<f32>,
-    /// Current depth frame per agent, `N × side²`.
+    /// Current depth frame per agent, `N` observed frames.
     cur: Vec<f32>,
     /// The frames as rendered, before the camera's min-pool (without one: empty).
     rendered: Vec<f32>,
-    /// The earlier depth frames per agent, `N × (frames − 1) × side²`,
+    /// The earlier depth frames per agent, `N × (frames − 1)` frames,
     /// oldest first (with two frames: the previous one).
     past: Vec<f32>,
     /// Empty once dropped: the caller assembles observations itself.

@@ -9,6 +9,7 @@ pub mod dynamics;
 pub mod env;
 mod flight;
 pub mod generate;
+mod geometry;
 pub mod goal;
 pub mod map;
 pub mod planner;

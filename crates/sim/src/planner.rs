@@ -25,7 +25,7 @@ use std::collections::{HashMap, HashSet};
 use rapier3d::math::Vector;
 
 use crate::env::VecEnv;
-use crate::flight::Geometry;
+use crate::geometry::Geometry;
 use crate::{Arena, Goal, Motion};
 
 /// Width of the grid cells that merge states (m of lateral position).

@@ -15,7 +15,8 @@ use rapier3d::prelude::*;
 
 use crate::arena::Arena;
 use crate::dynamics::{DroneState, control};
-use crate::flight::{Drone, Flight, LINEAR_DAMPING, Mover, movers, solids};
+use crate::flight::{Drone, Flight, LINEAR_DAMPING};
+use crate::geometry::{Mover, movers, solids};
 
 const GROUP_DRONE: Group = Group::GROUP_1;
 const GROUP_WORLD: Group = Group::GROUP_2;

@@ -7,7 +7,7 @@ use rotorhive_model::{Dqn, DqnConfig, UpdateTiming};
 use rotorhive_msg::{MinibatchHeader, PICK_WORDS, Pick, Shapes};
 use rotorhive_transport::Service;
 
-use super::learning::{Gauges, Learning, teaching};
+use super::learning::{Gauges, Learning, UpdateSettings};
 use super::minibatch::Minibatch;
 use crate::config::Config;
 use crate::error::{Doing, Result, protocol_err};
@@ -71,12 +71,12 @@ impl Learning for Feedforward {
 
     fn update<S: Service>(
         &mut self,
-        cfg: &Config,
+        settings: &UpdateSettings,
         mb: &MinibatchHeader,
         io: &mut Minibatch<S>,
         lost: &mut u64,
     ) -> Result<f32> {
-        if let Some(t) = teaching(cfg, mb) {
+        if let Some(t) = settings.teaching(mb) {
             self.dqn.set_teaching(t);
         }
         io.load_weights();
@@ -85,7 +85,7 @@ impl Learning for Feedforward {
         }
         let loss =
             self.dqn.update_weighted(&self.batch, Some(&io.weights)).doing("learner update")?;
-        io.send_back(self.dqn.td_abs(), mb.seq, cfg.deterministic, lost)?;
+        io.send_back(self.dqn.td_abs(), mb.seq, settings.deterministic, lost)?;
         Ok(loss)
     }
 

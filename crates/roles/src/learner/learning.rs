@@ -32,7 +32,7 @@ pub trait Learning {
     /// loss.
     fn update<S: Service>(
         &mut self,
-        cfg: &Config,
+        settings: &UpdateSettings,
         mb: &MinibatchHeader,
         io: &mut Minibatch<S>,
         lost: &mut u64,
@@ -63,14 +63,39 @@ pub trait Learning {
     fn gauge(&self, gauges: &mut Gauges, reward_scale: f64, tel: &mut rotorhive_msg::Telemetry);
 }
 
-/// How minibatch `mb` weighs the labels: the teacher's weight times the
-/// replay's fade (a fade that is not finite counts as 0), the TD loss at
-/// `learner.td_weight` beside imitation; none without a teacher.
-pub fn teaching(cfg: &Config, mb: &MinibatchHeader) -> Option<Teaching> {
-    cfg.teacher.on().then(|| {
-        let fade = if mb.teacher.is_finite() { mb.teacher.clamp(0.0, 1.0) } else { 0.0 };
-        cfg.teacher.teaching(fade, cfg.learner.td_weight as f32)
-    })
+/// What an update reads of the run's config, resolved once at the
+/// learner's start rather than looked up on every minibatch.
+pub struct UpdateSettings {
+    /// The teacher's section, where it teaches.
+    teacher: Option<crate::config::TeacherSection>,
+    /// `learner.td_weight`.
+    td_weight: f32,
+    /// Priorities go back in the run's lockstep (`deterministic`).
+    pub deterministic: bool,
+    /// `learner.reward_scale`, which the gauges undo.
+    pub reward_scale: f64,
+}
+
+impl UpdateSettings {
+    /// The settings of `cfg`.
+    pub fn of(cfg: &Config) -> Self {
+        Self {
+            teacher: cfg.teacher.on().then(|| cfg.teacher.clone()),
+            td_weight: cfg.learner.td_weight as f32,
+            deterministic: cfg.deterministic,
+            reward_scale: cfg.learner.reward_scale,
+        }
+    }
+
+    /// How minibatch `mb` weighs the labels: the teacher's weight times the
+    /// replay's fade (a fade that is not finite counts as 0), the TD loss
+    /// at `learner.td_weight` beside imitation; none without a teacher.
+    pub fn teaching(&self, mb: &MinibatchHeader) -> Option<Teaching> {
+        self.teacher.as_ref().map(|t| {
+            let fade = if mb.teacher.is_finite() { mb.teacher.clamp(0.0, 1.0) } else { 0.0 };
+            t.teaching(fade, self.td_weight)
+        })
+    }
 }
 
 /// The learner's gauges in its telemetry, over the updates since the last

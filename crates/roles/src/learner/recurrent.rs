@@ -20,7 +20,7 @@ use rotorhive_model::{SeqBatch, SeqConfig, SeqDqn, UpdateTiming};
 use rotorhive_msg::{MinibatchHeader, PICK_WORDS, Pick, SeqLayout, Unpacked};
 use rotorhive_transport::Service;
 
-use super::learning::{Gauges, Learning, teaching};
+use super::learning::{Gauges, Learning, UpdateSettings};
 use super::minibatch::Minibatch;
 use crate::config::Config;
 use crate::error::{Doing, Result, protocol_err};
@@ -93,13 +93,13 @@ impl Learning for Recurrent {
 
     fn update<S: Service>(
         &mut self,
-        cfg: &Config,
+        settings: &UpdateSettings,
         mb: &MinibatchHeader,
         io: &mut Minibatch<S>,
         lost: &mut u64,
     ) -> Result<f32> {
         io.load_weights();
-        if let Some(t) = teaching(cfg, mb) {
+        if let Some(t) = settings.teaching(mb) {
             self.dqn.set_teaching(t);
         }
         let b = &self.batch;
@@ -114,7 +114,7 @@ impl Learning for Recurrent {
             experts: &b.experts,
             weights: &io.weights,
         })?;
-        io.send_back(self.dqn.priorities(), mb.seq, cfg.deterministic, lost)?;
+        io.send_back(self.dqn.priorities(), mb.seq, settings.deterministic, lost)?;
         Ok(loss)
     }
 

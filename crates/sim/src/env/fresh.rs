@@ -20,7 +20,7 @@ use std::thread::JoinHandle;
 use std::time::Instant;
 
 use crate::arena::{Arena, ArenaError, Lanes};
-use crate::flight::Geometry;
+use crate::geometry::Geometry;
 use crate::render::Scene;
 
 /// The arena of renewal number `n` (0, 1, …): a layout never trained on
