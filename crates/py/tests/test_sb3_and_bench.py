@@ -28,6 +28,17 @@ def test_sb3_adapter_resets_in_the_same_step_with_terminal_observations():
     assert env.get_attr("max_steps") == [10] * 4
     assert env.env_is_wrapped(object) == [False] * 4
     env.close()
+    # Another camera: the adapter's observation space and its terminal
+    # observations are of its frames.
+    env = Sb3VecEnv(num_envs=2, max_steps=3, camera={"width": 48, "height": 24})
+    assert env.observation_space["depth"].shape == (2, 24, 48)
+    env.reset()
+    for _ in range(4):
+        obs, _, dones, infos = env.step(np.array([0, 1]))
+        assert obs["depth"].shape == (2, 2, 24, 48)
+        for i in np.flatnonzero(dones):
+            assert infos[i]["terminal_observation"]["depth"].shape == (2, 24, 48)
+    env.close()
 
 
 def test_bench_measures_all_three_paths():
