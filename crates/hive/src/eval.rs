@@ -162,39 +162,31 @@ pub(crate) fn map_sets(m: &rotorhive_sim::MapSpec) -> Vec<String> {
 /// checkpoint flies with the camera its header names (a `--set` or a
 /// config of another camera is refused by name).
 fn config(a: &EvalArgs) -> Result<(Config, String)> {
-    let (cfg, source) = chosen_config(a)?;
-    if let Some(c) = &a.checkpoint {
-        same_camera(c, &cfg, &source)?;
-    }
-    Ok((cfg, source))
-}
-
-/// Refuses to fly `checkpoint` with `cfg` (from `source`) where their
-/// cameras differ, naming both.
-pub(crate) fn same_camera(checkpoint: &Path, cfg: &Config, source: &str) -> Result<()> {
     use rotorhive_roles::config::camera::{camera_name, checkpoint_camera};
-    let theirs = checkpoint_camera(checkpoint)?;
-    if cfg.camera() != theirs {
+    let camera = a.checkpoint.as_deref().map(checkpoint_camera).transpose()?;
+    let (cfg, source) = chosen_config(a, camera)?;
+    if let (Some(c), Some(theirs)) = (&a.checkpoint, camera)
+        && cfg.camera() != theirs
+    {
         bail!(
             "{} was trained with the camera {}; {source} (with the --set keys) gives {}",
-            checkpoint.display(),
+            c.display(),
             camera_name(&theirs),
             camera_name(&cfg.camera())
         );
     }
-    Ok(())
+    Ok((cfg, source))
 }
 
 /// The `--set` keys a checkpoint brings to a config of no run of its own:
-/// its frames, their stride, its camera and the camera's map its run
-/// built.
-fn checkpoint_sets(c: &Path) -> Result<Vec<String>> {
+/// its frames, their stride, its camera (`camera`, read from its header)
+/// and the camera's map its run built.
+fn checkpoint_sets(c: &Path, camera: rotorhive_sim::CameraSpec) -> Result<Vec<String>> {
     let shapes = rotorhive_model::checkpoint_shapes(c)?;
     let mut set = vec![
         format!("sim.frames={}", shapes.frames),
         format!("sim.frame_stride={}", shapes.stride),
     ];
-    let camera = rotorhive_roles::config::camera::checkpoint_camera(c)?;
     if camera != rotorhive_sim::CameraSpec::default() {
         set.extend(rotorhive_roles::config::camera::camera_sets(&camera));
     }
@@ -204,8 +196,11 @@ fn checkpoint_sets(c: &Path) -> Result<Vec<String>> {
     Ok(set)
 }
 
-/// [`config`] before the camera's check.
-fn chosen_config(a: &EvalArgs) -> Result<(Config, String)> {
+/// [`config`] before the camera's check (`camera`: the checkpoint's).
+fn chosen_config(
+    a: &EvalArgs,
+    camera: Option<rotorhive_sim::CameraSpec>,
+) -> Result<(Config, String)> {
     if let (Some(run), None) = (&a.training_layouts, &a.level) {
         let path = run.join("config.toml");
         if !path.is_file() {
@@ -224,9 +219,9 @@ fn chosen_config(a: &EvalArgs) -> Result<(Config, String)> {
     // A checkpoint sees as it was trained to: its frames, their stride and
     // its camera come from its header (a `--set` of them still wins, and
     // one that contradicts the camera is refused).
-    let mut set = match &a.checkpoint {
-        Some(c) => checkpoint_sets(c)?,
-        None => Vec::new(),
+    let mut set = match (&a.checkpoint, camera) {
+        (Some(c), Some(camera)) => checkpoint_sets(c, camera)?,
+        _ => Vec::new(),
     };
     set.extend(a.set.iter().cloned());
     match &a.level {

@@ -60,6 +60,7 @@ pub fn run(a: PlayArgs) -> Result<()> {
     }
     // Either network, as the checkpoint's header says (shapes, memory).
     let net = PolicyNet::load(&a.checkpoint)?;
+    let sim = sim_config(&a, &net)?;
     let arena = Arena::load(&a.arena)?;
     let start = Instant::now();
     let file = std::fs::File::create(&a.out)
@@ -74,7 +75,7 @@ pub fn run(a: PlayArgs) -> Result<()> {
     let delay = (100 / a.fps).max(1);
     let mut rec = Recording { gif, delay, frames: 0, goals: 0, crashes: 0, still_written: false };
     for round in 0..a.episodes {
-        rec.round(&a, &net, &arena, round)?;
+        rec.round(&a, (&net, &sim), &arena, round)?;
     }
     let Recording { gif, frames, goals, crashes, .. } = rec;
     drop(gif);
@@ -95,6 +96,27 @@ pub fn run(a: PlayArgs) -> Result<()> {
     Ok(())
 }
 
+/// The simulator every round flies: `--agents` drones, and what the
+/// checkpoint's header says it was trained with (a goal, the hold action,
+/// its frames, its camera; the goal's default settings) and its run's
+/// camera map.
+fn sim_config(a: &PlayArgs, net: &PolicyNet) -> Result<SimConfig> {
+    let shapes = net.shapes();
+    let mut cfg = SimConfig {
+        agents: a.agents,
+        frames: shapes.frames,
+        frame_stride: shapes.stride,
+        camera: rotorhive_roles::config::camera::checkpoint_camera(&a.checkpoint)?,
+        hold_action: shapes.actions > rotorhive_msg::NUM_ACTIONS,
+        ..SimConfig::default()
+    };
+    cfg.goal.enabled = shapes.goal();
+    if let Some(m) = crate::eval::map_of(&a.checkpoint)? {
+        cfg.map = m;
+    }
+    Ok(cfg)
+}
+
 /// The video being written and what it has shown so far.
 struct Recording<W: std::io::Write> {
     gif: gif::Encoder<W>,
@@ -110,25 +132,15 @@ impl<W: std::io::Write> Recording<W> {
     /// Flies round `round` (`--agents` drones, one episode each, seeded
     /// `seed + round`) to its end, a frame per action step, following the
     /// focused drone and then the next one still flying.
-    fn round(&mut self, a: &PlayArgs, net: &PolicyNet, arena: &Arena, round: usize) -> Result<()> {
-        // A checkpoint of a task with a goal, the hold action or another
-        // count of frames flies with them (the goal's default settings).
+    fn round(
+        &mut self,
+        a: &PlayArgs,
+        (net, cfg): (&PolicyNet, &SimConfig),
+        arena: &Arena,
+        round: usize,
+    ) -> Result<()> {
         let shapes = net.shapes();
-        let mut cfg = SimConfig {
-            agents: a.agents,
-            frames: shapes.frames,
-            frame_stride: shapes.stride,
-            ..SimConfig::default()
-        };
-        cfg.goal.enabled = shapes.goal();
-        // And with the camera its header names.
-        cfg.camera = rotorhive_roles::config::camera::checkpoint_camera(&a.checkpoint)?;
-        // A network that reads the camera's map flies with its run's map.
-        if let Some(m) = crate::eval::map_of(&a.checkpoint)? {
-            cfg.map = m;
-        }
-        cfg.hold_action = shapes.actions > rotorhive_msg::NUM_ACTIONS;
-        let mut env = VecEnv::new(cfg, arena.clone(), a.seed + round as u64)?;
+        let mut env = VecEnv::new(cfg.clone(), arena.clone(), a.seed + round as u64)?;
         env.set_autoreset(Autoreset::Disabled);
         let mut tracks = Tracks::new(&env);
         let obs_len = env.obs_len();

@@ -165,10 +165,13 @@ impl VecEnv {
     ) -> Result<(), GpuError> {
         let spec = self.cfg.camera;
         if spec.pool > 1 {
-            let mut rendered = vec![0.0; who.len() * spec.pixels()];
-            self.draw_some(who, cams, &mut rendered)?;
+            // The rendered frames' buffer of `render`, reused.
+            let mut rendered = std::mem::take(&mut self.rendered);
+            rendered.resize(who.len() * spec.pixels(), 0.0);
+            let drawn = self.draw_some(who, cams, &mut rendered);
             min_pool(&spec, &rendered, img);
-            return Ok(());
+            self.rendered = rendered;
+            return drawn;
         }
         self.draw_some(who, cams, img)
     }
