@@ -225,6 +225,35 @@ mod tests {
     }
 
     #[test]
+    fn a_checkpoints_camera_is_read_and_a_forged_one_refused_by_name() {
+        use rotorhive_model::{Device, Layers, PolicyNet, Shapes};
+        let dir = std::env::temp_dir().join(format!("rotorhive-camera-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("c.safetensors");
+        let save = |shapes: Shapes, camera: Option<&str>| {
+            let net = PolicyNet::new(shapes, Layers::DEFAULT, None, 1, &Device::Cpu).unwrap();
+            let tags: Vec<(&str, String)> =
+                camera.map(|c| ("camera", c.to_string())).into_iter().collect();
+            net.save(&path, &tags).unwrap();
+        };
+        save(Shapes::PAPER, None);
+        assert_eq!(checkpoint_camera(&path).unwrap(), CameraSpec::default());
+        let wide = CameraSection { preset: Some(CameraPreset::D455), ..Default::default() };
+        save(Shapes::PAPER.with_depth(wide.spec().observed_depth()), Some(&wide.name()));
+        assert_eq!(checkpoint_camera(&path).unwrap(), wide.spec());
+        for (shapes, forged, says) in [
+            (Shapes::PAPER, "a camera", "not `WxH hfov DEG range M pool P`"),
+            (Shapes::PAPER, "64x64 hfov 90 range 20 pool 1", "does not give the 32 x 32 frames"),
+            (Shapes::PAPER, "32x32 hfov 90 range 20 pool 0", "does not give the 32 x 32 frames"),
+        ] {
+            save(shapes, Some(forged));
+            let e = checkpoint_camera(&path).unwrap_err().to_string();
+            assert!(e.contains("c.safetensors") && e.contains(says), "{forged}: {e}");
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
     fn sizes_the_network_cannot_read_are_refused_with_ones_it_can() {
         let set = |width, height, pool| CameraSection {
             width: Some(width),
