@@ -285,7 +285,7 @@ impl Maps {
         let n = self.nx * self.ny;
         let (geo, sight) = (self.geo(i), self.sight());
         let cells = &mut self.cells[i * n..(i + 1) * n];
-        sight.integrate(&geo, cells, &mut self.clock[i], depth, spec, cam);
+        integrate_frame(&sight, &geo, cells, &mut self.clock[i], depth, spec, cam);
     }
 
     /// Every agent's map takes its frame (`frames`: `agents` of `spec`'s),
@@ -308,7 +308,7 @@ impl Maps {
                 let i = first + j;
                 let geo = Geo::new(x0, nx, ny, cell, lanes[i]);
                 let frame = &frames[i * px..(i + 1) * px];
-                sight.integrate(&geo, cells, clock, frame, spec, &cams[i]);
+                integrate_frame(&sight, &geo, cells, clock, frame, spec, &cams[i]);
             }
         };
         let pieces = self.cells.chunks_mut(CHUNK * n).zip(self.clock.chunks_mut(CHUNK)).enumerate();
@@ -400,7 +400,6 @@ fn cast_rays(
     let dist = |j: u32| {
         if j as usize == steps { 1.0 } else { ((j as f32 + 0.5) * s.cell_m / range).min(1.0) }
     };
-    let (keep, now) = (map.keep as i32, map.now as i32);
     // [`BATCH`] rays side by side, every step of each (none breaks off at
     // its hit): the indices and the cells' classes are computed lane by
     // lane without a branch, which the compiler vectorises, and only the
@@ -440,11 +439,7 @@ fn cast_rays(
             let mut open = false;
             for l in 0..BATCH {
                 let value = i32::from(v[l]);
-                // A sighting's age in frames (stamps wrap at STAMPS).
-                let age = now - (value - i32::from(HIT));
-                let age = if age < 0 { age + STAMPS as i32 } else { age };
-                let seen = value >= i32::from(HIT) && (keep == 0 || age < keep);
-                let blocked = value == i32::from(WALL) || seen;
+                let blocked = value == i32::from(WALL) || map.sighted(v[l]);
                 hit[l] = hit[l].min(if blocked { j } else { u32::MAX });
                 // Unknown, expired, a wall or a sighting: no longer free.
                 unseen[l] = unseen[l].min(if value != i32::from(FREE) { j } else { u32::MAX });
@@ -473,7 +468,6 @@ fn cast_rays(
 ))]
 fn read_window(map: &Reader, p: Vector, (c, sn): (f32, f32), s: &MapSpec, out: &mut [f32]) {
     let (w, g) = (s.window, map.geo);
-    let (keep, now) = (map.keep as i32, map.now as i32);
     let mut at = [0u32; BATCH];
     let mut inside = [false; BATCH];
     for (n, chunk) in out.chunks_mut(BATCH).enumerate() {
@@ -498,14 +492,10 @@ fn read_window(map: &Reader, p: Vector, (c, sn): (f32, f32), s: &MapSpec, out: &
         }
         for (l, o) in chunk.iter_mut().enumerate() {
             let value = if inside[l] { map.cells[at[l] as usize] } else { UNKNOWN };
-            let v = i32::from(value);
-            let age = now - (v - i32::from(HIT));
-            let age = if age < 0 { age + STAMPS as i32 } else { age };
-            let seen = v >= i32::from(HIT) && (keep == 0 || age < keep);
-            *o = if seen {
+            *o = if map.sighted(value) {
                 1.0
-            } else if v < i32::from(HIT) {
-                v as f32 / 3.0
+            } else if value < HIT {
+                f32::from(value) / 3.0
             } else {
                 0.0
             };
@@ -583,10 +573,23 @@ impl Reader<'_> {
             FREE => Cell::Free,
             WALL => Cell::Wall,
             v => {
-                let age = (self.now + STAMPS - u32::from(v - HIT)) % STAMPS;
-                if self.keep > 0 && age >= self.keep { Cell::Unknown } else { Cell::Obstacle }
+                if self.sighted(v) {
+                    Cell::Obstacle
+                } else {
+                    Cell::Unknown
+                }
             }
         }
+    }
+
+    /// Whether `value` is a sighting of an obstacle not yet expired (a
+    /// sighting's age in frames: stamps wrap at [`STAMPS`]). Without a
+    /// branch, so that the batched readers vectorise it.
+    #[inline(always)]
+    fn sighted(&self, value: u8) -> bool {
+        let age = self.now as i32 - (i32::from(value) - i32::from(HIT));
+        let age = if age < 0 { age + STAMPS as i32 } else { age };
+        value >= HIT && (self.keep == 0 || age < self.keep as i32)
     }
 }
 
@@ -600,21 +603,7 @@ struct Sight {
     reach: f32,
 }
 
-impl Sight {
-    fn integrate(
-        &self,
-        geo: &Geo,
-        cells: &mut [u8],
-        clock: &mut u32,
-        depth: &[f32],
-        spec: &CameraSpec,
-        cam: &CameraPose,
-    ) {
-        integrate_frame(self, geo, cells, clock, depth, spec, cam);
-    }
-}
-
-/// One frame into one agent's cells ([`Sight::integrate`]), compiled for
+/// One frame (`depth`, seen from `cam`) into one agent's cells, compiled for
 /// AVX2 and AVX-512 beside the baseline (picked at run time).
 #[multiversion::multiversion(targets(
     "x86_64+avx512f+avx512vl+avx2+fma+avx+bmi1+bmi2",

@@ -54,6 +54,41 @@ fn cast_rays_one_by_one(
     }
 }
 
+/// Trial `trial`'s maps for `spec` (one agent, a random lane, clock and
+/// `keep`; cells drawn from `shares` of unknown, free, wall and sighted
+/// out of their sum), a drone inside the grid or near it (a ray may start
+/// outside along x) and its heading.
+fn random_map(
+    rng: &mut rand_pcg::Pcg64,
+    spec: &MapSpec,
+    trial: usize,
+    shares: [u32; 4],
+) -> (Maps, Vector, f32) {
+    let (length, widest) = (rng.random_range(10.0..60.0), rng.random_range(4.0..16.0));
+    let mut maps = Maps::new(spec, 1, length, 6.0, widest, 0.1);
+    maps.keep = if trial.is_multiple_of(2) { 0 } else { rng.random_range(1..STAMPS - 2) };
+    maps.clock[0] = rng.random_range(1..1000);
+    let [unknown, free, wall, _] = shares;
+    for c in &mut maps.cells {
+        let r = rng.random_range(0..shares.iter().sum::<u32>());
+        *c = if r < unknown {
+            UNKNOWN
+        } else if r < unknown + free {
+            FREE
+        } else if r < unknown + free + wall {
+            WALL
+        } else {
+            HIT + rng.random_range(0..STAMPS) as u8
+        };
+    }
+    let p = Vector::new(
+        rng.random_range(-4.0..length + 4.0),
+        rng.random_range(-widest / 2.0 - 1.0..widest / 2.0 + 1.0),
+        3.0,
+    );
+    (maps, p, rng.random_range(-3.2..3.2))
+}
+
 #[test]
 fn the_batched_rays_read_what_one_ray_after_another_reads() {
     let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
@@ -66,26 +101,8 @@ fn the_batched_rays_read_what_one_ray_after_another_reads() {
             ray_range_m: rng.random_range(1.0..15.0),
             ..MapSpec::default()
         };
-        let (length, widest) = (rng.random_range(10.0..60.0), rng.random_range(4.0..16.0));
-        let mut maps = Maps::new(&spec, 1, length, 6.0, widest, 0.1);
-        maps.keep = if trial % 2 == 0 { 0 } else { rng.random_range(1..STAMPS - 2) };
-        maps.clock[0] = rng.random_range(1..1000);
         // Mostly free, some unknown, a few walls and stamped sightings.
-        for c in &mut maps.cells {
-            *c = match rng.random_range(0..20) {
-                0..=3 => UNKNOWN,
-                4..=15 => FREE,
-                16 => WALL,
-                _ => HIT + rng.random_range(0..STAMPS) as u8,
-            };
-        }
-        // Inside the grid or near it (a ray may start outside along x).
-        let p = Vector::new(
-            rng.random_range(-4.0..length + 4.0),
-            rng.random_range(-widest / 2.0 - 1.0..widest / 2.0 + 1.0),
-            3.0,
-        );
-        let yaw: f32 = rng.random_range(-3.2..3.2);
+        let (maps, p, yaw) = random_map(&mut rng, &spec, trial, [4, 12, 1, 3]);
         let (mut batched, mut single) = (vec![0.0; 2 * rays], vec![0.0; 2 * rays]);
         let map = maps.reader(0);
         cast_rays(&map, &maps.dirs, p, (yaw.cos(), yaw.sin()), &spec, &mut batched);
@@ -105,24 +122,7 @@ fn the_batched_window_reads_what_cell_by_cell_reads() {
             cell_m: [0.5, 0.25, 1.0][trial % 3],
             ..MapSpec::default()
         };
-        let (length, widest) = (rng.random_range(10.0..60.0), rng.random_range(4.0..16.0));
-        let mut maps = Maps::new(&spec, 1, length, 6.0, widest, 0.1);
-        maps.keep = if trial % 2 == 0 { 0 } else { rng.random_range(1..STAMPS - 2) };
-        maps.clock[0] = rng.random_range(1..1000);
-        for c in &mut maps.cells {
-            *c = match rng.random_range(0..10) {
-                0..=2 => UNKNOWN,
-                3..=7 => FREE,
-                8 => WALL,
-                _ => HIT + rng.random_range(0..STAMPS) as u8,
-            };
-        }
-        let p = Vector::new(
-            rng.random_range(-4.0..length + 4.0),
-            rng.random_range(-widest / 2.0 - 1.0..widest / 2.0 + 1.0),
-            3.0,
-        );
-        let yaw: f32 = rng.random_range(-3.2..3.2);
+        let (maps, p, yaw) = random_map(&mut rng, &spec, trial, [3, 5, 1, 1]);
         let (c, sn) = (yaw.cos(), yaw.sin());
         let mut batched = vec![0.0; window * window];
         maps.encode(0, p, yaw, &mut batched);
