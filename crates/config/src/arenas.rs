@@ -217,6 +217,7 @@ impl Config {
             frames: s.frames,
             frame_stride: s.frame_stride,
             map: s.map.clone(),
+            tracks: s.tracks.clone(),
             ..SimConfig::default()
         }
     }

@@ -185,6 +185,7 @@ impl Config {
         Shapes::task(self.sim.frames, self.sim.goal.enabled, self.sim.hold_action)
             .with_stride(self.sim.frame_stride)
             .with_map(self.sim.map.floats())
+            .with_tracks(self.sim.tracks.floats())
             .with_depth(self.camera().observed_depth())
     }
 

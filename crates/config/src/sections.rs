@@ -6,7 +6,9 @@ use std::path::PathBuf;
 
 use rotorhive_model::Teaching;
 use rotorhive_records::ObservationMode;
-use rotorhive_sim::{GenParams, Goal, MapSpec, Noise, PhysicsKind, Randomize, RendererKind, Sight};
+use rotorhive_sim::{
+    GenParams, Goal, MapSpec, Noise, PhysicsKind, Randomize, RendererKind, Sight, TrackSpec,
+};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Result, config_err};
@@ -227,6 +229,9 @@ pub struct SimSection {
     /// The camera's map in the observation (`[sim.map]`; off: none).
     #[serde(skip_serializing_if = "MapSpec::is_off")]
     pub map: MapSpec,
+    /// The seen movers in the observation (`[sim.tracks]`; off: none).
+    #[serde(skip_serializing_if = "TrackSpec::is_off")]
+    pub tracks: TrackSpec,
 }
 
 /// `[sim.curriculum]`: one key of `[sim.generator]` ramps linearly from
@@ -407,6 +412,7 @@ impl Default for SimSection {
             curriculum: None,
             goal: Goal::default(),
             map: MapSpec::default(),
+            tracks: TrackSpec::default(),
             hold_action: false,
             frames: rotorhive_msg::FRAMES,
             frame_stride: 1,

@@ -225,6 +225,7 @@ impl Config {
         section("randomize", s.randomize.validate())?;
         section("goal", s.goal.validate())?;
         section("map", s.map.validate())?;
+        section("tracks", s.tracks.validate())?;
         if self.teacher.on() && self.teacher.sight == rotorhive_sim::Sight::Map && !s.map.enabled()
         {
             return Err(ConfigError::Invalid(

@@ -145,6 +145,44 @@ pub(crate) fn map_of(checkpoint: &Path) -> Result<Option<rotorhive_sim::MapSpec>
     Ok(Some(map))
 }
 
+/// The seen movers a checkpoint reads (`[sim.tracks]` of the run that
+/// wrote it): none for a checkpoint without tracks; refused by name when
+/// its run's `config.toml` is not beside it or names another count.
+pub(crate) fn tracks_of(checkpoint: &Path) -> Result<Option<rotorhive_sim::TrackSpec>> {
+    let shapes = rotorhive_model::checkpoint_shapes(checkpoint)?;
+    if shapes.tracks == 0 {
+        return Ok(None);
+    }
+    let Some(path) = run_config(checkpoint) else {
+        bail!(
+            "{}: the network reads {} floats of the seen movers, whose settings are in its \
+             run's config.toml, not found beside it",
+            checkpoint.display(),
+            shapes.tracks
+        );
+    };
+    let tracks = Config::load(Some(&path), &[])?.sim.tracks;
+    if tracks.floats() != shapes.tracks {
+        bail!(
+            "{}: the network reads {} floats of the seen movers, {} names {}",
+            checkpoint.display(),
+            shapes.tracks,
+            path.display(),
+            tracks.floats()
+        );
+    }
+    Ok(Some(tracks))
+}
+
+/// `--set` keys that give a config the seen movers `t`.
+pub(crate) fn tracks_sets(t: &rotorhive_sim::TrackSpec) -> Vec<String> {
+    vec![
+        format!("sim.tracks.count={}", t.count),
+        format!("sim.tracks.keep_s={:?}", t.keep_s),
+        format!("sim.tracks.band={}", t.band),
+    ]
+}
+
 /// `--set` keys that give a config the camera's map `m`.
 pub(crate) fn map_sets(m: &rotorhive_sim::MapSpec) -> Vec<String> {
     vec![
@@ -180,7 +218,7 @@ fn config(a: &EvalArgs) -> Result<(Config, String)> {
 
 /// The `--set` keys a checkpoint brings to a config of no run of its own:
 /// its frames, their stride, its camera (`camera`, read from its header)
-/// and the camera's map its run built.
+/// and the camera's map and seen movers its run built.
 fn checkpoint_sets(c: &Path, camera: rotorhive_sim::CameraSpec) -> Result<Vec<String>> {
     let shapes = rotorhive_model::checkpoint_shapes(c)?;
     let mut set = vec![
@@ -192,6 +230,9 @@ fn checkpoint_sets(c: &Path, camera: rotorhive_sim::CameraSpec) -> Result<Vec<St
     }
     if let Some(m) = map_of(c)? {
         set.extend(map_sets(&m));
+    }
+    if let Some(t) = tracks_of(c)? {
+        set.extend(tracks_sets(&t));
     }
     Ok(set)
 }

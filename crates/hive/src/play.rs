@@ -114,6 +114,9 @@ fn sim_config(a: &PlayArgs, net: &PolicyNet) -> Result<SimConfig> {
     if let Some(m) = crate::eval::map_of(&a.checkpoint)? {
         cfg.map = m;
     }
+    if let Some(t) = crate::eval::tracks_of(&a.checkpoint)? {
+        cfg.tracks = t;
+    }
     Ok(cfg)
 }
 

@@ -46,13 +46,18 @@ pub(crate) fn network_metadata(
     } else {
         String::new()
     };
+    let tracks = if shapes.tracks > 0 {
+        format!(", then {} floats of the seen movers", shapes.tracks)
+    } else {
+        String::new()
+    };
     let mut meta = HashMap::from([
         ("layout".to_string(), CHECKPOINT_LAYOUT.to_string()),
         (
             "observation".to_string(),
             format!(
                 "depth {}x{}x{} in [0, 1] (oldest frame first, {} action period(s) \
-                 apart), then velocity 3 (m/s, body frame){goal}{map}",
+                 apart), then velocity 3 (m/s, body frame){goal}{map}{tracks}",
                 shapes.frames, shapes.depth[0], shapes.depth[1], shapes.stride
             ),
         ),
@@ -75,6 +80,9 @@ pub(crate) fn network_metadata(
     // bytes of earlier builds.
     if shapes.map > 0 {
         meta.insert("map".to_string(), shapes.map.to_string());
+    }
+    if shapes.tracks > 0 {
+        meta.insert("tracks".to_string(), shapes.tracks.to_string());
     }
     meta
 }
@@ -111,6 +119,7 @@ pub fn checkpoint_shapes(path: &Path) -> Result<Shapes> {
         scalars: field("scalars", Shapes::PAPER.scalars)?,
         actions: field("actions", Shapes::PAPER.actions)?,
         map: field("map", 0)?,
+        tracks: field("tracks", 0)?,
         depth,
     };
     shapes.check().map_err(|m| bad(format!("header claims {m}")))
@@ -165,14 +174,14 @@ fn check_layout(bytes: &[u8], file: &str, ours: &HashMap<String, String>) -> Res
     };
     // A checkpoint of a build before memory is a feedforward network's, one
     // without `layers` the design's widths.
-    // One without `map` has none.
+    // One without `map` (or `tracks`) has none.
     // One without `depth` reads the paper's 32 × 32.
     let (none, widths, no_map) = (memory_name(None), Layers::DEFAULT.name(), "0".to_string());
     let paper = depth_name(Shapes::PAPER.depth);
     let default = |k: &str| match k {
         "memory" => Some(&none),
         "layers" => Some(&widths),
-        "map" => Some(&no_map),
+        "map" | "tracks" => Some(&no_map),
         "depth" => Some(&paper),
         _ => None,
     };
@@ -186,6 +195,7 @@ fn check_layout(bytes: &[u8], file: &str, ours: &HashMap<String, String>) -> Res
         "memory",
         "layers",
         "map",
+        "tracks",
         "depth",
     ];
     let diffs: Vec<String> = keys

@@ -16,13 +16,13 @@ pub const MAX_HIDDEN: usize = 3;
 pub const MAX_LAYER_WIDTH: usize = 1024;
 /// Units of the velocity (and goal) branch.
 pub(crate) const VEL_H: usize = 16;
-/// Units of that branch when the scalars hold the camera's map too: the
-/// map's tens of floats need more than the velocity's 16.
+/// Units of that branch when the scalars hold the camera's map or the seen
+/// movers too: their tens of floats need more than the velocity's 16.
 pub(crate) const MAP_VEL_H: usize = 64;
 
 /// Units of the scalars' branch of a network for `shapes`.
 pub(crate) const fn vel_units(shapes: Shapes) -> usize {
-    if shapes.map > 0 { MAP_VEL_H } else { VEL_H }
+    if shapes.memory_floats() > 0 { MAP_VEL_H } else { VEL_H }
 }
 
 /// Names of the hidden layers' parameters: `fc1` first (the name every

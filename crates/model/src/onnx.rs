@@ -57,7 +57,7 @@ pub(crate) fn model(
     let (conv2, fc1) =
         torch_layout(&weights["conv2.weight"], &weights["fc1.weight"], layers, shapes);
     let mut graph = Vec::new();
-    for n in nodes(layers, width, shapes.map > 0) {
+    for n in nodes(layers, width, [shapes.map > 0, shapes.tracks > 0]) {
         bytes(&mut graph, 1, &n);
     }
     bytes(&mut graph, 2, b"rotorhive_qnet");
@@ -90,9 +90,12 @@ pub(crate) fn model(
             &[None, Some(shapes.frames), Some(shapes.depth[0]), Some(shapes.depth[1])],
         ),
     );
-    bytes(&mut graph, 11, &value_info("velocity", &[None, Some(vel - shapes.map)]));
+    bytes(&mut graph, 11, &value_info("velocity", &[None, Some(vel - shapes.memory_floats())]));
     if shapes.map > 0 {
         bytes(&mut graph, 11, &value_info("map", &[None, Some(shapes.map)]));
+    }
+    if shapes.tracks > 0 {
+        bytes(&mut graph, 11, &value_info("tracks", &[None, Some(shapes.tracks)]));
     }
     if let Some(w) = width {
         bytes(&mut graph, 11, &value_info("state", &[None, Some(w)]));
@@ -170,8 +173,8 @@ fn torch_layout(
 
 /// The graph's nodes, in order: the Q head on `fc1`'s activations, or
 /// (with a GRU of `width`) on the GRU's new state.
-fn nodes(layers: Layers, width: Option<usize>, map: bool) -> Vec<Vec<u8>> {
-    let mut all = trunk_nodes(layers, map);
+fn nodes(layers: Layers, width: Option<usize>, memory: [bool; 2]) -> Vec<Vec<u8>> {
+    let mut all = trunk_nodes(layers, memory);
     let Some(width) = width else {
         all.push(node("Gemm", &["h", "fc2.weight", "fc2.bias"], "q", &[], Some(("transB", 1))));
         return all;
@@ -202,7 +205,7 @@ fn gru(width: usize) -> Vec<u8> {
 }
 
 /// The trunk's nodes, up to the last hidden layer's activations `h`.
-fn trunk_nodes(layers: Layers, map: bool) -> Vec<Vec<u8>> {
+fn trunk_nodes(layers: Layers, [map, tracks]: [bool; 2]) -> Vec<Vec<u8>> {
     let mut all = vec![
         node(
             "Conv",
@@ -223,10 +226,14 @@ fn trunk_nodes(layers: Layers, map: bool) -> Vec<Vec<u8>> {
         node("MaxPool", &["r2"], "p", &[("kernel_shape", &[2, 2]), ("strides", &[2, 2])], None),
         node("Flatten", &["p"], "features", &[], Some(("axis", 1))),
     ];
-    // With the camera's map, the scalars' branch reads the velocity (and
-    // goal) then the map, joined.
-    let scalars = if map {
-        all.push(node("Concat", &["velocity", "map"], "scalars", &[], Some(("axis", 1))));
+    // With the camera's map or the seen movers, the scalars' branch reads
+    // the velocity (and goal), then the map, then the tracks, joined.
+    let parts: Vec<&str> = [("velocity", true), ("map", map), ("tracks", tracks)]
+        .into_iter()
+        .filter_map(|(name, on)| on.then_some(name))
+        .collect();
+    let scalars = if parts.len() > 1 {
+        all.push(node("Concat", &parts, "scalars", &[], Some(("axis", 1))));
         "scalars"
     } else {
         "velocity"

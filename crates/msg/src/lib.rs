@@ -36,8 +36,8 @@ pub use label::{LABEL_SET, label_action, label_mask, label_of_mask};
 pub use sequence::{RowLayout, SeqLayout, Unpacked};
 pub use shapes::{
     DEPTH_PIXELS, DEPTH_SIDE, FRAMES, GOAL_DIM, MAX_DEPTH_SIDE, MAX_FRAME_STRIDE, MAX_FRAMES,
-    MAX_MAP_FLOATS, MIN_DEPTH_SIDE, NO_EXPERT, NUM_ACTIONS, Shapes, TAIL, VEL_DIM,
-    dequantize_depth, quantize_depth,
+    MAX_MAP_FLOATS, MAX_TRACK_FLOATS, MIN_DEPTH_SIDE, NO_EXPERT, NUM_ACTIONS, Shapes, TAIL,
+    TRACK_FLOATS, VEL_DIM, dequantize_depth, quantize_depth,
 };
 pub(crate) use shapes::{f32_words, word_f32};
 pub use telemetry::{

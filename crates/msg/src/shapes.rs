@@ -30,6 +30,11 @@ pub const GOAL_DIM: usize = 3;
 /// The most floats the camera's map (`[sim.map]`) may add to an
 /// observation's scalars.
 pub const MAX_MAP_FLOATS: usize = 1024;
+/// Floats of one seen mover (`[sim.tracks]`) in an observation.
+pub const TRACK_FLOATS: usize = 14;
+/// The most floats the seen movers (`[sim.tracks]`) may add to an
+/// observation's scalars.
+pub const MAX_TRACK_FLOATS: usize = 32 * TRACK_FLOATS;
 /// Floats after `s` and `s'` in a transition: the action taken, the
 /// (n-step) reward, done (0 or 1), the teacher's label at `s` (the action
 /// it holds the only right one there, or the set it holds best, see
@@ -60,12 +65,15 @@ pub struct Shapes {
     pub stride: usize,
     /// Floats after the depth frames: the body-frame velocity, then (with a
     /// goal) the goal's [`GOAL_DIM`] floats, then the camera's map's
-    /// [`Shapes::map`] floats.
+    /// [`Shapes::map`] floats, then the seen movers' [`Shapes::tracks`].
     pub scalars: usize,
     /// Discrete actions.
     pub actions: usize,
     /// Floats of the camera's map at the end of the scalars (0: no map).
     pub map: usize,
+    /// Floats of the seen movers at the very end of the scalars, after the
+    /// map (0: no tracks).
+    pub tracks: usize,
     /// Rows and columns of one depth frame as the network reads it (the
     /// camera's image after its min-pool; `[32, 32]`, the paper's).
     pub depth: [usize; 2],
@@ -79,6 +87,7 @@ impl Shapes {
         scalars: VEL_DIM,
         actions: NUM_ACTIONS,
         map: 0,
+        tracks: 0,
         depth: [DEPTH_SIDE, DEPTH_SIDE],
     };
     /// The most actions any task has.
@@ -93,6 +102,7 @@ impl Shapes {
             scalars: VEL_DIM + if goal { GOAL_DIM } else { 0 },
             actions: NUM_ACTIONS + hold as usize,
             map: 0,
+            tracks: 0,
             depth: [DEPTH_SIDE, DEPTH_SIDE],
         }
     }
@@ -113,10 +123,22 @@ impl Shapes {
         Self { scalars: self.scalars - self.map + floats, map: floats, ..self }
     }
 
+    /// The same shapes with `floats` of the seen movers at the end of the
+    /// scalars (replacing any they had).
+    pub const fn with_tracks(self, floats: usize) -> Self {
+        Self { scalars: self.scalars - self.tracks + floats, tracks: floats, ..self }
+    }
+
+    /// Floats of the memory at the end of the scalars: the map's, then the
+    /// tracks'.
+    pub const fn memory_floats(self) -> usize {
+        self.map + self.tracks
+    }
+
     /// Whether the observation holds a goal's [`GOAL_DIM`] floats (after
     /// the velocity, before the map).
     pub const fn goal(self) -> bool {
-        self.scalars >= self.map + VEL_DIM + GOAL_DIM
+        self.scalars >= self.memory_floats() + VEL_DIM + GOAL_DIM
     }
 
     /// The same shapes with the stacked frames `stride` action periods apart.
@@ -287,13 +309,21 @@ impl Shapes {
         if self.map > MAX_MAP_FLOATS {
             return Err(format!("{} floats of the map (at most {MAX_MAP_FLOATS})", self.map));
         }
-        let task = self.scalars.checked_sub(self.map);
+        if self.tracks > MAX_TRACK_FLOATS || !self.tracks.is_multiple_of(TRACK_FLOATS) {
+            return Err(format!(
+                "{} floats of the seen movers (a multiple of {TRACK_FLOATS}, at most \
+                 {MAX_TRACK_FLOATS})",
+                self.tracks
+            ));
+        }
+        let task = self.scalars.checked_sub(self.memory_floats());
         if task != Some(VEL_DIM) && task != Some(VEL_DIM + GOAL_DIM) {
             return Err(format!(
-                "{} observation scalars with {} of the map (a task has {VEL_DIM}, or {} with \
-                 a goal, then the map's)",
+                "{} observation scalars with {} of the map and {} of the tracks (a task has \
+                 {VEL_DIM}, or {} with a goal, then the map's and the tracks')",
                 self.scalars,
                 self.map,
+                self.tracks,
                 VEL_DIM + GOAL_DIM
             ));
         }

@@ -393,6 +393,27 @@ impl Sim {
         Ok(())
     }
 
+    /// Floats of the seen movers in an observation (`[sim.tracks]`; 0:
+    /// none): observations then have a `tracks` part.
+    #[getter]
+    fn tracks_floats(&self) -> usize {
+        self.env.config().tracks.floats()
+    }
+
+    /// Writes every agent's seen movers as its observation reads them
+    /// (`agents × tracks_floats`; nothing without tracks).
+    fn observe_tracks(&self, mut tracks: PyReadwriteArray2<'_, f32>) -> PyResult<()> {
+        let m = tracks.as_slice_mut()?;
+        let k = self.env.config().tracks.floats();
+        check_len("tracks", m.len(), self.env.agents() * k)?;
+        if k > 0 {
+            for (i, row) in m.chunks_exact_mut(k).enumerate() {
+                self.env.write_tracks(i, row);
+            }
+        }
+        Ok(())
+    }
+
     /// Writes every agent's current observation.
     fn observe(
         &self,
@@ -529,8 +550,8 @@ fn sim_keys() -> Vec<String> {
     // The camera's map, a section left out of a config without it: a
     // keyword argument of a dict (`map={"encoding": "rays"}`); so is the
     // camera (`camera={"width": 64, "height": 64}`), and `depth_range`, its
-    // range's older name.
-    keys.extend(["map", "camera", "depth_range"].map(String::from));
+    // range's older name; and the seen movers (`tracks={"count": 5}`).
+    keys.extend(["map", "tracks", "camera", "depth_range"].map(String::from));
     keys.sort();
     keys.dedup();
     keys

@@ -61,11 +61,12 @@ impl PolicyNetwork {
     /// and frames further apart (`frame_stride` action periods); of the
     /// widths `conv_channels` (two) and `hidden` (one to three), as
     /// `learner.conv_channels` and `learner.hidden`; with `map` floats of
-    /// the camera's map after the other scalars (`[sim.map]`); with a GRU
+    /// the camera's map after the other scalars (`[sim.map]`), `tracks`
+    /// floats of the seen movers after them (`[sim.tracks]`); with a GRU
     /// of `memory` units (`learner.memory = "gru:WIDTH"`), or none; on
     /// depth frames of `depth` (rows, columns: the camera's observed size).
     #[new]
-    #[pyo3(signature = (seed=0, goal=false, hold=false, frames=FRAMES, frame_stride=1, conv_channels=vec![16, 32], hidden=vec![64], map=0, memory=None, depth=(32, 32)))]
+    #[pyo3(signature = (seed=0, goal=false, hold=false, frames=FRAMES, frame_stride=1, conv_channels=vec![16, 32], hidden=vec![64], map=0, tracks=0, memory=None, depth=(32, 32)))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         seed: u64,
@@ -76,12 +77,14 @@ impl PolicyNetwork {
         conv_channels: Vec<usize>,
         hidden: Vec<usize>,
         map: usize,
+        tracks: usize,
         memory: Option<usize>,
         depth: (usize, usize),
     ) -> PyResult<Self> {
         let shapes = Shapes::task(frames, goal, hold)
             .with_stride(frame_stride)
             .with_map(map)
+            .with_tracks(tracks)
             .with_depth([depth.0, depth.1])
             .check()
             .map_err(value_error)?;
@@ -141,6 +144,13 @@ impl PolicyNetwork {
         self.net.shapes().map
     }
 
+    /// Floats of the seen movers at the very end of an observation (0:
+    /// none).
+    #[getter]
+    fn tracks(&self) -> usize {
+        self.net.shapes().tracks
+    }
+
     /// Rows and columns of the depth frames it reads.
     #[getter]
     fn depth(&self) -> (usize, usize) {
@@ -164,7 +174,8 @@ impl PolicyNetwork {
     /// Writes the network as an ONNX model (as `hive export`): inputs
     /// `depth` `(B, frames, rows, cols)` and `velocity` `(B, 3)` (with a goal
     /// `(B, 6)`: the velocity, then the goal's floats), then with the
-    /// camera's map `map` `(B, floats)`, with memory `state` `(B, width)`;
+    /// camera's map `map` `(B, floats)`, with the seen movers `tracks`
+    /// `(B, floats)`, with memory `state` `(B, width)`;
     /// outputs `q` `(B, actions)`, with memory `next_state`.
     fn to_onnx(&self, path: PathBuf) -> PyResult<()> {
         self.net.to_onnx(&path, &[]).map_err(model_error)
@@ -172,7 +183,8 @@ impl PolicyNetwork {
 
     /// Q-values `(B, actions)` of flat observations `(B, obs_len)`: the
     /// depth frames, oldest first, row-major, then the body-frame velocity
-    /// (and, with a goal, the goal's floats; with the map, its floats). A
+    /// (and, with a goal, the goal's floats; with the map, its floats; with
+    /// the seen movers, theirs). A
     /// network with memory is stepped with `step`.
     fn q_values<'py>(
         &self,

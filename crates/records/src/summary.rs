@@ -167,6 +167,10 @@ pub struct Summary {
     /// observation's share); null without a map.
     #[serde(default)]
     pub map: Option<serde_json::Value>,
+    /// The run's seen movers (`[sim.tracks]`) as it ran, with `floats`;
+    /// null without tracks.
+    #[serde(default)]
+    pub tracks: Option<serde_json::Value>,
     /// Stopped by a signal.
     pub interrupted: bool,
     /// Continued from an earlier run (`--resume`).
@@ -282,6 +286,7 @@ mod tests {
             teaching: Teaching::default(),
             sizing: Some(serde_json::json!({ "cores": 2, "envs": 1 })),
             map: None,
+            tracks: None,
             interrupted: false,
             resumed: false,
             failure: None,

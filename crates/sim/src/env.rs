@@ -30,6 +30,7 @@ mod fresh;
 mod mapping;
 mod observe;
 mod settings;
+mod tracking;
 
 use fresh::Fresh;
 pub use fresh::{FreshStats, LayoutMaker};
@@ -160,6 +161,9 @@ pub struct VecEnv {
     /// (`[sim.map]`; `env/mapping.rs`).
     lane_bounds: Vec<[f32; 2]>,
     maps: Option<crate::map::Maps>,
+    /// Every agent's tracker of the movers it saw (`[sim.tracks]`;
+    /// `env/tracking.rs`).
+    trackers: Option<crate::tracks::Trackers>,
 }
 
 impl VecEnv {
@@ -192,6 +196,7 @@ impl VecEnv {
         );
         let obs_len = cfg.frames * px + cfg.shapes().scalars;
         let maps = mapping::maps_of(&cfg, &lane_bounds, &arena);
+        let trackers = tracking::trackers_of(&cfg);
         let mut env = Self {
             renderer: DepthRenderer::new(cfg.camera, cfg.render_threads),
             gpu,
@@ -229,6 +234,7 @@ impl VecEnv {
             autoreset: Autoreset::SameStep,
             restarted: vec![false; n],
             maps,
+            trackers,
             lane_bounds,
             cfg,
         };
@@ -237,6 +243,7 @@ impl VecEnv {
         }
         env.render()?;
         env.map_frames(None);
+        env.track_frames(None);
         for i in 0..n {
             env.fill_past(i);
         }
@@ -547,6 +554,7 @@ impl VecEnv {
         self.age_frames();
         self.render()?;
         self.map_frames(None);
+        self.track_frames(None);
         let t3 = Instant::now();
         // A reset agent starts with every frame equal to its first view.
         for i in 0..self.cfg.agents {
@@ -604,6 +612,9 @@ impl VecEnv {
         self.agent_lane[i] = lane;
         if let Some(m) = &mut self.maps {
             m.clear(i, self.lane_bounds[lane]);
+        }
+        if let Some(t) = &mut self.trackers {
+            t.clear(i);
         }
         let s = &self.lane_spawns[lane];
         let y = self.lane_offsets[lane]
@@ -746,6 +757,7 @@ impl VecEnv {
         let World { flight, physics, scene, gpu } =
             World::new(&self.cfg, &world, &bounds, self.time())?;
         self.maps = mapping::maps_of(&self.cfg, &bounds, &world);
+        self.trackers = tracking::trackers_of(&self.cfg);
         self.lane_bounds = bounds;
         (self.flight, self.physics, self.scene, self.gpu) = (flight, physics, scene, gpu);
         self.arena = world;

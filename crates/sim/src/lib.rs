@@ -18,6 +18,7 @@ mod rapier_flight;
 pub mod realism;
 pub mod render;
 mod simd;
+pub mod tracks;
 pub mod view;
 
 pub use arena::{Arena, ArenaError, Lanes, MAX_OBSTACLE_SPEED, Motion, Obstacle, Spawn};
@@ -31,3 +32,4 @@ pub use map::{MapEncoding, MapSpec};
 pub use planner::{Planner, Sight};
 pub use realism::{Noise, Randomize};
 pub use render::{CameraPose, CameraSpec, DepthRenderer, GpuDepthRenderer, GpuError, Scene};
+pub use tracks::{Track, TrackSpec};

@@ -108,11 +108,14 @@ pub enum Sight {
     /// one as [`Sight::ViewMemory`] knows it. The ceiling of a pilot with
     /// memory of what its camera showed.
     PixelsMemory(Option<u16>),
-    /// What the agent's camera map (`[sim.map]`) holds: the obstacles with
-    /// a cell of the map marked as met in their footprint, and nothing
-    /// else (no obstacle known by nearness); each moving one over its
-    /// whole track. The ceiling of a student that reads the map. Needs
-    /// an environment with a map (none: nothing is known).
+    /// What the agent's camera map (`[sim.map]`) and seen movers
+    /// (`[sim.tracks]`) hold: the still obstacles with a cell of the map
+    /// marked as met in their footprint, and nothing else (no obstacle
+    /// known by nearness); each moving one predicted from its track alone
+    /// ([`crate::Track::predicted`]), or without tracks each one with a
+    /// marked cell over its whole track. The ceiling of a student that
+    /// reads the map and the tracks. Needs an environment with a map
+    /// (none: nothing is known).
     Map,
 }
 
@@ -535,6 +538,10 @@ fn in_view(env: &VecEnv, i: usize, sight: Sight, watched: &mut Watched) -> Arena
             let o = &world.obstacles[k];
             let Some(m) = o.motion().filter(|_| sight != Sight::View) else { return o.clone() };
             match sight {
+                Sight::Map if env.tracks_movers() => {
+                    let track = env.tracks_of(i).iter().find(|tr| tr.obstacle == k);
+                    track.map_or_else(|| over_track(o), |tr| tr.predicted(&o.at(tr.last_t)))
+                }
                 Sight::ViewTrack | Sight::Map => over_track(o),
                 Sight::ViewMemory(memory_s) | Sight::PixelsMemory(memory_s) => {
                     let since = *watched.first.entry(k).or_insert(t);
@@ -556,9 +563,16 @@ fn known_obstacles(env: &VecEnv, i: usize, sight: Sight, watched: &mut Watched) 
     let (d, t) = (env.drone(i), env.time());
     let world = env.arena();
     if sight == Sight::Map {
+        // With the seen movers, a moving obstacle is known from its track
+        // alone (not from the cells its sightings marked).
+        let tracked = env.tracks_movers();
         return (0..world.obstacles.len())
             .filter(|&k| {
-                let (lo, hi) = world.obstacles[k].at(t).aabb();
+                let o = &world.obstacles[k];
+                if tracked && o.motion().is_some() {
+                    return env.tracks_of(i).iter().any(|tr| tr.obstacle == k);
+                }
+                let (lo, hi) = o.at(t).aabb();
                 env.map_shows(i, [lo[0], lo[1]], [hi[0], hi[1]])
             })
             .collect();

@@ -644,6 +644,7 @@ impl Supervisor<'_> {
             teaching: self.teaching(),
             sizing: sizing_json(cfg),
             map: records::map_json(cfg),
+            tracks: records::tracks_json(cfg),
             interrupted: ending.interrupted,
             resumed: self.a.resume.is_some(),
             failure: ending.failure.clone(),

@@ -302,6 +302,16 @@ pub(super) fn renderer_of(cfg: &Config) -> rotorhive_records::Renderer {
     }
 }
 
+/// The run's seen movers as `summary.json` holds them, with their floats
+/// (none without tracks).
+pub(super) fn tracks_json(cfg: &Config) -> Option<serde_json::Value> {
+    cfg.sim.tracks.enabled().then(|| {
+        let mut v = serde_json::json!(cfg.sim.tracks);
+        v["floats"] = cfg.sim.tracks.floats().into();
+        v
+    })
+}
+
 /// The run's camera map as `summary.json` holds it, with its floats (none
 /// without a map).
 pub(super) fn map_json(cfg: &Config) -> Option<serde_json::Value> {

@@ -104,7 +104,7 @@ def _check_render_mode(render_mode: str | None) -> None:
         raise ValueError(f"render_mode {render_mode!r} is not supported: only 'rgb_array' (or None)")
 
 
-def _spaces(depth: tuple[int, int], goal: bool, frames: int = 2, map_floats: int = 0) -> spaces.Dict:
+def _spaces(depth: tuple[int, int], goal: bool, frames: int = 2, map_floats: int = 0, tracks_floats: int = 0) -> spaces.Dict:
     parts = {
         # The depth frames, oldest first (``sim.frames``; 2: previous, current).
         "depth": spaces.Box(0.0, 1.0, (frames, *depth), np.float32),
@@ -118,17 +118,26 @@ def _spaces(depth: tuple[int, int], goal: bool, frames: int = 2, map_floats: int
         # unknown, 1/3 free, 2/3 wall, 1 obstacle) or rays through it (to the
         # first obstacle, then to the first unknown cell, shares of their reach).
         parts["map"] = spaces.Box(0.0, 1.0, (map_floats,), np.float32)
+    if tracks_floats:
+        # The seen movers (``[sim.tracks]``), nearest first, 14 floats each:
+        # present, position at the last sighting (body frame, tens of m, 2),
+        # velocity (body frame, m/s, 2), velocity known, half size (m, 2),
+        # time since the last sighting and time watched (shares of keep_s),
+        # the seen stretch's centre and half lengths (tens of m, 4); zeros
+        # where fewer are known.
+        parts["tracks"] = spaces.Box(-np.inf, np.inf, (tracks_floats,), np.float32)
     return spaces.Dict(parts)
 
 
 class _Buffers:
     """The arrays the simulator writes into, owned by the environment."""
 
-    def __init__(self, n: int, depth: tuple[int, int], goal: bool = False, frames: int = 2, map_floats: int = 0) -> None:
+    def __init__(self, n: int, depth: tuple[int, int], goal: bool = False, frames: int = 2, map_floats: int = 0, tracks_floats: int = 0) -> None:
         self.depth = np.zeros((n, frames, *depth), np.float32)
         self.velocity = np.zeros((n, 3), np.float32)
         self.goal = np.zeros((n, 3), np.float32) if goal else None
         self.map = np.zeros((n, map_floats), np.float32) if map_floats else None
+        self.tracks = np.zeros((n, tracks_floats), np.float32) if tracks_floats else None
         self.rewards = np.zeros(n, np.float32)
         self.dones = np.zeros(n, np.uint8)
         self.ep_return = np.zeros(n, np.float32)
@@ -142,17 +151,21 @@ class _Buffers:
             out["goal"] = self.goal
         if self.map is not None:
             out["map"] = self.map
+        if self.tracks is not None:
+            out["tracks"] = self.tracks
         if i is not None:
             out = {k: v[i] for k, v in out.items()}
         return {k: v.copy() for k, v in out.items()} if copy else out
 
     def read_goal(self, sim: Any) -> None:
         """Takes the goal's part from the simulator, with a goal (and the
-        camera's map, with one)."""
+        camera's map and the seen movers, with them)."""
         if self.goal is not None:
             sim.observe_goal(self.goal)
         if self.map is not None:
             sim.observe_map(self.map)
+        if self.tracks is not None:
+            sim.observe_tracks(self.tracks)
 
 
 def _check_action_values(a: np.ndarray, count: int) -> None:
@@ -215,11 +228,11 @@ class NavigateVectorEnv(VectorEnv):
         self.num_envs = n
         self.copy = bool(copy)
         self.render_mode = render_mode
-        self.single_observation_space = _spaces(self._sim.depth_shape, self._sim.has_goal, self._sim.frames, self._sim.map_floats)
+        self.single_observation_space = _spaces(self._sim.depth_shape, self._sim.has_goal, self._sim.frames, self._sim.map_floats, self._sim.tracks_floats)
         self.single_action_space = spaces.Discrete(self._sim.num_actions)
         self.observation_space = batch_space(self.single_observation_space, n)
         self.action_space = batch_space(self.single_action_space, n)
-        self._b = _Buffers(n, self._sim.depth_shape, self._sim.has_goal, self._sim.frames, self._sim.map_floats)
+        self._b = _Buffers(n, self._sim.depth_shape, self._sim.has_goal, self._sim.frames, self._sim.map_floats, self._sim.tracks_floats)
         # Agents whose episode ended and that have not started the next one.
         self._ended = np.zeros(n, np.bool_)
         self._needs_reset = True
@@ -356,9 +369,9 @@ class NavigateEnv(gym.Env):
         _check_render_mode(render_mode)
         self._sim = _rotorhive.Sim(1, seed, _arena(arena), arena_seed, _overrides("rotorhive/NavigateSingle-v0", sim), _level(level))
         self.render_mode = render_mode
-        self.observation_space = _spaces(self._sim.depth_shape, self._sim.has_goal, self._sim.frames, self._sim.map_floats)
+        self.observation_space = _spaces(self._sim.depth_shape, self._sim.has_goal, self._sim.frames, self._sim.map_floats, self._sim.tracks_floats)
         self.action_space = spaces.Discrete(self._sim.num_actions)
-        self._b = _Buffers(1, self._sim.depth_shape, self._sim.has_goal, self._sim.frames, self._sim.map_floats)
+        self._b = _Buffers(1, self._sim.depth_shape, self._sim.has_goal, self._sim.frames, self._sim.map_floats, self._sim.tracks_floats)
         self._a = np.zeros(1, np.uint8)
         self._needs_reset = True
 

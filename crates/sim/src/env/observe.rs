@@ -232,6 +232,8 @@ impl VecEnv {
                     k += 3;
                 }
                 self.write_map(i, &mut o[k..]);
+                k += self.cfg.map.floats();
+                self.write_tracks(i, &mut o[k..]);
             }
         };
         // Copies of the frames, the step's largest serial work after
@@ -292,6 +294,7 @@ impl VecEnv {
             self.put_frames(&reset, &img);
         }
         self.map_frames(Some(&reset));
+        self.track_frames(Some(&reset));
         for i in reset {
             self.fill_past(i);
         }

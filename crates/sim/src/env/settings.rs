@@ -130,6 +130,9 @@ pub struct SimConfig {
     pub sight_rays: usize,
     /// The camera's map in the observation (`[sim.map]`; off by default).
     pub map: crate::map::MapSpec,
+    /// The seen movers in the observation (`[sim.tracks]`; off by
+    /// default).
+    pub tracks: crate::tracks::TrackSpec,
 }
 
 impl SimConfig {
@@ -144,6 +147,7 @@ impl SimConfig {
         Shapes::task(self.frames, self.goal.enabled, self.hold_action)
             .with_stride(self.frame_stride)
             .with_map(self.map.floats())
+            .with_tracks(self.tracks.floats())
             .with_depth(self.camera.observed_depth())
     }
 }
@@ -179,6 +183,7 @@ impl Default for SimConfig {
             frame_stride: 1,
             sight_rays: 0,
             map: crate::map::MapSpec::default(),
+            tracks: crate::tracks::TrackSpec::default(),
         }
     }
 }

@@ -208,6 +208,21 @@ impl Scene {
     /// shows, occlusion as the renderer has it (the obstacles where the
     /// scene has them now; other drones are not obstacles).
     pub fn visible(&self, spec: &CameraSpec, cam: &CameraPose) -> Vec<usize> {
+        self.visible_where(spec, cam, 0, |_| true)
+    }
+
+    /// As [`Scene::visible`], of the obstacles `wanted` names only (the
+    /// others still hide what lies behind them), through the middle `band`
+    /// rows of the image (0: every row). Casts no ray where no wanted
+    /// obstacle lies within the camera's reach: the tracker's query
+    /// (`crate::tracks`), which wants the moving ones.
+    pub fn visible_where(
+        &self,
+        spec: &CameraSpec,
+        cam: &CameraPose,
+        band: usize,
+        wanted: impl Fn(usize) -> bool,
+    ) -> Vec<usize> {
         let view = View::new(spec, cam);
         let mut candidates = Vec::new();
         let walls = self.reach(&view, &mut vec![0; self.len()], 1, &mut candidates);
@@ -215,8 +230,17 @@ impl Scene {
             let (min, max) = self.shapes[i as usize].aabb();
             !beyond(walls, min, max)
         });
+        if !candidates.iter().any(|&i| wanted(i as usize)) {
+            return Vec::new();
+        }
+        let rows = if band == 0 || band >= view.nv {
+            0..view.nv
+        } else {
+            let first = (view.nv - band) / 2;
+            first..first + band
+        };
         let mut hit = vec![false; candidates.len()];
-        for v in 0..view.nv {
+        for v in rows {
             for u in 0..view.nu {
                 let d = view.dir(u, v);
                 let mut nearest = view.range.min(planes(walls, self.height, view.o, d));
@@ -232,10 +256,19 @@ impl Scene {
                 }
             }
         }
-        let mut seen: Vec<usize> =
-            candidates.iter().zip(&hit).filter(|(_, h)| **h).map(|(&i, _)| i as usize).collect();
+        let mut seen: Vec<usize> = candidates
+            .iter()
+            .zip(&hit)
+            .filter(|(i, h)| **h && wanted(**i as usize))
+            .map(|(&i, _)| i as usize)
+            .collect();
         seen.sort_unstable();
         seen
+    }
+
+    /// Axis-aligned bounds of obstacle `k` where the scene has it now.
+    pub(crate) fn bounds_of(&self, k: usize) -> (Vector, Vector) {
+        self.shapes[k].aabb()
     }
 }
 

@@ -1,0 +1,69 @@
+//! The seen movers in the environment (`[sim.tracks]`, `crate::tracks`):
+//! built with the world, cleared when an agent's episode starts, fed what
+//! each frame the agent takes shows of the moving obstacles, and written
+//! after the map in its observation.
+
+use super::VecEnv;
+use crate::SimConfig;
+use crate::render::CameraPose;
+use crate::tracks::{Track, Trackers};
+
+/// Every agent's tracker, where the config has tracks.
+pub(super) fn trackers_of(cfg: &SimConfig) -> Option<Trackers> {
+    cfg.tracks.enabled().then(|| Trackers::new(&cfg.tracks, cfg.agents))
+}
+
+impl VecEnv {
+    /// The trackers take what the agents' current frames show of the
+    /// moving obstacles: `who`'s (just reset, seen from their spawn), or
+    /// with `None` every agent's (a step's, seen where each camera was
+    /// when its frame was taken), on the scene at the frame's time.
+    pub(super) fn track_frames(&mut self, who: Option<&[usize]>) {
+        if self.trackers.is_none() {
+            return;
+        }
+        let spec = self.cfg.camera.observed();
+        let t = self.time();
+        let mut mover = vec![false; self.scene.len()];
+        for &(k, ..) in &self.scene.movers {
+            mover[k as usize] = true;
+        }
+        let agents: Vec<(usize, CameraPose)> = match who {
+            Some(who) => who.iter().map(|&i| (i, self.camera(i))).collect(),
+            None => (0..self.cfg.agents).map(|i| (i, self.camera_at(i))).collect(),
+        };
+        let trackers = self.trackers.as_mut().expect("checked above");
+        let band = trackers.spec().band;
+        for (i, cam) in agents {
+            for k in self.scene.visible_where(&spec, &cam, band, |k| mover[k]) {
+                let (lo, hi) = self.scene.bounds_of(k);
+                let at = [(lo.x + hi.x) / 2.0, (lo.y + hi.y) / 2.0];
+                let half = [(hi.x - lo.x) / 2.0, (hi.y - lo.y) / 2.0];
+                trackers.see(i, k, t, at, half);
+            }
+            trackers.expire(i, t);
+        }
+    }
+
+    /// Writes agent `i`'s seen movers as its observation reads them
+    /// (nothing without tracks): `out` holds
+    /// [`TrackSpec::floats`](crate::tracks::TrackSpec::floats) floats.
+    pub fn write_tracks(&self, i: usize, out: &mut [f32]) {
+        if let Some(tr) = &self.trackers {
+            let d = &self.drones[i];
+            let f = d.q * rapier3d::math::Vector::X;
+            tr.encode(i, d.p, f.y.atan2(f.x), self.time(), out);
+        }
+    }
+
+    /// Agent `i`'s tracks of the moving obstacles its camera has shown it
+    /// (empty without `[sim.tracks]`).
+    pub fn tracks_of(&self, i: usize) -> &[Track] {
+        self.trackers.as_ref().map_or(&[], |t| t.of(i))
+    }
+
+    /// Whether the environment tracks the movers its cameras see.
+    pub fn tracks_movers(&self) -> bool {
+        self.trackers.is_some()
+    }
+}
