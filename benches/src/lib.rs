@@ -65,7 +65,8 @@ pub enum BenchCmd {
         fresh_layouts: Option<usize>,
         /// With --config: a config key to change, as `hive train --set`
         /// takes it (repeatable). A config with the camera's map
-        /// (`sim.map`) is measured without it too, side by side.
+        /// (`sim.map`) or seen movers (`sim.tracks`) is measured without
+        /// them too, side by side.
         #[arg(long = "set", value_name = "KEY=VALUE", requires = "config")]
         set: Vec<String>,
         /// Print one JSON object as the last line.
@@ -342,13 +343,15 @@ fn run_sim(
         _ => None,
     });
     let lanes: Vec<Option<usize>> = std::iter::once(None).chain(fresh_layouts.map(Some)).collect();
-    // The map's cost: the same config without it, beside it.
+    // The memory's cost: the same config without its map and tracks,
+    // beside it.
     let mut worlds = vec![world];
     if let SimWorld::Config(c) = &worlds[0]
-        && c.sim.map.enabled()
+        && (c.sim.map.enabled() || c.sim.tracks.enabled())
     {
         let mut bare = (**c).clone();
         bare.sim.map = rotorhive_sim::MapSpec::default();
+        bare.sim.tracks = rotorhive_sim::TrackSpec::default();
         worlds.push(SimWorld::Config(Box::new(bare)));
     }
     bench_sim(agents, (steps, threads), (physics, &lanes), &worlds, json)
@@ -377,11 +380,15 @@ enum SimWorld {
 }
 
 impl SimWorld {
-    /// The encoding of its camera's map (`none` without one).
-    fn map_name(&self) -> &'static str {
+    /// The encoding of its camera's map (`none` without one), and `+tK`
+    /// with K seen movers.
+    fn map_name(&self) -> String {
         match self {
-            SimWorld::Config(c) => c.sim.map.encoding.name(),
-            SimWorld::Arena(_) => "none",
+            SimWorld::Config(c) if c.sim.tracks.enabled() => {
+                format!("{}+t{}", c.sim.map.encoding.name(), c.sim.tracks.count)
+            }
+            SimWorld::Config(c) => c.sim.map.encoding.name().to_string(),
+            SimWorld::Arena(_) => "none".to_string(),
         }
     }
 

@@ -54,7 +54,7 @@ pub struct TrackSpec {
 
 impl Default for TrackSpec {
     fn default() -> Self {
-        Self { count: 0, keep_s: 10.0, band: 8 }
+        Self { count: 0, keep_s: 10.0, band: 2 }
     }
 }
 
