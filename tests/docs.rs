@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use std::process::Command;
 
 use rotorhive_roles::config::{Config, Curriculum};
-use rotorhive_sim::{GenParams, Goal, MapEncoding, MapSpec};
+use rotorhive_sim::{GenParams, Goal, MapEncoding, MapSpec, TrackSpec};
 
 mod common;
 use common::root;
@@ -59,6 +59,8 @@ fn code_keys() -> BTreeMap<String, toml::Value> {
     cfg.sim.goal = Goal { enabled: true, ..Goal::default() };
     // So is a camera map that is on; its encoding is `none` by default.
     cfg.sim.map = MapSpec { encoding: MapEncoding::Rays, ..MapSpec::default() };
+    // And seen movers; off (`count` 0) by default.
+    cfg.sim.tracks = TrackSpec { count: 5, ..TrackSpec::default() };
     // And a camera with every key given (each optional: the preset's).
     cfg.sim.camera = rotorhive_roles::config::camera::CameraSection {
         preset: Some(rotorhive_roles::config::camera::CameraPreset::Paper),
@@ -73,6 +75,7 @@ fn code_keys() -> BTreeMap<String, toml::Value> {
     flatten("", &toml::Value::try_from(&cfg).unwrap(), &mut out);
     out.insert("sim.goal.enabled".into(), toml::Value::Boolean(Goal::default().enabled));
     out.insert("sim.map.encoding".into(), toml::Value::String("none".into()));
+    out.insert("sim.tracks.count".into(), toml::Value::Integer(0));
     out
 }
 

@@ -118,6 +118,8 @@ fn fused_gradients_match_stock_candle() {
         (7, true, 2, goal, deep),
         (8, true, 2, map, Layers::DEFAULT),
         (9, false, 1, goal_map, wide),
+        // The seen movers after the map: 5 tracks of 14 floats.
+        (12, true, 2, map.with_tracks(70), Layers::DEFAULT),
         // Frames of other cameras: 48 × 40 (a 10 × 8 pooled map), and 13 ×
         // 27, whose odd conv2 map loses its last column to the pooling.
         (10, true, 2, Shapes::PAPER.with_depth([48, 40]), Layers::DEFAULT),
@@ -573,6 +575,13 @@ fn flat_weights_and_checkpoints_round_trip() {
         .to_string();
     assert!(e.contains("map 72 (this network: 256)"), "{e}");
     QNet::with_shapes(mapped, 0, &dev).unwrap().load(&path).unwrap();
+    // So does one reading the seen movers, after the map.
+    let tracked = mapped.with_tracks(5 * rotorhive_msg::TRACK_FLOATS);
+    QNet::with_shapes(tracked, 3, &dev).unwrap().save(&path).unwrap();
+    assert_eq!(checkpoint_shapes(&path).unwrap(), tracked);
+    let e = QNet::with_shapes(mapped, 0, &dev).unwrap().load(&path).unwrap_err().to_string();
+    assert!(e.contains("tracks 70 (this network: 0)"), "{e}");
+    QNet::with_shapes(tracked, 0, &dev).unwrap().load(&path).unwrap();
     // A header that claims shapes no task has is refused by name.
     for (key, value, claim) in [
         ("scalars", "7", "header claims 7 observation scalars"),

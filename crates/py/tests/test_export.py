@@ -72,6 +72,29 @@ def test_a_network_of_the_cameras_map_exports_it_as_its_own_input(tmp_path):
     assert np.abs(got - want).max() <= 1e-4, np.abs(got - want).max()
 
 
+def test_a_network_of_the_seen_movers_exports_them_after_the_map(tmp_path):
+    import onnxruntime as ort
+
+    net = rotorhive.QNetwork(seed=5, map=72, tracks=70)
+    assert net.tracks == 70 and net.obs_len == 2 * 32 * 32 + 3 + 72 + 70
+    path = tmp_path / "tracks.safetensors"
+    net.save(str(path))
+    loaded = rotorhive.QNetwork.load(str(path))
+    assert (loaded.map, loaded.tracks) == (72, 70)
+    rng = np.random.default_rng(6)
+    depth = rng.random((20, 2, 32, 32), dtype=np.float32)
+    vel = rng.normal(size=(20, 3)).astype(np.float32)
+    cells = rng.random((20, 72), dtype=np.float32)
+    tracks = rng.normal(size=(20, 70)).astype(np.float32)
+    flat = np.ascontiguousarray(np.concatenate([depth.reshape(20, -1), vel, cells, tracks], axis=1), dtype=np.float32)
+    want = loaded.q_values(flat)
+    out = export_onnx(path, tmp_path / "tracks.onnx")
+    sess = ort.InferenceSession(out, providers=["CPUExecutionProvider"])
+    assert [i.name for i in sess.get_inputs()] == ["depth", "velocity", "map", "tracks"]
+    got = sess.run(["q"], {"depth": depth, "velocity": vel, "map": cells, "tracks": tracks})[0]
+    assert np.abs(got - want).max() <= 1e-4, np.abs(got - want).max()
+
+
 def test_the_command_refuses_a_bad_checkpoint(tmp_path):
     bad = tmp_path / "bad.safetensors"
     bad.write_bytes(b"not a checkpoint")

@@ -67,6 +67,21 @@ def test_the_cameras_map_is_its_own_part_of_the_observation():
         gym.make_vec("rotorhive/Navigate-v0", num_envs=N, map={"encoding": "rays", "rays": 1})
 
 
+def test_the_seen_movers_are_their_own_part_of_the_observation():
+    envs = gym.make_vec("rotorhive/Navigate-v0", num_envs=N, map={"encoding": "rays"}, tracks={"count": 3})
+    space = envs.single_observation_space
+    assert space["tracks"].shape == (3 * 14,) and space["map"].shape == (72,)
+    obs, _ = envs.reset(seed=3)
+    assert obs["tracks"].shape == (N, 42) and envs.observation_space.contains(obs)
+    # The paper's arena has no movers: nothing is tracked.
+    assert (obs["tracks"] == 0).all()
+    obs, *_ = envs.step(envs.action_space.sample())
+    check_obs(obs, envs.observation_space, "step")
+    envs.close()
+    with pytest.raises(ValueError, match="sim.tracks.count"):
+        gym.make_vec("rotorhive/Navigate-v0", num_envs=N, tracks={"count": 99})
+
+
 def test_same_step_agrees_step_for_step_with_the_rust_vecenv():
     """SAME_STEP returns what `hive train`'s VecEnv gives (reset inside the
     step) for the same seed, arena and actions."""
