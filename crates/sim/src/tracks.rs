@@ -181,10 +181,8 @@ impl Track {
             let s = self.along(axis, at);
             self.reach = [self.reach[0].min(s), self.reach[1].max(s)];
         }
-        for k in 0..2 {
-            self.lo[k] = self.lo[k].min(at[k]);
-            self.hi[k] = self.hi[k].max(at[k]);
-        }
+        self.lo = [self.lo[0].min(at[0]), self.lo[1].min(at[1])];
+        self.hi = [self.hi[0].max(at[0]), self.hi[1].max(at[1])];
     }
 
     /// How far along `axis` from its first sighting `p` lies (m).
