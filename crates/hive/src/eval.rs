@@ -116,62 +116,37 @@ fn run_config(checkpoint: &Path) -> Option<PathBuf> {
     checkpoint.ancestors().skip(1).take(2).map(|d| d.join("config.toml")).find(|p| p.is_file())
 }
 
-/// The camera's map a checkpoint reads (`[sim.map]` of the run that wrote
-/// it), as `--set` keys: none for a checkpoint without a map; refused by
-/// name when its run's `config.toml` is not beside it or names another.
-pub(crate) fn map_of(checkpoint: &Path) -> Result<Option<rotorhive_sim::MapSpec>> {
+/// The camera's map and the seen movers a checkpoint reads (`[sim.map]`
+/// and `[sim.tracks]` of the run that wrote it): none of either the
+/// network does not read; refused by name when its run's `config.toml` is
+/// not beside it or names another size. The header and the config are
+/// each read once.
+pub(crate) fn memory_of(
+    checkpoint: &Path,
+) -> Result<(Option<rotorhive_sim::MapSpec>, Option<rotorhive_sim::TrackSpec>)> {
     let shapes = rotorhive_model::checkpoint_shapes(checkpoint)?;
-    if shapes.map == 0 {
-        return Ok(None);
-    }
+    let parts = [("the camera's map", shapes.map), ("the seen movers", shapes.tracks)];
+    let Some(&(what, floats)) = parts.iter().find(|(_, floats)| *floats > 0) else {
+        return Ok((None, None));
+    };
     let Some(path) = run_config(checkpoint) else {
         bail!(
-            "{}: the network reads {} floats of the camera's map, whose settings are in its \
+            "{}: the network reads {floats} floats of {what}, whose settings are in its \
              run's config.toml, not found beside it",
             checkpoint.display(),
-            shapes.map
         );
     };
-    let map = Config::load(Some(&path), &[])?.sim.map;
-    if map.floats() != shapes.map {
-        bail!(
-            "{}: the network reads {} floats of the camera's map, {} names {}",
-            checkpoint.display(),
-            shapes.map,
-            path.display(),
-            map.floats()
-        );
+    let sim = Config::load(Some(&path), &[])?.sim;
+    for ((what, floats), named) in parts.into_iter().zip([sim.map.floats(), sim.tracks.floats()]) {
+        if floats > 0 && named != floats {
+            bail!(
+                "{}: the network reads {floats} floats of {what}, {} names {named}",
+                checkpoint.display(),
+                path.display(),
+            );
+        }
     }
-    Ok(Some(map))
-}
-
-/// The seen movers a checkpoint reads (`[sim.tracks]` of the run that
-/// wrote it): none for a checkpoint without tracks; refused by name when
-/// its run's `config.toml` is not beside it or names another count.
-pub(crate) fn tracks_of(checkpoint: &Path) -> Result<Option<rotorhive_sim::TrackSpec>> {
-    let shapes = rotorhive_model::checkpoint_shapes(checkpoint)?;
-    if shapes.tracks == 0 {
-        return Ok(None);
-    }
-    let Some(path) = run_config(checkpoint) else {
-        bail!(
-            "{}: the network reads {} floats of the seen movers, whose settings are in its \
-             run's config.toml, not found beside it",
-            checkpoint.display(),
-            shapes.tracks
-        );
-    };
-    let tracks = Config::load(Some(&path), &[])?.sim.tracks;
-    if tracks.floats() != shapes.tracks {
-        bail!(
-            "{}: the network reads {} floats of the seen movers, {} names {}",
-            checkpoint.display(),
-            shapes.tracks,
-            path.display(),
-            tracks.floats()
-        );
-    }
-    Ok(Some(tracks))
+    Ok(((shapes.map > 0).then_some(sim.map), (shapes.tracks > 0).then_some(sim.tracks)))
 }
 
 /// `--set` keys that give a config the seen movers `t`.
@@ -228,12 +203,9 @@ fn checkpoint_sets(c: &Path, camera: rotorhive_sim::CameraSpec) -> Result<Vec<St
     if camera != rotorhive_sim::CameraSpec::default() {
         set.extend(rotorhive_roles::config::camera::camera_sets(&camera));
     }
-    if let Some(m) = map_of(c)? {
-        set.extend(map_sets(&m));
-    }
-    if let Some(t) = tracks_of(c)? {
-        set.extend(tracks_sets(&t));
-    }
+    let (map, tracks) = memory_of(c)?;
+    set.extend(map.iter().flat_map(map_sets));
+    set.extend(tracks.iter().flat_map(tracks_sets));
     Ok(set)
 }
 

@@ -111,12 +111,9 @@ fn sim_config(a: &PlayArgs, net: &PolicyNet) -> Result<SimConfig> {
         ..SimConfig::default()
     };
     cfg.goal.enabled = shapes.goal();
-    if let Some(m) = crate::eval::map_of(&a.checkpoint)? {
-        cfg.map = m;
-    }
-    if let Some(t) = crate::eval::tracks_of(&a.checkpoint)? {
-        cfg.tracks = t;
-    }
+    let (map, tracks) = crate::eval::memory_of(&a.checkpoint)?;
+    cfg.map = map.unwrap_or_default();
+    cfg.tracks = tracks.unwrap_or_default();
     Ok(cfg)
 }
 

@@ -152,6 +152,27 @@ struct StepBuffers<'py> {
     ep_length: PyReadwriteArray1<'py, i32>,
 }
 
+impl Sim {
+    /// Writes `k` floats a row of every agent into `out` (`agents × k`,
+    /// checked by `name`) with `write` (nothing where `k` is 0): the map's
+    /// and the seen movers' parts of the observation.
+    fn write_rows(
+        &self,
+        name: &str,
+        out: &mut [f32],
+        k: usize,
+        write: impl Fn(&VecEnv, usize, &mut [f32]),
+    ) -> PyResult<()> {
+        check_len(name, out.len(), self.env.agents() * k)?;
+        if k > 0 {
+            for (i, row) in out.chunks_exact_mut(k).enumerate() {
+                write(&self.env, i, row);
+            }
+        }
+        Ok(())
+    }
+}
+
 #[pymethods]
 impl Sim {
     /// `overrides` are `sim.key=value` strings, as `hive train --set`.
@@ -382,15 +403,8 @@ impl Sim {
     /// Writes every agent's camera map as its observation reads it
     /// (`agents × map_floats`, each in [0, 1]; nothing without a map).
     fn observe_map(&self, mut map: PyReadwriteArray2<'_, f32>) -> PyResult<()> {
-        let m = map.as_slice_mut()?;
         let k = self.env.config().map.floats();
-        check_len("map", m.len(), self.env.agents() * k)?;
-        if k > 0 {
-            for (i, row) in m.chunks_exact_mut(k).enumerate() {
-                self.env.write_map(i, row);
-            }
-        }
-        Ok(())
+        self.write_rows("map", map.as_slice_mut()?, k, VecEnv::write_map)
     }
 
     /// Floats of the seen movers in an observation (`[sim.tracks]`; 0:
@@ -403,15 +417,8 @@ impl Sim {
     /// Writes every agent's seen movers as its observation reads them
     /// (`agents × tracks_floats`; nothing without tracks).
     fn observe_tracks(&self, mut tracks: PyReadwriteArray2<'_, f32>) -> PyResult<()> {
-        let m = tracks.as_slice_mut()?;
         let k = self.env.config().tracks.floats();
-        check_len("tracks", m.len(), self.env.agents() * k)?;
-        if k > 0 {
-            for (i, row) in m.chunks_exact_mut(k).enumerate() {
-                self.env.write_tracks(i, row);
-            }
-        }
-        Ok(())
+        self.write_rows("tracks", tracks.as_slice_mut()?, k, VecEnv::write_tracks)
     }
 
     /// Writes every agent's current observation.

@@ -333,7 +333,7 @@ impl Trackers {
     }
 
     /// Agent `i` sees obstacle `k` at time `t`, its centre at `at` and its
-    /// half size `half`; tracks unseen for longer than `keep_s` are dropped.
+    /// half size `half`.
     pub(crate) fn see(&mut self, i: usize, k: usize, t: f64, at: [f32; 2], half: [f32; 2]) {
         let tracks = &mut self.tracks[i];
         match tracks.iter_mut().find(|tr| tr.obstacle == k) {
@@ -356,9 +356,10 @@ impl Trackers {
         let out = &mut out[..self.spec.floats()];
         out.fill(0.0);
         let keep = f64::from(self.spec.keep_s);
+        // Tracks older than `keep_s` were dropped when the frame was taken
+        // (`Trackers::expire`).
         let mut live: Vec<(&Track, f32)> = self.tracks[i]
             .iter()
-            .filter(|tr| t - tr.last_t <= keep)
             .map(|tr| (tr, (tr.last[0] - p.x).hypot(tr.last[1] - p.y)))
             .collect();
         live.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.obstacle.cmp(&b.0.obstacle)));
