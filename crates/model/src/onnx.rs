@@ -45,7 +45,6 @@ pub(crate) fn model(
     width: Option<usize>,
     metadata: &[(String, String)],
 ) -> Result<Vec<u8>> {
-    let (vel, actions) = (shapes.scalars, shapes.actions);
     let mut weights: HashMap<&str, Vec<f32>> = HashMap::new();
     let names = match width {
         Some(w) => crate::recurrent_params(shapes, layers, w),
@@ -82,27 +81,8 @@ pub(crate) fn model(
             bytes(&mut graph, 5, &t);
         }
     }
-    bytes(
-        &mut graph,
-        11,
-        &value_info(
-            "depth",
-            &[None, Some(shapes.frames), Some(shapes.depth[0]), Some(shapes.depth[1])],
-        ),
-    );
-    bytes(&mut graph, 11, &value_info("velocity", &[None, Some(vel - shapes.memory_floats())]));
-    if shapes.map > 0 {
-        bytes(&mut graph, 11, &value_info("map", &[None, Some(shapes.map)]));
-    }
-    if shapes.tracks > 0 {
-        bytes(&mut graph, 11, &value_info("tracks", &[None, Some(shapes.tracks)]));
-    }
-    if let Some(w) = width {
-        bytes(&mut graph, 11, &value_info("state", &[None, Some(w)]));
-    }
-    bytes(&mut graph, 12, &value_info("q", &[None, Some(actions)]));
-    if let Some(w) = width {
-        bytes(&mut graph, 12, &value_info("next_state", &[None, Some(w)]));
+    for (field, info) in inputs_and_outputs(shapes, width) {
+        bytes(&mut graph, field, &info);
     }
 
     let mut m = Vec::new();
@@ -120,6 +100,31 @@ pub(crate) fn model(
         bytes(&mut m, 14, &entry);
     }
     Ok(m)
+}
+
+/// The graph's inputs (field 11: depth, velocity, then map, tracks and
+/// state where the network has them) and outputs (field 12: q, then
+/// next_state for a recurrent one), each as its `ValueInfoProto`.
+fn inputs_and_outputs(shapes: Shapes, width: Option<usize>) -> Vec<(u32, Vec<u8>)> {
+    let depth = [None, Some(shapes.frames), Some(shapes.depth[0]), Some(shapes.depth[1])];
+    let mut infos = vec![
+        (11, value_info("depth", &depth)),
+        (11, value_info("velocity", &[None, Some(shapes.scalars - shapes.memory_floats())])),
+    ];
+    if shapes.map > 0 {
+        infos.push((11, value_info("map", &[None, Some(shapes.map)])));
+    }
+    if shapes.tracks > 0 {
+        infos.push((11, value_info("tracks", &[None, Some(shapes.tracks)])));
+    }
+    if let Some(w) = width {
+        infos.push((11, value_info("state", &[None, Some(w)])));
+    }
+    infos.push((12, value_info("q", &[None, Some(shapes.actions)])));
+    if let Some(w) = width {
+        infos.push((12, value_info("next_state", &[None, Some(w)])));
+    }
+    infos
 }
 
 /// The GRU's initializers in ONNX's layout (PyTorch's gate blocks r, z, n

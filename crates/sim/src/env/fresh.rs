@@ -22,6 +22,9 @@ use std::time::Instant;
 use crate::arena::{Arena, ArenaError, Lanes};
 use crate::geometry::Geometry;
 use crate::render::Scene;
+use crate::render::wgpu::GpuError;
+
+use super::{Done, LanesError, Physics, PhysicsKind, VecEnv, gpu_scene};
 
 /// The arena of renewal number `n` (0, 1, …): a layout never trained on
 /// before (the caller's seeds keep it off every held-out one).
@@ -179,5 +182,73 @@ fn build_worlds(
         if send.send(built).is_err() {
             return;
         }
+    }
+}
+
+impl VecEnv {
+    /// Renews the generated lanes `first..` with fresh layouts (see
+    /// `env/fresh.rs`): every `every` finished episodes, the next lane is
+    /// retired and, once its last episode ends, replaced by `make`'s next
+    /// arena, built on a thread of its own. `arenas` are the ones the
+    /// environment was built from. The direct physics only (the rapier
+    /// pipeline's drones live in its world).
+    pub fn renew_lanes(
+        &mut self,
+        every: usize,
+        first: usize,
+        arenas: Vec<Arena>,
+        make: LayoutMaker,
+    ) -> Result<(), LanesError> {
+        if self.cfg.physics != PhysicsKind::Direct {
+            return Err(LanesError::Fresh("fresh layouts need the direct physics"));
+        }
+        if arenas.len() != self.lane_offsets.len() || first >= arenas.len() {
+            return Err(LanesError::Fresh(
+                "fresh layouts need the arenas of the lanes and one to renew",
+            ));
+        }
+        self.fresh = Some(Fresh::start(every, first, arenas, make));
+        Ok(())
+    }
+
+    /// What renewing lanes has done (zeros when it is off).
+    pub fn fresh_stats(&self) -> FreshStats {
+        self.fresh.as_ref().map(|f| f.stats).unwrap_or_default()
+    }
+
+    /// Why renewing lanes stopped, if it did (the builder could not put a
+    /// new layout beside the others).
+    pub fn fresh_error(&self) -> Option<&str> {
+        self.fresh.as_ref().and_then(|f| f.error.as_deref())
+    }
+
+    /// Counts the step's finished episodes toward the next renewal, and
+    /// swaps the renewed world in once its retired lane is empty.
+    pub(super) fn renew_lane(&mut self) -> Result<(), GpuError> {
+        let Some(fresh) = self.fresh.as_mut() else {
+            return Ok(());
+        };
+        fresh.count(self.finished.len());
+        let (lanes, dones) = (&self.agent_lane, &self.dones);
+        let empty =
+            |k: usize| !lanes.iter().zip(dones).any(|(l, d)| *l == k && *d == Done::Running);
+        let built = match fresh.take(empty) {
+            None => return Ok(()),
+            Some(Err(e)) => {
+                // The lanes stay as they are; the run goes on, and the
+                // caller reads why (`fresh_error`).
+                fresh.error = Some(e.to_string());
+                return Ok(());
+            }
+            Some(Ok(b)) => b,
+        };
+        let Built { lanes, geometry, scene, .. } = built;
+        debug_assert_eq!(lanes.offsets, self.lane_offsets, "every lane keeps its place");
+        self.gpu = gpu_scene(&self.cfg, &scene)?;
+        (self.physics, self.scene, self.arena) = (Physics::Direct(geometry), scene, lanes.world);
+        self.lane_offsets = lanes.offsets;
+        self.lane_spawns = lanes.spawns;
+        self.lane_bounds = lanes.bounds;
+        Ok(())
     }
 }
