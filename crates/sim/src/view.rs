@@ -3,7 +3,11 @@
 //! the drones, with each drone's path this episode; on the right one
 //! drone's last two depth frames (previous, current) and, below them, its
 //! actions as bars (their Q-values when a policy gives them, the chosen
-//! one highlighted).
+//! one highlighted). With the camera's map (`[sim.map]`) the top view
+//! shows what the followed drone's map holds (free cells tinted, cells
+//! where a ray met an obstacle in orange, so that an obstacle's grey is
+//! what it has not seen), and with `[sim.tracks]` the stretch each mover
+//! it tracks was seen on, boxed.
 //!
 //! Drawn by hand into palette indices (a fixed palette of a few colours and
 //! 64 greys), so that a GIF frame needs no colour quantisation and an RGB
@@ -11,6 +15,7 @@
 
 use crate::arena::{Arena, Obstacle};
 use crate::env::{Done, VecEnv};
+use crate::map::Cell;
 
 /// Image width (pixels).
 pub const WIDTH: usize = 640;
@@ -33,6 +38,10 @@ const CHOSEN: u8 = 7;
 /// First of the drones' colours.
 const AGENT: u8 = 8;
 const AGENT_COLOURS: usize = 12;
+/// The followed drone's memory: free cells, met cells, tracked movers.
+const MAP_FREE: u8 = 20;
+const MAP_HIT: u8 = 21;
+const TRACKED: u8 = 22;
 /// First of the 64 greys of depth (near dark, far light).
 const GREY: u8 = 64;
 
@@ -63,7 +72,8 @@ pub fn palette() -> Vec<u8> {
         [140, 162, 82],
         [132, 60, 57],
     ];
-    for (i, c) in fixed.iter().chain(agents.iter()).enumerate() {
+    let memory: [[u8; 3]; 3] = [[222, 235, 247], [230, 85, 13], [117, 107, 177]];
+    for (i, c) in fixed.iter().chain(agents.iter()).chain(memory.iter()).enumerate() {
         p[i * 3..i * 3 + 3].copy_from_slice(c);
     }
     for g in 0..64 {
@@ -232,6 +242,8 @@ pub fn draw(env: &VecEnv, tracks: &Tracks, focus: Focus<'_>, canvas: &mut Canvas
     let top = (HEIGHT as f32 - arena.width * scale) / 2.0;
     let to_px = |x: f32, y: f32| ((x - x0) * scale, top + (arena.width / 2.0 - y) * scale);
     top_view(canvas, arena, &to_px, (scale, env.time()));
+    let from_px = |px: f32, py: f32| (x0 + px / scale, arena.width / 2.0 - (py - top) / scale);
+    memory_view(canvas, env, focus.agent, &from_px, &to_px);
     // With a goal: the focused drone's, as a ring of its radius.
     let goal = &env.config().goal;
     if let Some(g) = env.goals().get(focus.agent).filter(|_| goal.enabled) {
@@ -299,6 +311,47 @@ fn top_view(
                 let (x, y) = to_px(c[0], c[1]);
                 canvas.disk(x, y, (radius * scale).max(1.0), OBSTACLE, TOP);
             }
+        }
+    }
+}
+
+/// What drone `agent` remembers, over the top view (`from_px`: where a
+/// point of the picture is in the arena, `to_px` the other way): each pixel of
+/// the flying space its map holds free tinted, each it holds met in orange
+/// (over the obstacle drawn there, or where a mover was), and each mover
+/// it tracks as a box over the stretch it was seen on.
+fn memory_view(
+    canvas: &mut Canvas,
+    env: &VecEnv,
+    agent: usize,
+    from_px: &impl Fn(f32, f32) -> (f32, f32),
+    to_px: &impl Fn(f32, f32) -> (f32, f32),
+) {
+    if env.map_cell(agent, 0.0, 0.0).is_some() {
+        for py in 0..HEIGHT {
+            for px in 0..TOP {
+                let k = py * WIDTH + px;
+                let (x, y) = from_px(px as f32 + 0.5, py as f32 + 0.5);
+                match (env.map_cell(agent, x, y), canvas.px[k]) {
+                    (Some(Cell::Obstacle), BG | OBSTACLE) => canvas.px[k] = MAP_HIT,
+                    (Some(Cell::Free), BG) => canvas.px[k] = MAP_FREE,
+                    _ => {}
+                }
+            }
+        }
+    }
+    for tr in env.tracks_of(agent) {
+        let (a, b) = (
+            to_px(tr.lo[0] - tr.half[0], tr.hi[1] + tr.half[1]),
+            to_px(tr.hi[0] + tr.half[0], tr.lo[1] - tr.half[1]),
+        );
+        for (p, q) in [
+            ((a.0, a.1), (b.0, a.1)),
+            ((b.0, a.1), (b.0, b.1)),
+            ((b.0, b.1), (a.0, b.1)),
+            ((a.0, b.1), (a.0, a.1)),
+        ] {
+            canvas.line(p, q, TRACKED, TOP);
         }
     }
 }
@@ -386,5 +439,44 @@ mod tests {
         );
         assert!(count(CHOSEN) > 60 * 20, "the chosen action's bar drawn");
         assert_eq!(canvas.rgb().len(), WIDTH * HEIGHT * 3);
+    }
+
+    #[test]
+    fn the_followed_drones_map_and_tracks_are_drawn_only_where_it_has_them() {
+        let mut arena = Arena::load(std::path::Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../configs/arenas/train.toml"
+        )))
+        .unwrap();
+        for o in &mut arena.obstacles {
+            o.set_motion(Some(crate::Motion::Segment {
+                offset: [0.0, 1.0],
+                speed: 0.3,
+                phase: 0.0,
+            }));
+        }
+        let picture = |memory: bool| {
+            let mut cfg = SimConfig { agents: 1, ..SimConfig::default() };
+            if memory {
+                cfg.map =
+                    crate::MapSpec { encoding: crate::MapEncoding::Rays, ..Default::default() };
+                cfg.tracks = crate::tracks::TrackSpec { count: 5, ..Default::default() };
+            }
+            let mut env = VecEnv::new(cfg, arena.clone(), 2).unwrap();
+            let mut tracks = Tracks::new(&env);
+            for _ in 0..6 {
+                env.step(&[0]).unwrap();
+                tracks.record(&env, true);
+            }
+            let mut canvas = Canvas::default();
+            let focus = Focus { agent: 0, depth: &[], q: None, action: None };
+            draw(&env, &tracks, focus, &mut canvas);
+            let count = |c: u8| canvas.px.iter().filter(|p| **p == c).count();
+            (count(MAP_FREE), count(MAP_HIT), count(TRACKED), env.tracks_of(0).len())
+        };
+        let (free, hit, tracked, movers) = picture(true);
+        assert!(free > 1000 && hit > 10, "the map drawn: {free} free, {hit} met pixels");
+        assert!(movers > 0 && tracked > 10, "{movers} tracks drawn in {tracked} pixels");
+        assert_eq!(picture(false), (0, 0, 0, 0), "nothing of a memory the drone has not");
     }
 }
