@@ -102,15 +102,21 @@ fn a_tracked_velocity_is_what_the_sightings_show_and_nothing_later() {
         assert!(same(v, shown), "{v:?} against {shown:?}");
         turned |= v[1] < 0.0;
         assert_eq!(c.turned(), turned, "step {step}");
-        // Going towards an end where it was never seen to turn, it is
-        // not predicted as moving: a still box over where it may be.
-        let towards_unseen_turn = t < 8.5;
+        // Predicted as moving from the second sighting on: towards an end
+        // it was never seen to turn at, as it goes while it goes on (the
+        // prediction turns 0.5 m beyond where it was last seen; c turns at
+        // 4 and 8 s); once seen to turn at both ends, where it goes after.
         let predicted = c.predicted(&env.arena().obstacles[C].at(t));
-        assert_eq!(predicted.motion().is_none(), towards_unseen_turn, "step {step}");
-        if towards_unseen_turn {
-            let (lo, hi) = predicted.aabb();
-            let now = truth(&env, C, t);
-            assert!(lo[1] < now[1] && now[1] < hi[1], "the box holds it");
+        assert!(predicted.motion().is_some(), "step {step}");
+        let ahead: &[f64] = match t {
+            t if t + 1.0 <= 4.0 || (5.0..=7.0).contains(&t) => &[0.0, 0.5, 1.0],
+            t if t >= 9.0 => &[0.0, 1.0, 2.5, 6.0, 9.0],
+            _ => &[0.0],
+        };
+        for &dt in ahead {
+            let (p, want) = (predicted.at(t + dt).center(), truth(&env, C, t + dt));
+            let near = (p[0] - want[0]).abs() < 1e-3 && (p[1] - want[1]).abs() < 1e-3;
+            assert!(near, "step {step}, {dt} s on: {p:?} against {want:?}");
         }
     }
     assert!(turned, "c was seen to turn");
