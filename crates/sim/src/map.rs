@@ -356,6 +356,33 @@ impl Maps {
         false
     }
 
+    /// Agent `i`'s latest frame met a tracked mover within the floor-plan
+    /// rectangle `[lo, hi]`: that frame's obstacle cells there (widened by
+    /// half a cell, as [`Maps::shows`]) become unknown again, so that the
+    /// static map never holds a mover (its tracks do). Earlier frames'
+    /// hits there, and walls, stay.
+    pub(crate) fn forget_hits(&mut self, i: usize, lo: [f32; 2], hi: [f32; 2]) {
+        let n = self.nx * self.ny;
+        let geo = self.geo(i);
+        let Some(latest) = self.clock[i].checked_sub(1) else { return };
+        let stamp = HIT + (latest % STAMPS) as u8;
+        let cells = &mut self.cells[i * n..(i + 1) * n];
+        let (h, step) = (self.spec.cell_m / 2.0, self.spec.cell_m);
+        let mut x = lo[0] - h;
+        while x <= hi[0] + h {
+            let mut y = lo[1] - h;
+            while y <= hi[1] + h {
+                if let Some(k) = geo.index(x, y) {
+                    if cells[k] == stamp {
+                        cells[k] = UNKNOWN;
+                    }
+                }
+                y += step;
+            }
+            x += step;
+        }
+    }
+
     /// Writes agent `i`'s map as its observation reads it (`out`:
     /// [`MapSpec::floats`]) for a drone at `p` heading `yaw` (rad).
     pub(crate) fn encode(&self, i: usize, p: Vector, yaw: f32, out: &mut [f32]) {

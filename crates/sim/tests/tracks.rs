@@ -182,6 +182,27 @@ fn the_observation_reads_the_tracks_after_the_map_nearest_first() {
 }
 
 #[test]
+fn a_tracked_movers_hits_stay_out_of_the_map() {
+    // Where c is now, as a floor-plan rectangle.
+    let footprint = |env: &VecEnv| {
+        let c = truth(env, C, env.time());
+        ([c[0] - 0.3, c[1] - 0.3], [c[0] + 0.3, c[1] + 0.3])
+    };
+    let (mut tracked, mut mapped_only) = (env(3, 10.0, true), env(0, 10.0, true));
+    assert!(tracked.tracks_movers() && !mapped_only.tracks_movers());
+    for step in 0..4 {
+        hold(&mut tracked, [2.0, 0.0, 3.0]);
+        hold(&mut mapped_only, [2.0, 0.0, 3.0]);
+        let (lo, hi) = footprint(&tracked);
+        assert!(tracked.tracks_of(0).iter().any(|t| t.obstacle == C), "step {step}: c tracked");
+        assert!(!tracked.map_shows(0, lo, hi), "step {step}: c is in the tracks, not the map");
+        assert!(mapped_only.map_shows(0, lo, hi), "step {step}: untracked, c is in the map");
+        // The still box stays in the map.
+        assert!(tracked.map_shows(0, [9.5, -1.0], [10.5, 1.0]), "step {step}: a is mapped");
+    }
+}
+
+#[test]
 fn bad_track_settings_are_refused_by_key() {
     let bad = [
         TrackSpec { count: 33, ..TrackSpec::default() },

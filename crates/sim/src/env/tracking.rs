@@ -1,7 +1,8 @@
 //! The seen movers in the environment (`[sim.tracks]`, `crate::tracks`):
 //! built with the world, cleared when an agent's episode starts, fed what
-//! each frame the agent takes shows of the moving obstacles, and written
-//! after the map in its observation.
+//! each frame the agent takes shows of the moving obstacles (whose hits
+//! that frame put in the map are taken out again), and written after the
+//! map in its observation.
 
 use super::VecEnv;
 use crate::SimConfig;
@@ -40,6 +41,9 @@ impl VecEnv {
                 let at = [(lo.x + hi.x) / 2.0, (lo.y + hi.y) / 2.0];
                 let half = [(hi.x - lo.x) / 2.0, (hi.y - lo.y) / 2.0];
                 trackers.see(i, k, t, at, half);
+                if let Some(maps) = self.maps.as_mut() {
+                    maps.forget_hits(i, [lo.x, lo.y], [hi.x, hi.y]);
+                }
             }
             trackers.expire(i, t);
         }
