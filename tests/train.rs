@@ -346,6 +346,45 @@ fn a_checkpoint_flies_a_level_with_its_own_frames() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A checkpoint whose network reads the camera's map and the seen movers
+/// takes their settings from its run's `config.toml`: without one beside
+/// it, or with one naming other sizes, it is refused by name.
+#[test]
+fn a_checkpoint_with_a_memory_needs_its_runs_settings() {
+    use rotorhive_model::{Device, Layers, PolicyNet, Shapes};
+    let dir = tmp("memory-settings");
+    std::fs::create_dir_all(dir.join("checkpoints")).unwrap();
+    let path = dir.join("checkpoints/memory.safetensors");
+    // The map's 36 rays (two distances each) and five movers of 14 floats.
+    let shapes = Shapes::task(2, false, false).with_map(72).with_tracks(70);
+    let net = PolicyNet::new(shapes, Layers::DEFAULT, None, 5, &Device::Cpu).unwrap();
+    net.save(&path, &[]).unwrap();
+    let c = path.to_str().unwrap();
+    let flies = ["eval", "--checkpoint", c, "--episodes", "2"];
+    fails_with(
+        &flies,
+        &["memory.safetensors", "72 floats of the camera's map", "config.toml, not found"],
+    );
+    let config = dir.join("config.toml");
+    let write = |count: usize| {
+        let text = format!("[sim.map]\nencoding = \"rays\"\n[sim.tracks]\ncount = {count}\n");
+        std::fs::write(&config, text).unwrap();
+    };
+    write(5);
+    let v = eval_json(&flies[1..]);
+    assert_eq!(v["episodes"].as_u64(), Some(2));
+    // Another count of movers: the evaluation flies the run's config and
+    // refuses the network; `hive play` reads the checkpoint's memory first.
+    write(3);
+    fails_with(&flies, &["memory.safetensors", "tracks 70 (this network: 42)"]);
+    let gif = dir.join("memory.gif");
+    fails_with(
+        &["play", "--checkpoint", c, "--agents", "1", "--out", gif.to_str().unwrap()],
+        &["memory.safetensors", "70 floats of the seen movers", "names 42"],
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// A run of another camera (64 × 64) trains, and its checkpoint flies,
 /// plays and exports with that camera wherever it goes (its run's config
 /// beside it, a level's, or none: the header names it); a camera that
