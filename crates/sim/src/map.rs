@@ -372,10 +372,10 @@ impl Maps {
         while x <= hi[0] + h {
             let mut y = lo[1] - h;
             while y <= hi[1] + h {
-                if let Some(k) = geo.index(x, y) {
-                    if cells[k] == stamp {
-                        cells[k] = UNKNOWN;
-                    }
+                if let Some(k) = geo.index(x, y)
+                    && cells[k] == stamp
+                {
+                    cells[k] = UNKNOWN;
                 }
                 y += step;
             }
