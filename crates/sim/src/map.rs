@@ -340,20 +340,7 @@ impl Maps {
     /// in the cell before it).
     pub(crate) fn shows(&self, i: usize, lo: [f32; 2], hi: [f32; 2]) -> bool {
         let map = self.reader(i);
-        let h = self.spec.cell_m / 2.0;
-        let step = self.spec.cell_m;
-        let mut x = lo[0] - h;
-        while x <= hi[0] + h {
-            let mut y = lo[1] - h;
-            while y <= hi[1] + h {
-                if map.at(x, y) == Cell::Obstacle {
-                    return true;
-                }
-                y += step;
-            }
-            x += step;
-        }
-        false
+        map.geo.any_about(self.spec.cell_m, lo, hi, |k| map.cell(map.cells[k]) == Cell::Obstacle)
     }
 
     /// Agent `i`'s latest frame met a tracked mover within the floor-plan
@@ -362,25 +349,16 @@ impl Maps {
     /// static map never holds a mover (its tracks do). Earlier frames'
     /// hits there, and walls, stay.
     pub(crate) fn forget_hits(&mut self, i: usize, lo: [f32; 2], hi: [f32; 2]) {
-        let n = self.nx * self.ny;
-        let geo = self.geo(i);
         let Some(latest) = self.clock[i].checked_sub(1) else { return };
         let stamp = HIT + (latest % STAMPS) as u8;
+        let (n, geo) = (self.nx * self.ny, self.geo(i));
         let cells = &mut self.cells[i * n..(i + 1) * n];
-        let (h, step) = (self.spec.cell_m / 2.0, self.spec.cell_m);
-        let mut x = lo[0] - h;
-        while x <= hi[0] + h {
-            let mut y = lo[1] - h;
-            while y <= hi[1] + h {
-                if let Some(k) = geo.index(x, y)
-                    && cells[k] == stamp
-                {
-                    cells[k] = UNKNOWN;
-                }
-                y += step;
+        geo.any_about(self.spec.cell_m, lo, hi, |k| {
+            if cells[k] == stamp {
+                cells[k] = UNKNOWN;
             }
-            x += step;
-        }
+            false
+        });
     }
 
     /// Writes agent `i`'s map as its observation reads it (`out`:
@@ -574,6 +552,33 @@ impl Geo {
             (((y - self.lo) * self.inv) as usize + 1).min(self.top - 1)
         };
         Some(fx as usize * self.ny + iy)
+    }
+
+    /// Visits the cells within the floor-plan rectangle `[lo, hi]`,
+    /// widened by half a `cell` (a face's hits may land in the cell before
+    /// it), one sample a cell, until `f` returns true; whether it did.
+    fn any_about(
+        &self,
+        cell: f32,
+        lo: [f32; 2],
+        hi: [f32; 2],
+        mut f: impl FnMut(usize) -> bool,
+    ) -> bool {
+        let h = cell / 2.0;
+        let mut x = lo[0] - h;
+        while x <= hi[0] + h {
+            let mut y = lo[1] - h;
+            while y <= hi[1] + h {
+                if let Some(k) = self.index(x, y)
+                    && f(k)
+                {
+                    return true;
+                }
+                y += cell;
+            }
+            x += cell;
+        }
+        false
     }
 }
 
