@@ -285,6 +285,15 @@ fn the_scripted_pilots_fly_a_levels_test_layouts() {
         .map(|x| x.as_f64().unwrap())
         .collect();
     assert!(q[0] <= q[1] && q[1] <= q[2], "{q:?}");
+    // `--validation-layouts`: the level's validation layouts, where a
+    // setting is chosen before the test layouts judge it.
+    let args = ["--level", "dense", "--episodes", "20", "--policy", "reactive"];
+    let v = eval_json(&[&args[..], &["--validation-layouts"]].concat());
+    let names: Vec<&str> =
+        v["layouts"].as_array().unwrap().iter().map(|l| l["name"].as_str().unwrap()).collect();
+    assert_eq!(names.len(), 20, "{names:?}");
+    assert!(names.iter().all(|n| n.starts_with("validation-")), "{names:?}");
+    assert_eq!(v["validation_layouts"], true);
 }
 
 /// A checkpoint flown on a level sees as it was trained to: four frames

@@ -83,6 +83,12 @@ pub struct EvalArgs {
     /// the held-out result.
     #[arg(long, value_name = "RUN_DIR", conflicts_with = "arena")]
     pub training_layouts: Option<PathBuf>,
+    /// Fly the config's validation layouts (`eval.validation_arenas`
+    /// generated, neither trained on nor held out for the test) instead of
+    /// the test layouts: where a setting is chosen before the test set
+    /// judges it.
+    #[arg(long, conflicts_with_all = ["arena", "training_layouts"])]
+    pub validation_layouts: bool,
     /// Write the failure map into DIR: every episode that did not reach
     /// its end (`failures.csv`: layout, end point, last actions, trap; its
     /// last observations in `last-observations.npy`), one picture per
@@ -155,6 +161,7 @@ pub(crate) fn tracks_sets(t: &rotorhive_sim::TrackSpec) -> Vec<String> {
         format!("sim.tracks.count={}", t.count),
         format!("sim.tracks.keep_s={:?}", t.keep_s),
         format!("sim.tracks.band={}", t.band),
+        format!("sim.tracks.unseen_reach_m={:?}", t.unseen_reach_m),
     ]
 }
 
@@ -287,6 +294,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
     };
     let layouts: Vec<Arena> = match (&a.training_layouts, a.arena.is_empty()) {
         (Some(run), _) => training_layouts(run, &cfg)?,
+        (None, true) if a.validation_layouts => cfg.eval_arenas()?,
         (None, true) => cfg.test_arenas()?,
         (None, false) => a.arena.iter().map(|p| Arena::load(p)).collect::<Result<_, _>>()?,
     };
@@ -503,6 +511,7 @@ fn print_json(
             "failures": found.failures.as_ref().map(|t| t.failures),
             "agreement": found.agreement.as_ref().zip(a.agree).map(|(g, s)| agreement_json(g, s)),
             "training_layouts": a.training_layouts.as_ref().map(|p| p.display().to_string()),
+            "validation_layouts": a.validation_layouts,
         })
     );
 }

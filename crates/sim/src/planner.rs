@@ -540,7 +540,8 @@ fn in_view(env: &VecEnv, i: usize, sight: Sight, watched: &mut Watched) -> Arena
             match sight {
                 Sight::Map if env.tracks_movers() => {
                     let track = env.tracks_of(i).iter().find(|tr| tr.obstacle == k);
-                    track.map_or_else(|| over_track(o), |tr| tr.predicted(&o.at(tr.last_t)))
+                    let reach = env.unseen_reach_m();
+                    track.map_or_else(|| over_track(o), |tr| tr.predicted(&o.at(tr.last_t), reach))
                 }
                 Sight::ViewTrack | Sight::Map => over_track(o),
                 Sight::ViewMemory(memory_s) | Sight::PixelsMemory(memory_s) => {

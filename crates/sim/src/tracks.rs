@@ -33,14 +33,14 @@ pub const MAX_TRACKS: usize = rotorhive_msg::MAX_TRACK_FLOATS / TRACK_FLOATS;
 /// Sightings further apart than this (s) give no velocity: the mover may
 /// have turned between them.
 pub const VELOCITY_GAP_S: f64 = 2.0;
-/// How far (m) beyond where it is now a planner of the tracks takes a
-/// mover going back and forth to go on towards an end it was never seen
-/// to turn at. Optimistic on purpose: the planner searches again at every
-/// step, and still boxes over what a mover might reach closed L4's
-/// passages (`hive eval --policy planner --sight map --level moving`,
-/// 2026-12-05, 300 episodes: 0.5 m 43.0 %, 0 m 42.3 %, 1 m 38.7 %, and
-/// with the old boxes grown by 1.5 m 22-29 %; docs/results/map.md).
-const UNKNOWN_REACH_M: f32 = 0.5;
+/// The default of `sim.tracks.unseen_reach_m`: how far (m) beyond where
+/// it is now a planner of the tracks takes a mover going back and forth to
+/// go on towards an end it was never seen to turn at. Optimistic on
+/// purpose: the planner searches again at every step, and still boxes
+/// over what a mover might reach closed L4's passages (with the old boxes
+/// grown by 1.5 m 22-29 %); chosen on L4's validation layouts
+/// (docs/results/map.md).
+pub const UNSEEN_REACH_M: f32 = 0.5;
 
 /// How much less far than its speed would take it a mover going back and
 /// forth must go between two sightings to have turned in between (m): the
@@ -58,11 +58,16 @@ pub struct TrackSpec {
     /// Rows of each frame the detector reads, about its middle (0: every
     /// row).
     pub band: usize,
+    /// How far (m) a planner of the tracks takes a mover going back and
+    /// forth to go on beyond where it is now, towards an end it was never
+    /// seen to turn at (the planner's guess; the observation holds no
+    /// such thing).
+    pub unseen_reach_m: f32,
 }
 
 impl Default for TrackSpec {
     fn default() -> Self {
-        Self { count: 0, keep_s: 10.0, band: 2 }
+        Self { count: 0, keep_s: 10.0, band: 2, unseen_reach_m: UNSEEN_REACH_M }
     }
 }
 
@@ -93,6 +98,10 @@ impl TrackSpec {
         }
         if self.band > 1024 {
             return Err(("band", format!("must be 0 (every row) to 1024 rows, got {}", self.band)));
+        }
+        if !(self.unseen_reach_m.is_finite() && (0.0..=50.0).contains(&self.unseen_reach_m)) {
+            let got = self.unseen_reach_m;
+            return Err(("unseen_reach_m", format!("must lie in [0, 50] m, got {got}")));
         }
         Ok(())
     }
@@ -232,11 +241,11 @@ impl Track {
     /// fastest speed seen, where its last sighting puts it; an end seen
     /// turned at is where the turn was (a turn between two sightings put
     /// where that speed would have taken it and back), the end it goes to
-    /// unseen [`UNKNOWN_REACH_M`] on from where it was last, the one behind
+    /// unseen `unseen_reach_m` on from where it was last, the one behind
     /// it unseen at the furthest it was seen. Seen once, or unseen for
     /// longer than [`VELOCITY_GAP_S`] since its sighting before: a still
     /// box over the stretch seen.
-    pub fn predicted(&self, seen: &Obstacle) -> Obstacle {
+    pub fn predicted(&self, seen: &Obstacle, unseen_reach_m: f32) -> Obstacle {
         if self.curved
             && let Some(round) = self.circle(seen)
         {
@@ -249,18 +258,18 @@ impl Track {
         let speed = self.speed.max(1e-3);
         let now = self.along(axis, self.last);
         // The ends: each seen to turn at where it turned; the one it goes
-        // to, unseen, at least `UNKNOWN_REACH_M` beyond where it is now;
+        // to, unseen, at least `unseen_reach_m` beyond where it is now;
         // the one behind it, unseen, where it was seen furthest (it is
         // not back there before it has turned ahead).
         let [mut s0, mut s1] = self.reach;
         match self.ends[0] {
             Some(e) => s0 = s0.min(e),
-            None if self.going < 0 => s0 = s0.min(now - UNKNOWN_REACH_M),
+            None if self.going < 0 => s0 = s0.min(now - unseen_reach_m),
             None => {}
         }
         match self.ends[1] {
             Some(e) => s1 = s1.max(e),
-            None if self.going > 0 => s1 = s1.max(now + UNKNOWN_REACH_M),
+            None if self.going > 0 => s1 = s1.max(now + unseen_reach_m),
             None => {}
         }
         let len = s1 - s0;
@@ -451,7 +460,7 @@ mod tests {
         mover.set_motion(Some(Motion::Segment { offset: [0.0, 2.2], speed: 0.4, phase: 0.1 }));
         let track = sighted(&mover, (0.3, 14.3, 0.7));
         assert!(track.ends.iter().all(Option::is_some), "both turns seen: {:?}", track.ends);
-        let predicted = track.predicted(&mover.at(track.last_t));
+        let predicted = track.predicted(&mover.at(track.last_t), UNSEEN_REACH_M);
         for dt in [0.0, 1.3, 4.0, 7.7, 20.0] {
             let t = track.last_t + dt;
             let (p, want) = (predicted.at(t).center(), mover.at(t).center());
@@ -459,6 +468,6 @@ mod tests {
         }
         // Sightings over two seconds apart tell no way: a still box.
         let gaps = sighted(&mover, (0.3, 14.3, 2.5));
-        assert!(gaps.predicted(&mover.at(gaps.last_t)).motion().is_none());
+        assert!(gaps.predicted(&mover.at(gaps.last_t), UNSEEN_REACH_M).motion().is_none());
     }
 }

@@ -5,7 +5,7 @@
 //! map, nearest first.
 
 use rotorhive_sim::map::{MapEncoding, MapSpec};
-use rotorhive_sim::tracks::TRACK_FLOATS;
+use rotorhive_sim::tracks::{TRACK_FLOATS, UNSEEN_REACH_M};
 use rotorhive_sim::{Arena, Motion, Obstacle, SimConfig, Spawn, TrackSpec, VecEnv};
 
 /// A wide still box `a` at x 9.5-10.5; hidden behind it from the spawn at
@@ -106,7 +106,7 @@ fn a_tracked_velocity_is_what_the_sightings_show_and_nothing_later() {
         // it was never seen to turn at, as it goes while it goes on (the
         // prediction turns 0.5 m beyond where it was last seen; c turns at
         // 4 and 8 s); once seen to turn at both ends, where it goes after.
-        let predicted = c.predicted(&env.arena().obstacles[C].at(t));
+        let predicted = c.predicted(&env.arena().obstacles[C].at(t), UNSEEN_REACH_M);
         assert!(predicted.motion().is_some(), "step {step}");
         let ahead: &[f64] = match t {
             t if t + 1.0 <= 4.0 || (5.0..=7.0).contains(&t) => &[0.0, 0.5, 1.0],
@@ -126,7 +126,7 @@ fn a_tracked_velocity_is_what_the_sightings_show_and_nothing_later() {
     // A planner of the track predicts c where its last sighting puts it
     // and, seen to turn at both ends, where it goes after.
     let seen = env.arena().obstacles[C].at(c.last_t);
-    let predicted = c.predicted(&seen);
+    let predicted = c.predicted(&seen, UNSEEN_REACH_M);
     for dt in [0.0, 1.0, 2.5, 6.0, 9.0] {
         let t = c.last_t + dt;
         let p = predicted.at(t).center();
@@ -209,9 +209,11 @@ fn bad_track_settings_are_refused_by_key() {
         TrackSpec { keep_s: 0.0, ..TrackSpec::default() },
         TrackSpec { keep_s: f32::NAN, ..TrackSpec::default() },
         TrackSpec { band: 5000, ..TrackSpec::default() },
+        TrackSpec { unseen_reach_m: -0.1, ..TrackSpec::default() },
+        TrackSpec { unseen_reach_m: f32::INFINITY, ..TrackSpec::default() },
     ];
     let keys: Vec<&str> = bad.iter().map(|s| s.validate().unwrap_err().0).collect();
-    assert_eq!(keys, ["count", "keep_s", "keep_s", "band"]);
+    assert_eq!(keys, ["count", "keep_s", "keep_s", "band", "unseen_reach_m", "unseen_reach_m"]);
     assert!(TrackSpec::default().validate().is_ok());
     assert!(!TrackSpec::default().enabled());
 }

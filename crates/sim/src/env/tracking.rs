@@ -66,6 +66,12 @@ impl VecEnv {
         self.trackers.as_ref().map_or(&[], |t| t.of(i))
     }
 
+    /// How far a planner of the tracks takes a mover to go on towards an
+    /// end it was never seen to turn at (`sim.tracks.unseen_reach_m`).
+    pub fn unseen_reach_m(&self) -> f32 {
+        self.trackers.as_ref().map_or(crate::tracks::UNSEEN_REACH_M, |t| t.spec().unseen_reach_m)
+    }
+
     /// Whether the environment tracks the movers its cameras see.
     pub fn tracks_movers(&self) -> bool {
         self.trackers.is_some()
