@@ -530,6 +530,7 @@ fn search(
 /// ([`Sight::ViewMemory`]).
 fn in_view(env: &VecEnv, i: usize, sight: Sight, watched: &mut Watched) -> Arena {
     let t = env.time();
+    let reach = env.unseen_reach_m();
     let world = env.arena();
     let known = known_obstacles(env, i, sight, watched);
     let obstacles = known
@@ -540,7 +541,6 @@ fn in_view(env: &VecEnv, i: usize, sight: Sight, watched: &mut Watched) -> Arena
             match sight {
                 Sight::Map if env.tracks_movers() => {
                     let track = env.tracks_of(i).iter().find(|tr| tr.obstacle == k);
-                    let reach = env.unseen_reach_m();
                     track.map_or_else(|| over_track(o), |tr| tr.predicted(&o.at(tr.last_t), reach))
                 }
                 Sight::ViewTrack | Sight::Map => over_track(o),
