@@ -210,9 +210,20 @@ fn checkpoint_sets(c: &Path, camera: rotorhive_sim::CameraSpec) -> Result<Vec<St
     if camera != rotorhive_sim::CameraSpec::default() {
         set.extend(rotorhive_roles::config::camera::camera_sets(&camera));
     }
+    // A network that reads no map (or no tracks) flies a level that has
+    // them without: the level's teacher, which needs the map, is not
+    // flown by an evaluation.
     let (map, tracks) = memory_of(c)?;
-    set.extend(map.iter().flat_map(map_sets));
-    set.extend(tracks.iter().flat_map(tracks_sets));
+    match &map {
+        Some(m) => set.extend(map_sets(m)),
+        None => {
+            set.extend(["sim.map.encoding=\"none\"", "teacher.policy=\"none\""].map(String::from))
+        }
+    }
+    match &tracks {
+        Some(t) => set.extend(tracks_sets(t)),
+        None => set.push("sim.tracks.count=0".into()),
+    }
     Ok(set)
 }
 
