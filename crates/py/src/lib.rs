@@ -78,7 +78,10 @@ fn build_env(
     if agents == 0 {
         return Err(value_error("`num_envs` must be at least 1"));
     }
-    let mut ov = overrides.to_vec();
+    // An environment flies no teacher: a level's teacher (L4's needs the
+    // camera's map) must not refuse a user's `map={"encoding": "none"}`.
+    let mut ov = vec!["teacher.policy=\"none\"".to_string()];
+    ov.extend_from_slice(overrides);
     ov.push(format!("sim.agents={agents}"));
     ov.push(format!("seed={seed}"));
     let cfg = match src.level {

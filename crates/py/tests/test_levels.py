@@ -25,6 +25,31 @@ def test_every_level_is_a_vector_environment_with_its_own_lanes(level):
     assert sim.max_steps == (300 if level == "forest" else 400)
 
 
+def test_the_moving_level_observes_its_cameras_map_and_seen_movers_and_the_dense_one_neither():
+    # configs/levels/moving.toml ships the map's 36 rays and the five
+    # nearest seen movers (since 2026-12-06); L1 keeps the paper's parts.
+    def parts(level, **sim):
+        envs = gym.make_vec(rotorhive.LEVELS[level], num_envs=2, seed=1, **sim)
+        obs, _ = envs.reset(seed=1)
+        for _ in range(3):
+            obs, *_ = envs.step(np.array([0, 1]))
+        assert envs.observation_space.contains(obs)
+        envs.close()
+        return {k: v.shape[1:] for k, v in obs.items()}, obs
+
+    moving, obs = parts("moving")
+    assert moving["map"] == (72,) and moving["tracks"] == (5 * 14,), moving
+    # Rays cast through what the camera saw (1: nothing met within reach):
+    # some met an obstacle by now.
+    assert (obs["map"] < 0.99).any(), obs["map"]
+    dense, _ = parts("dense")
+    assert set(dense) == {"depth", "velocity"}, dense
+    # The level's frames alone, though its teacher reads the map (an
+    # environment flies no teacher).
+    alone, _ = parts("moving", map={"encoding": "none"}, tracks={"count": 0})
+    assert set(alone) == {"depth", "velocity"}, alone
+
+
 def test_the_noisy_level_sees_dropped_pixels_and_the_dense_one_does_not():
     def zeros(level):
         envs = gym.make_vec(rotorhive.LEVELS[level], num_envs=8, seed=1)
