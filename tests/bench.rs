@@ -87,6 +87,18 @@ fn every_benchmark_runs_at_its_smallest_size_and_prints_its_json() {
     );
     positive(&rows[1], "agent_steps_per_s");
 
+    // L4 reads the camera's map and the seen movers: its cost beside the
+    // simulator without them; and with them turned off by `--set`, the
+    // simulator alone (its teacher, which reads the map, flies in no
+    // simulator bench).
+    let level = ["sim", "--agents", "2", "--steps", "3", "--config", "configs/levels/moving.toml"];
+    let v = bench(&level);
+    let rows = v["rows"].as_array().expect("with and without the map");
+    assert_eq!((rows[0]["map"].as_str(), rows[1]["map"].as_str()), (Some("rays+t5"), Some("none")));
+    let off = ["--set", "sim.map.encoding=\"none\"", "--set", "sim.tracks.count=0"];
+    let v = bench(&[&level[..], &off[..]].concat());
+    assert_eq!(v["map"].as_str(), Some("none"), "{v}");
+
     for hidden in ["64", "96,32"] {
         let v = bench(&["learner", "--updates", "3", "--batch", "8", "--hidden", hidden]);
         for k in ["updates_per_s", "infer_b1_ms", "infer_b50_ms"] {

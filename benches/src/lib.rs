@@ -259,6 +259,19 @@ impl BenchCmd {
     }
 }
 
+/// A config for a bench that flies no teacher (the simulator's, the
+/// renderer's): its teacher is turned off before the user's `--set`s, so
+/// that `--set sim.map.encoding='"none"'` on a level whose teacher reads
+/// the map (L4) measures the simulator without the map, not a refusal.
+fn without_teacher(
+    config: Option<&std::path::Path>,
+    set: &[String],
+) -> Result<rotorhive_roles::Config> {
+    let mut sets = vec!["teacher.policy=\"none\"".to_string()];
+    sets.extend_from_slice(set);
+    Ok(rotorhive_roles::Config::load(config, &sets)?)
+}
+
 pub fn run(cmd: BenchCmd) -> Result<()> {
     match cmd {
         BenchCmd::Sim {
@@ -273,15 +286,13 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
             json,
         } => {
             let world = match config {
-                Some(c) => {
-                    SimWorld::Config(Box::new(rotorhive_roles::Config::load(Some(&c), &set)?))
-                }
+                Some(c) => SimWorld::Config(Box::new(without_teacher(Some(&c), &set)?)),
                 None => SimWorld::Arena(Arena::load(&arena)?),
             };
             run_sim(&agents, (steps, threads), &physics, world, fresh_layouts, json)
         }
         BenchCmd::Render { agents, renderer, steps, threads, arena, plot, config, set, json } => {
-            let camera = rotorhive_roles::Config::load(config.as_deref(), &set)?.camera();
+            let camera = without_teacher(config.as_deref(), &set)?.camera();
             let setup = (renderer.as_str(), steps, threads, camera);
             bench_render(&agents, setup, &arena, &plot, json)
         }

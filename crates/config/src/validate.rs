@@ -230,7 +230,7 @@ impl Config {
         {
             return Err(ConfigError::Invalid(
                 "key `teacher.sight` is \"map\" without the camera's map: set \
-                 `sim.map.encoding`"
+                 `sim.map.encoding`, or `teacher.policy = \"none\"` for no teacher"
                     .into(),
             ));
         }
