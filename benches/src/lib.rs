@@ -267,7 +267,7 @@ fn without_teacher(
     config: Option<&std::path::Path>,
     set: &[String],
 ) -> Result<rotorhive_roles::Config> {
-    let mut sets = vec!["teacher.policy=\"none\"".to_string()];
+    let mut sets = vec![rotorhive_config::NO_TEACHER.to_string()];
     sets.extend_from_slice(set);
     Ok(rotorhive_roles::Config::load(config, &sets)?)
 }

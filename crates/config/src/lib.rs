@@ -79,6 +79,12 @@ pub struct Config {
     pub sized: Vec<&'static str>,
 }
 
+/// The `--set` that turns a config's teacher off, first among the sets of
+/// what flies no teacher (an environment, a simulator bench, an
+/// evaluation of a network without the map): a level's teacher that reads
+/// the camera's map (L4's) then does not refuse the map turned off.
+pub const NO_TEACHER: &str = "teacher.policy=\"none\"";
+
 /// `configs/default.toml`, the one source of the defaults: `hive train`
 /// without a config reads it, and the `Default` impls below must agree with
 /// it key for key (a test checks), since they fill keys a config leaves out.

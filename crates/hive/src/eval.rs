@@ -216,9 +216,9 @@ fn checkpoint_sets(c: &Path, camera: rotorhive_sim::CameraSpec) -> Result<Vec<St
     let (map, tracks) = memory_of(c)?;
     match &map {
         Some(m) => set.extend(map_sets(m)),
-        None => {
-            set.extend(["sim.map.encoding=\"none\"", "teacher.policy=\"none\""].map(String::from))
-        }
+        None => set.extend(
+            ["sim.map.encoding=\"none\"", rotorhive_roles::config::NO_TEACHER].map(String::from),
+        ),
     }
     match &tracks {
         Some(t) => set.extend(tracks_sets(t)),

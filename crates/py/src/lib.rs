@@ -80,7 +80,7 @@ fn build_env(
     }
     // An environment flies no teacher: a level's teacher (L4's needs the
     // camera's map) must not refuse a user's `map={"encoding": "none"}`.
-    let mut ov = vec!["teacher.policy=\"none\"".to_string()];
+    let mut ov = vec![rotorhive_config::NO_TEACHER.to_string()];
     ov.extend_from_slice(overrides);
     ov.push(format!("sim.agents={agents}"));
     ov.push(format!("seed={seed}"));
