@@ -244,3 +244,49 @@ fn every_sight_reads_back_by_its_name_and_takes_a_memory_only_if_it_remembers() 
     let e = "psychic".parse::<Sight>().unwrap_err();
     assert!(e.contains("psychic") && e.contains("pixels-memory"), "{e}");
 }
+
+/// The label's depth-first search ([`clear_way`]) answers as the
+/// breadth-first one ([`search`]) does, but where the two grids' merged
+/// states differ: on L4's movers, with and without the hold action and a
+/// goal, over every action of 16 agents flown on for 40 steps, both
+/// answers occur and at least 97 in 100 agree (99.6 % when written).
+#[test]
+fn the_labels_depth_first_search_answers_as_the_breadth_first_one() {
+    let params = GenParams {
+        length: 60.0,
+        spacing: 3.0,
+        per_row: 2,
+        box_half_x: [0.3, 1.0],
+        box_half_y: [0.6, 1.5],
+        cylinder_radius: [0.4, 1.0],
+        min_gap: 1.2,
+        require_path: true,
+        moving_share: 0.3,
+        moving_speed: [0.2, 0.6],
+        ..GenParams::default()
+    };
+    let (mut agree, mut asked, mut clear) = (0usize, 0usize, 0usize);
+    for (seed, hold_goal) in [(0, false), (1, true)] {
+        let arena = Arena::generate("moving", seed, &params);
+        let goal = crate::Goal { enabled: hold_goal, ..crate::Goal::default() };
+        let cfg = SimConfig { agents: 16, hold_action: hold_goal, goal, ..SimConfig::default() };
+        let actions = cfg.shapes().actions;
+        let mut env = VecEnv::new(cfg, arena.clone(), seed).unwrap();
+        let geometry = Geometry::new(&arena);
+        for t in 0..40u32 {
+            for i in 0..env.agents() {
+                for a in 0..actions as u8 {
+                    let bfs = search(&geometry, &env, i, LABEL_MARGIN, 10, Some(a)).through;
+                    let dfs = clear_way(&geometry, &env, i, LABEL_MARGIN, 10, a);
+                    agree += (bfs == dfs) as usize;
+                    clear += bfs as usize;
+                    asked += 1;
+                }
+            }
+            let step: Vec<u8> = (0..env.agents()).map(|i| ((t + i as u32) % 2) as u8).collect();
+            env.step(&step).unwrap();
+        }
+    }
+    assert!(clear > asked / 4 && clear < asked, "{clear} of {asked} clear");
+    assert!(agree * 100 >= asked * 97, "{agree} of {asked} agree");
+}
