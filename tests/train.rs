@@ -271,6 +271,12 @@ fn the_scripted_pilots_fly_a_levels_test_layouts() {
     let hopeless = planner["hopeless"].as_f64().unwrap();
     assert!(hopeless <= 100.0 * (1.0 - p) + 1e-9, "{hopeless} hopeless at {p}");
     assert!(reactive["hopeless"].is_null());
+    // An evaluation flies no teacher: L4's, which reads the camera's map,
+    // does not refuse the map turned off, and the reactive rule (which
+    // reads the frames alone) flies the same episodes without it.
+    let off = ["--set", "sim.map.encoding=\"none\"", "--set", "sim.tracks.count=0"];
+    let blind = eval_json(&[&args[..], &["--policy", "reactive"], &off[..]].concat());
+    assert_eq!(blind["success_rate"], reactive["success_rate"], "{blind}");
     // Told only what the pixels show, the planner still flies L1's
     // still layouts; the quartiles of its layouts are in order.
     let args = ["--level", "dense", "--episodes", "20", "--policy", "planner"];

@@ -24,7 +24,7 @@ pub use sizing::{SIZED_KEYS, Sizing};
 pub use error::{ConfigError, Doing};
 pub use sections::{
     ActorSection, ClusterSection, Curriculum, DeviceName, EvalSection, Exploration, LearnerSection,
-    ReplaySection, SimSection, TeacherLabels, TeacherLoss, TeacherPolicy, TeacherSection,
+    LabelSearch, ReplaySection, SimSection, TeacherLabels, TeacherLoss, TeacherPolicy, TeacherSection,
 };
 
 /// `sim.observation_mode`: the records' enum, so that `summary.json` names
@@ -81,7 +81,7 @@ pub struct Config {
 
 /// The `--set` that turns a config's teacher off, first among the sets of
 /// what flies no teacher (an environment, a simulator bench, an
-/// evaluation of a network without the map): a level's teacher that reads
+/// evaluation): a level's teacher that reads
 /// the camera's map (L4's) then does not refuse the map turned off.
 pub const NO_TEACHER: &str = "teacher.policy=\"none\"";
 

@@ -211,20 +211,27 @@ fn checkpoint_sets(c: &Path, camera: rotorhive_sim::CameraSpec) -> Result<Vec<St
         set.extend(rotorhive_roles::config::camera::camera_sets(&camera));
     }
     // A network that reads no map (or no tracks) flies a level that has
-    // them without: the level's teacher, which needs the map, is not
-    // flown by an evaluation.
+    // them without (an evaluation flies no teacher: see [`flying`]).
     let (map, tracks) = memory_of(c)?;
     match &map {
         Some(m) => set.extend(map_sets(m)),
-        None => set.extend(
-            ["sim.map.encoding=\"none\"", rotorhive_roles::config::NO_TEACHER].map(String::from),
-        ),
+        None => set.push("sim.map.encoding=\"none\"".into()),
     }
     match &tracks {
         Some(t) => set.extend(tracks_sets(t)),
         None => set.push("sim.tracks.count=0".into()),
     }
     Ok(set)
+}
+
+/// The `--set` keys an evaluation loads a config with: `set` after the
+/// teacher turned off. An evaluation flies no teacher, so a level whose
+/// teacher reads the camera's map (L4's) is not refused with the map
+/// turned off (`--set sim.map.encoding='"none"'`).
+fn flying(set: &[String]) -> Vec<String> {
+    std::iter::once(rotorhive_roles::config::NO_TEACHER.to_string())
+        .chain(set.iter().cloned())
+        .collect()
 }
 
 /// [`config`] before the camera's check (`camera`: the checkpoint's).
@@ -240,20 +247,20 @@ fn chosen_config(
                 run.display()
             );
         }
-        return Ok((Config::load(Some(&path), &a.set)?, path.display().to_string()));
+        return Ok((Config::load(Some(&path), &flying(&a.set))?, path.display().to_string()));
     }
     if let Some(path) = a.checkpoint.as_deref().and_then(run_config)
         && a.level.is_none()
     {
-        return Ok((Config::load(Some(&path), &a.set)?, path.display().to_string()));
+        return Ok((Config::load(Some(&path), &flying(&a.set))?, path.display().to_string()));
     }
     // A checkpoint sees as it was trained to: its frames, their stride and
     // its camera come from its header (a `--set` of them still wins, and
     // one that contradicts the camera is refused).
-    let mut set = match (&a.checkpoint, camera) {
-        (Some(c), Some(camera)) => checkpoint_sets(c, camera)?,
-        _ => Vec::new(),
-    };
+    let mut set = flying(&[]);
+    if let (Some(c), Some(camera)) = (&a.checkpoint, camera) {
+        set.extend(checkpoint_sets(c, camera)?);
+    }
     set.extend(a.set.iter().cloned());
     match &a.level {
         Some(level) => Ok((Config::level(level, &set)?, format!("level {level}"))),

@@ -14,7 +14,7 @@ use rand_pcg::Pcg64Mcg;
 use rotorhive_msg::{NO_EXPERT, TeacherCounts, Telemetry, label_of_mask};
 use rotorhive_sim::{Planner, VecEnv};
 
-pub use crate::config::{TeacherLabels, TeacherLoss, TeacherPolicy, TeacherSection};
+pub use crate::config::{LabelSearch, TeacherLabels, TeacherLoss, TeacherPolicy, TeacherSection};
 
 /// Nanoseconds since `t`.
 fn elapsed(t: Instant) -> u64 {
@@ -43,7 +43,7 @@ impl Teacher {
         let t = &cfg.teacher;
         t.on().then(|| Self {
             cfg: t.clone(),
-            planner: Planner::new(env, t.planner_sight()),
+            planner: planner(t, env),
             rng: Pcg64Mcg::seed_from_u64(seed),
             run_agents: cfg.agents_total() as u64,
             flies: vec![NO_EXPERT; env.agents()],
@@ -126,6 +126,11 @@ impl Teacher {
 
     /// A planner for the new world of `env` (its lanes replaced).
     pub fn replace_world(&mut self, env: &VecEnv) {
-        self.planner = Planner::new(env, self.cfg.planner_sight());
+        self.planner = planner(&self.cfg, env);
     }
+}
+
+/// The teacher `t`'s planner for the world of `env`.
+fn planner(t: &TeacherSection, env: &VecEnv) -> Planner {
+    Planner::new(env, t.planner_sight()).with_depth_first_labels(t.label_search == LabelSearch::Depth)
 }

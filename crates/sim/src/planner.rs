@@ -234,6 +234,9 @@ pub struct Planner {
     /// Per agent: what it has seen this episode ([`Sight::ViewMemory`],
     /// [`Sight::PixelsMemory`]).
     watched: Vec<Watched>,
+    /// Whether a label's searches go depth first ([`clear_way`]) rather
+    /// than breadth first ([`search`]).
+    depth_first: bool,
 }
 
 /// What one agent's camera has shown this episode: per obstacle (its
@@ -275,7 +278,17 @@ impl Planner {
             plans: (0..env.agents()).map(|_| None).collect(),
             hopeless: 0,
             watched: vec![Watched::default(); env.agents()],
+            depth_first: false,
         }
+    }
+
+    /// The same planner with a label's searches depth first (`true`:
+    /// [`clear_way`], stopping at the first way clear) or breadth first
+    /// (`false`, the default: [`search`], every layer whole; the same
+    /// answers, dearer); `teacher.label_search`.
+    pub fn with_depth_first_labels(mut self, depth_first: bool) -> Self {
+        self.depth_first = depth_first;
+        self
     }
 
     /// Episodes so far in which no way through was found from the spawn,
@@ -393,7 +406,7 @@ impl Planner {
         margins: &[f32],
         enough: usize,
     ) -> Vec<u8> {
-        let sight = self.sight;
+        let (sight, depth_first) = (self.sight, self.depth_first);
         let watched = self.watched_now(env, i);
         let seen = (sight != Sight::All).then(|| Geometry::new(&in_view(env, i, sight, watched)));
         let geometry = seen.as_ref().unwrap_or(&self.geometry);
@@ -404,7 +417,13 @@ impl Planner {
                 if safe.len() >= enough {
                     break;
                 }
-                if clear_way(geometry, env, i, margin, horizon.max(1), a) {
+                let horizon = horizon.max(1);
+                let clear = if depth_first {
+                    clear_way(geometry, env, i, margin, horizon, a)
+                } else {
+                    search(geometry, env, i, margin, horizon, Some(a)).through
+                };
+                if clear {
                     safe.push(a);
                 }
             }

@@ -105,9 +105,16 @@ fn the_planner_flies_through_moving_obstacles_that_a_blind_flight_meets() {
 /// drone flown straight at the middle of a wall whose one gap is on
 /// the left gets "left" once the wall is near, and no label while
 /// both ways still reach the gap (or where there is no wall); a
-/// label's search costs far less than a whole one.
+/// label's search costs far less than a whole one. Its searches depth
+/// first and breadth first (`teacher.label_search`) label alike.
 #[test]
 fn a_label_names_the_one_action_that_keeps_a_way_clear() {
+    for depth_first in [true, false] {
+        labels_toward_a_gap(depth_first);
+    }
+}
+
+fn labels_toward_a_gap(depth_first: bool) {
     let wall = |y: f32, half: f32| crate::Obstacle::still_box([12.0, y, 3.0], [0.3, half, 3.0]);
     // A 12 m corridor closed at x = 12 m but for a gap at y in (2, 4).
     let mut arena = Arena::generate("open", 0, &GenParams { length: 40.0, ..GenParams::default() });
@@ -115,7 +122,7 @@ fn a_label_names_the_one_action_that_keeps_a_way_clear() {
     arena.spawn.y = [0.0, 0.0];
     let cfg = SimConfig { agents: 1, ..SimConfig::default() };
     let mut env = VecEnv::new(cfg, arena, 1).unwrap();
-    let mut planner = Planner::new(&env, Sight::All);
+    let mut planner = Planner::new(&env, Sight::All).with_depth_first_labels(depth_first);
     let (mut labels, mut alive, mut graded_steps) = (Vec::new(), true, 0);
     // Straight on (the setpoint held near 0) toward the wall; the
     // actions allowed agree with the label, ties kept.
