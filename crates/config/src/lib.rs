@@ -23,8 +23,9 @@ pub use sizing::{SIZED_KEYS, Sizing};
 
 pub use error::{ConfigError, Doing};
 pub use sections::{
-    ActorSection, ClusterSection, Curriculum, DeviceName, EvalSection, Exploration, LearnerSection,
-    LabelSearch, ReplaySection, SimSection, TeacherLabels, TeacherLoss, TeacherPolicy, TeacherSection,
+    ActorSection, ClusterSection, Curriculum, DeviceName, EvalSection, Exploration, LabelSearch,
+    LearnerSection, ReplaySection, SimSection, TeacherLabels, TeacherLoss, TeacherPolicy,
+    TeacherSection,
 };
 
 /// `sim.observation_mode`: the records' enum, so that `summary.json` names

@@ -132,5 +132,6 @@ impl Teacher {
 
 /// The teacher `t`'s planner for the world of `env`.
 fn planner(t: &TeacherSection, env: &VecEnv) -> Planner {
-    Planner::new(env, t.planner_sight()).with_depth_first_labels(t.label_search == LabelSearch::Depth)
+    Planner::new(env, t.planner_sight())
+        .with_depth_first_labels(t.label_search == LabelSearch::Depth)
 }
