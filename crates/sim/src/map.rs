@@ -565,9 +565,7 @@ impl Geo {
         mut f: impl FnMut(usize) -> bool,
     ) -> bool {
         let h = cell / 2.0;
-        // A rectangle off the grid's length, or more than a cell beyond its
-        // lane's walls (another lane's), has no cell here: skipped whole
-        // (the planner asks this of every obstacle of every lane).
+        // Off the grid's length or a cell past its lane's walls: no cell here.
         let x_end = self.x0 + self.nx as f32 * cell;
         if hi[0] + h < self.x0
             || lo[0] - h >= x_end
