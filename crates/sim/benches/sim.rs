@@ -1,9 +1,12 @@
 //! Criterion micro-benchmarks of the simulator: batched depth rendering and
-//! one full environment step, at 1 and 50 agents.
+//! one full environment step, at 1 and 50 agents; a teacher's labels of 16
+//! agents on L4's movers (and with L5's hold and goal), searched breadth
+//! first and depth first (`teacher.label_search`).
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use rotorhive_sim::{
-    Arena, CameraPose, CameraSpec, DepthRenderer, GenParams, Scene, SimConfig, VecEnv,
+    Arena, CameraPose, CameraSpec, DepthRenderer, GenParams, Goal, Planner, Scene, Sight,
+    SimConfig, VecEnv,
 };
 
 fn bench(c: &mut Criterion) {
@@ -38,5 +41,40 @@ fn bench(c: &mut Criterion) {
     }
 }
 
-criterion_group!(benches, bench);
+/// Every agent's label (`Planner::label`, horizon 10, the planner of every
+/// obstacle) after 20 steps on an L4 layout, without and with L5's hold
+/// action and goal, breadth first against depth first.
+fn labels(c: &mut Criterion) {
+    let params = GenParams {
+        length: 60.0,
+        spacing: 3.0,
+        per_row: 2,
+        box_half_y: [0.6, 1.5],
+        cylinder_radius: [0.4, 1.0],
+        min_gap: 1.2,
+        require_path: true,
+        moving_share: 0.3,
+        moving_speed: [0.2, 0.6],
+        ..GenParams::default()
+    };
+    let arena = Arena::generate("bench-moving", 3, &params);
+    for (name, hold_goal) in [("L4", false), ("L5", true)] {
+        let goal = Goal { enabled: hold_goal, ..Goal::default() };
+        let cfg = SimConfig { agents: 16, hold_action: hold_goal, goal, ..SimConfig::default() };
+        let mut env = VecEnv::new(cfg, arena.clone(), 1).unwrap();
+        for t in 0..20usize {
+            let a: Vec<u8> = (0..16).map(|i| ((t + i) % 2) as u8).collect();
+            env.step(&a).unwrap();
+        }
+        for depth_first in [false, true] {
+            let mut planner = Planner::new(&env, Sight::All).with_depth_first_labels(depth_first);
+            let search = if depth_first { "depth" } else { "breadth" };
+            c.bench_function(&format!("labels {name} 16 agents {search}"), |b| {
+                b.iter(|| (0..16).filter_map(|i| planner.label(&env, i, 10)).count())
+            });
+        }
+    }
+}
+
+criterion_group!(benches, bench, labels);
 criterion_main!(benches);

@@ -33,11 +33,6 @@ mod search;
 use search::passes;
 use search::{clear_way, search};
 
-/// Width of the grid cells that merge states (m of lateral position).
-const CELL_Y: f32 = 0.05;
-/// Points per action at which a path is tested (more are added near a
-/// moving obstacle).
-const POINTS: usize = 10;
 /// Margins added to the drone's radius in the search (m), widest first:
 /// a way through with room for the model's error where there is one.
 const MARGINS: [f32; 3] = [0.15, 0.05, 0.0];
@@ -416,13 +411,13 @@ impl Planner {
         let seen = (sight != Sight::All).then(|| Geometry::new(&in_view(env, i, sight, watched)));
         let geometry = seen.as_ref().unwrap_or(&self.geometry);
         let actions = env.config().shapes().actions as u8;
+        let horizon = horizon.max(1);
         for &margin in margins {
             let mut safe = Vec::new();
             for a in 0..actions {
                 if safe.len() >= enough {
                     break;
                 }
-                let horizon = horizon.max(1);
                 let clear = if depth_first {
                     clear_way(geometry, env, i, margin, horizon, a)
                 } else {

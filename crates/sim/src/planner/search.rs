@@ -6,10 +6,16 @@ use std::collections::HashSet;
 
 use rapier3d::math::Vector;
 
-use super::{CELL_Y, Node, POINTS, Plan};
+use super::{Node, Plan};
 use crate::Goal;
 use crate::env::VecEnv;
 use crate::geometry::Geometry;
+
+/// Width of the grid cells that merge states (m of lateral position).
+const CELL_Y: f32 = 0.05;
+/// Points per action at which a path is tested (more are added near a
+/// moving obstacle).
+const POINTS: usize = 10;
 
 /// The kinematic model of one search for agent `i` of `env` (see the
 /// module's comment): where each action from a node leads, and whether
