@@ -45,18 +45,7 @@ fn bench(c: &mut Criterion) {
 /// obstacle) after 20 steps on an L4 layout, without and with L5's hold
 /// action and goal, breadth first against depth first.
 fn labels(c: &mut Criterion) {
-    let params = GenParams {
-        length: 60.0,
-        spacing: 3.0,
-        per_row: 2,
-        box_half_y: [0.6, 1.5],
-        cylinder_radius: [0.4, 1.0],
-        min_gap: 1.2,
-        require_path: true,
-        moving_share: 0.3,
-        moving_speed: [0.2, 0.6],
-        ..GenParams::default()
-    };
+    let params = GenParams::l4_rows(60.0);
     let arena = Arena::generate("bench-moving", 3, &params);
     for (name, hold_goal) in [("L4", false), ("L5", true)] {
         let goal = Goal { enabled: hold_goal, ..Goal::default() };

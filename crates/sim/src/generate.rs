@@ -127,6 +127,25 @@ pub struct GenParamError {
 const REDRAWS: usize = 50;
 
 impl GenParams {
+    /// L4 `moving`'s rows (`configs/levels/moving.toml`: L1's rows with
+    /// three in ten obstacles moving) over `length` metres; the planner's
+    /// tests and the labels bench generate from it.
+    pub fn l4_rows(length: f32) -> Self {
+        Self {
+            length,
+            spacing: 3.0,
+            per_row: 2,
+            box_half_x: [0.3, 1.0],
+            box_half_y: [0.6, 1.5],
+            cylinder_radius: [0.4, 1.0],
+            min_gap: 1.2,
+            require_path: true,
+            moving_share: 0.3,
+            moving_speed: [0.2, 0.6],
+            ..Self::default()
+        }
+    }
+
     /// Checks every value the generator relies on.
     pub fn validate(&self) -> Result<(), GenParamError> {
         let bad = |key, message: String| Err(GenParamError { key, message });

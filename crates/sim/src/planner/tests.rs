@@ -34,27 +34,9 @@ fn first_episodes(
     done.into_iter().flatten().collect()
 }
 
-/// L4's generator over `length` m: rows every 3 m, three in ten obstacles
-/// moving at 0.2-0.6 m/s, a path through the still ones.
-fn l4_rows(length: f32) -> GenParams {
-    GenParams {
-        length,
-        spacing: 3.0,
-        per_row: 2,
-        box_half_x: [0.3, 1.0],
-        box_half_y: [0.6, 1.5],
-        cylinder_radius: [0.4, 1.0],
-        min_gap: 1.2,
-        require_path: true,
-        moving_share: 0.3,
-        moving_speed: [0.2, 0.6],
-        ..GenParams::default()
-    }
-}
-
 #[test]
 fn the_planner_flies_through_moving_obstacles_that_a_blind_flight_meets() {
-    let params = l4_rows(80.0);
+    let params = GenParams::l4_rows(80.0);
     let (mut flown, mut blind, mut episodes, mut hopeless) = ([0; 5], 0, 0, 0);
     for seed in 0..4 {
         let arena = Arena::generate("moving", seed, &params);
@@ -264,7 +246,7 @@ fn every_sight_reads_back_by_its_name_and_takes_a_memory_only_if_it_remembers() 
 /// 2,643 of them clear).
 #[test]
 fn the_labels_depth_first_search_answers_as_the_breadth_first_one() {
-    let params = l4_rows(60.0);
+    let params = GenParams::l4_rows(60.0);
     let (mut agree, mut asked, mut clear) = (0usize, 0usize, 0usize);
     for (seed, hold_goal) in [(0, false), (1, true)] {
         let arena = Arena::generate("moving", seed, &params);
