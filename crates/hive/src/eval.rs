@@ -11,7 +11,8 @@ use clap::{Args, ValueEnum};
 use rotorhive_model::{Layers, PolicyNet, Shapes};
 use rotorhive_roles::Config;
 use rotorhive_roles::evaluation::{
-    Agreement, EpisodeLog, EvalStats, LogSpec, Pilot, agreement, fly_layouts_logged, layout_spread,
+    Agreement, EpisodeLog, EvalStats, LogSpec, NEAR_M, Near, Pilot, agreement, fly_layouts_logged,
+    layout_spread,
 };
 use rotorhive_sim::{Arena, Sight, SimConfig};
 
@@ -464,6 +465,19 @@ fn report_found(a: &EvalArgs, (layouts, stats): (&[Arena], &[EvalStats]), found:
             g.before_crash.1,
             g.no_way
         );
+        // Where movers came near: the decisive steps by what the drone's
+        // tracker held of the nearest one.
+        if g.decisive_near[1..].iter().any(|p| p.1 > 0) {
+            let parts: Vec<String> = Near::ALL
+                .iter()
+                .zip(g.decisive_near)
+                .map(|(n, p)| format!("{} {} of {}", n.name(), pct(p), p.1))
+                .collect();
+            println!(
+                "  decisive steps by the nearest mover within {NEAR_M} m (as its track stood): {}",
+                parts.join(", ")
+            );
+        }
     }
 }
 
@@ -478,6 +492,11 @@ fn agreement_json(g: &Agreement, sight: Sight) -> serde_json::Value {
         "decisive": dec, "decisive_steps": n_dec,
         "before_crash": crash, "before_crash_steps": n_crash,
         "no_way_steps": g.no_way,
+        "decisive_by_nearest_mover": Near::ALL.iter().zip(g.decisive_near).map(|(n, p)| {
+            let (share, steps) = pair(p);
+            (n.name().to_string(), serde_json::json!({ "share": share, "steps": steps }))
+        }).collect::<serde_json::Map<_, _>>(),
+        "nearest_mover_m": NEAR_M,
         "horizon": AUDIT_HORIZON,
     })
 }

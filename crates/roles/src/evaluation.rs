@@ -9,7 +9,9 @@ use crate::error::Result;
 
 mod record;
 use record::Recorder;
-pub use record::{Agreement, EpisodeLog, LAST_STEPS, LogSpec, Trap, agreement, traps};
+pub use record::{
+    Agreement, EpisodeLog, LAST_STEPS, LogSpec, NEAR_M, Near, Trap, agreement, traps,
+};
 use rotorhive_model::PolicyNet;
 use rotorhive_sim::{Arena, Done, Planner, Sight, SimConfig, VecEnv};
 

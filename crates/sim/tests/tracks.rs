@@ -229,3 +229,28 @@ fn tracked_runs_are_the_same_bits_for_a_seed() {
     };
     assert_eq!(run(), run());
 }
+
+#[test]
+fn the_nearest_mover_is_the_truths_at_the_worlds_time() {
+    let mut env = env(3, 10.0, false);
+    for at in [[2.0, 0.0, 3.0], [8.0, 1.0, 3.0], [15.0, -2.0, 3.0]] {
+        hold(&mut env, at);
+        let (t, p) = (env.time(), env.positions()[0]);
+        // The distance in x and y from the drone to each mover's box
+        // (both 0.3 m a half side), where the arena's clock puts it.
+        let to = |k: usize| {
+            let c = truth(&env, k, t);
+            let dx = ((c[0] - p[0]).abs() - 0.3).max(0.0);
+            let dy = ((c[1] - p[1]).abs() - 0.3).max(0.0);
+            dx.hypot(dy)
+        };
+        let want = if to(B) < to(C) { (B, to(B)) } else { (C, to(C)) };
+        let (k, d) = env.nearest_mover(0).expect("the arena has movers");
+        assert_eq!(k, want.0, "from {at:?} at {t} s");
+        assert!((d - want.1).abs() < 1e-4, "from {at:?}: {d} against {}", want.1);
+    }
+    // The still box is no mover; an arena without movers has none.
+    let cfg = SimConfig { agents: 1, forward_speed: 0.0, ..SimConfig::default() };
+    let still = Arena { obstacles: vec![arena().obstacles[0].clone()], ..arena() };
+    assert_eq!(VecEnv::new(cfg, still, 1).unwrap().nearest_mover(0), None);
+}

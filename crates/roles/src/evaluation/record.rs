@@ -15,6 +15,59 @@ pub const LAST_STEPS: usize = 5;
 /// A trap holds the ends of episodes within this distance of each other (m).
 const TRAP_SPAN: f32 = 1.0;
 
+/// A moving obstacle this near the drone (m, to its box in x and y) puts
+/// a judged step in its [`Near`] class: about two steps' flight.
+pub const NEAR_M: f32 = 3.0;
+
+/// What the drone's tracker held of the moving obstacle nearest it at a
+/// judged step (within [`NEAR_M`]): where in the audit a pilot parts from
+/// its planner, by what its observation could tell of the mover.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Near {
+    /// No moving obstacle within [`NEAR_M`].
+    #[default]
+    None,
+    /// One within reach that no track holds (never shown by the camera,
+    /// or forgotten).
+    Unseen,
+    /// Tracked, without a velocity (seen once, or not twice lately).
+    Glimpsed,
+    /// Tracked with a velocity, never seen to turn.
+    Moving,
+    /// Tracked with a velocity and seen to turn (or go round).
+    Turned,
+}
+
+impl Near {
+    /// Every class, in the order of [`Agreement::decisive_near`].
+    pub const ALL: [Near; 5] =
+        [Near::None, Near::Unseen, Near::Glimpsed, Near::Moving, Near::Turned];
+
+    /// Its name in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Near::None => "none",
+            Near::Unseen => "unseen",
+            Near::Glimpsed => "glimpsed",
+            Near::Moving => "moving",
+            Near::Turned => "turned",
+        }
+    }
+
+    /// Agent `i`'s class now in `env`.
+    fn of(env: &VecEnv, i: usize) -> Self {
+        let Some((k, _)) = env.nearest_mover(i).filter(|&(_, d)| d <= NEAR_M) else {
+            return Near::None;
+        };
+        match env.tracks_of(i).iter().find(|t| t.obstacle == k) {
+            None => Near::Unseen,
+            Some(t) if t.velocity.is_none() => Near::Glimpsed,
+            Some(t) if t.turned() || t.curved => Near::Turned,
+            Some(_) => Near::Moving,
+        }
+    }
+}
+
 /// What a logged flight keeps.
 #[derive(Debug, Clone, Copy)]
 pub struct LogSpec {
@@ -40,6 +93,8 @@ pub struct EpisodeLog {
     /// With an auditor, per step: how many actions the planner allows
     /// there (0: none keeps a way) and whether the pilot's was one of them.
     pub judged: Vec<(u8, bool)>,
+    /// With an auditor, per judged step: the nearest mover's [`Near`].
+    pub near: Vec<Near>,
 }
 
 impl EpisodeLog {
@@ -85,6 +140,7 @@ impl Recorder {
             if let Some(p) = self.auditor.as_mut() {
                 let allowed = p.allowed(env, i, self.spec.horizon);
                 log.judged.push((allowed.len() as u8, allowed.contains(&actions[i])));
+                log.near.push(Near::of(env, i));
             }
         }
     }
@@ -179,6 +235,9 @@ pub struct Agreement {
     pub before_crash: (usize, usize),
     /// Steps where no action keeps a way (in the planner's model).
     pub no_way: usize,
+    /// The decisive steps by the nearest mover's [`Near`] class, in the
+    /// order of [`Near::ALL`].
+    pub decisive_near: [(usize, usize); 5],
 }
 
 impl Agreement {
@@ -205,6 +264,9 @@ pub fn agreement(logs: &[EpisodeLog]) -> Agreement {
             add(&mut a.all, ok);
             if allowed == 1 {
                 add(&mut a.decisive, ok);
+                let near = log.near.get(k).copied().unwrap_or_default();
+                let class = Near::ALL.iter().position(|&n| n == near).unwrap_or(0);
+                add(&mut a.decisive_near[class], ok);
             }
             if k >= crash_from {
                 add(&mut a.before_crash, ok);
@@ -261,5 +323,24 @@ mod tests {
         assert_eq!(a.before_crash, (3, 4));
         assert_eq!(Agreement::share(a.all), Some(7.0 / 9.0));
         assert_eq!(Agreement::share((0, 0)), None);
+        // No mover classes logged: every decisive step counts as `none`.
+        assert_eq!(a.decisive_near, [(3, 5), (0, 0), (0, 0), (0, 0), (0, 0)]);
+    }
+
+    #[test]
+    fn decisive_steps_are_split_by_the_nearest_movers_class() {
+        use Near::*;
+        let log = EpisodeLog {
+            done: Some(Done::Collision),
+            judged: vec![(1, true), (1, false), (2, false), (1, false), (1, true), (0, false)],
+            near: vec![None, Unseen, Moving, Moving, Turned, Glimpsed],
+            ..EpisodeLog::default()
+        };
+        let a = agreement(&[log]);
+        // The step of two allowed actions (moving) and the one of none
+        // (glimpsed) are not decisive.
+        assert_eq!(a.decisive_near, [(1, 1), (0, 1), (0, 0), (0, 1), (1, 1)]);
+        let total = a.decisive_near.iter().fold((0, 0), |s, p| (s.0 + p.0, s.1 + p.1));
+        assert_eq!(total, a.decisive);
     }
 }

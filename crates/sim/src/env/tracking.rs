@@ -72,6 +72,28 @@ impl VecEnv {
         self.trackers.as_ref().map_or(crate::tracks::UNSEEN_REACH_M, |t| t.spec().unseen_reach_m)
     }
 
+    /// The moving obstacle nearest agent `i` in its own lane at the
+    /// world's present time: its index in the scene (as a [`Track`] names
+    /// it) and the distance in x and y from the drone to its bounding box
+    /// (m, 0 inside it); `None` where the lane has no movers. The truth,
+    /// for instruments (`hive eval --agree`), never an observation.
+    pub fn nearest_mover(&self, i: usize) -> Option<(usize, f32)> {
+        let p = self.drones[i].p;
+        let lane = self.lane_bounds.get(self.agent_lane[i]).copied();
+        let t = self.time();
+        self.scene
+            .movers
+            .iter()
+            .map(|&(k, base, motion)| (k as usize, base.moved(motion.offset(t)).aabb()))
+            .filter(|(_, (lo, hi))| lane.is_none_or(|[y0, y1]| hi.y > y0 && lo.y < y1))
+            .map(|(k, (lo, hi))| {
+                let dx = (lo.x - p.x).max(p.x - hi.x).max(0.0);
+                let dy = (lo.y - p.y).max(p.y - hi.y).max(0.0);
+                (k, dx.hypot(dy))
+            })
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+    }
+
     /// Whether the environment tracks the movers its cameras see.
     pub fn tracks_movers(&self) -> bool {
         self.trackers.is_some()
