@@ -231,6 +231,14 @@ fn the_checkpoint_is_diagnosed_on_its_training_layouts(dir: &std::path::Path, ck
     for k in ["all", "decisive", "before_crash"] {
         assert!(g[k].is_null() || (0.0..=1.0).contains(&g[k].as_f64().unwrap()), "{g}");
     }
+    // The decisive steps by the nearest mover: every one in a class; with
+    // no movers in these layouts, all in `none`.
+    let near = g["decisive_by_nearest_mover"].as_object().unwrap();
+    let steps = |k: &str| near[k]["steps"].as_u64().unwrap();
+    let total: u64 =
+        ["none", "unseen", "glimpsed", "moving", "turned"].iter().map(|k| steps(k)).sum();
+    assert_eq!(total, g["decisive_steps"].as_u64().unwrap(), "{g}");
+    assert_eq!(steps("none"), total, "{g}");
 }
 
 fn fails_with(args: &[&str], needles: &[&str]) {
