@@ -39,7 +39,8 @@ pub enum Near {
 }
 
 impl Near {
-    /// Every class, in the order of [`Agreement::decisive_near`].
+    /// Every class, in the order of [`Agreement::decisive_near`] (each at
+    /// its discriminant).
     pub const ALL: [Near; 5] =
         [Near::None, Near::Unseen, Near::Glimpsed, Near::Moving, Near::Turned];
 
@@ -265,8 +266,7 @@ pub fn agreement(logs: &[EpisodeLog]) -> Agreement {
             if allowed == 1 {
                 add(&mut a.decisive, ok);
                 let near = log.near.get(k).copied().unwrap_or_default();
-                let class = Near::ALL.iter().position(|&n| n == near).unwrap_or(0);
-                add(&mut a.decisive_near[class], ok);
+                add(&mut a.decisive_near[near as usize], ok);
             }
             if k >= crash_from {
                 add(&mut a.before_crash, ok);

@@ -7,6 +7,7 @@
 use super::VecEnv;
 use crate::SimConfig;
 use crate::render::CameraPose;
+use crate::render::scene::beyond;
 use crate::tracks::{Track, Trackers};
 
 /// Every agent's tracker, where the config has tracks.
@@ -85,7 +86,7 @@ impl VecEnv {
             .movers
             .iter()
             .map(|&(k, base, motion)| (k as usize, base.moved(motion.offset(t)).aabb()))
-            .filter(|(_, (lo, hi))| lane.is_none_or(|[y0, y1]| hi.y > y0 && lo.y < y1))
+            .filter(|&(_, (lo, hi))| lane.is_none_or(|walls| !beyond(walls, lo, hi)))
             .map(|(k, (lo, hi))| {
                 let dx = (lo.x - p.x).max(p.x - hi.x).max(0.0);
                 let dy = (lo.y - p.y).max(p.y - hi.y).max(0.0);

@@ -274,7 +274,7 @@ impl Scene {
 
 /// Whether an obstacle's bounds `[min, max]` lie beyond a camera's side
 /// `walls` (another lane's obstacles, the walls themselves).
-pub(super) fn beyond(walls: [f32; 2], min: Vector, max: Vector) -> bool {
+pub(crate) fn beyond(walls: [f32; 2], min: Vector, max: Vector) -> bool {
     max.y <= walls[0] || min.y >= walls[1]
 }
 
