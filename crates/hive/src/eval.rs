@@ -176,6 +176,7 @@ pub(crate) fn map_sets(m: &rotorhive_sim::MapSpec) -> Vec<String> {
         format!("sim.map.ray_range_m={:?}", m.ray_range_m),
         format!("sim.map.keep_s={:?}", m.keep_s),
         format!("sim.map.band={}", m.band),
+        format!("sim.map.movers_ahead_s={:?}", m.movers_ahead_s),
     ]
 }
 

@@ -70,6 +70,12 @@ pub struct MapSpec {
     /// Rows of each frame read, about its middle (0: every row): the band
     /// at the flight's altitude.
     pub band: usize,
+    /// The `rays` encoding's directions cast again, once for each of these
+    /// times ahead (s), through the seen movers (`[sim.tracks]`) as their
+    /// tracks alone predict them then (`Track::predicted`, as the map's
+    /// planner takes them): `rays` distances each, after the map's (empty:
+    /// none). The same information as the tracks, in the rays' form.
+    pub movers_ahead_s: Vec<f32>,
 }
 
 impl Default for MapSpec {
@@ -82,6 +88,7 @@ impl Default for MapSpec {
             ray_range_m: 10.0,
             keep_s: 0.0,
             band: 4,
+            movers_ahead_s: Vec::new(),
         }
     }
 }
@@ -103,7 +110,7 @@ impl MapSpec {
         match self.encoding {
             MapEncoding::None => 0,
             MapEncoding::Grid => self.window * self.window,
-            MapEncoding::Rays => 2 * self.rays,
+            MapEncoding::Rays => (2 + self.movers_ahead_s.len()) * self.rays,
         }
     }
 
@@ -138,6 +145,18 @@ impl MapSpec {
         if self.band > 1024 {
             return Err(("band", format!("must be 0 (every row) to 1024 rows, got {}", self.band)));
         }
+        let ahead = &self.movers_ahead_s;
+        if !ahead.is_empty() && self.encoding != MapEncoding::Rays {
+            return Err(("movers_ahead_s", "needs `encoding = \"rays\"`".into()));
+        }
+        if ahead.len() > MAX_AHEAD || !ahead.iter().all(|s| (0.0..=MAX_AHEAD_S).contains(s)) {
+            return Err((
+                "movers_ahead_s",
+                format!(
+                    "must hold at most {MAX_AHEAD} times in [0, {MAX_AHEAD_S}] s, got {ahead:?}"
+                ),
+            ));
+        }
         if self.floats() > rotorhive_msg::MAX_MAP_FLOATS {
             return Err((
                 "encoding",
@@ -151,6 +170,10 @@ impl MapSpec {
         Ok(())
     }
 }
+
+/// The most times ahead of `movers_ahead_s`, and the furthest (s).
+pub const MAX_AHEAD: usize = 8;
+pub const MAX_AHEAD_S: f32 = 30.0;
 
 /// The longest a sighting may be kept (s): stamps count frames modulo
 /// [`STAMPS`], and an age must stay under it.
@@ -362,7 +385,8 @@ impl Maps {
     }
 
     /// Writes agent `i`'s map as its observation reads it (`out`:
-    /// [`MapSpec::floats`]) for a drone at `p` heading `yaw` (rad).
+    /// [`MapSpec::floats`]; the movers ahead, after it, are the
+    /// environment's to write) for a drone at `p` heading `yaw` (rad).
     pub(crate) fn encode(&self, i: usize, p: Vector, yaw: f32, out: &mut [f32]) {
         let s = &self.spec;
         let map = self.reader(i);
@@ -370,8 +394,13 @@ impl Maps {
         match s.encoding {
             MapEncoding::None => {}
             MapEncoding::Grid => read_window(&map, p, (c, sn), s, out),
-            MapEncoding::Rays => cast_rays(&map, &self.dirs, p, (c, sn), s, out),
+            MapEncoding::Rays => cast_rays(&map, &self.dirs, p, (c, sn), s, &mut out[..2 * s.rays]),
         }
+    }
+
+    /// The `rays` encoding's directions from the heading (cos, sin).
+    pub(crate) fn dirs(&self) -> &[(f32, f32)] {
+        &self.dirs
     }
 }
 

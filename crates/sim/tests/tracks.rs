@@ -254,3 +254,92 @@ fn the_nearest_mover_is_the_truths_at_the_worlds_time() {
     let still = Arena { obstacles: vec![arena().obstacles[0].clone()], ..arena() };
     assert_eq!(VecEnv::new(cfg, still, 1).unwrap().nearest_mover(0), None);
 }
+
+/// Ray `k` of `rays` (counter-clockwise from +x: the drone faces along x)
+/// from `p` to the first of the true boxes `boxes` (centre, half sides),
+/// as a share of `range` (1: none within it): worked out here by marching
+/// in 1 mm steps, independent of the environment's slab test.
+fn marched(p: [f32; 2], k: usize, rays: usize, boxes: &[([f32; 2], f32)], range: f32) -> f32 {
+    let a = std::f32::consts::TAU * k as f32 / rays as f32;
+    let (dx, dy) = (a.cos(), a.sin());
+    let steps = (range * 1000.0) as usize;
+    (0..steps)
+        .map(|s| s as f32 / 1000.0)
+        .find(|&r| {
+            let (x, y) = (p[0] + r * dx, p[1] + r * dy);
+            boxes.iter().any(|(c, h)| (x - c[0]).abs() <= *h && (y - c[1]).abs() <= *h)
+        })
+        .map_or(1.0, |r| r / range)
+}
+
+#[test]
+fn the_rays_through_the_movers_ahead_meet_them_where_they_will_be_once_watched() {
+    let (rays, range, ahead) = (72, 20.0, [0.0f32, 2.0]);
+    let map = MapSpec {
+        encoding: MapEncoding::Rays,
+        rays,
+        ray_range_m: range,
+        movers_ahead_s: ahead.to_vec(),
+        ..MapSpec::default()
+    };
+    let tracks = TrackSpec { count: 3, ..TrackSpec::default() };
+    let cfg = SimConfig { agents: 1, forward_speed: 0.0, tracks, map, ..SimConfig::default() };
+    let mut env = VecEnv::new(cfg, arena(), 1).unwrap();
+    assert_eq!(env.config().shapes().map, 4 * rays, "the map's two sets, then one a time ahead");
+    assert_eq!(env.obs_len(), 2 * 32 * 32 + 3 + 4 * rays + 3 * TRACK_FLOATS);
+    let (mut met_b, mut met_c) = (0, 0);
+    // c turns at 4 and 8 s (see above): from 9 s on its track predicts it
+    // exactly, so the rays ahead read where the truth puts it.
+    for step in 0..12 {
+        hold(&mut env, [2.0, 0.0, 3.0]);
+        let (t, d) = (env.time(), env.positions()[0]);
+        let mut out = vec![0.0; 4 * rays];
+        env.write_map(0, &mut out);
+        let obs = env.observations();
+        let at = obs.len() - 3 * TRACK_FLOATS - 4 * rays;
+        assert_eq!(&obs[at..at + 4 * rays], &out[..], "the observation holds them");
+        for (h, set) in ahead.iter().zip(out[2 * rays..].chunks(rays)) {
+            let when = t + f64::from(*h);
+            let (b, c) = ((truth(&env, B, when), 0.3), (truth(&env, C, when), 0.3));
+            // b, behind a from here, is never met: nothing of it is known.
+            met_b += usize::from(marched([d[0], d[1]], 0, rays, &[b, c], range) < 1.0);
+            assert_eq!(set[0], 1.0, "step {step}, {h} s ahead: b is unseen");
+            if t >= 9.0 {
+                for (k, got) in set.iter().enumerate() {
+                    let want = marched([d[0], d[1]], k, rays, &[c], range);
+                    assert!(
+                        (got - want).abs() < 2e-4,
+                        "step {step}, {h} s, ray {k}: {got} / {want}"
+                    );
+                }
+            }
+        }
+        met_c += usize::from(out[2 * rays..].iter().any(|v| *v < 1.0));
+    }
+    assert!(met_b > 0, "the truth's b crosses ray 0: the test can see it");
+    assert!(met_c >= 6, "c is met at {met_c} steps of 12");
+    // A new episode forgets them all.
+    env.reset_agents(&[true]).unwrap();
+    hold(&mut env, [60.0, 0.0, 3.0]);
+    let mut out = vec![0.0; 4 * rays];
+    env.write_map(0, &mut out);
+    assert!(out[2 * rays..].iter().all(|v| *v == 1.0), "nothing tracked, nothing met");
+}
+
+#[test]
+fn rays_ahead_without_tracks_or_rays_are_refused_by_key() {
+    let ahead =
+        MapSpec { encoding: MapEncoding::Grid, movers_ahead_s: vec![1.0], ..MapSpec::default() };
+    assert_eq!(ahead.validate().unwrap_err().0, "movers_ahead_s");
+    for bad in [vec![-1.0], vec![f32::NAN], vec![1.0; 9]] {
+        let s = MapSpec { encoding: MapEncoding::Rays, movers_ahead_s: bad, ..MapSpec::default() };
+        assert_eq!(s.validate().unwrap_err().0, "movers_ahead_s");
+    }
+    let fine = MapSpec {
+        encoding: MapEncoding::Rays,
+        movers_ahead_s: vec![0.0, 30.0],
+        ..MapSpec::default()
+    };
+    assert!(fine.validate().is_ok());
+    assert_eq!(fine.floats(), 4 * 36);
+}

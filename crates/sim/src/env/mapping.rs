@@ -53,7 +53,12 @@ impl VecEnv {
         if let Some(m) = &self.maps {
             let d = &self.drones[i];
             let f = d.q * rapier3d::math::Vector::X;
-            m.encode(i, d.p, f.y.atan2(f.x), out);
+            let yaw = f.y.atan2(f.x);
+            m.encode(i, d.p, yaw, out);
+            let s = &self.cfg.map;
+            if !s.movers_ahead_s.is_empty() {
+                self.write_movers_ahead(i, yaw, m.dirs(), &mut out[2 * s.rays..s.floats()]);
+            }
         }
     }
 
