@@ -226,7 +226,7 @@ impl Config {
         section("goal", s.goal.validate())?;
         section("map", s.map.validate())?;
         section("tracks", s.tracks.validate())?;
-        if !s.map.movers_ahead_s.is_empty() && !s.tracks.enabled() {
+        if s.map.enabled() && !s.map.movers_ahead_s.is_empty() && !s.tracks.enabled() {
             return Err(ConfigError::Invalid(
                 "key `sim.map.movers_ahead_s` casts rays through the seen movers, and                  `sim.tracks.count` is 0: set it, or `sim.map.movers_ahead_s = []`"
                     .into(),

@@ -27,7 +27,9 @@ def test_every_level_is_a_vector_environment_with_its_own_lanes(level):
 
 def test_the_moving_level_observes_its_cameras_map_and_seen_movers_and_the_dense_one_neither():
     # configs/levels/moving.toml ships the map's 36 rays and the five
-    # nearest seen movers (since 2026-12-06); L1 keeps the paper's parts.
+    # nearest seen movers (since 2026-12-06), and the 36 rays again through
+    # the movers now and 1, 2, 3 s on (since 2026-12-07); L1 keeps the
+    # paper's parts.
     def parts(level, **sim):
         envs = gym.make_vec(rotorhive.LEVELS[level], num_envs=2, seed=1, **sim)
         obs, _ = envs.reset(seed=1)
@@ -38,7 +40,7 @@ def test_the_moving_level_observes_its_cameras_map_and_seen_movers_and_the_dense
         return {k: v.shape[1:] for k, v in obs.items()}, obs
 
     moving, obs = parts("moving")
-    assert moving["map"] == (72,) and moving["tracks"] == (5 * 14,), moving
+    assert moving["map"] == ((2 + 4) * 36,) and moving["tracks"] == (5 * 14,), moving
     # Rays cast through what the camera saw (1: nothing met within reach):
     # some met an obstacle by now.
     assert (obs["map"] < 0.99).any(), obs["map"]

@@ -335,6 +335,10 @@ fn rays_ahead_without_tracks_or_rays_are_refused_by_key() {
         let s = MapSpec { encoding: MapEncoding::Rays, movers_ahead_s: bad, ..MapSpec::default() };
         assert_eq!(s.validate().unwrap_err().0, "movers_ahead_s");
     }
+    // Without a map they are read by nothing (an evaluation turns L4's
+    // map off so): not refused, no floats.
+    let off = MapSpec { movers_ahead_s: vec![1.0], ..MapSpec::default() };
+    assert_eq!((off.validate(), off.floats()), (Ok(()), 0));
     let fine = MapSpec {
         encoding: MapEncoding::Rays,
         movers_ahead_s: vec![0.0, 30.0],

@@ -116,7 +116,9 @@ def _spaces(depth: tuple[int, int], goal: bool, frames: int = 2, map_floats: int
     if map_floats:
         # The camera's map (``[sim.map]``): an egocentric grid of cells (0
         # unknown, 1/3 free, 2/3 wall, 1 obstacle) or rays through it (to the
-        # first obstacle, then to the first unknown cell, shares of their reach).
+        # first obstacle, then to the first unknown cell, shares of their reach),
+        # then, with ``movers_ahead_s``, the same rays through the seen movers
+        # where their tracks put them at each time ahead.
         parts["map"] = spaces.Box(0.0, 1.0, (map_floats,), np.float32)
     if tracks_floats:
         # The seen movers (``[sim.tracks]``), nearest first, 14 floats each:
