@@ -317,3 +317,25 @@ fn the_teachers_sight_is_the_planners_by_name_and_remembers_its_key() {
     let e = format!("{:#}", set(&["teacher.sight=\"psychic\""]).unwrap_err());
     assert!(e.contains("teacher.sight") && e.contains("pixels-memory"), "{e}");
 }
+
+#[test]
+fn the_rays_through_the_movers_ahead_need_the_maps_rays_and_the_tracks() {
+    let load =
+        |sets: &[&str]| Config::load(None, &sets.iter().map(|s| s.to_string()).collect::<Vec<_>>());
+    let ahead = "sim.map.movers_ahead_s=[0.0, 1.0]";
+    let rays = "sim.map.encoding=\"rays\"";
+    let c = load(&[rays, "sim.tracks.count=5", ahead]).unwrap();
+    assert_eq!(c.shapes().map, (2 + 2) * 36, "the map's two sets, then one a time ahead");
+    for (sets, needle) in [
+        (&[rays, ahead][..], "`sim.map.movers_ahead_s` casts rays through the seen movers"),
+        (&["sim.map.encoding=\"grid\"", "sim.tracks.count=5", ahead], "sim.map.movers_ahead_s"),
+        (&[rays, "sim.tracks.count=5", "sim.map.movers_ahead_s=[-1.0]"], "sim.map.movers_ahead_s"),
+    ] {
+        let e = format!("{:#}", load(sets).unwrap_err());
+        assert!(e.contains(needle), "{sets:?}: {e}");
+    }
+    // Without a map they are read by nothing: no floats, no refusal (an
+    // evaluation turns L4's map and tracks off so).
+    let off = load(&["sim.map.encoding=\"none\"", ahead]).unwrap();
+    assert_eq!(off.shapes().map, 0);
+}

@@ -228,7 +228,8 @@ impl Config {
         section("tracks", s.tracks.validate())?;
         if s.map.enabled() && !s.map.movers_ahead_s.is_empty() && !s.tracks.enabled() {
             return Err(ConfigError::Invalid(
-                "key `sim.map.movers_ahead_s` casts rays through the seen movers, and                  `sim.tracks.count` is 0: set it, or `sim.map.movers_ahead_s = []`"
+                "key `sim.map.movers_ahead_s` casts rays through the seen movers, and \
+                 `sim.tracks.count` is 0: set it, or `sim.map.movers_ahead_s = []`"
                     .into(),
             ));
         }
