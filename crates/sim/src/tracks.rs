@@ -19,6 +19,7 @@ use rapier3d::math::Vector;
 use std::f32::consts::TAU;
 
 use crate::arena::{Motion, Obstacle};
+use crate::render::scene::{Shape, hit_shape};
 
 /// Floats of one track in an observation: present (1), the position at its
 /// last sighting relative to the drone (body frame, tens of metres, 2),
@@ -343,78 +344,21 @@ impl Track {
     }
 }
 
-/// A mover's floor plan where its track puts it at one time: what the
-/// rays of `sim.map.movers_ahead_s` meet.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) enum Outline {
-    /// A box's, from `lo` to `hi`.
-    Rect { lo: [f32; 2], hi: [f32; 2] },
-    /// A cylinder's, centre `c` and radius `r`.
-    Round { c: [f32; 2], r: f32 },
-}
-
-impl Outline {
-    /// The floor plan of `o` where it stands (its motion ignored).
-    pub(crate) fn of(o: &Obstacle) -> Self {
-        match *o {
-            Obstacle::Box { center: c, half_extents: h, .. } => {
-                Outline::Rect { lo: [c[0] - h[0], c[1] - h[1]], hi: [c[0] + h[0], c[1] + h[1]] }
-            }
-            Obstacle::Cylinder { center: c, radius, .. } => {
-                Outline::Round { c: [c[0], c[1]], r: radius }
-            }
-        }
-    }
-
-    /// How far along the unit direction `d` from `o` the outline is first
-    /// met (0 from inside it; infinite where never).
-    pub(crate) fn hit(&self, o: [f32; 2], d: [f32; 2]) -> f32 {
-        match *self {
-            Outline::Rect { lo, hi } => {
-                let (mut near, mut far) = (0.0f32, f32::INFINITY);
-                for k in 0..2 {
-                    if d[k].abs() < 1e-9 {
-                        if o[k] < lo[k] || o[k] > hi[k] {
-                            return f32::INFINITY;
-                        }
-                    } else {
-                        let (a, b) = ((lo[k] - o[k]) / d[k], (hi[k] - o[k]) / d[k]);
-                        near = near.max(a.min(b));
-                        far = far.min(a.max(b));
-                    }
-                }
-                if near <= far { near } else { f32::INFINITY }
-            }
-            Outline::Round { c, r } => {
-                let oc = [o[0] - c[0], o[1] - c[1]];
-                let b = oc[0] * d[0] + oc[1] * d[1];
-                let cc = oc[0] * oc[0] + oc[1] * oc[1] - r * r;
-                if cc <= 0.0 {
-                    return 0.0;
-                }
-                let disc = b * b - cc;
-                let t = -b - disc.max(0.0).sqrt();
-                if disc >= 0.0 && t >= 0.0 { t } else { f32::INFINITY }
-            }
-        }
-    }
-}
-
 /// Casts `dirs` (cos, sin from the heading, counter-clockwise) turned by
-/// the heading `(cos, sin)` from `p` through `outlines`: `out[k]` the
-/// distance along ray `k` to the first, divided by `range` (1: none
-/// within it).
+/// the heading `(cos, sin)` level from `p` through `shapes` (the
+/// renderers' ray tests): `out[k]` the distance along ray `k` to the
+/// first, divided by `range` (1: none within it).
 pub(crate) fn cast_through(
-    outlines: &[Outline],
-    p: [f32; 2],
+    shapes: &[Shape],
+    p: Vector,
     (c, sn): (f32, f32),
     dirs: &[(f32, f32)],
     range: f32,
     out: &mut [f32],
 ) {
     for (&(ca, sa), o) in dirs.iter().zip(out) {
-        let d = [c * ca - sn * sa, sn * ca + c * sa];
-        let near = outlines.iter().map(|s| s.hit(p, d)).fold(range, f32::min);
+        let d = Vector::new(c * ca - sn * sa, sn * ca + c * sa, 0.0);
+        let near = shapes.iter().fold(range, |t, s| hit_shape(s, p, d, t));
         *o = (near / range).min(1.0);
     }
 }
@@ -548,31 +492,48 @@ mod tests {
     }
 
     #[test]
-    fn an_outline_is_met_where_marching_along_the_ray_first_enters_it() {
+    fn rays_cast_through_shapes_meet_them_where_marching_first_enters_them() {
         let shapes = [
-            Outline::Rect { lo: [2.0, -0.5], hi: [3.0, 1.5] },
-            Outline::Round { c: [-1.5, 2.0], r: 0.7 },
+            Shape::of(&Obstacle::still_box([2.5, 0.5, 3.0], [0.5, 1.0, 3.0])),
+            Shape::of(&Obstacle::still_cylinder([-1.5, 2.0, 3.0], 0.7, 3.0)),
         ];
-        let inside = |s: &Outline, p: [f32; 2]| match *s {
-            Outline::Rect { lo, hi } => (0..2).all(|k| (lo[k]..=hi[k]).contains(&p[k])),
-            Outline::Round { c, r } => (p[0] - c[0]).hypot(p[1] - c[1]) <= r,
+        let inside = |s: &Shape, p: [f32; 2]| match *s {
+            Shape::Box { min, max } => {
+                (min.x..=max.x).contains(&p[0]) && (min.y..=max.y).contains(&p[1])
+            }
+            Shape::Cylinder { cx, cy, r2, .. } => (p[0] - cx).hypot(p[1] - cy) <= r2.sqrt(),
         };
+        let range = 10.0;
         let mut met = 0;
         for (n, o) in [[0.0, 0.0], [2.5, 0.0], [-1.0, 2.2], [4.0, 3.0]].into_iter().enumerate() {
-            for k in 0..72 {
-                let a = TAU * (k as f32 + 0.25 * n as f32) / 72.0;
-                let d = [a.cos(), a.sin()];
-                for s in &shapes {
-                    let got = s.hit(o, d);
+            let dirs: Vec<(f32, f32)> = (0..72)
+                .map(|k| TAU * (k as f32 + 0.25 * n as f32) / 72.0)
+                .map(|a| (a.cos(), a.sin()))
+                .collect();
+            for s in &shapes {
+                let mut got = vec![0.0; dirs.len()];
+                cast_through(
+                    std::slice::from_ref(s),
+                    Vector::new(o[0], o[1], 2.0),
+                    (1.0, 0.0),
+                    &dirs,
+                    range,
+                    &mut got,
+                );
+                for (&(dx, dy), got) in dirs.iter().zip(got) {
                     let want = (0..10_000)
                         .map(|j| j as f32 / 1000.0)
-                        .find(|&r| inside(s, [o[0] + r * d[0], o[1] + r * d[1]]));
+                        .find(|&r| inside(s, [o[0] + r * dx, o[1] + r * dy]));
                     match want {
                         Some(r) => {
                             met += 1;
-                            assert!((got - r).abs() < 2e-3, "{s:?} from {o:?} at {a}: {got} / {r}");
+                            let r = r / range;
+                            assert!(
+                                (got - r).abs() < 2e-4,
+                                "{s:?} from {o:?} along {dx}, {dy}: {got} / {r}"
+                            );
                         }
-                        None => assert!(got.is_infinite(), "{s:?} from {o:?} at {a}: {got}"),
+                        None => assert_eq!(got, 1.0, "{s:?} from {o:?} along {dx}, {dy}"),
                     }
                 }
             }
@@ -581,7 +542,7 @@ mod tests {
         // Cast through both: the nearer, a share of the range.
         let dirs = [(1.0, 0.0), (0.0, 1.0)];
         let mut out = [0.0; 2];
-        cast_through(&shapes, [0.0, 0.0], (1.0, 0.0), &dirs, 10.0, &mut out);
+        cast_through(&shapes, Vector::new(0.0, 0.0, 2.0), (1.0, 0.0), &dirs, range, &mut out);
         assert_eq!(out, [0.2, 1.0]);
     }
 }

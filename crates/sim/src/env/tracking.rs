@@ -7,8 +7,8 @@
 use super::VecEnv;
 use crate::SimConfig;
 use crate::render::CameraPose;
-use crate::render::scene::beyond;
-use crate::tracks::{Outline, Track, Trackers, cast_through};
+use crate::render::scene::{Shape, beyond};
+use crate::tracks::{Track, Trackers, cast_through};
 
 /// Every agent's tracker, where the config has tracks.
 pub(super) fn trackers_of(cfg: &SimConfig) -> Option<Trackers> {
@@ -63,9 +63,9 @@ impl VecEnv {
 
     /// Writes agent `i`'s rays through its seen movers ahead
     /// (`sim.map.movers_ahead_s`): for each time ahead, `dirs` turned by
-    /// its heading `yaw` (rad) cast through every mover it tracks where
-    /// its track alone puts it then ([`Track::predicted`], as the map's
-    /// planner takes it), each distance a share of `sim.map.ray_range_m`
+    /// its heading `yaw` (rad) cast level from the drone through every
+    /// mover it tracks where its track alone puts it then
+    /// ([`Track::predicted`], as the map's planner takes it), each distance a share of `sim.map.ray_range_m`
     /// (1: none within it; all 1 without tracks).
     pub(super) fn write_movers_ahead(
         &self,
@@ -83,11 +83,11 @@ impl VecEnv {
             .iter()
             .map(|track| track.predicted(&world.obstacles[track.obstacle].at(track.last_t), reach))
             .collect();
-        let mut outlines = Vec::with_capacity(predicted.len());
+        let mut shapes = Vec::with_capacity(predicted.len());
         for (&ahead, out) in s.movers_ahead_s.iter().zip(out.chunks_exact_mut(dirs.len())) {
-            outlines.clear();
-            outlines.extend(predicted.iter().map(|o| Outline::of(&o.at(t + f64::from(ahead)))));
-            cast_through(&outlines, [p.x, p.y], (yaw.cos(), yaw.sin()), dirs, s.ray_range_m, out);
+            shapes.clear();
+            shapes.extend(predicted.iter().map(|o| Shape::of(&o.at(t + f64::from(ahead)))));
+            cast_through(&shapes, p, (yaw.cos(), yaw.sin()), dirs, s.ray_range_m, out);
         }
     }
 

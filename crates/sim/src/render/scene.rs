@@ -15,6 +15,24 @@ pub(crate) enum Shape {
 }
 
 impl Shape {
+    /// The exact shape of `o` where it stands (its motion ignored).
+    pub(crate) fn of(o: &Obstacle) -> Self {
+        match *o {
+            Obstacle::Box { center, half_extents, .. } => {
+                let c = Vector::from(center);
+                let h = Vector::from(half_extents);
+                Shape::Box { min: c - h, max: c + h }
+            }
+            Obstacle::Cylinder { center, radius, half_height, .. } => Shape::Cylinder {
+                cx: center[0],
+                cy: center[1],
+                r2: radius * radius,
+                zmin: center[2] - half_height,
+                zmax: center[2] + half_height,
+            },
+        }
+    }
+
     /// The same shape moved by `(dx, dy)`.
     pub(crate) fn moved(&self, [dx, dy]: [f32; 2]) -> Self {
         match *self {
@@ -70,24 +88,7 @@ const CELL: f32 = 2.0;
 impl Scene {
     /// Builds the scene and its grid index from an arena.
     pub fn new(arena: &Arena) -> Self {
-        let mut shapes: Vec<Shape> = arena
-            .obstacles
-            .iter()
-            .map(|o| match *o {
-                Obstacle::Box { center, half_extents, .. } => {
-                    let c = Vector::from(center);
-                    let h = Vector::from(half_extents);
-                    Shape::Box { min: c - h, max: c + h }
-                }
-                Obstacle::Cylinder { center, radius, half_height, .. } => Shape::Cylinder {
-                    cx: center[0],
-                    cy: center[1],
-                    r2: radius * radius,
-                    zmin: center[2] - half_height,
-                    zmax: center[2] + half_height,
-                },
-            })
-            .collect();
+        let mut shapes: Vec<Shape> = arena.obstacles.iter().map(Shape::of).collect();
         let hw = arena.width / 2.0;
         let x0 = -CELL;
         let y0 = -hw - CELL;
@@ -307,7 +308,7 @@ pub(super) fn planes([y0, y1]: [f32; 2], height: f32, o: Vector, d: Vector) -> f
 
 /// Ray parameter of the first hit of a shape, or `tmax` when none is nearer.
 #[inline]
-pub(super) fn hit_shape(shape: &Shape, o: Vector, d: Vector, tmax: f32) -> f32 {
+pub(crate) fn hit_shape(shape: &Shape, o: Vector, d: Vector, tmax: f32) -> f32 {
     match *shape {
         Shape::Box { min, max } => hit_box(min, max, o, d, tmax),
         Shape::Cylinder { cx, cy, r2, zmin, zmax } => {
