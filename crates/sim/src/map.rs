@@ -247,6 +247,13 @@ impl Maps {
     }
 }
 
+/// A ray's direction `(cos, sin)`: the heading `(c, sn)` turned by the
+/// ray's angle `(ca, sa)` (counter-clockwise).
+#[inline]
+pub(crate) fn turned((c, sn): (f32, f32), (ca, sa): (f32, f32)) -> (f32, f32) {
+    (c * ca - sn * sa, sn * ca + c * sa)
+}
+
 /// The `rays` encoding of one agent's map (`map`) for a drone at `p`
 /// heading `(cos, sin)`: `out` holds the distances to the first obstacle
 /// or wall, then to the first unknown cell, of each of `dirs` turned by
@@ -288,8 +295,7 @@ fn cast_rays(
         let (mut fx, mut fy) = ([-1i32; BATCH], [0i32; BATCH]);
         let (mut sx, mut sy) = ([0i32; BATCH], [0i32; BATCH]);
         for (l, &(ca, sa)) in chunk.iter().enumerate() {
-            // The ray's direction: the heading turned by its angle.
-            let (dx, dy) = (c * ca - sn * sa, sn * ca + c * sa);
+            let (dx, dy) = turned((c, sn), (ca, sa));
             (fx[l], fy[l]) = (fixed(ox + dx * 0.5), fixed(oy + dy * 0.5 + 1.0));
             (sx[l], sy[l]) = (fixed(dx), fixed(dy));
         }

@@ -19,6 +19,7 @@ use rapier3d::math::Vector;
 use std::f32::consts::TAU;
 
 use crate::arena::{Motion, Obstacle};
+use crate::map::turned;
 use crate::render::scene::{Shape, hit_shape};
 
 /// Floats of one track in an observation: present (1), the position at its
@@ -351,13 +352,14 @@ impl Track {
 pub(crate) fn cast_through(
     shapes: &[Shape],
     p: Vector,
-    (c, sn): (f32, f32),
+    heading: (f32, f32),
     dirs: &[(f32, f32)],
     range: f32,
     out: &mut [f32],
 ) {
-    for (&(ca, sa), o) in dirs.iter().zip(out) {
-        let d = Vector::new(c * ca - sn * sa, sn * ca + c * sa, 0.0);
+    for (&ray, o) in dirs.iter().zip(out) {
+        let (dx, dy) = turned(heading, ray);
+        let d = Vector::new(dx, dy, 0.0);
         let near = shapes.iter().fold(range, |t, s| hit_shape(s, p, d, t));
         *o = (near / range).min(1.0);
     }

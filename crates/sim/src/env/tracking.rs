@@ -83,11 +83,12 @@ impl VecEnv {
             .iter()
             .map(|track| track.predicted(&world.obstacles[track.obstacle].at(track.last_t), reach))
             .collect();
+        let heading = (yaw.cos(), yaw.sin());
         let mut shapes = Vec::with_capacity(predicted.len());
         for (&ahead, out) in s.movers_ahead_s.iter().zip(out.chunks_exact_mut(dirs.len())) {
             shapes.clear();
             shapes.extend(predicted.iter().map(|o| Shape::of(&o.at(t + f64::from(ahead)))));
-            cast_through(&shapes, p, (yaw.cos(), yaw.sin()), dirs, s.ray_range_m, out);
+            cast_through(&shapes, p, heading, dirs, s.ray_range_m, out);
         }
     }
 
